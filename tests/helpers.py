@@ -1,0 +1,57 @@
+"""Shared test helpers: tree comparison and finite-difference gradient checks."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def tree_allclose(x, y, *, rtol=1e-5, atol=1e-8) -> bool:
+    """True if two PyTrees have the same structure and allclose leaves."""
+    xl, xs = jax.tree_util.tree_flatten(x)
+    yl, ys = jax.tree_util.tree_flatten(y)
+    if xs != ys:
+        return False
+    return all(np.allclose(a, b, rtol=rtol, atol=atol) for a, b in zip(xl, yl))
+
+
+def fd_grad(f, x, eps=1e-6):
+    """Central finite-difference gradient of scalar ``f`` at array ``x`` (float64)."""
+    x = np.asarray(x, dtype=float)
+    g = np.zeros_like(x)
+    flat = x.reshape(-1)
+    for i in range(flat.size):
+        h = eps * max(1.0, abs(flat[i]))
+        xp, xm = flat.copy(), flat.copy()
+        xp[i] += h
+        xm[i] -= h
+        g.reshape(-1)[i] = (float(f(jnp.asarray(xp.reshape(x.shape))))
+                            - float(f(jnp.asarray(xm.reshape(x.shape))))) / (2 * h)
+    return g
+
+
+def assert_grad_matches_fd(f, x, *, rtol=1e-4, atol=1e-8, eps=1e-6):
+    """Assert ``jax.grad(f)(x)`` is finite and matches central differences."""
+    x = jnp.asarray(x, dtype=float)
+    g = np.asarray(jax.grad(f)(x))
+    assert np.all(np.isfinite(g)), f"non-finite gradient {g}"
+    g_fd = fd_grad(f, x, eps)
+    np.testing.assert_allclose(g, g_fd, rtol=rtol, atol=atol)
+    return g
+
+
+def module_grad_matches_fd(f, module, fields, *, rtol=1e-4, atol=1e-8, eps=1e-6):
+    """Check d f(module) / d module.<field> against finite differences for each named field."""
+    import equinox as eqx
+
+    for name in fields:
+        x0 = jnp.asarray(getattr(module, name), dtype=float)
+
+        def g(x, name=name):
+            return f(eqx.tree_at(lambda m: getattr(m, name), module, x))
+
+        try:
+            assert_grad_matches_fd(g, x0, rtol=rtol, atol=atol, eps=eps)
+        except AssertionError as e:
+            raise AssertionError(f"gradient wrt {name}: {e}") from None

@@ -1,0 +1,35 @@
+"""vehsim: a differentiable vehicle simulator in JAX (after Tsiotras, 2004).
+
+The public API is flat: everything a user needs is importable from ``vehsim``.
+"""
+
+from . import params as params
+from .params import PRESETS as PRESETS, preset as preset
+from .tire.distributed import DistributedLuGre as DistributedLuGre
+from .tire.load import (
+    AbstractLoadDistribution as AbstractLoadDistribution,
+    PolynomialLoad as PolynomialLoad,
+    QuarticLoad as QuarticLoad,
+    TabulatedLoad as TabulatedLoad,
+    TrapezoidalLoad as TrapezoidalLoad,
+    UniformLoad as UniformLoad,
+)
+from .tire.lugre import (
+    AbstractLongitudinalTire as AbstractLongitudinalTire,
+    LuGreParams as LuGreParams,
+    LumpedLuGre as LumpedLuGre,
+    PointLuGre as PointLuGre,
+    decay_rate as decay_rate,
+    relative_velocity as relative_velocity,
+    stribeck as stribeck,
+)
+from .tire.steady_state import (
+    braking_mu_uniform as braking_mu_uniform,
+    driving_mu_uniform as driving_mu_uniform,
+    steady_state_mu as steady_state_mu,
+    z_ss as z_ss,
+)
+from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
+
+
+__version__ = "0.1.0"

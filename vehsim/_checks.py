@@ -1,0 +1,73 @@
+"""Input validation shared by every parameter module.
+
+Checks run at construction (``__check_init__``) on concrete values only: inside ``jit`` or
+``vmap`` the fields are tracers and the checks are skipped, so validated presets can be
+batched and differentiated freely.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+
+
+def is_concrete(x) -> bool:
+    """True when ``x`` holds concrete numbers (not a tracer)."""
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _values(x) -> np.ndarray | None:
+    if not is_concrete(x):
+        return None
+    return np.asarray(x, dtype=float)
+
+
+def check_finite(owner: str, name: str, x) -> None:
+    """Raise ``ValueError`` if ``x`` has a NaN or inf."""
+    v = _values(x)
+    if v is not None and not np.all(np.isfinite(v)):
+        raise ValueError(f"{owner}.{name} must be finite, got {v}")
+
+
+def check_range(
+    owner: str,
+    name: str,
+    x,
+    *,
+    lower: float = -math.inf,
+    upper: float = math.inf,
+    lower_open: bool = False,
+    upper_open: bool = False,
+) -> None:
+    """Raise ``ValueError`` naming the field and the allowed range if ``x`` is outside it."""
+    v = _values(x)
+    if v is None:
+        return
+    check_finite(owner, name, x)
+    lo_ok = np.all(v > lower) if lower_open else np.all(v >= lower)
+    hi_ok = np.all(v < upper) if upper_open else np.all(v <= upper)
+    if not (lo_ok and hi_ok):
+        lb = "(" if lower_open else "["
+        ub = ")" if upper_open else "]"
+        raise ValueError(
+            f"{owner}.{name} must lie in {lb}{lower}, {upper}{ub}, got {v if v.ndim else float(v)}"
+        )
+
+
+def check_positive(owner: str, name: str, x) -> None:
+    check_range(owner, name, x, lower=0.0, lower_open=True)
+
+
+def check_nonnegative(owner: str, name: str, x) -> None:
+    check_range(owner, name, x, lower=0.0)
+
+
+def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
+    """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
+    a, b = _values(x_small), _values(x_big)
+    if a is None or b is None:
+        return
+    if not np.all(a <= b):
+        raise ValueError(f"{owner} needs {small} <= {big}, got {small}={a}, {big}={b}")

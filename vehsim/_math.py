@@ -1,0 +1,49 @@
+"""Numerically safe elementary functions: finite values *and* finite gradients everywhere.
+
+Each uses the double-``where`` trick: the unsafe branch is evaluated on a harmless
+substitute input where it would be singular, so neither the value nor the cotangent
+carries a NaN.
+"""
+
+import jax.numpy as jnp
+
+
+def safe_abs(x):
+    """|x| with derivative sign(x) (0 at x = 0)."""
+    return jnp.where(x == 0, jnp.zeros_like(x), jnp.abs(x))
+
+
+def safe_sign(x):
+    """sgn(x) with sgn(0) = 0 and zero derivative."""
+    return jnp.sign(x)
+
+
+def safe_pow_abs(x, p):
+    """|x|**p for p > 0, with value and gradient 0 at x = 0 (in x and in p)."""
+    is_zero = x == 0
+    x_safe = jnp.where(is_zero, jnp.ones_like(x), jnp.abs(x))
+    return jnp.where(is_zero, jnp.zeros_like(x_safe * p), x_safe**p)
+
+
+def safe_norm(x, axis=-1):
+    """Euclidean norm with zero gradient (not NaN) at the origin."""
+    sq = jnp.sum(x * x, axis=axis)
+    is_zero = sq == 0
+    sq_safe = jnp.where(is_zero, jnp.ones_like(sq), sq)
+    return jnp.where(is_zero, jnp.zeros_like(sq), jnp.sqrt(sq_safe))
+
+
+def safe_div(num, den, fill=0.0):
+    """num / den, equal to ``fill`` (with zero gradient) where den == 0."""
+    is_zero = den == 0
+    den_safe = jnp.where(is_zero, jnp.ones_like(den), den)
+    return jnp.where(is_zero, jnp.full_like(num / den_safe, fill), num / den_safe)
+
+
+def one_minus_exp_over(x):
+    """(1 - exp(-x)) / x for x >= 0, equal to 1 at x = 0; smooth, with a series near 0."""
+    small = x < 1e-4
+    x_safe = jnp.where(small, jnp.ones_like(x), x)
+    exact = -jnp.expm1(-x_safe) / x_safe
+    series = 1.0 - x / 2.0 + x * x / 6.0 - x * x * x / 24.0
+    return jnp.where(small, series, exact)

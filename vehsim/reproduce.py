@@ -1,0 +1,81 @@
+"""`vehsim reproduce`: regenerate the report's figures and tables into one folder.
+
+Each part of the report contributes a *section*: a module listed in `SECTIONS` with a
+``TITLE`` and a function ``reproduce(ctx)``. A section draws its figures with
+`ReproduceContext.figure`, writes tables and text with `ReproduceContext.text`, and records
+numbers with `ReproduceContext.record`; `run` writes ``report.md`` and ``results.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from ._io import save_figure, write_atomic, write_json
+
+
+SECTIONS: tuple[str, ...] = (
+    "vehsim.tire._reproduce_longitudinal",
+)
+
+
+@dataclasses.dataclass
+class ReproduceContext:
+    """What a section gets: where to write, how much work to do, and the report to fill."""
+
+    out: Path
+    quick: bool
+    lines: list[str] = dataclasses.field(default_factory=list)
+    results: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def text(self, *lines: str) -> None:
+        self.lines.extend(lines)
+        self.lines.append("")
+
+    def figure(self, fig, name: str, caption: str) -> Path:
+        import matplotlib.pyplot as plt
+
+        path = save_figure(fig, self.out / f"{name}.png")
+        plt.close(fig)
+        self.lines += [f"![{caption}]({name}.png)", "", f"*{caption}*", ""]
+        self.log(f"wrote {path}")
+        return path
+
+    def record(self, key: str, value: Any) -> None:
+        self.results[key] = value
+
+    def log(self, message: str) -> None:
+        print(f"  {message}", file=sys.stderr, flush=True)
+
+
+def run(out: str | Path = "results", quick: bool = True, only: list[str] | None = None) -> Path:
+    """Run every section (or those whose module name contains one of `only`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = ReproduceContext(out=out, quick=quick)
+    ctx.text(
+        "# vehsim reproduction report",
+        f"Mode: {'quick' if quick else 'full'}. Equation, figure and table numbers refer to "
+        "Tsiotras, *Analysis and Control of High-Speed Wheeled Mobile Robots*, final report, 2004.",
+    )
+    sections = [s for s in SECTIONS if not only or any(o in s for o in only)]
+    if not sections:
+        raise ValueError(f"no section matches {only}; sections: {list(SECTIONS)}")
+    for i, name in enumerate(sections, 1):
+        module = importlib.import_module(name)
+        print(f"[{i}/{len(sections)}] {module.TITLE}", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        ctx.text(f"## {module.TITLE}")
+        module.reproduce(ctx)
+        ctx.record(f"{name}.wall_time_s", round(time.perf_counter() - t0, 2))
+    write_atomic(out / "report.md", "\n".join(ctx.lines))
+    write_json(out / "results.json", ctx.results)
+    print(f"report: {out / 'report.md'}", file=sys.stderr)
+    return out / "report.md"

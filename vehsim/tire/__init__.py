@@ -1,0 +1,1 @@
+"""Tire friction models (report sections 2.2-2.4)."""

@@ -1,0 +1,104 @@
+r"""Driving a tire model through prescribed $v(t)$, $\omega(t)$: the transient friction force.
+
+This is the "friction-state ODE driven by measured speeds" of report section 2.2 (used to
+compare models, and by `vehsim.identify` to fit parameters against braking data).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PyTree
+
+from .lugre import AbstractLongitudinalTire
+
+
+class TireSolution(eqx.Module):
+    """Result of `simulate_tire`: states and normalised force at the save times."""
+
+    ts: Float[Array, " T"]
+    state: PyTree
+    mu: Float[Array, " T"]
+    v: Float[Array, " T"]
+    omega: Float[Array, " T"]
+    result: dfx.RESULTS
+    num_steps: Array
+
+
+def as_signal(ts, x) -> Callable:
+    """A callable t -> x(t): ``x`` is a callable already, a constant, or samples on ``ts``."""
+    if callable(x):
+        return x
+    x = jnp.asarray(x, dtype=float)
+    if x.ndim == 0:
+        return lambda t: x
+    if x.shape != jnp.shape(ts):
+        raise ValueError(f"input samples have shape {x.shape}, expected {jnp.shape(ts)} (ts)")
+    return dfx.LinearInterpolation(ts=ts, ys=x).evaluate
+
+
+def simulate_tire(
+    model: AbstractLongitudinalTire,
+    ts: Float[Array, " T"],
+    v,
+    omega,
+    r,
+    state0=None,
+    *,
+    solver: dfx.AbstractSolver | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 100_000,
+    adjoint: dfx.AbstractAdjoint | None = None,
+    throw: bool = True,
+) -> TireSolution:
+    r"""Integrate the friction state of `model` driven by $v(t)$, $\omega(t)$.
+
+    **Arguments:**
+
+    - `model`: any `AbstractLongitudinalTire` (point, lumped, distributed).
+    - `ts`: increasing save times [s]; the solve runs from `ts[0]` to `ts[-1]`.
+    - `v`, `omega`: wheel-centre speed [m/s] and wheel angular speed [rad/s], each a
+      constant, samples on `ts` (linearly interpolated), or a callable of `t`.
+    - `r`: rolling radius [m].
+    - `state0`: initial friction state (default undeflected).
+    - `solver`: diffrax solver (default `Kvaerno5`, implicit: the bristle dynamics are stiff
+      at large slip, rates up to $\theta\sigma_0|v_r|/g \sim 10^4$ 1/s).
+    - `throw`: raise if the solve fails; with `throw=False` check `result`.
+
+    **Returns:** a `TireSolution` with `mu` $=F/F_n$ at `ts`.
+    """
+    ts = jnp.asarray(ts, dtype=float)
+    v_fn, omega_fn = as_signal(ts, v), as_signal(ts, omega)
+    y0 = model.init_state() if state0 is None else state0
+    sampled = not (callable(v) and callable(omega))
+
+    def vector_field(t, y, args):
+        return model.dynamics(y, v_fn(t), omega_fn(t), r)
+
+    controller = dfx.PIDController(
+        rtol=rtol, atol=atol, jump_ts=ts if sampled and ts.shape[0] <= 20_000 else None
+    )
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field),
+        dfx.Kvaerno5() if solver is None else solver,
+        t0=ts[0],
+        t1=ts[-1],
+        dt0=None,
+        y0=y0,
+        saveat=dfx.SaveAt(ts=ts),
+        stepsize_controller=controller,
+        max_steps=max_steps,
+        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        throw=throw,
+    )
+    vs, oms = jax.vmap(v_fn)(ts), jax.vmap(omega_fn)(ts)
+    mu = jax.vmap(lambda y, a, b: model.mu(y, a, b, r))(sol.ys, vs, oms)
+    return TireSolution(
+        ts=ts, state=sol.ys, mu=mu, v=vs, omega=oms, result=sol.result,
+        num_steps=sol.stats["num_steps"],
+    )
