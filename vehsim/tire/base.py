@@ -31,5 +31,5 @@ class AbstractTire(eqx.Module):
         """Time derivative of the friction state (zeros of shape ``(0,)`` if static)."""
 
     @abc.abstractmethod
-    def forces(self, state: PyTree, vx, vy, omega, r, Fz) -> Float[Array, "3"]:
+    def forces(self, state: PyTree, vx, vy, omega, r, Fz) -> Float[Array, 3]:
         """``(F_x, F_y, M_z)`` on the tire, wheel frame [N, N, N m]."""

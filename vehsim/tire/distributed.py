@@ -164,13 +164,19 @@ class DistributedLuGre(AbstractLongitudinalTire):
         r"""$\bar z = \frac{1}{F_n}\int_0^L z f_n\,d\zeta$ (eq. 20) [m]."""
         return self.w_q @ state
 
+    def kappa_times_mean_deflection(self, state):
+        r"""$\kappa\bar z = \bigl([z q]_0^1 - \int_0^1 z\,q'\,d\xi\bigr)/L$ (eq. 24 times $\bar z$):
+        the transport term of eq. 22, finite even where $\bar z$ crosses zero."""
+        num = state[-1] * self.q_end - state[0] * self.load.q(jnp.zeros(())) - self.w_dq @ state
+        return num / self.params.L
+
     def kappa(self, state):
         r"""Exact $\kappa(t)$ of eq. 24 [1/m]:
         $\kappa = \bigl([z q]_0^1 - \int_0^1 z\,q'\,d\xi\bigr)/(L\bar z)$ (0 where $\bar z = 0$)."""
         zbar = self.mean_deflection(state)
-        num = state[-1] * self.q_end - state[0] * self.load.q(jnp.zeros(())) - self.w_dq @ state
+        num = self.kappa_times_mean_deflection(state)
         is_zero = zbar == 0
-        return jnp.where(is_zero, 0.0, num / (self.params.L * jnp.where(is_zero, 1.0, zbar)))
+        return jnp.where(is_zero, 0.0, num / jnp.where(is_zero, 1.0, zbar))
 
     def steady_state(self, v, omega, r):
         """Discrete steady state for constant inputs (one linear solve)."""

@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._math import one_minus_exp_over, safe_abs
-from .lugre import LuGreParams, relative_velocity, stribeck
 from .load import AbstractLoadDistribution
+from .lugre import LuGreParams, relative_velocity, stribeck
 
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
