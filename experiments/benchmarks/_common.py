@@ -1,0 +1,40 @@
+"""Shared timing helpers for the benchmarks (JSON lines on stdout)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import jax
+
+
+def emit(**record) -> None:
+    """Print one JSON line (the benchmark's output format)."""
+    print(json.dumps(record), flush=True)
+
+
+def block(x):
+    return jax.tree_util.tree_map(lambda a: a.block_until_ready() if hasattr(a, "block_until_ready")
+                                  else a, x)
+
+
+def best_time(fn, *args, repeats: int = 5) -> float:
+    """Best wall time of ``fn(*args)`` over ``repeats`` runs (after one warm-up call)."""
+    block(fn(*args))
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        block(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def compile_time(fn, *args) -> float:
+    t0 = time.perf_counter()
+    block(fn(*args))
+    return time.perf_counter() - t0
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
