@@ -1,0 +1,251 @@
+r"""A realistic Khepera plant and the closed-loop simulation at the 50 Hz control rate.
+
+Each control sample (period $T = 1/50$ s, zero-order hold):
+
+1. *measure*: the pose is read from encoder odometry (wheel travel quantised to
+   12 pulses/mm, dead reckoning with the midpoint heading) plus Gaussian sensor noise;
+2. *control*: the controller maps $(t, \hat p)$ to $(v, \omega)$, turned into wheel
+   speeds $v_{L,R} = v \mp \omega b/2$;
+3. *command*: quantised to the Khepera speed unit (one pulse per 10 ms, 8.33 mm/s) and
+   saturated at 127 units (1.06 m/s), then sent through a transport delay of $d$ samples;
+4. *plant*: over `substeps` sub-steps each wheel follows its command through its own
+   first-order motor lag $\tau_{L,R}$ (the on-board PID loop), and the pose moves along
+   the exact unicycle arc of the wheel speeds.
+
+Every effect has a switch (boolean array field), and `ideal_plant()` turns all off (the
+ZOH remains: it is the control rate). Values not in the report are marked **unverified**
+(../shared/spec/parameters.md): wheel base 53 mm, speed unit, saturation; the motor time
+constants, delay and noise levels are modelling choices.
+
+`simulate` runs one closed loop; `simulate_grid` runs controllers x systems x initial poses x
+seeds in one vmapped, jitted call, with the controllers selected by `lax.switch` on an
+index (all their gains in one PyTree) and only the scoring statistics kept per run.
+"""
+
+from __future__ import annotations
+
+import functools as ft
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from .controllers import AbstractController
+from .scoring import RunStats
+from .unicycle import AbstractSystem, body_velocity, unicycle_step, wheel_speeds
+
+
+MAX_DELAY = 8
+"""Length of the command delay buffer (largest allowed `delay_samples`)."""
+
+
+def _f(default):
+    return eqx.field(converter=jnp.asarray, default=default)
+
+
+class KheperaPlant(eqx.Module):
+    r"""Khepera robot seen through its serial link (report 2.1).
+
+    **Fields** (SI units):
+
+    - `sample_time` [s]: control period, 0.02 (50 Hz, report).
+    - `wheel_base` [m]: 0.053 (**unverified**, spec).
+    - `pulses_per_meter` [1/m]: encoder resolution, 12 000 (12 pulses/mm, report).
+    - `speed_unit` [m/s]: speed-command quantum, one pulse per 10 ms = 1/120 m/s
+      (**unverified**, spec).
+    - `speed_limit` [m/s]: wheel-speed saturation, 127 units = 1.058 m/s (**unverified**).
+    - `motor_time_constant` [s]: first-order lag of the (left, right) wheel, (0.06, 0.09):
+      different on purpose, as the report says the two motors differ.
+    - `delay_samples` [-]: transport delay of the commands in samples (integer, 0..8), 2.
+    - `noise_position` [m], `noise_heading` [rad]: standard deviations of the sensor noise
+      added to the measured pose, 0.2 mm and 0.2 deg.
+    - switches `motor_dynamics`, `delay`, `quantization` (speed commands), `saturation`,
+      `encoders` (odometry from quantised encoder counts; off = the true pose is measured),
+      `noise`: booleans.
+    """
+
+    sample_time: Float[Array, ""] = _f(0.02)
+    wheel_base: Float[Array, ""] = _f(0.053)
+    pulses_per_meter: Float[Array, ""] = _f(12_000.0)
+    speed_unit: Float[Array, ""] = _f(1.0 / 120.0)
+    speed_limit: Float[Array, ""] = _f(127.0 / 120.0)
+    motor_time_constant: Float[Array, "2"] = _f((0.06, 0.09))
+    delay_samples: Array = _f(2)
+    noise_position: Float[Array, ""] = _f(0.0002)
+    noise_heading: Float[Array, ""] = _f(0.2 * 3.141592653589793 / 180)
+    motor_dynamics: Array = _f(True)
+    delay: Array = _f(True)
+    quantization: Array = _f(True)
+    saturation: Array = _f(True)
+    encoders: Array = _f(True)
+    noise: Array = _f(True)
+
+    def __check_init__(self):
+        owner = "KheperaPlant"
+        for name in ("sample_time", "wheel_base", "pulses_per_meter", "speed_unit",
+                     "speed_limit", "motor_time_constant"):
+            check_positive(owner, name, getattr(self, name))
+        check_range(owner, "delay_samples", self.delay_samples, lower=0, upper=MAX_DELAY)
+        if is_concrete(self.delay_samples) and not jnp.issubdtype(
+                jnp.asarray(self.delay_samples).dtype, jnp.integer):
+            raise ValueError(f"KheperaPlant.delay_samples must be an integer in [0, "
+                             f"{MAX_DELAY}], got {self.delay_samples}")
+        check_nonnegative(owner, "noise_position", self.noise_position)
+        check_nonnegative(owner, "noise_heading", self.noise_heading)
+
+
+def realistic_plant(**changes) -> KheperaPlant:
+    """The Khepera plant with every effect on (fields can be overridden)."""
+    return KheperaPlant(**changes)
+
+
+def ideal_plant(**changes) -> KheperaPlant:
+    """The plant with every effect off: ZOH at 50 Hz on the exact unicycle."""
+    off = dict(motor_dynamics=False, delay=False, quantization=False, saturation=False,
+               encoders=False, noise=False)
+    off.update(changes)
+    return KheperaPlant(**off)
+
+
+class RobotRun(eqx.Module):
+    """One closed-loop run: samples at the control rate (`ts`, true `pose`, `measured` pose,
+    `command` (v, omega)), the true `final_pose`, and the scoring statistics `stats`."""
+
+    ts: Float[Array, " n"] | None
+    pose: Float[Array, "n 3"] | None
+    measured: Float[Array, "n 3"] | None
+    command: Float[Array, "n 2"] | None
+    final_pose: Float[Array, "3"]
+    stats: RunStats
+
+
+def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
+                 save: bool) -> RobotRun:
+    pose0 = jnp.asarray(pose0, dtype=float)
+    dtype = pose0.dtype
+    T = plant.sample_time
+    h = T / substeps
+    b = plant.wheel_base
+    lag = jnp.where(plant.motor_dynamics, -jnp.expm1(-h / plant.motor_time_constant), 1.0)
+    delay = jnp.where(plant.delay, plant.delay_samples, 0)
+    sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
+    t_final = n_steps * T
+
+    def count(travel):
+        c = travel * plant.pulses_per_meter
+        return jnp.where(plant.encoders, jnp.floor(c), c)
+
+    def step(carry, k):
+        pose, wheels, buffer, travel, odometry, stats = carry
+        t = k * T
+        estimate = jnp.where(plant.encoders, odometry, pose)
+        noise = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) * sigma
+        measured = estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
+        v, omega = velocity_fn(t, measured)
+        command = jnp.stack([v, omega])
+        wheel_cmd = wheel_speeds(v, omega, b)
+        quantum = plant.speed_unit
+        wheel_cmd = jnp.where(plant.quantization, jnp.round(wheel_cmd / quantum) * quantum,
+                              wheel_cmd)
+        wheel_cmd = jnp.where(plant.saturation,
+                              jnp.clip(wheel_cmd, -plant.speed_limit, plant.speed_limit),
+                              wheel_cmd)
+        buffer = jnp.concatenate([wheel_cmd[None], buffer[:-1]])
+        applied = buffer[delay]
+        counts_before = count(travel)
+
+        def sub(_, state):
+            pose, wheels, travel = state
+            wheels = wheels + lag * (applied - wheels)
+            vv, ww = body_velocity(wheels, b)
+            return unicycle_step(pose, vv, ww, h), wheels, travel + wheels * h
+
+        new_pose, wheels, travel = jax.lax.fori_loop(0, substeps, sub, (pose, wheels, travel))
+        d = (count(travel) - counts_before) / plant.pulses_per_meter
+        ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
+        mid = odometry[2] + 0.5 * dg
+        odometry = odometry + jnp.stack([ds * jnp.cos(mid), ds * jnp.sin(mid), dg])
+        stats = stats.update(t, pose, command)
+        out = (t, pose, measured, command) if save else None
+        return (new_pose, wheels, buffer, travel, odometry, stats), out
+
+    carry0 = (pose0, jnp.zeros(2, dtype), jnp.zeros((MAX_DELAY + 1, 2), dtype),
+              jnp.zeros(2, dtype), pose0, RunStats.init(t_final))
+    carry, out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
+    final_pose, stats = carry[0], carry[5]
+    if save:
+        ts, pose, measured, command = out
+        return RobotRun(ts, pose, measured, command, final_pose, stats)
+    return RobotRun(None, None, None, None, final_pose, stats)
+
+
+@eqx.filter_jit
+def _simulate(controller, system, pose0, key, plant, n_steps, substeps, save):
+    fn = ft.partial(_velocity, controller, system)
+    return _closed_loop(fn, pose0, key, plant, n_steps, substeps, save)
+
+
+def _velocity(controller, system, t, pose):
+    return controller.velocity(t, pose, system)
+
+
+def simulate(controller: AbstractController, system: AbstractSystem, pose0,
+             key: PRNGKeyArray | None = None, plant: KheperaPlant | None = None,
+             t_final: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
+    """Closed loop of one controller on the Khepera plant from `pose0` = (x, y, gamma).
+
+    **Arguments:** `controller`, `system` (System I or II; ignored by controller 4), `pose0`
+    [m, m, rad], `key` (sensor noise; default PRNGKey(0)), `plant` (default: realistic),
+    `t_final` [s] (rounded to whole samples), `substeps` per sample for the motor lag,
+    `save` (keep the sampled trajectory).
+    **Returns:** a `RobotRun`.
+    """
+    plant = realistic_plant() if plant is None else plant
+    key = jax.random.PRNGKey(0) if key is None else key
+    n_steps = int(round(t_final / float(plant.sample_time)))
+    return _simulate(controller, system, jnp.asarray(pose0, dtype=float), key, plant,
+                     n_steps, int(substeps), bool(save))
+
+
+def _grid_velocity(controllers, systems, index, t, pose):
+    branches = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
+    return jax.lax.switch(index, branches, t, pose)
+
+
+@eqx.filter_jit
+def _grid(controllers, systems, ci, si, poses, keys, plant, n_steps, substeps):
+    n_sys = len(systems)
+
+    def one(c, s, pose0, key):
+        fn = ft.partial(_grid_velocity, controllers, systems, c * n_sys + s)
+        run = _closed_loop(fn, pose0, key, plant, n_steps, substeps, False)
+        return run.final_pose, run.stats
+
+    return jax.vmap(one)(ci, si, poses, keys)
+
+
+def simulate_grid(controllers: Sequence[AbstractController],
+                  systems: Sequence[AbstractSystem], poses0, keys,
+                  plant: KheperaPlant | None = None, t_final: float = 40.0,
+                  substeps: int = 4):
+    r"""Every controller x system x initial pose (with its noise key), in one jitted call.
+
+    **Arguments:** `controllers` (C of them), `systems` (S), `poses0` of shape (P, 3) and
+    `keys` of shape (P, 2) (one noise key per initial pose, e.g. missions x seeds
+    flattened), `plant`, `t_final`, `substeps`.
+    **Returns:** `(final_pose, stats)` with leading axes (C, S, P): final true poses and
+    `RunStats` (score them with `vehsim.robot.scoring.score` under `jax.vmap`).
+    """
+    plant = realistic_plant() if plant is None else plant
+    poses0 = jnp.asarray(poses0, dtype=float)
+    C, S, P = len(controllers), len(systems), poses0.shape[0]
+    ci, si, pi = jnp.meshgrid(jnp.arange(C), jnp.arange(S), jnp.arange(P), indexing="ij")
+    ci, si, pi = ci.ravel(), si.ravel(), pi.ravel()
+    n_steps = int(round(t_final / float(plant.sample_time)))
+    final, stats = _grid(tuple(controllers), tuple(systems), ci, si, poses0[pi], keys[pi],
+                         plant, n_steps, int(substeps))
+    return jax.tree_util.tree_map(lambda a: a.reshape((C, S, P) + a.shape[1:]),
+                                  (final, stats))
