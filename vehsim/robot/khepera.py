@@ -216,13 +216,12 @@ def _grid_velocity(controllers, systems, index, t, pose):
 
 
 @eqx.filter_jit
-def _grid(controllers, systems, ci, si, poses, keys, plant, n_steps, substeps):
+def _grid(controllers, systems, ci, si, poses, keys, plant, n_steps, substeps, save):
     n_sys = len(systems)
 
     def one(c, s, pose0, key):
         fn = ft.partial(_grid_velocity, controllers, systems, c * n_sys + s)
-        run = _closed_loop(fn, pose0, key, plant, n_steps, substeps, False)
-        return run.final_pose, run.stats
+        return _closed_loop(fn, pose0, key, plant, n_steps, substeps, save)
 
     return jax.vmap(one)(ci, si, poses, keys)
 
@@ -230,14 +229,15 @@ def _grid(controllers, systems, ci, si, poses, keys, plant, n_steps, substeps):
 def simulate_grid(controllers: Sequence[AbstractController],
                   systems: Sequence[AbstractSystem], poses0, keys,
                   plant: KheperaPlant | None = None, t_final: float = 40.0,
-                  substeps: int = 4):
+                  substeps: int = 4, save: bool = False) -> RobotRun:
     r"""Every controller x system x initial pose (with its noise key), in one jitted call.
 
     **Arguments:** `controllers` (C of them), `systems` (S), `poses0` of shape (P, 3) and
     `keys` of shape (P, 2) (one noise key per initial pose, e.g. missions x seeds
-    flattened), `plant`, `t_final`, `substeps`.
-    **Returns:** `(final_pose, stats)` with leading axes (C, S, P): final true poses and
-    `RunStats` (score them with `vehsim.robot.scoring.score` under `jax.vmap`).
+    flattened), `plant`, `t_final`, `substeps`, `save` (keep trajectories: memory grows as
+    C x S x P x samples, so only for small grids).
+    **Returns:** a `RobotRun` whose fields have leading axes (C, S, P); score its `stats`
+    with `vehsim.robot.scoring.score` under `jax.vmap`.
     """
     plant = realistic_plant() if plant is None else plant
     poses0 = jnp.asarray(poses0, dtype=float)
@@ -245,7 +245,6 @@ def simulate_grid(controllers: Sequence[AbstractController],
     ci, si, pi = jnp.meshgrid(jnp.arange(C), jnp.arange(S), jnp.arange(P), indexing="ij")
     ci, si, pi = ci.ravel(), si.ravel(), pi.ravel()
     n_steps = int(round(t_final / float(plant.sample_time)))
-    final, stats = _grid(tuple(controllers), tuple(systems), ci, si, poses0[pi], keys[pi],
-                         plant, n_steps, int(substeps))
-    return jax.tree_util.tree_map(lambda a: a.reshape((C, S, P) + a.shape[1:]),
-                                  (final, stats))
+    run = _grid(tuple(controllers), tuple(systems), ci, si, poses0[pi], keys[pi], plant,
+                n_steps, int(substeps), bool(save))
+    return jax.tree_util.tree_map(lambda a: a.reshape((C, S, P) + a.shape[1:]), run)

@@ -15,6 +15,8 @@ trajectory (used by the tests on synthetic trajectories).
 
 from __future__ import annotations
 
+import functools as ft
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -157,13 +159,13 @@ def score(stats: RunStats, position: bool = True, heading: bool = True) -> Int[A
     return jnp.where(converged, converged_code, jnp.where(near, 4, 5))
 
 
+@ft.partial(jax.jit, static_argnames=("position", "heading"))
 def score_trajectory(ts, poses, commands, position: bool = True, heading: bool = True):
     """Score a stored trajectory: `ts` (n,), `poses` (n, 3), `commands` (n, 2)."""
-    ts = jnp.asarray(ts, dtype=float)
-    stats = accumulate(ts, poses, commands)
-    return score(stats, position, heading)
+    return score(accumulate(ts, poses, commands), position, heading)
 
 
+@jax.jit
 def accumulate(ts, poses, commands) -> RunStats:
     """`RunStats` of a stored trajectory (the run ends at ts[-1] + (ts[1] - ts[0]))."""
     ts = jnp.asarray(ts, dtype=float)
