@@ -68,7 +68,8 @@ def test_controller1_eq2_and_eta_decay_along_closed_loop():
 def test_controller1_leaves_bad_region_and_never_returns():
     """From the x3-axis (nu = 0, in D^b) the state enters D^g in finite time and stays."""
     c, system = DiscontinuousController(), SystemI()
-    run = simulate(c, system, jnp.array([0.0, 0.1, 0.0]), plant=ideal_plant(), t_final=8.0)
+    run = simulate(c, system, jnp.array([0.0, 0.1, 0.0]), plant=ideal_plant(), t_final=8.0,
+                   substeps=1)
     bad = np.asarray(jax.vmap(lambda p: c.in_bad_region(system.to_chained(p)))(run.pose))
     assert bad[0]
     first_good = np.argmin(bad)
@@ -87,7 +88,8 @@ def test_controller2_inputs_bounded():
     assert np.max(np.abs(u)) <= bound + 1e-12
     assert np.max(np.abs(u)) > 0.75 * bound  # the bound is nearly attained, not loose
     system = SystemI()
-    run = simulate(c, system, jnp.array([-0.6, 0.4, 0.0]), plant=ideal_plant(), t_final=10.0)
+    run = simulate(c, system, jnp.array([-0.6, 0.4, 0.0]), plant=ideal_plant(), t_final=10.0,
+                   substeps=1)
     u_run = jax.vmap(lambda p: c(0.0, system.to_chained(p)))(run.pose)
     assert np.max(np.abs(u_run)) <= bound + 1e-12
 
@@ -135,7 +137,7 @@ def test_ideal_plant_convergence_in_documented_time():
     t_final = max(t for t in DOCUMENTED_TIME.values() if t is not None) + 2.0
     run = simulate_grid(controllers, [SystemI()], GENERIC_POSE[None],
                         jax.random.PRNGKey(0)[None], plant=ideal_plant(), t_final=t_final,
-                        save=True)
+                        substeps=1, save=True)  # no motor lag: one exact arc per sample
     for i, c in enumerate(controllers):
         t_doc = DOCUMENTED_TIME[type(c).__name__]
         if t_doc is None:
@@ -152,7 +154,7 @@ def test_time_varying_polynomial_rate():
     halves when time quadruples, so its 1 mm time is documented as ~1e4 s, not simulated."""
     c = TeelMurrayWalshController()
     run = simulate(c, SystemI(), GENERIC_POSE, plant=ideal_plant(), t_final=1600.0,
-                   save=True)
+                   substeps=1, save=True)
     pos = np.hypot(run.pose[:, 0], run.pose[:, 1])
     e400, e1600 = pos[int(400 / 0.02) - 1], pos[-1]
     assert e400 > 1e-3                       # still not within 1 mm after 400 s

@@ -18,8 +18,9 @@ ZOH remains: it is the control rate). Values not in the report are marked **unve
 constants, delay and noise levels are modelling choices.
 
 `simulate` runs one closed loop; `simulate_grid` runs controllers x systems x initial poses x
-seeds in one vmapped, jitted call, with the controllers selected by `lax.switch` on an
-index (all their gains in one PyTree) and only the scoring statistics kept per run.
+seeds in one jitted call: one `lax.scan` over time whose body advances every
+(controller, system) group vmapped over its runs (all gains in one PyTree), keeping only
+the scoring statistics per run.
 """
 
 from __future__ import annotations
@@ -122,64 +123,73 @@ class RobotRun(eqx.Module):
     stats: RunStats
 
 
-def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
-                 save: bool) -> RobotRun:
-    pose0 = jnp.asarray(pose0, dtype=float)
+def _initial_carry(pose0, t_final):
     dtype = pose0.dtype
+    return (pose0, jnp.zeros(2, dtype), jnp.zeros((MAX_DELAY + 1, 2), dtype),
+            jnp.zeros(2, dtype), pose0, RunStats.init(t_final))
+
+
+def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carry, k):
+    """One control sample of the closed loop (see the module docstring)."""
+    pose, wheels, buffer, travel, odometry, stats = carry
+    dtype = pose.dtype
     T = plant.sample_time
     h = T / substeps
     b = plant.wheel_base
     lag = jnp.where(plant.motor_dynamics, -jnp.expm1(-h / plant.motor_time_constant), 1.0)
     delay = jnp.where(plant.delay, plant.delay_samples, 0)
     sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
-    t_final = n_steps * T
 
     def count(travel):
         c = travel * plant.pulses_per_meter
         return jnp.where(plant.encoders, jnp.floor(c), c)
 
-    def step(carry, k):
-        pose, wheels, buffer, travel, odometry, stats = carry
-        t = k * T
-        estimate = jnp.where(plant.encoders, odometry, pose)
-        noise = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) * sigma
-        measured = estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
-        v, omega = velocity_fn(t, measured)
-        command = jnp.stack([v, omega])
-        wheel_cmd = wheel_speeds(v, omega, b)
-        quantum = plant.speed_unit
-        wheel_cmd = jnp.where(plant.quantization, jnp.round(wheel_cmd / quantum) * quantum,
-                              wheel_cmd)
-        wheel_cmd = jnp.where(plant.saturation,
-                              jnp.clip(wheel_cmd, -plant.speed_limit, plant.speed_limit),
-                              wheel_cmd)
-        buffer = jnp.concatenate([wheel_cmd[None], buffer[:-1]])
-        applied = buffer[delay]
-        counts_before = count(travel)
+    t = k * T
+    estimate = jnp.where(plant.encoders, odometry, pose)
+    noise = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) * sigma
+    measured = estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
+    v, omega = velocity_fn(t, measured)
+    command = jnp.stack([v, omega])
+    wheel_cmd = wheel_speeds(v, omega, b)
+    quantum = plant.speed_unit
+    wheel_cmd = jnp.where(plant.quantization, jnp.round(wheel_cmd / quantum) * quantum,
+                          wheel_cmd)
+    wheel_cmd = jnp.where(plant.saturation,
+                          jnp.clip(wheel_cmd, -plant.speed_limit, plant.speed_limit),
+                          wheel_cmd)
+    buffer = jnp.concatenate([wheel_cmd[None], buffer[:-1]])
+    applied = buffer[delay]
+    counts_before = count(travel)
+    new_pose = pose
+    for _ in range(substeps):  # unrolled: a handful of sub-steps
+        wheels = wheels + lag * (applied - wheels)
+        vv, ww = body_velocity(wheels, b)
+        new_pose = unicycle_step(new_pose, vv, ww, h)
+        travel = travel + wheels * h
+    d = (count(travel) - counts_before) / plant.pulses_per_meter
+    ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
+    mid = odometry[2] + 0.5 * dg
+    odometry = odometry + jnp.stack([ds * jnp.cos(mid), ds * jnp.sin(mid), dg])
+    stats = stats.update(t, pose, command)
+    out = (t, pose, measured, command) if save else None
+    return (new_pose, wheels, buffer, travel, odometry, stats), out
 
-        def sub(_, state):
-            pose, wheels, travel = state
-            wheels = wheels + lag * (applied - wheels)
-            vv, ww = body_velocity(wheels, b)
-            return unicycle_step(pose, vv, ww, h), wheels, travel + wheels * h
 
-        new_pose, wheels, travel = jax.lax.fori_loop(0, substeps, sub, (pose, wheels, travel))
-        d = (count(travel) - counts_before) / plant.pulses_per_meter
-        ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
-        mid = odometry[2] + 0.5 * dg
-        odometry = odometry + jnp.stack([ds * jnp.cos(mid), ds * jnp.sin(mid), dg])
-        stats = stats.update(t, pose, command)
-        out = (t, pose, measured, command) if save else None
-        return (new_pose, wheels, buffer, travel, odometry, stats), out
-
-    carry0 = (pose0, jnp.zeros(2, dtype), jnp.zeros((MAX_DELAY + 1, 2), dtype),
-              jnp.zeros(2, dtype), pose0, RunStats.init(t_final))
-    carry, out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
+def _as_run(carry, out, save) -> RobotRun:
     final_pose, stats = carry[0], carry[5]
     if save:
         ts, pose, measured, command = out
         return RobotRun(ts, pose, measured, command, final_pose, stats)
     return RobotRun(None, None, None, None, final_pose, stats)
+
+
+def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
+                 save: bool) -> RobotRun:
+    pose0 = jnp.asarray(pose0, dtype=float)
+    carry0 = _initial_carry(pose0, n_steps * plant.sample_time)
+    step = ft.partial(_step, velocity_fn, plant, substeps, save, key)
+    carry, out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
+    return _as_run(carry, out, save)
 
 
 @eqx.filter_jit
@@ -210,20 +220,32 @@ def simulate(controller: AbstractController, system: AbstractSystem, pose0,
                      n_steps, int(substeps), bool(save))
 
 
-def _grid_velocity(controllers, systems, index, t, pose):
-    branches = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
-    return jax.lax.switch(index, branches, t, pose)
-
-
 @eqx.filter_jit
-def _grid(controllers, systems, ci, si, poses, keys, plant, n_steps, substeps, save):
-    n_sys = len(systems)
+def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
+    # One scan over time whose body advances every (controller, system) group, each group
+    # vmapped over its P runs. (A lax.switch on a batched controller index would make XLA
+    # evaluate all C x S branches for every run; grouping does only the needed work.)
+    fns = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
+    t_final = n_steps * plant.sample_time
+    carry0 = [jax.vmap(lambda p: _initial_carry(p, t_final))(poses) for _ in fns]
 
-    def one(c, s, pose0, key):
-        fn = ft.partial(_grid_velocity, controllers, systems, c * n_sys + s)
-        return _closed_loop(fn, pose0, key, plant, n_steps, substeps, save)
+    def body(carries, k):
+        new, outs = [], []
+        for fn, carry in zip(fns, carries):
+            step = ft.partial(_step, fn, plant, substeps, save)
+            c, o = jax.vmap(lambda key, cr: step(key, cr, k))(keys, carry)
+            new.append(c)
+            outs.append(o)
+        return new, outs
 
-    return jax.vmap(one)(ci, si, poses, keys)
+    carries, outs = jax.lax.scan(body, carry0, jnp.arange(n_steps))
+    runs = [_as_run(c, o, save) for c, o in zip(carries, outs)]
+    if save:  # scan stacks time first: (n, P, ...) -> (P, n, ...)
+        runs = [eqx.tree_at(lambda r: (r.ts, r.pose, r.measured, r.command), r,
+                            tuple(jnp.swapaxes(a, 0, 1)
+                                  for a in (r.ts, r.pose, r.measured, r.command)))
+                for r in runs]
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *runs)
 
 
 def simulate_grid(controllers: Sequence[AbstractController],
@@ -242,9 +264,7 @@ def simulate_grid(controllers: Sequence[AbstractController],
     plant = realistic_plant() if plant is None else plant
     poses0 = jnp.asarray(poses0, dtype=float)
     C, S, P = len(controllers), len(systems), poses0.shape[0]
-    ci, si, pi = jnp.meshgrid(jnp.arange(C), jnp.arange(S), jnp.arange(P), indexing="ij")
-    ci, si, pi = ci.ravel(), si.ravel(), pi.ravel()
     n_steps = int(round(t_final / float(plant.sample_time)))
-    run = _grid(tuple(controllers), tuple(systems), ci, si, poses0[pi], keys[pi], plant,
-                n_steps, int(substeps), bool(save))
-    return jax.tree_util.tree_map(lambda a: a.reshape((C, S, P) + a.shape[1:]), run)
+    run = _grid(tuple(controllers), tuple(systems), poses0, jnp.asarray(keys), plant, n_steps,
+                int(substeps), bool(save))
+    return jax.tree_util.tree_map(lambda a: a.reshape((C, S) + a.shape[1:]), run)
