@@ -18,9 +18,9 @@ ZOH remains: it is the control rate). Values not in the report are marked **unve
 constants, delay and noise levels are modelling choices.
 
 `simulate` runs one closed loop; `simulate_grid` runs controllers x systems x initial poses x
-seeds in one jitted call: one `lax.scan` over time whose body advances every
-(controller, system) group vmapped over its runs (all gains in one PyTree), keeping only
-the scoring statistics per run.
+seeds in one jitted call: one `lax.scan` over time whose body evaluates each
+(controller, system) group's law vmapped over its runs (all gains in one PyTree) and
+advances the shared plant vmapped over all runs, keeping only the scoring statistics.
 """
 
 from __future__ import annotations
@@ -129,28 +129,30 @@ def _initial_carry(pose0, t_final):
             jnp.zeros(2, dtype), pose0, RunStats.init(t_final))
 
 
-def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carry, k):
-    """One control sample of the closed loop (see the module docstring)."""
+def _measure(plant: KheperaPlant, key, carry, k):
+    """The pose the controller sees at sample k: odometry (or truth) plus sensor noise."""
+    pose, odometry = carry[0], carry[4]
+    sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
+    estimate = jnp.where(plant.encoders, odometry, pose)
+    noise = jax.random.normal(jax.random.fold_in(key, k), (3,), pose.dtype) * sigma
+    return estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
+
+
+def _advance(plant: KheperaPlant, substeps: int, save: bool, carry, k, measured, command):
+    """Apply the command (v, omega) issued at sample k and move the plant one sample."""
     pose, wheels, buffer, travel, odometry, stats = carry
-    dtype = pose.dtype
     T = plant.sample_time
     h = T / substeps
     b = plant.wheel_base
     lag = jnp.where(plant.motor_dynamics, -jnp.expm1(-h / plant.motor_time_constant), 1.0)
     delay = jnp.where(plant.delay, plant.delay_samples, 0)
-    sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
 
     def count(travel):
         c = travel * plant.pulses_per_meter
         return jnp.where(plant.encoders, jnp.floor(c), c)
 
     t = k * T
-    estimate = jnp.where(plant.encoders, odometry, pose)
-    noise = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) * sigma
-    measured = estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
-    v, omega = velocity_fn(t, measured)
-    command = jnp.stack([v, omega])
-    wheel_cmd = wheel_speeds(v, omega, b)
+    wheel_cmd = wheel_speeds(command[0], command[1], b)
     quantum = plant.speed_unit
     wheel_cmd = jnp.where(plant.quantization, jnp.round(wheel_cmd / quantum) * quantum,
                           wheel_cmd)
@@ -160,12 +162,14 @@ def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carr
     buffer = jnp.concatenate([wheel_cmd[None], buffer[:-1]])
     applied = buffer[delay]
     counts_before = count(travel)
-    new_pose = pose
-    for _ in range(substeps):  # unrolled: a handful of sub-steps
+
+    def sub(_, state):
+        pose, wheels, travel = state
         wheels = wheels + lag * (applied - wheels)
         vv, ww = body_velocity(wheels, b)
-        new_pose = unicycle_step(new_pose, vv, ww, h)
-        travel = travel + wheels * h
+        return unicycle_step(pose, vv, ww, h), wheels, travel + wheels * h
+
+    new_pose, wheels, travel = jax.lax.fori_loop(0, substeps, sub, (pose, wheels, travel))
     d = (count(travel) - counts_before) / plant.pulses_per_meter
     ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
     mid = odometry[2] + 0.5 * dg
@@ -173,6 +177,13 @@ def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carr
     stats = stats.update(t, pose, command)
     out = (t, pose, measured, command) if save else None
     return (new_pose, wheels, buffer, travel, odometry, stats), out
+
+
+def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carry, k):
+    """One control sample of the closed loop (see the module docstring)."""
+    measured = _measure(plant, key, carry, k)
+    v, omega = velocity_fn(k * plant.sample_time, measured)
+    return _advance(plant, substeps, save, carry, k, measured, jnp.stack([v, omega]))
 
 
 def _as_run(carry, out, save) -> RobotRun:
@@ -222,30 +233,31 @@ def simulate(controller: AbstractController, system: AbstractSystem, pose0,
 
 @eqx.filter_jit
 def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
-    # One scan over time whose body advances every (controller, system) group, each group
-    # vmapped over its P runs. (A lax.switch on a batched controller index would make XLA
-    # evaluate all C x S branches for every run; grouping does only the needed work.)
+    # One scan over time. Per sample: measure all G x P runs (vmapped), evaluate each
+    # (controller, system) group's law on its own P runs, then advance the shared plant on
+    # all runs (vmapped). A lax.switch on a batched controller index would make XLA evaluate
+    # every law for every run; grouping computes each law only where it is used.
     fns = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
+    G, P = len(fns), poses.shape[0]
     t_final = n_steps * plant.sample_time
-    carry0 = [jax.vmap(lambda p: _initial_carry(p, t_final))(poses) for _ in fns]
+    all_poses = jnp.tile(poses, (G, 1))
+    all_keys = jnp.tile(keys, (G, 1))
+    carry0 = jax.vmap(lambda p: _initial_carry(p, t_final))(all_poses)
 
-    def body(carries, k):
-        new, outs = [], []
-        for fn, carry in zip(fns, carries):
-            step = ft.partial(_step, fn, plant, substeps, save)
-            c, o = jax.vmap(lambda key, cr: step(key, cr, k))(keys, carry)
-            new.append(c)
-            outs.append(o)
-        return new, outs
+    def body(carry, k):
+        measured = jax.vmap(lambda key, c: _measure(plant, key, c, k))(all_keys, carry)
+        t = k * plant.sample_time
+        commands = [jax.vmap(lambda m: jnp.stack(fn(t, m)))(measured[g * P:(g + 1) * P])
+                    for g, fn in enumerate(fns)]
+        command = jnp.concatenate(commands)
+        return jax.vmap(lambda c, m, u: _advance(plant, substeps, save, c, k, m, u))(
+            carry, measured, command)
 
-    carries, outs = jax.lax.scan(body, carry0, jnp.arange(n_steps))
-    runs = [_as_run(c, o, save) for c, o in zip(carries, outs)]
-    if save:  # scan stacks time first: (n, P, ...) -> (P, n, ...)
-        runs = [eqx.tree_at(lambda r: (r.ts, r.pose, r.measured, r.command), r,
-                            tuple(jnp.swapaxes(a, 0, 1)
-                                  for a in (r.ts, r.pose, r.measured, r.command)))
-                for r in runs]
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *runs)
+    carry, out = jax.lax.scan(body, carry0, jnp.arange(n_steps))
+    if save:  # scan stacks time first: (n, G P, ...) -> (G P, n, ...)
+        out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
+    run = _as_run(carry, out, save)
+    return jax.tree_util.tree_map(lambda a: a.reshape((G, P) + a.shape[1:]), run)
 
 
 def simulate_grid(controllers: Sequence[AbstractController],
@@ -263,7 +275,7 @@ def simulate_grid(controllers: Sequence[AbstractController],
     """
     plant = realistic_plant() if plant is None else plant
     poses0 = jnp.asarray(poses0, dtype=float)
-    C, S, P = len(controllers), len(systems), poses0.shape[0]
+    C, S = len(controllers), len(systems)
     n_steps = int(round(t_final / float(plant.sample_time)))
     run = _grid(tuple(controllers), tuple(systems), poses0, jnp.asarray(keys), plant, n_steps,
                 int(substeps), bool(save))
