@@ -12,8 +12,8 @@ system.
 
 Gains are array fields, so a bank of controllers (`default_controllers`) is one PyTree and a
 whole grid of runs is one vmapped, jitted call (`vehsim.robot.khepera.simulate_grid`).
-The "documented time" of each controller (`settle_time`) is the time its closed loop on
-the ideal plant needs to bring the generic pose of the tests to 1 mm and 1 degree.
+The "documented time" of each controller (`DOCUMENTED_TIME`) is the time its closed loop
+on the ideal plant needs to bring the generic pose of the tests to 1 mm and 1 degree.
 """
 
 from __future__ import annotations
@@ -39,6 +39,12 @@ def _safe_den(den):
     """(den with zeros replaced by 1, is_zero): the first half of the double-where trick."""
     zero = den == 0
     return jnp.where(zero, jnp.ones_like(den), den), zero
+
+
+def _safe_sqrt(x):
+    """sqrt(x) for x >= 0 with a zero (not infinite) derivative at x = 0."""
+    zero = x == 0
+    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, jnp.ones_like(x), x)))
 
 
 class AbstractController(eqx.Module):
@@ -195,7 +201,7 @@ class TwoStageController(AbstractChainedController):
         stage1 = w < self.c * jnp.abs(z)
         w_safe, zero = _safe_den(w)
         root = jnp.sqrt(w_safe)
-        speed = self.k1 * jnp.sqrt(jnp.abs(z))
+        speed = self.k1 * _safe_sqrt(jnp.abs(z))
         u_stage1 = jnp.where(zero, jnp.stack([speed, 0 * speed]),
                              speed * jnp.stack([x[0], x[1]]) / root)
         alpha = 2 * self.k * z / w_safe
@@ -218,7 +224,7 @@ class PolarController(AbstractController):
     $\dot V = -\lambda e^2\cos^2\alpha - k\alpha^2$. Smooth in $(e,\alpha,\theta)$ but
     $\theta$ is undefined at $e = 0$: near the goal, sensor noise in $(x, y)$ moves $\theta$
     by large amounts, which shows up as heading oscillations. Gains used: $\lambda = 1$
-    (1/s), $k = 3$ (1/s), $h = 1.5$; `length` [m] is unused here (kept for symmetry).
+    (1/s), $k = 3$ (1/s), $h = 1.5$.
     """
 
     lam: Float[Array, ""] = _field(1.0)
@@ -359,7 +365,7 @@ def homogeneous_norm_newton(x: Chained, steps: int = 6):
     """
     a = x[0] ** 2 + x[1] ** 2
     b = x[2] ** 2
-    r0 = jnp.sqrt(a) + jnp.sqrt(jnp.sqrt(b))
+    r0 = _safe_sqrt(a) + _safe_sqrt(_safe_sqrt(b))
     r0_safe, zero = _safe_den(r0)
 
     def body(_, r):

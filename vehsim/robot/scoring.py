@@ -22,6 +22,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .._math import safe_norm
+
 
 LETTERS = "EGSCOU"
 """Letter of each score code: 0 E, 1 G, 2 S, 3 C, 4 O, 5 U."""
@@ -88,7 +90,7 @@ class RunStats(eqx.Module):
     def update(self, t, pose: Float[Array, "3"], command: Float[Array, "2"]) -> RunStats:
         """Account for the true `pose` at time `t` and the `command` (v, omega) issued then."""
         dt = jnp.asarray(t, dtype=self.t_final.dtype)
-        position_error = jnp.sqrt(pose[0] ** 2 + pose[1] ** 2)
+        position_error = safe_norm(pose[:2])
         heading_error = jnp.abs(_wrap(pose[2]))
         t_out_position = jnp.where(
             position_error > POSITION_TOL, dt, self.t_out_position)
