@@ -167,12 +167,16 @@ def test_no_nan_jacobians_at_singular_points():
     poses = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.05, 0.0, 0.0]])
 
     @jax.jit
-    def jacobians(c):
-        f = lambda p: jnp.stack(c.velocity(1.0, p, system))
-        return jax.vmap(jax.jacfwd(f))(poses), jax.vmap(jax.jacrev(f))(poses)
+    def jacobians(controllers):
+        out = []
+        for c in controllers:
+            f = lambda p, c=c: jnp.stack(c.velocity(1.0, p, system))
+            out.append((jax.vmap(jax.jacfwd(f))(poses), jax.vmap(jax.jacrev(f))(poses)))
+        return out
 
-    for c in default_controllers():
-        for jac in jacobians(c):
+    controllers = default_controllers()
+    for c, jacs in zip(controllers, jacobians(controllers)):
+        for jac in jacs:
             assert np.all(np.isfinite(jac)), type(c).__name__
 
 
