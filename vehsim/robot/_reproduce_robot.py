@@ -183,7 +183,7 @@ def reproduce(ctx) -> None:
         f"{tv_tc if tv_tc is None else round(tv_tc, 1)} s, against {ti_conv:.0%} and "
         f"{ti_tc if ti_tc is None else round(ti_tc, 1)} s for controllers 1-4; on the ideal "
         "plant controllers 5 and 7 are only polynomially convergent (x3 ~ t^-1/2: "
-        "1 mm takes ~1e4 s) and 6, 8 need 33 s and 21 s against 5-7 s for 1-4 "
+        "1 mm takes ~3e4 s) and 6, 8 need 33 s and 21 s against 5-7 s for 1-4 "
         "(tests/test_robot_controllers.py).",
         f"- *Controller 4 sensitive to sensor noise*: its worst heading error over the "
         f"last 5 s is {np.median(wh[3]):.0f} deg (median) with noise and "
