@@ -31,5 +31,34 @@ from .tire.steady_state import (
 )
 from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 
+from .robot.controllers import (
+    AbstractChainedController as AbstractChainedController,
+    AbstractController as AbstractController,
+    BoundedController as BoundedController,
+    DiscontinuousController as DiscontinuousController,
+    MCloskeyMurray93Controller as MCloskeyMurray93Controller,
+    MCloskeyMurray97Controller as MCloskeyMurray97Controller,
+    PolarController as PolarController,
+    PometController as PometController,
+    TeelMurrayWalshController as TeelMurrayWalshController,
+    TwoStageController as TwoStageController,
+    default_controllers as default_controllers,
+)
+from .robot.khepera import (
+    KheperaPlant as KheperaPlant,
+    RobotRun as RobotRun,
+    ideal_plant as ideal_plant,
+    realistic_plant as realistic_plant,
+    simulate as simulate_robot,
+    simulate_grid as simulate_robot_grid,
+)
+from .robot.missions import MISSIONS as ROBOT_MISSIONS, Mission as Mission
+from .robot.scoring import RunStats as RunStats, score as score_run
+from .robot.unicycle import (
+    AbstractSystem as AbstractSystem,
+    SystemI as SystemI,
+    SystemII as SystemII,
+)
+
 
 __version__ = "0.1.0"

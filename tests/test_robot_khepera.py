@@ -1,0 +1,122 @@
+"""The Khepera plant: each effect against its closed form, and headline findings of 2.1."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vehsim.robot.controllers import (
+    AbstractController,
+    BoundedController,
+    DiscontinuousController,
+    PolarController,
+)
+from vehsim.robot.khepera import KheperaPlant, ideal_plant, realistic_plant, simulate
+from vehsim.robot.missions import EASY, LONG_DISTANCE
+from vehsim.robot.unicycle import SystemI, SystemII
+
+
+class _Constant(AbstractController):
+    v: jax.Array = eqx.field(converter=jnp.asarray)
+    omega: jax.Array = eqx.field(converter=jnp.asarray)
+
+    def velocity(self, t, pose, system):
+        return self.v + 0 * pose[0], self.omega + 0 * pose[0]
+
+
+T_FINAL = 1.0
+N = 50
+B = 0.053
+
+
+def _run(v, omega, **effects):
+    plant = ideal_plant(**effects)
+    return simulate(_Constant(v, omega), SystemII(), jnp.zeros(3), plant=plant,
+                    t_final=T_FINAL)
+
+
+def test_ideal_plant_is_exact_arc():
+    run = _run(0.1, 0.8)
+    t = T_FINAL
+    expected = [0.1 / 0.8 * np.sin(0.8 * t), 0.1 / 0.8 * (1 - np.cos(0.8 * t)), 0.8 * t]
+    np.testing.assert_allclose(run.final_pose, expected, atol=1e-13)
+    np.testing.assert_allclose(run.measured, run.pose, atol=0)
+
+
+def test_motor_lags_differ_per_wheel():
+    """Each wheel follows the command through its own exact first-order lag, sampled at the
+    sub-steps (h = T/4): speed v (1 - q^n), q = exp(-h/tau_i), so the robot turns on a
+    straight command because the motors differ (report: 'different motor dynamics')."""
+    run = _run(0.1, 0.0, motor_dynamics=True)
+    tau = np.array([0.06, 0.09])
+    h, n = 0.02 / 4, 4 * N
+    q = np.exp(-h / tau)
+    travel = 0.1 * h * (n - q * (1 - q**n) / (1 - q))           # rectangle sum of speeds
+    np.testing.assert_allclose(run.final_pose[2], (travel[1] - travel[0]) / B, rtol=1e-10)
+    continuous = 0.1 * (T_FINAL - tau * (1 - np.exp(-T_FINAL / tau)))
+    np.testing.assert_allclose(travel, continuous, rtol=5e-3)    # O(h) from the lag ODE
+
+
+def test_delay_shifts_motion():
+    run = _run(0.1, 0.0, delay=True)
+    np.testing.assert_allclose(run.final_pose[0], 0.1 * (T_FINAL - 2 * 0.02), rtol=1e-12)
+    assert float(run.pose[2, 0]) == 0.0 and float(run.pose[3, 0]) > 0.0
+
+
+@pytest.mark.parametrize("v,expected", [(0.004, 0.0), (0.013, 2 / 120), (5.0, None)])
+def test_quantization_and_saturation(v, expected):
+    run = _run(v, 0.0, quantization=True, saturation=True)
+    speed = float(run.final_pose[0]) / T_FINAL
+    if expected is None:
+        np.testing.assert_allclose(speed, 127 / 120, rtol=1e-12)
+    else:
+        np.testing.assert_allclose(speed, expected, atol=1e-14)
+
+
+def test_encoder_odometry_quantised():
+    run = _run(0.1, 0.8, encoders=True)
+    err = np.abs(np.asarray(run.measured - run.pose))
+    assert err[:, :2].max() < 2 / 12000          # within two encoder pulses
+    assert err[:, :2].max() > 1e-6               # but not exact: counts are quantised
+
+
+def test_sensor_noise_level():
+    plant = ideal_plant(noise=True, noise_position=1e-3, noise_heading=0.01)
+    run = simulate(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), plant=plant,
+                   t_final=T_FINAL, key=jax.random.PRNGKey(3))
+    std = np.std(np.asarray(run.measured), axis=0)
+    np.testing.assert_allclose(std, [1e-3, 1e-3, 0.01], rtol=0.3)
+
+
+def test_plant_validation():
+    with pytest.raises(ValueError, match="delay_samples"):
+        KheperaPlant(delay_samples=20)
+    with pytest.raises(ValueError, match="motor_time_constant"):
+        KheperaPlant(motor_time_constant=(0.05, -1.0))
+
+
+def test_controller4_heading_is_noise_sensitive():
+    """Report: controller 4 'sensitive to sensor noise resulting in relatively large limit
+    cycles of the heading angle around the origin'. Position converges either way; the
+    heading over the last 5 s is far worse with sensor noise than without."""
+    c = PolarController()
+    noisy = simulate(c, SystemII(), EASY.pose0, plant=realistic_plant(), save=False)
+    quiet = simulate(c, SystemII(), EASY.pose0, plant=realistic_plant(noise=False),
+                     save=False)
+    for run in (noisy, quiet):
+        assert float(run.stats.window_position) < 0.01
+    assert float(noisy.stats.window_heading) > 5 * float(quiet.stats.window_heading)
+    assert float(noisy.stats.window_heading) > 0.5          # > 30 deg excursions
+
+
+def test_controller2_commands_within_limits_where_controller1_saturates():
+    """Report: controller 2's 'velocity commands were always within acceptable limits'.
+    On the long-distance mission its commanded speed stays below the Khepera's wheel
+    saturation, while the unbounded eq. 1 asks for more than the robot can do."""
+    peak = {}
+    for name, c in (("1", DiscontinuousController()), ("2", BoundedController())):
+        run = simulate(c, SystemI(), LONG_DISTANCE.pose0, plant=realistic_plant(),
+                       save=False)
+        peak[name] = float(run.stats.peak_command[0])
+    assert peak["2"] < 127 / 120 < peak["1"]

@@ -1,0 +1,1 @@
+"""Unicycle robot controllers on a realistic Khepera plant (report section 2.1)."""
