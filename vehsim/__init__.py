@@ -5,32 +5,6 @@ The public API is flat: everything a user needs is importable from ``vehsim``.
 
 from . import params as params
 from .params import PRESETS as PRESETS, preset as preset
-from .tire.distributed import DistributedLuGre as DistributedLuGre
-from .tire.load import (
-    AbstractLoadDistribution as AbstractLoadDistribution,
-    PolynomialLoad as PolynomialLoad,
-    QuarticLoad as QuarticLoad,
-    TabulatedLoad as TabulatedLoad,
-    TrapezoidalLoad as TrapezoidalLoad,
-    UniformLoad as UniformLoad,
-)
-from .tire.lugre import (
-    AbstractLongitudinalTire as AbstractLongitudinalTire,
-    LuGreParams as LuGreParams,
-    LumpedLuGre as LumpedLuGre,
-    PointLuGre as PointLuGre,
-    decay_rate as decay_rate,
-    relative_velocity as relative_velocity,
-    stribeck as stribeck,
-)
-from .tire.steady_state import (
-    braking_mu_uniform as braking_mu_uniform,
-    driving_mu_uniform as driving_mu_uniform,
-    steady_state_mu as steady_state_mu,
-    z_ss as z_ss,
-)
-from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
-
 from .robot.controllers import (
     AbstractChainedController as AbstractChainedController,
     AbstractController as AbstractController,
@@ -59,6 +33,31 @@ from .robot.unicycle import (
     SystemI as SystemI,
     SystemII as SystemII,
 )
+from .tire.distributed import DistributedLuGre as DistributedLuGre
+from .tire.load import (
+    AbstractLoadDistribution as AbstractLoadDistribution,
+    PolynomialLoad as PolynomialLoad,
+    QuarticLoad as QuarticLoad,
+    TabulatedLoad as TabulatedLoad,
+    TrapezoidalLoad as TrapezoidalLoad,
+    UniformLoad as UniformLoad,
+)
+from .tire.lugre import (
+    AbstractLongitudinalTire as AbstractLongitudinalTire,
+    LuGreParams as LuGreParams,
+    LumpedLuGre as LumpedLuGre,
+    PointLuGre as PointLuGre,
+    decay_rate as decay_rate,
+    relative_velocity as relative_velocity,
+    stribeck as stribeck,
+)
+from .tire.steady_state import (
+    braking_mu_uniform as braking_mu_uniform,
+    driving_mu_uniform as driving_mu_uniform,
+    steady_state_mu as steady_state_mu,
+    z_ss as z_ss,
+)
+from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 
 
 __version__ = "0.1.0"

@@ -59,7 +59,7 @@ class AbstractChainedController(AbstractController):
     r"""A law $u = k(t, x)$ for the nonholonomic integrator of eq. 3."""
 
     @abc.abstractmethod
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         r"""Chained inputs $(u_1, u_2)$ at time `t` and chained state `x`."""
 
     def velocity(self, t, pose: Pose, system: AbstractSystem) -> tuple[Array, Array]:
@@ -100,7 +100,7 @@ class DiscontinuousController(AbstractChainedController):
         nu2 = x[0] ** 2 + x[1] ** 2
         return (s * s >= self.eta_bar**2 * nu2) & (s != 0)
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         s = s_function(x)
         bad = self.in_bad_region(x)
         nu2, _ = _safe_den(x[0] ** 2 + x[1] ** 2)
@@ -152,7 +152,7 @@ class BoundedController(AbstractChainedController):
         r"""$\max(|k_{in}|, |k_{out}|) + \mu$, a bound on $|u_1|$ and $|u_2|$."""
         return jnp.maximum(jnp.abs(self.k_in), jnp.abs(self.k_out)) + self.mu
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         s = s_function(x)
         nu2 = x[0] ** 2 + x[1] ** 2
         nu2_safe, zero = _safe_den(nu2)
@@ -195,7 +195,7 @@ class TwoStageController(AbstractChainedController):
         for name in ("k", "k1", "c"):
             check_positive("TwoStageController", name, getattr(self, name))
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         z = 2 * s_function(x)
         w = x[0] ** 2 + x[1] ** 2
         stage1 = w < self.c * jnp.abs(z)
@@ -271,7 +271,7 @@ class TeelMurrayWalshController(AbstractChainedController):
         for name in ("k", "a", "omega"):
             check_positive("TeelMurrayWalshController", name, getattr(self, name))
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         wt = self.omega * t
         return jnp.stack([-self.k * x[0] + self.a * x[2] * jnp.cos(wt),
                           -self.k * x[1] - self.a * x[2] ** 2 * jnp.sin(wt)])
@@ -306,7 +306,7 @@ class MCloskeyMurray93Controller(AbstractChainedController):
         for name in ("k", "a", "omega"):
             check_positive("MCloskeyMurray93Controller", name, getattr(self, name))
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         q = x[0] ** 4 + x[1] ** 4 + x[2] ** 2
         q_safe, zero = _safe_den(q)
         rho = jnp.where(zero, 0.0, jnp.sqrt(jnp.sqrt(q_safe)))
@@ -341,7 +341,7 @@ class PometController(AbstractChainedController):
         c = jnp.cos(self.omega * t)
         return 0.5 * ((x[0] + x[2] * c) ** 2 + x[1] ** 2 + x[2] ** 2)
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         wt = self.omega * t
         c, s = jnp.cos(wt), jnp.sin(wt)
         p = x[0] + x[2] * c
@@ -402,7 +402,7 @@ class MCloskeyMurray97Controller(AbstractChainedController):
         for name in ("k", "a", "omega"):
             check_positive("MCloskeyMurray97Controller", name, getattr(self, name))
 
-    def __call__(self, t, x: Chained) -> Float[Array, "2"]:
+    def __call__(self, t, x: Chained) -> Float[Array, 2]:
         rho = homogeneous_norm_newton(x, self.newton_steps)
         return _homogeneous_law(x, rho, t, self.k, self.a, self.omega)
 

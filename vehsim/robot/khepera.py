@@ -73,7 +73,7 @@ class KheperaPlant(eqx.Module):
     pulses_per_meter: Float[Array, ""] = _f(12_000.0)
     speed_unit: Float[Array, ""] = _f(1.0 / 120.0)
     speed_limit: Float[Array, ""] = _f(127.0 / 120.0)
-    motor_time_constant: Float[Array, "2"] = _f((0.06, 0.09))
+    motor_time_constant: Float[Array, 2] = _f((0.06, 0.09))
     delay_samples: Array = _f(2)
     noise_position: Float[Array, ""] = _f(0.0002)
     noise_heading: Float[Array, ""] = _f(0.2 * 3.141592653589793 / 180)
@@ -119,7 +119,7 @@ class RobotRun(eqx.Module):
     pose: Float[Array, "n 3"] | None
     measured: Float[Array, "n 3"] | None
     command: Float[Array, "n 2"] | None
-    final_pose: Float[Array, "3"]
+    final_pose: Float[Array, 3]
     stats: RunStats
 
 

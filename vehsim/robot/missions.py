@@ -27,8 +27,8 @@ class Mission(eqx.Module):
     """An initial pose `pose0` [m, m, rad] and its Monte-Carlo `spread` (std per component)."""
 
     name: str = eqx.field(static=True)
-    pose0: Float[Array, "3"] = eqx.field(converter=jnp.asarray)
-    spread: Float[Array, "3"] = eqx.field(converter=jnp.asarray)
+    pose0: Float[Array, 3] = eqx.field(converter=jnp.asarray)
+    spread: Float[Array, 3] = eqx.field(converter=jnp.asarray)
 
     def initial_poses(self, key: PRNGKeyArray, n: int) -> Float[Array, "n 3"]:
         """`n` initial poses: the nominal one, then `n - 1` perturbed ones."""

@@ -64,12 +64,12 @@ class RunStats(eqx.Module):
     t_final: Float[Array, ""]
     t_out_position: Float[Array, ""]
     t_out_heading: Float[Array, ""]
-    side: Float[Array, "3"]
-    crossings: Int[Array, "3"]
-    previous_command: Float[Array, "2"]
-    previous_increment: Float[Array, "2"]
-    reversals: Int[Array, "2"]
-    peak_command: Float[Array, "2"]
+    side: Float[Array, 3]
+    crossings: Int[Array, 3]
+    previous_command: Float[Array, 2]
+    previous_increment: Float[Array, 2]
+    reversals: Int[Array, 2]
+    peak_command: Float[Array, 2]
     window_position: Float[Array, ""]
     window_heading: Float[Array, ""]
     finite: Bool[Array, ""]
@@ -87,7 +87,7 @@ class RunStats(eqx.Module):
             finite=jnp.array(True), started=jnp.array(False),
         )
 
-    def update(self, t, pose: Float[Array, "3"], command: Float[Array, "2"]) -> RunStats:
+    def update(self, t, pose: Float[Array, 3], command: Float[Array, 2]) -> RunStats:
         """Account for the true `pose` at time `t` and the `command` (v, omega) issued then."""
         dt = jnp.asarray(t, dtype=self.t_final.dtype)
         position_error = safe_norm(pose[:2])

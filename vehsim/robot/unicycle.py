@@ -54,7 +54,7 @@ def unicycle_step(pose: Pose, v, omega, h) -> Pose:
                       pose[2] + 2 * half])
 
 
-def chained_rhs(x: Chained, u: Float[Array, "2"]) -> Chained:
+def chained_rhs(x: Chained, u: Float[Array, 2]) -> Chained:
     r"""$(\dot x_1, \dot x_2, \dot x_3) = (u_1, u_2, x_1u_2)$ (the form of eq. 3)."""
     return jnp.stack([u[0], u[1], x[0] * u[1]])
 
@@ -69,7 +69,7 @@ def wheel_speeds(v, omega, wheel_base):
     return jnp.stack([v - 0.5 * omega * wheel_base, v + 0.5 * omega * wheel_base])
 
 
-def body_velocity(wheels: Float[Array, "2"], wheel_base):
+def body_velocity(wheels: Float[Array, 2], wheel_base):
     r"""$(v, \omega) = ((v_L+v_R)/2,\ (v_R-v_L)/b)$, the inverse of `wheel_speeds`."""
     return 0.5 * (wheels[0] + wheels[1]), (wheels[1] - wheels[0]) / wheel_base
 
@@ -90,7 +90,7 @@ class AbstractSystem(eqx.Module):
         """The pose with chained coordinates `x` (inverse of `to_chained`)."""
 
     @abc.abstractmethod
-    def velocity(self, pose: Pose, u: Float[Array, "2"]) -> tuple[Array, Array]:
+    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
         r"""Unicycle inputs $(v, \omega)$ that produce $\dot x = (u_1, u_2, x_1u_2)$."""
 
 
@@ -121,7 +121,7 @@ class SystemI(AbstractSystem):
         return jnp.stack([(x[0] * c + x[2] * s) * self.length,
                           (x[0] * s - x[2] * c) * self.length, x[1]])
 
-    def velocity(self, pose: Pose, u: Float[Array, "2"]) -> tuple[Array, Array]:
+    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
         x = self.to_chained(pose)
         return self.length * (u[0] + x[2] * u[1]), u[1]
 
@@ -153,6 +153,6 @@ class SystemII(AbstractSystem):
         return jnp.stack([x[0] * self.length, (x[0] * x[1] - x[2]) * self.length,
                           jnp.arctan(x[1])])
 
-    def velocity(self, pose: Pose, u: Float[Array, "2"]) -> tuple[Array, Array]:
+    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
         c = jnp.cos(pose[2])
         return self.length * u[0] / c, u[1] * c * c
