@@ -21,18 +21,18 @@ T = TypeVar("T")
 def _jsonable(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
+    if isinstance(obj, list | tuple):
         return [_jsonable(v) for v in obj]
-    if hasattr(obj, "__array__") and not isinstance(obj, (str, bytes)):
+    if hasattr(obj, "__array__") and not isinstance(obj, str | bytes):
         arr = np.asarray(obj)
         if arr.ndim == 0:
             return _jsonable(arr.item())
         return [_jsonable(v) for v in arr.tolist()]
     if isinstance(obj, float) and not math.isfinite(obj):
         return None if math.isnan(obj) else (1e308 if obj > 0 else -1e308)
-    if isinstance(obj, (np.integer,)):
+    if isinstance(obj, np.integer):
         return int(obj)
-    if isinstance(obj, (np.floating,)):
+    if isinstance(obj, np.floating):
         return _jsonable(float(obj))
     return obj
 
