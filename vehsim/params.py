@@ -67,10 +67,31 @@ def bakker1987() -> MagicFormula1987Params:
     )
 
 
+def lugre2d_bakker1987() -> LuGre2DParams:
+    """2D LuGre whose steady state matches the `bakker1987` Magic Formula (report Fig. 15).
+
+    Found by `vehsim.tire.lugre2d_fit.fit_to_magic_formula` (optimistix Levenberg-Marquardt,
+    converged in 208 steps from sigma0 = (180, 180) 1/m, mu_k = (0.8, 0.7), mu_s = (1.2, 1.0),
+    v_s = 6.57 m/s, gamma = 0.5): distributed model with uniform load, L = 0.2 m (Table 3),
+    Fz = 4000 N, v = 20 m/s, pure-slip curves F_x(kappa), kappa in [-0.5, 0.5] and
+    F_y(alpha), alpha in [0.5, 20] deg. **Fit residual** |F_LuGre - F_MF| / Fz:
+    RMS 0.0142, max 0.0290. Held (not fitted; they do not enter the steady state or were set
+    to zero): sigma1 = (0.7, 0.7) s/m (Table 3's commonly quoted value, unverified),
+    sigma2 = (0, 0) s/m. The report does not list its 2D parameters; this set is ours.
+    """
+    return LuGre2DParams(
+        sigma0=[379.0400580476603, 179.61587440368314], sigma1=[0.7, 0.7], sigma2=[0.0, 0.0],
+        mu_k=[0.6761008743057866, 0.6503576005342454],
+        mu_s=[2.6012541280115338, 2.7684943911269353],
+        v_s=1.4096457057112053, gamma=0.4319301951972794, L=0.2,
+    )
+
+
 PRESETS: dict[str, Callable[[], Any]] = {
     "table3": table3,
     "cdc1999": cdc1999,
     "bakker1987": bakker1987,
+    "lugre2d_bakker1987": lugre2d_bakker1987,
 }
 
 
