@@ -68,8 +68,8 @@ def steady_state_mu(params: LuGreParams, load: AbstractLoadDistribution, v, omeg
     v_r, g, c, rolling, k = _rolling_terms(params, v, omega, r)
     edges = _panels(load, k)
     a, b = edges[:-1, None], edges[1:, None]
-    xi = 0.5 * (b - a) * jnp.asarray(_GL_X) + 0.5 * (a + b)
-    w = 0.5 * (b - a) * jnp.asarray(_GL_W)
+    xi = 0.5 * (b - a) * jnp.asarray(_GL_X)[None, :] + 0.5 * (a + b)
+    w = 0.5 * (b - a) * jnp.asarray(_GL_W)[None, :]
     # K = int_0^1 xi phi(k xi) q(xi) dxi ; z_ss = v_r L / c * xi phi(k xi).
     K = jnp.sum(w * xi * one_minus_exp_over(k * xi) * load.q(xi))
     mu_roll = params.sigma0 * v_r * params.L / c * K
