@@ -58,7 +58,6 @@ from jaxtyping import Array, Float
 
 from .._math import one_minus_exp_over, safe_abs
 from .base import AbstractTire
-from .distributed2d import lever_moment
 from .load import AbstractLoadDistribution, PolynomialLoad, TrapezoidalLoad, UniformLoad
 from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
 
@@ -138,7 +137,11 @@ class MomentLuGre2D(AbstractTire):
         self.load = UniformLoad() if load is None else load
         self.edges, self.coeffs = piecewise_coefficients(self.load, degree)
         self.n_moments = int(self.coeffs.shape[1]) + 1
-        self.lever = lever_moment(self.load)
+        # int_0^1 q (1/2 - xi) dxi from the piece coefficients (exact, differentiable).
+        K = self.coeffs.shape[1]
+        a, b = self.edges[:-1], self.edges[1:]
+        ints = (_powers(b, K + 2)[:, 1:] - _powers(a, K + 2)[:, 1:]) / jnp.arange(1, K + 2)[None, :]
+        self.lever = jnp.sum(self.coeffs * (0.5 * ints[:, :K] - ints[:, 1:]))
 
     @property
     def pieces(self) -> int:
