@@ -27,9 +27,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_range
-from .._math import safe_abs, safe_div
+from .._math import one_minus_exp_over, safe_abs
 from .base import AbstractTire
-from .distributed2d import _split_gauss, steady_state_profile
+from .distributed2d import _split_gauss
 from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
 
@@ -89,15 +89,20 @@ class LumpedLuGre2D(AbstractTire):
         if not self.steady_state_gains:
             return const
         C0 = decay_rates(self.params, v_r)
-        z = steady_state_profile(self.params, self._gx, v_r, c)  # (N, 2)
+        rolling = c > 0
+        c_safe = jnp.where(rolling, c, 1.0)
+        k = C0 * L / c_safe
+        # Steady profile z_i = v_ri (L/c) xi phi(k_i xi): the gains depend only on its shape
+        # Z_i = xi phi(k_i xi), so they are smooth through v_r = 0 while rolling.
+        x = self._gx[:, None]
+        Z = x * one_minus_exp_over(k[None, :] * x)  # (N, 2)
         wq = self._gw * self.load.q(self._gx)
-        zbar = wq @ z
-        zhat = (wq * self._gx) @ z[:, 1]
-        # Steady state of the lumped equations solved for the gains.
-        kap = safe_div(v_r - C0 * zbar, c * zbar)
-        nu = safe_div(self.G * v_r[1] - C0[1] * zhat + c / L * zbar[1], c * zhat)
-        kap = jnp.where((zbar != 0) & (c > 0), kap, const[:2])
-        nu = jnp.where((zhat != 0) & (c > 0), nu, const[2])
+        Zbar = wq @ Z
+        Zhat = (wq * self._gx) @ Z[:, 1]
+        kap = (1.0 - C0 * L / c_safe * Zbar) / (L * Zbar)
+        nu = (self.G - C0[1] * L / c_safe * Zhat + Zbar[1]) / (L * Zhat)
+        kap = jnp.where(rolling, kap, const[:2])
+        nu = jnp.where(rolling, nu, const[2])
         return jnp.concatenate([kap, nu[None]])
 
     def derivative(self, state, v_r, c):
