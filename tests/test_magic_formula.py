@@ -1,4 +1,4 @@
-"""Magic Formula 1987 (Bakker, Nyborg, Pacejka): hand-computed values, a peer, symmetry, gradients."""
+"""Magic Formula 1987 (Bakker, Nyborg, Pacejka): hand values, a peer, symmetry, gradients."""
 
 import math
 import types

@@ -46,7 +46,8 @@ def transients():
         mom, pde = MomentLuGre2D(p, load), DistributedLuGre2D(p, load, n=64)
         for alpha_deg, kappa in ((4.0, 0.05), (15.0, -0.1)):
             u = _inputs(alpha_deg, kappa)
-            out[name, alpha_deg] = (np.asarray(_run(mom, *u, 1e-11)), np.asarray(_run(pde, *u, 1e-8)),
+            out[name, alpha_deg] = (np.asarray(_run(mom, *u, 1e-11)),
+                                    np.asarray(_run(pde, *u, 1e-8)),
                                     u)
     return p, out
 

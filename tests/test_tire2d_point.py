@@ -46,7 +46,7 @@ def test_isotropic_model_is_the_longitudinal_one():
 
 
 def test_steady_state_lies_on_the_kinetic_friction_ellipse():
-    """Steady sliding; fast sliding (Stribeck term gone): z_i = v_ri/C_0i gives sigma0_i z_i = mu_ki^2 g v_ri /
+    """Steady sliding z_i = v_ri/C_0i gives sigma0_i z_i = mu_ki^2 g v_ri /
     ||M_k^2 v_r|| with g = ||M_k^2 v_r||/||M_k v_r||, so sum_i (F_i/(F_n mu_ki))^2 = 1."""
     p = lugre2d_bakker1987()
     p = LuGre2DParams(sigma0=p.sigma0, sigma1=p.sigma1, sigma2=jnp.zeros(2), mu_k=p.mu_k,

@@ -148,7 +148,7 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(40)
 
 
 def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
-    r"""$z_{i,ss}(\xi)$ (the eq. 15 analogue in the module docstring) at 1-D `xi`, shape `(N, 2)`."""
+    r"""$z_{i,ss}(\xi)$ (eq. 15 analogue, module docstring) at 1-D `xi`, shape `(N, 2)`."""
     C0 = decay_rates(params, v_r)
     rolling = c > 0
     c_safe = jnp.where(rolling, c, 1.0)

@@ -6,7 +6,8 @@ to the tread is
 $$v_r = (v_{rx}, v_{ry}) = (\omega r - v_x,\; -v_y) = (\omega r - v\cos\alpha,\; v\sin\alpha),$$
 with the slip angle $\alpha = \operatorname{atan2}(-v_y, v_x)$ (positive when the wheel slides
 to its right, as in the Magic Formula). This is eq. 34 with the report's slip angle measured
-the other way ($\alpha_\text{report} = -\alpha$, so eq. 34b reads $v_{ry} = -v\sin\alpha_\text{report}$).
+the other way ($\alpha_\text{report} = -\alpha$, so eq. 34b reads
+$v_{ry} = -v\sin\alpha_\text{report}$).
 Forces on the tire are
 $$F_i = +F_n(\sigma_{0i}z_i + \sigma_{1i}\dot z_i + \sigma_{2i}v_{ri}),\qquad i = x, y,$$
 the same sign as the longitudinal eq. 9: $F_x > 0$ when driving and $F_y$ opposes lateral
@@ -54,9 +55,9 @@ class LuGre2DParams(eqx.Module):
     sigma2: Float[Array, "... 2"] = _array_field()
     mu_k: Float[Array, "... 2"] = _array_field()
     mu_s: Float[Array, "... 2"] = _array_field()
-    v_s: Float[Array, "..."] = _array_field()
-    gamma: Float[Array, "..."] = _array_field(default=0.5)
-    L: Float[Array, "..."] = _array_field(default=0.2)
+    v_s: Float[Array, ...] = _array_field()
+    gamma: Float[Array, ...] = _array_field(default=0.5)
+    L: Float[Array, ...] = _array_field(default=0.2)
 
     def __check_init__(self):
         owner = "LuGre2DParams"

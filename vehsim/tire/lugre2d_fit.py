@@ -24,7 +24,7 @@ from .magic_formula import MagicFormula1987Params, combined_forces
 
 
 class MatchResult(eqx.Module):
-    """Fitted parameters, RMS normalised residual and optimistix result of `fit_to_magic_formula`."""
+    """Fitted parameters, residuals and optimistix result of `fit_to_magic_formula`."""
 
     params: LuGre2DParams
     rms_residual: jax.Array

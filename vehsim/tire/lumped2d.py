@@ -53,7 +53,7 @@ class LumpedLuGre2D(AbstractTire):
 
     params: LuGre2DParams
     load: AbstractLoadDistribution
-    kappa0: Float[Array, "..."]
+    kappa0: Float[Array, ...]
     nu0: Float[Array, ""]
     G: Float[Array, ""]
     steady_state_gains: bool = eqx.field(static=True)

@@ -17,8 +17,9 @@ the preset for completeness); the formula has no shifts at zero camber.
 **Units are handled inside:** callers give $F_z$ [N], $\alpha$ [rad] and the slip ratio
 $\kappa$ (not percent), and get N and N m.
 
-**Signs** (those of `AbstractTire` and `vehsim.tire.lugre2d`): $\alpha = \operatorname{atan2}(-v_y, v_x)$
-is positive when the wheel slides to its right; then $F_y > 0$ (to the left) and $M_z < 0$
+**Signs** (those of `AbstractTire` and `vehsim.tire.lugre2d`):
+$\alpha = \operatorname{atan2}(-v_y, v_x)$ is positive when the wheel slides to its right;
+then $F_y > 0$ (to the left) and $M_z < 0$
 (aligning; $c_1, c_2 < 0$ make $D_z < 0$). $\kappa = (\omega r - v_x)/|v_x|$, $F_x > 0$ driving.
 
 **Combined slip** by the similarity method the 1987 paper introduced: with the slip vector
@@ -55,9 +56,9 @@ class MagicFormula1987Params(eqx.Module):
       `c` (13,): aligning $c_1..c_{13}$; `C_y`, `C_x`, `C_z`: shape factors (1.30, 1.65, 2.40).
     """
 
-    a: Float[Array, "13"] = _array_field()
-    b: Float[Array, "8"] = _array_field()
-    c: Float[Array, "13"] = _array_field()
+    a: Float[Array, 13] = _array_field()
+    b: Float[Array, 8] = _array_field()
+    c: Float[Array, 13] = _array_field()
     C_y: Float[Array, ""] = _array_field(default=1.30)
     C_x: Float[Array, ""] = _array_field(default=1.65)
     C_z: Float[Array, ""] = _array_field(default=2.40)
@@ -147,7 +148,8 @@ def combined_forces_tan(params: MagicFormula1987Params, kappa, tan_alpha, Fz):
 
 
 def combined_forces(params: MagicFormula1987Params, kappa, alpha, Fz):
-    r"""$(F_x, F_y, M_z)$ [N, N, N m] at slip ratio $\kappa$, slip angle $\alpha$ [rad], load [N]."""
+    r"""$(F_x, F_y, M_z)$ [N, N, N m] at slip ratio $\kappa$, slip angle $\alpha$ [rad],
+    load $F_z$ [N]."""
     return combined_forces_tan(params, kappa, jnp.tan(alpha), Fz)
 
 
