@@ -128,6 +128,7 @@ def test_tire_interface_signs_units_and_gradients():
         out = tire.forces(jnp.zeros((0,)), x[0], x[1], x[2], 0.3, x[3])
         return jnp.sum(out * jnp.array([1.0, 0.7, 3.0]))
 
+    f = jax.jit(f)
     for x in ([0.0, 0.0, 0.0, 4000.0], [10.0, 0.0, 10.0 / 0.3, 4000.0]):
         assert_grad_matches_fd(f, jnp.array(x), rtol=1e-5, atol=1e-6, eps=1e-7)
     g = jax.jacfwd(lambda x: combined_forces(MF, x[0], x[1], 4000.0))(jnp.zeros(2))

@@ -1,5 +1,6 @@
 """Distributed 2D LuGre (eqs. 31-34): closed-form steady state, point-model collapse, symmetry."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +11,9 @@ from vehsim.tire.distributed2d import (
     DistributedLuGre2D,
     slip_velocities,
     steady_state_forces,
+    steady_state_forces as _steady_state_forces,
     steady_state_mu,
+    steady_state_mu as _steady_state_mu,
 )
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
 from vehsim.tire.lugre2d import PointLuGre2D
@@ -22,15 +25,23 @@ LOADS = (UniformLoad(), TrapezoidalLoad(0.25), QuarticLoad())
 SLIPS = ((0.05, 0.05), (-0.2, 0.2), (0.0, 0.01), (0.5, -0.3), (0.01, 0.0))
 
 
+@eqx.filter_jit
+def _discrete_and_closed(model, kappa, alpha):
+    def one(k, a):
+        v_r, c = slip_velocities(20.0, k, a)
+        z = model.steady_state(v_r, c)
+        return (model.derivative(z, v_r, c), model.mu(z, v_r, c),
+                steady_state_mu(model.params, model.load, v_r, c))
+
+    return jax.vmap(one)(kappa, alpha)
+
+
 def test_discrete_steady_state_matches_closed_form():
+    kappa, alpha = (jnp.array(x) for x in zip(*SLIPS))
     for load in LOADS:
-        model = DistributedLuGre2D(P, load, n=48)
-        for kappa, alpha in SLIPS:
-            v_r, c = slip_velocities(20.0, kappa, alpha)
-            z = model.steady_state(v_r, c)
-            np.testing.assert_allclose(model.derivative(z, v_r, c), 0.0, atol=1e-9)
-            np.testing.assert_allclose(model.mu(z, v_r, c), steady_state_mu(P, load, v_r, c),
-                                       rtol=1e-4, atol=1e-8)
+        d, mu, closed = _discrete_and_closed(DistributedLuGre2D(P, load, n=48), kappa, alpha)
+        np.testing.assert_allclose(d, 0.0, atol=1e-9)
+        np.testing.assert_allclose(mu, closed, rtol=1e-4, atol=1e-8)
 
 
 def test_closed_form_reduces_to_longitudinal_eq_17():
@@ -42,8 +53,8 @@ def test_closed_form_reduces_to_longitudinal_eq_17():
     for load in LOADS:
         for v, omega in ((20.0, 60.0), (20.0, 72.0), (20.0, 0.0)):
             v_r = jnp.array([omega * 0.3 - v, 0.0])
-            mu = steady_state_mu(p2, load, v_r, jnp.asarray(omega * 0.3))
-            np.testing.assert_allclose(mu[0], steady_state_mu_1d(p1, load, v, omega, 0.3),
+            mu = jax.jit(steady_state_mu)(p2, load, v_r, jnp.asarray(omega * 0.3))
+            np.testing.assert_allclose(mu[0], jax.jit(steady_state_mu_1d)(p1, load, v, omega, 0.3),
                                        rtol=1e-10)
             np.testing.assert_allclose(mu[1:], 0.0, atol=1e-14)
 
@@ -68,6 +79,8 @@ def test_locked_wheel_collapses_to_point_model():
 
 def test_symmetry_of_steady_state():
     """F_y, M_z odd in alpha; F_x odd in the driving slip s = v_rx/(omega r) at fixed omega."""
+    steady_state_forces = jax.jit(_steady_state_forces)
+    steady_state_mu = jax.jit(_steady_state_mu)
     for load in LOADS:
         for kappa, alpha in SLIPS:
             f = steady_state_forces(P, load, 20.0, kappa, alpha, 4000.0)
@@ -92,13 +105,15 @@ def test_gradients_at_zero_slip_and_zero_speed():
         F = steady_state_forces(P, load, 20.0, x[0], x[1], 4000.0)
         return jnp.sum(F * jnp.array([1.0, 1.0, 10.0]))
 
-    assert_grad_matches_fd(f, jnp.zeros(2), rtol=1e-5, atol=1e-6, eps=1e-7)
+    assert_grad_matches_fd(jax.jit(f), jnp.zeros(2), rtol=1e-5, atol=1e-6, eps=1e-7)
     model = DistributedLuGre2D(P, load, n=12)
     z = jnp.stack([jnp.linspace(0.0, 1e-3, 13), jnp.linspace(0.0, -2e-3, 13)])
 
     def g(x):
-        d = model.dynamics(z, x[0], x[1], x[2], 0.3, 4000.0)
-        return jnp.sum(d) + jnp.sum(model.forces(z, x[0], x[1], x[2], 0.3, 4000.0))
+        d = model.dynamics(z, x[0], x[1], x[2], 0.25, 4000.0)
+        return jnp.sum(d) + jnp.sum(model.forces(z, x[0], x[1], x[2], 0.25, 4000.0))
 
-    for x in ([0.0, 0.0, 0.0], [6.0, 0.0, 20.0]):
+    g = jax.jit(g)
+    # zero speed, and exactly zero relative velocity while rolling (omega r = 0.25 * 24 = 6)
+    for x in ([0.0, 0.0, 0.0], [6.0, 0.0, 24.0]):
         assert_grad_matches_fd(g, jnp.array(x), rtol=1e-5, atol=1e-5, eps=1e-7)
