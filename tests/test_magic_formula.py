@@ -15,6 +15,7 @@ from vehsim.tire.magic_formula import (
     MagicFormula1987,
     MagicFormula1987Params,
     combined_forces,
+    combined_forces as _combined_forces,
     pure_aligning_moment,
     pure_lateral_force,
     pure_longitudinal_force,
@@ -93,6 +94,7 @@ def test_against_commonroad_peer():
 
 
 def test_combined_slip_recovers_pure_slip_and_symmetry():
+    combined_forces = jax.jit(_combined_forces)
     kappa = jnp.linspace(-0.6, 0.6, 13)
     alpha = jnp.deg2rad(jnp.linspace(-20.0, 20.0, 11))
     f = combined_forces(MF, kappa, jnp.zeros_like(kappa), 4000.0)

@@ -86,8 +86,10 @@ def test_densities_share_the_sliding_steady_state():
     p = lugre2d_bakker1987()
     from vehsim.tire.lugre2d import decay_rates
 
+    steady = jax.jit(steady_state_mu)
+
     v_r = jnp.array([-15.0, 4.0])
-    locked = [np.asarray(steady_state_mu(p, load, v_r, jnp.zeros(())))[:2]
+    locked = [np.asarray(steady(p, load, v_r, jnp.zeros(())))[:2]
               for load in LOADS.values()]
     np.testing.assert_allclose(locked[1], locked[0], rtol=1e-12)
     np.testing.assert_allclose(locked[2], locked[0], rtol=1e-12)
@@ -95,10 +97,10 @@ def test_densities_share_the_sliding_steady_state():
         C0 = np.asarray(decay_rates(p, v_r))
         k = C0 * float(p.L) / c
         sliding = np.asarray(p.sigma0 * v_r) / C0
-        uniform = np.asarray(steady_state_mu(p, LOADS["uniform"], v_r, jnp.asarray(c)))[:2]
+        uniform = np.asarray(steady(p, LOADS["uniform"], v_r, jnp.asarray(c)))[:2]
         np.testing.assert_allclose(uniform, sliding * (1 - (1 - np.exp(-k)) / k), rtol=1e-10)
         for load, qmax in ((LOADS["trapezoidal"], 1 / 0.75), (LOADS["quartic"], 1.25)):
-            mu = np.asarray(steady_state_mu(p, load, v_r, jnp.asarray(c)))[:2]
+            mu = np.asarray(steady(p, load, v_r, jnp.asarray(c)))[:2]
             assert np.all(np.abs(mu - sliding) <= np.abs(sliding) * qmax / k)
             assert np.all(np.sign(mu) == np.sign(sliding))
 

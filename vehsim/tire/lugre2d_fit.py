@@ -43,8 +43,9 @@ def _unpack(theta, fixed: LuGre2DParams):
 
 
 def _pack(p: LuGre2DParams):
-    return jnp.log(jnp.concatenate([p.sigma0, p.mu_k, p.mu_s - p.mu_k + 1e-3,
-                                    jnp.stack([p.v_s, p.gamma])]))
+    # a small floor keeps log finite when a start has mu_s = mu_k
+    gap = jnp.maximum(p.mu_s - p.mu_k, 1e-3)
+    return jnp.log(jnp.concatenate([p.sigma0, p.mu_k, gap, jnp.stack([p.v_s, p.gamma])]))
 
 
 def default_slip_grid():

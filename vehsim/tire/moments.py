@@ -42,9 +42,19 @@ $\xi$; let $s(t) = \int_0^t c/L$ be the distance travelled by the tread since $t
 
 Loads that vanish at the trailing edge (quartic, trapezoid) do not escape this: the force
 combination $\sum_kc_km_k$ has no trailing-edge term, but the chain $q\to q'\to\dots\to$ const
-of lower moments it needs ends in $m_0$, whose equation (42) carries $z(t,1)$. The test
-suite measures the moments against a fine-grid PDE: to 1e-6 relative for step inputs,
-and the frozen-characteristic error for ramped inputs is reported in the benchmark.
+of lower moments it needs ends in $m_0$, whose equation (42) carries $z(t,1)$.
+
+**Accuracy, measured** (`tests/test_moments.py`, `experiments/benchmarks/moments_vs_pde.py`):
+for a slip step from an undeflected patch the moments agree with a fine-grid PDE to its own
+accuracy (< 2e-4 relative for the uniform load, ~1e-5 for trapezoid and quartic, shrinking
+with the ODE tolerance) and reach the closed-form steady state to 1e-6. For inputs that
+change while a tread element crosses the patch (a slip-angle ramp over one transit time)
+the frozen closure is wrong by O(1) at the trailing edge for about one transit time, and
+the monomial moments amplify that error (the load coefficients $c_k$ alternate in sign and
+are large: $\sum|c_k| \approx 100$ for the quartic), so the forces can be wrong by more
+than 100 % for a while; they return to the exact steady state once the inputs settle.
+**True exactness for arbitrary input histories is impossible with finitely many states**;
+use `DistributedLuGre2D` for fast, non-step transients.
 
 State: `(m, w, s)` with moments `m` of shape `(2, pieces, m+2)`, the point-model deflection
 `w` (2,) and the travelled distance `s` (in patch lengths).
