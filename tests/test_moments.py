@@ -123,19 +123,13 @@ def test_moments_derivative_matches_pde_moments():
     P = interpolation_matrix(pde.n, xs)
     K = mom.n_moments
     m = jnp.asarray([[[ws @ (P @ np.asarray(z[i]) * xs**k) for k in range(K)]] for i in range(2)])
-    # s beyond the trailing edge: edge values are the frozen characteristic values, so give the
-    # state the matching trailing-edge deflection by evaluating the PDE's own z(1).
-    state = (m, jnp.zeros(2), jnp.asarray(5.0))
-    zedge = mom.edge_values(state, v_r, c)
-    z_end = z[:, -1]
-    # Replace the frozen value by the actual z(1) for this check: shift the state so that the
-    # model's edge value equals the PDE's (the recursion is linear in the edge value).
+    # the edge state carries the PDE's own trailing-edge deflection z(t, 1)
+    state = (m, z[:, -1:], jnp.asarray(5.0))
     m_dot = mom.derivative(state, v_r, c)[0]
     k = np.arange(K)
-    correction = (c / p.L) * (zedge[:, 1] - z_end)[:, None, None] * jnp.ones((2, 1, K))
     expected = jnp.asarray([[[ws @ (P @ np.asarray(zdot[i]) * xs**kk) for kk in k]]
                             for i in range(2)])
-    np.testing.assert_allclose(m_dot + correction, expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(m_dot, expected, rtol=1e-9, atol=1e-12)
 
 
 def test_piecewise_coefficients_reproduce_loads():

@@ -19,45 +19,53 @@ So moments up to degree $m+1$ per piece are needed, and the recursion is closed 
 for the boundary values $z_i(t, e_j)$ at the piece edges.
 
 **The boundary terms (eqs. 41-42).** At the leading edge $z(t,0) = 0$. At an edge $e>0$ (an
-interface or the trailing edge $e=1$) the value is found by the characteristic argument. The
+interface or the trailing edge $e=1$) the value is tracked by a characteristic argument. The
 PDE is transport at speed $c/L$ of a point-model ODE whose coefficients do not depend on
-$\xi$; let $s(t) = \int_0^t c/L$ be the distance travelled by the tread since $t=0$.
+$\xi$; let $s(t) = \int_0^t c/L$ be the distance travelled by the tread since $t=0$
+(in patch lengths) and $t_e(t)$ the time at which the tread now at $e$ entered the patch
+($s(t) - s(t_e) = e$). Differentiating
+$z(t,e) = \int_{t_e}^t e^{-\int_\tau^tC_0}v_r(\tau)\,d\tau$ (for $s \ge e$) gives the exact
+edge equation
+$$\dot z_e = v_r - C_0\,z_e - H(s - e)\,\dot t_e\,e^{-\int_{t_e}^tC_0}\,v_r(t_e),$$
+whose last term is the deflection-free tread arriving from the leading edge. Before the
+first passage ($s < e$) the tread at $e$ was in the patch at $t = 0$; for a uniform initial
+deflection (zero, or a locked wheel's state) it obeys the point model, which is the same
+equation without the last term. We carry $z_e$ for every edge $e > 0$ and $s$ as states.
 
-1. While $s(t) < e$ the tread at $e$ was already in the patch at $t=0$. If the initial
-   deflection is uniform (e.g. zero, or a locked wheel's state) it has since obeyed
-   exactly the point model $\dot w = v_r - C_0(v_r)w$, so $z(t,e) = w(t)$. We carry $w$
-   (2 states) and $s$ (1 state): **exact**.
-2. Once $s(t)\ge e$ the tread at $e$ entered at the leading edge at time $t_e$ with
-   $s(t)-s(t_e) = e$, and $z(t,e) = \int_{t_e}^t e^{-\int_\tau^tC_0}v_r(\tau)\,d\tau$ - a
-   *delayed* functional of the inputs. No finite set of moments determines it for
-   arbitrary input histories (with $C_0 = 0$ the trailing edge obeys
-   $\dot z(t,1) = v_r(t) - v_r(t_e)$, a delay equation), so a finite moment system cannot be
-   exact for every input. We use the value along the characteristic with the inputs frozen
-   at their current values,
-   $z(t,e) = \frac{v_rL}{c}\,e\,\varphi\bigl(\tfrac{C_0L}{c}e\bigr)$, $\varphi(x) = (1-e^{-x})/x$,
-   which is **exact whenever the inputs have been constant for the last transit time**
-   $eL/c$ (so exact for step inputs - the transients of Fig. 17 - and at every steady
-   state), with an error of order (transit time) x (input rate) otherwise. For step inputs
-   cases 1 and 2 agree at the switch $s = e$, so the right-hand side is continuous.
+- The only term that is not a function of the current state and inputs is the *delayed*
+  arrival term. No finite state determines it for arbitrary input histories (with
+  $C_0 = 0$ the trailing edge obeys $\dot z(t,1) = v_r(t) - v_r(t_e)$, a delay equation),
+  so **a finite moment system cannot be exact for every input**. We evaluate it with the
+  inputs frozen over the transit: $\dot t_e = 1$,
+  $e^{-\int C_0} = e^{-C_0eL/c}$, $v_r(t_e) = v_r(t)$ (zero for a locked wheel, $c = 0$).
+- This is **exact whenever the inputs are constant since the last passage began**: so for a
+  slip step from a uniform deflection (the transients of Fig. 17) the whole moment system
+  is exact at all times, and at every steady state $z_e = \frac{v_rL}{c}e\,
+  \varphi(\frac{C_0L}{c}e)$, $\varphi(x) = (1-e^{-x})/x$, the closed form.
+- Otherwise the error enters only through the arrival term, damped by
+  $e^{-C_0eL/c}$: of order $e^{-C_0eL/c}\,|\Delta v_r|$ for an input change $\Delta v_r$
+  within one transit time.
 
 Loads that vanish at the trailing edge (quartic, trapezoid) do not escape this: the force
 combination $\sum_kc_km_k$ has no trailing-edge term, but the chain $q\to q'\to\dots\to$ const
 of lower moments it needs ends in $m_0$, whose equation (42) carries $z(t,1)$.
 
 **Accuracy, measured** (`tests/test_moments.py`, `experiments/benchmarks/moments_vs_pde.py`):
-for a slip step from an undeflected patch the moments agree with a fine-grid PDE to its own
-accuracy (< 2e-4 relative for the uniform load, ~1e-5 for trapezoid and quartic, shrinking
-with the ODE tolerance) and reach the closed-form steady state to 1e-6. For inputs that
-change while a tread element crosses the patch (a slip-angle ramp over one transit time)
-the frozen closure is wrong by O(1) at the trailing edge for about one transit time, and
-the monomial moments amplify that error (the load coefficients $c_k$ alternate in sign and
-are large: $\sum|c_k| \approx 100$ for the quartic), so the forces can be wrong by more
-than 100 % for a while; they return to the exact steady state once the inputs settle.
-**True exactness for arbitrary input histories is impossible with finitely many states**;
-use `DistributedLuGre2D` for fast, non-step transients.
+for a slip step from an undeflected patch the moments agree with a fine-grid PDE to the
+PDE's own accuracy (< 2e-4 relative for the uniform load, ~1e-5 for trapezoid and quartic;
+the moment error itself shrinks with the ODE tolerance) and reach the closed-form steady
+state to 1e-6. **For inputs that vary during a transit the moment system is not exact and
+is badly conditioned**: the interior of the PDE never depends on the outflow value
+$z(t,1)$, but the moments do, and an error $\delta$ in it reaches $m_p$ with steady gain
+$\sum_{j\le p}\frac{p!}{j!}\bigl(\frac{c}{LC_0}\bigr)^{p-j+1}$ (~100 for $p = 5$ at
+$c/(LC_0)\approx0.8$), which the alternating load coefficients ($\sum|c_k|\approx100$ for
+the quartic) amplify again. Measured for a 4 deg slip-angle ramp at 20 m/s: uniform load
+F_x, F_y within 0.3 %, 3-5 %, M_z 20-50 %; the quartic load's F_y, M_z wrong by factors
+(see the benchmark output). Use `DistributedLuGre2D` (cheap at n = 16-48) for such inputs.
 
-State: `(m, w, s)` with moments `m` of shape `(2, pieces, m+2)`, the point-model deflection
-`w` (2,) and the travelled distance `s` (in patch lengths).
+State: `(m, z_edge, s)`: moments `m` of shape `(2, P, K)` (P pieces, K = load degree + 2),
+edge deflections `z_edge` of shape `(2, P)` (the right edge of every piece) and the
+travelled distance `s` (in patch lengths).
 """
 
 from __future__ import annotations
@@ -67,7 +75,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._math import one_minus_exp_over, safe_abs
+from .._math import safe_abs
 from .base import AbstractTire
 from .load import AbstractLoadDistribution, PolynomialLoad, TrapezoidalLoad, UniformLoad
 from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
@@ -159,31 +167,23 @@ class MomentLuGre2D(AbstractTire):
         return int(self.coeffs.shape[0])
 
     def init_state(self, z0=None):
-        r"""Moments of the uniform deflection `z0` (default 0), shape (2,) [m]."""
+        r"""State of the uniform deflection `z0` (default 0), shape (2,) [m]."""
         z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
         K = self.n_moments
         a, b = self.edges[:-1], self.edges[1:]
         k = jnp.arange(1, K + 1)
         ints = (_powers(b, K + 1)[:, 1:] - _powers(a, K + 1)[:, 1:]) / k[None, :]
-        return (z0[:, None, None] * ints[None, :, :], z0, jnp.zeros(()))
+        z_edge = jnp.broadcast_to(z0[:, None], (2, self.pieces))
+        return (z0[:, None, None] * ints[None, :, :], z_edge, jnp.zeros(()))
 
-    def edge_values(self, state, v_r, c):
-        r"""$z_i(t, e_j)$ at every piece edge, shape `(2, P+1)` (module docstring, cases 1-2)."""
-        _, w, s = state
-        C0 = decay_rates(self.params, v_r)
-        rolling = c > 0
-        c_safe = jnp.where(rolling, c, 1.0)
-        e = self.edges[None, :]
-        frozen = (v_r * self.params.L / c_safe)[:, None] * e * one_minus_exp_over(
-            (C0 * self.params.L / c_safe)[:, None] * e
-        )
-        inside = (s < self.edges)[None, :]
-        z = jnp.where(inside, w[:, None], frozen)
-        return z.at[:, 0].set(0.0)
+    def edge_values(self, state):
+        r"""$z_i(t, e_j)$ at every piece edge, shape `(2, P+1)` ($z = 0$ at the leading edge)."""
+        z_edge = state[1]
+        return jnp.concatenate([jnp.zeros_like(z_edge[:, :1]), z_edge], axis=1)
 
     def derivative(self, state, v_r, c):
-        r"""Time derivative of `(m, w, s)` (eqs. 41-42 plus the boundary states)."""
-        m, w, _ = state
+        r"""Time derivative of `(m, z_edge, s)` (eqs. 41-42 and the edge equations)."""
+        m, z_edge, s = state
         K = self.n_moments
         C0 = decay_rates(self.params, v_r)
         b_rate = c / self.params.L
@@ -191,7 +191,7 @@ class MomentLuGre2D(AbstractTire):
         pa, pb = _powers(a, K + 1), _powers(b, K + 1)
         k = jnp.arange(1, K + 1)
         ints = (pb[:, 1:] - pa[:, 1:]) / k[None, :]
-        zedge = self.edge_values(state, v_r, c)
+        zedge = self.edge_values(state)
         boundary = zedge[:, 1:, None] * pb[None, :, :K] - zedge[:, :-1, None] * pa[None, :, :K]
         p = jnp.arange(K)
         lower = jnp.concatenate([jnp.zeros_like(m[..., :1]), m[..., :-1]], axis=-1)
@@ -201,8 +201,14 @@ class MomentLuGre2D(AbstractTire):
             - b_rate * boundary
             + b_rate * p[None, None, :] * lower
         )
-        w_dot = v_r - C0 * w
-        return (m_dot, w_dot, b_rate)
+        # Edge equations: point model minus the (frozen) arrival of undeflected tread.
+        rolling = c > 0
+        c_safe = jnp.where(rolling, c, 1.0)
+        decay = jnp.exp(-(C0 * self.params.L / c_safe)[:, None] * b[None, :])
+        arrived = (s >= b)[None, :] & rolling
+        arrival = jnp.where(arrived, decay * v_r[:, None], 0.0)
+        z_edge_dot = v_r[:, None] - C0[:, None] * z_edge - arrival
+        return (m_dot, z_edge_dot, b_rate)
 
     def mu(self, state, v_r, c):
         r"""$(F_x/F_n, F_y/F_n, M_z/(F_nL))$ (eqs. 46 and 48, our sign)."""
