@@ -159,3 +159,20 @@ def test_moment_forces_gradient_in_ramp_matches_fd():
         return jnp.sum(mom.mu(state, v_r, c) * jnp.array([1.0, 1.0, 10.0]))
 
     assert_grad_matches_fd(f, jnp.asarray(0.3), rtol=1e-6)
+
+
+def test_new_parameter_values_do_not_retrace():
+    """Parameters and load are arrays: a new value reuses the compiled vector field."""
+
+    @eqx.filter_jit
+    @eqx.debug.assert_max_traces(max_traces=1)
+    def rhs(model, state, v_r, c):
+        return model.derivative(state, v_r, c)
+
+    p = lugre2d_bakker1987()
+    for scale, ramp in ((1.0, 0.25), (1.3, 0.2), (0.7, 0.4)):
+        q = eqx.tree_at(lambda t: t.sigma0, p, p.sigma0 * scale)
+        model = MomentLuGre2D(q, TrapezoidalLoad(ramp))
+        out = rhs(model, model.init_state(jnp.array([1e-3, 1e-3])), jnp.array([1.0, 2.0]),
+                  jnp.asarray(20.0))
+        assert np.all(np.isfinite(out[0]))
