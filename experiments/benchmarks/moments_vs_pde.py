@@ -4,7 +4,8 @@ Same transient for both: a step to (alpha, kappa) at v = 20 m/s from an undeflec
 (report Fig. 17), 30 ms (three patch transit times), forces saved every 0.5 ms. Reference:
 the PDE on a fine grid (n = 128, rtol 1e-9). The baseline is the PDE at the coarsest
 Chebyshev grid that reaches 1e-3 relative accuracy in all of F_x, F_y, M_z, integrated with
-Tsit5 at rtol 1e-6 (the moments use the same solver and tolerance; explicit: at these grids it is as fast as the implicit Kvaerno5, whose
+Tsit5 at rtol 1e-6 (the moments use Tsit5 at the loosest of 1e-6, 1e-8, 1e-10 that
+reaches 1e-3; explicit: at these grids it is as fast as the implicit Kvaerno5, whose
 dense solves cost more than the extra stiff-limited steps; measured 0.25 s vs 0.26 s at n=48).
 Prints JSON lines; the headline key `ratio` = PDE wall time / moments wall time (after
 compile; compile times reported separately). A second scenario ramps the slip angle over
@@ -92,9 +93,15 @@ def main(quick=False):
                 log(f"alpha={alpha_deg} kappa={kappa} ramp={ramp_s} load={name}")
                 ref, _, _ = timed(make_runner(u, dfx.Tsit5(), 1e-9, ts),
                                   DistributedLuGre2D(p, load, n=128), 0)
-                mom, mom_compile, mom_s = timed(make_runner(u, dfx.Tsit5(), 1e-6, ts),
-                                                MomentLuGre2D(p, load), repeats)
-                mom_err = rel_err(mom, ref)
+                # moments: the loosest tolerance that reaches 1e-3 (the right-hand side has
+                # kinks where tread passes the piece edges, and the monomial moments amplify
+                # solver error, so it can need a tighter tolerance than the PDE)
+                for mom_rtol in (1e-6, 1e-8, 1e-10):
+                    mom, mom_compile, mom_s = timed(make_runner(u, dfx.Tsit5(), mom_rtol, ts),
+                                                    MomentLuGre2D(p, load), repeats)
+                    mom_err = rel_err(mom, ref)
+                    if mom_err < 1e-3:
+                        break
                 base = None
                 for n in grids:
                     for solver, rtol in ((dfx.Tsit5(), 1e-6),):
@@ -107,7 +114,7 @@ def main(quick=False):
                     if base is not None:
                         break
                 rec = dict(benchmark="moments_vs_pde", load=name, alpha_deg=alpha_deg,
-                           kappa=kappa, ramp_s=ramp_s, moments_err=mom_err,
+                           kappa=kappa, ramp_s=ramp_s, moments_err=mom_err, moments_rtol=mom_rtol,
                            moments_wall_s=mom_s, moments_compile_s=mom_compile)
                 if base is not None:
                     rec.update(base, ratio=base["pde_wall_s"] / mom_s)
