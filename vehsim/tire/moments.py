@@ -59,9 +59,11 @@ is badly conditioned**: the interior of the PDE never depends on the outflow val
 $z(t,1)$, but the moments do, and an error $\delta$ in it reaches $m_p$ with steady gain
 $\sum_{j\le p}\frac{p!}{j!}\bigl(\frac{c}{LC_0}\bigr)^{p-j+1}$ (~100 for $p = 5$ at
 $c/(LC_0)\approx0.8$), which the alternating load coefficients ($\sum|c_k|\approx100$ for
-the quartic) amplify again. Measured for a 4 deg slip-angle ramp at 20 m/s: uniform load
-F_x, F_y within 0.3 %, 3-5 %, M_z 20-50 %; the quartic load's F_y, M_z wrong by factors
-(see the benchmark output). Use `DistributedLuGre2D` (cheap at n = 16-48) for such inputs.
+the quartic) amplify again. Measured (benchmark, 4 deg slip-angle ramp at 20 m/s, worst
+of F_x, F_y, M_z relative to its peak): ramp over 10 ms (one transit) - uniform 0.20,
+trapezoid 1.8, quartic 20; over 100 ms - uniform 0.46, trapezoid 1.9, quartic 3e2 (all
+return to the exact steady state once the inputs settle). Use `DistributedLuGre2D`
+(cheap at n = 16-48) for such inputs.
 
 State: `(m, z_edge, s)`: moments `m` of shape `(2, P, K)` (P pieces, K = load degree + 2),
 edge deflections `z_edge` of shape `(2, P)` (the right edge of every piece) and the
