@@ -34,6 +34,12 @@ from .robot.unicycle import (
     SystemII as SystemII,
 )
 from .tire.distributed import DistributedLuGre as DistributedLuGre
+
+# Combined-slip LuGre, method of moments and Magic Formula (report 2.3-2.4)
+from .tire.distributed2d import (
+    DistributedLuGre2D as DistributedLuGre2D,
+    steady_state_forces as steady_state_forces,
+)
 from .tire.load import (
     AbstractLoadDistribution as AbstractLoadDistribution,
     PolynomialLoad as PolynomialLoad,
@@ -51,6 +57,19 @@ from .tire.lugre import (
     relative_velocity as relative_velocity,
     stribeck as stribeck,
 )
+from .tire.lugre2d import (
+    LuGre2DParams as LuGre2DParams,
+    PointLuGre2D as PointLuGre2D,
+    simulate_tire_2d as simulate_tire_2d,
+    slip_angle as slip_angle,
+)
+from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
+from .tire.lumped2d import LumpedLuGre2D as LumpedLuGre2D
+from .tire.magic_formula import (
+    MagicFormula1987 as MagicFormula1987,
+    MagicFormula1987Params as MagicFormula1987Params,
+)
+from .tire.moments import MomentLuGre2D as MomentLuGre2D
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,

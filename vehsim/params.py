@@ -11,6 +11,8 @@ from collections.abc import Callable
 from typing import Any
 
 from .tire.lugre import LuGreParams
+from .tire.lugre2d import LuGre2DParams
+from .tire.magic_formula import MagicFormula1987Params
 
 
 def table3() -> LuGreParams:
@@ -43,9 +45,53 @@ def cdc1999(theta: float = 1.0) -> LuGreParams:
     )
 
 
+def bakker1987() -> MagicFormula1987Params:
+    """Magic Formula coefficients of Bakker, Nyborg and Pacejka (1987), SAE 870421.
+
+    In the paper's units (Fz in kN, slip angle in degrees, slip in percent, N and N m);
+    `vehsim.tire.magic_formula` converts, so users pass N, rad and slip ratio.
+    Lateral (C = 1.30): a1..a8 = -22.1, 1011, 1078, 1.82, 0.208, 0, -0.354, 0.707;
+    camber a9..a13 = 0.028, 0, 14.8, 0.022, 0. Longitudinal (C = 1.65): b1..b8 = -21.3, 1144,
+    49.6, 226, 0.069, -0.006, 0.056, 0.486 (copies with b5 = 0.69 carry a typo). Aligning
+    moment (C = 2.40): c1..c8 = -2.72, -2.28, -1.86, -2.73, 0.110, -0.070, 0.643, -4.04;
+    camber c9..c13 = 0.015, -0.066, 0.945, 0.030, 0.070 (camber not modelled).
+    Source: ../shared/spec/parameters.md ("bakker1987"); these are the Magic Formula values
+    of the report's Fig. 15 (its ref. [5]).
+    """
+    return MagicFormula1987Params(
+        a=[-22.1, 1011.0, 1078.0, 1.82, 0.208, 0.0, -0.354, 0.707, 0.028, 0.0, 14.8, 0.022, 0.0],
+        b=[-21.3, 1144.0, 49.6, 226.0, 0.069, -0.006, 0.056, 0.486],
+        c=[-2.72, -2.28, -1.86, -2.73, 0.110, -0.070, 0.643, -4.04, 0.015, -0.066, 0.945,
+           0.030, 0.070],
+        C_y=1.30, C_x=1.65, C_z=2.40,
+    )
+
+
+def lugre2d_bakker1987() -> LuGre2DParams:
+    """2D LuGre whose steady state matches the `bakker1987` Magic Formula (report Fig. 15).
+
+    Found by `vehsim.tire.lugre2d_fit.fit_to_magic_formula` (optimistix Levenberg-Marquardt,
+    converged in 208 steps from sigma0 = (180, 180) 1/m, mu_k = (0.8, 0.7), mu_s = (1.2, 1.0),
+    v_s = 6.57 m/s, gamma = 0.5): distributed model with uniform load, L = 0.2 m (Table 3),
+    Fz = 4000 N, v = 20 m/s, pure-slip curves F_x(kappa), kappa in [-0.5, 0.5] and
+    F_y(alpha), alpha in [0.5, 20] deg. **Fit residual** |F_LuGre - F_MF| / Fz:
+    RMS 0.0142, max 0.0290. Held (not fitted; they do not enter the steady state or were set
+    to zero): sigma1 = (0.7, 0.7) s/m (Table 3's commonly quoted value, unverified),
+    sigma2 = (0, 0) s/m. The report does not list its 2D parameters; this set is ours.
+    """
+    return LuGre2DParams(
+        sigma0=[379.0400580476603, 179.61587440368314], sigma1=[0.7, 0.7], sigma2=[0.0, 0.0],
+        mu_k=[0.6761008743057866, 0.6503576005342454],
+        mu_s=[2.6012541280115338, 2.7684943911269353],
+        v_s=1.4096457057112053, gamma=0.4319301951972794, L=0.2,
+    )
+
+
 PRESETS: dict[str, Callable[[], Any]] = {
     "table3": table3,
     "cdc1999": cdc1999,
+    "bakker1987": bakker1987,
+    "lugre2d_bakker1987": lugre2d_bakker1987,
 }
 
 

@@ -21,6 +21,7 @@ from ._io import save_figure, write_atomic, write_json
 SECTIONS: tuple[str, ...] = (
     "vehsim.tire._reproduce_longitudinal",
     "vehsim.robot._reproduce_robot",
+    "vehsim.tire._reproduce_combined",
 )
 
 

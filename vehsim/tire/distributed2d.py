@@ -1,0 +1,204 @@
+r"""Distributed combined-slip LuGre over a rectangular patch (eqs. 31-34), and its steady state.
+
+$$\frac{\partial z_i}{\partial t} + |\omega r|\frac{\partial z_i}{\partial\zeta}
+   = v_{ri} - C_{0i}(v_r)\,z_i,\qquad z_i(t, 0) = 0,\qquad i = x, y\quad\text{(eq. 31a)},$$
+$$F_i = \int_0^L\Bigl(\sigma_{0i}z_i + \sigma_{1i}\frac{\partial z_i}{\partial t}
+   + \sigma_{2i}v_{ri}\Bigr)f_n\,d\zeta\quad\text{(eqs. 31b-32)},\qquad
+  M_z = \int_0^L\Bigl(\sigma_{0y}z_y + \sigma_{1y}\frac{\partial z_y}{\partial t}
+   + \sigma_{2y}v_{ry}\Bigr)f_n\Bigl(\frac L2-\zeta\Bigr)d\zeta\quad\text{(eq. 33)},$$
+with $C_{0i}$ of eq. 27 and the signs of `vehsim.tire.lugre2d` (forces on the tire,
+$F_i = -F_i^\text{report}$). The two components share the transport speed $|\omega r|$ and
+are coupled only through $C_{0i}(v_r)$, which is uniform over the patch.
+
+**Discretisation:** exactly that of the longitudinal `DistributedLuGre`, applied to each
+component: Chebyshev-Gauss-Lobatto collocation in $\xi = \zeta/L$, the inflow condition
+imposed weakly by the SAT penalty $-\tau(|\omega r|/L)z_0$, which vanishes with the transport,
+so a locked wheel ($\omega = 0$) collapses *exactly* to `PointLuGre2D` at every node.
+
+**Steady state** (derived as eq. 15): for constant inputs, with $c = |\omega r|$ and
+$k_i = C_{0i}L/c$,
+$$z_{i,ss}(\xi) = \frac{v_{ri}}{C_{0i}}\bigl(1 - e^{-k_i\xi}\bigr)
+  = \frac{v_{ri}L}{c}\,\xi\,\varphi(k_i\xi),\qquad \varphi(x) = \frac{1-e^{-x}}{x},$$
+and $z_{i,ss} = v_{ri}/C_{0i}$ for a locked wheel; `steady_state_forces` integrates it
+against the load (eqs. 32-33 with $\partial_t z = 0$).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._math import one_minus_exp_over, safe_abs, safe_div
+from .base import AbstractTire
+from .distributed import (
+    chebyshev_differentiation,
+    chebyshev_nodes,
+    clenshaw_curtis_weights,
+    interpolation_matrix,
+)
+from .load import AbstractLoadDistribution, UniformLoad
+from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
+
+
+def _split_gauss(load: AbstractLoadDistribution, order: int):
+    """Gauss-Legendre points and weights on [0, 1] split at the load's kinks."""
+    edges = np.unique(np.concatenate([[0.0, 1.0], np.asarray(load.kinks(), dtype=float)]))
+    gx, gw = np.polynomial.legendre.leggauss(order)
+    xs = [0.5 * (b - a) * gx + 0.5 * (a + b) for a, b in zip(edges[:-1], edges[1:])]
+    ws = [0.5 * (b - a) * gw for a, b in zip(edges[:-1], edges[1:])]
+    return np.concatenate(xs), np.concatenate(ws)
+
+
+def lever_moment(load: AbstractLoadDistribution):
+    r"""$\int_0^1 q(\xi)(1/2 - \xi)\,d\xi$: the load's centre of pressure ahead of the patch centre
+    (in units of $L$); zero for loads symmetric about the centre."""
+    xs, ws = _split_gauss(load, 16)
+    return jnp.sum(jnp.asarray(ws * (0.5 - xs)) * load.q(jnp.asarray(xs)))
+
+
+class DistributedLuGre2D(AbstractTire):
+    r"""Distributed 2D LuGre PDE (eqs. 31-34), Chebyshev collocation with $n+1$ nodes per axis.
+
+    State: deflections $z_i(\zeta_j)$, shape `(2, n+1)` (rows $x$, $y$; $\zeta_j = L\xi_j$).
+
+    **Arguments:**
+
+    - `params`: `LuGre2DParams`.
+    - `load`: normalised load shape $q$ with $f_n = F_nq(\zeta/L)/L$ (default uniform).
+    - `n`: polynomial degree (default 48).
+    """
+
+    params: LuGre2DParams
+    load: AbstractLoadDistribution
+    n: int = eqx.field(static=True)
+    D: Float[Array, "n1 n1"]
+    w_q: Float[Array, " n1"]
+    w_m: Float[Array, " n1"]
+    lever: Float[Array, ""]
+    tau: Float[Array, ""]
+
+    def __init__(self, params: LuGre2DParams, load: AbstractLoadDistribution | None = None,
+                 n: int = 48):
+        if int(n) < 4:
+            raise ValueError(f"DistributedLuGre2D.n must be >= 4, got {n}")
+        self.params = params
+        self.load = UniformLoad() if load is None else load
+        self.n = int(n)
+        self.D = jnp.asarray(chebyshev_differentiation(self.n))
+        xs, ws = _split_gauss(self.load, self.n + 8)
+        P = interpolation_matrix(self.n, xs)
+        q = np.asarray(self.load.q(jnp.asarray(xs)))
+        self.w_q = jnp.asarray((ws * q) @ P)
+        self.w_m = jnp.asarray((ws * q * (0.5 - xs)) @ P)
+        self.lever = lever_moment(self.load)
+        self.tau = jnp.asarray(1.0 / clenshaw_curtis_weights(self.n)[0])
+
+    @property
+    def nodes(self) -> Float[Array, " n1"]:
+        r"""Node positions $\zeta_j$ [m]."""
+        return jnp.asarray(chebyshev_nodes(self.n)) * self.params.L
+
+    def init_state(self):
+        return jnp.zeros((2, self.n + 1))
+
+    def derivative(self, state, v_r, c):
+        r"""$\partial_t z$ for relative velocity `v_r` and transport speed $c = |\omega r|$."""
+        C0 = decay_rates(self.params, v_r)
+        b = c / self.params.L
+        transport = state @ self.D.T
+        transport = transport.at[:, 0].add(self.tau * state[:, 0])
+        return v_r[:, None] - C0[:, None] * state - b * transport
+
+    def mu(self, state, v_r, c):
+        r"""$(F_x/F_n, F_y/F_n, M_z/(F_nL))$ for the given state and inputs."""
+        p = self.params
+        zdot = self.derivative(state, v_r, c)
+        integrand = p.sigma0[:, None] * state + p.sigma1[:, None] * zdot
+        f = integrand @ self.w_q + p.sigma2 * v_r
+        m = integrand[1] @ self.w_m + p.sigma2[1] * v_r[1] * self.lever
+        return jnp.stack([f[0], f[1], m])
+
+    def dynamics(self, state, vx, vy, omega, r, Fz):
+        return self.derivative(state, relative_velocity_2d(vx, vy, omega, r),
+                               safe_abs(omega * r))
+
+    def forces(self, state, vx, vy, omega, r, Fz):
+        mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
+        return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])
+
+    def steady_state(self, v_r, c):
+        """Discrete steady state for constant inputs (one linear solve per axis)."""
+        C0 = decay_rates(self.params, v_r)
+        b = c / self.params.L
+        T = self.D.at[0, 0].add(self.tau)
+        eye = jnp.eye(self.n + 1)
+
+        def solve(a, vri):
+            degenerate = (a == 0) & (b == 0)
+            A = jnp.where(degenerate, eye, a * eye + b * T)
+            z = jnp.linalg.solve(A, jnp.full(self.n + 1, vri))
+            return jnp.where(degenerate, 0.0, z)
+
+        return jnp.stack([solve(C0[0], v_r[0]), solve(C0[1], v_r[1])])
+
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(40)
+
+
+def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
+    r"""$z_{i,ss}(\xi)$ (eq. 15 analogue, module docstring) at 1-D `xi`, shape `(N, 2)`."""
+    C0 = decay_rates(params, v_r)
+    rolling = c > 0
+    c_safe = jnp.where(rolling, c, 1.0)
+    k = C0 * params.L / c_safe
+    xi = jnp.asarray(xi).reshape(-1, 1)
+    z_roll = (v_r * params.L / c_safe)[None, :] * xi * one_minus_exp_over(k[None, :] * xi)
+    z_lock = jnp.broadcast_to(safe_div(v_r, C0)[None, :], z_roll.shape)
+    return jnp.where(rolling, z_roll, z_lock)
+
+
+def steady_state_mu(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
+    r"""Closed-form steady state $(F_x/F_n, F_y/F_n, M_z/(F_nL))$ of eqs. 31-33.
+
+    Gauss-Legendre quadrature of $z_{ss}q$ on panels split at the load's kinks and graded to
+    the leading-edge boundary layers of thickness $1/k_i$ (accurate to ~1e-12).
+    """
+    C0 = decay_rates(params, v_r)
+    c_safe = jnp.where(c > 0, c, 1.0)
+    k = C0 * params.L / c_safe
+    edges = [jnp.zeros(()), jnp.ones(())] + [jnp.asarray(e, dtype=float) for e in load.kinks()]
+    for ki in (k[0], k[1]):
+        layer = jnp.minimum(1.0, 40.0 / jnp.maximum(ki, 1e-30))
+        edges += [layer, 0.1 * layer, 0.01 * layer]
+    edges = jnp.sort(jnp.stack(edges))
+    a, b = edges[:-1, None], edges[1:, None]
+    gx, gw = jnp.asarray(_GL_X)[None, :], jnp.asarray(_GL_W)[None, :]
+    xi = (0.5 * (b - a) * gx + 0.5 * (a + b)).reshape(-1)
+    w = (0.5 * (b - a) * gw).reshape(-1)
+    z = steady_state_profile(params, xi, v_r, c)
+    wq = w * load.q(xi)
+    f = params.sigma0 * (wq @ z) + params.sigma2 * v_r
+    m = params.sigma0[1] * ((wq * (0.5 - xi)) @ z[:, 1]) + params.sigma2[1] * v_r[1] * (
+        wq @ (0.5 - xi)
+    )
+    return jnp.stack([f[0], f[1], m])
+
+
+def slip_velocities(v, kappa, alpha):
+    r"""Relative velocity and transport speed for speed $v$, longitudinal slip $\kappa$ and
+    slip angle $\alpha$: $v_x = v\cos\alpha$, $\omega r = v_x(1+\kappa)$, so
+    $v_r = (\kappa v\cos\alpha,\; v\sin\alpha)$ and $c = |\omega r|$."""
+    vx = v * jnp.cos(alpha)
+    wr = vx * (1.0 + kappa)
+    return jnp.stack([wr - vx, v * jnp.sin(alpha)]), safe_abs(wr)
+
+
+def steady_state_forces(params: LuGre2DParams, load: AbstractLoadDistribution, v, kappa, alpha,
+                        Fz):
+    r"""Steady $(F_x, F_y, M_z)$ [N, N, N m] at speed $v$ [m/s], slip ratio $\kappa$ and slip
+    angle $\alpha$ [rad] (the curves of Figs. 13-15)."""
+    v_r, c = slip_velocities(v, kappa, alpha)
+    mu = steady_state_mu(params, load, v_r, c)
+    return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), params.L])
