@@ -38,25 +38,34 @@ class ReducedHalfCar(AbstractVehicle):
     **Arguments:**
 
     - `params`: `HalfCarParams` (the suspension fields are not used).
-    - `tire`: a *static* `AbstractTire` (empty friction state), used for both axles; e.g.
-      `FrictionEllipseTire` (the spec's) or `LinearTire`.
+    - `tire`: a *static* `AbstractTire` (empty friction state), for the front axle and,
+      unless `tire_R` is given, the rear; e.g. `FrictionEllipseTire` (the spec's) or
+      `LinearTire`.
+    - `tire_R`: the rear tire if it differs (static too).
     - `load_iterations`: fixed-point iterations of the load transfer; 1 is exact for tires
       whose forces are proportional to the load (see `quasi_static_loads`).
     """
 
     params: HalfCarParams
     tire: AbstractTire
+    tire_R: AbstractTire | None = None
     load_iterations: int = eqx.field(static=True, default=1)
 
     state_names: ClassVar[tuple[str, ...]] = ("x", "y", "psi", "vx", "vy", "yaw_rate")
     control_names: ClassVar[tuple[str, ...]] = ("kappa_F", "kappa_R", "delta")
 
     def __check_init__(self):
-        if jnp.shape(self.tire.init_state()) != (0,):
-            raise ValueError(
-                "ReducedHalfCar.tire must be static (friction state of shape (0,)); "
-                "use HalfCar for dynamic tires"
-            )
+        for name, tire in (("tire", self.tire), ("tire_R", self.tire_R)):
+            if tire is not None and jnp.shape(tire.init_state()) != (0,):
+                raise ValueError(
+                    f"ReducedHalfCar.{name} must be static (friction state of shape (0,)); "
+                    "use HalfCar for dynamic tires"
+                )
+
+    @property
+    def tires(self) -> tuple[AbstractTire, AbstractTire]:
+        """(front tire, rear tire)."""
+        return self.tire, self.tire if self.tire_R is None else self.tire_R
 
     def axle_velocities(self, state, delta):
         r"""$(V_{Fx}, V_{Fy}, V_{Rx}, V_{Ry})$: wheel-frame velocities of the axle centres [m/s].
@@ -76,13 +85,14 @@ class ReducedHalfCar(AbstractVehicle):
         VFx, VFy, VRx, VRy = self.axle_velocities(state, delta)
         r = self.params.r
         omF, omR = (1.0 + kF) * VFx / r, (1.0 + kR) * VRx / r
-        s0 = self.tire.init_state()
+        tire_F, tire_R = self.tires
+        s0 = jnp.zeros((0,))
 
         def front(Fz):
-            return self.tire.forces(s0, VFx, VFy, omF, r, Fz)
+            return tire_F.forces(s0, VFx, VFy, omF, r, Fz)
 
         def rear(Fz):
-            return self.tire.forces(s0, VRx, VRy, omR, r, Fz)
+            return tire_R.forces(s0, VRx, VRy, omR, r, Fz)
 
         def front_bx(Fz):
             f = front(Fz)
