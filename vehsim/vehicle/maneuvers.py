@@ -32,17 +32,24 @@ def step_steer(delta, t_step=0.5, rise=0.2, drive_torque=0.0):
     return u
 
 
-def brake_in_turn(delta, brake_torque, t_brake=2.0, rise=0.2, front_share=0.6, t_steer=0.2):
+def brake_in_turn(
+    delta, brake_torque, t_brake=2.0, rise=0.2, front_share=0.6, t_steer=0.2, omega_lock=1.0
+):
     r"""Braking in a turn: steer to $\delta$ (at `t_steer`), then brake from `t_brake`.
 
     The total braking torque `brake_torque` [N m] ($> 0$) is split `front_share` :
-    1 - `front_share` between the axles, so $T_F = -s\,T_b$, $T_R = -(1-s)T_b$.
+    1 - `front_share` between the axles. Brakes oppose the wheel's rotation,
+    $T_i = -T_{b,i}\tanh(\omega_i/\omega_{lock})$ ($\omega_{lock}$ = `omega_lock` rad/s),
+    so a locked wheel stays (nearly) locked instead of being spun backwards. Needs the
+    `HalfCar` state (wheel speeds at indices 6, 7).
     """
 
     def u(t, y):
         d = delta * smooth_step(t, t_steer, rise)
         b = brake_torque * smooth_step(t, t_brake, rise)
-        return jnp.stack([-front_share * b, -(1.0 - front_share) * b, d])
+        TF = -front_share * b * jnp.tanh(y[6] / omega_lock)
+        TR = -(1.0 - front_share) * b * jnp.tanh(y[7] / omega_lock)
+        return jnp.stack([TF, TR, d])
 
     return u
 
