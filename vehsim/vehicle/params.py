@@ -4,17 +4,15 @@ One axle stands for the two wheels of the real car: the wheel inertias, suspensi
 stiffnesses and damping coefficients are *per axle* (both wheels together).
 """
 
-from __future__ import annotations
-
 import equinox as eqx
-import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._arrays import float_array
 from .._checks import check_positive, check_range
 
 
 def _array_field(**kwargs):
-    return eqx.field(converter=jnp.asarray, **kwargs)
+    return eqx.field(converter=float_array, **kwargs)
 
 
 class HalfCarParams(eqx.Module):
@@ -38,20 +36,20 @@ class HalfCarParams(eqx.Module):
     axes, and gradients with respect to any field work.
     """
 
-    m: Float[Array, ...] = _array_field()
-    Iz: Float[Array, ...] = _array_field()
-    lF: Float[Array, ...] = _array_field()
-    lR: Float[Array, ...] = _array_field()
-    h: Float[Array, ...] = _array_field()
-    r: Float[Array, ...] = _array_field()
-    Iw_F: Float[Array, ...] = _array_field()
-    Iw_R: Float[Array, ...] = _array_field()
-    Iy: Float[Array, ...] = _array_field(default=2500.0)
-    K_F: Float[Array, ...] = _array_field(default=65_000.0)
-    K_R: Float[Array, ...] = _array_field(default=65_000.0)
-    C_F: Float[Array, ...] = _array_field(default=5_000.0)
-    C_R: Float[Array, ...] = _array_field(default=5_000.0)
-    g: Float[Array, ...] = _array_field(default=9.81)
+    m: Float[Array, "..."] = _array_field()
+    Iz: Float[Array, "..."] = _array_field()
+    lF: Float[Array, "..."] = _array_field()
+    lR: Float[Array, "..."] = _array_field()
+    h: Float[Array, "..."] = _array_field()
+    r: Float[Array, "..."] = _array_field()
+    Iw_F: Float[Array, "..."] = _array_field()
+    Iw_R: Float[Array, "..."] = _array_field()
+    Iy: Float[Array, "..."] = _array_field(default=2500.0)
+    K_F: Float[Array, "..."] = _array_field(default=65_000.0)
+    K_R: Float[Array, "..."] = _array_field(default=65_000.0)
+    C_F: Float[Array, "..."] = _array_field(default=5_000.0)
+    C_R: Float[Array, "..."] = _array_field(default=5_000.0)
+    g: Float[Array, "..."] = _array_field(default=9.81)
 
     def __check_init__(self):
         owner = "HalfCarParams"
