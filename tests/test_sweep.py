@@ -25,10 +25,11 @@ def test_sweep_is_sharded_equals_loop_and_reports_failures():
     base = HalfCar(rally_gravel(), rally_gravel_tire())
     ts = jnp.linspace(0.0, 1.5, 16)
 
-    def scenario(member):
+    def scenario(member):  # inputs sampled on ts (linearly interpolated)
         car = eqx.tree_at(lambda c: (c.params.m, c.params.K_F), base,
                           (member["m"], member["K_F"]))
-        return car, step_steer(member["delta"], t_step=0.2), car.init_state(vx=15.0)
+        inputs = jax.vmap(lambda t: step_steer(member["delta"], t_step=0.2)(t, None))(ts)
+        return car, inputs, car.init_state(vx=15.0)
 
     # 3 members (padded to 4 over 2 devices); the last has a 1e11 N/m front suspension:
     # too stiff for an explicit solver in 3000 steps, so it fails alone.

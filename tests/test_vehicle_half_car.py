@@ -18,6 +18,7 @@ from vehsim import (
     simulate,
 )
 from vehsim.params import cdc1999
+from vehsim.simulate import as_controls
 
 
 TOL = dict(rtol=1e-10, atol=1e-10)
@@ -164,6 +165,19 @@ def test_vmap_jit_grad():
     g = jax.jit(jax.grad(objective))(x0)
     assert np.all(np.isfinite(g)) and np.all(np.abs(g) > 0)
     np.testing.assert_allclose(g, fd_grad(objective, x0, eps=1e-5), rtol=2e-4)
+
+
+def test_input_forms():
+    ts = jnp.array([0.0, 1.0, 3.0])
+    samples = jnp.array([[0.0, 1.0, 2.0], [10.0, 1.0, 0.0], [30.0, -1.0, 4.0]])
+    u, sampled = as_controls(ts, samples, 3)
+    assert sampled
+    np.testing.assert_allclose(u(2.0, None), [20.0, 0.0, 2.0], rtol=1e-14)  # linear
+    u, sampled = as_controls(ts, jnp.array([1.0, 2.0, 3.0]), 3)
+    assert not sampled
+    np.testing.assert_allclose(u(7.0, None), [1.0, 2.0, 3.0])
+    law = lambda t, y: y[:3] * t  # noqa: E731  (feedback is passed through)
+    assert as_controls(ts, law, 3) == (law, False)
 
 
 def test_bad_inputs_raise():

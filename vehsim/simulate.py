@@ -81,6 +81,8 @@ def simulate(
     rtol: float = 1e-8,
     atol: float = 1e-8,
     dt0: float | None = None,
+    jump_ts=None,
+    stepsize_controller: dfx.AbstractStepSizeController | None = None,
     max_steps: int = 16_384,
     adjoint: dfx.AbstractAdjoint | None = None,
     dense: bool = False,
@@ -100,6 +102,9 @@ def simulate(
       may prefer an implicit one (`Kvaerno5`).
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available.
+    - `jump_ts`: times where the inputs have kinks (the controller steps onto them);
+      sampled inputs add `ts` themselves.
+    - `stepsize_controller`: replaces the default ``PIDController(rtol, atol, jump_ts)``.
     - `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
     - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
@@ -114,9 +119,13 @@ def simulate(
     def vector_field(t, y, args):
         return vehicle.f(y, u_fn(t, y))
 
-    controller = dfx.PIDController(
-        rtol=rtol, atol=atol, jump_ts=ts if sampled else None
-    )
+    if stepsize_controller is None:
+        jumps = [jnp.atleast_1d(jnp.asarray(j, dtype=float)) for j in (jump_ts,) if j is not None]
+        if sampled:
+            jumps.append(ts)
+        stepsize_controller = dfx.PIDController(
+            rtol=rtol, atol=atol, jump_ts=jnp.sort(jnp.concatenate(jumps)) if jumps else None
+        )
     sol = dfx.diffeqsolve(
         dfx.ODETerm(vector_field),
         dfx.Tsit5() if solver is None else solver,
@@ -125,7 +134,7 @@ def simulate(
         dt0=dt0,
         y0=state0,
         saveat=dfx.SaveAt(ts=ts, dense=dense),
-        stepsize_controller=controller,
+        stepsize_controller=stepsize_controller,
         max_steps=max_steps,
         adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
         throw=throw,
