@@ -17,7 +17,11 @@ scenario, with both accuracies. The scipy loop is timed on `--baseline-scenarios
 (default 48) and extrapolated to the full set (it runs one scenario after another, so the
 time is linear in the count); compile time is reported separately.
 
+``--tire ellipse`` runs the same benchmark with the spec's static friction-ellipse tire
+(12 states, not stiff) for comparison.
+
     PYTHONPATH=. python experiments/benchmarks/simulate_batch.py [--scenarios 1024]
+        [--tire lugre|ellipse]
 """
 
 from __future__ import annotations
@@ -37,7 +41,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from vehsim import HalfCar, IsotropicLumpedLuGre, rally_gravel, simulate  # noqa: E402
+from vehsim import (  # noqa: E402
+    HalfCar,
+    IsotropicLumpedLuGre,
+    rally_gravel,
+    rally_gravel_tire,
+    simulate,
+)
 from vehsim.params import cdc1999  # noqa: E402
 from vehsim.vehicle.maneuvers import brake_in_turn  # noqa: E402
 
@@ -63,7 +73,11 @@ def scenarios(n, seed=0):
     }
 
 
-CAR = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
+TIRES = {
+    "lugre": lambda: IsotropicLumpedLuGre(cdc1999(), kappa0=1.0),  # dynamic: 16 states
+    "ellipse": rally_gravel_tire,  # the spec's static friction-ellipse MF: 12 states
+}
+CAR = HalfCar(rally_gravel(), TIRES["lugre"]())
 
 
 # ------------------------------------------------------------------ vehsim (JAX)
@@ -82,14 +96,36 @@ def vehsim_final(member, rtol):
 
 # ------------------------------------------------------------------ NumPy baseline
 def _numpy_constants():
-    p, t = CAR.params, CAR.tire.params
+    p = CAR.params
     c = {k: float(getattr(p, k)) for k in type(p).__dataclass_fields__}
-    c.update({f"t_{k}": float(getattr(t, k)) for k in type(t).__dataclass_fields__})
-    c["kappa0"] = float(CAR.tire.kappa0)
+    if isinstance(CAR.tire, IsotropicLumpedLuGre):
+        t = CAR.tire.params
+        c.update({f"t_{k}": float(getattr(t, k)) for k in type(t).__dataclass_fields__})
+        c["kappa0"] = float(CAR.tire.kappa0)
+    else:
+        c.update(B=float(CAR.tire.B), C=float(CAR.tire.C), D=float(CAR.tire.D))
     return c
 
 
 C = _numpy_constants()
+N_TIRE = 2
+
+
+def configure(tire: str) -> None:
+    """Select the tire of the benchmark (module globals used by both implementations)."""
+    global CAR, C, N_TIRE
+    CAR = HalfCar(rally_gravel(), TIRES[tire]())
+    C = _numpy_constants()
+    N_TIRE = 2 if tire == "lugre" else 0
+
+
+def _ellipse_np(vx, vy, omega, Fz):
+    rolling = max(omega * C["r"], 1e-3)
+    sx, sy = (vx - omega * C["r"]) / rolling, vy / rolling
+    s = np.hypot(sx, sy)
+    B, Cc, D = C["B"], C["C"], C["D"]
+    g = D * np.sin(Cc * np.arctan(B * s)) / s if s > 1e-6 else D * Cc * B
+    return np.zeros(0), np.array([-sx * g, -sy * g]) * max(Fz, 0.0)
 
 
 def _smooth_step(t, t0, rise):
@@ -98,6 +134,8 @@ def _smooth_step(t, t0, rise):
 
 
 def _tire_np(z, vx, vy, omega, Fz):
+    if N_TIRE == 0:
+        return _ellipse_np(vx, vy, omega, Fz)
     r = C["r"]
     vr = np.array([omega * r - vx, -vy])
     sp = np.hypot(vr[0], vr[1])
@@ -123,13 +161,13 @@ def numpy_rhs(t, y, delta_max, brake):
     st, ct = np.sin(th), np.cos(th)
     FzF = FzF0 - C["K_F"] * (z - lF * st) - C["C_F"] * (zd - lF * ct * thd)
     FzR = FzR0 - C["K_R"] * (z + lR * st) - C["C_R"] * (zd + lR * ct * thd)
-    dzF, fF = _tire_np(y[12:14], VFx, VFy, omF, FzF)
-    dzR, fR = _tire_np(y[14:16], VRx, VRy, omR, FzR)
+    dzF, fF = _tire_np(y[12:12 + N_TIRE], VFx, VFy, omF, FzF)
+    dzR, fR = _tire_np(y[12 + N_TIRE:], VRx, VRy, omR, FzR)
     Fbx = fF[0] * cd - fF[1] * sd + fR[0]
     Fby = fF[0] * sd + fF[1] * cd + fR[1]
     Mz = (fF[1] * cd + fF[0] * sd) * lF - fR[1] * lR
     cp, sp = np.cos(psi), np.sin(psi)
-    out = np.empty(16)
+    out = np.empty(12 + 2 * N_TIRE)
     out[:12] = [
         vx * cp - vy * sp, vx * sp + vy * cp, r,
         Fbx / m + r * vy, Fby / m - r * vx, Mz / C["Iz"],
@@ -137,7 +175,7 @@ def numpy_rhs(t, y, delta_max, brake):
         zd, (FzF + FzR) / m - g, thd,
         ((FzR * lR - FzF * lF) * ct - (fF[0] * cd - fF[1] * sd + fR[0]) * (h + z)) / C["Iy"],
     ]
-    out[12:14], out[14:16] = dzF, dzR
+    out[12:12 + N_TIRE], out[12 + N_TIRE:] = dzF, dzR
     return out
 
 
@@ -154,18 +192,25 @@ def scipy_final(member, method, rtol):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenarios", type=int, default=1024)
+    ap.add_argument("--tire", choices=sorted(TIRES), default="lugre",
+                    help="lugre: dynamic isotropic lumped LuGre (the benchmark); ellipse: the "
+                         "spec's static friction-ellipse MF (for comparison)")
     ap.add_argument("--baseline-scenarios", type=int, default=48)
     ap.add_argument("--reference-scenarios", type=int, default=8)
     ap.add_argument("--target-error", type=float, default=3e-5,
                     help="max abs final-state error vs the reference [SI units]")
     args = ap.parse_args()
+    configure(args.tire)
+    n_states = 12 + 2 * N_TIRE
     S = scenarios(args.scenarios)
     member = lambda i: {k: v[i] for k, v in S.items()}  # noqa: E731
-    emit(name="simulate_batch.setup", scenarios=args.scenarios, duration_s=T_END, states=16,
+    emit(name="simulate_batch.setup", tire=args.tire, scenarios=args.scenarios,
+         duration_s=T_END, states=n_states,
          devices=str(jax.devices()), backend=jax.default_backend())
 
     # the NumPy vector field is the same as vehsim's
-    y_test = numpy_y0(18.0) + np.linspace(0.01, 0.2, 16) * np.r_[np.ones(12), 1e-2 * np.ones(4)]
+    y_test = numpy_y0(18.0) + np.linspace(0.01, 0.2, n_states) * np.r_[
+        np.ones(12), 1e-2 * np.ones(2 * N_TIRE)]
     for t in (0.1, 2.5):
         u = brake_in_turn(0.04, 900.0, t_brake=T_BRAKE, rise=RISE, front_share=FRONT_SHARE,
                           t_steer=T_STEER, omega_lock=OMEGA_LOCK)
@@ -252,7 +297,7 @@ def main():
     # cross-check: the two agree on the timed subset
     agree = float(np.max(np.abs(np.asarray(y[:nb]) - np.stack(finals_s))))
     emit(
-        name="simulate_batch",
+        name="simulate_batch", tire=args.tire,
         ratio=round(wall_s / wall_v, 2),
         vehsim_wall_s=round(wall_v, 4), vehsim_compile_s=round(compile_s, 2),
         vehsim_scenarios_per_s=round(args.scenarios / wall_v, 1),
