@@ -183,3 +183,5 @@ def test_input_forms():
 def test_bad_inputs_raise():
     with pytest.raises(ValueError, match="inputs have shape"):
         simulate(CAR, jnp.linspace(0.0, 1.0, 5), jnp.zeros((4, 3)), CAR.init_state(vx=1.0))
+    with pytest.raises(ValueError, match="HalfCar.tire_R"):
+        HalfCar(rally_gravel(), rally_gravel_tire(), IsotropicLumpedLuGre(cdc1999()))

@@ -66,6 +66,16 @@ class HalfCar(AbstractVehicle):
     )
     control_names: ClassVar[tuple[str, ...]] = ("T_F", "T_R", "delta")
 
+    def __check_init__(self):
+        if self.tire_R is not None:
+            zF, zR = ravel_pytree(self.tire.init_state())[0], ravel_pytree(
+                self.tire_R.init_state())[0]
+            if zF.shape != zR.shape:
+                raise ValueError(
+                    f"HalfCar.tire_R must have a friction state of the same size as tire "
+                    f"({zF.shape[0]}), got {zR.shape[0]}"
+                )
+
     @property
     def tires(self) -> tuple[AbstractTire, AbstractTire]:
         """(front tire, rear tire)."""
