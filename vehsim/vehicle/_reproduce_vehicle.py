@@ -67,10 +67,10 @@ def reproduce(ctx) -> None:
     v0 = 20.0
     static = params.static_loads()
     cases = [
-        ("step_steer", step_steer(0.05, t_step=0.5),
-         "Step steer, delta = 0.05 rad at 20 m/s (coasting), rally-gravel car"),
-        ("brake_in_turn", brake_in_turn(0.05, 1200.0, t_brake=2.0),
-         "Braking in a turn: delta = 0.05 rad, 1200 N m braking (60 % front) from t = 2 s"),
+        ("step_steer", step_steer(0.02, t_step=0.5),
+         "Step steer, delta = 0.02 rad at 20 m/s (coasting), rally-gravel car"),
+        ("brake_in_turn", brake_in_turn(0.03, 1200.0, t_brake=2.0),
+         "Braking in a turn: delta = 0.03 rad, 1200 N m braking (60 % front) from t = 2 s"),
     ]
     duration = 4.0 if ctx.quick else 6.0
     ts = jnp.linspace(0.0, duration, 201 if ctx.quick else 601)
