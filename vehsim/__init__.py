@@ -79,4 +79,21 @@ from .tire.steady_state import (
 from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 
 
+# isort: split
+# issue 5: vehicles, simulate, sweeps
+from .simulate import Trajectory as Trajectory, simulate as simulate
+from .sweep import SweepResult as SweepResult, grid as grid, sweep as sweep
+from .tire.friction_ellipse import (
+    FrictionEllipseTire as FrictionEllipseTire,
+    rally_gravel_tire as rally_gravel_tire,
+)
+from .tire.isotropic_lumped import IsotropicLumpedLuGre as IsotropicLumpedLuGre
+from .tire.linear import LinearTire as LinearTire
+from .vehicle.base import AbstractVehicle as AbstractVehicle
+from .vehicle.half_car import HalfCar as HalfCar
+from .vehicle.maneuvers import brake_in_turn as brake_in_turn, step_steer as step_steer
+from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rally_gravel
+from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
+
+
 __version__ = "0.1.0"

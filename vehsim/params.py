@@ -10,9 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from .tire.friction_ellipse import rally_gravel_tire
 from .tire.lugre import LuGreParams
 from .tire.lugre2d import LuGre2DParams
 from .tire.magic_formula import MagicFormula1987Params
+from .vehicle.params import rally_gravel
 
 
 def table3() -> LuGreParams:
@@ -92,6 +94,9 @@ PRESETS: dict[str, Callable[[], Any]] = {
     "cdc1999": cdc1999,
     "bakker1987": bakker1987,
     "lugre2d_bakker1987": lugre2d_bakker1987,
+    # issue 5: the maneuver spec's vehicle and tire (../shared/spec/maneuvers.md)
+    "rally_gravel": rally_gravel,
+    "rally_gravel_tire": rally_gravel_tire,
 }
 
 

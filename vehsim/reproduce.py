@@ -22,6 +22,7 @@ SECTIONS: tuple[str, ...] = (
     "vehsim.tire._reproduce_longitudinal",
     "vehsim.robot._reproduce_robot",
     "vehsim.tire._reproduce_combined",
+    "vehsim.vehicle._reproduce_vehicle",
 )
 
 

@@ -1,0 +1,147 @@
+r"""`simulate`: vehicle + tire + inputs + initial state + time grid -> named trajectory.
+
+Pure and composable: `jax.jit`, `jax.vmap` (over parameters, inputs and initial states)
+and `jax.grad` apply to `simulate` end to end.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .vehicle.base import AbstractVehicle
+
+
+class Trajectory(eqx.Module):
+    """Result of `simulate`: states, controls and named signals at the save times.
+
+    `signals` maps names (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``,
+    ``sideslip``, ``ax``, ``ay``, ``kappa_F``, ``alpha_F``, ``Fx_F``, ``Fy_F``, ``Fz_F``, ...,
+    see the vehicle's ``signals``) to arrays over `ts`; ``traj["Fz_F"]`` is a shortcut.
+    `result` is diffrax's status (``throw=False`` leaves failures for the caller);
+    `solution` holds the dense interpolant when `simulate(..., dense=True)`.
+    """
+
+    ts: Float[Array, " T"]
+    states: Float[Array, "T n"]
+    controls: Float[Array, "T m"]
+    signals: dict
+    result: dfx.RESULTS
+    num_steps: Array
+    solution: dfx.Solution | None = None
+
+    def __getitem__(self, name: str):
+        return self.signals[name]
+
+    @property
+    def ok(self):
+        """True where the solve succeeded."""
+        return self.result == dfx.RESULTS.successful
+
+    def evaluate(self, t):
+        """State at time ``t`` from the dense interpolant (needs ``dense=True``)."""
+        if self.solution is None:
+            raise ValueError("Trajectory.evaluate needs simulate(..., dense=True)")
+        return self.solution.evaluate(t)
+
+
+def as_controls(ts, inputs, n_controls: int) -> tuple[Callable, bool]:
+    r"""Turn `inputs` into a control law $u(t, y)$; also say whether it is sampled on `ts`.
+
+    `inputs` is a constant vector ``(m,)``, samples ``(T, m)`` on `ts` (linear
+    interpolation), or a callable ``u(t, state) -> (m,)`` (a time function that ignores
+    the state, or a state feedback).
+    """
+    if callable(inputs):
+        return inputs, False
+    u = jnp.asarray(inputs, dtype=float)
+    if u.shape == (n_controls,):
+        return (lambda t, y: u), False
+    if u.shape == (jnp.shape(ts)[0], n_controls):
+        interp = dfx.LinearInterpolation(ts=ts, ys=u)
+        return (lambda t, y: interp.evaluate(t)), True
+    raise ValueError(
+        f"inputs have shape {u.shape}; expected ({n_controls},), "
+        f"({jnp.shape(ts)[0]}, {n_controls}) sampled on ts, or a callable u(t, state)"
+    )
+
+
+def simulate(
+    vehicle: AbstractVehicle,
+    ts: Float[Array, " T"],
+    inputs,
+    state0: Float[Array, " n"],
+    *,
+    solver: dfx.AbstractSolver | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    dt0: float | None = None,
+    jump_ts=None,
+    stepsize_controller: dfx.AbstractStepSizeController | None = None,
+    max_steps: int = 16_384,
+    adjoint: dfx.AbstractAdjoint | None = None,
+    dense: bool = False,
+    throw: bool = True,
+) -> Trajectory:
+    r"""Integrate $\dot y = f(y, u(t, y))$ of `vehicle` and evaluate its named signals.
+
+    **Arguments:**
+
+    - `vehicle`: an `AbstractVehicle` (`HalfCar`, `ReducedHalfCar`), tire included.
+    - `ts`: increasing save times [s]; the solve runs from ``ts[0]`` to ``ts[-1]``.
+    - `inputs`: the controls (`vehicle.control_names`): a constant vector, samples on
+      `ts` of shape ``(T, m)`` (linearly interpolated; the step-size controller stops at
+      the sample times), or a callable ``u(t, state)`` (time function or feedback).
+    - `state0`: initial state (e.g. ``HalfCar.init_state(vx=...)``).
+    - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). Stiff dynamic tires
+      may prefer an implicit one (`Kvaerno5`).
+    - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
+      finite `max_steps` keeps reverse-mode differentiation available.
+    - `jump_ts`: times where the inputs have kinks (the controller steps onto them);
+      sampled inputs add `ts` themselves.
+    - `stepsize_controller`: replaces the default ``PIDController(rtol, atol, jump_ts)``.
+    - `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`).
+    - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
+    - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
+      (what batched sweeps do).
+
+    **Returns:** a `Trajectory`.
+    """
+    ts = jnp.asarray(ts, dtype=float)
+    state0 = jnp.asarray(state0, dtype=float)
+    u_fn, sampled = as_controls(ts, inputs, len(vehicle.control_names))
+
+    def vector_field(t, y, args):
+        return vehicle.f(y, u_fn(t, y))
+
+    if stepsize_controller is None:
+        jumps = [jnp.atleast_1d(jnp.asarray(j, dtype=float)) for j in (jump_ts,) if j is not None]
+        if sampled:
+            jumps.append(ts)
+        stepsize_controller = dfx.PIDController(
+            rtol=rtol, atol=atol, jump_ts=jnp.sort(jnp.concatenate(jumps)) if jumps else None
+        )
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field),
+        dfx.Tsit5() if solver is None else solver,
+        t0=ts[0],
+        t1=ts[-1],
+        dt0=dt0,
+        y0=state0,
+        saveat=dfx.SaveAt(ts=ts, dense=dense),
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
+        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        throw=throw,
+    )
+    controls = jax.vmap(u_fn)(ts, sol.ys)
+    signals = jax.vmap(vehicle.signals)(sol.ys, controls)
+    return Trajectory(
+        ts=ts, states=sol.ys, controls=controls, signals=signals, result=sol.result,
+        num_steps=sol.stats["num_steps"], solution=sol if dense else None,
+    )

@@ -1,0 +1,57 @@
+r"""Open-loop test maneuvers for the torque-input `HalfCar`: control laws $u(t, y)$.
+
+Each returns a callable ``u(t, state) -> (T_F, T_R, delta)`` for `vehsim.simulate`; all
+arguments may be JAX arrays (so a sweep can vmap over them). Steering and torque steps are
+smoothed over `rise` seconds with $3s^2 - 2s^3$ (finite input rates; adaptive solvers stay
+efficient and the inputs stay differentiable).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def smooth_step(t, t0, rise):
+    r"""0 before $t_0$, 1 after $t_0 + $ `rise`, $3s^2 - 2s^3$ in between."""
+    s = jnp.clip((t - t0) / rise, 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+def step_steer(delta, t_step=0.5, rise=0.2, drive_torque=0.0):
+    r"""Step steer: $\delta(t) = \delta\,H(t - t_{step})$ (smoothed), constant torques.
+
+    **Arguments:** `delta` [rad] final steering angle; `t_step` [s]; `rise` [s];
+    `drive_torque` [N m] on each axle (0: coasting).
+    """
+
+    def u(t, y):
+        d = delta * smooth_step(t, t_step, rise)
+        T = drive_torque * jnp.ones_like(d)
+        return jnp.stack([T, T, d])
+
+    return u
+
+
+def brake_in_turn(
+    delta, brake_torque, t_brake=2.0, rise=0.2, front_share=0.6, t_steer=0.2, omega_lock=1.0
+):
+    r"""Braking in a turn: steer to $\delta$ (at `t_steer`), then brake from `t_brake`.
+
+    The total braking torque `brake_torque` [N m] ($> 0$) is split `front_share` :
+    1 - `front_share` between the axles. Brakes oppose the wheel's rotation,
+    $T_i = -T_{b,i}\tanh(\omega_i/\omega_{lock})$ ($\omega_{lock}$ = `omega_lock` rad/s),
+    so a locked wheel stays (nearly) locked instead of being spun backwards. Needs the
+    `HalfCar` state (wheel speeds at indices 6, 7).
+    """
+
+    def u(t, y):
+        d = delta * smooth_step(t, t_steer, rise)
+        b = brake_torque * smooth_step(t, t_brake, rise)
+        TF = -front_share * b * jnp.tanh(y[6] / omega_lock)
+        TR = -(1.0 - front_share) * b * jnp.tanh(y[7] / omega_lock)
+        return jnp.stack([TF, TR, d])
+
+    return u
+
+
+MANEUVERS = {"step_steer": step_steer, "brake_in_turn": brake_in_turn}
