@@ -82,7 +82,7 @@ from .tire.transient import TireSolution as TireSolution, simulate_tire as simul
 # isort: split
 # issue 5: vehicles, simulate, sweeps
 from .simulate import Trajectory as Trajectory, simulate as simulate
-from .sweep import SweepResult as SweepResult, grid as grid, sweep as sweep
+from .sweep import SweepResult as SweepResult, grid as sweep_grid, sweep as sweep
 from .tire.friction_ellipse import (
     FrictionEllipseTire as FrictionEllipseTire,
     rally_gravel_tire as rally_gravel_tire,
