@@ -43,20 +43,25 @@ def assert_grad_matches_fd(f, x, *, rtol=1e-4, atol=1e-8, eps=1e-6):
 
 
 def module_grad_matches_fd(f, module, fields, *, rtol=1e-4, atol=1e-8, eps=1e-6):
-    """Check d f(module) / d module.<field> against central differences, for each named
-    (scalar) field, with one compiled function of the stacked field values."""
+    """Check d f(module) / d module.<field> against central differences for each named field
+    (any shape), with one compiled function of all the fields' values raveled together."""
     import equinox as eqx
 
-    x0 = jnp.stack([jnp.asarray(getattr(module, name), dtype=float) for name in fields])
+    values = [jnp.asarray(getattr(module, name), dtype=float) for name in fields]
+    shapes = [v.shape for v in values]
+    sizes = [int(np.prod(s)) for s in shapes]
+    x0 = np.concatenate([np.ravel(np.asarray(v)) for v in values])
 
     def g(x):
-        m = eqx.tree_at(lambda mm: [getattr(mm, n) for n in fields], module, list(x))
-        return f(m)
+        parts = jnp.split(x, np.cumsum(sizes)[:-1])
+        new = [p.reshape(s) for p, s in zip(parts, shapes)]
+        return f(eqx.tree_at(lambda mm: [getattr(mm, n) for n in fields], module, new))
 
-    x0 = np.asarray(x0)
     grad = np.asarray(jax.jit(jax.grad(g))(jnp.asarray(x0)))
     fd = fd_grad(jax.jit(g), x0, eps)
-    for i, name in enumerate(fields):
-        assert np.isfinite(grad[i]), f"non-finite gradient wrt {name}"
-        np.testing.assert_allclose(grad[i], fd[i], rtol=rtol, atol=atol,
-                                   err_msg=f"gradient wrt {name}")
+    offset = 0
+    for name, size in zip(fields, sizes):
+        gi, fi = grad[offset:offset + size], fd[offset:offset + size]
+        offset += size
+        assert np.all(np.isfinite(gi)), f"non-finite gradient wrt {name}"
+        np.testing.assert_allclose(gi, fi, rtol=rtol, atol=atol, err_msg=f"gradient wrt {name}")
