@@ -31,5 +31,30 @@ from .tire.steady_state import (
 )
 from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 
+# issue 4: braking data, quarter car, identification (report section 2.2)
+from .identify.braking import (
+    BrakingData as BrakingData,
+    load_braking as load_braking,
+    save_braking as save_braking,
+    shipped_brakings as shipped_brakings,
+)
+from .identify.fit import (
+    FitError as FitError,
+    FitResult as FitResult,
+    fit_closed_loop as fit_closed_loop,
+    fit_open_loop as fit_open_loop,
+    predict_closed_loop as predict_closed_loop,
+    predict_open_loop as predict_open_loop,
+)
+from .vehicle.quarter_car import (
+    ConstantLoad as ConstantLoad,
+    LoadRelaxation as LoadRelaxation,
+    MagicFormulaParams as MagicFormulaParams,
+    PrescribedLoad as PrescribedLoad,
+    QuarterCar as QuarterCar,
+    RelaxedMagicFormula as RelaxedMagicFormula,
+    simulate_quarter_car as simulate_quarter_car,
+)
+
 
 __version__ = "0.1.0"

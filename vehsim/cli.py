@@ -11,7 +11,10 @@ import importlib
 import sys
 
 
-COMMANDS: tuple[str, ...] = ("vehsim.cli",)
+COMMANDS: tuple[str, ...] = (
+    "vehsim.cli",
+    "vehsim.identify.cli",
+)
 
 
 def register(subparsers) -> None:
