@@ -6,11 +6,12 @@ truth model that is *not* the fitted model:
 
 - plant: `QuarterCar` (400 kg mass share, J = 1.2 kg m^2, r = 0.30 m) with load transfer
   relaxing with a lag (`LoadRelaxation`, gain 0.15, tau 80 ms);
-- tire: the distributed LuGre PDE (eq. 14, `DistributedLuGre`, n = 32) with the quartic
+- tire: the distributed LuGre PDE (eq. 14, `DistributedLuGre`, n = 24) with the quartic
   load density (`QuarticLoad`) and the report's Table 3 parameters, for brakings 1-3;
   a longitudinal Magic Formula with relaxation length (`RelaxedMagicFormula`) for the
   fourth, so that fits are also judged against another model family;
-- inputs: ABS-less emergency stops from 20-24 m/s (brake torque ramps, one two-stage);
+- inputs: ABS-less emergency stops from 20-24 m/s (brake torque ramps, two two-stage),
+  logged until the vehicle speed falls below 1.5 m/s;
 - sensor model (seeded): first-order lags (force and load 2 ms, wheel speed 1 ms, vehicle
   speed 5 ms), white noise, wheel and vehicle speed sample-and-hold at 250 Hz, wheel speed
   quantised to 0.1 rad/s, everything logged at 500 Hz.
@@ -50,6 +51,7 @@ from vehsim.vehicle.quarter_car import (  # noqa: E402
 
 OUT = Path(__file__).resolve().parent.parent / "vehsim" / "data" / "brakings"
 LOG_RATE = 500.0  # Hz
+V_END = 1.5  # m/s: the log stops when the (true) vehicle speed falls below this
 SIM_DT = 1e-4  # s, the truth is saved every 0.1 ms before the sensor model
 MASS, INERTIA, RADIUS = 400.0, 1.2, 0.30
 LOAD = dict(gain=0.15, tau=0.08)
@@ -61,12 +63,12 @@ def torque(ramps, t, xp=np):
     return sum(a * xp.clip((t - t0) / (t1 - t0), 0.0, 1.0) for t0, t1, a in ramps)
 
 
-# name: (tire, v0 [m/s], duration [s], brake torque ramps, seed)
+# name: (tire, v0 [m/s], simulated duration [s], brake torque ramps, seed)
 BRAKINGS = {
-    "braking_1": ("distributed", 22.0, 1.5, ((0.10, 0.35, 2500.0),), 1),
-    "braking_2": ("distributed", 24.0, 2.0, ((0.10, 0.40, 1300.0), (1.0, 1.2, 1300.0)), 2),
-    "braking_3": ("distributed", 20.0, 1.6, ((0.10, 0.70, 1900.0),), 3),
-    "braking_mf": ("magic_formula", 23.0, 1.8, ((0.10, 0.40, 1400.0), (0.9, 1.1, 1200.0)), 4),
+    "braking_1": ("distributed", 22.0, 1.95, ((0.10, 0.35, 2500.0),), 1),
+    "braking_2": ("distributed", 24.0, 2.2, ((0.10, 0.40, 1300.0), (1.0, 1.2, 1300.0)), 2),
+    "braking_3": ("distributed", 20.0, 1.9, ((0.10, 0.70, 1900.0),), 3),
+    "braking_mf": ("magic_formula", 23.0, 2.2, ((0.10, 0.40, 1400.0), (0.9, 1.1, 1200.0)), 4),
 }
 
 SENSORS = {  # signal: (lag [s], noise std, hold rate [Hz] or None, quantum or None)
@@ -79,7 +81,7 @@ SENSORS = {  # signal: (lag [s], noise std, hold rate [Hz] or None, quantum or N
 
 def truth_tire(kind):
     if kind == "distributed":
-        return DistributedLuGre(table3(), QuarticLoad(), n=32)
+        return DistributedLuGre(table3(), QuarticLoad(), n=24)
     return RelaxedMagicFormula(MagicFormulaParams(**MF))
 
 
@@ -117,10 +119,12 @@ def generate(name):
     n_fine = int(round(duration / SIM_DT)) + 1
     t_fine = np.arange(n_fine) * SIM_DT
     sol = simulate_quarter_car(car, jnp.asarray(t_fine), lambda t: torque(ramps, t, jnp), v0,
-                               rtol=1e-8, atol=1e-10, max_steps=500_000)
+                               rtol=1e-7, atol=1e-9, max_steps=500_000)
     truth = {"v": sol.v, "omega": sol.omega, "F_x": sol.Fx, "F_n": sol.Fn}
     rng = np.random.default_rng(seed)
-    n_log = int(round(duration * LOG_RATE)) + 1
+    below = np.nonzero(np.asarray(sol.v) < V_END)[0]
+    t_stop = t_fine[below[0]] if below.size else duration
+    n_log = int(np.floor(t_stop * LOG_RATE + 1e-9)) + 1
     t_log = np.arange(n_log) / LOG_RATE
     meas = {k: sensor(rng, t_fine, np.asarray(truth[k]), t_log, *SENSORS[k]) for k in SENSORS}
     T_b = torque(ramps, t_log) * (1.0 + 0.005 * rng.standard_normal(n_log))
@@ -130,7 +134,7 @@ def generate(name):
     meta = {
         "description": f"synthetic braking '{name}' (vehsim experiments/generate_brakings.py)",
         "truth_tire": ("distributed LuGre PDE (eq. 14), quartic load, Table 3 parameters, "
-                       "n = 32" if kind == "distributed"
+                       "n = 24" if kind == "distributed"
                        else f"longitudinal Magic Formula with relaxation length, {MF}"),
         "truth_parameters": ({k: float(getattr(table3(), k)) for k in
                               ("sigma0", "sigma1", "sigma2", "mu_c", "mu_s", "v_s", "alpha",
@@ -142,11 +146,11 @@ def generate(name):
         "T_b_noise_rel": 0.005,
         "log_rate_Hz": LOG_RATE,
         "seed": seed,
-        "final_speed_truth": float(sol.v[-1]),
+        "final_speed_truth": float(np.interp(t_log[-1], t_fine, np.asarray(sol.v))),
     }
     Tf = np.asarray(sol.Fx)
-    print(f"{name}: v {v0} -> {float(sol.v[-1]):.2f} m/s, wheel {float(sol.omega[-1]) * RADIUS:.2f} "
-          f"m/s, peak |F_x| {np.max(np.abs(Tf)):.0f} N, {n_log} samples", file=sys.stderr)
+    print(f"{name}: v {v0} -> {meta['final_speed_truth']:.2f} m/s, peak |F_x| "
+          f"{np.max(np.abs(Tf)):.0f} N, {n_log} samples", file=sys.stderr)
     return data, meta
 
 

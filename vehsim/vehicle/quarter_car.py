@@ -22,6 +22,7 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 from jaxtyping import Array, Float, PyTree
 
 from .._checks import check_positive, check_range
@@ -288,6 +289,7 @@ def simulate_quarter_car(
     - `brake_torque`: $T_b$ [N m]: constant, samples on `ts` (linear between), or callable.
     - `v0`: initial speed [m/s] (ignored if `state0` is given).
     - `solver`: default `Kvaerno5` (implicit: the friction state is stiff at large slip).
+    - `dt0`: `None` for adaptive steps (`rtol`, `atol`), or a fixed step [s].
     - `adjoint`: e.g. `diffrax.ForwardMode()` for Jacobians in least squares.
     - `throw`: raise if the solve fails; otherwise check `result`.
 
@@ -300,9 +302,13 @@ def simulate_quarter_car(
     def vector_field(t, y, args):
         return car.dynamics(t, y, Tb_fn(t))
 
+    if solver is None:
+        # fixed steps (dt0 given): the implicit solver's Newton iterations need tolerances
+        solver = dfx.Kvaerno5() if dt0 is None else dfx.Kvaerno5(
+            root_finder=dfx.VeryChord(rtol=rtol, atol=atol, norm=optx.max_norm))
     sol = dfx.diffeqsolve(
         dfx.ODETerm(vector_field),
-        dfx.Kvaerno5() if solver is None else solver,
+        solver,
         t0=ts[0],
         t1=ts[-1],
         dt0=dt0,
