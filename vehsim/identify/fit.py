@@ -248,7 +248,7 @@ class FitResult:
     `model` holds the best parameters; `values` every quantity by name; `std_errors` those
     of the free ones (Gauss-Newton); `status` is ``"converged"`` or says why not
     (``"max_steps"``, ``"not_identifiable"``, ``"nonfinite"``) and `message` gives the
-    residual; `errors` the force errors per training braking; `starts` every start's loss.
+    residual; `at_bound` names parameters the data drive to 0 (within 2 standard errors); `errors` the force errors per training braking; `starts` every start's loss.
     """
 
     model: LumpedLuGre
@@ -266,6 +266,7 @@ class FitResult:
     errors: dict[str, dict[str, float]]
     starts: dict[str, Any]
     wall_time_s: float
+    at_bound: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary with the equations' parameter names."""
@@ -277,6 +278,7 @@ class FitResult:
             "parameters": self.values,
             "free": list(self.free),
             "std_errors": self.std_errors,
+            "at_lower_bound": list(self.at_bound),
             "units": {n: UNITS[n] for n in PARAMETER_NAMES},
             "L": float(self.model.params.L),
             "loss": self.loss,
@@ -436,18 +438,31 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     du = _dtheta_du(np.asarray(theta_all), names)
     Ju = np.concatenate([J_all @ du, float(prior_weight) * np.eye(p)])
     ru = np.concatenate([r, float(prior_weight) * (u_best - np.asarray(u_fixed))[cols]])
+    # A parameter the data push towards zero (dL/du > 0) whose value is within two standard
+    # errors of zero sits at its bound: the log transform reaches 0 only at u = -inf, so LM
+    # crawls. Such parameters are reported (`at_bound`) and left out of the tests below
+    # (a one-sided, KKT-like condition).
+    grad_u = Ju.T @ ru
+    values_all = {n: float(v) for n, v in parameter_values(best_model).items()}
+    size = np.array([theta[i] - (values_all["mu_c"] if n == "mu_s" else 0.0)
+                     for i, n in enumerate(names)])
+    se = np.array([std[n] for n in names])
+    at_bound = (grad_u > 0) & np.isfinite(se) & (size < 2.0 * se)
+    inner = ~at_bound
+    Ji, ri = Ju[:, inner], ru
     with np.errstate(invalid="ignore", divide="ignore"):
-        cosine = np.abs(Ju.T @ ru) / (np.linalg.norm(Ju, axis=0) * np.linalg.norm(ru))
+        cosine = np.abs(Ji.T @ ri) / (np.linalg.norm(Ji, axis=0) * np.linalg.norm(ri))
+    cosine = np.append(np.nan_to_num(cosine, nan=0.0), 0.0)
     # ... and MINPACK's ftol test: the loss reduction the Gauss-Newton model still predicts
-    # (full step, no damping) is negligible relative to the loss: in a nearly flat valley
-    # (e.g. mu_c against sigma2 and v_s) LM can crawl for many steps gaining nothing.
-    if np.all(np.isfinite(Ju)) and np.all(np.isfinite(ru)):
-        step = np.linalg.lstsq(Ju, -ru, rcond=None)[0]
-        predicted = float(np.sum(ru**2) - np.sum((ru + Ju @ step) ** 2)) / max(
-            float(np.sum(ru**2)), 1e-300)
+    # (full step, no damping) is negligible relative to the loss.
+    if np.all(np.isfinite(Ji)) and np.all(np.isfinite(ri)) and Ji.shape[1]:
+        step = np.linalg.lstsq(Ji, -ri, rcond=None)[0]
+        predicted = float(np.sum(ri**2) - np.sum((ri + Ji @ step) ** 2)) / max(
+            float(np.sum(ri**2)), 1e-300)
     else:
-        predicted = math.inf
-    stationary = bool(np.all(np.nan_to_num(cosine, nan=0.0) <= gtol)) or predicted <= ftol
+        predicted = 0.0 if Ji.shape[1] == 0 else math.inf
+    stationary = bool(np.all(cosine <= gtol)) or predicted <= ftol
+    bound_names = [n for n, b in zip(names, at_bound) if b]
     if not (np.isfinite(loss) and np.all(np.isfinite(theta))):
         status = "nonfinite"
     elif not np.isfinite(cond) or cond > 1e9 or sv[0] == 0.0:
@@ -467,11 +482,14 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
                       f"cosine {float(np.nanmax(cosine)):.2g} > {gtol:g}, predicted relative "
                       f"loss reduction {predicted:.2g} > {ftol:g})"),
     }[status]
+    if bound_names and status == "converged":
+        reason += "; at the lower bound 0 (within 2 standard errors): " + ", ".join(
+            f"{n} = {values_all[n]:.3g} +/- {std[n]:.2g}" for n in bound_names)
     message = f"{reason}; loss {loss:.6g}, RMS force residual {rms_F:.4g} N"
     values = {n: float(v) for n, v in parameter_values(best_model).items()}
     # spread over the starts that reached (within 1e-6 relative) the best loss
     all_vals = [parameter_values(from_unconstrained(u, model, PARAMETER_NAMES)) for u in us]
-    near = [i for i in range(n_starts) if finite[i] and ok[i]
+    near = [i for i in range(n_starts) if finite[i]
             and losses[i] <= losses[best] * (1 + 1e-6) + 1e-300]
     spread_info = {
         n: {"min": float(min(all_vals[i][n] for i in near)),
@@ -496,7 +514,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         model=best_model, mode=mode, free=names, values=values, std_errors=std, loss=loss,
         rms_force_residual_N=rms_F, converged=converged, status=status, message=message,
         num_steps=int(np.asarray(steps)[best]), condition_number=cond, errors=errors,
-        starts=starts, wall_time_s=wall,
+        starts=starts, wall_time_s=wall, at_bound=tuple(bound_names),
     )
     if throw and not converged:
         raise FitError(f"fit did not converge: {message}")
