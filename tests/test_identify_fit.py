@@ -1,7 +1,7 @@
 """Identification through the simulator: exact recovery, held-out accuracy on data from a
 different (distributed) model, gradients, integrator accuracy, non-convergence reporting.
 
-All fits here use the same data shapes and 3 vmapped starts, so they share one compiled
+All fits here use the same data shapes and 2 vmapped starts, so they share one compiled
 solver (the masked-parameter design of `vehsim.identify.fit`)."""
 
 import equinox as eqx
@@ -28,11 +28,10 @@ from vehsim.tire.lugre import LuGreParams, LumpedLuGre, decay_rate
 from vehsim.tire.transient import simulate_tire
 from vehsim.vehicle.quarter_car import LoadRelaxation, QuarterCar, simulate_quarter_car
 
-from helpers import module_grad_matches_fd
 
 
 TRUTH = LumpedLuGre(table3(), kappa0=1.3)
-N_STARTS = 3
+N_STARTS = 2
 
 
 @pytest.fixture(scope="module")
@@ -97,9 +96,10 @@ def test_no_slip_excitation_reports_nonconvergence_and_residual(brakings):
             jnp.full(n, 20.0), jnp.full(n, 20.0 / float(d.r)),
             jnp.asarray(25.0 * rng.standard_normal(n)), jnp.full(n, 4000.0)))
         data.append(d)
-    with pytest.raises(FitError, match=r"not identifiable.*RMS force residual"):
+    # the default, throw=True, raises with the residual in the message and the result attached
+    with pytest.raises(FitError, match=r"not identifiable.*RMS force residual") as info:
         fit_open_loop(data, n_starts=N_STARTS)
-    res = fit_open_loop(data, n_starts=N_STARTS, throw=False)
+    res = info.value.result
     assert not res.converged and res.status == "not_identifiable"
     assert "RMS force residual" in res.message
     np.testing.assert_allclose(res.rms_force_residual_N, 25.0, rtol=0.1)
@@ -109,9 +109,17 @@ def test_fit_loss_gradient_matches_finite_differences(brakings):
     d = brakings["braking_1"]
     d = jax.tree.map(lambda x: x[:300] if getattr(x, "ndim", 0) == 1 else x, d)  # to the lock
     loss = eqx.filter_jit(lambda m: fit_loss(m, [d]))
-    module_grad_matches_fd(lambda p: loss(LumpedLuGre(p, TRUTH.kappa0)), table3(),
-                           ["sigma0", "sigma1", "sigma2", "mu_c", "mu_s", "v_s"], rtol=1e-4)
-    module_grad_matches_fd(loss, TRUTH, ["kappa0"], rtol=1e-4)
+    grad = eqx.filter_jit(eqx.filter_grad(lambda m: fit_loss(m, [d])))(TRUTH)
+    for name in LUMPED_PARAMETERS:
+        get = (lambda m: m.kappa0) if name == "kappa0" else (
+            lambda m, name=name: getattr(m.params, name))
+        x = float(get(TRUTH))
+        h = 1e-6 * x
+        fd = (float(loss(eqx.tree_at(get, TRUTH, jnp.asarray(x + h))))
+              - float(loss(eqx.tree_at(get, TRUTH, jnp.asarray(x - h))))) / (2 * h)
+        g = float(get(grad))
+        assert np.isfinite(g)
+        np.testing.assert_allclose(g, fd, rtol=1e-4, atol=1e-10, err_msg=name)
 
 
 def test_exponential_scheme_matches_tight_kvaerno5(brakings):
@@ -145,7 +153,7 @@ def test_transforms_give_valid_parameters():
 def test_closed_loop_prediction_reproduces_the_quarter_car():
     # data from a lumped-tire quarter car with relaxing load; the closed-loop predictor,
     # driven by the logged torque and load, must reproduce v, omega, F_x.
-    ts = jnp.linspace(0.0, 0.6, 151)
+    ts = jnp.linspace(0.0, 0.4, 101)
     torque = 2000.0 * jnp.clip((ts - 0.05) / 0.2, 0.0, 1.0)
     car = QuarterCar(TRUTH, mass=400.0, inertia=1.2, radius=0.3, load=LoadRelaxation(0.15, 0.05))
     sol = simulate_quarter_car(car, ts, torque, 22.0, rtol=1e-8, atol=1e-10)

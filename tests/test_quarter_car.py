@@ -85,19 +85,18 @@ def test_magic_formula_peak_closed_form():
 
 
 def test_speed_gradient_matches_finite_differences():
-    # d v(t_end) / d (mu_c, mu_s, kappa0) through the adaptive diffrax solve (tight
-    # tolerances, so that finite differences are not swamped by step-size changes)
-    ts = TS[:31]
-    torque = jnp.where(ts > 0.2, 1500.0, 1500.0 * ts / 0.2)
+    # d v(t_end) / d (mu_s, kappa0) through the adaptive diffrax solve (tight tolerances, so
+    # that finite differences are not swamped by step-size changes), during partial slip
+    ts = TS[:16]
+    torque = 1500.0 * ts / 0.15
 
     @jax.jit
     def v_end(x):
         car = _lumped_car()
-        car = eqx.tree_at(lambda c: (c.tire.params.mu_c, c.tire.params.mu_s, c.tire.kappa0),
-                          car, (x[0], x[1], x[2]))
+        car = eqx.tree_at(lambda c: (c.tire.params.mu_s, c.tire.kappa0), car, (x[0], x[1]))
         return simulate_quarter_car(car, ts, torque, 20.0, rtol=1e-11, atol=1e-12).v[-1]
 
-    assert_grad_matches_fd(v_end, jnp.array([0.8, 1.55, 1.5]), rtol=1e-4, eps=1e-4)
+    assert_grad_matches_fd(v_end, jnp.array([1.55, 1.5]), rtol=1e-4, eps=1e-4)
 
 
 @pytest.mark.parametrize("field, kwargs", [

@@ -21,6 +21,13 @@ integrates exactly, $\bar z^+ = e^{-ah}\bar z + h\,\varphi(ah)\,v_r$ with
 $\varphi(x) = (1-e^{-x})/x$: second order, unconditionally stable, and exact in the
 quasi-static limit. `tests/test_identify_fit.py` checks it against a tight `Kvaerno5` solve.
 
+**Convergence** is declared when optimistix's LM terminates, or when the optimum is
+certified by MINPACK-style tests that survive noisy data (relative gradient cosine
+$\le 10^{-6}$ or a Gauss-Newton-predicted relative loss reduction $\le 10^{-6}$), after
+setting aside parameters driven to their bound 0 (reported in `at_bound`). A Jacobian of
+condition number $> 10^9$ (in relative parameters) means the data cannot determine the
+parameters (e.g. no slip excitation): the fit then fails with the residual in the message.
+
 **Standard errors** come from the Gauss-Newton covariance
 $\operatorname{cov}\theta = s^2(J^\top J)^{-1}$, $s^2 = \sum r_k^2/(N-p)$, with $J$ the
 Jacobian in the physical parameters at the optimum. They assume white residuals; sensor
@@ -60,7 +67,12 @@ UNITS = {"sigma0": "1/m", "sigma1": "s/m", "sigma2": "s/m", "mu_c": "-", "mu_s":
 
 
 class FitError(RuntimeError):
-    """A fit did not converge (raised with `throw=True`); the message gives the residual."""
+    """A fit did not converge (raised with `throw=True`); the message gives the residual and
+    `.result` holds the `FitResult` (status, parameters reached, residuals)."""
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result
 
 
 def default_initial_guess() -> LumpedLuGre:
@@ -517,7 +529,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         starts=starts, wall_time_s=wall, at_bound=tuple(bound_names),
     )
     if throw and not converged:
-        raise FitError(f"fit did not converge: {message}")
+        raise FitError(f"fit did not converge: {message}", result)
     return result
 
 
