@@ -29,7 +29,6 @@ from vehsim.tire.transient import simulate_tire
 from vehsim.vehicle.quarter_car import LoadRelaxation, QuarterCar, simulate_quarter_car
 
 
-
 TRUTH = LumpedLuGre(table3(), kappa0=1.3)
 N_STARTS = 2
 

@@ -22,7 +22,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
@@ -33,7 +32,6 @@ from vehsim.identify.fit import (  # noqa: E402
     fit_loss,
     fit_open_loop,
     parameter_values,
-    with_values,
 )
 
 
@@ -65,7 +63,8 @@ def numpy_forces(theta: dict, d: dict) -> np.ndarray:
             h = (t[k] - t[k - 1]) / SUBSTEPS
             for j in range(SUBSTEPS):
                 s = (j + 0.5) / SUBSTEPS
-                vr_m, a_m = rate(v[k - 1] + s * (v[k] - v[k - 1]), om[k - 1] + s * (om[k] - om[k - 1]))
+                vr_m, a_m = rate(v[k - 1] + s * (v[k] - v[k - 1]),
+                                 om[k - 1] + s * (om[k] - om[k - 1]))
                 x = a_m * h
                 phi = -math.expm1(-x) / x if x > 1e-12 else 1.0
                 z = exp(-x) * z + h * phi * vr_m

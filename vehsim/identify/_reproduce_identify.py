@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .braking import load_braking, shipped_brakings
 from .fit import evaluate, fit_open_loop
-from .report import VARIANTS, figure_force_histories, identify
+from .report import figure_force_histories, identify
 
 
 TITLE = "Braking identification through the simulator (section 2.2, Figs. 10-11)"

@@ -9,7 +9,8 @@ from pathlib import Path
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "fit", help="fit lumped LuGre parameters to braking data (CSV, see vehsim.identify.braking)",
+        "fit",
+        help="fit lumped LuGre parameters to braking data (CSV, see vehsim.identify.braking)",
         description="Fit the lumped LuGre model (eqs. 22-25) to brakings by Levenberg-Marquardt "
         "through the simulator, for constant kappa0 = 1, 2 and fitted kappa0 (report Figs. "
         "10-11); write fit.json (parameters, standard errors, errors, status) and fit.png.",

@@ -260,7 +260,8 @@ class FitResult:
     `model` holds the best parameters; `values` every quantity by name; `std_errors` those
     of the free ones (Gauss-Newton); `status` is ``"converged"`` or says why not
     (``"max_steps"``, ``"not_identifiable"``, ``"nonfinite"``) and `message` gives the
-    residual; `at_bound` names parameters the data drive to 0 (within 2 standard errors); `errors` the force errors per training braking; `starts` every start's loss.
+    residual; `at_bound` names parameters the data drive to 0 (within 2 standard errors);
+    `errors` the force errors per training braking; `starts` every start's loss.
     """
 
     model: LumpedLuGre
@@ -516,8 +517,8 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         "best": best,
         "n_at_best": len(near),
         "spread_at_best": spread_info,
-        "initial": [{n: float(parameter_values(from_unconstrained(u0, model, PARAMETER_NAMES))[n])
-                     for n in names} for u0 in u0s],
+        "initial": [{n: float(v) for n, v in parameter_values(
+            from_unconstrained(u0, model, PARAMETER_NAMES)).items() if n in names} for u0 in u0s],
     }
     errors = {d.name: e for (_, e), d in zip(preds, data)}
     wall = time.perf_counter() - t_start
@@ -534,7 +535,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
 
 
 def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, fixed=None,
-                  n_starts: int = 8, spread: float = 0.3, key: int = 0, tol: float = 1e-9,
+                  n_starts: int = 8, spread: float = 0.3, key: int = 0, tol: float = 1e-6,
                   max_steps: int = 100, substeps: int = 2, prior_weight: float = 1e-4,
                   throw: bool = True, verbose: bool = False) -> FitResult:
     r"""Fit the lumped LuGre model (eqs. 22-25) to brakings, driven by measured $v$, $\omega$.

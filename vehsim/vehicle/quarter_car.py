@@ -52,11 +52,11 @@ class MagicFormulaParams(eqx.Module):
     Vehicle Dynamics* (2012), ch. 7 for the relaxation length.
     """
 
-    B: Float[Array, "..."] = _array_field(default=12.0)
-    C: Float[Array, "..."] = _array_field(default=1.65)
-    D: Float[Array, "..."] = _array_field(default=1.0)
-    E: Float[Array, "..."] = _array_field(default=0.3)
-    relaxation_length: Float[Array, "..."] = _array_field(default=0.25)
+    B: Float[Array, "*batch"] = _array_field(default=12.0)
+    C: Float[Array, "*batch"] = _array_field(default=1.65)
+    D: Float[Array, "*batch"] = _array_field(default=1.0)
+    E: Float[Array, "*batch"] = _array_field(default=0.3)
+    relaxation_length: Float[Array, "*batch"] = _array_field(default=0.25)
 
     def __check_init__(self):
         owner = "MagicFormulaParams"
