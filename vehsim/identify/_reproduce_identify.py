@@ -39,12 +39,12 @@ def reproduce(ctx) -> None:
     ctx.text("Lumped LuGre (eqs. 22-25) fitted by Levenberg-Marquardt through the simulator; "
              "± are Gauss-Newton standard errors (white-noise assumption: lower bounds). "
              "Truth: Table 3 parameters (sigma0 = 181.54, mu_c = 0.8, mu_s = 1.55, v_s = 6.57).",
-             *rows)
+             "", *rows)
     # another model family: the Magic Formula braking
     mf = b["braking_mf"]
     res = fit_open_loop([mf], n_starts=n_starts, throw=False)
     F, err = evaluate(res.model, mf)
-    fig = figure_force_histories([mf], {"lumped LuGre fit": F}, ["lumped LuGre fit"])
+    fig = figure_force_histories([mf], {"lumped LuGre fit": {mf.name: F}}, ["lumped LuGre fit"])
     ctx.figure(fig, "identify_magic_formula",
                "Lumped LuGre fitted to a braking made by a Magic Formula tire with relaxation "
                "length (another model family).")
