@@ -4,6 +4,22 @@ The public API is flat: everything a user needs is importable from ``vehsim``.
 """
 
 from . import params as params
+
+# issue 4: braking data, quarter car, identification (report section 2.2)
+from .identify.braking import (
+    BrakingData as BrakingData,
+    load_braking as load_braking,
+    save_braking as save_braking,
+    shipped_brakings as shipped_brakings,
+)
+from .identify.fit import (
+    FitError as FitError,
+    FitResult as FitResult,
+    fit_closed_loop as fit_closed_loop,
+    fit_open_loop as fit_open_loop,
+    predict_closed_loop as predict_closed_loop,
+    predict_open_loop as predict_open_loop,
+)
 from .params import PRESETS as PRESETS, preset as preset
 from .robot.controllers import (
     AbstractChainedController as AbstractChainedController,
@@ -77,6 +93,15 @@ from .tire.steady_state import (
     z_ss as z_ss,
 )
 from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
+from .vehicle.quarter_car import (
+    ConstantLoad as ConstantLoad,
+    LoadRelaxation as LoadRelaxation,
+    MagicFormulaParams as MagicFormulaParams,
+    PrescribedLoad as PrescribedLoad,
+    QuarterCar as QuarterCar,
+    RelaxedMagicFormula as RelaxedMagicFormula,
+    simulate_quarter_car as simulate_quarter_car,
+)
 
 
 # isort: split

@@ -11,7 +11,11 @@ import importlib
 import sys
 
 
-COMMANDS: tuple[str, ...] = ("vehsim.cli", "vehsim.sweep")
+COMMANDS: tuple[str, ...] = (
+    "vehsim.cli",
+    "vehsim.sweep",
+    "vehsim.identify.cli",
+)
 
 
 def register(subparsers) -> None:

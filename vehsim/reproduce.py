@@ -23,6 +23,7 @@ SECTIONS: tuple[str, ...] = (
     "vehsim.robot._reproduce_robot",
     "vehsim.tire._reproduce_combined",
     "vehsim.vehicle._reproduce_vehicle",
+    "vehsim.identify._reproduce_identify",
 )
 
 

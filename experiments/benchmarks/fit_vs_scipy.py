@@ -1,0 +1,153 @@
+"""Benchmark: identification through vehsim (optimistix LM, forward-mode Jacobians through the
+JAX solve) vs scipy.optimize.least_squares with finite differences on a NumPy simulation of
+the same model, same data, same start, same objective.
+
+Model: lumped LuGre (eqs. 22-23) driven by the measured v, omega of the shipped brakings 1-2
+(exponential midpoint rule, 2 substeps per sample, identical in both), parameters in logs
+(mu_s - mu_c in logs), the same weak prior. Prints JSON lines; the headline is
+``ratio`` = scipy wall time / vehsim wall time (after compilation; compile time separate).
+
+Run:  PYTHONPATH=. python experiments/benchmarks/fit_vs_scipy.py
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+from vehsim.identify.braking import load_braking, shipped_brakings  # noqa: E402
+from vehsim.identify.fit import (  # noqa: E402
+    DEFAULT_FREE,
+    default_initial_guess,
+    fit_loss,
+    fit_open_loop,
+    parameter_values,
+)
+
+
+SUBSTEPS = 2
+PRIOR = 1e-3
+
+
+def numpy_forces(theta: dict, d: dict) -> np.ndarray:
+    """The lumped LuGre force history, same scheme as vehsim.identify.fit, in plain Python."""
+    s0, s1, s2 = theta["sigma0"], theta["sigma1"], theta["sigma2"]
+    mc, ms, vs, al, th = theta["mu_c"], theta["mu_s"], theta["v_s"], theta["alpha"], theta["theta"]
+    kappa = theta["kappa0"] / theta["L"]
+    r = d["r"]
+    t, v, om, Fn = d["t"].tolist(), d["v"].tolist(), d["omega"].tolist(), d["F_n"]
+    exp = math.exp
+
+    def rate(vv, oo):
+        vr = r * oo - vv
+        avr = abs(vr)
+        g = mc + (ms - mc) * exp(-((avr / vs) ** al)) if avr > 0 else ms
+        return vr, th * s0 * avr / g + kappa * abs(oo * r)
+
+    vr, a = rate(v[0], om[0])
+    z = vr / a if a != 0 else 0.0
+    n = len(t)
+    mu = np.empty(n)
+    for k in range(n):
+        if k > 0:
+            h = (t[k] - t[k - 1]) / SUBSTEPS
+            for j in range(SUBSTEPS):
+                s = (j + 0.5) / SUBSTEPS
+                vr_m, a_m = rate(v[k - 1] + s * (v[k] - v[k - 1]),
+                                 om[k - 1] + s * (om[k] - om[k - 1]))
+                x = a_m * h
+                phi = -math.expm1(-x) / x if x > 1e-12 else 1.0
+                z = exp(-x) * z + h * phi * vr_m
+        vr, a = rate(v[k], om[k])
+        mu[k] = s0 * z + s1 * (vr - a * z) + s2 * vr
+    return mu * Fn
+
+
+def main() -> int:
+    files = shipped_brakings()
+    train = [load_braking(files["braking_1"]), load_braking(files["braking_2"])]
+    init = default_initial_guess()
+    base = {k: float(v) for k, v in parameter_values(init).items()}
+    base["L"] = float(init.params.L)
+    np_data = [{k: np.asarray(getattr(d, k)) for k in ("t", "v", "omega", "F_n", "F_x")}
+               | {"r": float(d.r)} for d in train]
+    F_scale = max(float(np.max(np.abs(d["F_x"]))) for d in np_data)
+    names = list(DEFAULT_FREE)
+
+    def theta_of(u):
+        th = dict(base)
+        for n, x in zip(names, u):
+            if n != "mu_s":
+                th[n] = math.exp(x)
+        th["mu_s"] = th["mu_c"] + math.exp(u[names.index("mu_s")])
+        return th
+
+    u0 = np.array([math.log(base[n] - base["mu_c"]) if n == "mu_s" else math.log(base[n])
+                   for n in names])
+
+    def residuals(u):
+        th = theta_of(u)
+        r = [(numpy_forces(th, d) - d["F_x"]) / F_scale for d in np_data]
+        return np.concatenate(r + [PRIOR * (u - u0)])
+
+    def data_loss(th):
+        return 0.5 * sum(float(np.sum(((numpy_forces(th, d) - d["F_x"]) / F_scale) ** 2))
+                         for d in np_data)
+
+    # vehsim: first call compiles, second is timed
+    t0 = time.perf_counter()
+    fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
+    t1 = time.perf_counter()
+    res = fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
+    t2 = time.perf_counter()
+    vehsim_time, compile_time = t2 - t1, (t1 - t0) - (t2 - t1)
+    print(f"vehsim: {res.status} in {vehsim_time:.2f}s ({res.num_steps} LM steps)",
+          file=sys.stderr, flush=True)
+
+    # scipy: MINPACK Levenberg-Marquardt, 2-point finite differences
+    t3 = time.perf_counter()
+    sp = least_squares(residuals, u0, jac="2-point", method="lm", xtol=1e-9, ftol=1e-9,
+                       gtol=1e-9, max_nfev=4000)
+    scipy_time = time.perf_counter() - t3
+    print(f"scipy: status {sp.status} in {scipy_time:.2f}s ({sp.nfev} evaluations)",
+          file=sys.stderr, flush=True)
+
+    th_v = {k: float(v) for k, v in res.values.items()} | {"L": base["L"]}
+    th_s = theta_of(sp.x)
+    # cross-check: both implementations agree on the loss at vehsim's optimum
+    jax_loss = float(fit_loss(res.model, train))
+    row = {
+        "benchmark": "fit_vs_scipy",
+        "ratio": scipy_time / vehsim_time,
+        "vehsim_wall_s": vehsim_time,
+        "vehsim_compile_s": compile_time,
+        "vehsim_status": res.status,
+        "vehsim_lm_steps": res.num_steps,
+        "vehsim_loss": data_loss(th_v),
+        "vehsim_loss_jax": jax_loss,
+        "scipy_wall_s": scipy_time,
+        "scipy_status": int(sp.status),
+        "scipy_nfev": int(sp.nfev),
+        "scipy_loss": data_loss(th_s),
+        "n_samples": int(sum(len(d["t"]) for d in np_data)),
+        "n_parameters": len(names),
+        "vehsim_parameters": {n: th_v[n] for n in names},
+        "scipy_parameters": {n: th_s[n] for n in names},
+        "device": str(jax.devices()[0]),
+    }
+    print(json.dumps(row))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Braking data and parameter identification through the simulator (report section 2.2)."""

@@ -1,0 +1,190 @@
+r"""Braking data: the file format, a validating loader, and a writer.
+
+**Format.** A braking is a CSV file with one header row of column names and one row per
+sample (report section 2.2, Figs. 8-9: wheel-force-transducer force, wheel and vehicle
+speed), plus a side file of metadata with the same stem and suffix ``.json``:
+
+| column  | unit   | meaning                                                          |
+|---------|--------|------------------------------------------------------------------|
+| `t`     | s      | time, strictly increasing                                         |
+| `v`     | m/s    | vehicle (wheel-centre) speed                                      |
+| `omega` | rad/s  | wheel angular speed                                               |
+| `F_x`   | N      | longitudinal friction force, $F_x<0$ when braking                 |
+| `F_n`   | N      | normal load, $\ge 0$                                             |
+| `T_b`   | N m    | brake torque, $\ge 0$ (optional; needed for closed-loop fits)     |
+
+Side file (JSON): ``{"r": rolling radius [m], "m": mass share [kg], "J": wheel inertia
+[kg m^2], "units": {...}, "description": ...}``; only ``r`` is required (``m`` and ``J``
+are needed for closed-loop fits). Extra columns and keys are kept but ignored.
+
+The loader never drops or repairs anything: any problem raises `ValueError` naming the
+file, the row (1-based data row; the header is row 0) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._io import write_atomic, write_json
+
+
+REQUIRED_COLUMNS = ("t", "v", "omega", "F_x", "F_n")
+OPTIONAL_COLUMNS = ("T_b",)
+UNITS = {"t": "s", "v": "m/s", "omega": "rad/s", "F_x": "N", "F_n": "N", "T_b": "N m",
+         "r": "m", "m": "kg", "J": "kg m^2"}
+
+
+class BrakingData(eqx.Module):
+    r"""One braking: samples of $t, v, \omega, F_x, F_n$ (and $T_b$), and the wheel data.
+
+    Arrays are float64 of equal length $T$; `T_b`, `m`, `J` may be `None` (open-loop fits
+    only). `name` is for reports.
+    """
+
+    t: Float[Array, " T"]
+    v: Float[Array, " T"]
+    omega: Float[Array, " T"]
+    F_x: Float[Array, " T"]
+    F_n: Float[Array, " T"]
+    r: Float[Array, ""]
+    T_b: Float[Array, " T"] | None = None
+    m: Float[Array, ""] | None = None
+    J: Float[Array, ""] | None = None
+    name: str = eqx.field(static=True, default="braking")
+
+    @property
+    def v_r(self):
+        r"""Relative velocity $v_r = r\omega - v$ [m/s]."""
+        return self.r * self.omega - self.v
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def _fail(path, row, column, message):
+    where = f"row {row}, column {column!r}" if row is not None else f"column {column!r}"
+    raise ValueError(f"{path}: {where}: {message}")
+
+
+def load_braking(path, r: float | None = None, name: str | None = None) -> BrakingData:
+    """Read and validate a braking CSV (and its ``.json`` side file).
+
+    **Arguments:**
+
+    - `path`: the CSV file.
+    - `r`: rolling radius [m], overriding (or replacing a missing) side file.
+    - `name`: a label (default: the file stem).
+
+    **Raises:** `ValueError` naming the row and column for: a missing required column, a
+    row with the wrong number of fields, a non-numeric, NaN or infinite value, time not
+    strictly increasing, a negative normal load or brake torque, fewer than 3 rows, or a
+    missing/invalid radius.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such braking file")
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise ValueError(f"{path}: empty file (expected a header row)") from None
+        rows = list(reader)
+    for col in REQUIRED_COLUMNS:
+        if col not in header:
+            _fail(path, None, col, f"missing required column (header has {header}; "
+                  f"required {list(REQUIRED_COLUMNS)})")
+    if len(set(header)) != len(header):
+        raise ValueError(f"{path}: duplicate column names in header {header}")
+    wanted = [c for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in header]
+    index = {c: header.index(c) for c in wanted}
+    values = {c: np.empty(len(rows)) for c in wanted}
+    for i, row in enumerate(rows, 1):
+        if len(row) != len(header):
+            col = header[len(row)] if len(row) < len(header) else "<extra>"
+            _fail(path, i, col, f"row has {len(row)} fields, header has {len(header)} "
+                  "(inconsistent lengths)")
+        for c in wanted:
+            text = row[index[c]].strip()
+            try:
+                x = float(text)
+            except ValueError:
+                _fail(path, i, c, f"not a number: {text!r}")
+            if not math.isfinite(x):
+                _fail(path, i, c, f"value must be finite, got {text!r} (NaN or inf)")
+            values[c][i - 1] = x
+    if len(rows) < 3:
+        raise ValueError(f"{path}: need at least 3 data rows, got {len(rows)}")
+    dt = np.diff(values["t"])
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0)) + 2
+        _fail(path, i, "t", f"time must increase strictly, got {values['t'][i - 1]!r} after "
+              f"{values['t'][i - 2]!r}")
+    for c in ("F_n", "T_b"):
+        if c in values and np.any(values[c] < 0):
+            i = int(np.argmax(values[c] < 0)) + 1
+            _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {values[c][i - 1]!r}")
+
+    meta = {}
+    side = path.with_suffix(".json")
+    if side.is_file():
+        try:
+            meta = json.loads(side.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{side}: invalid JSON side file: {e}") from None
+    if r is not None:
+        meta["r"] = r
+    if "r" not in meta:
+        raise ValueError(f"{path}: wheel radius 'r' [m] missing: put it in {side.name} "
+                         "or pass r=")
+    scalars = {}
+    for key in ("r", "m", "J"):
+        if key in meta and meta[key] is not None:
+            try:
+                x = float(meta[key])
+            except (TypeError, ValueError):
+                raise ValueError(f"{side}: {key!r} must be a number, got {meta[key]!r}") from None
+            if not (math.isfinite(x) and x > 0):
+                raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in (0, inf), got {x}")
+            scalars[key] = jnp.asarray(x)
+    return BrakingData(
+        t=jnp.asarray(values["t"]), v=jnp.asarray(values["v"]),
+        omega=jnp.asarray(values["omega"]), F_x=jnp.asarray(values["F_x"]),
+        F_n=jnp.asarray(values["F_n"]),
+        T_b=jnp.asarray(values["T_b"]) if "T_b" in values else None,
+        name=path.stem if name is None else name, **scalars,
+    )
+
+
+def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: int = 10):
+    """Write `data` as CSV (``%.{digits}g``) plus its ``.json`` side file, atomically."""
+    path = Path(path)
+    cols = list(REQUIRED_COLUMNS) + (["T_b"] if data.T_b is not None else [])
+    arrays = [np.asarray(getattr(data, c)) for c in cols]
+    lines = [",".join(cols)]
+    fmt = f"%.{digits}g"
+    for k in range(len(data)):
+        lines.append(",".join(fmt % a[k] for a in arrays))
+    write_atomic(path, "\n".join(lines) + "\n")
+    meta = {"r": float(data.r)}
+    for key in ("m", "J"):
+        if getattr(data, key) is not None:
+            meta[key] = float(getattr(data, key))
+    meta["units"] = {k: UNITS[k] for k in cols + list(meta)}
+    meta.update(metadata or {})
+    write_json(path.with_suffix(".json"), meta)
+    return path
+
+
+def shipped_brakings() -> dict[str, Path]:
+    """The synthetic brakings shipped with vehsim: name -> CSV path (see their side files)."""
+    folder = Path(__file__).resolve().parent.parent / "data" / "brakings"
+    return {p.stem: p for p in sorted(folder.glob("*.csv"))}

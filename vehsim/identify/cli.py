@@ -1,0 +1,70 @@
+"""`vehsim fit DATA.csv [more.csv] [--validate X.csv] [--out DIR]`: identify the lumped LuGre
+parameters from brakings (report section 2.2)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit",
+        help="fit lumped LuGre parameters to braking data (CSV, see vehsim.identify.braking)",
+        description="Fit the lumped LuGre model (eqs. 22-25) to brakings by Levenberg-Marquardt "
+        "through the simulator, for constant kappa0 = 1, 2 and fitted kappa0 (report Figs. "
+        "10-11); write fit.json (parameters, standard errors, errors, status) and fit.png.",
+    )
+    p.add_argument("data", nargs="+", help="training braking CSV file(s)")
+    p.add_argument("--validate", nargs="*", default=[], help="held-out braking CSV file(s)")
+    p.add_argument("--out", default="fit_results", help="output folder (default: fit_results/)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="fit the quarter car driven by the brake torque T_b (needs T_b, m, J)")
+    p.add_argument("--starts", type=int, default=4,
+                   help="multi-start: initial guesses solved in one vmapped call (default 4)")
+    p.add_argument("--radius", type=float, default=None,
+                   help="wheel radius [m] if the data have no side file")
+    p.add_argument("--only-fitted-kappa0", action="store_true",
+                   help="skip the constant kappa0 = 1, 2 fits")
+    p.set_defaults(func=_fit)
+
+
+def _fit(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .._io import save_figure, write_json
+    from .braking import load_braking
+    from .report import VARIANTS, figure_force_histories, identify
+
+    train = [load_braking(f, r=args.radius) for f in args.data]
+    validate = [load_braking(f, r=args.radius) for f in args.validate]
+    names = [d.name for d in train + validate]
+    if len(set(names)) != len(names):
+        raise ValueError(f"braking names (file stems) must be distinct, got {names}")
+    print(f"vehsim fit: {len(train)} training and {len(validate)} held-out braking(s)",
+          file=sys.stderr, flush=True)
+    variants = {"kappa0 fitted": {}} if args.only_fitted_kappa0 else VARIANTS
+    out = identify(train, validate, mode="closed_loop" if args.closed_loop else "open_loop",
+                   variants=variants, n_starts=args.starts, throw=False, verbose=True)
+    folder = Path(args.out)
+    summary = out["summary"]
+    summary["files"] = {"train": [str(f) for f in args.data],
+                        "validate": [str(f) for f in args.validate]}
+    write_json(folder / "fit.json", summary)
+    fig = figure_force_histories(train + validate, out["predictions"], list(variants),
+                                 title="measured vs predicted friction force (lumped LuGre)",
+                                 held_out=[d.name for d in validate])
+    save_figure(fig, folder / "fit.png")
+    plt.close(fig)
+    best = out["fits"]["kappa0 fitted"]
+    print(f"wrote {folder / 'fit.json'} and {folder / 'fit.png'}", file=sys.stderr)
+    for n in best.free:
+        print(f"  {n:7s} = {best.values[n]:.6g} +/- {best.std_errors[n]:.2g}", file=sys.stderr)
+    if not all(f.converged for f in out["fits"].values()):
+        print("vehsim fit: warning: some fits did not converge (see 'status' in fit.json)",
+              file=sys.stderr)
+        return 1
+    return 0

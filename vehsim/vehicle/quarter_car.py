@@ -1,0 +1,329 @@
+r"""Quarter-car braking: one wheel, its share of the vehicle mass, a brake torque, a tire.
+
+$$m\dot v = F_x,\qquad J\dot\omega = -rF_x - T_b(t)\tanh(\omega/\omega_\epsilon),\qquad
+  F_x = \mu(\text{tire state}, v, \omega)\,F_n,$$
+
+with the tire any `AbstractLongitudinalTire` (point, lumped or distributed LuGre, or the
+relaxed Magic Formula below) and the normal load $F_n$ constant, relaxing to a
+load-transfer target, or prescribed (e.g. measured). This is the plant of report
+section 2.2: the brakings of Figs. 10-11 are the response of such a wheel to the brake
+torque. Sign conventions as in `vehsim.tire.lugre`: $F_x<0$ decelerates the car.
+
+The brake is a friction torque opposing rotation; $\tanh(\omega/\omega_\epsilon)$ makes it
+smooth, so a locked wheel creeps at $r\omega\approx r\omega_\epsilon\,
+\operatorname{artanh}(r|F_x|/T_b)$ instead of switching (keep $\omega_\epsilon$ small).
+"""
+
+from __future__ import annotations
+
+import abc
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Float, PyTree
+
+from .._checks import check_positive, check_range
+from .._math import safe_abs
+from ..tire.lugre import AbstractLongitudinalTire, relative_velocity
+from ..tire.transient import as_signal
+
+
+GRAVITY = 9.81
+
+
+def _array_field(**kwargs):
+    return eqx.field(converter=jnp.asarray, **kwargs)
+
+
+# --------------------------------------------------------------------------------------
+# A longitudinal Magic Formula with a relaxation length (a model family other than LuGre)
+# --------------------------------------------------------------------------------------
+
+
+class MagicFormulaParams(eqx.Module):
+    r"""Longitudinal Magic Formula $\mu(s) = D\sin(C\arctan(Bs - E(Bs - \arctan Bs)))$.
+
+    **Fields:** `B` stiffness factor [-] (> 0), `C` shape factor [-] (> 0), `D` peak
+    friction [-] (> 0), `E` curvature factor [-] ($\le 1$), `relaxation_length`
+    $\sigma_\kappa$ [m] (> 0). Bakker, Nyborg and Pacejka (1987); Pacejka, *Tire and
+    Vehicle Dynamics* (2012), ch. 7 for the relaxation length.
+    """
+
+    B: Float[Array, "*batch"] = _array_field(default=12.0)
+    C: Float[Array, "*batch"] = _array_field(default=1.65)
+    D: Float[Array, "*batch"] = _array_field(default=1.0)
+    E: Float[Array, "*batch"] = _array_field(default=0.3)
+    relaxation_length: Float[Array, "*batch"] = _array_field(default=0.25)
+
+    def __check_init__(self):
+        owner = "MagicFormulaParams"
+        check_positive(owner, "B", self.B)
+        check_positive(owner, "C", self.C)
+        check_positive(owner, "D", self.D)
+        check_range(owner, "E", self.E, upper=1.0)
+        check_positive(owner, "relaxation_length", self.relaxation_length)
+
+
+def magic_formula(p: MagicFormulaParams, s):
+    r"""$\mu(s) = D\sin(C\arctan(Bs - E(Bs - \arctan Bs)))$ with $s$ the (transient) slip."""
+    bs = p.B * s
+    return p.D * jnp.sin(p.C * jnp.arctan(bs - p.E * (bs - jnp.arctan(bs))))
+
+
+class RelaxedMagicFormula(AbstractLongitudinalTire):
+    r"""Magic Formula driven by a transient slip with relaxation length $\sigma_\kappa$.
+
+    The state $u$ [m] is the carcass deflection,
+    $\dot u = v_r - |v|\,u/\sigma_\kappa$, and the transient slip is $s' = u/\sigma_\kappa$,
+    which tends to $v_r/|v|$ (the braking/driving slip) with time constant $\sigma_\kappa/|v|$;
+    $\mu = \mu_{MF}(s')$. Finite at $v = 0$ (the state is then held).
+    """
+
+    params: MagicFormulaParams
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def dynamics(self, state, v, omega, r):
+        p = self.params
+        return relative_velocity(v, omega, r) - safe_abs(v) * state / p.relaxation_length
+
+    def mu(self, state, v, omega, r):
+        return magic_formula(self.params, state / self.params.relaxation_length)
+
+
+# --------------------------------------------------------------------------------------
+# Normal load models
+# --------------------------------------------------------------------------------------
+
+
+class AbstractNormalLoad(eqx.Module):
+    r"""How the wheel's normal load $F_n$ evolves: $\dot F_n = \phi(t, F_n, F_x)$."""
+
+    @abc.abstractmethod
+    def rate(self, t, Fn, Fx, Fn_static):
+        """$\\dot F_n$ [N/s] of the load state."""
+
+    def value(self, t, Fn):
+        """The load acting at time `t` given the load state `Fn` (the state itself here)."""
+        return Fn
+
+    def initial(self, t0, Fn_static):
+        """$F_n(t_0)$ [N]."""
+        return Fn_static
+
+
+class ConstantLoad(AbstractNormalLoad):
+    r"""$F_n = F_{n,\text{static}}$ throughout."""
+
+    def rate(self, t, Fn, Fx, Fn_static):
+        return jnp.zeros_like(Fn)
+
+
+class LoadRelaxation(AbstractNormalLoad):
+    r"""Load transfer with a lag: $\tau\dot F_n = F_{n,\text{static}} - k F_x - F_n$.
+
+    Braking ($F_x < 0$) loads the wheel by $k|F_x|$ (for a front wheel of a car whose four
+    wheels brake alike, $k \approx 2h/\ell$ with $h$ the CG height and $\ell$ the wheelbase);
+    $\tau$ [s] is the pitch/suspension lag.
+    """
+
+    gain: Float[Array, ""] = _array_field(default=0.4)
+    tau: Float[Array, ""] = _array_field(default=0.08)
+
+    def __check_init__(self):
+        check_range("LoadRelaxation", "gain", self.gain, lower=0.0)
+        check_positive("LoadRelaxation", "tau", self.tau)
+
+    def rate(self, t, Fn, Fx, Fn_static):
+        return (Fn_static - self.gain * Fx - Fn) / self.tau
+
+
+class PrescribedLoad(AbstractNormalLoad):
+    r"""A given (e.g. measured) $F_n(t)$, linear between samples, used as an input.
+
+    The load state is unused (held constant); `value` interpolates the samples, so a
+    noisy measured load does not enter the stiff part of the solve as a state.
+    """
+
+    ts: Float[Array, " T"] = _array_field()
+    values: Float[Array, " T"] = _array_field()
+
+    def __check_init__(self):
+        if self.ts.shape != self.values.shape or self.ts.ndim != 1:
+            raise ValueError(
+                f"PrescribedLoad.ts and .values must be 1-D of equal length, got "
+                f"{self.ts.shape} and {self.values.shape}"
+            )
+
+    def _interp(self):
+        return dfx.LinearInterpolation(ts=self.ts, ys=self.values)
+
+    def rate(self, t, Fn, Fx, Fn_static):
+        return jnp.zeros_like(Fn)
+
+    def value(self, t, Fn):
+        return self._interp().evaluate(t)
+
+    def initial(self, t0, Fn_static):
+        return self._interp().evaluate(t0)
+
+
+# --------------------------------------------------------------------------------------
+# The quarter car
+# --------------------------------------------------------------------------------------
+
+
+class QuarterCarState(eqx.Module):
+    """State of the quarter car: speeds, normal load and the tire's friction state."""
+
+    v: Float[Array, ""]
+    omega: Float[Array, ""]
+    Fn: Float[Array, ""]
+    tire: PyTree
+
+
+class QuarterCar(eqx.Module):
+    r"""One braked wheel carrying its share of the vehicle mass (see the module docstring).
+
+    **Arguments:**
+
+    - `tire`: any `AbstractLongitudinalTire`.
+    - `mass` $m$ [kg]: the vehicle mass carried by this wheel (> 0).
+    - `inertia` $J$ [kg m^2]: wheel (plus brake disc and half-shaft) inertia (> 0).
+    - `radius` $r$ [m]: rolling radius (> 0).
+    - `load`: an `AbstractNormalLoad` (default `ConstantLoad()`).
+    - `Fn_static` [N]: static load (default $mg$).
+    - `omega_eps` $\omega_\epsilon$ [rad/s]: brake-torque smoothing (> 0, default 0.05).
+    """
+
+    tire: AbstractLongitudinalTire
+    mass: Float[Array, ""] = _array_field()
+    inertia: Float[Array, ""] = _array_field()
+    radius: Float[Array, ""] = _array_field()
+    load: AbstractNormalLoad = eqx.field(default_factory=ConstantLoad)
+    Fn_static: Float[Array, ""] | None = eqx.field(default=None)
+    omega_eps: Float[Array, ""] = _array_field(default=0.05)
+
+    def __post_init__(self):
+        if self.Fn_static is None:
+            self.Fn_static = jnp.asarray(self.mass) * GRAVITY
+        else:
+            self.Fn_static = jnp.asarray(self.Fn_static)
+
+    def __check_init__(self):
+        check_positive("QuarterCar", "mass", self.mass)
+        check_positive("QuarterCar", "inertia", self.inertia)
+        check_positive("QuarterCar", "radius", self.radius)
+        check_positive("QuarterCar", "Fn_static", self.Fn_static)
+        check_positive("QuarterCar", "omega_eps", self.omega_eps)
+
+    def init_state(self, v0, t0=0.0, omega0=None) -> QuarterCarState:
+        """Free rolling at speed `v0` ($\\omega_0 = v_0/r$ unless given), undeflected tire."""
+        v0 = jnp.asarray(v0, dtype=float)
+        omega0 = v0 / self.radius if omega0 is None else jnp.asarray(omega0, dtype=float)
+        return QuarterCarState(
+            v=v0, omega=omega0, Fn=jnp.asarray(self.load.initial(t0, self.Fn_static), dtype=float),
+            tire=self.tire.init_state(),
+        )
+
+    def normal_load(self, t, state: QuarterCarState):
+        """$F_n$ [N] acting at time `t`."""
+        return self.load.value(t, state.Fn)
+
+    def force(self, t, state: QuarterCarState):
+        r"""$F_x = \mu F_n$ [N]."""
+        mu = self.tire.mu(state.tire, state.v, state.omega, self.radius)
+        return mu * self.normal_load(t, state)
+
+    def dynamics(self, t, state: QuarterCarState, brake_torque) -> QuarterCarState:
+        """Time derivative of the state for brake torque `brake_torque` [N m] (>= 0)."""
+        Fx = self.force(t, state)
+        Tb = brake_torque * jnp.tanh(state.omega / self.omega_eps)
+        return QuarterCarState(
+            v=Fx / self.mass,
+            omega=(-self.radius * Fx - Tb) / self.inertia,
+            Fn=self.load.rate(t, state.Fn, Fx, self.Fn_static),
+            tire=self.tire.dynamics(state.tire, state.v, state.omega, self.radius),
+        )
+
+
+class QuarterCarSolution(eqx.Module):
+    """Result of `simulate_quarter_car` at the save times (`Fn` is the acting load)."""
+
+    ts: Float[Array, " T"]
+    v: Float[Array, " T"]
+    omega: Float[Array, " T"]
+    Fn: Float[Array, " T"]
+    Fx: Float[Array, " T"]
+    brake_torque: Float[Array, " T"]
+    tire: PyTree
+    result: dfx.RESULTS
+    num_steps: Array
+
+
+def simulate_quarter_car(
+    car: QuarterCar,
+    ts: Float[Array, " T"],
+    brake_torque,
+    v0,
+    state0: QuarterCarState | None = None,
+    *,
+    solver: dfx.AbstractSolver | None = None,
+    rtol: float = 1e-7,
+    atol: float = 1e-9,
+    dt0: float | None = None,
+    max_steps: int = 200_000,
+    adjoint: dfx.AbstractAdjoint | None = None,
+    throw: bool = True,
+) -> QuarterCarSolution:
+    r"""Integrate the quarter car from free rolling at `v0` under a brake torque $T_b(t)$.
+
+    **Arguments:**
+
+    - `car`: a `QuarterCar`.
+    - `ts`: increasing save times [s].
+    - `brake_torque`: $T_b$ [N m]: constant, samples on `ts` (linear between), or callable.
+    - `v0`: initial speed [m/s] (ignored if `state0` is given).
+    - `solver`: default `Kvaerno5` (implicit: the friction state is stiff at large slip).
+    - `dt0`: `None` for adaptive steps (`rtol`, `atol`), or a fixed step [s].
+    - `adjoint`: e.g. `diffrax.ForwardMode()` for Jacobians in least squares.
+    - `throw`: raise if the solve fails; otherwise check `result`.
+
+    **Returns:** a `QuarterCarSolution` with $v$, $\omega$, $F_n$, $F_x$ at `ts`.
+    """
+    ts = jnp.asarray(ts, dtype=float)
+    Tb_fn = as_signal(ts, brake_torque)
+    y0 = car.init_state(v0, ts[0]) if state0 is None else state0
+
+    def vector_field(t, y, args):
+        return car.dynamics(t, y, Tb_fn(t))
+
+    if solver is None:
+        # fixed steps (dt0 given): the implicit solver's Newton iterations need tolerances
+        solver = dfx.Kvaerno5() if dt0 is None else dfx.Kvaerno5(
+            root_finder=dfx.VeryChord(rtol=rtol, atol=atol, norm=optx.max_norm))
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field),
+        solver,
+        t0=ts[0],
+        t1=ts[-1],
+        dt0=dt0,
+        y0=y0,
+        saveat=dfx.SaveAt(ts=ts),
+        stepsize_controller=dfx.PIDController(rtol=rtol, atol=atol) if dt0 is None
+        else dfx.ConstantStepSize(),
+        max_steps=max_steps,
+        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        throw=throw,
+    )
+    ys = sol.ys
+    Fx = jax.vmap(car.force)(ts, ys)
+    Fn = jax.vmap(car.normal_load)(ts, ys)
+    return QuarterCarSolution(
+        ts=ts, v=ys.v, omega=ys.omega, Fn=Fn, Fx=Fx, brake_torque=jax.vmap(Tb_fn)(ts),
+        tire=ys.tire, result=sol.result, num_steps=sol.stats["num_steps"],
+    )
