@@ -18,12 +18,12 @@ from typing import Any
 from ._io import save_figure, write_atomic, write_json
 
 
-SECTIONS: tuple[str, ...] = (
-    "vehsim.tire._reproduce_longitudinal",
-    "vehsim.robot._reproduce_robot",
-    "vehsim.tire._reproduce_combined",
-    "vehsim.vehicle._reproduce_vehicle",
-    "vehsim.identify._reproduce_identify",
+SECTIONS: tuple[str, ...] = (  # in the order of the report
+    "vehsim.robot._reproduce_robot",  # 2.1
+    "vehsim.tire._reproduce_longitudinal",  # 2.2
+    "vehsim.identify._reproduce_identify",  # 2.2, Figs. 10-11
+    "vehsim.tire._reproduce_combined",  # 2.3-2.4
+    "vehsim.vehicle._reproduce_vehicle",  # 2.5
 )
 
 
