@@ -86,13 +86,7 @@ def interpolation_matrix(n: int, xi_out: np.ndarray) -> np.ndarray:
 
 def _load_weights(load: AbstractLoadDistribution, n: int):
     """Weights w, w' with sum_j w_j z_j = int_0^1 z q dxi and sum_j w'_j z_j = int z q' dxi."""
-    edges = np.unique(np.concatenate([[0.0, 1.0], np.asarray(load.kinks(), dtype=float)]))
-    gx, gw = np.polynomial.legendre.leggauss(n + 8)
-    xs, ws = [], []
-    for a, b in zip(edges[:-1], edges[1:]):
-        xs.append(0.5 * (b - a) * gx + 0.5 * (a + b))
-        ws.append(0.5 * (b - a) * gw)
-    xs, ws = np.concatenate(xs), np.concatenate(ws)
+    xs, ws = load.gauss_points(n + 8)
     P = interpolation_matrix(n, xs)
     q = np.asarray(load.q(jnp.asarray(xs)))
     dq = np.asarray(load.dq(jnp.asarray(xs)))

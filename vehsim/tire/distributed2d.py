@@ -42,19 +42,10 @@ from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
 
 
-def _split_gauss(load: AbstractLoadDistribution, order: int):
-    """Gauss-Legendre points and weights on [0, 1] split at the load's kinks."""
-    edges = np.unique(np.concatenate([[0.0, 1.0], np.asarray(load.kinks(), dtype=float)]))
-    gx, gw = np.polynomial.legendre.leggauss(order)
-    xs = [0.5 * (b - a) * gx + 0.5 * (a + b) for a, b in zip(edges[:-1], edges[1:])]
-    ws = [0.5 * (b - a) * gw for a, b in zip(edges[:-1], edges[1:])]
-    return np.concatenate(xs), np.concatenate(ws)
-
-
 def lever_moment(load: AbstractLoadDistribution):
     r"""$\int_0^1 q(\xi)(1/2 - \xi)\,d\xi$: the load's centre of pressure ahead of the patch centre
     (in units of $L$); zero for loads symmetric about the centre."""
-    xs, ws = _split_gauss(load, 16)
+    xs, ws = load.gauss_points(16)
     return jnp.sum(jnp.asarray(ws * (0.5 - xs)) * load.q(jnp.asarray(xs)))
 
 
@@ -87,7 +78,7 @@ class DistributedLuGre2D(AbstractTire):
         self.load = UniformLoad() if load is None else load
         self.n = int(n)
         self.D = jnp.asarray(chebyshev_differentiation(self.n))
-        xs, ws = _split_gauss(self.load, self.n + 8)
+        xs, ws = self.load.gauss_points(self.n + 8)
         P = interpolation_matrix(self.n, xs)
         q = np.asarray(self.load.q(jnp.asarray(xs)))
         self.w_q = jnp.asarray((ws * q) @ P)

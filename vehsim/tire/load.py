@@ -36,6 +36,15 @@ class AbstractLoadDistribution(eqx.Module):
         """Interior points of [0, 1] where the shape is not smooth (for piecewise quadrature)."""
         return ()
 
+    def gauss_points(self, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gauss-Legendre points and weights on [0, 1], ``order`` per smooth piece (split at
+        `kinks`): exact for polynomials of degree ``2 order - 1`` times the shape."""
+        edges = np.unique(np.concatenate([[0.0, 1.0], np.asarray(self.kinks(), dtype=float)]))
+        gx, gw = np.polynomial.legendre.leggauss(order)
+        xs = [0.5 * (b - a) * gx + 0.5 * (a + b) for a, b in zip(edges[:-1], edges[1:])]
+        ws = [0.5 * (b - a) * gw for a, b in zip(edges[:-1], edges[1:])]
+        return np.concatenate(xs), np.concatenate(ws)
+
     def density(self, zeta, L, Fn=1.0):
         r"""$f_n(\zeta) = F_n\,q(\zeta/L)/L$ [N/m]."""
         return Fn * self.q(zeta / L) / L

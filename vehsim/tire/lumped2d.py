@@ -29,13 +29,12 @@ from jaxtyping import Array, Float
 from .._checks import check_range
 from .._math import one_minus_exp_over, safe_abs
 from .base import AbstractTire
-from .distributed2d import _split_gauss
 from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
 
 
 def _first_moment(load):
-    xs, ws = _split_gauss(load, 16)
+    xs, ws = load.gauss_points(16)
     return jnp.sum(jnp.asarray(ws * xs) * load.q(jnp.asarray(xs)))
 
 
