@@ -32,4 +32,16 @@ from .tire.steady_state import (
 from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 
 
+# isort: split
+# issue 5: vehicles, simulate, sweeps
+from .tire.friction_ellipse import (
+    FrictionEllipseTire as FrictionEllipseTire,
+    rally_gravel_tire as rally_gravel_tire,
+)
+from .tire.linear import LinearTire as LinearTire
+from .vehicle.base import AbstractVehicle as AbstractVehicle
+from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rally_gravel
+from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
+
+
 __version__ = "0.1.0"

@@ -10,7 +10,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from .tire.friction_ellipse import rally_gravel_tire
 from .tire.lugre import LuGreParams
+from .vehicle.params import rally_gravel
 
 
 def table3() -> LuGreParams:
@@ -46,6 +48,9 @@ def cdc1999(theta: float = 1.0) -> LuGreParams:
 PRESETS: dict[str, Callable[[], Any]] = {
     "table3": table3,
     "cdc1999": cdc1999,
+    # issue 5: the maneuver spec's vehicle and tire (../shared/spec/maneuvers.md)
+    "rally_gravel": rally_gravel,
+    "rally_gravel_tire": rally_gravel_tire,
 }
 
 

@@ -1,0 +1,87 @@
+"""Friction-ellipse Magic Formula of ../shared/spec/maneuvers.md."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import assert_grad_matches_fd, module_grad_matches_fd
+
+from vehsim import FrictionEllipseTire, LinearTire, preset, rally_gravel_tire
+
+
+def _spec_numpy(B, C, D, kappa, tan_alpha):
+    """The spec's formulas, literally, in NumPy (s != 0)."""
+    sx = -kappa / (1 + kappa)
+    sy = tan_alpha / (1 + kappa)
+    s = np.sqrt(sx**2 + sy**2)
+    mu = D * np.sin(C * np.arctan(B * s))
+    return -(sx / s) * mu, -(sy / s) * mu
+
+
+def test_matches_spec_formulas_and_is_an_ellipse():
+    tire = rally_gravel_tire()
+    rng = np.random.default_rng(0)
+    kappa = rng.uniform(-0.99, 1.0, 200)
+    tan_alpha = rng.uniform(-2.0, 2.0, 200)
+    mx, my = jax.vmap(tire.mu)(kappa, tan_alpha)
+    ex, ey = _spec_numpy(7.0, 1.6, 0.52, kappa, tan_alpha)
+    np.testing.assert_allclose(mx, ex, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(my, ey, rtol=1e-12, atol=1e-14)
+    # isotropic: |mu| = mu(s) <= D, peak D reached in pure longitudinal slip
+    assert np.all(np.hypot(mx, my) <= 0.52 + 1e-12)
+    k = jnp.linspace(0.0, 1.0, 20001)
+    assert abs(float(jnp.max(tire.mu(k, 0.0 * k)[0])) - 0.52) < 1e-6
+    assert preset("rally_gravel_tire").B == 7.0
+
+
+def test_signs_follow_abstract_tire_convention():
+    tire = rally_gravel_tire()
+    mx, _ = tire.mu(0.1, 0.0)  # driving
+    assert mx > 0
+    mx, _ = tire.mu(-0.1, 0.0)  # braking
+    assert mx < 0
+    _, my = tire.mu(0.0, -0.1)  # sliding to the right -> force to the left
+    assert my > 0
+
+
+def test_abstract_tire_forces_equal_slip_form():
+    tire = rally_gravel_tire()
+    r, Fz = 0.3, 4000.0
+    for vx, vy, kappa in [(10.0, 1.0, 0.05), (20.0, -3.0, -0.5), (3.0, 0.2, 0.9)]:
+        omega = (1 + kappa) * vx / r
+        f = tire.forces(tire.init_state(), vx, vy, omega, r, Fz)
+        mx, my = tire.mu(kappa, vy / vx)
+        np.testing.assert_allclose(f, [mx * Fz, my * Fz, 0.0], rtol=1e-12, atol=1e-9)
+    assert tire.dynamics(tire.init_state(), 1.0, 0.0, 1.0, r, Fz).shape == (0,)
+
+
+def test_locked_wheel_slides_with_limit_friction():
+    tire = rally_gravel_tire()
+    f = tire.forces(tire.init_state(), 12.0, -5.0, 0.0, 0.3, 1000.0)
+    mu_lock = 0.52 * np.sin(1.6 * np.pi / 2)
+    np.testing.assert_allclose(np.hypot(f[0], f[1]), mu_lock * 1000.0, rtol=1e-4)
+    # force opposes the sliding velocity (12, -5)
+    np.testing.assert_allclose(f[1] / f[0], -5.0 / 12.0, rtol=1e-4)
+
+
+def test_gradients_finite_at_zero_slip_and_match_fd():
+    tire = rally_gravel_tire()
+    g = jax.grad(lambda k: tire.mu(k, 0.0)[0])(0.0)
+    np.testing.assert_allclose(g, 7.0 * 1.6 * 0.52, rtol=1e-12)  # slope B C D
+    g = jax.grad(lambda a: tire.mu(0.0, a)[1])(0.0)
+    np.testing.assert_allclose(g, -7.0 * 1.6 * 0.52, rtol=1e-12)
+    # at rest (vx = omega = 0) the forces and their gradients are finite
+    gr = jax.grad(lambda v: tire.forces(tire.init_state(), v, 0.0, 0.0, 0.3, 1.0)[0])(0.0)
+    assert np.isfinite(gr)
+    # parameters, at zero slip and at a combined-slip point
+    for kappa, ta in [(0.0, 0.0), (0.12, -0.2)]:
+        module_grad_matches_fd(lambda t: t.mu(kappa, ta)[0] + 2 * t.mu(kappa, ta)[1],
+                               tire, ["B", "C", "D"])
+    assert_grad_matches_fd(lambda x: tire.mu(x[0], x[1])[1], jnp.array([1e-7, 2e-7]))
+
+
+def test_invalid_parameters_raise():
+    with pytest.raises(ValueError, match="FrictionEllipseTire.B"):
+        FrictionEllipseTire(B=-1.0, C=1.6, D=0.5)
+    with pytest.raises(ValueError, match="LinearTire.c_alpha"):
+        LinearTire(c_kappa=10.0, c_alpha=0.0)

@@ -1,0 +1,100 @@
+r"""Isotropic Magic Formula with friction ellipse (combined slip), ../shared/spec/maneuvers.md.
+
+$$\mu(s) = D\sin(C\arctan(Bs)),$$
+with, for a wheel of practical longitudinal slip $\kappa = (\omega r - V_x)/V_x$ and
+wheel-frame velocity $(V_x, V_y)$,
+$$s_x = -\frac{\kappa}{1+\kappa},\quad s_y = \frac{V_y/V_x}{1+\kappa},\quad
+  s = \sqrt{s_x^2+s_y^2},\quad \mu_x = -\frac{s_x}{s}\mu(s),\quad \mu_y = -\frac{s_y}{s}\mu(s).$$
+Forces are $f_x = \mu_x F_z$, $f_y = \mu_y F_z$ (wheel frame; $F_z$ the normal load).
+
+In velocities, $s_x = (V_x - \omega r)/(\omega r)$ and $s_y = V_y/(\omega r)$: the force
+opposes the slip velocity $(V_x - \omega r, V_y)$ with magnitude $\mu(s)F_z$ and
+$s = |\text{slip velocity}|/(\omega r)$. The tire is static (state shape ``(0,)``).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._checks import check_positive
+from .base import AbstractTire
+
+
+def _array_field(**kwargs):
+    return eqx.field(converter=jnp.asarray, **kwargs)
+
+
+ROLLING_FLOOR = 1e-3
+r"""Floor on the rolling speed $\omega r$ [m/s] in `FrictionEllipseTire.forces`."""
+
+
+def _mu_over_s(B, C, D, s2):
+    r"""$\mu(s)/s$ as a smooth function of $s^2$ (finite value and gradient at $s = 0$).
+
+    Near 0, $\sin(C\arctan(Bs))/s = CB - B^3(C/3 + C^3/6)s^2 + O(s^4)$.
+    """
+    small = s2 < 1e-12
+    s2_safe = jnp.where(small, jnp.ones_like(s2), s2)
+    s = jnp.sqrt(s2_safe)
+    exact = D * jnp.sin(C * jnp.arctan(B * s)) / s
+    series = D * (C * B - B**3 * (C / 3 + C**3 / 6) * s2)
+    return jnp.where(small, series, exact)
+
+
+class FrictionEllipseTire(AbstractTire):
+    r"""Isotropic Magic Formula $\mu(s) = D\sin(C\arctan(Bs))$ with friction ellipse.
+
+    **Fields:** `B`, `C`, `D` (dimensionless; `D` is the peak friction coefficient).
+
+    Used two ways:
+
+    - as an `AbstractTire` (`forces(state, vx, vy, omega, r, Fz)`), for the torque-input
+      half-car; the rolling speed $\omega r$ is floored at `ROLLING_FLOOR` = 1 mm/s so a
+      locked wheel slides with $\mu \to D\sin(C\pi/2)$ (not a division by zero);
+    - as a slip-input law `mu(kappa, tan_alpha)` for the reduced half-car (eqs. 61-63),
+      with $\kappa \in (-1, \infty)$ the control input and `tan_alpha` $= V_y/V_x$.
+    """
+
+    B: Float[Array, ...] = _array_field()
+    C: Float[Array, ...] = _array_field()
+    D: Float[Array, ...] = _array_field()
+
+    def __check_init__(self):
+        check_positive("FrictionEllipseTire", "B", self.B)
+        check_positive("FrictionEllipseTire", "C", self.C)
+        check_positive("FrictionEllipseTire", "D", self.D)
+
+    def mu_of_s(self, s):
+        r"""$\mu(s) = D\sin(C\arctan(Bs))$."""
+        return self.D * jnp.sin(self.C * jnp.arctan(self.B * s))
+
+    def mu_theoretical(self, sx, sy):
+        r"""$(\mu_x, \mu_y) = -(s_x, s_y)\,\mu(s)/s$ from the theoretical slips."""
+        g = _mu_over_s(self.B, self.C, self.D, sx * sx + sy * sy)
+        return -sx * g, -sy * g
+
+    def mu(self, kappa, tan_alpha):
+        r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (spec formulas).
+
+        Singular at $\kappa = -1$ (locked wheel); the spec bounds $\kappa \ge -0.99$.
+        """
+        one_plus = 1.0 + kappa
+        return self.mu_theoretical(-kappa / one_plus, tan_alpha / one_plus)
+
+    def init_state(self):
+        return jnp.zeros((0,))
+
+    def dynamics(self, state, vx, vy, omega, r, Fz):
+        return jnp.zeros((0,))
+
+    def forces(self, state, vx, vy, omega, r, Fz):
+        rolling = jnp.maximum(omega * r, ROLLING_FLOOR)
+        mu_x, mu_y = self.mu_theoretical((vx - omega * r) / rolling, vy / rolling)
+        return jnp.stack([mu_x * Fz, mu_y * Fz, jnp.zeros_like(mu_x * Fz)])
+
+
+def rally_gravel_tire() -> FrictionEllipseTire:
+    """The maneuver benchmark's gravel tire (../shared/spec/maneuvers.md): B=7, C=1.6, D=0.52."""
+    return FrictionEllipseTire(B=7.0, C=1.6, D=0.52)

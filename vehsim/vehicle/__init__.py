@@ -1,0 +1,1 @@
+"""Vehicle models (report section 2.5): half-car with wheel and suspension dynamics, reduced."""
