@@ -46,13 +46,15 @@ class AbstractStagewiseNLP(eqx.Module):
     Sizes are class-level: `num_stages` (M, segments), `state_size`, `control_size`.
     """
 
-    num_stages: eqx.AbstractVar[int]
-    state_size: eqx.AbstractVar[int]
-    control_size: eqx.AbstractVar[int]
+    # subclasses define the static int fields num_stages, state_size, control_size
 
     @abc.abstractmethod
     def transition(self, x: Array, u: Array, k: Array) -> Array:
         """$F_k(x_k, u_k)$: the state at knot $k+1$ reached from knot $k$."""
+
+    def transition_and_path(self, x: Array, u: Array, k: Array) -> tuple[Array, Array]:
+        """$(F_k, h_k)$ together (override to share work, e.g. one integration)."""
+        return self.transition(x, u, k), self.path_inequality(x, u, k)
 
     def stage_cost(self, x: Array, u: Array, k: Array) -> Array:
         """$\\ell_k(x_k, u_k)$ (default 0)."""
@@ -190,38 +192,32 @@ def _layout(prob: AbstractStagewiseNLP) -> _Layout:
     )
 
 
-def _stage_functions(prob: AbstractStagewiseNLP, lay: _Layout):
-    """Unified per-stage functions of y = (x, u) and the stage index k (0..M)."""
+def _stage_function(prob: AbstractStagewiseNLP, lay: _Layout):
+    """All stage outputs of y = (x, u) at stage k (0..M) as one vector
+    (cost, F, e, g): one function to differentiate (one trace, one integration)."""
     M, nx = lay.M, lay.nx
 
     def pad(v, n):
         return jnp.concatenate([v, jnp.zeros((n - v.shape[0],), v.dtype)])
 
-    def cost(y, k):
+    def vec(y, k):
         x, u = y[:nx], y[nx:]
-        return jnp.where(k < M, prob.stage_cost(x, u, k), 0.0) + jnp.where(
+        km = jnp.minimum(k, M - 1)
+        F, h = prob.transition_and_path(x, u, km)
+        cost = jnp.where(k < M, prob.stage_cost(x, u, km), 0.0) + jnp.where(
             k == M, prob.terminal_cost(x), 0.0
         )
-
-    def trans(y, k):
-        return prob.transition(y[:nx], y[nx:], jnp.minimum(k, M - 1))
-
-    def eq(y, k):
-        x = y[:nx]
         e0 = pad(prob.initial_equality(x), lay.ne)
         eT = pad(prob.terminal_equality(x), lay.ne)
-        return jnp.where(k == 0, e0, jnp.where(k == M, eT, 0.0))
-
-    def ineq(y, k):
-        x, u = y[:nx], y[nx:]
-        h = prob.path_inequality(x, u, jnp.minimum(k, M - 1))
+        e = jnp.where(k == 0, e0, jnp.where(k == M, eT, 0.0))
         i0 = prob.initial_inequality(x)
         iT = prob.terminal_inequality(x)
-        return jnp.concatenate(
+        g = jnp.concatenate(
             [jnp.where(k < M, h, 1.0), jnp.where(k == 0, i0, 1.0), jnp.where(k == M, iT, 1.0)]
         )
+        return jnp.concatenate([jnp.reshape(cost, (1,)), F, e, g])
 
-    return cost, trans, eq, ineq
+    return vec
 
 
 def _block_factor(Kd, nx, nu, eps):
@@ -233,7 +229,14 @@ def _block_factor(Kd, nx, nu, eps):
     def step(carry, Kk):
         D = Kk.at[:nx, :nx].add(-carry)
         D = 0.5 * (D + D.T)
-        w, V = jnp.linalg.eigh(D)
+        # symmetric Ruiz equilibration (a congruence: inertia kept) so that graded pivots
+        # (barrier terms 1e10 beside 1e-9 regularisations) keep their small eigenvalues
+        d = jnp.ones(D.shape[0])
+        for _ in range(3):
+            r = jnp.max(jnp.abs(D * d[:, None] * d[None, :]), axis=1)
+            d = d / jnp.sqrt(jnp.where(r > 0, r, 1.0))
+        w, V = jnp.linalg.eigh(D * d[:, None] * d[None, :])
+        V = V * d[:, None]  # D^{-1} = (dV) diag(1/w) (dV)^T
         Vl = V[lam_sl, :]
         winv = jnp.where(jnp.abs(w) > 0, 1.0 / jnp.where(w == 0, 1.0, w), 0.0)
         S = (Vl * winv) @ Vl.T
@@ -244,6 +247,15 @@ def _block_factor(Kd, nx, nu, eps):
 
     _, (W, V, neg, tiny) = jax.lax.scan(step, jnp.zeros((nx, nx)), Kd)
     return W, V, jnp.sum(neg), jnp.sum(tiny)
+
+
+def _block_matvec(Kd, v, nx, nu):
+    """K v for the block-tridiagonal KKT matrix (diagonal blocks + lambda_k/x_{k+1} identities)."""
+    lam_sl = slice(nx + nu, 2 * nx + nu)
+    out = jnp.einsum("kij,kj->ki", Kd, v)
+    out = out.at[1:, :nx].add(v[:-1, lam_sl])
+    out = out.at[:-1, lam_sl].add(v[1:, :nx])
+    return out
 
 
 def _block_solve(W, V, rhs, nx, nu):
@@ -316,7 +328,7 @@ def _print_iter(it, f, inf_pr, inf_du, mu, alpha, delta, nls):
 def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
     lay = _layout(prob)
     M, nx, nu, ne, ng, ny = lay.M, lay.nx, lay.nu, lay.ne, lay.ng, lay.ny
-    cost_f, trans_f, eq_f, ineq_f = _stage_functions(prob, lay)
+    vec = _stage_function(prob, lay)
     meq, mg, mlam, mu_mask = lay.masks()
     ks = jnp.arange(M + 1)
     kappa_sigma = 1e10
@@ -325,17 +337,18 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
     delta_c = 1e-9
     eta = 1e-4
     n_neg_expected = (M + 1) * (nx + ne)
+    i_F, i_e, i_g = 1, 1 + nx, 1 + nx + ne
 
     def ys_of(xs, us):
         return jnp.concatenate([xs, jnp.concatenate([us, jnp.zeros((1, nu))], 0)], axis=1)
 
+    def split(V):
+        return V[:, 0], V[:, i_F:i_e], V[:, i_e:i_g], V[:, i_g:]
+
     def values(ys):
-        f = jax.vmap(cost_f)(ys, ks)
-        F = jax.vmap(trans_f)(ys, ks)
-        e = jax.vmap(eq_f)(ys, ks) * meq
-        g = jax.vmap(ineq_f)(ys, ks)
+        f, F, e, g = split(jax.vmap(vec)(ys, ks))
         c = jnp.concatenate([ys[1:, :nx] - F[:-1], jnp.zeros((1, nx))], 0)
-        return jnp.sum(f), c, e, g
+        return jnp.sum(f), c, e * meq, g
 
     def merit(ys, s, mu):
         """Barrier objective and constraint violation (l1)."""
@@ -344,21 +357,22 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
         viol = jnp.sum(jnp.abs(c)) + jnp.sum(jnp.abs(e)) + jnp.sum(jnp.abs((g - s) * mg))
         return f - mu * jnp.sum(logs), viol, f
 
-    def lagrangian(y, k, lam, nu_, z):
-        return (
-            cost_f(y, k)
-            + jnp.dot(nu_, eq_f(y, k))
-            - jnp.dot(lam, trans_f(y, k))
-            - jnp.dot(z, ineq_f(y, k))
-        )
+    def weighted(y, k, w):
+        return jnp.dot(w, vec(y, k))
 
     def derivatives(ys, lam, nu_, z):
-        grad_f = jax.vmap(jax.grad(cost_f))(ys, ks)
-        A = jax.vmap(jax.jacfwd(trans_f))(ys, ks) * mlam[:, :, None]
-        Je = jax.vmap(jax.jacfwd(eq_f))(ys, ks) * meq[:, :, None]
-        Jg = jax.vmap(jax.jacfwd(ineq_f))(ys, ks) * mg[:, :, None]
-        H = jax.vmap(jax.hessian(lagrangian))(ys, ks, lam * mlam, nu_ * meq, z * mg)
-        return grad_f, A, Je, Jg, H
+        """Values, Jacobians and the Lagrangian Hessian of every stage (one vmap each)."""
+        V = jax.vmap(vec)(ys, ks)
+        J = jax.vmap(jax.jacfwd(vec))(ys, ks)
+        w = jnp.concatenate([jnp.ones((M + 1, 1)), -lam * mlam, nu_ * meq, -z * mg], 1)
+        H = jax.vmap(jax.hessian(weighted))(ys, ks, w)
+        f, F, e, g = split(V)
+        c = jnp.concatenate([ys[1:, :nx] - F[:-1], jnp.zeros((1, nx))], 0)
+        grad_f = J[:, 0]
+        A = J[:, i_F:i_e] * mlam[:, :, None]
+        Je = J[:, i_e:i_g] * meq[:, :, None]
+        Jg = J[:, i_g:] * mg[:, :, None]
+        return jnp.sum(f), c, e * meq, g, grad_f, A, Je, Jg, H
 
     def kkt_residuals(ys, lam, nu_, z, s, c, e, g, grad_f, A, Je, Jg, mu):
         # Lagrangian gradient per stage: grad f + Je' nu - A' lam - Jg' z + [lam_{k-1} on x_k]
@@ -375,15 +389,18 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             jnp.maximum(jnp.max(jnp.abs(c)), jnp.max(jnp.abs(e), initial=0.0)),
             jnp.max(jnp.abs((g - s) * mg), initial=0.0),
         )
-        compl = jnp.max(jnp.abs((s * z - mu) * mg), initial=0.0)
+        compl0 = jnp.max(jnp.abs((s * z) * mg), initial=0.0)
+        compl_mu = jnp.max(jnp.abs((s * z - mu) * mg), initial=0.0)
         n_mult = (M + 1) * (nx + ne) + jnp.sum(mg)
         s_d = jnp.maximum(
             s_max,
             (jnp.sum(jnp.abs(lam)) + jnp.sum(jnp.abs(nu_)) + jnp.sum(jnp.abs(z * mg))) / n_mult,
         ) / s_max
         s_c = jnp.maximum(s_max, jnp.sum(jnp.abs(z * mg)) / jnp.maximum(jnp.sum(mg), 1.0)) / s_max
-        err = jnp.maximum(jnp.maximum(inf_du / s_d, inf_pr), compl / s_c)
-        return rd, inf_pr, inf_du, compl, err
+        base = jnp.maximum(inf_du / s_d, inf_pr)
+        err0 = jnp.maximum(base, compl0 / s_c)
+        err_mu = jnp.maximum(base, compl_mu / s_c)
+        return inf_pr, inf_du, compl0, err0, err_mu
 
     # ---- initialisation
     ys = ys_of(xs0, us0)
@@ -410,14 +427,12 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
 
     def body(st):
         ys, s, z, lam, nu_, mu = st["ys"], st["s"], st["z"], st["lam"], st["nu"], st["mu"]
-        f, c, e, g = values(ys)
-        grad_f, A, Je, Jg, H = derivatives(ys, lam, nu_, z)
-        _, inf_pr, inf_du, compl, err0 = kkt_residuals(
-            ys, lam, nu_, z, s, c, e, g, grad_f, A, Je, Jg, 0.0
+        f, c, e, g, grad_f, A, Je, Jg, H = derivatives(ys, lam, nu_, z)
+        inf_pr, inf_du, compl, err0, err_mu = kkt_residuals(
+            ys, lam, nu_, z, s, c, e, g, grad_f, A, Je, Jg, mu
         )
         converged = (err0 <= options.tol) & (inf_pr <= options.constr_tol)
         # barrier update (monotone)
-        _, _, _, _, err_mu = kkt_residuals(ys, lam, nu_, z, s, c, e, g, grad_f, A, Je, Jg, mu)
         mu_changed = (err_mu <= 10.0 * mu) & (mu > options.tol / 10.0)
         mu = jnp.where(
             mu_changed,
@@ -455,31 +470,41 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             return jnp.concatenate([row1, row2, row3], 1)
 
         def factor(delta):
-            Wv, Vv, neg, tiny = _block_factor(assemble(delta), nx, nu, 1e-13)
-            ok = (neg == n_neg_expected) & (tiny == 0)
-            return Wv, Vv, ok
+            Kd = assemble(delta)
+            Wv, Vv, neg, tiny = _block_factor(Kd, nx, nu, 1e-13)
+            sol = _block_solve(Wv, Vv, rhs, nx, nu)
+            # one step of iterative refinement, then insist on an accurate solve
+            res = rhs - _block_matvec(Kd, sol, nx, nu)
+            sol = sol + _block_solve(Wv, Vv, res, nx, nu)
+            res = rhs - _block_matvec(Kd, sol, nx, nu)
+            # componentwise backward error (Oettli-Prager)
+            scale = _block_matvec(jnp.abs(Kd), jnp.abs(sol), nx, nu) + jnp.abs(rhs)
+            accurate = jnp.max(jnp.abs(res)) <= 1e-10 * jnp.max(scale)
+            ok = (neg == n_neg_expected) & (tiny == 0) & accurate & jnp.all(jnp.isfinite(sol))
+            return sol, ok
 
         # inertia correction
-        delta_lm = jnp.asarray(0.0)
-        Wv, Vv, ok = factor(delta_lm)
         d_first = jnp.where(
             st["delta_last"] == 0.0, 1e-4, jnp.maximum(1e-20, st["delta_last"] / 3.0)
         )
 
         def ic_cond(c_):
-            return (~c_[3]) & (c_[4] < 40)
+            return (~c_[2]) & (c_[3] < 40)
 
         def ic_body(c_):
-            delta, _, _, _, n = c_
-            delta = jnp.where(n == 0, d_first, delta * jnp.where(st["delta_last"] == 0.0, 100.0, 8.0))
-            Wv, Vv, ok = factor(delta)
-            return delta, Wv, Vv, ok, n + 1
+            delta, _, _, n = c_
+            delta = jnp.where(
+                n == 0, 0.0,
+                jnp.where(n == 1, d_first,
+                          delta * jnp.where(st["delta_last"] == 0.0, 100.0, 8.0)),
+            )
+            sol, ok = factor(delta)
+            return delta, sol, ok, n + 1
 
-        delta, Wv, Vv, ok, _ = jax.lax.while_loop(
-            ic_cond, ic_body, (delta_lm, Wv, Vv, ok, jnp.asarray(0))
-        )
-        delta_last = jnp.where(delta > delta_lm, delta, st["delta_last"])
-        sol = _block_solve(Wv, Vv, rhs, nx, nu)
+        nb = lay.nb
+        init = (jnp.asarray(0.0), jnp.zeros((M + 1, nb)), jnp.asarray(False), jnp.asarray(0))
+        delta, sol, ok, _ = jax.lax.while_loop(ic_cond, ic_body, init)
+        delta_last = jnp.where(delta > 0, delta, st["delta_last"])
         dy = sol[:, :ny] * um
         dlam = sol[:, ny : ny + nx] * mlam
         dnu = sol[:, ny + nx :] * meq
@@ -529,10 +554,14 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             ls_cond, ls_body, (alpha_p, jnp.asarray(0), jnp.asarray(False), jnp.asarray(False))
         )
         # augment the filter after h-type steps (and after a failed search, to move on)
-        augment = ~f_type | ~ls_ok
+        augment = ~f_type & ls_ok
         slot = st["filter_next"] % fil_theta.shape[0]
         fil_theta = jnp.where(augment, fil_theta.at[slot].set((1 - 1e-5) * theta0), fil_theta)
         fil_phi = jnp.where(augment, fil_phi.at[slot].set(phi0 - 1e-5 * theta0), fil_phi)
+        # a failed search (no restoration phase here): take the shortest trial step and
+        # forget the filter, so that the next iteration is not blocked by its own history
+        fil_theta = jnp.where(ls_ok, fil_theta, jnp.inf)
+        fil_phi = jnp.where(ls_ok, fil_phi, jnp.inf)
         filter_next = st["filter_next"] + augment.astype(jnp.int32)
         ys_n = ys + alpha * dy
         s_n = jnp.where(mg > 0, jnp.maximum(s + alpha * ds, 1e-300), 1.0)
@@ -559,7 +588,8 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             jax.debug.callback(_print_iter, it, f, inf_pr, inf_du, mu, alpha, delta, nls)
 
         finite = jnp.all(jnp.isfinite(ys_n)) & jnp.all(jnp.isfinite(lam_n))
-        keep = lambda new, old: jnp.where(converged | ~finite, old, new)
+        last = it == options.max_iter - 1
+        keep = lambda new, old: jnp.where(converged | ~finite | last, old, new)
         status = jnp.where(converged, SUCCESS, jnp.where(finite, MAX_ITERATIONS, NONFINITE))
         return dict(
             ys=keep(ys_n, ys), s=keep(s_n, s), z=keep(z_n, z), lam=keep(lam_n, lam),
@@ -574,16 +604,10 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
         return (~st["done"]) & (st["it"] < options.max_iter)
 
     st = jax.lax.while_loop(cond, body, state0)
-    # final residuals at the returned point
-    ys, s, z, lam, nu_ = st["ys"], st["s"], st["z"], st["lam"], st["nu"]
-    f, c, e, g = values(ys)
-    grad_f, A, Je, Jg, _ = derivatives(ys, lam, nu_, z)
-    _, inf_pr, inf_du, compl, err = kkt_residuals(
-        ys, lam, nu_, z, s, c, e, g, grad_f, A, Je, Jg, 0.0
-    )
-    converged = (err <= options.tol) & (inf_pr <= options.constr_tol)
-    status = jnp.where(converged, SUCCESS, jnp.where(st["status"] == NONFINITE, NONFINITE,
-                                                     MAX_ITERATIONS))
+    ys, lam, nu_, z = st["ys"], st["lam"], st["nu"], st["z"]
+    # residuals were evaluated at the returned iterate (no step is taken on the last pass)
+    f, inf_pr, inf_du, compl = st["f"], st["inf_pr"], st["inf_du"], st["compl"]
+    status = st["status"]
     return IPSolution(
         xs=ys[:, :nx], us=ys[:-1, nx:], lam=lam, nu=nu_, z=z, status=status,
         iterations=st["it"], objective=f, inf_pr=inf_pr, inf_du=inf_du, compl=compl,
