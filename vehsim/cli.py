@@ -11,7 +11,7 @@ import importlib
 import sys
 
 
-COMMANDS: tuple[str, ...] = ("vehsim.cli",)
+COMMANDS: tuple[str, ...] = ("vehsim.cli", "vehsim.optimal.cli")
 
 
 def register(subparsers) -> None:

@@ -20,6 +20,7 @@ from ._io import save_figure, write_atomic, write_json
 
 SECTIONS: tuple[str, ...] = (
     "vehsim.tire._reproduce_longitudinal",
+    "vehsim.optimal._reproduce_optimal",
 )
 
 

@@ -87,7 +87,8 @@ class IPOptions(eqx.Module):
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
-    max_iter: int = eqx.field(static=True, default=300)
+    max_iter: Int[Array, ""] = eqx.field(converter=jnp.asarray, default=300)
+    log_size: int = eqx.field(static=True, default=1000)
     mu0: float = eqx.field(static=True, default=0.1)
     verbose: bool = eqx.field(static=True, default=False)
 
@@ -108,7 +109,7 @@ class IPSolution(eqx.Module):
     ``status`` (0 converged, 1 iteration limit, 2 non-finite), ``iterations``, the final
     ``objective`` and residuals (``inf_pr``: max constraint violation, ``inf_du``: max
     Lagrangian-gradient entry, ``compl``: max complementarity), and a per-iteration ``log``
-    (dict of arrays of length ``max_iter``; entries past ``iterations`` are NaN)."""
+    (dict of arrays of length ``log_size``; entries past ``iterations`` are NaN)."""
 
     xs: Float[Array, "M+1 nx"]
     us: Float[Array, "M nu"]
@@ -239,7 +240,7 @@ def _block_factor(Kd, nx, nu, eps):
         V = V * d[:, None]  # D^{-1} = (dV) diag(1/w) (dV)^T
         Vl = V[lam_sl, :]
         winv = jnp.where(jnp.abs(w) > 0, 1.0 / jnp.where(w == 0, 1.0, w), 0.0)
-        S = (Vl * winv) @ Vl.T
+        S = (Vl * winv[None, :]) @ Vl.T
         scale = jnp.max(jnp.abs(w))
         neg = jnp.sum(w < 0)
         tiny = jnp.sum(~jnp.isfinite(w)) + jnp.sum(w == 0)
@@ -357,15 +358,27 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
         viol = jnp.sum(jnp.abs(c)) + jnp.sum(jnp.abs(e)) + jnp.sum(jnp.abs((g - s) * mg))
         return f - mu * jnp.sum(logs), viol, f
 
-    def weighted(y, k, w):
-        return jnp.dot(w, vec(y, k))
+    def second_order(y, k):
+        """Value, Jacobian and per-output Hessians of the stage vector in one forward-over-
+        forward pass (compact to compile: the tangents are batched, no transposes)."""
+
+        def f1(yy):
+            v = vec(yy, k)
+            return v, v
+
+        def f2(yy):
+            J, v = jax.jacfwd(f1, has_aux=True)(yy)
+            return J, (J, v)
+
+        T, (J, v) = jax.jacfwd(f2, has_aux=True)(y)
+        return v, J, T
 
     def derivatives(ys, lam, nu_, z):
-        """Values, Jacobians and the Lagrangian Hessian of every stage (one vmap each)."""
-        V = jax.vmap(vec)(ys, ks)
-        J = jax.vmap(jax.jacfwd(vec))(ys, ks)
+        """Values, Jacobians and the Lagrangian Hessian of every stage (one vmap)."""
+        V, J, T = jax.vmap(second_order)(ys, ks)
         w = jnp.concatenate([jnp.ones((M + 1, 1)), -lam * mlam, nu_ * meq, -z * mg], 1)
-        H = jax.vmap(jax.hessian(weighted))(ys, ks, w)
+        H = jnp.einsum("ko,koij->kij", w, T)
+        H = 0.5 * (H + jnp.swapaxes(H, 1, 2))
         f, F, e, g = split(V)
         c = jnp.concatenate([ys[1:, :nx] - F[:-1], jnp.zeros((1, nx))], 0)
         grad_f = J[:, 0]
@@ -411,7 +424,7 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
     theta_init = jnp.sum(jnp.abs(c0)) + jnp.sum(jnp.abs(e0 * meq)) + jnp.sum(jnp.abs((g0 - s) * mg))
     lam = jnp.zeros((M + 1, nx))
     nu_ = jnp.zeros((M + 1, ne))
-    nanlog = jnp.full((options.max_iter,), jnp.nan)
+    nanlog = jnp.full((options.log_size,), jnp.nan)
     log0 = dict(objective=nanlog, inf_pr=nanlog, inf_du=nanlog, mu=nanlog, alpha=nanlog,
                 regularisation=nanlog)
     state0 = dict(

@@ -87,6 +87,18 @@ def car_guess_from_point_mass(car: ReducedHalfCar, road: Road, pm_xs, pm_us):
     return jnp.asarray(xs), jnp.asarray(us)
 
 
+def car_guess(car: ReducedHalfCar, road: Road, num_stages: int, steps_per_stage: int = 1,
+              margin: float = 0.5, friction_fraction: float = 0.6):
+    """A comfortable starting guess for the car: the min-time point mass in a corridor shrunk
+    by ``margin`` with ``friction_fraction`` of the tire's peak friction (so the car's corridor,
+    friction and speed-floor constraints all have slack), mapped to car states and inputs."""
+    prob = PointMassOCP(road=road, friction=friction_fraction * float(car.tire.D),
+                        num_stages=num_stages, steps_per_stage=steps_per_stage, margin=margin)
+    xs0, us0 = centreline_guess(road, num_stages, 4.0)
+    pm = interior_point(prob, xs0, us0, IPOptions(), throw=False)
+    return car_guess_from_point_mass(car, road, pm.xs, pm.us)
+
+
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem``, the interior-point ``solution``, and convenience
     fields ``t_f`` [s], ``exit_speed`` [m/s] and ``status``."""
@@ -108,7 +120,52 @@ class Primitive(eqx.Module):
         return self.solution.status
 
     def nodes(self):
+        """States at every integration node (M S + 1, nx), uniform in tau."""
         return self.problem.nodes(self.solution.xs, self.solution.us)
+
+    def time(self):
+        n = self.nodes()
+        return jnp.linspace(0.0, 1.0, n.shape[0]) * self.t_f
+
+    def signals(self) -> dict:
+        """Named signals at every node (car problems): pose, speeds, sideslip, slips, forces."""
+        n = self.nodes()
+        sig = jax.vmap(self.problem.vehicle.signals)(n[:, :6], n[:, 6:9])
+        return {k: np.asarray(v) for k, v in sig.items()}
+
+    def violations(self) -> dict:
+        """Constraint violations of the solution, measured exactly at every node: distance off
+        the road (union of legs, not the smooth corridor) [m], boundary conditions (max abs,
+        m/rad/(m/s)), input bounds, axle-speed floor [m/s], shooting defects."""
+        prob, sol = self.problem, self.solution
+        n = np.asarray(self.nodes())
+        rd = prob.road
+        off = rd.distance_off_road(n[:, 0], n[:, 1])
+        bc = max(float(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])))),
+                 float(jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])))))
+        box = [prob.road.boundary_inequality(rd.start, sol.xs[0]),
+               prob.road.boundary_inequality(rd.end, sol.xs[-1])]
+        bc = max(bc, float(max(jnp.max(jnp.maximum(-b, 0.0), initial=0.0) for b in box)))
+        defects = np.asarray(sol.xs[1:]) - np.asarray(
+            jax.vmap(prob.transition)(sol.xs[:-1], sol.us, jnp.arange(prob.num_stages)))
+        out = dict(corridor=float(np.max(off)), boundary=bc,
+                   defects=float(np.max(np.abs(defects))))
+        if isinstance(prob, ManeuverOCP):
+            kF, kR, d = n[:, 6], n[:, 7], n[:, 8]
+            inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
+                                  np.abs(d) - float(DELTA_MAX)])
+            out["inputs"] = float(max(np.max(inp), 0.0))
+            sig = self.signals()
+            out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
+                                                               sig["Vx_R"].min())))
+        return out
+
+    def figure(self, title: str = ""):
+        from .plot import maneuver_figure
+
+        p = self.problem.vehicle.params
+        return maneuver_figure(self.problem.road, np.asarray(self.time()), self.signals(),
+                               float(p.lF), float(p.lR), title=title)
 
 
 def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float = 0.52,
@@ -137,9 +194,7 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
                        rate_weight=rate_weight)
     if guess is None:
-        pm = point_mass_bound(rd, "min-time", D=float(car.tire.D), num_stages=num_stages,
-                              steps_per_stage=steps_per_stage, options=IPOptions(), throw=False)
-        xs0, us0 = car_guess_from_point_mass(car, rd, pm.solution.xs, pm.solution.us)
+        xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage)
         if objective == "max-exit":
             xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
     else:
@@ -173,6 +228,35 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
     car = rally_gravel_car() if car is None else car
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
                       throw, guess)
+
+
+def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
+    """JSON-ready record of a solved primitive: t_f, exit_speed, status, residuals,
+    violations, the point-mass bound and its ratio, states and inputs at every node."""
+    sol = prim.solution
+    sig = prim.signals()
+    rec = dict(
+        road=prim.problem.road.name, objective=prim.problem.objective,
+        t_f=float(prim.t_f), exit_speed=float(prim.exit_speed), status=int(sol.status),
+        message=sol.message, iterations=int(sol.iterations),
+        residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
+                       compl=float(sol.compl)),
+        segments=prim.problem.num_stages, nodes=int(prim.nodes().shape[0]),
+    )
+    v = prim.violations()
+    rec["violations"] = v
+    rec["max_corridor_violation"] = v["corridor"]
+    if bound is not None:
+        rec["point_mass_t_f"] = float(bound.t_f)
+        rec["point_mass_exit_speed"] = float(bound.exit_speed)
+        rec["point_mass_status"] = int(bound.status)
+        rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
+    rec["t"] = np.asarray(prim.time())
+    rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
+    rec["inputs"] = {k: sig[k] for k in ("kappa_F", "kappa_R", "delta")}
+    rec["signals"] = {k: sig[k] for k in ("speed", "sideslip", "Fz_F", "Fz_R", "Fx_F", "Fx_R",
+                                          "Fy_F", "Fy_R", "Vx_F", "Vx_R")}
+    return rec
 
 
 def log(msg: str) -> None:

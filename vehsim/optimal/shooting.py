@@ -46,6 +46,17 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
     def _rhs(self, X: Array, u: Array) -> Array:
         """dX/dtau of the knot state under control ``u``."""
 
+    def transition_and_path(self, x, u, k):
+        """One integration gives both the next knot and the node constraints."""
+        x_next, nodes = self._segment(x, u, k)
+        return x_next, self._path(x, u, nodes)
+
+    def transition(self, x, u, k):
+        return self._segment(x, u, k)[0]
+
+    def path_inequality(self, x, u, k):
+        return self._path(x, u, self._segment(x, u, k)[1])
+
     def _segment(self, x, u, k):
         """RK4 over one segment; returns the end knot and the states at the S nodes."""
         S = self.steps_per_stage
@@ -98,9 +109,6 @@ class ManeuverOCP(AbstractManeuverOCP):
         dyn = self.vehicle.f(X[:6], X[6:9])
         return jnp.concatenate([tf * dyn, v, jnp.zeros((1,))])
 
-    def transition(self, x, u, k):
-        return self._segment(x, u, k)[0]
-
     def _node_constraints(self, X):
         c = self.road.corridor(X[0], X[1])
         VFx, _, VRx, _ = self.vehicle.axle_velocities(X[:6], X[8])
@@ -113,8 +121,7 @@ class ManeuverOCP(AbstractManeuverOCP):
             DELTA_MAX - d, d + DELTA_MAX, X[IDX_TF] - TF_MIN,
         ])
 
-    def path_inequality(self, x, u, k):
-        _, nodes = self._segment(x, u, k)
+    def _path(self, x, u, nodes):
         node_c = jax.vmap(self._node_constraints)(nodes).reshape(-1)
         return jnp.concatenate([node_c, self._input_bounds(x)])
 
@@ -152,7 +159,9 @@ class PointMassOCP(AbstractManeuverOCP):
     r"""The spec's physical lower bound: a point mass with $|a| \le D g$ through the same
     corridor and boundary conditions (position and the zero inertial velocity component; the
     heading conditions become "velocity along the heading"). State
-    $(x, y, v_x, v_y, t_f)$ (inertial velocity), control $a$ (piecewise constant)."""
+    $(x, y, v_x, v_y, t_f)$ (inertial velocity), control $a$ (piecewise constant).
+    ``margin`` [m] shrinks the corridor (0 for the bound; > 0 for comfortable initial
+    guesses of the car problem)."""
 
     road: Road
     friction: Array = eqx.field(converter=jnp.asarray, default=0.52)
@@ -162,6 +171,7 @@ class PointMassOCP(AbstractManeuverOCP):
     num_stages: int = eqx.field(static=True, default=50)
     steps_per_stage: int = eqx.field(static=True, default=3)
     rate_weight: Array = eqx.field(converter=jnp.asarray, default=1e-6)
+    margin: Array = eqx.field(converter=jnp.asarray, default=0.0)
     state_size: int = eqx.field(static=True, default=5)
     control_size: int = eqx.field(static=True, default=2)
 
@@ -169,12 +179,8 @@ class PointMassOCP(AbstractManeuverOCP):
         tf = X[4]
         return jnp.concatenate([tf * X[2:4], tf * a, jnp.zeros((1,))])
 
-    def transition(self, x, u, k):
-        return self._segment(x, u, k)[0]
-
-    def path_inequality(self, x, u, k):
-        _, nodes = self._segment(x, u, k)
-        c = jax.vmap(lambda X: self.road.corridor(X[0], X[1]))(nodes).reshape(-1)
+    def _path(self, x, u, nodes):
+        c = jax.vmap(lambda X: self.road.corridor(X[0], X[1]) - self.margin)(nodes).reshape(-1)
         amax = self.friction * self.g
         return jnp.concatenate([c, jnp.stack([amax**2 - u @ u, x[4] - 0.1])])
 
@@ -192,7 +198,8 @@ class PointMassOCP(AbstractManeuverOCP):
         for n, v in bset.fixed:
             if n in ("x", "y"):
                 vals.append(x[{"x": 0, "y": 1}[n]] - v)
-        vals.append(x[3] if bset.zero_velocity == "x" else x[2])  # zero inertial component
+        # the inertial velocity component that vanishes: 'x' -> xdot = x[2], 'y' -> ydot = x[3]
+        vals.append(x[2] if bset.zero_velocity == "x" else x[3])
         psi = fixed["psi"]
         return jnp.stack(vals), psi
 
@@ -216,7 +223,7 @@ class PointMassOCP(AbstractManeuverOCP):
         return self._bc(self.road.end, x)[0]
 
     def terminal_inequality(self, x):
-        parts = [self._bc_ineq(self.road.end, x), self.road.corridor(x[0], x[1])]
+        parts = [self._bc_ineq(self.road.end, x), self.road.corridor(x[0], x[1]) - self.margin]
         if self.objective == "max-exit":
             parts.append(jnp.reshape(self.tf_max - x[4], (1,)))
         return jnp.concatenate(parts)
