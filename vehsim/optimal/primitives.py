@@ -268,3 +268,46 @@ def timed(fn, *args, **kwargs):
     out = fn(*args, **kwargs)
     jax.block_until_ready(out)
     return out, time.perf_counter() - t0
+
+
+def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *,
+                     mode: str = "continuation", num_stages: int = 50,
+                     steps_per_stage: int = 1, tf_max: float = 4.0,
+                     options: IPOptions = IPOptions(max_iter=500)):
+    """The same maneuver over a batch of road frictions D (the tire's peak coefficient).
+
+    ``mode='vmap'``: one vmapped solve (every member iterates until the slowest converges;
+    suited to accelerators). ``mode='continuation'``: sequential solves, each warm-started
+    from its neighbour's solution (sort the frictions; usually fastest on CPU).
+    Never raises on a member's failure: check ``solution.status`` (per member).
+
+    **Returns:** a `Primitive` whose problem and solution are batched along axis 0 (vmap), or
+    a list of `Primitive` (continuation).
+    """
+    rd = _road(road)
+    frictions = jnp.asarray(frictions, float)
+    if mode not in ("vmap", "continuation"):
+        raise ValueError(f"batch_primitives mode must be 'vmap' or 'continuation', got {mode!r}")
+    car0 = rally_gravel_car(float(frictions[0]))
+    prob0 = ManeuverOCP(vehicle=car0, road=rd, objective=objective, tf_max=tf_max,
+                        num_stages=num_stages, steps_per_stage=steps_per_stage)
+    xs0, us0 = car_guess(car0, rd, num_stages, steps_per_stage)
+    if objective == "max-exit":
+        xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+    if mode == "vmap":
+        def one(D):
+            prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
+            return interior_point(prob, xs0, us0, options, throw=False)
+
+        sols = jax.vmap(one)(frictions)
+        probs = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, frictions)
+        return Primitive(problem=probs, solution=sols)
+    out = []
+    guess = (xs0, us0)
+    for D in frictions:
+        prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
+        sol = interior_point(prob, *guess, options, throw=False)
+        if int(sol.status) == 0:
+            guess = (sol.xs, sol.us)
+        out.append(Primitive(problem=prob, solution=sol))
+    return out
