@@ -29,7 +29,7 @@ def test_smooth_max_is_conservative_and_exact_off_the_diagonal():
     sm = smooth_max(a, b)
     mx = jnp.maximum(a, b)
     assert np.all(np.asarray(sm) <= np.asarray(mx) + 1e-15)
-    assert np.max(np.asarray(mx - sm)) <= 0.053 * SMOOTHING
+    assert np.max(np.asarray(mx - sm)) <= 0.071 * SMOOTHING
     far = np.abs(np.asarray(a - b)) >= SMOOTHING
     np.testing.assert_allclose(np.asarray(sm)[far], np.asarray(mx)[far], atol=1e-14)
     # C^1 across the band edge

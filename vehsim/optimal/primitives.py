@@ -158,6 +158,8 @@ class Primitive(eqx.Module):
             sig = self.signals()
             out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
                                                                sig["Vx_R"].min())))
+            if prob.objective == "max-exit":
+                out["time_budget"] = float(max(0.0, float(self.t_f - prob.tf_max)))
         return out
 
     def figure(self, title: str = ""):

@@ -31,7 +31,7 @@ def smooth_max(a, b, eps: float = SMOOTHING):
     r"""Conservative $C^2$ maximum: $\frac{a+b}{2} + \frac{\epsilon}{2}p(\frac{a-b}{\epsilon})$,
     $p(t) = |t|$ for $|t|\ge1$, else $\frac{15}{8}t^2 - \frac{5}{4}t^4 + \frac{3}{8}t^6$.
 
-    $p \le |t|$, so the result is $\le \max(a, b)$ (by at most $0.052\,\epsilon$), with equality
+    $p \le |t|$, so the result is $\le \max(a, b)$ (by at most $0.0706\,\epsilon$), with equality
     for $|a - b| \ge \epsilon$.
     """
     t = (a - b) / eps
