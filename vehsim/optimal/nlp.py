@@ -83,13 +83,17 @@ class AbstractStagewiseNLP(eqx.Module):
 
 class IPOptions(eqx.Module):
     """Interior-point settings. ``tol``: scaled KKT error for convergence; ``max_iter``;
-    ``mu0``: initial barrier; ``verbose``: print one line per iteration to stderr."""
+    ``mu0``: initial barrier; ``verbose``: print one line per iteration to stderr;
+    ``hessian``: 'forward-over-reverse' (Hessian of the weighted stage Lagrangian; fastest
+    to run) or 'forward-over-forward' (all per-output Hessians in one pass; quicker to
+    compile)."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
     max_iter: Int[Array, ""] = eqx.field(converter=jnp.asarray, default=300)
     log_size: int = eqx.field(static=True, default=1000)
-    mu0: float = eqx.field(static=True, default=0.1)
+    hessian: str = eqx.field(static=True, default="forward-over-reverse")
+    mu0: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.1)
     verbose: bool = eqx.field(static=True, default=False)
 
 
@@ -375,9 +379,20 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
 
     def derivatives(ys, lam, nu_, z):
         """Values, Jacobians and the Lagrangian Hessian of every stage (one vmap)."""
-        V, J, T = jax.vmap(second_order)(ys, ks)
         w = jnp.concatenate([jnp.ones((M + 1, 1)), -lam * mlam, nu_ * meq, -z * mg], 1)
-        H = jnp.einsum("ko,koij->kij", w, T)
+        if options.hessian == "forward-over-forward":
+            V, J, T = jax.vmap(second_order)(ys, ks)
+            H = jnp.einsum("ko,koij->kij", w, T)
+        else:
+            def first(y, k):
+                def f1(yy):
+                    v = vec(yy, k)
+                    return v, v
+
+                return jax.jacfwd(f1, has_aux=True)(y)
+
+            J, V = jax.vmap(first)(ys, ks)
+            H = jax.vmap(jax.hessian(lambda y, k, ww: jnp.dot(ww, vec(y, k))))(ys, ks, w)
         H = 0.5 * (H + jnp.swapaxes(H, 1, 2))
         f, F, e, g = split(V)
         c = jnp.concatenate([ys[1:, :nx] - F[:-1], jnp.zeros((1, nx))], 0)
@@ -419,7 +434,7 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
     ys = ys_of(xs0, us0)
     _, c0, e0, g0 = values(ys)
     mu0 = options.mu0
-    s = jnp.where(mg > 0, jnp.maximum(g0, 1e-2), 1.0)
+    s = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(1e-2, 10.0 * mu0)), 1.0)
     z = jnp.where(mg > 0, mu0 / s, 0.0)
     theta_init = jnp.sum(jnp.abs(c0)) + jnp.sum(jnp.abs(e0 * meq)) + jnp.sum(jnp.abs((g0 - s) * mg))
     lam = jnp.zeros((M + 1, nx))

@@ -189,47 +189,67 @@ def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float 
     return Primitive(problem=prob, solution=best)
 
 
+DEFAULT_STARTS = ((0.5, 0.6),)
+"""(corridor margin [m], friction fraction) of the point-mass problems that seed the car."""
+
+
 def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
-               guess=None, rate_weight=1e-5):
+               guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS):
     rd = _road(road)
     prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
                        rate_weight=rate_weight)
+    guesses = []
     if guess is None:
-        xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage)
-        if objective == "max-exit":
-            xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+        for margin, frac in starts:
+            xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage, margin=margin,
+                                 friction_fraction=frac)
+            if objective == "max-exit":
+                xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+            guesses.append((xs0, us0))
     else:
-        xs0, us0 = guess
-    sol = interior_point(prob, xs0, us0, options, throw=throw)
-    return Primitive(problem=prob, solution=sol)
+        guesses.append(guess)
+    best = None
+    for xs0, us0 in guesses:
+        sol = interior_point(prob, xs0, us0, options, throw=False)
+        better = best is None or (
+            int(sol.status) == 0
+            and (int(best.status) != 0 or float(sol.objective) < float(best.objective))
+        )
+        if better:
+            best = sol
+    if throw and int(best.status) != 0:
+        interior_point(prob, *guesses[-1], options, throw=True)  # raises with residuals
+    return Primitive(problem=prob, solution=best)
 
 
 def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | None = None,
                        num_stages: int = 50, steps_per_stage: int = 3,
                        options: IPOptions = IPOptions(max_iter=500), guess=None,
-                       throw: bool = True) -> Primitive:
+                       starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Minimum-time maneuver through ``road`` (Table 4 boundary conditions, free t_f).
 
     **Arguments:** ``road`` (name or `Road`), ``car`` (default `rally_gravel_car()`),
     discretisation ``num_stages`` x ``steps_per_stage`` (nodes; the spec asks >= 150),
-    ``options``, an optional ``guess`` (xs, us), ``throw``.
+    ``options``, an optional ``guess`` (xs, us), ``starts``: several (margin, friction
+    fraction) point-mass seeds, the best converged optimum is kept (the problems have
+    several local optima), ``throw``.
 
     **Returns:** a `Primitive`.
     """
     car = rally_gravel_car() if car is None else car
     return _solve_car(road, "min-time", car, num_stages, steps_per_stage, 4.0, options, throw,
-                      guess)
+                      guess, starts=starts)
 
 
 def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
                        car: ReducedHalfCar | None = None, num_stages: int = 50,
                        steps_per_stage: int = 3, options: IPOptions = IPOptions(max_iter=500),
-                       guess=None, throw: bool = True) -> Primitive:
+                       guess=None, starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Maximum exit speed through ``road`` with t_f <= ``tf_max`` (spec: 4.0 s on corner90)."""
     car = rally_gravel_car() if car is None else car
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
-                      throw, guess)
+                      throw, guess, starts=starts)
 
 
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
@@ -306,9 +326,10 @@ def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *
         return Primitive(problem=probs, solution=sols)
     out = []
     guess = (xs0, us0)
-    for D in frictions:
+    warm = eqx.tree_at(lambda o: o.mu0, options, 1e-4)
+    for i, D in enumerate(frictions):
         prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
-        sol = interior_point(prob, *guess, options, throw=False)
+        sol = interior_point(prob, *guess, options if i == 0 else warm, throw=False)
         if int(sol.status) == 0:
             guess = (sol.xs, sol.us)
         out.append(Primitive(problem=prob, solution=sol))
