@@ -41,8 +41,12 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    from .primitives import max_exit_primitive, min_time_primitive, point_mass_bound
-    from .primitives import solution_record
+    from .primitives import (
+        max_exit_primitive,
+        min_time_primitive,
+        point_mass_bound,
+        solution_record,
+    )
 
     segments = 50 if ctx.quick else 150
     problems = PROBLEMS[:1] if ctx.quick else PROBLEMS

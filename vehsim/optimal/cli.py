@@ -63,7 +63,8 @@ def _optimise(args) -> int:
                             f"exit {rec['exit_speed']:.2f} m/s")
     save_figure(fig, out / f"{stem}.png")
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "
-          f"{rec['exit_speed']:.3f} m/s, max corridor violation {rec['max_corridor_violation']:.2e} m, "
+          f"{rec['exit_speed']:.3f} m/s, max corridor violation "
+          f"{rec['max_corridor_violation']:.2e} m, "
           f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
           file=sys.stderr)
     return 0 if rec["status"] == 0 else 1

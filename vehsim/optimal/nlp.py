@@ -245,7 +245,6 @@ def _block_factor(Kd, nx, nu, eps):
         Vl = V[lam_sl, :]
         winv = jnp.where(jnp.abs(w) > 0, 1.0 / jnp.where(w == 0, 1.0, w), 0.0)
         S = (Vl * winv[None, :]) @ Vl.T
-        scale = jnp.max(jnp.abs(w))
         neg = jnp.sum(w < 0)
         tiny = jnp.sum(~jnp.isfinite(w)) + jnp.sum(w == 0)
         return S, (w, V, neg, tiny)
@@ -332,7 +331,7 @@ def _print_iter(it, f, inf_pr, inf_du, mu, alpha, delta, nls):
 @eqx.filter_jit
 def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
     lay = _layout(prob)
-    M, nx, nu, ne, ng, ny = lay.M, lay.nx, lay.nu, lay.ne, lay.ng, lay.ny
+    M, nx, nu, ne, ny = lay.M, lay.nx, lay.nu, lay.ne, lay.ny
     vec = _stage_function(prob, lay)
     meq, mg, mlam, mu_mask = lay.masks()
     ks = jnp.arange(M + 1)
@@ -485,7 +484,6 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
 
         W0 = H + jnp.einsum("kij,ki,kil->kjl", Jg, Sigma, Jg)
         W0 = W0 * um[:, :, None] * um[:, None, :] + jax.vmap(jnp.diag)(1.0 - um)
-        zl = jnp.zeros((M + 1, nx, nx))
         ze = jnp.zeros((M + 1, nx, ne))
 
         def assemble(delta):

@@ -51,7 +51,9 @@ class Rect(eqx.Module):
     ymax: float = eqx.field(static=True)
 
     def contains(self, x, y, tol: float = 1e-9) -> bool:
-        return (self.xmin - tol <= x <= self.xmax + tol) and (self.ymin - tol <= y <= self.ymax + tol)
+        return (self.xmin - tol <= x <= self.xmax + tol) and (
+            self.ymin - tol <= y <= self.ymax + tol
+        )
 
     def overlaps(self, other: Rect) -> bool:
         return (
@@ -88,9 +90,9 @@ class Road(eqx.Module):
     r"""A corridor (union of `legs`) with start and end sets.
 
     **Fields:** ``name``; ``legs`` (Rects, start leg first, consecutive legs overlapping);
-    ``outer`` = (xmin, xmax, ymin, ymax) outer walls (``None``: an open end); ``corners``: forbidden convex regions,
-    each a tuple of half-planes ``(nx, ny, b)`` meaning $a = n\cdot p - b$; ``start``, ``end``
-    (`BoundarySet`); ``centreline``: polyline through the legs (for initial guesses).
+    ``outer`` = (xmin, xmax, ymin, ymax) outer walls (``None``: an open end); ``corners``:
+    forbidden convex regions, each a tuple of half-planes ``(nx, ny, b)`` meaning
+    $a = n\cdot p - b$; ``start``, ``end`` (`BoundarySet`); ``centreline``: polyline through the legs (for initial guesses).
     """
 
     name: str = eqx.field(static=True)
