@@ -92,7 +92,8 @@ class Road(eqx.Module):
     **Fields:** ``name``; ``legs`` (Rects, start leg first, consecutive legs overlapping);
     ``outer`` = (xmin, xmax, ymin, ymax) outer walls (``None``: an open end); ``corners``:
     forbidden convex regions, each a tuple of half-planes ``(nx, ny, b)`` meaning
-    $a = n\cdot p - b$; ``start``, ``end`` (`BoundarySet`); ``centreline``: polyline through the legs (for initial guesses).
+    $a = n\cdot p - b$; ``start``, ``end`` (`BoundarySet`); ``centreline``: a polyline
+    through the legs (for initial guesses).
     """
 
     name: str = eqx.field(static=True)
