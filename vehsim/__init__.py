@@ -121,4 +121,21 @@ from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rall
 from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
 
 
+# isort: split
+# issue 7: optimal driving primitives
+from .optimal.nlp import (
+    AbstractStagewiseNLP as AbstractStagewiseNLP,
+    IPOptions as IPOptions,
+    IPSolution as IPSolution,
+    interior_point as interior_point,
+)
+from .optimal.primitives import (
+    Primitive as Primitive,
+    max_exit_primitive as max_exit_primitive,
+    min_time_primitive as min_time_primitive,
+    point_mass_bound as point_mass_bound,
+)
+from .optimal.roads import Road as Road, road as road
+
+
 __version__ = "0.1.0"

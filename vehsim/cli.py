@@ -15,6 +15,7 @@ COMMANDS: tuple[str, ...] = (
     "vehsim.cli",
     "vehsim.sweep",
     "vehsim.identify.cli",
+    "vehsim.optimal.cli",
 )
 
 

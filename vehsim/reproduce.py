@@ -24,6 +24,7 @@ SECTIONS: tuple[str, ...] = (  # in the order of the report
     "vehsim.identify._reproduce_identify",  # 2.2, Figs. 10-11
     "vehsim.tire._reproduce_combined",  # 2.3-2.4
     "vehsim.vehicle._reproduce_vehicle",  # 2.5
+    "vehsim.optimal._reproduce_optimal",  # 2.5, Table 4, Fig. 20
 )
 
 

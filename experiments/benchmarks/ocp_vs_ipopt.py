@@ -1,0 +1,277 @@
+"""Benchmark: vehsim's structured interior point vs CasADi + IPOPT on the maneuver problems.
+
+The same model (reduced half-car, friction-ellipse Magic Formula, quasi-static load transfer),
+the same boundary conditions, corridor (the same conservative smooth inner corners) and input
+bounds, the same objective (including the tiny input-rate penalty), the same starting guess,
+and the same nodes (N intervals uniform in tau, corridor and axle-speed floor at every node).
+
+IPOPT transcriptions (``--method``):
+- ``rk4``: one RK4 step per interval (exactly vehsim's discretisation: compares solvers);
+- ``trapezoidal``: direct collocation with the trapezoidal rule (the classic baseline).
+t_f is carried per interval with t_{f,k+1} = t_{f,k} (no dense column), exact Hessians by
+CasADi's AD, MUMPS with its default ordering; IPOPT's time is the solver call (after
+building the NLP: building counts as its compile time).
+
+Prints JSON lines; headline ``ratio`` = IPOPT wall time / vehsim wall time (same run).
+
+    PYTHONPATH=. python experiments/benchmarks/ocp_vs_ipopt.py --segments 150
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+import casadi as ca
+import jax
+import numpy as np
+
+
+jax.config.update("jax_enable_x64", True)
+
+from vehsim.optimal.nlp import IPOptions, interior_point  # noqa: E402
+from vehsim.optimal.primitives import car_guess, rally_gravel_car  # noqa: E402
+from vehsim.optimal.roads import SMOOTHING, road as road_by_name  # noqa: E402
+from vehsim.optimal.shooting import (  # noqa: E402
+    DELTA_MAX,
+    IDX_TF,
+    KAPPA_MAX,
+    KAPPA_MIN,
+    SPEED_FLOOR,
+    TF_MIN,
+    ManeuverOCP,
+)
+
+
+def _smooth_max(a, b, eps=SMOOTHING):
+    t = (a - b) / eps
+    t2 = t * t
+    p = ca.if_else(ca.fabs(t) < 1.0, t2 * (15.0 / 8.0 - t2 * (5.0 / 4.0 - t2 * 3.0 / 8.0)),
+                   ca.fabs(t))
+    return 0.5 * (a + b) + 0.5 * eps * p
+
+
+def _corridor(rd, x, y):
+    xmin, xmax, ymin, ymax = rd.outer
+    cons = []
+    if xmin is not None:
+        cons.append(x - xmin)
+    if xmax is not None:
+        cons.append(xmax - x)
+    if ymin is not None:
+        cons.append(y - ymin)
+    if ymax is not None:
+        cons.append(ymax - y)
+    for planes in rd.corners:
+        vals = [nx * x + ny * y - b for nx, ny, b in planes]
+        m = vals[0]
+        for v in vals[1:]:
+            m = _smooth_max(m, v)
+        cons.append(m)
+    return cons
+
+
+def casadi_model(D):
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (spec formulas)."""
+    m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
+    B, C = 7.0, 1.6
+    X = ca.SX.sym("X", 10)
+    v = ca.SX.sym("v", 3)
+    psi, vx, vy, r, kF, kR, d, tf = X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9]
+    VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
+    VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
+    VRx, VRy = vx, vy - lR * r
+
+    def mu(kappa, Vx, Vy):
+        sx = -kappa / (1 + kappa)
+        sy = (Vy / Vx) / (1 + kappa)
+        s = ca.sqrt(sx * sx + sy * sy + 1e-18)
+        g_ = D * ca.sin(C * ca.atan(B * s)) / s
+        return -sx * g_, -sy * g_
+
+    muFx, muFy = mu(kF, VFx, VFy)
+    muRx, muRy = mu(kR, VRx, VRy)
+    muFb = muFx * ca.cos(d) - muFy * ca.sin(d)
+    FzF = m * g * (lR - h * muRx) / (lF + lR + h * (muFb - muRx))
+    FzR = m * g - FzF
+    fFx, fFy, fRx, fRy = muFx * FzF, muFy * FzF, muRx * FzR, muRy * FzR
+    Fbx = fFx * ca.cos(d) - fFy * ca.sin(d) + fRx
+    Fby = fFx * ca.sin(d) + fFy * ca.cos(d) + fRy
+    Mz = (fFy * ca.cos(d) + fFx * ca.sin(d)) * lF - fRy * lR
+    rates = ca.vertcat(vx * ca.cos(psi) - vy * ca.sin(psi), vx * ca.sin(psi) + vy * ca.cos(psi),
+                       r, Fbx / m + r * vy, Fby / m - r * vx, Mz / Iz)
+    dX = ca.vertcat(tf * rates, v, 0)
+    return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [ca.vertcat(VFx, VRx)])
+
+
+def ipopt_solve(rd, objective, D, N, xs0, us0, method="rk4", tf_max=4.0, rate_weight=1e-5,
+                warm=None):
+    f, axles = casadi_model(D)
+    opti = ca.Opti()
+    X = opti.variable(10, N + 1)
+    V = opti.variable(3, N)
+    h = 1.0 / N
+    for k in range(N):
+        xk, vk = X[:, k], V[:, k]
+        if method == "rk4":
+            k1 = f(xk, vk)
+            k2 = f(xk + 0.5 * h * k1, vk)
+            k3 = f(xk + 0.5 * h * k2, vk)
+            k4 = f(xk + h * k3, vk)
+            opti.subject_to(X[:, k + 1] == xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4))
+        else:
+            opti.subject_to(X[:, k + 1] == xk + h / 2 * (f(xk, vk) + f(X[:, k + 1], vk)))
+    for k in range(N + 1):
+        xk = X[:, k]
+        for c in _corridor(rd, xk[0], xk[1]):
+            opti.subject_to(c >= 0)
+        opti.subject_to(axles(xk) >= SPEED_FLOOR)
+        opti.subject_to(opti.bounded(KAPPA_MIN, xk[6], KAPPA_MAX))
+        opti.subject_to(opti.bounded(KAPPA_MIN, xk[7], KAPPA_MAX))
+        opti.subject_to(opti.bounded(-DELTA_MAX, xk[8], DELTA_MAX))
+        opti.subject_to(xk[9] >= TF_MIN)
+    names = {"x": 0, "y": 1, "psi": 2, "yaw_rate": 5}
+    for bset, xk in ((rd.start, X[:, 0]), (rd.end, X[:, N])):
+        for n, val in bset.fixed:
+            opti.subject_to(xk[names[n]] == val)
+        for n, (lo, hi) in bset.box:
+            opti.subject_to(opti.bounded(lo, xk[names[n]], hi))
+        psi, vx, vy = xk[2], xk[3], xk[4]
+        lat = (vx * ca.sin(psi) + vy * ca.cos(psi) if bset.zero_velocity == "y"
+               else vx * ca.cos(psi) - vy * ca.sin(psi))
+        opti.subject_to(lat == 0)
+    reg = rate_weight * ca.sumsqr(V) / N
+    if objective == "min-time":
+        opti.minimize(X[9, N] + reg)
+    else:
+        opti.subject_to(X[9, N] <= tf_max)
+        opti.minimize(-ca.sqrt(X[3, N] ** 2 + X[4, N] ** 2) + reg)
+    opti.set_initial(X, np.asarray(xs0).T)
+    opti.set_initial(V, np.asarray(us0).T)
+    opti.solver("ipopt", {"print_time": False},
+                {"print_level": 0, "tol": 1e-8, "max_iter": 3000, "linear_solver": "mumps",
+                 "sb": "yes"})
+    t0 = time.perf_counter()
+    try:
+        sol = opti.solve()
+        ok = True
+    except RuntimeError:
+        sol = opti.debug
+        ok = False
+    wall = time.perf_counter() - t0
+    xs = np.asarray(sol.value(X)).T
+    stats = opti.stats()
+    return dict(ok=ok, wall=wall, xs=xs, iterations=int(stats.get("iter_count", -1)),
+                status=str(stats.get("return_status")))
+
+
+def violations(rd, xs):
+    off = rd.distance_off_road(xs[:, 0], xs[:, 1])
+    return float(np.max(off))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--segments", type=int, default=150)
+    ap.add_argument("--method", choices=["rk4", "trapezoidal"], default="rk4")
+    ap.add_argument("--problems", nargs="*",
+                    default=["corner90:min-time", "corner90:max-exit", "uturn:min-time",
+                             "sturn:min-time"])
+    ap.add_argument("--batch", type=int, default=0, help="frictions in the batch benchmark")
+    args = ap.parse_args(argv)
+    N = args.segments
+    if args.batch:
+        batch_benchmark(args.batch, N, args.method)
+        return
+    car = rally_gravel_car()
+    for spec in args.problems:
+        name, objective = spec.split(":")
+        rd = road_by_name(name)
+        print(f"# {name} {objective}", file=sys.stderr, flush=True)
+        xs0, us0 = car_guess(car, rd, N, 1)
+        if objective == "max-exit":
+            xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * 4.0))
+        prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, num_stages=N,
+                           steps_per_stage=1)
+        opts = IPOptions(max_iter=500)
+        t0 = time.perf_counter()
+        sol = interior_point(prob, xs0, us0, opts, throw=False)
+        jax.block_until_ready(sol.xs)
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        sol = interior_point(prob, xs0, us0, opts, throw=False)
+        jax.block_until_ready(sol.xs)
+        ours = time.perf_counter() - t0
+        xs = np.asarray(sol.xs)
+        t_build = time.perf_counter()
+        ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method)
+        ipopt_total = time.perf_counter() - t_build
+        val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
+            lambda x: math.hypot(x[-1, 3], x[-1, 4]))
+        ours_v, ip_v = float(val(xs)), float(val(ip["xs"]))
+        print(json.dumps(dict(
+            problem=spec, segments=N, method=args.method,
+            vehsim_value=ours_v, ipopt_value=ip_v, rel_diff=(ours_v - ip_v) / abs(ip_v),
+            vehsim_status=int(sol.status), vehsim_iterations=int(sol.iterations),
+            ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],
+            vehsim_corridor_violation=violations(rd, prob.nodes(sol.xs, sol.us).__array__()),
+            ipopt_corridor_violation=violations(rd, ip["xs"]),
+            vehsim_wall_s=ours, ipopt_wall_s=ip["wall"], ratio=ip["wall"] / ours,
+            vehsim_compile_s=first - ours, ipopt_build_s=ipopt_total - ip["wall"],
+        )), flush=True)
+
+
+def batch_benchmark(n: int, N: int, method: str) -> None:
+    """corner90 min-time over ``n`` frictions D in [0.40, 0.64]: vehsim's warm-started
+    continuation and vmapped batch against ``n`` sequential IPOPT solves (each warm-started
+    from the previous solution, the fair counterpart of the continuation)."""
+    from vehsim.optimal.primitives import batch_primitives
+
+    rd = road_by_name("corner90")
+    Ds = np.linspace(0.40, 0.64, n)
+    car = rally_gravel_car(float(Ds[0]))
+    xs0, us0 = car_guess(car, rd, N, 1)
+    for mode in ("continuation", "vmap"):
+        t0 = time.perf_counter()
+        out = batch_primitives(rd, Ds, mode=mode, num_stages=N)
+        jax.block_until_ready(out if mode == "vmap" else [p.solution.xs for p in out])
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        out = batch_primitives(rd, Ds, mode=mode, num_stages=N)
+        jax.block_until_ready(out if mode == "vmap" else [p.solution.xs for p in out])
+        wall = time.perf_counter() - t0
+        if mode == "vmap":
+            tfs = np.asarray(out.solution.xs[:, -1, IDX_TF])
+            ok = int(np.sum(np.asarray(out.solution.status) == 0))
+        else:
+            tfs = np.array([float(p.t_f) for p in out])
+            ok = sum(int(p.status) == 0 for p in out)
+        if mode == "continuation":
+            tf_cont = tfs
+            wall_cont = wall
+        else:
+            wall_vmap, tf_vmap, ok_vmap = wall, tfs, ok
+        print(f"# vehsim {mode}: {wall:.2f} s ({first - wall:.1f} s compile), {ok}/{n} ok",
+              file=sys.stderr, flush=True)
+    tf_ip, guess, wall_ip = [], (xs0, us0), 0.0
+    for D in Ds:
+        ip = ipopt_solve(rd, "min-time", float(D), N, *guess, method=method)
+        wall_ip += ip["wall"]  # solver calls only (building each NLP is not counted)
+        tf_ip.append(ip["xs"][-1, IDX_TF])
+        if ip["ok"]:
+            guess = (ip["xs"], np.diff(ip["xs"][:, 6:9], axis=0) * N)
+    tf_ip = np.asarray(tf_ip)
+    print(json.dumps(dict(
+        problem="corner90:min-time batch", frictions=n, segments=N,
+        vehsim_continuation_s=wall_cont, vehsim_vmap_s=wall_vmap, ipopt_sequential_s=wall_ip,
+        ratio=wall_ip / min(wall_cont, wall_vmap), vmap_converged=ok_vmap,
+        max_rel_diff_continuation=float(np.max(np.abs(tf_cont - tf_ip) / tf_ip)),
+        max_rel_diff_vmap=float(np.max(np.abs(tf_vmap - tf_ip) / tf_ip)),
+    )), flush=True)
+
+
+if __name__ == "__main__":
+    main()

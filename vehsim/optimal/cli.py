@@ -1,0 +1,70 @@
+"""`vehsim optimise ROAD --objective min-time|max-exit`: solve a maneuver primitive, write the
+solution (JSON) and a Fig. 20-like figure."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "optimise", help="optimal driving primitive (min-time / max-exit) on a benchmark road"
+    )
+    p.add_argument("road", choices=["corner90", "uturn", "sturn"])
+    p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time")
+    p.add_argument("--tf-max", type=float, default=4.0,
+                   help="time budget of max-exit [s] (spec: 4.0)")
+    p.add_argument("--friction", type=float, default=0.52, help="tire peak friction D")
+    p.add_argument("--segments", type=int, default=150,
+                   help="shooting segments (one RK4 node each; spec: >= 150 nodes)")
+    p.add_argument("--max-iter", type=int, default=500)
+    p.add_argument("--out", default="results/optimise", help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no per-iteration progress")
+    p.set_defaults(func=_optimise)
+
+
+def _optimise(args) -> int:
+    from .._io import save_figure, write_json
+    from .nlp import IPOptions
+    from .primitives import (
+        max_exit_primitive,
+        min_time_primitive,
+        point_mass_bound,
+        rally_gravel_car,
+        solution_record,
+    )
+
+    if args.segments < 2:
+        raise ValueError(f"--segments must be >= 2, got {args.segments}")
+    car = rally_gravel_car(args.friction)
+    opts = IPOptions(max_iter=args.max_iter, verbose=not args.quiet)
+    print(f"vehsim optimise {args.road} --objective {args.objective}: compiling and solving "
+          f"({args.segments} segments)...", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    if args.objective == "min-time":
+        prim = min_time_primitive(args.road, car=car, num_stages=args.segments,
+                                  steps_per_stage=1, options=opts, throw=False)
+    else:
+        prim = max_exit_primitive(args.road, car=car, tf_max=args.tf_max,
+                                  num_stages=args.segments, steps_per_stage=1, options=opts,
+                                  throw=False)
+    wall = time.perf_counter() - t0
+    bound = point_mass_bound(args.road, args.objective, D=args.friction,
+                             num_stages=args.segments, steps_per_stage=1, tf_max=args.tf_max,
+                             throw=False)
+    rec = solution_record(prim, bound)
+    rec["wall_time_s"] = wall
+    out = Path(args.out)
+    stem = f"{args.road}_{args.objective}"
+    write_json(out / f"{stem}.json", rec)
+    fig = prim.figure(title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
+                            f"exit {rec['exit_speed']:.2f} m/s")
+    save_figure(fig, out / f"{stem}.png")
+    print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "
+          f"{rec['exit_speed']:.3f} m/s, max corridor violation "
+          f"{rec['max_corridor_violation']:.2e} m, "
+          f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
+          file=sys.stderr)
+    return 0 if rec["status"] == 0 else 1

@@ -1,0 +1,233 @@
+r"""Direct multiple shooting of the maneuver problems (../shared/spec/maneuvers.md).
+
+Time is the independent variable, scaled by the free final time, $t = \tau t_f$,
+$\tau \in [0, 1]$. The horizon is cut into $M$ segments; segment $k$ is integrated by $S$
+classical RK4 steps from its knot state. The inputs $(\kappa_F, \kappa_R, \delta)$ are
+continuous and piecewise linear in $\tau$: they are carried as states with piecewise-constant
+rates $v_k = du/d\tau$ (the NLP controls), which keeps every function local to one segment.
+$t_f$ is carried as a state with $dt_f/d\tau = 0$ (so the KKT system stays block banded).
+
+Knot state $X = (x, y, \psi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, t_f)$ (10),
+control $v$ (3). The corridor and the axle-speed floor $V_{Fx}, V_{Rx} \ge 1$ m/s hold at
+every RK4 node ($M S + 1$ nodes, uniform in $\tau$), the input bounds at the knots (the inputs
+are linear in between).
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ..vehicle.reduced import ReducedHalfCar
+from .nlp import AbstractStagewiseNLP
+from .roads import Road
+
+
+NX = 10
+NU = 3
+IDX_TF = 9
+DELTA_MAX = math.radians(35.0)
+KAPPA_MIN, KAPPA_MAX = -0.99, 1.0
+SPEED_FLOOR = 1.0
+TF_MIN = 0.3
+
+
+class AbstractManeuverOCP(AbstractStagewiseNLP):
+    """Shared machinery: RK4 segments with nodes, corridor, boundary conditions."""
+
+    # subclasses define: road, num_stages, steps_per_stage (static ints)
+
+    @abc.abstractmethod
+    def _rhs(self, X: Array, u: Array) -> Array:
+        """dX/dtau of the knot state under control ``u``."""
+
+    def transition_and_path(self, x, u, k):
+        """One integration gives both the next knot and the node constraints."""
+        x_next, nodes = self._segment(x, u, k)
+        return x_next, self._path(x, u, nodes)
+
+    def transition(self, x, u, k):
+        return self._segment(x, u, k)[0]
+
+    def path_inequality(self, x, u, k):
+        return self._path(x, u, self._segment(x, u, k)[1])
+
+    def _segment(self, x, u, k):
+        """RK4 over one segment; returns the end knot and the states at the S nodes."""
+        S = self.steps_per_stage
+        h = 1.0 / (self.num_stages * S)
+        return _rk4_segment(self._rhs, x, u, h, S)
+
+
+def _rk4_segment(rhs, x, u, h, S):
+    nodes = []
+    for _ in range(S):
+        nodes.append(x)
+        k1 = rhs(x, u)
+        k2 = rhs(x + 0.5 * h * k1, u)
+        k3 = rhs(x + 0.5 * h * k2, u)
+        k4 = rhs(x + h * k3, u)
+        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x, jnp.stack(nodes)
+
+
+class ManeuverOCP(AbstractManeuverOCP):
+    r"""Minimum-time or maximum-exit-speed maneuver of the reduced half-car (eqs. 61-63).
+
+    **Fields:** ``vehicle`` (`ReducedHalfCar`), ``road`` (`Road`), ``objective``
+    ('min-time' or 'max-exit'), ``tf_max`` [s] (time budget of max-exit), ``num_stages``
+    $M$, ``steps_per_stage`` $S$ (nodes $= MS$), ``rate_weight`` (a small penalty
+    $w\int |du/d\tau|^2 d\tau$ on input rates that picks one input history where the cost is
+    flat; it moves $t_f$ by far less than the discretisation error).
+    """
+
+    vehicle: ReducedHalfCar
+    road: Road
+    objective: str = eqx.field(static=True, default="min-time")
+    tf_max: Array = eqx.field(converter=jnp.asarray, default=4.0)
+    num_stages: int = eqx.field(static=True, default=50)
+    steps_per_stage: int = eqx.field(static=True, default=3)
+    rate_weight: Array = eqx.field(converter=jnp.asarray, default=1e-5)
+    state_size: int = eqx.field(static=True, default=NX)
+    control_size: int = eqx.field(static=True, default=NU)
+
+    def __check_init__(self):
+        if self.objective not in ("min-time", "max-exit"):
+            raise ValueError(
+                f"ManeuverOCP.objective must be 'min-time' or 'max-exit', got {self.objective!r}"
+            )
+        if self.num_stages < 2 or self.steps_per_stage < 1:
+            raise ValueError("ManeuverOCP.num_stages must be >= 2 and steps_per_stage >= 1")
+
+    def _rhs(self, X, v):
+        tf = X[IDX_TF]
+        dyn = self.vehicle.f(X[:6], X[6:9])
+        return jnp.concatenate([tf * dyn, v, jnp.zeros((1,))])
+
+    def _node_constraints(self, X):
+        c = self.road.corridor(X[0], X[1])
+        VFx, _, VRx, _ = self.vehicle.axle_velocities(X[:6], X[8])
+        return jnp.concatenate([c, jnp.stack([VFx - SPEED_FLOOR, VRx - SPEED_FLOOR])])
+
+    def _input_bounds(self, X):
+        kF, kR, d = X[6], X[7], X[8]
+        return jnp.stack([
+            kF - KAPPA_MIN, KAPPA_MAX - kF, kR - KAPPA_MIN, KAPPA_MAX - kR,
+            DELTA_MAX - d, d + DELTA_MAX, X[IDX_TF] - TF_MIN,
+        ])
+
+    def _path(self, x, u, nodes):
+        node_c = jax.vmap(self._node_constraints)(nodes).reshape(-1)
+        return jnp.concatenate([node_c, self._input_bounds(x)])
+
+    def stage_cost(self, x, u, k):
+        return self.rate_weight * jnp.sum(u * u) / self.num_stages
+
+    def terminal_cost(self, x):
+        if self.objective == "min-time":
+            return x[IDX_TF]
+        return -jnp.sqrt(x[3] ** 2 + x[4] ** 2)
+
+    def initial_equality(self, x):
+        return self.road.boundary_equality(self.road.start, x)
+
+    def initial_inequality(self, x):
+        return self.road.boundary_inequality(self.road.start, x)
+
+    def terminal_equality(self, x):
+        return self.road.boundary_equality(self.road.end, x)
+
+    def terminal_inequality(self, x):
+        parts = [self.road.boundary_inequality(self.road.end, x), self._node_constraints(x),
+                 self._input_bounds(x)]
+        if self.objective == "max-exit":
+            parts.append(jnp.reshape(self.tf_max - x[IDX_TF], (1,)))
+        return jnp.concatenate(parts)
+
+    def nodes(self, xs, us):
+        """All integration nodes (M S + 1, 10) of a knot/control trajectory."""
+        _, nodes = jax.vmap(self._segment)(xs[:-1], us, jnp.arange(self.num_stages))
+        return jnp.concatenate([nodes.reshape(-1, NX), xs[-1:]], 0)
+
+
+class PointMassOCP(AbstractManeuverOCP):
+    r"""The spec's physical lower bound: a point mass with $|a| \le D g$ through the same
+    corridor and boundary conditions (position and the zero inertial velocity component; the
+    heading conditions become "velocity along the heading"). State
+    $(x, y, v_x, v_y, t_f)$ (inertial velocity), control $a$ (piecewise constant).
+    ``margin`` [m] shrinks the corridor (0 for the bound; > 0 for comfortable initial
+    guesses of the car problem)."""
+
+    road: Road
+    friction: Array = eqx.field(converter=jnp.asarray, default=0.52)
+    g: Array = eqx.field(converter=jnp.asarray, default=9.81)
+    objective: str = eqx.field(static=True, default="min-time")
+    tf_max: Array = eqx.field(converter=jnp.asarray, default=4.0)
+    num_stages: int = eqx.field(static=True, default=50)
+    steps_per_stage: int = eqx.field(static=True, default=3)
+    rate_weight: Array = eqx.field(converter=jnp.asarray, default=1e-6)
+    margin: Array = eqx.field(converter=jnp.asarray, default=0.0)
+    state_size: int = eqx.field(static=True, default=5)
+    control_size: int = eqx.field(static=True, default=2)
+
+    def _rhs(self, X, a):
+        tf = X[4]
+        return jnp.concatenate([tf * X[2:4], tf * a, jnp.zeros((1,))])
+
+    def _path(self, x, u, nodes):
+        c = jax.vmap(lambda X: self.road.corridor(X[0], X[1]) - self.margin)(nodes).reshape(-1)
+        amax = self.friction * self.g
+        return jnp.concatenate([c, jnp.stack([amax**2 - u @ u, x[4] - 0.1])])
+
+    def stage_cost(self, x, u, k):
+        return self.rate_weight * jnp.sum(u * u) / self.num_stages
+
+    def terminal_cost(self, x):
+        if self.objective == "min-time":
+            return x[4]
+        return -jnp.sqrt(x[2] ** 2 + x[3] ** 2)
+
+    def _bc(self, bset, x):
+        fixed = dict(bset.fixed)
+        vals = []
+        for n, v in bset.fixed:
+            if n in ("x", "y"):
+                vals.append(x[{"x": 0, "y": 1}[n]] - v)
+        # the inertial velocity component that vanishes: 'x' -> xdot = x[2], 'y' -> ydot = x[3]
+        vals.append(x[2] if bset.zero_velocity == "x" else x[3])
+        psi = fixed["psi"]
+        return jnp.stack(vals), psi
+
+    def _bc_ineq(self, bset, x):
+        vals = []
+        for n, (lo, hi) in bset.box:
+            i = {"x": 0, "y": 1}[n]
+            vals += [x[i] - lo, hi - x[i]]
+        psi = dict(bset.fixed)["psi"]
+        # velocity points along the heading
+        vals.append(x[2] * math.cos(psi) + x[3] * math.sin(psi))
+        return jnp.stack(vals)
+
+    def initial_equality(self, x):
+        return self._bc(self.road.start, x)[0]
+
+    def initial_inequality(self, x):
+        return self._bc_ineq(self.road.start, x)
+
+    def terminal_equality(self, x):
+        return self._bc(self.road.end, x)[0]
+
+    def terminal_inequality(self, x):
+        parts = [self._bc_ineq(self.road.end, x), self.road.corridor(x[0], x[1]) - self.margin]
+        if self.objective == "max-exit":
+            parts.append(jnp.reshape(self.tf_max - x[4], (1,)))
+        return jnp.concatenate(parts)
+
+    def nodes(self, xs, us):
+        _, nodes = jax.vmap(self._segment)(xs[:-1], us, jnp.arange(self.num_stages))
+        return jnp.concatenate([nodes.reshape(-1, xs.shape[1]), xs[-1:]], 0)
