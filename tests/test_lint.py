@@ -1,14 +1,16 @@
 """The code base passes the project's ruff configuration (pyproject.toml)."""
 
-import shutil
+import importlib.util
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 
-@pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff not installed")
+@pytest.mark.skipif(importlib.util.find_spec("ruff") is None, reason="ruff not installed")
 def test_ruff_clean():
     root = Path(__file__).parent.parent
-    out = subprocess.run(["ruff", "check", str(root)], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "ruff", "check", str(root)],
+                         capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
