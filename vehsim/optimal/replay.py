@@ -289,3 +289,35 @@ def replay_tracking(primitive, vehicle: HalfCar | None = None,
     r"""As `replay_open_loop`, with the path-tracking feedback of `TrackingGains` around the
     primitive's feedforward (torques and steering)."""
     return _replay(primitive, vehicle, tire, suspension, gains, num_saves)
+
+
+def replay_figure(primitive, replays: dict, title: str = ""):
+    """Paths in the corridor: the primitive's nodes and each replay in ``replays``
+    ({label: `Replay`}), with speed histories."""
+    import matplotlib.pyplot as plt
+
+    from .plot import draw_road
+
+    fig, (ax, av) = plt.subplots(1, 2, figsize=(11, 5), width_ratios=[1.2, 1.0])
+    draw_road(ax, primitive.problem.road)
+    nodes = np.asarray(primitive.nodes())
+    ax.plot(nodes[:, 0], nodes[:, 1], "k.-", lw=1.0, ms=3, label="primitive (reduced model)")
+    av.plot(np.asarray(primitive.time()), np.hypot(nodes[:, 3], nodes[:, 4]), "k.-", ms=3,
+            label="primitive")
+    for label, rp in replays.items():
+        tr = rp.trajectory
+        ok = np.isfinite(np.asarray(tr["x"]))
+        v = rp.drift["max_corridor_violation"]
+        ax.plot(np.asarray(tr["x"])[ok], np.asarray(tr["y"])[ok], "-", lw=1.2,
+                label=f"{label} (off road {v:.2f} m)")
+        av.plot(np.asarray(tr.ts)[ok], np.asarray(tr["speed"])[ok], "-", label=label)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(title)
+    av.set_xlabel("t [s]")
+    av.set_ylabel("speed [m/s]")
+    av.grid(alpha=0.3)
+    av.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
