@@ -29,12 +29,10 @@ from __future__ import annotations
 
 import math
 
-import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
 from ..simulate import Trajectory, simulate
