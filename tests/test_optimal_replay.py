@@ -29,25 +29,32 @@ def prim():
     return p
 
 
-def test_initial_state_is_the_suspension_and_tire_equilibrium(prim):
-    """Heave/pitch at rest and tire states at steady state; loads equal the quasi-static
-    ones of the reduced model (which neglects z in the pitch arm h + z and cos(theta))."""
+def _check_equilibrium(car, y0, delta):
+    """Heave/pitch at rest (eq. 54, 55 with zero accelerations), tire states at rest."""
+    u = jnp.array([0.0, 0.0, delta])
+    rates = car.f(y0, u)
+    np.testing.assert_allclose(rates[jnp.array([9, 11])], 0.0, atol=1e-9)  # z_dd, theta_dd
+    np.testing.assert_allclose(rates[12:], 0.0, atol=1e-9)  # friction states at rest
+    sig = car.signals(y0, u)
+    p = car.params
+    np.testing.assert_allclose(sig["Fz_F"] + sig["Fz_R"], p.m * p.g, rtol=1e-9)
+    return sig
+
+
+def test_initial_state_is_the_suspension_equilibrium_with_the_reduced_loads(prim):
+    """Static tire: the suspension equilibrium carries the quasi-static loads of the reduced
+    model (which neglects z in the pitch arm h + z and cos(theta)), and the wheel speeds
+    realise the primitive's initial slips."""
     x0 = prim.solution.xs[0]
     red = prim.problem.vehicle
     FzF_qs, FzR_qs = red.normal_loads(x0[:6], x0[6:9])
     mg = float(red.params.m * red.params.g)
-    for tire in (None, matched_lugre_tire()):
-        car = default_vehicle(prim, tire)
-        y0 = eqx.filter_jit(initial_state)(car, x0[:6], x0[6:9])
-        rates = car.f(y0, jnp.array([0.0, 0.0, x0[8]]))
-        np.testing.assert_allclose(rates[jnp.array([9, 11])], 0.0, atol=1e-9)  # z_dd, th_dd
-        np.testing.assert_allclose(rates[12:], 0.0, atol=1e-9)  # friction states at rest
-        sig = car.signals(y0, jnp.array([0.0, 0.0, x0[8]]))
-        np.testing.assert_allclose([sig["kappa_F"], sig["kappa_R"]], x0[6:8], atol=1e-12)
-        np.testing.assert_allclose(sig["Fz_F"] + sig["Fz_R"], mg, rtol=1e-9)
-        if tire is None:  # same tire forces as the reduced model: same loads
-            assert abs(float(sig["Fz_F"] - FzF_qs)) < 2e-3 * mg
-            assert abs(float(sig["Fz_R"] - FzR_qs)) < 2e-3 * mg
+    car = default_vehicle(prim)
+    y0 = eqx.filter_jit(initial_state)(car, x0[:6], x0[6:9])
+    sig = _check_equilibrium(car, y0, x0[8])
+    np.testing.assert_allclose([sig["kappa_F"], sig["kappa_R"]], x0[6:8], atol=1e-12)
+    assert abs(float(sig["Fz_F"] - FzF_qs)) < 2e-3 * mg
+    assert abs(float(sig["Fz_R"] - FzR_qs)) < 2e-3 * mg
 
 
 def test_recovered_torques_reproduce_the_primitive_on_the_equivalent_full_model(prim):
@@ -77,7 +84,13 @@ def test_tracking_keeps_the_dynamic_tire_car_on_the_road(prim):
     0.3 m and 0.1 rad of the primitive."""
     tire = matched_lugre_tire()
     ol = replay_open_loop(prim, tire=tire).drift
-    tr = replay_tracking(prim, tire=tire).drift
+    run = replay_tracking(prim, tire=tire)
+    tr = run.drift
+    # both start from the suspension and LuGre steady state at the primitive's slips
+    _check_equilibrium(default_vehicle(prim, tire), run.trajectory.states[0],
+                       prim.solution.xs[0, 8])
+    np.testing.assert_allclose([run.trajectory["kappa_F"][0], run.trajectory["kappa_R"][0]],
+                               prim.solution.xs[0, 6:8], atol=1e-12)
     assert ol["max_corridor_violation"] > 1.0  # measured 1.89 m
     assert ol["final_position_error"] > 3.0  # measured 6.7 m
     assert tr["completed"]

@@ -220,9 +220,9 @@ def drift_metrics(primitive, traj: Trajectory, ref: Trajectory) -> dict:
     r"""How far a replay drifts.
 
     - ``max_corridor_violation`` [m]: max exact distance off the road (union of legs) of the
-      CG over the save times (inf if the solve failed);
+      CG over the save times (those reached, if the solve failed);
     - ``final_position_error`` [m], ``final_heading_error`` [rad]: at $t_f$ against the
-      primitive's final knot;
+      primitive's final knot (None if the solve failed);
     - ``max_deviation_from_reference`` [m]: max CG distance to the time-indexed reference;
     - ``max_speed_error`` [m/s] against the reference;
     - ``reference_corridor_violation`` [m]: the same for the reference (a coarse primitive
@@ -245,9 +245,9 @@ def drift_metrics(primitive, traj: Trajectory, ref: Trajectory) -> dict:
     dpsi = float(np.asarray(traj["psi"])[-1] - xT[2])
     return dict(
         completed=ok,
-        max_corridor_violation=float(off.max()) if ok else math.inf,
-        final_position_error=float(np.hypot(x[-1] - xT[0], y[-1] - xT[1])) if ok else math.inf,
-        final_heading_error=float(math.atan2(math.sin(dpsi), math.cos(dpsi))) if ok else math.inf,
+        max_corridor_violation=float(off.max()),
+        final_position_error=float(np.hypot(x[-1] - xT[0], y[-1] - xT[1])) if ok else None,
+        final_heading_error=float(math.atan2(math.sin(dpsi), math.cos(dpsi))) if ok else None,
         max_deviation_from_reference=float(np.max(np.hypot(x[fin] - xr[fin], y[fin] - yr[fin]))),
         max_speed_error=float(np.max(np.abs(np.asarray(traj["speed"])[fin]
                                             - np.asarray(ref["speed"])[fin]))),
