@@ -138,4 +138,15 @@ from .optimal.primitives import (
 from .optimal.roads import Road as Road, road as road
 
 
+# isort: split
+# issue 7 item 7: replay of primitives on the full half-car
+from .optimal.replay import (
+    Replay as Replay,
+    TrackingGains as TrackingGains,
+    matched_lugre_tire as matched_lugre_tire,
+    replay_open_loop as replay_open_loop,
+    replay_tracking as replay_tracking,
+)
+
+
 __version__ = "0.1.0"
