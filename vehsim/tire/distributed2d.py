@@ -31,7 +31,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._math import one_minus_exp_over, safe_abs, safe_div
-from .base import AbstractTire
 from .distributed import (
     chebyshev_differentiation,
     chebyshev_nodes,
@@ -39,7 +38,7 @@ from .distributed import (
     interpolation_matrix,
 )
 from .load import AbstractLoadDistribution, UniformLoad
-from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
+from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
 
 
 def lever_moment(load: AbstractLoadDistribution):
@@ -49,7 +48,7 @@ def lever_moment(load: AbstractLoadDistribution):
     return jnp.sum(jnp.asarray(ws * (0.5 - xs)) * load.q(jnp.asarray(xs)))
 
 
-class DistributedLuGre2D(AbstractTire):
+class DistributedLuGre2D(AbstractPatchLuGre2D):
     r"""Distributed 2D LuGre PDE (eqs. 31-34), Chebyshev collocation with $n+1$ nodes per axis.
 
     State: deflections $z_i(\zeta_j)$, shape `(2, n+1)` (rows $x$, $y$; $\zeta_j = L\xi_j$).
@@ -111,13 +110,6 @@ class DistributedLuGre2D(AbstractTire):
         m = integrand[1] @ self.w_m + p.sigma2[1] * v_r[1] * self.lever
         return jnp.stack([f[0], f[1], m])
 
-    def dynamics(self, state, vx, vy, omega, r, Fz):
-        return self.derivative(state, relative_velocity_2d(vx, vy, omega, r),
-                               safe_abs(omega * r))
-
-    def forces(self, state, vx, vy, omega, r, Fz):
-        mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
-        return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])
 
     def steady_state(self, v_r, c):
         """Discrete steady state for constant inputs (one linear solve per axis)."""

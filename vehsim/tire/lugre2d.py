@@ -21,12 +21,14 @@ so $M_z < 0$ (aligning) when $F_y > 0$ builds up behind the centre.
 
 from __future__ import annotations
 
+import abc
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_order, check_positive, check_range
-from .._math import safe_div, safe_norm, safe_pow_abs
+from .._math import safe_abs, safe_div, safe_norm, safe_pow_abs
 from .base import AbstractTire
 
 
@@ -150,6 +152,33 @@ class PointLuGre2D(AbstractTire):
     def forces(self, state, vx, vy, omega, r, Fz):
         mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r))
         return jnp.stack([Fz * mu[0], Fz * mu[1], jnp.zeros_like(Fz * mu[0])])
+
+
+class AbstractPatchLuGre2D(AbstractTire):
+    r"""A 2D LuGre tire over the contact patch, written in the relative velocity $v_r$
+    (eq. 34) and the transport speed $c = |\omega r|$.
+
+    Subclasses give `derivative(state, v_r, c)` (the friction states' time derivative) and
+    `mu(state, v_r, c)` = $(F_x/F_n, F_y/F_n, M_z/(F_nL))$; the `AbstractTire` methods follow.
+    """
+
+    params: eqx.AbstractVar[LuGre2DParams]
+
+    @abc.abstractmethod
+    def derivative(self, state, v_r, c):
+        """Time derivative of the friction state."""
+
+    @abc.abstractmethod
+    def mu(self, state, v_r, c):
+        """$(F_x/F_n, F_y/F_n, M_z/(F_nL))$."""
+
+    def dynamics(self, state, vx, vy, omega, r, Fz):
+        return self.derivative(state, relative_velocity_2d(vx, vy, omega, r),
+                               safe_abs(omega * r))
+
+    def forces(self, state, vx, vy, omega, r, Fz):
+        mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
+        return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])
 
 
 class Tire2DSolution(eqx.Module):

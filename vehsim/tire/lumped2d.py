@@ -27,10 +27,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_range
-from .._math import one_minus_exp_over, safe_abs
-from .base import AbstractTire
+from .._math import one_minus_exp_over
 from .load import AbstractLoadDistribution, UniformLoad
-from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
+from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
 
 
 def _first_moment(load):
@@ -38,7 +37,7 @@ def _first_moment(load):
     return jnp.sum(jnp.asarray(ws * xs) * load.q(jnp.asarray(xs)))
 
 
-class LumpedLuGre2D(AbstractTire):
+class LumpedLuGre2D(AbstractPatchLuGre2D):
     r"""Lumped 2D LuGre with aligning torque (eqs. 35-38); state $(\bar z_x, \bar z_y, \hat z_y)$.
 
     **Arguments:**
@@ -122,10 +121,3 @@ class LumpedLuGre2D(AbstractTire):
               + p.sigma2[1] * v_r[1] * (0.5 - self.G))
         return jnp.stack([f[0], f[1], mz])
 
-    def dynamics(self, state, vx, vy, omega, r, Fz):
-        return self.derivative(state, relative_velocity_2d(vx, vy, omega, r),
-                               safe_abs(omega * r))
-
-    def forces(self, state, vx, vy, omega, r, Fz):
-        mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
-        return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])

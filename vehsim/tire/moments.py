@@ -77,10 +77,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._math import safe_abs
-from .base import AbstractTire
 from .load import AbstractLoadDistribution, PolynomialLoad, TrapezoidalLoad, UniformLoad
-from .lugre2d import LuGre2DParams, decay_rates, relative_velocity_2d
+from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
 
 
 def piecewise_coefficients(load: AbstractLoadDistribution, degree: int | None = None):
@@ -132,7 +130,7 @@ def _powers(x, K):
     return jnp.stack([jnp.ones_like(x)] + [x**k for k in range(1, K)], axis=-1)
 
 
-class MomentLuGre2D(AbstractTire):
+class MomentLuGre2D(AbstractPatchLuGre2D):
     r"""Method-of-moments model of the distributed 2D LuGre tire (eqs. 39-48).
 
     See the module docstring for the equations and for when the moment system is exact.
@@ -229,10 +227,3 @@ class MomentLuGre2D(AbstractTire):
         K = self.n_moments
         return jnp.sum(self.coeffs[None, :, :] * state[0][:, :, : K - 1], axis=(1, 2))
 
-    def dynamics(self, state, vx, vy, omega, r, Fz):
-        return self.derivative(state, relative_velocity_2d(vx, vy, omega, r),
-                               safe_abs(omega * r))
-
-    def forces(self, state, vx, vy, omega, r, Fz):
-        mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
-        return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])
