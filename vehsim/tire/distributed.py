@@ -84,6 +84,16 @@ def interpolation_matrix(n: int, xi_out: np.ndarray) -> np.ndarray:
     return P
 
 
+def patch_collocation(owner: str, n) -> tuple[int, Array, Array]:
+    """Validated degree ``n``, Chebyshev differentiation matrix $D$ on [0, 1] and the inflow
+    penalty $\tau = 1/w_0$ ($w_0$ the Clenshaw-Curtis edge weight) for $n+1$ nodes."""
+    if int(n) < 4:
+        raise ValueError(f"{owner}.n must be >= 4, got {n}")
+    n = int(n)
+    D = jnp.asarray(chebyshev_differentiation(n))
+    return n, D, jnp.asarray(1.0 / clenshaw_curtis_weights(n)[0])
+
+
 def _load_weights(load: AbstractLoadDistribution, n: int):
     """Weights w, w' with sum_j w_j z_j = int_0^1 z q dxi and sum_j w'_j z_j = int z q' dxi."""
     xs, ws = load.gauss_points(n + 8)
@@ -116,17 +126,13 @@ class DistributedLuGre(AbstractLongitudinalTire):
     tau: Float[Array, ""]
 
     def __init__(self, params: LuGreParams, load: AbstractLoadDistribution | None = None, n=48):
-        if int(n) < 4:
-            raise ValueError(f"DistributedLuGre.n must be >= 4, got {n}")
         self.params = params
         self.load = UniformLoad() if load is None else load
-        self.n = int(n)
-        self.D = jnp.asarray(chebyshev_differentiation(self.n))
+        self.n, self.D, self.tau = patch_collocation("DistributedLuGre", n)
         w_q, w_dq = _load_weights(self.load, self.n)
         self.w_q = jnp.asarray(w_q)
         self.w_dq = jnp.asarray(w_dq)
         self.q_end = jnp.asarray(self.load.q(jnp.ones(())))
-        self.tau = jnp.asarray(1.0 / clenshaw_curtis_weights(self.n)[0])
 
     @property
     def nodes(self) -> Float[Array, " n1"]:

@@ -32,10 +32,9 @@ from jaxtyping import Array, Float
 
 from .._math import one_minus_exp_over, safe_abs, safe_div
 from .distributed import (
-    chebyshev_differentiation,
     chebyshev_nodes,
-    clenshaw_curtis_weights,
     interpolation_matrix,
+    patch_collocation,
 )
 from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
@@ -71,19 +70,15 @@ class DistributedLuGre2D(AbstractPatchLuGre2D):
 
     def __init__(self, params: LuGre2DParams, load: AbstractLoadDistribution | None = None,
                  n: int = 48):
-        if int(n) < 4:
-            raise ValueError(f"DistributedLuGre2D.n must be >= 4, got {n}")
         self.params = params
         self.load = UniformLoad() if load is None else load
-        self.n = int(n)
-        self.D = jnp.asarray(chebyshev_differentiation(self.n))
+        self.n, self.D, self.tau = patch_collocation("DistributedLuGre2D", n)
         xs, ws = self.load.gauss_points(self.n + 8)
         P = interpolation_matrix(self.n, xs)
         q = np.asarray(self.load.q(jnp.asarray(xs)))
         self.w_q = jnp.asarray((ws * q) @ P)
         self.w_m = jnp.asarray((ws * q * (0.5 - xs)) @ P)
         self.lever = lever_moment(self.load)
-        self.tau = jnp.asarray(1.0 / clenshaw_curtis_weights(self.n)[0])
 
     @property
     def nodes(self) -> Float[Array, " n1"]:
