@@ -91,22 +91,25 @@ def lateral_coefficients(params: MagicFormula1987Params, Fz):
     return safe_div(BCD, params.C_y * D), params.C_y, D, E
 
 
+def _exponential_stiffness_coefficients(p, C, Fz):
+    """(B, C, D, E) for the 1987 form shared by $F_{x0}$ and $M_{z0}$:
+    $D = p_1F_z^2 + p_2F_z$, $BCD = (p_3F_z^2 + p_4F_z)e^{-p_5F_z}$,
+    $E = p_6F_z^2 + p_7F_z + p_8$ ($F_z$ in kN)."""
+    fz = _load_kN(Fz)
+    D = p[0] * fz**2 + p[1] * fz
+    BCD = (p[2] * fz**2 + p[3] * fz) * jnp.exp(-p[4] * fz)
+    E = p[5] * fz**2 + p[6] * fz + p[7]
+    return safe_div(BCD, C * D), C, D, E
+
+
 def longitudinal_coefficients(params: MagicFormula1987Params, Fz):
     """(B, C, D, E) of $F_{x0}$ at load `Fz` [N] (B per percent)."""
-    b, fz = params.b, _load_kN(Fz)
-    D = b[0] * fz**2 + b[1] * fz
-    BCD = (b[2] * fz**2 + b[3] * fz) * jnp.exp(-b[4] * fz)
-    E = b[5] * fz**2 + b[6] * fz + b[7]
-    return safe_div(BCD, params.C_x * D), params.C_x, D, E
+    return _exponential_stiffness_coefficients(params.b, params.C_x, Fz)
 
 
 def aligning_coefficients(params: MagicFormula1987Params, Fz):
     """(B, C, D, E) of $M_{z0}$ at load `Fz` [N] (B per degree)."""
-    c, fz = params.c, _load_kN(Fz)
-    D = c[0] * fz**2 + c[1] * fz
-    BCD = (c[2] * fz**2 + c[3] * fz) * jnp.exp(-c[4] * fz)
-    E = c[5] * fz**2 + c[6] * fz + c[7]
-    return safe_div(BCD, params.C_z * D), params.C_z, D, E
+    return _exponential_stiffness_coefficients(params.c, params.C_z, Fz)
 
 
 def pure_longitudinal_force(params: MagicFormula1987Params, kappa, Fz):
