@@ -373,7 +373,9 @@ def homogeneous_norm_newton(x: Chained, steps: int = 6):
         df = 4 * r**3 - 2 * a * r
         return r - f / df
 
-    r = jax.lax.fori_loop(0, steps, body, r0_safe)
+    r = r0_safe
+    for i in range(steps):  # unrolled (a few steps): one fused kernel, no loop overhead
+        r = body(i, r)
     return jnp.where(zero, 0.0, r)
 
 

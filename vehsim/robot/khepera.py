@@ -129,13 +129,17 @@ def _initial_carry(pose0, t_final):
             jnp.zeros(2, dtype), pose0, RunStats.init(t_final))
 
 
-def _measure(plant: KheperaPlant, key, carry, k):
-    """The pose the controller sees at sample k: odometry (or truth) plus sensor noise."""
-    pose, odometry = carry[0], carry[4]
+def _noise(plant: KheperaPlant, key, k, dtype):
+    """Sensor noise of sample k of the run with noise key `key` (zero when switched off)."""
     sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
-    estimate = jnp.where(plant.encoders, odometry, pose)
-    noise = jax.random.normal(jax.random.fold_in(key, k), (3,), pose.dtype) * sigma
-    return estimate + jnp.where(plant.noise, noise, jnp.zeros_like(noise))
+    noise = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) * sigma
+    return jnp.where(plant.noise, noise, jnp.zeros_like(noise))
+
+
+def _measure(plant: KheperaPlant, carry, noise):
+    """The pose the controller sees: odometry (or truth) plus the sensor `noise`."""
+    pose, odometry = carry[0], carry[4]
+    return jnp.where(plant.encoders, odometry, pose) + noise
 
 
 def _advance(plant: KheperaPlant, substeps: int, save: bool, carry, k, measured, command):
@@ -169,7 +173,10 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, carry, k, measured,
         vv, ww = body_velocity(wheels, b)
         return unicycle_step(pose, vv, ww, h), wheels, travel + wheels * h
 
-    new_pose, wheels, travel = jax.lax.fori_loop(0, substeps, sub, (pose, wheels, travel))
+    state = (pose, wheels, travel)
+    for i in range(substeps):  # unrolled: a few sub-steps, fused into one kernel
+        state = sub(i, state)
+    new_pose, wheels, travel = state
     d = (count(travel) - counts_before) / plant.pulses_per_meter
     ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
     mid = odometry[2] + 0.5 * dg
@@ -181,7 +188,7 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, carry, k, measured,
 
 def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, carry, k):
     """One control sample of the closed loop (see the module docstring)."""
-    measured = _measure(plant, key, carry, k)
+    measured = _measure(plant, carry, _noise(plant, key, k, carry[0].dtype))
     v, omega = velocity_fn(k * plant.sample_time, measured)
     return _advance(plant, substeps, save, carry, k, measured, jnp.stack([v, omega]))
 
@@ -231,21 +238,29 @@ def simulate(controller: AbstractController, system: AbstractSystem, pose0,
                      n_steps, int(substeps), bool(save))
 
 
+def _block_size(n_steps: int, largest: int = 50) -> int:
+    """The largest divisor of `n_steps` not above `largest`."""
+    return max(b for b in range(1, min(largest, n_steps) + 1) if n_steps % b == 0)
+
+
 @eqx.filter_jit
 def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
-    # One scan over time. Per sample: measure all G x P runs (vmapped), evaluate each
-    # (controller, system) group's law on its own P runs, then advance the shared plant on
-    # all runs (vmapped). A lax.switch on a batched controller index would make XLA evaluate
-    # every law for every run; grouping computes each law only where it is used.
+    # One scan over time, in blocks of B samples. Per block: the sensor noise of the P
+    # initial poses for all B samples, drawn at once (each (controller, system) group
+    # reuses the same P noise sequences, so they are drawn once, not G times). Per sample:
+    # measure all G x P runs, evaluate each group's law on its own P runs, then advance the
+    # shared plant on all runs (vmapped). A lax.switch on a batched controller index would
+    # make XLA evaluate every law for every run; grouping computes each law only where used.
     fns = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
     G, P = len(fns), poses.shape[0]
     t_final = n_steps * plant.sample_time
     all_poses = jnp.tile(poses, (G, 1))
-    all_keys = jnp.tile(keys, (G, 1))
     carry0 = jax.vmap(lambda p: _initial_carry(p, t_final))(all_poses)
+    B = _block_size(n_steps)
 
-    def body(carry, k):
-        measured = jax.vmap(lambda key, c: _measure(plant, key, c, k))(all_keys, carry)
+    def step(carry, xs):
+        k, noise = xs
+        measured = jax.vmap(ft.partial(_measure, plant))(carry, jnp.tile(noise, (G, 1)))
         t = k * plant.sample_time
         commands = [jax.vmap(lambda m: jnp.stack(fn(t, m)))(measured[g * P:(g + 1) * P])
                     for g, fn in enumerate(fns)]
@@ -253,9 +268,15 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
         return jax.vmap(lambda c, m, u: _advance(plant, substeps, save, c, k, m, u))(
             carry, measured, command)
 
-    carry, out = jax.lax.scan(body, carry0, jnp.arange(n_steps))
-    if save:  # scan stacks time first: (n, G P, ...) -> (G P, n, ...)
-        out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
+    def block(carry, ks):
+        noise = jax.vmap(lambda k: jax.vmap(lambda key: _noise(plant, key, k, poses.dtype))(
+            keys))(ks)
+        return jax.lax.scan(step, carry, (ks, noise))
+
+    carry, out = jax.lax.scan(block, carry0, jnp.arange(n_steps).reshape(-1, B))
+    if save:  # scan stacks time first: (n / B, B, G P, ...) -> (G P, n, ...)
+        out = jax.tree_util.tree_map(
+            lambda a: jnp.swapaxes(a.reshape((n_steps,) + a.shape[2:]), 0, 1), out)
     run = _as_run(carry, out, save)
     return jax.tree_util.tree_map(lambda a: a.reshape((G, P) + a.shape[1:]), run)
 
