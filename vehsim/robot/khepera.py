@@ -163,8 +163,11 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, carry, k, measured,
     wheel_cmd = jnp.where(plant.saturation,
                           jnp.clip(wheel_cmd, -plant.speed_limit, plant.speed_limit),
                           wheel_cmd)
-    buffer = jnp.concatenate([wheel_cmd[None], buffer[:-1]])
-    applied = buffer[delay]
+    # Ring buffer: sample k writes slot k mod (MAX_DELAY + 1) and applies the command of
+    # sample k - delay (zero before the first command arrives).
+    n_slots = MAX_DELAY + 1
+    buffer = jax.lax.dynamic_update_index_in_dim(buffer, wheel_cmd, k % n_slots, 0)
+    applied = jax.lax.dynamic_index_in_dim(buffer, (k - delay) % n_slots, 0, keepdims=False)
     counts_before = count(travel)
 
     def sub(_, state):
