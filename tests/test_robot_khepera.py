@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import tree_allclose
 
 from vehsim.robot.controllers import (
     AbstractController,
@@ -12,8 +13,15 @@ from vehsim.robot.controllers import (
     DiscontinuousController,
     PolarController,
 )
-from vehsim.robot.khepera import KheperaPlant, ideal_plant, realistic_plant, simulate
+from vehsim.robot.khepera import (
+    KheperaPlant,
+    ideal_plant,
+    realistic_plant,
+    simulate,
+    simulate_grid,
+)
 from vehsim.robot.missions import EASY, LONG_DISTANCE
+from vehsim.robot.scoring import score
 from vehsim.robot.unicycle import SystemI, SystemII
 
 
@@ -120,3 +128,23 @@ def test_controller2_commands_within_limits_where_controller1_saturates():
                        save=False)
         peak[name] = float(run.stats.peak_command[0])
     assert peak["2"] < 127 / 120 < peak["1"]
+
+
+def test_grid_equals_single_runs():
+    """`simulate_grid` (noise drawn in blocks per initial pose, each law evaluated on its own
+    group) gives the same runs as `simulate` one at a time: realistic plant with noise, a
+    sample count (115 = 5 x 23) that is not a multiple of the 50-sample noise block."""
+    controllers = (DiscontinuousController(), PolarController())
+    systems = (SystemI(), SystemII())
+    poses = jnp.array([[-0.15, 0.03, 0.1], [0.1, 0.15, -1.0]])
+    keys = jax.random.split(jax.random.PRNGKey(5), 2)
+    grid = simulate_grid(controllers, systems, poses, keys, t_final=2.3, save=True)
+    assert grid.pose.shape == (2, 2, 2, 115, 3)
+    for c, s, p in [(0, 1, 0), (1, 0, 1)]:
+        one = simulate(controllers[c], systems[s], poses[p], key=keys[p], t_final=2.3)
+        np.testing.assert_allclose(grid.pose[c, s, p], one.pose, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(grid.measured[c, s, p], one.measured, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(grid.command[c, s, p], one.command, rtol=0, atol=1e-12)
+        stats = jax.tree_util.tree_map(lambda a: a[c, s, p], grid.stats)
+        assert tree_allclose(stats, one.stats, rtol=0, atol=1e-12)
+        assert int(score(stats)) == int(score(one.stats))

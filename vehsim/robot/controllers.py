@@ -21,7 +21,6 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -63,8 +62,8 @@ class AbstractChainedController(AbstractController):
         r"""Chained inputs $(u_1, u_2)$ at time `t` and chained state `x`."""
 
     def velocity(self, t, pose: Pose, system: AbstractSystem) -> tuple[Array, Array]:
-        x = jax.lax.optimization_barrier(system.to_chained(pose))
-        return system.velocity(pose, self(t, x))
+        x = system.to_chained(pose)
+        return system.velocity(pose, self(t, x), x)
 
 
 class DiscontinuousController(AbstractChainedController):

@@ -90,8 +90,10 @@ class AbstractSystem(eqx.Module):
         """The pose with chained coordinates `x` (inverse of `to_chained`)."""
 
     @abc.abstractmethod
-    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
-        r"""Unicycle inputs $(v, \omega)$ that produce $\dot x = (u_1, u_2, x_1u_2)$."""
+    def velocity(self, pose: Pose, u: Float[Array, 2], x: Chained | None = None
+                 ) -> tuple[Array, Array]:
+        r"""Unicycle inputs $(v, \omega)$ that produce $\dot x = (u_1, u_2, x_1u_2)$
+        (`x`: the chained coordinates of `pose`, if already computed)."""
 
 
 class SystemI(AbstractSystem):
@@ -121,8 +123,9 @@ class SystemI(AbstractSystem):
         return jnp.stack([(x[0] * c + x[2] * s) * self.length,
                           (x[0] * s - x[2] * c) * self.length, x[1]])
 
-    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
-        x = self.to_chained(pose)
+    def velocity(self, pose: Pose, u: Float[Array, 2], x: Chained | None = None
+                 ) -> tuple[Array, Array]:
+        x = self.to_chained(pose) if x is None else x
         return self.length * (u[0] + x[2] * u[1]), u[1]
 
 
@@ -153,6 +156,7 @@ class SystemII(AbstractSystem):
         return jnp.stack([x[0] * self.length, (x[0] * x[1] - x[2]) * self.length,
                           jnp.arctan(x[1])])
 
-    def velocity(self, pose: Pose, u: Float[Array, 2]) -> tuple[Array, Array]:
+    def velocity(self, pose: Pose, u: Float[Array, 2], x: Chained | None = None
+                 ) -> tuple[Array, Array]:
         c = jnp.cos(pose[2])
         return self.length * u[0] / c, u[1] * c * c
