@@ -10,7 +10,10 @@ timed). It is timed on a subset of runs spread over controllers, systems and mis
 extrapolated per run to the full grid (stated in the JSON). Accuracy: the largest
 difference of the final poses between the two on that subset.
 
-Prints JSON lines; headline key `ratio` = baseline wall time / vehsim wall time.
+Prints JSON lines; headline key `ratio` = baseline wall time / vehsim wall time (median of
+`--repeats` timed calls after the compiling one). On a shared machine wall times depend on
+the load (XLA's thread pool suffers more from it than the single-threaded baseline), so
+`ratio_cpu_time` (process CPU time, both sides) and the load average are reported too.
 Usage: PYTHONPATH=. python experiments/benchmarks/robot_montecarlo.py [--seeds 100] [--subset 24]
 """
 
@@ -19,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 
@@ -187,20 +191,26 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=100)
     ap.add_argument("--subset", type=int, default=24)
+    ap.add_argument("--repeats", type=int, default=3, help="timed vehsim calls (median)")
     args = ap.parse_args(argv)
     n_steps = 2000
     n_m = len(MISSIONS)
     runs = 8 * 2 * n_m * args.seeds
 
+    load_before = os.getloadavg()
     t0 = time.perf_counter()
     run = run_grid(args.seeds)
     jax.block_until_ready(run.final_pose)
     first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    run = run_grid(args.seeds)
-    jax.block_until_ready(run.final_pose)
-    vehsim_time = time.perf_counter() - t0
-    print(f"vehsim grid: first call {first:.1f} s, timed call {vehsim_time:.2f} s",
+    walls, cpus = [], []
+    for _ in range(args.repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        run = run_grid(args.seeds)
+        jax.block_until_ready(run.final_pose)
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    vehsim_time, vehsim_cpu = float(np.median(walls)), float(np.median(cpus))
+    print(f"vehsim grid: first call {first:.1f} s, timed calls {walls} s (CPU {cpus} s)",
           file=sys.stderr)
 
     # Same poses and noise as run_grid (key 0).
@@ -215,13 +225,14 @@ def main(argv=None):
     rng = np.random.default_rng(0)
     subset = [(i % 8, (i // 8) % 2, int(rng.integers(poses.shape[0])))
               for i in range(args.subset)]
-    errors, t_py = [], 0.0
+    errors, t_py, cpu_py = [], 0.0, 0.0
     for j, (ci, si, pi) in enumerate(subset):
         noise = np.asarray(jax.vmap(lambda k: jax.random.normal(
             jax.random.fold_in(keys[pi], k), (3,), jnp.float64) * sigma)(jnp.arange(n_steps)))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         final = python_run(ci, si, [float(p) for p in poses[pi]], noise.tolist(), n_steps)
         t_py += time.perf_counter() - t0
+        cpu_py += time.process_time() - c0
         ref = np.asarray(run.final_pose[ci, si, pi])
         err = np.max(np.abs(final - ref))
         errors.append(err)
@@ -229,21 +240,30 @@ def main(argv=None):
               f"max |final pose diff| {err:.2e}", file=sys.stderr)
     per_run = t_py / len(subset)
     baseline = per_run * runs
+    baseline_cpu = cpu_py / len(subset) * runs
     errors = np.array(errors)
     result = {
         "benchmark": "robot_montecarlo",
         "grid": {"controllers": 8, "systems": 2, "missions": n_m, "seeds": args.seeds,
                  "runs": runs, "t_final_s": 40.0, "rate_hz": 50, "substeps": 4},
         "vehsim_wall_s": round(vehsim_time, 3),
+        "vehsim_wall_s_all_timed_calls": [round(w, 3) for w in walls],
+        "vehsim_cpu_s": round(vehsim_cpu, 3),
         "vehsim_compile_and_first_call_s": round(first, 2),
         "vehsim_runs_per_s": round(runs / vehsim_time, 1),
         "baseline": "plain Python loop (math scalars), timed on a subset and extrapolated "
-                    "per run to the full grid",
+                    "per run to the full grid; its noise is drawn beforehand (not timed), "
+                    "vehsim draws its noise inside the timed call",
         "baseline_subset_runs": len(subset),
         "baseline_wall_s_per_run": round(per_run, 4),
         "baseline_wall_s_extrapolated": round(baseline, 1),
+        "baseline_cpu_s_extrapolated": round(baseline_cpu, 1),
         "baseline_runs_per_s": round(1 / per_run, 2),
         "ratio": round(baseline / vehsim_time, 1),
+        "ratio_cpu_time": round(baseline_cpu / vehsim_cpu, 1),
+        "load_average_1min_before_after": [round(load_before[0], 2),
+                                           round(os.getloadavg()[0], 2)],
+        "cpu_count": os.cpu_count(),
         "accuracy_max_final_pose_diff_subset": float(errors.max()),
         "accuracy_median_final_pose_diff_subset": float(np.median(errors)),
         "device": str(jax.devices()[0]),

@@ -21,6 +21,7 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -63,7 +64,8 @@ class AbstractChainedController(AbstractController):
 
     def velocity(self, t, pose: Pose, system: AbstractSystem) -> tuple[Array, Array]:
         x = system.to_chained(pose)
-        return system.velocity(pose, self(t, x), x)
+        u = jax.lax.optimization_barrier(self(t, x))
+        return system.velocity(pose, u, x)
 
 
 class DiscontinuousController(AbstractChainedController):
