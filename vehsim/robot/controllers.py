@@ -81,6 +81,10 @@ class DiscontinuousController(AbstractChainedController):
     $\dot\eta = (k - \mu/2)\eta$: for $\mu > 2k$ the region $D^g$ is invariant and the
     state converges exponentially. In $D^b$ the state leaves in finite time ($\nu$ grows
     linearly). Gains used: $k = 1$, $\mu = 3$, $\bar\eta = 2$, $k_s = 2$ (1/s).
+
+    **Documented time** (`DOCUMENTED_TIME`): 8 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 8 s on.
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -132,6 +136,10 @@ class BoundedController(AbstractChainedController):
     $\dot s = -\mu s/2$ and $\nu$ decays. Each input obeys
     $|u_i| \le \max(|k_{in}|, |k_{out}|) + \mu$ (`input_bound`).
     Gains used: $k_{in} = 1$, $k_{out} = -0.5$, $\mu = 3$ (1/s).
+
+    **Documented time** (`DOCUMENTED_TIME`): 8 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 8 s on.
     """
 
     k_in: Float[Array, ""] = _field(1.0)
@@ -187,6 +195,10 @@ class TwoStageController(AbstractChainedController):
 
     (Law reconstructed from the paper's construction; its exact switching function is not
     in the report.) Gains used: $k = 1$, $k_1 = 2$, $c = 1$.
+
+    **Documented time** (`DOCUMENTED_TIME`): 8 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 8 s on.
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -227,6 +239,10 @@ class PolarController(AbstractController):
     $\theta$ is undefined at $e = 0$: near the goal, sensor noise in $(x, y)$ moves $\theta$
     by large amounts, which shows up as heading oscillations. Gains used: $\lambda = 1$
     (1/s), $k = 3$ (1/s), $h = 1.5$.
+
+    **Documented time** (`DOCUMENTED_TIME`): 10 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 10 s on.
     """
 
     lam: Float[Array, ""] = _field(1.0)
@@ -263,6 +279,17 @@ class TeelMurrayWalshController(AbstractChainedController):
     for $k = \omega = 1$) gives $\dot x_3 \approx -a^2x_3^3/4$: asymptotic but only
     polynomial convergence, $x_3 \sim 1/\sqrt t$ -- very slow near the origin.
     Gains used: $k = 1$, $a = 1$, $\omega = 1$ rad/s.
+
+    **Documented time** (`DOCUMENTED_TIME`): none. The law is smooth, so the closed loop is
+    $C^1$, and a $C^1$ closed loop that converged exponentially would have an exponentially
+    stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
+    first order): smooth time-varying feedback converges only polynomially (this is why
+    M'Closkey and Murray went to homogeneous laws, controllers 6 and 8). From the generic
+    pose on the ideal plant the heading is within 1 deg after 400 s but the largest
+    position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
+    halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
+    (extrapolated; larger gains shorten this, by averaging as $1/a^2$, but cannot make it
+    exponential).
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -298,6 +325,10 @@ class MCloskeyMurray93Controller(AbstractChainedController):
     Every term scales like $\rho$, so the averaged system (with $\dot x_3 \approx
     -a^2x_3^3/(4\rho^4)$) converges exponentially in $\rho$ -- but slowly, since its rate
     is set by the oscillation. Gains used: $k = 1$, $a = 1$, $\omega = 1$ rad/s.
+
+    **Documented time** (`DOCUMENTED_TIME`): 40 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 40 s on.
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -329,6 +360,17 @@ class PometController(AbstractChainedController):
     time variation makes the origin globally asymptotically stable (not exponentially).
     With a gain $k > 0$ ($u_1 = -kp + \omega x_3\sin\omega t$, $u_2 = -kb$) the same argument
     gives $\dot V = -k(p^2 + b^2)$. Gains used: $k = 1$, $\omega = 1$ rad/s.
+
+    **Documented time** (`DOCUMENTED_TIME`): none. The law is smooth, so the closed loop is
+    $C^1$, and a $C^1$ closed loop that converged exponentially would have an exponentially
+    stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
+    first order): smooth time-varying feedback converges only polynomially (this is why
+    M'Closkey and Murray went to homogeneous laws, controllers 6 and 8). From the generic
+    pose on the ideal plant the heading is within 1 deg after 400 s but the largest
+    position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
+    halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
+    (extrapolated; larger gains shorten this, by averaging as $1/a^2$, but cannot make it
+    exponential).
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -395,6 +437,10 @@ class MCloskeyMurray97Controller(AbstractChainedController):
     exponentially stable (the closed loop is homogeneous of degree 0 and its
     averaged part has rate $\approx a^2/4$). Gains used: $k = 2$, $a = 2$, $\omega = 2$
     rad/s, 6 Newton steps.
+
+    **Documented time** (`DOCUMENTED_TIME`): 25 s -- from the generic pose $(-0.1\,\mathrm{m},
+    0.05\,\mathrm{m}, 0.3)$ on the ideal plant (System I) it is within 1 mm and 1 deg of the
+    origin from 25 s on.
     """
 
     k: Float[Array, ""] = _field(2.0)
@@ -434,8 +480,7 @@ DOCUMENTED_TIME: dict[str, float | None] = {
     "PometController": None,
     "MCloskeyMurray97Controller": 25.0,
 }
-"""Time [s] by which each controller brings the generic pose (-0.1 m, 0.05 m, 0.3 rad) to
-within 1 mm and 1 deg of the origin on the ideal plant (System I, default gains). `None`:
-only polynomially convergent (controllers 5 and 7, $x_3 \\sim t^{-1/2}$): 1 mm takes
-about 3e4 s of simulated time for both (extrapolated from the error at 400 s, and
-checked for controller 7 by a 3e4 s run: 0.95 mm)."""
+r"""Time [s] from which each controller keeps the generic pose (-0.1 m, 0.05 m, 0.3 rad)
+within 1 mm and 1 deg of the origin on the ideal plant (System I, default gains); each
+controller's docstring states the same. `None`: never in practice (controllers 5 and 7 are
+smooth, hence only polynomially convergent, $x_3 \sim t^{-1/2}$; see their docstrings)."""
