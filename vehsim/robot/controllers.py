@@ -283,8 +283,9 @@ class TeelMurrayWalshController(AbstractChainedController):
     **Documented time** (`DOCUMENTED_TIME`): none. The law is smooth, so the closed loop is
     $C^1$, and a $C^1$ closed loop that converged exponentially would have an exponentially
     stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
-    first order): smooth time-varying feedback converges only polynomially (this is why
-    M'Closkey and Murray went to homogeneous laws, controllers 6 and 8). From the generic
+    first order): a time-varying feedback that stabilises a driftless system exponentially
+    is necessarily non-Lipschitz (M'Closkey and Murray 1997 [21], which is why they went to
+    the homogeneous laws of controllers 6 and 8), so no gain choice makes this law fast. From the generic
     pose on the ideal plant the heading is within 1 deg after 400 s but the largest
     position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
     halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
@@ -364,8 +365,9 @@ class PometController(AbstractChainedController):
     **Documented time** (`DOCUMENTED_TIME`): none. The law is smooth, so the closed loop is
     $C^1$, and a $C^1$ closed loop that converged exponentially would have an exponentially
     stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
-    first order): smooth time-varying feedback converges only polynomially (this is why
-    M'Closkey and Murray went to homogeneous laws, controllers 6 and 8). From the generic
+    first order): a time-varying feedback that stabilises a driftless system exponentially
+    is necessarily non-Lipschitz (M'Closkey and Murray 1997 [21], which is why they went to
+    the homogeneous laws of controllers 6 and 8), so no gain choice makes this law fast. From the generic
     pose on the ideal plant the heading is within 1 deg after 400 s but the largest
     position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
     halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
