@@ -285,12 +285,11 @@ class TeelMurrayWalshController(AbstractChainedController):
     stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
     first order): a time-varying feedback that stabilises a driftless system exponentially
     is necessarily non-Lipschitz (M'Closkey and Murray 1997 [21], which is why they went to
-    the homogeneous laws of controllers 6 and 8), so no gain choice makes this law fast. From the generic
-    pose on the ideal plant the heading is within 1 deg after 400 s but the largest
-    position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
-    halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
-    (extrapolated; larger gains shorten this, by averaging as $1/a^2$, but cannot make it
-    exponential).
+    the homogeneous laws of controllers 6 and 8). From the generic pose on the ideal plant
+    the heading is within 1 deg after 400 s, but the largest position error over
+    $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and halves when $t$
+    quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s (extrapolated).
+    Larger gains shorten this (by averaging, as $1/a^2$) but no gain makes it exponential.
     """
 
     k: Float[Array, ""] = _field(1.0)
@@ -367,12 +366,11 @@ class PometController(AbstractChainedController):
     stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
     first order): a time-varying feedback that stabilises a driftless system exponentially
     is necessarily non-Lipschitz (M'Closkey and Murray 1997 [21], which is why they went to
-    the homogeneous laws of controllers 6 and 8), so no gain choice makes this law fast. From the generic
-    pose on the ideal plant the heading is within 1 deg after 400 s but the largest
-    position error over $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and
-    halves when $t$ quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s
-    (extrapolated; larger gains shorten this, by averaging as $1/a^2$, but cannot make it
-    exponential).
+    the homogeneous laws of controllers 6 and 8). From the generic pose on the ideal plant
+    the heading is within 1 deg after 400 s, but the largest position error over
+    $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and halves when $t$
+    quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s (extrapolated).
+    Its gain $k$ cannot make it exponential either.
     """
 
     k: Float[Array, ""] = _field(1.0)
