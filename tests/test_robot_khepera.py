@@ -135,12 +135,12 @@ def test_grid_equals_single_runs():
     group) gives the same runs as `simulate` one at a time: realistic plant with noise, a
     sample count (115 = 5 x 23) that is not a multiple of the 50-sample noise block."""
     controllers = (DiscontinuousController(), PolarController())
-    systems = (SystemI(), SystemII())
+    systems = (SystemII(),)
     poses = jnp.array([[-0.15, 0.03, 0.1], [0.1, 0.15, -1.0]])
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
     grid = simulate_grid(controllers, systems, poses, keys, t_final=2.3, save=True)
-    assert grid.pose.shape == (2, 2, 2, 115, 3)
-    for c, s, p in [(0, 1, 0), (1, 0, 1)]:
+    assert grid.pose.shape == (2, 1, 2, 115, 3)
+    for c, s, p in [(0, 0, 0), (1, 0, 1)]:
         one = simulate(controllers[c], systems[s], poses[p], key=keys[p], t_final=2.3)
         np.testing.assert_allclose(grid.pose[c, s, p], one.pose, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.measured[c, s, p], one.measured, rtol=0, atol=1e-14)
