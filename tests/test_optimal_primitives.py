@@ -5,6 +5,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from optimal_cache import M, corner90_min_time
 
 from vehsim.optimal.nlp import SUCCESS, IPOptions
 from vehsim.optimal.primitives import (
@@ -13,9 +14,6 @@ from vehsim.optimal.primitives import (
     point_mass_bound,
 )
 from vehsim.optimal.shooting import DELTA_MAX
-
-
-M = 30  # coarse: the spec's comparisons use >= 150 nodes (see the reproduce section)
 
 
 def _check_solution(prim):
@@ -33,8 +31,7 @@ def _check_solution(prim):
 
 @pytest.fixture(scope="module")
 def corner_min_time():
-    return min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
-                              options=IPOptions(max_iter=300))
+    return corner90_min_time()  # shared with tests/test_optimal_replay.py
 
 
 def test_corner90_min_time_feasible_and_above_point_mass_bound(corner_min_time):

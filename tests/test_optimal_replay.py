@@ -7,9 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from optimal_cache import corner90_min_time
 
-from vehsim.optimal.nlp import SUCCESS, IPOptions
-from vehsim.optimal.primitives import min_time_primitive
+from vehsim.optimal.nlp import SUCCESS
 from vehsim.optimal.replay import (
     default_vehicle,
     initial_state,
@@ -20,13 +20,9 @@ from vehsim.optimal.replay import (
 from vehsim.tire.friction_ellipse import rally_gravel_tire
 
 
-M = 30
-
-
 @pytest.fixture(scope="module")
 def prim():
-    p = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
-                           options=IPOptions(max_iter=300))
+    p = corner90_min_time()  # shared with tests/test_optimal_primitives.py
     assert int(p.status) == SUCCESS
     return p
 

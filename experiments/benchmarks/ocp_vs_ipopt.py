@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 
@@ -221,6 +222,7 @@ def main(argv=None):
             ipopt_corridor_violation=violations(rd, ip["xs"]),
             vehsim_wall_s=ours, ipopt_wall_s=ip["wall"], ratio=ip["wall"] / ours,
             vehsim_compile_s=first - ours, ipopt_build_s=ipopt_total - ip["wall"],
+            loadavg=os.getloadavg()[0],
         )), flush=True)
 
 
@@ -270,6 +272,7 @@ def batch_benchmark(n: int, N: int, method: str) -> None:
         ratio=wall_ip / min(wall_cont, wall_vmap), vmap_converged=ok_vmap,
         max_rel_diff_continuation=float(np.max(np.abs(tf_cont - tf_ip) / tf_ip)),
         max_rel_diff_vmap=float(np.max(np.abs(tf_vmap - tf_ip) / tf_ip)),
+        loadavg=os.getloadavg()[0],
     )), flush=True)
 
 

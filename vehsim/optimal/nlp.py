@@ -318,6 +318,13 @@ def interior_point(
     return sol
 
 
+def _strong(tree):
+    """Strongly typed copies of the array leaves: a weakly typed loop carry (``jnp.asarray(0.0)``)
+    makes `lax.while_loop` trace its body a second time to fix the types (twice the tracing
+    of the whole Newton step)."""
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype=jnp.result_type(a)), tree)
+
+
 def _print_iter(it, f, inf_pr, inf_du, mu, alpha, delta, nls):
     print(
         f"  ip {int(it):4d}  obj {float(f): .8e}  inf_pr {float(inf_pr):.2e}  "
@@ -383,15 +390,18 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             V, J, T = jax.vmap(second_order)(ys, ks)
             H = jnp.einsum("ko,koij->kij", w, T)
         else:
-            def first(y, k):
-                def f1(yy):
-                    v = vec(yy, k)
-                    return v, v
+            def second(y, k, ww):
+                # one forward pass over the reverse pass: the tangents of the gradient of
+                # the weighted stage Lagrangian are its Hessian, those of the primal
+                # outputs the Jacobian (one traced derivative instead of two)
+                def grad_and_value(yy):
+                    v, pullback = jax.vjp(lambda z: vec(z, k), yy)
+                    return (pullback(ww)[0], v), v
 
-                return jax.jacfwd(f1, has_aux=True)(y)
+                (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
+                return V, J, H
 
-            J, V = jax.vmap(first)(ys, ks)
-            H = jax.vmap(jax.hessian(lambda y, k, ww: jnp.dot(ww, vec(y, k))))(ys, ks, w)
+            V, J, H = jax.vmap(second)(ys, ks, w)
         H = 0.5 * (H + jnp.swapaxes(H, 1, 2))
         f, F, e, g = split(V)
         c = jnp.concatenate([ys[1:, :nx] - F[:-1], jnp.zeros((1, nx))], 0)
@@ -451,6 +461,7 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
         filter_next=jnp.asarray(0), theta_min=1e-4 * jnp.maximum(1.0, theta_init),
         theta_max=1e4 * jnp.maximum(1.0, theta_init),
     )
+    state0 = _strong(state0)
 
     def body(st):
         ys, s, z, lam, nu_, mu = st["ys"], st["s"], st["z"], st["lam"], st["nu"], st["mu"]
@@ -528,7 +539,7 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             return delta, sol, ok, n + 1
 
         nb = lay.nb
-        init = (jnp.asarray(0.0), jnp.zeros((M + 1, nb)), jnp.asarray(False), jnp.asarray(0))
+        init = _strong((0.0, jnp.zeros((M + 1, nb)), False, 0))
         delta, sol, ok, _ = jax.lax.while_loop(ic_cond, ic_body, init)
         delta_last = jnp.where(delta > 0, delta, st["delta_last"])
         dy = sol[:, :ny] * um
@@ -577,7 +588,7 @@ def _interior_point(prob, xs0, us0, options: IPOptions) -> IPSolution:
             return alpha, n + 1, ok, f_type
 
         alpha, nls, ls_ok, f_type = jax.lax.while_loop(
-            ls_cond, ls_body, (alpha_p, jnp.asarray(0), jnp.asarray(False), jnp.asarray(False))
+            ls_cond, ls_body, _strong((alpha_p, 0, False, False))
         )
         # augment the filter after h-type steps (and after a failed search, to move on)
         augment = ~f_type & ls_ok

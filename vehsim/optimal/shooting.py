@@ -64,16 +64,30 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
         return _rk4_segment(self._rhs, x, u, h, S)
 
 
+_RK4_A = (0.0, 0.5, 0.5, 1.0)
+_RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+
+
 def _rk4_segment(rhs, x, u, h, S):
-    nodes = []
-    for _ in range(S):
-        nodes.append(x)
-        k1 = rhs(x, u)
-        k2 = rhs(x + 0.5 * h * k1, u)
-        k3 = rhs(x + 0.5 * h * k2, u)
-        k4 = rhs(x + h * k3, u)
-        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x, jnp.stack(nodes)
+    """``S`` classical RK4 steps of size ``h``; returns the end state and the S step starts.
+
+    Both the steps and the four stages of a step are `lax.scan` loops, so the right-hand
+    side is traced (and its second derivatives compiled) once, not 4 S times: compile time
+    is dominated by the Hessian of this function."""
+    a = jnp.asarray(_RK4_A)
+    b = jnp.asarray(_RK4_B)
+
+    def step(x, _):
+        def stage(carry, ab):
+            k_prev, acc = carry
+            ai, bi = ab
+            k = rhs(x + (ai * h) * k_prev, u)
+            return (k, acc + bi * k), None
+
+        (_, acc), _ = jax.lax.scan(stage, (jnp.zeros_like(x), jnp.zeros_like(x)), (a, b))
+        return x + h * acc, x
+
+    return jax.lax.scan(step, x, None, length=S)
 
 
 class ManeuverOCP(AbstractManeuverOCP):

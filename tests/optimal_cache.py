@@ -1,0 +1,19 @@
+"""One coarse corner90 min-time primitive shared by the optimal-driving test modules
+(tests/test_optimal_primitives.py and tests/test_optimal_replay.py): building it (compile and
+solve) is the slowest step of both, so the session does it once. Import it as
+``from optimal_cache import ...`` everywhere (one module object, one cache)."""
+
+import functools
+
+from vehsim.optimal.nlp import IPOptions
+from vehsim.optimal.primitives import min_time_primitive
+
+
+M = 30  # coarse: the spec's comparisons use >= 150 nodes (see the reproduce section)
+
+
+@functools.cache
+def corner90_min_time():
+    """corner90 min-time on M segments x 1 RK4 step (a `Primitive`; treat it as read-only)."""
+    return min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
+                              options=IPOptions(max_iter=300))
