@@ -257,8 +257,6 @@ class TransitHistory(eqx.Module):
 
     solution: object
     z0: Float[Array, " 2"]
-    L: Float[Array, ""]
-    transport: object  # callable t -> c(t) = |omega(t) r|
 
     def _at(self, t):
         h = self.solution.evaluate(t)
@@ -267,18 +265,20 @@ class TransitHistory(eqx.Module):
     def entry_time(self, t, distance):
         r"""$t_e\in[0,t]$ with $s(t_e) = $ `distance` ($\le s(t)$): safeguarded Newton with
         $\dot s = c/L$, then one Newton step outside the loop so that gradients follow the
-        implicit function theorem."""
+        implicit function theorem (the loop itself sees no tangents)."""
         import jax
         from jax import lax
 
         t_ = lax.stop_gradient(t)
         distance_ = lax.stop_gradient(distance)
+        frozen = jax.tree_util.tree_map(
+            lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, self.solution)
 
-        def s_of(x):
-            return self.solution.evaluate(x)[0]
+        def s_of(x, sol=frozen):
+            return sol.evaluate(x)[0]
 
-        def rate(x):
-            return self.transport(x) / self.L
+        def rate(x, sol=frozen):
+            return sol.derivative(x)[0]
 
         def tol(d):
             return 1e-14 * (1.0 + jnp.abs(d))
@@ -303,9 +303,10 @@ class TransitHistory(eqx.Module):
         guess = jnp.clip(t_ - jnp.where(r0 > 0, (s_of(t_) - distance_) / jnp.where(r0 > 0, r0, 1.0),
                                         0.5 * t_), 0.0, t_)
         init = (guess, jnp.zeros_like(t_), t_, jnp.asarray(jnp.inf), jnp.asarray(0))
-        x = jax.lax.stop_gradient(lax.while_loop(cond, body, init)[0])
-        r = rate(x)
-        return x - jnp.where(r > 0, (s_of(x) - distance) / jnp.where(r > 0, r, 1.0), 0.0)
+        x = lax.stop_gradient(lax.while_loop(cond, body, init)[0])
+        r = rate(x, self.solution)
+        f = s_of(x, self.solution) - distance
+        return x - jnp.where(r > 0, f / jnp.where(r > 0, r, 1.0), 0.0)
 
     def edge_deflections(self, t, edges):
         r"""$z_i(t, e)$ for `edges` (P,) in $(0, 1]$, shape `(2, P)` (module docstring)."""
@@ -385,7 +386,7 @@ def simulate_moments(
         saveat=dfx.SaveAt(dense=True), stepsize_controller=controller, max_steps=max_steps,
         throw=throw,
     )
-    history = TransitHistory(hist, z0, L, lambda t: slip(t)[1])
+    history = TransitHistory(hist, z0)
     edges = model.edges[1:]
 
     def rates(t, m):
