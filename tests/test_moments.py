@@ -11,7 +11,7 @@ from vehsim.params import lugre2d_bakker1987
 from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu
 from vehsim.tire.load import PolynomialLoad, QuarticLoad, TabulatedLoad, TrapezoidalLoad
 from vehsim.tire.lugre2d import simulate_tire_2d
-from vehsim.tire.moments import MomentLuGre2D, piecewise_coefficients
+from vehsim.tire.moments import MomentLuGre2D, piecewise_coefficients, simulate_moments
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -24,18 +24,27 @@ LOADS = {
 }
 
 
-def _inputs(alpha_deg, kappa):
+def _inputs(alpha_deg, kappa, ramp=0.0):
+    """Slip angle stepped (ramp = 0) or ramped linearly over `ramp` seconds to `alpha_deg`."""
     a = jnp.deg2rad(alpha_deg)
-    vx, vy = V * jnp.cos(a), -V * jnp.sin(a)
-    return vx, vy, vx * (1.0 + kappa) / R
+    ramp = jnp.asarray(ramp, dtype=float)
+
+    def angle(t):
+        frac = jnp.clip(t / jnp.where(ramp > 0, ramp, 1.0), 0.0, 1.0)
+        return a * jnp.where(ramp > 0, frac, 1.0)
+
+    return (lambda t: V * jnp.cos(angle(t)), lambda t: -V * jnp.sin(angle(t)),
+            lambda t: V * jnp.cos(angle(t)) * (1.0 + kappa) / R)
 
 
 @eqx.filter_jit
-def _run(model, vx, vy, omega, rtol):
-    # The moment right-hand side has kinks where the travelled distance passes a piece edge
-    # (cases 1 -> 2 of the boundary closure): a tight tolerance keeps the step control honest.
-    return simulate_tire_2d(model, TS, vx, vy, omega, R, FZ, solver=dfx.Tsit5(), rtol=rtol,
-                            atol=1e-2 * rtol).forces
+def _run(model, alpha_deg, kappa, ramp, rtol, exact=False):
+    # The online moment right-hand side has kinks where the travelled distance passes a piece
+    # edge (cases 1 -> 2 of the boundary closure): a tight tolerance keeps the step control
+    # honest.
+    simulate = simulate_moments if exact else simulate_tire_2d
+    return simulate(model, TS, *_inputs(alpha_deg, kappa, ramp), R, FZ, solver=dfx.Tsit5(),
+                    rtol=rtol, atol=1e-2 * rtol).forces
 
 
 @pytest.fixture(scope="module")
@@ -44,11 +53,14 @@ def transients():
     out = {}
     for name, load in LOADS.items():
         mom, pde = MomentLuGre2D(p, load), DistributedLuGre2D(p, load, n=64)
-        for alpha_deg, kappa in ((4.0, 0.05), (15.0, -0.1)):
-            u = _inputs(alpha_deg, kappa)
-            out[name, alpha_deg] = (np.asarray(_run(mom, *u, 1e-11)),
-                                    np.asarray(_run(pde, *u, 1e-8)),
-                                    u)
+        for alpha_deg, kappa, ramp in ((4.0, 0.05, 0.0), (15.0, -0.1, 0.0), (15.0, -0.1, 0.01)):
+            args = (jnp.asarray(alpha_deg), jnp.asarray(kappa), jnp.asarray(ramp))
+            out[name, alpha_deg, ramp] = (
+                np.asarray(_run(mom, *args, 1e-11)) if ramp == 0.0 else None,
+                np.asarray(_run(pde, *args, 1e-8)),
+                np.asarray(_run(mom, *args, 1e-8, exact=True)),
+                tuple(f(0.0) for f in _inputs(alpha_deg, kappa)),
+            )
     return p, out
 
 
@@ -58,11 +70,26 @@ def test_moments_match_fine_grid_pde_along_transient(transients, name):
     to 1e-3 relative to each signal's peak, at every save time."""
     _, out = transients
     for alpha_deg in (4.0, 15.0):
-        mom, pde, _ = out[name, alpha_deg]
-        err = np.max(np.abs(mom - pde), axis=0) / np.max(np.abs(pde), axis=0)
-        assert np.all(err < 1e-3), (name, alpha_deg, err)
+        mom, pde, exact, _ = out[name, alpha_deg, 0.0]
+        for m in (mom, exact):  # both closures are exact for a step
+            err = np.max(np.abs(m - pde), axis=0) / np.max(np.abs(pde), axis=0)
+            assert np.all(err < 1e-3), (name, alpha_deg, err)
         # The transient is a real transient: forces change by a large fraction after t = 0.
         assert np.all(np.abs(pde[-1] - pde[1]) > 0.05 * np.abs(pde[-1]))
+
+
+@pytest.mark.parametrize("name", list(LOADS))
+def test_exact_moments_match_pde_along_slip_ramp(transients, name):
+    """Slip angle ramped over one transit time (10 ms), so the inputs change while tread
+    crosses the patch: with the history closure (`simulate_moments`) the moments still
+    reproduce the PDE's F_x, F_y, M_z to 1e-3 of each signal's peak at every save time."""
+    _, out = transients
+    _, pde, exact, _ = out[name, 15.0, 0.01]
+    err = np.max(np.abs(exact - pde), axis=0) / np.max(np.abs(pde), axis=0)
+    assert np.all(err < 1e-3), (name, err)
+    # and the ramp differs from the step: the closure is doing work
+    step = out[name, 15.0, 0.0][1]
+    assert np.max(np.abs(step - pde)[:, 1]) > 0.1 * np.max(np.abs(pde[:, 1]))
 
 
 @pytest.mark.parametrize("name", list(LOADS))
@@ -70,7 +97,7 @@ def test_moments_reach_closed_form_steady_state(transients, name):
     """After three transit times the step response is exactly steady (characteristics)."""
     p, out = transients
     for alpha_deg in (4.0, 15.0):
-        mom, _, (vx, vy, om) = out[name, alpha_deg]
+        mom, _, _, (vx, vy, om) = out[name, alpha_deg, 0.0]
         v_r = jnp.stack([om * R - vx, -vy])
         ss = np.asarray(jax.jit(steady_state_mu)(p, LOADS[name], v_r, om * R)) * FZ
         ss[2] *= p.L
@@ -176,3 +203,25 @@ def test_new_parameter_values_do_not_retrace():
         out = rhs(model, model.init_state(jnp.array([1e-3, 1e-3])), jnp.array([1.0, 2.0]),
                   jnp.asarray(20.0))
         assert np.all(np.isfinite(out[0]))
+
+
+def test_exact_moments_gradient_matches_fd():
+    """Gradient of F_y during a slip ramp with respect to the longitudinal slip (which moves
+    both v_r and the transport speed, hence the entry times t_e of the exact closure) and to
+    a scale on sigma0_y, against central differences."""
+    from helpers import assert_grad_matches_fd
+
+    p = lugre2d_bakker1987()
+    ts = jnp.linspace(0.0, 0.012, 5)
+
+    @jax.jit
+    def fy(x):
+        kappa, s0y = x[0], x[1]
+        q = eqx.tree_at(lambda t: t.sigma0, p, p.sigma0.at[1].multiply(s0y))
+        model = MomentLuGre2D(q, TrapezoidalLoad(0.25))
+        sol = simulate_moments(model, ts, *_inputs(6.0, kappa, 0.008), R, FZ, rtol=1e-11,
+                               atol=1e-13)
+        return sol.forces[-1, 1] / FZ + sol.forces[-1, 2] / FZ
+
+    # eps = 1e-4: below it the adaptive solves' tolerance noise dominates the differences
+    assert_grad_matches_fd(fy, jnp.array([0.05, 1.0]), rtol=1e-4, eps=1e-4)

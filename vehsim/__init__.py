@@ -85,7 +85,11 @@ from .tire.magic_formula import (
     MagicFormula1987 as MagicFormula1987,
     MagicFormula1987Params as MagicFormula1987Params,
 )
-from .tire.moments import MomentLuGre2D as MomentLuGre2D
+from .tire.moments import (
+    MomentLuGre2D as MomentLuGre2D,
+    TransitHistory as TransitHistory,
+    simulate_moments as simulate_moments,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
