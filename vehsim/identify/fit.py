@@ -16,10 +16,13 @@ solved in one `vmap`ped call and the best kept.
 **Integrating the stiff friction state on the data grid.** Given $v$, $\omega$ linear
 between samples, eq. 22 is linear in $\bar z$: $\dot{\bar z} = v_r - a\bar z$ with
 $a = \theta\sigma_0|v_r|/g(v_r) + \kappa|\omega r|$ (up to $\sim10^4$ 1/s when locked). The
-exponential midpoint rule freezes $v_r$, $a$ at the midpoint of each (sub)step $h$ and
-integrates exactly, $\bar z^+ = e^{-ah}\bar z + h\,\varphi(ah)\,v_r$ with
+open-loop fit solves it with `diffrax.diffeqsolve` and `ExponentialIntegrator`, the
+exponential midpoint rule: $v_r$, $a$ frozen at the midpoint of each (sub)step $h$ and
+integrated exactly, $\bar z^+ = e^{-ah}\bar z + h\,\varphi(ah)\,v_r$ with
 $\varphi(x) = (1-e^{-x})/x$: second order, unconditionally stable, and exact in the
 quasi-static limit. `tests/test_identify_fit.py` checks it against a tight `Kvaerno5` solve.
+The Jacobian for Levenberg-Marquardt is forward mode through that solve
+(`diffrax.ForwardMode`), one JVP per free parameter.
 
 **Convergence** is declared when optimistix's LM terminates, or when the optimum is
 certified by MINPACK-style tests that survive noisy data (relative gradient cosine
@@ -41,12 +44,13 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 
@@ -125,54 +129,98 @@ def from_unconstrained(u, model: LumpedLuGre, names: Sequence[str]) -> LumpedLuG
 # --------------------------------------------------------------------------------------
 
 
-def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2):
-    r"""Predicted $F_x(t_k)$ [N]: eqs. 22-23 driven by measured $v$, $\omega$, $F_n$.
+class ExponentialIntegrator(dfx.AbstractSolver):
+    r"""Exponential (Lawson-free) midpoint rule for $\dot y = b(t) - a(t)\odot y$, $a\ge0$.
 
-    Exponential midpoint rule on the data grid with `substeps` substeps per sample
-    interval (see the module docstring); $\bar z(t_0)$ is the steady state at $t_0$.
+    With $f_m = f(t_m, y_0)$ and $a = -\partial f/\partial y$ (diagonal, one JVP) at the
+    midpoint $t_m$ of the step $h$: $y_1 = y_0 + h\,\varphi(ah)\,f_m$,
+    $\varphi(x) = (1-e^{-x})/x$, i.e. $y_1 = e^{-ah}y_0 + h\varphi(ah)b$: exact when $a$, $b$
+    are constant over the step, second order otherwise, unconditionally stable. Fixed steps
+    only (no error estimate); for vector fields affine in $y$ with a diagonal linear part.
     """
-    return _open_loop_many(model, [data], substeps)[0]
+
+    term_structure: ClassVar = dfx.AbstractTerm
+    interpolation_cls: ClassVar = dfx.LocalLinearInterpolation
+
+    def order(self, terms):
+        return 2
+
+    def init(self, terms, t0, t1, y0, args):
+        return None
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        h = t1 - t0
+        f, dfdy = jax.jvp(lambda y: terms.vf(t0 + 0.5 * h, y, args), (y0,),
+                          (jnp.ones_like(y0),))
+        y1 = y0 + h * one_minus_exp_over(-dfdy * h) * f
+        return y1, None, dict(y0=y0, y1=y1), None, dfx.RESULTS.successful
+
+    def func(self, terms, t0, y0, args):
+        return terms.vf(t0, y0, args)
 
 
-def _open_loop_many(model: LumpedLuGre, data: Sequence[BrakingData], substeps: int):
-    """`predict_open_loop` for several brakings in one scan (restarting at each braking):
-    one loop in the compiled program instead of one per braking."""
+def _z_steady(model: LumpedLuGre, v, omega, r):
+    r"""Steady friction state $\bar z_{ss} = v_r / (\theta\sigma_0|v_r|/g + \kappa|\omega r|)$."""
+    v_r = r * omega - v
+    a = decay_rate(model.params, v_r) + model.kappa0 / model.params.L * safe_abs(omega * r)
+    return safe_div(v_r, a)
+
+
+def _friction_state(model: LumpedLuGre, d: BrakingData, substeps: int, adjoint):
+    r"""$\bar z(t_k)$: eq. 22 driven by $v$, $\omega$ linear between samples, through diffrax.
+
+    The solve runs in substep time $s\in[0, S(T-1)]$ ($S$ = `substeps`, $dt/ds = h_k/S$ in
+    sample interval $k$) with unit steps, the coefficients of eq. 22 frozen at each
+    substep's midpoint, $d\bar z/ds = (h_k/S)(v_r - a\bar z)$, which `ExponentialIntegrator`
+    solves exactly: the exponential midpoint rule on the data grid. The coefficients are
+    evaluated for all substeps at once (vectorised) before the solve.
+    """
     p = model.params
     kappa = model.kappa0 / p.L
-    cat = lambda f: jnp.concatenate([jnp.broadcast_to(f(d), d.t.shape) for d in data])  # noqa: E731
-    t, v, om, Fn = cat(lambda d: d.t), cat(lambda d: d.v), cat(lambda d: d.omega), \
-        cat(lambda d: d.F_n)
-    r = cat(lambda d: d.r)
-    starts = np.cumsum([0] + [len(d) for d in data])[:-1]
-    restart = np.zeros(t.shape[0], dtype=bool)
-    restart[starts] = True
+    n = d.t.shape[0]
+    frac = (jnp.arange(substeps) + 0.5) / substeps
+    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
+    v, om = mid(d.v), mid(d.omega)
+    h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
+    v_r = d.r * om - v
+    a = h * (decay_rate(p, v_r) + kappa * safe_abs(om * d.r))
+    b = h * v_r
 
-    def rate(v, om, r):
-        v_r = r * om - v
-        return v_r, decay_rate(p, v_r) + kappa * safe_abs(om * r)
+    def vector_field(s, z, args):
+        m = jnp.clip(jnp.floor(s).astype(int), 0, a.shape[0] - 1)
+        return b[m] - a[m] * z
 
-    def z_steady(v, om, r):
-        v_r, a = rate(v, om, r)
-        return safe_div(v_r, a)
+    z0 = _z_steady(model, d.v[0], d.omega[0], d.r)
+    num = (n - 1) * substeps
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field), ExponentialIntegrator(), 0.0, float(num), 1.0, z0,
+        saveat=dfx.SaveAt(steps=True), adjoint=adjoint, max_steps=num,
+    )
+    return jnp.concatenate([z0[None], sol.ys[substeps - 1::substeps]])
 
-    def step(z, inputs):
-        v0, v1, o0, o1, r0, h, new = inputs
-        h = h / substeps
-        for j in range(substeps):
-            s = (j + 0.5) / substeps
-            v_r, a = rate(v0 + s * (v1 - v0), o0 + s * (o1 - o0), r0)
-            x = a * h
-            z = jnp.exp(-x) * z + h * one_minus_exp_over(x) * v_r
-        z = jnp.where(new, z_steady(v1, o1, r0), z)
-        return z, z
 
-    h = jnp.where(jnp.asarray(restart[1:]), 0.0, jnp.diff(t))
-    inputs = (v[:-1], v[1:], om[:-1], om[1:], r[1:], h, jnp.asarray(restart[1:]))
-    z0 = z_steady(v[0], om[0], r[0])
-    _, zs = jax.lax.scan(step, z0, inputs)
-    zs = jnp.concatenate([z0[None], zs])
-    F = jax.vmap(lambda z, v, om, r: model.mu(z, v, om, r))(zs, v, om, r) * Fn
-    return [F[a:a + len(d)] for a, d in zip(starts, data)]
+def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2, *,
+                      adjoint=None):
+    r"""Predicted $F_x(t_k)$ [N]: eqs. 22-23 driven by measured $v$, $\omega$, $F_n$.
+
+    The friction state is integrated by diffrax on the data grid (`substeps` exponential
+    midpoint steps per sample interval, see the module docstring) from the steady state at
+    $t_0$. `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`: any AD mode;
+    `diffrax.ForwardMode()` for forward-mode Jacobians).
+    """
+    return _open_loop_many(model, [data], substeps, adjoint)[0]
+
+
+def _open_loop_many(model: LumpedLuGre, data: Sequence[BrakingData], substeps: int,
+                    adjoint=None):
+    """`predict_open_loop` for several brakings (one diffrax solve each)."""
+    adjoint = dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
+    out = []
+    for d in data:
+        z = _friction_state(model, d, substeps, adjoint)
+        r = jnp.broadcast_to(d.r, d.t.shape)
+        out.append(jax.vmap(model.mu)(z, d.v, d.omega, r) * d.F_n)
+    return out
 
 
 def closed_loop_car(model: LumpedLuGre, data: BrakingData) -> QuarterCar:
@@ -210,17 +258,16 @@ def _scales(data: Sequence[BrakingData]):
     return peak(lambda d: d.F_x), peak(lambda d: d.v), peak(lambda d: d.omega)
 
 
-def _residuals(model, data, mode, scales, substeps, rtol):
+def _residuals(model, data, mode, scales, substeps, rtol, adjoint=None):
     F_s, v_s, om_s = scales
     if mode == "open_loop":
-        F = _open_loop_many(model, data, substeps)
+        F = _open_loop_many(model, data, substeps, adjoint)
         return jnp.concatenate([(Fi - d.F_x) / F_s for Fi, d in zip(F, data)])
     out = []
     for d in data:
-        if True:
-            v, om, F = predict_closed_loop(model, d, rtol=rtol, atol=rtol * 1e-2,
-                                           adjoint=dfx.ForwardMode(), throw=False)
-            out += [(F - d.F_x) / F_s, (v - d.v) / v_s, (om - d.omega) / om_s]
+        v, om, F = predict_closed_loop(model, d, rtol=rtol, atol=rtol * 1e-2,
+                                       adjoint=dfx.ForwardMode(), throw=False)
+        out += [(F - d.F_x) / F_s, (v - d.v) / v_s, (om - d.omega) / om_s]
     return jnp.concatenate(out)
 
 
@@ -324,17 +371,61 @@ def _merge(u, u_fixed, mask):
     return jnp.where(mask, u, u_fixed)
 
 
+def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol):
+    r"""$u \mapsto r(u)$ (data residuals) carrying its forward-mode Jacobian.
+
+    Levenberg-Marquardt needs the whole Jacobian $J$ at every step. Through a forward-mode
+    `while_loop`, `jax.linearize` cannot split off a cheap linear part (it re-runs the solve
+    for every column), and `jax.jacfwd` (a `vmap` of JVPs) batches the solve's saved
+    trajectory, which is slow. So $J$ is built by one forward-mode JVP through the solve per
+    *free* parameter (`lax.map` + `lax.cond`: fixed columns cost nothing), and the JVP rule
+    is the product with it: optimistix's `linearize` then keeps $J$ and its linear operator
+    is a matrix product.
+    """
+    def residual(u):
+        m = from_unconstrained(u, model, PARAMETER_NAMES)
+        return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
+
+    def with_jacobian(u):
+        r0 = residual(u)
+        eye = jnp.eye(u.shape[0], dtype=u.dtype)
+
+        def column(i):
+            return jax.lax.cond(mask[i], lambda: jax.jvp(residual, (u,), (eye[i],))[1],
+                                lambda: jnp.zeros_like(r0))
+
+        return r0, jax.lax.map(column, jnp.arange(u.shape[0]))  # J^T: (parameters, residuals)
+
+    @jax.custom_jvp
+    def r(u):
+        return residual(u)
+
+    @r.defjvp
+    def r_jvp(primals, tangents):
+        (u,), (du,) = primals, tangents
+        r0, Jt = with_jacobian(u)
+        return r0, du @ Jt
+
+    return r
+
+
 @eqx.filter_jit
 def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, substeps, rtol,
                  tol, max_steps):
     # All of PARAMETER_NAMES are always in `u`; fixed ones are masked (zero Jacobian columns,
     # so LM never moves them). One compilation serves every choice of free parameters.
-    def residual(u, args):
-        m = from_unconstrained(_merge(u, u_fixed, mask), model, PARAMETER_NAMES)
-        prior = prior_weight * jnp.where(mask, u - u_fixed, 0.0)
-        return jnp.concatenate([_residuals(m, data, mode, scales, substeps, rtol), prior])
+    data_residual = _data_residual_with_jacobian(mask, model, data, mode, scales, substeps,
+                                                 rtol)
 
-    solver = optx.LevenbergMarquardt(rtol=tol, atol=tol)
+    def residual(u, args):
+        u = _merge(u, u_fixed, mask)
+        prior = prior_weight * jnp.where(mask, u - u_fixed, 0.0)
+        return jnp.concatenate([data_residual(u), prior])
+
+    # Damped steps from the normal equations (J^T J + lambda I, Cholesky): p <= 9 unknowns,
+    # and XLA's QR of the tall (samples x p) Jacobian costs far more than the rest of a step
+    solver = optx.LevenbergMarquardt(rtol=tol, atol=tol,
+                                     linear_solver=lx.Normal(lx.Cholesky()))
 
     def one(u0):
         sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
@@ -353,7 +444,7 @@ def _jacobian(theta, model, data, mode, scales, substeps, rtol):
     """Residuals and their Jacobian in the physical values of all PARAMETER_NAMES."""
     def residual(th):
         m = with_values(model, {n: th[i] for i, n in enumerate(PARAMETER_NAMES)})
-        return _residuals(m, data, mode, scales, substeps, rtol)
+        return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
 
     return residual(theta), jax.jacfwd(residual)(theta)
 
