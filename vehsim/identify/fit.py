@@ -493,6 +493,18 @@ def _dtheta_du(theta_all, names):
     return T
 
 
+@eqx.filter_jit
+def _values_batch(model, us):
+    return jax.vmap(lambda u: jnp.stack([jnp.asarray(x, dtype=float) for x in parameter_values(
+        from_unconstrained(u, model, PARAMETER_NAMES)).values()]))(us)
+
+
+def _values_of_u(model):
+    """u (batch, 9) -> [{name: value}] for each row, in one jitted call."""
+    return lambda us: [dict(zip(PARAMETER_NAMES, row.tolist()))
+                       for row in np.asarray(_values_batch(model, us))]
+
+
 def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, substeps, rtol,
          throw, verbose, prior_weight, gtol=1e-6, ftol=1e-6) -> FitResult:
     t_start = time.perf_counter()
@@ -513,7 +525,9 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     if n_starts < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts}")
     anon = [_unnamed(d) for d in data]
-    scales = _scales(data)
+    # the scales from the concrete data in NumPy (no eager JAX dispatches)
+    scales = tuple(jnp.asarray(max(float(np.max(np.abs(np.asarray(f(d))))) for d in data))
+                   for f in (lambda d: d.F_x, lambda d: d.v, lambda d: d.omega))
     mask = jnp.asarray([n in names for n in PARAMETER_NAMES])
     u_fixed = to_unconstrained(model, PARAMETER_NAMES)
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
@@ -611,7 +625,8 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     message = f"{reason}; loss {loss:.6g}, RMS force residual {rms_F:.4g} N"
     values = {n: float(v) for n, v in parameter_values(best_model).items()}
     # spread over the starts that reached (within 1e-6 relative) the best loss
-    all_vals = [parameter_values(from_unconstrained(u, model, PARAMETER_NAMES)) for u in us]
+    values_of = _values_of_u(model)
+    all_vals = values_of(us)
     near = [i for i in range(n_starts) if finite[i]
             and losses[i] <= losses[best] * (1 + 1e-6) + 1e-300]
     spread_info = {
@@ -627,8 +642,8 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         "best": best,
         "n_at_best": len(near),
         "spread_at_best": spread_info,
-        "initial": [{n: float(v) for n, v in parameter_values(
-            from_unconstrained(u0, model, PARAMETER_NAMES)).items() if n in names} for u0 in u0s],
+        "initial": [{n: v for n, v in vals.items() if n in names}
+                    for vals in values_of(u0s)],
     }
     errors = {d.name: e for (_, e), d in zip(preds, data)}
     wall = time.perf_counter() - t_start
