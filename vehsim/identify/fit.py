@@ -168,6 +168,38 @@ def _z_steady(model: LumpedLuGre, v, omega, r):
     return safe_div(v_r, a)
 
 
+def _coefficients(model: LumpedLuGre, d: BrakingData, substeps: int):
+    r"""Per substep $m$ (unit steps in substep time): $a_m = h(\theta\sigma_0|v_r|/g +
+    \kappa|\omega r|)$ and $b_m = h v_r$ at the substep midpoint, $h$ the substep [s];
+    and the steady state $\bar z(t_0)$."""
+    p = model.params
+    kappa = model.kappa0 / p.L
+    frac = (jnp.arange(substeps) + 0.5) / substeps
+    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
+    v, om = mid(d.v), mid(d.omega)
+    h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
+    v_r = d.r * om - v
+    a = h * (decay_rate(p, v_r) + kappa * safe_abs(om * d.r))
+    return a, h * v_r, _z_steady(model, d.v[0], d.omega[0], d.r)
+
+
+def _linear_solve(a, b, y0, adjoint):
+    r"""$dy/ds = b_m - a_m y$ for $s\in[m, m+1)$, unit steps of `ExponentialIntegrator`
+    (exact: $y_{m+1} = e^{-a_m}y_m + \varphi(a_m)b_m$); `b` may carry trailing dimensions
+    (one column per right-hand side). Returns $y$ after every step."""
+    num = a.shape[0]
+
+    def vector_field(s, y, args):
+        m = jnp.clip(jnp.floor(s).astype(int), 0, num - 1)
+        return b[m] - a[m] * y
+
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(vector_field), ExponentialIntegrator(), 0.0, float(num), 1.0, y0,
+        saveat=dfx.SaveAt(steps=True), adjoint=adjoint, max_steps=num,
+    )
+    return sol.ys
+
+
 def _friction_state(model: LumpedLuGre, d: BrakingData, substeps: int, adjoint):
     r"""$\bar z(t_k)$: eq. 22 driven by $v$, $\omega$ linear between samples, through diffrax.
 
@@ -177,28 +209,44 @@ def _friction_state(model: LumpedLuGre, d: BrakingData, substeps: int, adjoint):
     solves exactly: the exponential midpoint rule on the data grid. The coefficients are
     evaluated for all substeps at once (vectorised) before the solve.
     """
-    p = model.params
-    kappa = model.kappa0 / p.L
-    n = d.t.shape[0]
-    frac = (jnp.arange(substeps) + 0.5) / substeps
-    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
-    v, om = mid(d.v), mid(d.omega)
-    h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
-    v_r = d.r * om - v
-    a = h * (decay_rate(p, v_r) + kappa * safe_abs(om * d.r))
-    b = h * v_r
+    a, b, z0 = _coefficients(model, d, substeps)
+    zs = _linear_solve(a, b, z0, adjoint)
+    return jnp.concatenate([z0[None], zs[substeps - 1::substeps]])
 
-    def vector_field(s, z, args):
-        m = jnp.clip(jnp.floor(s).astype(int), 0, a.shape[0] - 1)
-        return b[m] - a[m] * z
 
-    z0 = _z_steady(model, d.v[0], d.omega[0], d.r)
-    num = (n - 1) * substeps
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field), ExponentialIntegrator(), 0.0, float(num), 1.0, z0,
-        saveat=dfx.SaveAt(steps=True), adjoint=adjoint, max_steps=num,
-    )
-    return jnp.concatenate([z0[None], sol.ys[substeps - 1::substeps]])
+def _open_loop_sensitivities(u, directions, model_of, d: BrakingData, substeps: int):
+    r"""Forces $F(t_k)$ and their derivatives along each row of `directions` (in $u$).
+
+    Forward sensitivities through the same diffrax solve: the step map
+    $z^+ = z + \varphi(a)(b - az)$ has the tangent
+    $\dot z^+ = (1 - a\varphi(a))\dot z + c$,
+    $c = \varphi'(a)\dot a(b - az) + \varphi(a)(\dot b - \dot a z)$: the same linear
+    recurrence with forcing $c/\varphi(a)$, one more diffrax solve per direction (exact
+    derivatives of the discrete scheme). The
+    coefficient tangents $\dot a$, $\dot b$ are vectorised JVPs (no loop).
+    """
+    fm = dfx.ForwardMode()
+    coef = lambda x: _coefficients(model_of(x), d, substeps)  # noqa: E731
+    a, b, z0 = coef(u)
+    da, db, dz0 = jax.vmap(lambda e: jax.jvp(coef, (u,), (e,))[1])(directions)
+    zs = _linear_solve(a, b, z0, fm)
+    z_start = jnp.concatenate([z0[None], zs[:-1]])
+    phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
+    c = dphi[None, :] * da * (b - a * z_start)[None, :] + phi[None, :] * (
+        db - da * z_start[None, :])
+    # one scalar solve per direction in a lax.map: XLA saves a scalar trajectory far faster
+    # than a vector-valued or vmapped one
+    xs = jax.lax.map(lambda bx: _linear_solve(a, bx[0], bx[1], fm), (c / phi[None, :], dz0))
+    z = jnp.concatenate([z0[None], zs[substeps - 1::substeps]])
+    dz = jnp.concatenate([dz0[:, None], xs[:, substeps - 1::substeps]], axis=1)
+    r = jnp.broadcast_to(d.r, d.t.shape)
+
+    def force(x, z):
+        return jax.vmap(model_of(x).mu)(z, d.v, d.omega, r) * d.F_n
+
+    F = force(u, z)
+    dF = jax.vmap(lambda e, dzi: jax.jvp(force, (u, z), (e, dzi))[1])(directions, dz)
+    return F, dF
 
 
 def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2, *,
@@ -411,7 +459,13 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
         return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
 
     def with_jacobian(u):
-        return _jvp_columns(residual, u, mask)
+        if mode != "open_loop":
+            return _jvp_columns(residual, u, mask)
+        directions = jnp.eye(u.shape[0], dtype=u.dtype) * mask[:, None]
+        model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
+        out = [_open_loop_sensitivities(u, directions, model_of, d, substeps) for d in data]
+        r0 = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
+        return r0, jnp.concatenate([dF / scales[0] for _, dF in out], axis=1)
 
     @jax.custom_jvp
     def r(u):
