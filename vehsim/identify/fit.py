@@ -23,8 +23,10 @@ exponential midpoint rule: $v_r$, $a$ frozen at the midpoint of each (sub)step $
 integrated exactly, $\bar z^+ = e^{-ah}\bar z + h\,\varphi(ah)\,v_r$ with
 $\varphi(x) = (1-e^{-x})/x$: second order, unconditionally stable, and exact in the
 quasi-static limit. `tests/test_identify_fit.py` checks it against a tight `Kvaerno5` solve.
-The Jacobian for Levenberg-Marquardt is forward mode through that solve
-(`diffrax.ForwardMode`), one JVP per free parameter.
+The Levenberg-Marquardt Jacobian is forward mode through that solve: the tangent of the
+step map is the same linear recurrence with its own forcing, solved by the same diffrax
+solver once per free parameter (`_open_loop_sensitivities`; exact derivatives of the
+discrete scheme). Closed loop: one `diffrax.ForwardMode` JVP per free parameter.
 
 **Convergence** is declared when optimistix's LM terminates, or when the optimum is
 certified by MINPACK-style tests that survive noisy data (relative gradient cosine
