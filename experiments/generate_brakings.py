@@ -17,7 +17,8 @@ truth model that is *not* the fitted model:
   quantised to 0.1 rad/s, everything logged at 500 Hz.
 
 Run from the repository root:  ``PYTHONPATH=. python experiments/generate_brakings.py``
-(``--check`` compares with the shipped files instead of writing). The output is a pure
+(``--check`` compares the CSV and JSON files byte for byte with the shipped ones instead of
+writing; exit status 1 if any differs). The output is a pure
 function of this script (fixed seeds, float64 on CPU): regenerating gives identical files
 on the same platform and library versions.
 """
@@ -172,9 +173,11 @@ def main(argv=None):
 
             with tempfile.TemporaryDirectory() as tmp:
                 path = save_braking(data, Path(tmp) / f"{name}.csv", meta, digits=7)
-                same = path.read_bytes() == (out / f"{name}.csv").read_bytes()
-            print(f"{name}: {'identical' if same else 'DIFFERS'}", file=sys.stderr)
-            ok &= same
+                same = {suffix: path.with_suffix(suffix).read_bytes()
+                        == (out / f"{name}{suffix}").read_bytes() for suffix in (".csv", ".json")}
+            print(f"{name}: " + ", ".join(f"{s} {'identical' if v else 'DIFFERS'}"
+                                          for s, v in same.items()), file=sys.stderr)
+            ok &= all(same.values())
         else:
             save_braking(data, out / f"{name}.csv", meta, digits=7)
     return 0 if ok else 1
