@@ -141,7 +141,7 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
             tangents = tangents.at[j, idx[:, j]].set(1.0)
         cols = jax.vmap(lin)(tangents)
         J = jnp.moveaxis(cols[:, idx], 0, -1)  # (n_blocks, m, m): d f[idx[b,i]] / d y[idx[b,j]]
-        W = jnp.eye(m, dtype=y0.dtype) - _GAMMA * h * J
+        W = jnp.eye(m, dtype=y0.dtype)[None] - _GAMMA * h * J
         stiff = np.zeros(y0.shape[0], bool)
         stiff[idx.ravel()] = True
 
