@@ -11,15 +11,19 @@ the input kinks; the fastest at the target error is the headline. Baseline: a lo
 `scipy.integrate.solve_ivp` over the same vector field written in NumPy (checked equal to
 vehsim's), with the fastest scipy method at matched accuracy (LSODA, BDF, Radau, RK45,
 DOP853 tried; LSODA wins, BDF and Radau with their finite-difference Jacobians are slower).
-For every solver and method the tolerance (rtol = atol) is the loosest of a half-decade grid
-that reaches the target final-state accuracy (max abs error over all states, SI units)
+For every solver and method the tolerance (rtol = atol) is the loosest of a grid
+(1, 2, 5 per decade) that reaches the target final-state accuracy (max abs error over all
+states, SI units)
 against a tight reference (LSODA, rtol = atol = 1e-12, cross-checked with DOP853) on a
 subset of scenarios.
 
 Prints JSON lines; the headline is ``ratio`` = baseline wall time / vehsim wall time per
 scenario, with both accuracies. The scipy loop is timed on `--baseline-scenarios` of them
-(default 48) and extrapolated to the full set (it runs one scenario after another, so the
-time is linear in the count); compile time is reported separately.
+(default 48; each twice, the faster kept, as vehsim keeps the best of 3 batch runs) and
+extrapolated to the full set (it runs one scenario after another, so the time is linear in
+the count); compile time is reported separately. ``cpu_ratio`` is the same ratio in process
+CPU time: on a loaded shared machine the wall times of the two can be slowed unequally, and
+the CPU ratio says by how much that matters.
 
 ``--tire ellipse`` runs the same benchmark with the spec's static friction-ellipse tire
 (12 states, not stiff) for comparison.
@@ -201,7 +205,7 @@ def scipy_final(member, method, rtol):
     return sol.y[:, -1], sol.nfev, sol.status == 0
 
 
-RTOLS = (1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 3e-8, 1e-8, 3e-9, 1e-9, 3e-10, 1e-10)
+RTOLS = tuple(round(m * 10.0 ** -e, 16) for e in range(4, 11) for m in (1.0, 0.5, 0.2))  # 1e-4, 5e-5, 2e-5, ...
 
 
 def main():
@@ -314,14 +318,21 @@ def main():
 
     # time the scipy loop on a subset, extrapolate linearly
     nb = args.baseline_scenarios
-    t0, c0 = time.perf_counter(), time.process_time()
-    finals_s, nfev = [], []
+    # each scenario twice, the faster kept (the machine is shared; vehsim keeps its best of 3)
+    finals_s, nfev, walls_s, cpus_s = [], [], [], []
     for i in range(nb):
-        yf, nf, _ = scipy_final(member(i), method, rtol_s)
+        w, c = [], []
+        for _ in range(2):
+            t0, c0 = time.perf_counter(), time.process_time()
+            yf, nf, _ = scipy_final(member(i), method, rtol_s)
+            w.append(time.perf_counter() - t0)
+            c.append(time.process_time() - c0)
         finals_s.append(yf)
         nfev.append(nf)
-    per_s = (time.perf_counter() - t0) / nb
-    cpu_per_s = (time.process_time() - c0) / nb
+        walls_s.append(min(w))
+        cpus_s.append(min(c))
+    per_s = float(np.mean(walls_s))
+    cpu_per_s = float(np.mean(cpus_s))
     wall_s = per_s * args.scenarios
     # cross-check: the two agree on the timed subset
     agree = float(np.max(np.abs(np.asarray(best_v["y"][:nb]) - np.stack(finals_s))))
