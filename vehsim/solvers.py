@@ -19,6 +19,13 @@ $$W k_i = h f\Big(t_0 + c_i h,\ y_0 + \sum_{j<i} a_{ij}k_j\Big) + hJ\sum_{j<i}\g
   \qquad y_1 = y_0 + \sum_i b_i k_i,$$
 with the coefficients of ROS34PW2 (Rang and Angermann, BIT 45 (2005) 761-787): 4 stages,
 order 3, L-stable, stiffly accurate, embedded order-2 solution for the error estimate.
+
+When it pays (half-car with lumped LuGre tires, 5 s braking in a turn, benchmark
+`simulate_batch`): at a final-state accuracy of 1e-3 it takes about 360 steps where Tsit5,
+held by the stiff blocks, takes about 2840 at any tolerance, and costs 5x less. Being of
+order 3 it needs much tighter tolerances for high accuracy: at 3e-5 it is slower than Tsit5.
+Its error estimate understates the global error of the wheel speeds, so choose the
+tolerance by the accuracy reached, not by the tolerance's value.
 """
 
 from __future__ import annotations
