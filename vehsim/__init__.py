@@ -111,6 +111,7 @@ from .vehicle.quarter_car import (
 # isort: split
 # issue 5: vehicles, simulate, sweeps
 from .simulate import Trajectory as Trajectory, simulate as simulate
+from .solvers import ROS34PW2 as ROS34PW2
 from .sweep import SweepResult as SweepResult, grid as sweep_grid, sweep as sweep
 from .tire.friction_ellipse import (
     FrictionEllipseTire as FrictionEllipseTire,

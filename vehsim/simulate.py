@@ -98,8 +98,10 @@ def simulate(
       `ts` of shape ``(T, m)`` (linearly interpolated; the step-size controller stops at
       the sample times), or a callable ``u(t, state)`` (time function or feedback).
     - `state0`: initial state (e.g. ``HalfCar.init_state(vx=...)``).
-    - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). Stiff dynamic tires
-      may prefer an implicit one (`Kvaerno5`).
+    - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). With dynamic tires
+      the wheel-tire blocks are stiff (explicit steps of about a millisecond);
+      ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
+      steps; the cheaper choice at loose and moderate accuracy).
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available.
     - `jump_ts`: times where the inputs have kinks (the controller steps onto them);

@@ -90,6 +90,16 @@ class HalfCar(AbstractVehicle):
     def state_size(self) -> int:
         return len(self.state_names) + 2 * self.tire_state_size
 
+    @property
+    def stiff_blocks(self) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        r"""State indices of the two stiff wheel-tire blocks, $(\omega_F, z_F)$ and
+        $(\omega_R, z_R)$, for `vehsim.ROS34PW2` (the tire damping acting through the wheel
+        inertia, $r^2\sigma_1F_z/I_w$, and the friction-state decay are the fast modes)."""
+        n, k = len(self.state_names), self.tire_state_size
+        front = (6,) + tuple(range(n, n + k))
+        rear = (7,) + tuple(range(n + k, n + 2 * k))
+        return front, rear
+
     def init_state(self, vx=0.0, vy=0.0, yaw_rate=0.0, x=0.0, y=0.0, psi=0.0, delta=0.0):
         r"""A state with free-rolling wheels ($\omega_i = V_{ix}/r$), the suspension at rest
         ($z = \theta = 0$, the equilibrium of eqs. 57-58) and undeflected tires."""

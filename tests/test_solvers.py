@@ -1,0 +1,93 @@
+"""ROS34PW2 (Rosenbrock-W on stiff blocks): order, stiffness, half-car agreement."""
+
+import functools
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+
+from vehsim import ROS34PW2, HalfCar, IsotropicLumpedLuGre, rally_gravel, simulate
+from vehsim.params import cdc1999
+from vehsim.solvers import solve_small
+from vehsim.vehicle.maneuvers import brake_in_turn
+
+
+def _vf(t, y, args):  # nonlinear, non-autonomous, y[2] mildly stiff
+    return jnp.stack([-y[1] * y[0] + jnp.sin(t), y[0] - 0.5 * y[1] ** 2,
+                      -50.0 * (y[2] - jnp.cos(t)) + y[0]])
+
+
+Y0 = jnp.array([1.0, 0.5, 0.0])
+
+
+def _fixed(solver, n):
+    return dfx.diffeqsolve(dfx.ODETerm(_vf), solver, 0.0, 1.0, 1.0 / n, Y0,
+                           max_steps=1000).ys[-1]
+
+
+@functools.cache
+def _reference():
+    return dfx.diffeqsolve(dfx.ODETerm(_vf), dfx.Tsit5(), 0.0, 1.0, 1e-3, Y0,
+                           stepsize_controller=dfx.PIDController(rtol=1e-13, atol=1e-13),
+                           max_steps=100_000).ys[-1]
+
+
+@pytest.mark.parametrize("blocks", [((0, 1, 2),), ((2,),), ((0,), (2,))])
+def test_third_order_for_any_block_jacobian(blocks):
+    # a W-method keeps its order whatever part of the Jacobian it uses
+    ref = _reference()
+    e = [float(jnp.max(jnp.abs(_fixed(ROS34PW2(blocks), n) - ref))) for n in (80, 160)]
+    assert 2.7 < np.log2(e[0] / e[1]) < 3.3, e
+
+
+def test_stiff_linear_block_takes_large_steps_and_matches_expm():
+    # eigenvalues -1e4 (block {0, 1}) and -1 (state 2): exact solution expm(A t) y0
+    A = jnp.array([[-5000.0, 4999.0, 0.3], [4999.0, -5000.0, 0.0], [0.2, 0.1, -1.0]])
+    y0 = jnp.array([1.0, -0.5, 2.0])
+    term = dfx.ODETerm(lambda t, y, args: A @ y)
+    ctrl = dfx.PIDController(rtol=1e-6, atol=1e-6)
+    sol = dfx.diffeqsolve(term, ROS34PW2(((0, 1),)), 0.0, 2.0, None, y0,
+                          stepsize_controller=ctrl, saveat=dfx.SaveAt(ts=jnp.array([0.7, 2.0])),
+                          max_steps=10_000)
+    exact = np.stack([scipy.linalg.expm(np.asarray(A) * t) @ np.asarray(y0) for t in (0.7, 2.0)])
+    np.testing.assert_allclose(sol.ys, exact, atol=2e-5)  # 0.7: dense (Hermite) output
+    explicit = dfx.diffeqsolve(term, dfx.Tsit5(), 0.0, 2.0, None, y0, stepsize_controller=ctrl,
+                               max_steps=100_000)
+    assert int(sol.stats["num_steps"]) * 20 < int(explicit.stats["num_steps"])
+
+
+def test_solve_small_matches_dense_solve():
+    rng = np.random.default_rng(0)
+    M = np.eye(4)[None] + 0.3 * rng.normal(size=(5, 4, 4))
+    b = rng.normal(size=(5, 4))
+    x = jax.jit(solve_small)(jnp.asarray(M), jnp.asarray(b))
+    np.testing.assert_allclose(x, np.linalg.solve(M, b[..., None])[..., 0], rtol=1e-10,
+                               atol=1e-12)
+
+
+def test_half_car_with_lugre_tires_matches_tsit5():
+    car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
+    assert car.stiff_blocks == ((6, 12, 13), (7, 14, 15))
+    u = brake_in_turn(0.04, 1200.0, t_brake=0.3, rise=0.2, t_steer=0.0)
+    ts = jnp.linspace(0.0, 1.0, 6)
+    kinks = jnp.array([0.2, 0.3, 0.5])
+    y0 = car.init_state(vx=18.0)
+    tol = lambda x: dict(rtol=jnp.asarray(x), atol=jnp.asarray(x))  # noqa: E731
+    run = eqx.filter_jit(simulate)  # the two Tsit5 runs share one compilation
+    ref = run(car, ts, u, y0, **tol(1e-11), jump_ts=kinks, max_steps=100_000)
+    explicit = run(car, ts, u, y0, **tol(1e-6), jump_ts=kinks, max_steps=100_000)
+    tr = run(car, ts, u, y0, solver=ROS34PW2(car.stiff_blocks), **tol(1e-6), jump_ts=kinks,
+             max_steps=100_000)
+    np.testing.assert_allclose(tr.states, ref.states, atol=1e-3)
+    np.testing.assert_allclose(explicit.states, ref.states, atol=1e-3)
+    # not held to the explicit stability limit of the wheel-tire blocks
+    assert int(tr.num_steps) * 2 < int(explicit.num_steps), (tr.num_steps, explicit.num_steps)
+
+
+def test_blocks_must_be_equal_length():
+    with pytest.raises(ValueError, match="ROS34PW2.blocks"):
+        ROS34PW2(((0, 1), (2,)))
