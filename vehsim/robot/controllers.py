@@ -362,16 +362,11 @@ class PometController(AbstractChainedController):
     With a gain $k > 0$ ($u_1 = -kp + \omega x_3\sin\omega t$, $u_2 = -kb$) the same argument
     gives $\dot V = -k(p^2 + b^2)$. Gains used: $k = 1$, $\omega = 1$ rad/s.
 
-    **Documented time** (`DOCUMENTED_TIME`): none. The law is smooth, so the closed loop is
-    $C^1$, and a $C^1$ closed loop that converged exponentially would have an exponentially
-    stable linearisation, which the nonholonomic integrator cannot have ($\dot x_3 = 0$ to
-    first order): a time-varying feedback that stabilises a driftless system exponentially
-    is necessarily non-Lipschitz (M'Closkey and Murray 1997 [21], which is why they went to
-    the homogeneous laws of controllers 6 and 8). From the generic pose on the ideal plant
-    the heading is within 1 deg after 400 s, but the largest position error over
-    $[t/2, t]$ is still above 1 mm at $t = 1600$ s (about 6-7 mm) and halves when $t$
-    quadruples ($t^{-1/2}$), so 1 mm would take of order $10^4$-$10^5$ s (extrapolated).
-    Its gain $k$ cannot make it exponential either.
+    **Documented time** (`DOCUMENTED_TIME`): none, for the reason given in
+    `TeelMurrayWalshController` (a smooth time-varying law cannot converge exponentially).
+    Measured on the ideal plant from the generic pose: heading within 1 deg after 400 s,
+    position error still 6-7 mm at 1600 s and halving when $t$ quadruples. Its gain $k$
+    cannot make it exponential either.
     """
 
     k: Float[Array, ""] = _field(1.0)
