@@ -60,8 +60,9 @@ def _majority(codes):
     return int(np.argmax(counts)), counts
 
 
-def run_grid(n_seeds: int, plant=None, extra_poses=None, save=False, key=0):
-    """All controllers x systems x missions x seeds (plus `extra_poses`), one call."""
+def run_grid(n_seeds: int, plant=None, extra_poses=None, save=False, key=0, devices=None):
+    """All controllers x systems x missions x seeds (plus `extra_poses`), one call
+    (sharded across `devices` if given, see `simulate_grid`)."""
     k_pose, k_noise = jax.random.split(jax.random.PRNGKey(key))
     poses = jnp.concatenate([m.initial_poses(jax.random.fold_in(k_pose, i), n_seeds)
                              for i, m in enumerate(MISSIONS)])
@@ -69,7 +70,8 @@ def run_grid(n_seeds: int, plant=None, extra_poses=None, save=False, key=0):
         poses = jnp.concatenate([poses, jnp.asarray(extra_poses, dtype=poses.dtype)])
     keys = jax.random.split(k_noise, poses.shape[0])
     run = simulate_grid(default_controllers(), [SystemI(), SystemII()], poses, keys,
-                        plant=plant if plant is not None else realistic_plant(), save=save)
+                        plant=plant if plant is not None else realistic_plant(), save=save,
+                        devices=devices)
     return run
 
 
