@@ -19,6 +19,7 @@ on the ideal plant needs to bring the generic pose of the tests to 1 mm and 1 de
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -48,7 +49,16 @@ def _safe_sqrt(x):
 
 
 class AbstractController(eqx.Module):
-    r"""A feedback law for the unicycle: `velocity(t, pose, system)` -> $(v, \omega)$."""
+    r"""A feedback law for the unicycle: `velocity(t, pose, system)` -> $(v, \omega)$.
+
+    Subclasses name the gains that must be positive in `positive_gains`; they are checked
+    at construction (a `ValueError` naming the controller and the gain)."""
+
+    positive_gains: ClassVar[tuple[str, ...]] = ()
+
+    def __check_init__(self):
+        for name in self.positive_gains:
+            check_positive(type(self).__name__, name, getattr(self, name))
 
     @abc.abstractmethod
     def velocity(self, t, pose: Pose, system: AbstractSystem) -> tuple[Array, Array]:
@@ -205,9 +215,7 @@ class TwoStageController(AbstractChainedController):
     k1: Float[Array, ""] = _field(2.0)
     c: Float[Array, ""] = _field(1.0)
 
-    def __check_init__(self):
-        for name in ("k", "k1", "c"):
-            check_positive("TwoStageController", name, getattr(self, name))
+    positive_gains: ClassVar[tuple[str, ...]] = ("k", "k1", "c")
 
     def __call__(self, t, x: Chained) -> Float[Array, 2]:
         z = 2 * s_function(x)
@@ -249,9 +257,7 @@ class PolarController(AbstractController):
     k: Float[Array, ""] = _field(3.0)
     h: Float[Array, ""] = _field(1.5)
 
-    def __check_init__(self):
-        for name in ("lam", "k", "h"):
-            check_positive("PolarController", name, getattr(self, name))
+    positive_gains: ClassVar[tuple[str, ...]] = ("lam", "k", "h")
 
     def velocity(self, t, pose: Pose, system: AbstractSystem) -> tuple[Array, Array]:
         x, y = pose[0], pose[1]
@@ -297,9 +303,7 @@ class TeelMurrayWalshController(AbstractChainedController):
     a: Float[Array, ""] = _field(1.0)
     omega: Float[Array, ""] = _field(1.0)
 
-    def __check_init__(self):
-        for name in ("k", "a", "omega"):
-            check_positive("TeelMurrayWalshController", name, getattr(self, name))
+    positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
 
     def __call__(self, t, x: Chained) -> Float[Array, 2]:
         wt = self.omega * t
@@ -336,9 +340,7 @@ class MCloskeyMurray93Controller(AbstractChainedController):
     a: Float[Array, ""] = _field(1.0)
     omega: Float[Array, ""] = _field(1.0)
 
-    def __check_init__(self):
-        for name in ("k", "a", "omega"):
-            check_positive("MCloskeyMurray93Controller", name, getattr(self, name))
+    positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
 
     def __call__(self, t, x: Chained) -> Float[Array, 2]:
         q = x[0] ** 4 + x[1] ** 4 + x[2] ** 2
@@ -372,9 +374,7 @@ class PometController(AbstractChainedController):
     k: Float[Array, ""] = _field(1.0)
     omega: Float[Array, ""] = _field(1.0)
 
-    def __check_init__(self):
-        check_positive("PometController", "k", self.k)
-        check_positive("PometController", "omega", self.omega)
+    positive_gains: ClassVar[tuple[str, ...]] = ("k", "omega")
 
     def lyapunov(self, t, x: Chained):
         """Pomet's $V(t, x)$ (non-increasing along closed-loop solutions)."""
@@ -444,9 +444,7 @@ class MCloskeyMurray97Controller(AbstractChainedController):
     omega: Float[Array, ""] = _field(2.0)
     newton_steps: int = eqx.field(static=True, default=6)
 
-    def __check_init__(self):
-        for name in ("k", "a", "omega"):
-            check_positive("MCloskeyMurray97Controller", name, getattr(self, name))
+    positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
 
     def __call__(self, t, x: Chained) -> Float[Array, 2]:
         rho = homogeneous_norm_newton(x, self.newton_steps)
