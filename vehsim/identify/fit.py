@@ -25,7 +25,7 @@ $\varphi(x) = (1-e^{-x})/x$: second order, unconditionally stable, and exact in 
 quasi-static limit. `tests/test_identify_fit.py` checks it against a tight `Kvaerno5` solve.
 The Levenberg-Marquardt Jacobian is forward mode through that solve: the tangent of the
 step map is the same linear recurrence with its own forcing, solved by the same diffrax
-solver once per free parameter (`_open_loop_sensitivities`; exact derivatives of the
+solver for all parameters at once (`_open_loop_sensitivities`; exact derivatives of the
 discrete scheme). Closed loop: one `diffrax.ForwardMode` JVP per free parameter.
 
 **Convergence** is declared when optimistix's LM terminates, or when the optimum is
@@ -223,8 +223,8 @@ def _open_loop_sensitivities(u, directions, model_of, d: BrakingData, substeps: 
     $z^+ = z + \varphi(a)(b - az)$ has the tangent
     $\dot z^+ = (1 - a\varphi(a))\dot z + c$,
     $c = \varphi'(a)\dot a(b - az) + \varphi(a)(\dot b - \dot a z)$: the same linear
-    recurrence with forcing $c/\varphi(a)$, one more diffrax solve per direction (exact
-    derivatives of the discrete scheme). The
+    recurrence with forcing $c/\varphi(a)$, solved for all directions at once by one more
+    vector-valued diffrax solve (exact derivatives of the discrete scheme). The
     coefficient tangents $\dot a$, $\dot b$ are vectorised JVPs (no loop).
     """
     fm = dfx.ForwardMode()
@@ -236,9 +236,12 @@ def _open_loop_sensitivities(u, directions, model_of, d: BrakingData, substeps: 
     phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
     c = dphi[None, :] * da * (b - a * z_start)[None, :] + phi[None, :] * (
         db - da * z_start[None, :])
-    # one scalar solve per direction in a lax.map: XLA saves a scalar trajectory far faster
-    # than a vector-valued or vmapped one
-    xs = jax.lax.map(lambda bx: _linear_solve(a, bx[0], bx[1], fm), (c / phi[None, :], dz0))
+    # all directions share the decay a: vector-valued solves, at most 8 columns each (XLA
+    # on CPU saves a trajectory of more than 8 columns ~10x slower per column)
+    forcing = (c / phi[None, :]).T
+    chunks = -(-forcing.shape[1] // 8)
+    xs = jnp.concatenate([_linear_solve(a, f, y, fm) for f, y in zip(
+        jnp.array_split(forcing, chunks, axis=1), jnp.array_split(dz0, chunks))], axis=1).T
     z = jnp.concatenate([z0[None], zs[substeps - 1::substeps]])
     dz = jnp.concatenate([dz0[:, None], xs[:, substeps - 1::substeps]], axis=1)
     r = jnp.broadcast_to(d.r, d.t.shape)
@@ -451,10 +454,11 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
     Levenberg-Marquardt needs the whole Jacobian $J$ at every step. Through a forward-mode
     `while_loop`, `jax.linearize` cannot split off a cheap linear part (it re-runs the solve
     for every column), and `jax.jacfwd` (a `vmap` of JVPs) batches the solve's saved
-    trajectory, which is slow. So $J$ is built by one forward-mode JVP through the solve per
-    *free* parameter (`lax.map` + `lax.cond`: fixed columns cost nothing), and the JVP rule
-    is the product with it: optimistix's `linearize` then keeps $J$ and its linear operator
-    is a matrix product.
+    trajectory, which is slow. So $J$ is built from forward sensitivities: open loop, one
+    vector-valued tangent solve for all directions (`_open_loop_sensitivities`); closed
+    loop, one forward-mode JVP through the solve per *free* parameter (`lax.map` +
+    `lax.cond`: fixed columns cost nothing). The JVP rule is the product with $J$:
+    optimistix's `linearize` then keeps $J$ and its linear operator is a matrix product.
     """
     def residual(u):
         m = from_unconstrained(u, model, PARAMETER_NAMES)
@@ -520,8 +524,20 @@ def _jacobian(theta, model, data, mode, scales, substeps, rtol):
         m = with_values(model, {n: th[i] for i, n in enumerate(PARAMETER_NAMES)})
         return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
 
-    r, Jt = _jvp_columns(residual, theta, jnp.ones(theta.shape, dtype=bool))
-    return r, Jt.T
+    if mode != "open_loop":
+        r, Jt = _jvp_columns(residual, theta, jnp.ones(theta.shape, dtype=bool))
+        return r, Jt.T
+    # open loop: the sensitivities in u (every direction), mapped to the physical values,
+    # J_theta = J_u (dtheta/du)^-1
+    model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
+    u = to_unconstrained(model, PARAMETER_NAMES)
+    eye = jnp.eye(u.shape[0], dtype=u.dtype)
+    out = [_open_loop_sensitivities(u, eye, model_of, d, substeps) for d in data]
+    r = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
+    Jt_u = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1)
+    dtheta_du = jax.jacfwd(lambda x: jnp.stack([jnp.asarray(v, dtype=float) for v in
+                                                parameter_values(model_of(x)).values()]))(u)
+    return r, jnp.linalg.solve(dtheta_du.T, Jt_u).T
 
 
 _predict_open_loop_jit = eqx.filter_jit(predict_open_loop)
@@ -611,7 +627,13 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     theta = np.asarray(theta_all)[cols]
     N, p = J.shape
     loss = float(0.5 * np.sum(r**2))  # data term only (without the prior)
-    preds = [evaluate(best_model, d, mode, substeps) for d in data]
+    if mode == "open_loop":  # the force residuals are r: no second solve
+        ends = np.cumsum([len(d) for d in data])
+        preds = [(F_pred, force_errors(F_pred, d.F_x)) for F_pred, d in zip(
+            (np.asarray(d.F_x) + float(scales[0]) * ri for ri, d in zip(
+                np.split(r, ends[:-1]), data)), data)]
+    else:
+        preds = [evaluate(best_model, d, mode, substeps) for d in data]
     rms_F = float(np.sqrt(np.mean(np.concatenate(
         [(F - np.asarray(d.F_x)) ** 2 for (F, _), d in zip(preds, data)]))))
     # identifiability: singular values of the Jacobian in relative (log) parameters
