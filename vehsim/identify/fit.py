@@ -280,10 +280,14 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
     mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
     out = []
     for d in data:
-        a, b, z0 = _coefficients(model, d, substeps)
         v_mid, om_mid = mid(d.v), mid(d.omega)
         h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
-        P = _decay_rate_partials(q, d.r * om_mid - v_mid, om_mid * d.r)
+        v_r_mid = d.r * om_mid - v_mid
+        P = _decay_rate_partials(q, v_r_mid, om_mid * d.r)
+        # the coefficients of `_coefficients` from the same partials (a is 1-homogeneous in
+        # theta and kappa): a = h (theta da/dtheta + kappa da/dkappa), b = h v_r
+        a, b = h * (q[0] * P[:, 0] + q[2] * P[:, 2]), h * v_r_mid
+        z0 = _z_steady(model, d.v[0], d.omega[0], d.r)
         da = h[:, None] * (P @ dq[:, :7].T)  # (steps, directions)
         dz0 = jax.vmap(lambda e, d=d: jax.jvp(
             lambda x: _z_steady(model_of(x), d.v[0], d.omega[0], d.r), (u,), (e,))[1])(
