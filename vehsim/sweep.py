@@ -80,6 +80,41 @@ def _num_members(members) -> int:
     return n.pop()
 
 
+def pad_members(members: PyTree, multiple: int) -> PyTree:
+    """Pad the leading (member) axis of every leaf to a multiple of `multiple` by repeating
+    the last member (drop the padding from the results with ``x[:n]``)."""
+    n = _num_members(members)
+    n_pad = math.ceil(n / multiple) * multiple
+    return jax.tree.map(
+        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], n_pad - n, axis=0)]), members
+    )
+
+
+def sharded_vmap(
+    fn: Callable, devices: Sequence[jax.Device] | None = None, in_axes: int | None | tuple = 0
+) -> Callable:
+    r"""``jax.vmap(fn, in_axes)`` with the member axis split across `devices`.
+
+    A one-dimensional mesh (axis ``"members"``) and `jax.shard_map`: each device runs the
+    vmapped `fn` on its own slice of the members (an adaptive solve inside stops when *its*
+    members are done), arguments with ``in_axes`` None are replicated; every output has the
+    member axis first. The member count must be a multiple of the device count (see
+    `pad_members`). Wrap the result in `jax.jit`. On a CPU host, forcing one host device
+    per core (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts)
+    runs one shard per core.
+    """
+    devices = list(jax.devices() if devices is None else devices)
+    mesh = Mesh(np.asarray(devices), ("members",))
+
+    def run(*args):
+        axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
+        specs = tuple(P() if a is None else P("members") for a in axes)
+        return jax.shard_map(jax.vmap(fn, in_axes=axes), mesh=mesh, in_specs=specs,
+                             out_specs=P("members"), check_vma=False)(*args)
+
+    return run
+
+
 def sweep(
     scenario: Callable[[PyTree], tuple[Any, Any, Any]],
     members: PyTree,
@@ -106,10 +141,7 @@ def sweep(
     devices = list(jax.devices() if devices is None else devices)
     n_dev = len(devices)
     n = _num_members(members)
-    n_pad = math.ceil(n / n_dev) * n_dev
-    padded = jax.tree.map(
-        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], n_pad - n, axis=0)]), members
-    )
+    padded = pad_members(members, n_dev)
     ts = jnp.asarray(ts, dtype=float)
     simulate_kwargs = dict(simulate_kwargs, throw=False)
 
@@ -121,13 +153,9 @@ def sweep(
         code = jnp.where(traj.ok & ~finite, _NONFINITE, traj.result._value)  # noqa: SLF001
         return traj, ok, code
 
-    mesh = Mesh(np.asarray(devices), ("members",))
-    spec = P("members")
-    run = jax.jit(
-        jax.shard_map(jax.vmap(one), mesh=mesh, in_specs=spec, out_specs=spec,
-                      check_vma=False)
-    )
-    padded = jax.device_put(padded, NamedSharding(mesh, spec))
+    run = jax.jit(sharded_vmap(one, devices))
+    padded = jax.device_put(padded, NamedSharding(Mesh(np.asarray(devices), ("members",)),
+                                                  P("members")))
     traj, ok, code = run(padded)
     traj, ok, code = jax.tree.map(lambda x: x[:n], (traj, ok, code))
     return SweepResult(members=members, trajectories=traj, ok=ok, status=code, num_devices=n_dev)
