@@ -226,6 +226,8 @@ def main():
                     help="max abs final-state error vs the reference [SI units]")
     ap.add_argument("--solvers", default="Tsit5,ROS34PW2",
                     help="vehsim solvers to try (the fastest at the target error is the headline)")
+    ap.add_argument("--batch-size", type=int, default=64,
+                    help="sharded run: members per vmapped chunk on each device (0: whole slice)")
     ap.add_argument("--methods", default="LSODA,BDF,Radau,RK45,DOP853",
                     help="scipy methods to try (the fastest at the target error is the baseline)")
     args = ap.parse_args()
@@ -293,7 +295,7 @@ def main():
         if jax.device_count() > 1:
             sharded = jax.jit(sharded_vmap(
                 lambda mem, rtol, solver=solver: vehsim_final(mem, rtol, solver),
-                jax.devices(), in_axes=(0, None)))
+                jax.devices(), in_axes=(0, None), batch_size=args.batch_size or None))
             ways.append((jax.device_count(), sharded, pad_members(full, jax.device_count())))
         for n_dev, fn_way, batch in ways:
             t0 = time.perf_counter()
@@ -306,7 +308,8 @@ def main():
                 walls.append(time.perf_counter() - t0)
                 cpus.append(time.process_time() - c0)
             y, steps, ok = (x[:args.scenarios] for x in (y, steps, ok))
-            run = dict(solver=solver, devices=n_dev, rtol=rtol_v, error=err_v,
+            run = dict(solver=solver, devices=n_dev,
+                       batch_size=(args.batch_size or None) if n_dev > 1 else None, rtol=rtol_v, error=err_v,
                        wall_s=min(walls), cpu_s=min(cpus), compile_s=compile_s,
                        ok=int(np.sum(ok)), max_steps=int(np.max(steps)),
                        mean_steps=float(np.mean(steps)), y=np.asarray(y))
@@ -360,7 +363,7 @@ def main():
     agree = float(np.max(np.abs(np.asarray(best_v["y"][:nb]) - np.stack(finals_s))))
     for r in vehsim_runs:
         emit(name="simulate_batch.vehsim", tire=args.tire, solver=r["solver"],
-             devices=r["devices"], rtol=r["rtol"],
+             devices=r["devices"], batch_size=r["batch_size"], rtol=r["rtol"],
              error=r["error"], wall_s=round(r["wall_s"], 4), cpu_s=round(r["cpu_s"], 4),
              compile_s=round(r["compile_s"], 2),
              scenarios_per_s=round(args.scenarios / r["wall_s"], 1),
@@ -376,6 +379,7 @@ def main():
         vehsim_wall_s=round(best_v["wall_s"], 4), vehsim_compile_s=round(best_v["compile_s"], 2),
         vehsim_scenarios_per_s=round(args.scenarios / best_v["wall_s"], 1),
         vehsim_solver=best_v["solver"], vehsim_devices=best_v["devices"],
+        vehsim_batch_size=best_v["batch_size"],
         vehsim_rtol=best_v["rtol"],
         vehsim_error=best_v["error"], vehsim_ok=best_v["ok"],
         vehsim_max_steps=best_v["max_steps"],
