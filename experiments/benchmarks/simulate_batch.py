@@ -25,11 +25,24 @@ the count); compile time is reported separately. ``cpu_ratio`` is the same ratio
 CPU time: on a loaded shared machine the wall times of the two can be slowed unequally, and
 the CPU ratio says by how much that matters.
 
+Sharding: before JAX starts the script forces one host device per core
+(``XLA_FLAGS=--xla_force_host_platform_device_count=os.cpu_count()``, unless XLA_FLAGS is
+set) and times every solver twice on the full batch: one vmapped program on the default
+device (``devices: 1``), and the same split over all devices as `vehsim.sweep` runs it
+(`vehsim.sweep.sharded_vmap`: `jax.shard_map` over a one-dimensional mesh, one shard per
+core), each device running its slice in vmapped chunks of `--batch-size` members (64) one
+after another, so a chunk's adaptive loop stops at *its* slowest member rather than the
+slowest of the batch (the vmapped loop steps every member until the last one is done) and
+its working set stays in cache. The setup line reports the device count; each
+``simulate_batch.vehsim`` row its devices, chunk size, wall and CPU ratios and the largest
+difference to the single-device results.
+
 ``--tire ellipse`` runs the same benchmark with the spec's static friction-ellipse tire
 (12 states, not stiff) for comparison.
 
     PYTHONPATH=. python experiments/benchmarks/simulate_batch.py [--scenarios 1024]
         [--tire lugre|ellipse] [--target-error 3e-5] [--solvers Tsit5,ROS34PW2]
+        [--batch-size 64] [--methods LSODA,BDF,Radau,RK45,DOP853]
 """
 
 from __future__ import annotations
