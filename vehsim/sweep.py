@@ -14,6 +14,7 @@ the `HalfCar` and writes one JSON file.
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import math
 import sys
@@ -80,12 +81,69 @@ def _num_members(members) -> int:
     return n.pop()
 
 
+def pad_members(members: PyTree, multiple: int) -> PyTree:
+    """Pad the leading (member) axis of every leaf to a multiple of `multiple` by repeating
+    the last member (drop the padding from the results with ``x[:n]``)."""
+    n = _num_members(members)
+    n_pad = math.ceil(n / multiple) * multiple
+    return jax.tree.map(
+        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], n_pad - n, axis=0)]), members
+    )
+
+
+def sharded_vmap(
+    fn: Callable,
+    devices: Sequence[jax.Device] | None = None,
+    in_axes: int | None | tuple = 0,
+    batch_size: int | None = None,
+) -> Callable:
+    r"""``jax.vmap(fn, in_axes)`` with the member axis split across `devices`.
+
+    A one-dimensional mesh (axis ``"members"``) and `jax.shard_map`: each device runs the
+    vmapped `fn` on its own slice of the members (an adaptive solve inside stops when *its*
+    members are done), arguments with ``in_axes`` None are replicated; every output has the
+    member axis first. The member count must be a multiple of the device count (see
+    `pad_members`). Wrap the result in `jax.jit`. On a CPU host, forcing one host device
+    per core (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts)
+    runs one shard per core.
+
+    `batch_size`: if given, each device runs its slice in vmapped chunks of this many
+    members one after another (`jax.lax.map`): each chunk's adaptive solves stop at the
+    chunk's slowest member instead of the slice's, and a chunk's working set stays in
+    cache (on CPU; on a GPU keep the whole slice in one chunk).
+    """
+    devices = list(jax.devices() if devices is None else devices)
+    mesh = Mesh(np.asarray(devices), ("members",))
+
+    def run(*args):
+        axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
+        specs = tuple(P() if a is None else P("members") for a in axes)
+        return jax.shard_map(functools.partial(_chunked_vmap, fn, axes, batch_size),
+                             mesh=mesh, in_specs=specs, out_specs=P("members"),
+                             check_vma=False)(*args)
+
+    return run
+
+
+def _chunked_vmap(fn, axes, batch_size, *args):
+    if batch_size is None:
+        return jax.vmap(fn, in_axes=axes)(*args)
+    mapped = [a for a, ax in zip(args, axes) if ax is not None]
+
+    def one(member_args):
+        it = iter(member_args)
+        return fn(*(a if ax is None else next(it) for a, ax in zip(args, axes)))
+
+    return jax.lax.map(one, mapped, batch_size=batch_size)
+
+
 def sweep(
     scenario: Callable[[PyTree], tuple[Any, Any, Any]],
     members: PyTree,
     ts,
     *,
     devices: Sequence[jax.Device] | None = None,
+    batch_size: int | None = None,
     **simulate_kwargs,
 ) -> SweepResult:
     r"""Simulate every member of a batch, sharded across devices, with per-member status.
@@ -98,6 +156,8 @@ def sweep(
     - `ts`: save times shared by all members.
     - `devices`: devices to split the members across (default: all, `jax.devices()`).
       The member count is padded to a multiple of the device count (padding is dropped).
+    - `batch_size`: members per vmapped chunk on each device (see `sharded_vmap`; default:
+      the device's whole slice at once).
     - `simulate_kwargs`: passed to `simulate` (solver, tolerances, `max_steps`, ...);
       `throw` is always False.
 
@@ -106,10 +166,7 @@ def sweep(
     devices = list(jax.devices() if devices is None else devices)
     n_dev = len(devices)
     n = _num_members(members)
-    n_pad = math.ceil(n / n_dev) * n_dev
-    padded = jax.tree.map(
-        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], n_pad - n, axis=0)]), members
-    )
+    padded = pad_members(members, n_dev)
     ts = jnp.asarray(ts, dtype=float)
     simulate_kwargs = dict(simulate_kwargs, throw=False)
 
@@ -121,13 +178,9 @@ def sweep(
         code = jnp.where(traj.ok & ~finite, _NONFINITE, traj.result._value)  # noqa: SLF001
         return traj, ok, code
 
-    mesh = Mesh(np.asarray(devices), ("members",))
-    spec = P("members")
-    run = jax.jit(
-        jax.shard_map(jax.vmap(one), mesh=mesh, in_specs=spec, out_specs=spec,
-                      check_vma=False)
-    )
-    padded = jax.device_put(padded, NamedSharding(mesh, spec))
+    run = jax.jit(sharded_vmap(one, devices, batch_size=batch_size))
+    padded = jax.device_put(padded, NamedSharding(Mesh(np.asarray(devices), ("members",)),
+                                                  P("members")))
     traj, ok, code = run(padded)
     traj, ok, code = jax.tree.map(lambda x: x[:n], (traj, ok, code))
     return SweepResult(members=members, trajectories=traj, ok=ok, status=code, num_devices=n_dev)

@@ -25,11 +25,24 @@ the count); compile time is reported separately. ``cpu_ratio`` is the same ratio
 CPU time: on a loaded shared machine the wall times of the two can be slowed unequally, and
 the CPU ratio says by how much that matters.
 
+Sharding: before JAX starts the script forces one host device per core
+(``XLA_FLAGS=--xla_force_host_platform_device_count=os.cpu_count()``, unless XLA_FLAGS is
+set) and times every solver twice on the full batch: one vmapped program on the default
+device (``devices: 1``), and the same split over all devices as `vehsim.sweep` runs it
+(`vehsim.sweep.sharded_vmap`: `jax.shard_map` over a one-dimensional mesh, one shard per
+core), each device running its slice in vmapped chunks of `--batch-size` members (64) one
+after another, so a chunk's adaptive loop stops at *its* slowest member rather than the
+slowest of the batch (the vmapped loop steps every member until the last one is done) and
+its working set stays in cache. The setup line reports the device count; each
+``simulate_batch.vehsim`` row its devices, chunk size, wall and CPU ratios and the largest
+difference to the single-device results.
+
 ``--tire ellipse`` runs the same benchmark with the spec's static friction-ellipse tire
 (12 states, not stiff) for comparison.
 
     PYTHONPATH=. python experiments/benchmarks/simulate_batch.py [--scenarios 1024]
         [--tire lugre|ellipse] [--target-error 3e-5] [--solvers Tsit5,ROS34PW2]
+        [--batch-size 64] [--methods LSODA,BDF,Radau,RK45,DOP853]
 """
 
 from __future__ import annotations
@@ -40,7 +53,12 @@ import os
 import sys
 import time
 
-import jax
+
+# One shard per core: force as many host devices as cores before JAX starts (unless the user
+# set XLA_FLAGS), so the batch can also run sharded over jax.devices() as `vehsim.sweep` does.
+os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count() or 1}")
+
+import jax  # noqa: E402
 
 
 jax.config.update("jax_enable_x64", True)
@@ -59,6 +77,7 @@ from vehsim import (  # noqa: E402
     simulate,
 )
 from vehsim.params import cdc1999  # noqa: E402
+from vehsim.sweep import pad_members, sharded_vmap  # noqa: E402
 from vehsim.vehicle.maneuvers import brake_in_turn  # noqa: E402
 
 
@@ -220,6 +239,8 @@ def main():
                     help="max abs final-state error vs the reference [SI units]")
     ap.add_argument("--solvers", default="Tsit5,ROS34PW2",
                     help="vehsim solvers to try (the fastest at the target error is the headline)")
+    ap.add_argument("--batch-size", type=int, default=64,
+                    help="sharded run: members per vmapped chunk on each device (0: whole slice)")
     ap.add_argument("--methods", default="LSODA,BDF,Radau,RK45,DOP853",
                     help="scipy methods to try (the fastest at the target error is the baseline)")
     args = ap.parse_args()
@@ -229,7 +250,8 @@ def main():
     member = lambda i: {k: v[i] for k, v in S.items()}  # noqa: E731
     emit(name="simulate_batch.setup", tire=args.tire, scenarios=args.scenarios,
          duration_s=T_END, states=n_states, target_error=args.target_error,
-         devices=str(jax.devices()), backend=jax.default_backend(),
+         devices=str(jax.devices()), device_count=jax.device_count(),
+         cpu_count=os.cpu_count(), backend=jax.default_backend(),
          load_average=os.getloadavg())
 
     # the NumPy vector field is the same as vehsim's
@@ -280,22 +302,38 @@ def main():
             log(f"vehsim {solver}: target not reached")
             continue
         rtol_v, err_v = chosen
-        t0 = time.perf_counter()
-        lowered = fn.lower(full, jnp.asarray(rtol_v)).compile()
-        compile_s = time.perf_counter() - t0
-        walls, cpus = [], []
-        for _ in range(3):
-            t0, c0 = time.perf_counter(), time.process_time()
-            y, steps, ok = jax.block_until_ready(lowered(full, jnp.asarray(rtol_v)))
-            walls.append(time.perf_counter() - t0)
-            cpus.append(time.process_time() - c0)
-        run = dict(solver=solver, rtol=rtol_v, error=err_v, wall_s=min(walls),
-                   cpu_s=min(cpus), compile_s=compile_s, ok=int(np.sum(ok)),
-                   max_steps=int(np.max(steps)), mean_steps=float(np.mean(steps)), y=y)
-        vehsim_runs.append(run)
-        log(f"vehsim {solver} rtol={rtol_v:g}: {args.scenarios} scenarios in "
-            f"{run['wall_s']:.2f} s wall, {run['cpu_s']:.2f} s CPU (compile {compile_s:.1f} s), "
-            f"{run['ok']} ok, steps mean {run['mean_steps']:.0f} max {run['max_steps']}")
+        # timed on the full batch: one vmapped program on the default device, and the same
+        # sharded over all devices (one per core), as `vehsim.sweep` runs it
+        ways = [(1, fn, full)]
+        if jax.device_count() > 1:
+            sharded = jax.jit(sharded_vmap(
+                lambda mem, rtol, solver=solver: vehsim_final(mem, rtol, solver),
+                jax.devices(), in_axes=(0, None), batch_size=args.batch_size or None))
+            ways.append((jax.device_count(), sharded, pad_members(full, jax.device_count())))
+        for n_dev, fn_way, batch in ways:
+            t0 = time.perf_counter()
+            lowered = fn_way.lower(batch, jnp.asarray(rtol_v)).compile()
+            compile_s = time.perf_counter() - t0
+            walls, cpus = [], []
+            for _ in range(3):
+                t0, c0 = time.perf_counter(), time.process_time()
+                y, steps, ok = jax.block_until_ready(lowered(batch, jnp.asarray(rtol_v)))
+                walls.append(time.perf_counter() - t0)
+                cpus.append(time.process_time() - c0)
+            y, steps, ok = (x[:args.scenarios] for x in (y, steps, ok))
+            run = dict(solver=solver, devices=n_dev,
+                       batch_size=(args.batch_size or None) if n_dev > 1 else None, rtol=rtol_v, error=err_v,
+                       wall_s=min(walls), cpu_s=min(cpus), compile_s=compile_s,
+                       ok=int(np.sum(ok)), max_steps=int(np.max(steps)),
+                       mean_steps=float(np.mean(steps)), y=np.asarray(y))
+            if len(vehsim_runs) and vehsim_runs[-1]["solver"] == solver:
+                run["vs_single_device_max_abs_diff"] = float(
+                    np.max(np.abs(run["y"] - vehsim_runs[-1]["y"])))
+            vehsim_runs.append(run)
+            log(f"vehsim {solver} rtol={rtol_v:g} on {n_dev} device(s): {args.scenarios} "
+                f"scenarios in {run['wall_s']:.2f} s wall, {run['cpu_s']:.2f} s CPU (compile "
+                f"{compile_s:.1f} s), {run['ok']} ok, steps mean {run['mean_steps']:.0f} max "
+                f"{run['max_steps']}")
     best_v = min(vehsim_runs, key=lambda r: r["wall_s"])
 
     # scipy: for each method, loosest tolerance reaching the target; keep the fastest
@@ -337,19 +375,25 @@ def main():
     # cross-check: the two agree on the timed subset
     agree = float(np.max(np.abs(np.asarray(best_v["y"][:nb]) - np.stack(finals_s))))
     for r in vehsim_runs:
-        emit(name="simulate_batch.vehsim", tire=args.tire, solver=r["solver"], rtol=r["rtol"],
+        emit(name="simulate_batch.vehsim", tire=args.tire, solver=r["solver"],
+             devices=r["devices"], batch_size=r["batch_size"], rtol=r["rtol"],
              error=r["error"], wall_s=round(r["wall_s"], 4), cpu_s=round(r["cpu_s"], 4),
              compile_s=round(r["compile_s"], 2),
              scenarios_per_s=round(args.scenarios / r["wall_s"], 1),
              ratio=round(wall_s / r["wall_s"], 2), ok=r["ok"],
-             mean_steps=round(r["mean_steps"], 1), max_steps=r["max_steps"])
+             cpu_ratio=round(cpu_per_s * args.scenarios / r["cpu_s"], 2),
+             mean_steps=round(r["mean_steps"], 1), max_steps=r["max_steps"],
+             **({"vs_single_device_max_abs_diff": r["vs_single_device_max_abs_diff"]}
+                if "vs_single_device_max_abs_diff" in r else {}))
     emit(
         name="simulate_batch", tire=args.tire,
         ratio=round(wall_s / best_v["wall_s"], 2),
         cpu_ratio=round(cpu_per_s * args.scenarios / best_v["cpu_s"], 2),
         vehsim_wall_s=round(best_v["wall_s"], 4), vehsim_compile_s=round(best_v["compile_s"], 2),
         vehsim_scenarios_per_s=round(args.scenarios / best_v["wall_s"], 1),
-        vehsim_solver=best_v["solver"], vehsim_rtol=best_v["rtol"],
+        vehsim_solver=best_v["solver"], vehsim_devices=best_v["devices"],
+        vehsim_batch_size=best_v["batch_size"],
+        vehsim_rtol=best_v["rtol"],
         vehsim_error=best_v["error"], vehsim_ok=best_v["ok"],
         vehsim_max_steps=best_v["max_steps"],
         baseline_wall_s=round(wall_s, 3), baseline_per_scenario_s=round(per_s, 5),
