@@ -39,6 +39,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from ..sweep import pad_members
 from .controllers import AbstractController
 from .scoring import RunStats
 from .unicycle import AbstractSystem, body_velocity, unicycle_step, wheel_speeds
@@ -320,8 +321,7 @@ def simulate_grid(controllers: Sequence[AbstractController],
         run = _grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save))
     else:
         n = poses0.shape[0]
-        pad = -n % len(devices)
-        poses0, keys = (jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) for x in (poses0, keys))
+        poses0, keys = pad_members((poses0, keys), len(devices))
         run = _sharded_grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save),
                             Mesh(np.asarray(list(devices)), ("runs",)))
         run = jax.tree_util.tree_map(lambda a: a[:, :n], run)
