@@ -11,7 +11,14 @@ import pytest
 
 from vehsim import HalfCar, rally_gravel, rally_gravel_tire, simulate
 from vehsim.cli import main
-from vehsim.sweep import grid, pad_members, sharded_vmap, status_message, sweep
+from vehsim.sweep import (
+    _sweep_run,
+    grid,
+    pad_members,
+    sharded_vmap,
+    status_message,
+    sweep,
+)
 from vehsim.vehicle.maneuvers import step_steer
 
 
@@ -48,6 +55,11 @@ def test_sweep_is_sharded_equals_loop_and_reports_failures():
         car, u, y0 = scenario(member)
         one = simulate(car, ts, u, y0, max_steps=3000)
         np.testing.assert_allclose(res.trajectories.states[i], one.states, rtol=1e-9, atol=1e-9)
+    # another sweep of the same scenario over other member values reuses the compiled run
+    traces = eqx.debug.get_num_traces(_sweep_run)
+    again = sweep(scenario, jax.tree.map(lambda x: x[::-1], members), ts, max_steps=3000)
+    assert eqx.debug.get_num_traces(_sweep_run) == traces
+    np.testing.assert_array_equal(again.ok, [False, True, True])
     with pytest.raises(ValueError, match="same leading axis"):
         sweep(scenario, {"m": jnp.zeros(2), "delta": jnp.zeros(3)}, ts)
 

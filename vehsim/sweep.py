@@ -169,7 +169,19 @@ def sweep(
     padded = pad_members(members, n_dev)
     ts = jnp.asarray(ts, dtype=float)
     simulate_kwargs = dict(simulate_kwargs, throw=False)
+    padded = jax.device_put(padded, NamedSharding(Mesh(np.asarray(devices), ("members",)),
+                                                  P("members")))
+    traj, ok, code = _sweep_run(scenario, padded, ts, tuple(devices), batch_size,
+                                simulate_kwargs)
+    traj, ok, code = jax.tree.map(lambda x: x[:n], (traj, ok, code))
+    return SweepResult(members=members, trajectories=traj, ok=ok, status=code, num_devices=n_dev)
 
+
+@eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces: tests/test_sweep.py checks reuse
+def _sweep_run(scenario, padded, ts, devices, batch_size, simulate_kwargs):
+    """The jitted body of `sweep`: compiled once per scenario function, shapes, devices and
+    solver settings, so repeated sweeps (e.g. over other member values) reuse it."""
     def one(member):
         vehicle, inputs, state0 = scenario(member)
         traj = simulate(vehicle, ts, inputs, state0, **simulate_kwargs)
@@ -178,12 +190,7 @@ def sweep(
         code = jnp.where(traj.ok & ~finite, _NONFINITE, traj.result._value)  # noqa: SLF001
         return traj, ok, code
 
-    run = jax.jit(sharded_vmap(one, devices, batch_size=batch_size))
-    padded = jax.device_put(padded, NamedSharding(Mesh(np.asarray(devices), ("members",)),
-                                                  P("members")))
-    traj, ok, code = run(padded)
-    traj, ok, code = jax.tree.map(lambda x: x[:n], (traj, ok, code))
-    return SweepResult(members=members, trajectories=traj, ok=ok, status=code, num_devices=n_dev)
+    return sharded_vmap(one, list(devices), batch_size=batch_size)(padded)
 
 
 # ----------------------------------------------------------------------------- CLI
