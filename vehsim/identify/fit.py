@@ -672,6 +672,16 @@ def _values_of_u(model):
                        for row in np.asarray(_values_batch(model, us))]
 
 
+def _singular_values(A):
+    """Singular values of a tall `A`, descending: from the eigenvalues of the small
+    $A^\top A$ when they resolve the smallest one (condition number below ~1e6), else from
+    a QR of `A` (a tall LAPACK call, which can cost ~10 ms beside XLA's threads)."""
+    ev = np.linalg.eigvalsh(A.T @ A)[::-1]
+    if ev[-1] > 1e-12 * ev[0]:
+        return np.sqrt(ev)
+    return np.linalg.svd(np.linalg.qr(A, mode="r"), compute_uv=False)
+
+
 def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, substeps, rtol,
          throw, verbose, prior_weight, gtol=1e-6, ftol=1e-6) -> FitResult:
     t_start = time.perf_counter()
@@ -733,8 +743,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         [(F - np.asarray(d.F_x)) ** 2 for (F, _), d in zip(preds, data)]))))
     # identifiability: singular values of the Jacobian in relative (log) parameters
     Jrel = J * theta[None, :]
-    sv = (np.linalg.svd(np.linalg.qr(Jrel, mode="r"), compute_uv=False)  # R: p x p
-          if np.all(np.isfinite(Jrel)) else np.array([0.0]))
+    sv = _singular_values(Jrel) if np.all(np.isfinite(Jrel)) else np.array([0.0])
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
     std = {n: math.nan for n in names}
     if np.isfinite(cond) and N > p:
@@ -767,7 +776,9 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     # ... and MINPACK's ftol test: the loss reduction the Gauss-Newton model still predicts
     # (full step, no damping) is negligible relative to the loss.
     if np.all(np.isfinite(Ji)) and np.all(np.isfinite(ri)) and Ji.shape[1]:
-        step = np.linalg.lstsq(Ji, -ri, rcond=None)[0]
+        # normal equations (p x p): a tall LAPACK call here can cost ~10 ms when it wakes
+        # BLAS threads that compete with XLA's; the ftol test needs few digits
+        step = np.linalg.lstsq(Ji.T @ Ji, -(Ji.T @ ri), rcond=None)[0]
         predicted = float(np.sum(ri**2) - np.sum((ri + Ji @ step) ** 2)) / max(
             float(np.sum(ri**2)), 1e-300)
     else:
