@@ -264,3 +264,28 @@ def test_exact_moments_gradient_matches_fd():
 
     # eps = 1e-4: below it the adaptive solves' tolerance noise dominates the differences
     assert_grad_matches_fd(fy, jnp.array([0.05, 1.0]), rtol=1e-4, eps=1e-4)
+
+
+def test_delay_and_history_closures_agree():
+    """The two exact closures of `simulate_moments` (entry times as ODE states, and the dense
+    input history searched by Newton) are different computations of the same edge values:
+    along a slip-angle ramp from a uniformly deflected patch (old tread leaving, which makes
+    the edge values jump at the first passage) they give the same F_x, F_y, M_z."""
+    p = lugre2d_bakker1987()
+    model = MomentLuGre2D(p, TrapezoidalLoad(0.25))
+    ts = jnp.linspace(0.0, 0.014, 15)
+    z0 = jnp.array([2e-3, -1e-3])
+
+    @eqx.filter_jit
+    def run(closure, z0):
+        return simulate_moments(model, ts, *_inputs(8.0, 0.03, 0.008), R, FZ, z0,
+                                closure=closure, rtol=1e-9, atol=1e-11).forces
+
+    delay, history = np.asarray(run("delay", z0)), np.asarray(run("history", z0))
+    peak = np.max(np.abs(history), axis=0)
+    np.testing.assert_allclose(delay, history, rtol=0, atol=1e-6 * np.max(peak))
+    # the initial deflection matters: the undeflected start differs by a lot
+    undeflected = np.asarray(run("delay", jnp.zeros(2)))
+    assert np.all(np.max(np.abs(undeflected - delay), axis=0) > 0.05 * peak)
+    with pytest.raises(ValueError, match="closure"):
+        simulate_moments(model, ts, 20.0, 0.0, 60.0, R, FZ, closure="frozen")

@@ -501,25 +501,34 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
         dy = jnp.concatenate([m_dot.ravel(), ye_dot.ravel(), D_dot.ravel(), te_dot])
         return dy, m, m_dot, v_r
 
-    y = jnp.concatenate([model.init_state(z0)[0].ravel(), jnp.zeros(4 * P), jnp.full(P, t0)])
+    y0 = jnp.concatenate([model.init_state(z0)[0].ravel(), jnp.zeros(4 * P), jnp.full(P, t0)])
+    # One solve in a segment clock tau in [0, P + 1]: segment k = [t_k, t_{k+1}] (between
+    # passages) is tau in [k, k + 1], t = t_k + (tau - k)(t_{k+1} - t_k). The switches sit at
+    # the integers (fixed jumps of the solver) and the passage times enter only through this
+    # map, so they are differentiated like any other parameter.
     bounds = jnp.concatenate([t0[None], passage, t1[None]])
-    ys = jnp.zeros((ts.shape[0], y.shape[0]))
-    result, num_steps = dfx.RESULTS.successful, 0
-    for k in range(P + 1):
-        entered = jnp.asarray(np.arange(P) < k)
-        lo, hi = bounds[k], bounds[k + 1]
-        # save times clipped into the segment (sorted, repeats allowed), kept where inside
-        sol = dfx.diffeqsolve(
-            dfx.ODETerm(lambda t, y, args, entered=entered: rates(t, y, entered)[0]), solver,
-            t0=lo, t1=hi, dt0=None, y0=y,
-            saveat=dfx.SaveAt(ts=jnp.concatenate([jnp.clip(ts, lo, hi), hi[None]])),
-            stepsize_controller=controller, max_steps=max_steps, throw=throw,
-        )
-        inside = (ts >= lo) & ((ts < hi) | (k == P))
-        ys = jnp.where(inside[:, None], sol.ys[:-1], ys)
-        y = sol.ys[-1]
-        result = dfx.RESULTS.where(result == dfx.RESULTS.successful, sol.result, result)
-        num_steps = num_steps + sol.stats["num_steps"]
+    width = bounds[1:] - bounds[:-1]
+
+    def segment(tau):
+        return jnp.clip(jnp.floor(tau), 0, P).astype(int)
+
+    def field(tau, y, args):
+        k = segment(tau)
+        t = bounds[k] + (tau - k) * width[k]
+        return width[k] * rates(t, y, jnp.arange(P) < k)[0]
+
+    k_ts = jnp.clip(jnp.searchsorted(bounds, ts, side="right") - 1, 0, P)
+    w_ts = width[k_ts]
+    frac = jnp.where(w_ts > 0, (ts - bounds[k_ts]) / jnp.where(w_ts > 0, w_ts, 1.0), 0.0)
+    taus = k_ts + jnp.clip(frac, 0.0, 1.0)
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(field), solver, t0=0.0, t1=float(P + 1), dt0=None, y0=y0,
+        saveat=dfx.SaveAt(ts=taus),
+        stepsize_controller=dfx.ClipStepSizeController(
+            controller, jump_ts=np.arange(1.0, P + 1.0)),
+        max_steps=max_steps, throw=throw,
+    )
+    ys, result, num_steps = sol.ys, sol.result, sol.stats["num_steps"]
 
     def force_at(t, y):
         _, m, m_dot, v_r = rates(t, y, t >= passage)
