@@ -289,3 +289,15 @@ def test_delay_and_history_closures_agree():
     assert np.all(np.max(np.abs(undeflected - delay), axis=0) > 0.05 * peak)
     with pytest.raises(ValueError, match="closure"):
         simulate_moments(model, ts, 20.0, 0.0, 60.0, R, FZ, closure="frozen")
+
+
+def test_delay_closure_with_input_kink_at_loose_tolerance(transients):
+    """Told where the inputs kink (the end of the slip-angle ramp), the delay closure lands
+    steps there and where that tread reaches the piece edges, and the quartic (whose M_z
+    amplifies edge errors ~1000x) reproduces the PDE to 1e-3 at rtol 1e-5."""
+    p, out = transients
+    _, pde, _, _ = out["quartic", 15.0, 0.01]
+    forces = simulate_moments(MomentLuGre2D(p, LOADS["quartic"]), TS, *_inputs(15.0, -0.1, 0.01),
+                              R, FZ, kinks=0.01, rtol=1e-5, atol=1e-7).forces
+    err = np.max(np.abs(np.asarray(forces) - pde), axis=0) / np.max(np.abs(pde), axis=0)
+    assert np.all(err < 1e-3), err

@@ -94,15 +94,18 @@ online closure cannot land on its switch (it depends on the state), and still ne
 tolerances.
 
 **Accuracy, measured** (`tests/test_moments.py`, `experiments/benchmarks/moments_vs_pde.py`,
-worst of F_x, F_y, M_z relative to its peak, against the PDE at n = 96-128): slip steps from
+worst of F_x, F_y, M_z relative to its peak, against the PDE at n = 64-128): slip steps from
 an undeflected patch, either closure, < 1e-4 at rtol 1e-8 and the closed-form steady state
-to 1e-6; slip-angle ramps over 10 ms (one transit) and 100 ms at 20 m/s, alpha = 4 and
-15 deg: exact closure < 2.2e-4 at rtol 1e-8 for uniform, trapezoidal and quartic loads
-(the frozen online closure errs by 0.20/1.8/20 (10 ms) and 0.46/1.9/3e2 (100 ms) there).
+to 1e-6 (online closure at rtol 1e-12); the delay closure reaches 1e-3 at rtol 1e-4
+(uniform 1.5e-4, trapezoid 3.6e-5) and 1e-5 (quartic 1.3e-4) in 10-16 steps. Slip-angle
+ramps over 10 ms (one transit) and 100 ms at 20 m/s, alpha = 4 and 15 deg: exact closures
+< 2.2e-4 at rtol 1e-8 for uniform, trapezoidal and quartic loads, and the delay closure told
+the ramp's end (`kinks`) < 2e-4 at rtol 1e-5 for the quartic (rtol 1e-8 without it); the
+frozen online closure errs by 0.20/1.8/20 (10 ms) and 0.46/1.9/3e2 (100 ms) there.
 
-State: `(m, z_edge, s)`: moments `m` of shape `(2, P, K)` (P pieces, K = load degree + 2),
-edge deflections `z_edge` of shape `(2, P)` (the right edge of every piece) and the
-travelled distance `s` (in patch lengths).
+State (online closure): `(m, z_edge, s)`: moments `m` (in `basis`) of shape `(2, P, K)`
+(P pieces, K = load degree + 2), edge deflections `z_edge` of shape `(2, P)` (the right
+edge of every piece) and the travelled distance `s` (in patch lengths).
 """
 
 from __future__ import annotations
@@ -176,8 +179,8 @@ def _legendre_tables(K):
     x, w = np.polynomial.legendre.leggauss(K + 1)
     x, w = 0.5 * (x + 1.0), 0.5 * w
     vals = np.stack([np.polynomial.legendre.legval(2 * x - 1, np.eye(K)[k]) for k in range(K)])
-    k, l = np.meshgrid(np.arange(K), np.arange(K), indexing="ij")
-    deriv = np.where((l < k) & ((k - l) % 2 == 1), 2.0 * (2 * l + 1), 0.0)
+    k, j = np.meshgrid(np.arange(K), np.arange(K), indexing="ij")
+    deriv = np.where((j < k) & ((k - j) % 2 == 1), 2.0 * (2 * j + 1), 0.0)
     return x, w, vals, deriv
 
 
@@ -456,7 +459,7 @@ def passage_times(c_of_t, t0, t1, distances, L, nodes: int = 32):
     return jax.vmap(one)(distances)
 
 
-def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, throw):
+def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, throw, kinks=None):
     r"""`simulate_moments` with the delay-state closure (see its docstring).
 
     The edge equations switch on at the passage times $t_p$ (sorted, as the edges are): the
@@ -517,15 +520,24 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
         t = bounds[k] + (tau - k) * width[k]
         return width[k] * rates(t, y, jnp.arange(P) < k)[0]
 
-    k_ts = jnp.clip(jnp.searchsorted(bounds, ts, side="right") - 1, 0, P)
-    w_ts = width[k_ts]
-    frac = jnp.where(w_ts > 0, (ts - bounds[k_ts]) / jnp.where(w_ts > 0, w_ts, 1.0), 0.0)
-    taus = k_ts + jnp.clip(frac, 0.0, 1.0)
+    def to_tau(t):
+        k = jnp.clip(jnp.searchsorted(bounds, t, side="right") - 1, 0, P)
+        w = width[k]
+        frac = jnp.where(w > 0, (t - bounds[k]) / jnp.where(w > 0, w, 1.0), 0.0)
+        return k + jnp.clip(frac, 0.0, 1.0)
+
+    taus = to_tau(ts)
+    jumps = jnp.arange(1.0, P + 1.0)
+    if kinks is not None:
+        # input kinks at T, and their arrival at every edge (s(t) - s(T) = e): land steps there
+        T = jnp.atleast_1d(jnp.asarray(kinks, dtype=float))
+        arrive = jax.vmap(lambda tk: passage_times(lambda t: slip(t)[1], tk, t1, edges, L))(T)
+        kink_taus = jax.lax.stop_gradient(to_tau(jnp.concatenate([T, arrive.ravel()])))
+        jumps = jnp.sort(jnp.concatenate([jumps, kink_taus]))
     sol = dfx.diffeqsolve(
         dfx.ODETerm(field), solver, t0=0.0, t1=float(P + 1), dt0=None, y0=y0,
         saveat=dfx.SaveAt(ts=taus),
-        stepsize_controller=dfx.ClipStepSizeController(
-            controller, jump_ts=np.arange(1.0, P + 1.0)),
+        stepsize_controller=dfx.ClipStepSizeController(controller, jump_ts=jumps),
         max_steps=max_steps, throw=throw,
     )
     ys, result, num_steps = sol.ys, sol.result, sol.stats["num_steps"]
@@ -551,6 +563,7 @@ def simulate_moments(
     z0=None,
     *,
     closure: str = "delay",
+    kinks=None,
     solver=None,
     rtol: float = 1e-8,
     atol: float = 1e-10,
@@ -577,7 +590,9 @@ def simulate_moments(
 
     **Arguments:** as `simulate_tire_2d` (`vx`, `vy`, `omega`, `Fz` constants, samples on
     `ts` or callables of `t`; `r` [m]), plus `z0` (2,), the uniform initial deflection [m]
-    (default 0). `solver` defaults to `Tsit5`. History closure only: `history_solver`,
+    (default 0). `kinks` (delay closure): times where the inputs have a kink or a jump (the
+    end of a ramp); steps are landed on them and on their arrival at every edge, where they
+    kink the edge values. `solver` defaults to `Tsit5`. History closure only: `history_solver`,
     `history_rtol`, `history_atol` (default: those of the moment solve) and
     `history_max_steps`, which bounds the history solve, whose dense output is stored: every
     edge lookup searches it, so a buffer far larger than needed costs time (100 000 slots
@@ -604,7 +619,7 @@ def simulate_moments(
     controller = dfx.PIDController(rtol=rtol, atol=atol)
     if closure == "delay":
         return _simulate_delay(model, ts, (vx_s, vy_s, om_s, fz_s), r, z0, solver, controller,
-                               max_steps, throw)
+                               max_steps, throw, kinks)
     history_solver = solver if history_solver is None else history_solver
     history_controller = dfx.PIDController(
         rtol=rtol if history_rtol is None else history_rtol,
