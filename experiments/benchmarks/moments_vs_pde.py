@@ -24,27 +24,38 @@ wall times are inflated by load.
 
 Run: PYTHONPATH=. python experiments/benchmarks/moments_vs_pde.py [--quick]
 
-Results (quick run, alpha = 4 deg, kappa = 0.05, load average 1.5-1.9 on 2 shared cores;
-`moments_vs_pde_results.jsonl`): ratio wall (CPU), moments closure/rtol/error, PDE grid.
+Results (full run, load average 1.4-3.5 on 2 shared cores; `moments_vs_pde_results.jsonl`):
+ratio wall (CPU), moments closure/rtol/error/wall, PDE grid/solver/error/wall.
 
-  load         scenario   ratio (CPU)    moments                        PDE
-  uniform      step       121  (94)      online 1e-6, 4.1e-4, 0.70 ms n=48 Tsit5, 8.7e-4, 84 ms
-  trapezoidal  step       9.1  (11.6)    delay 1e-4, 3.6e-5, 0.84 ms  n=16 Kvaerno5, 8.9e-4, 7.7 ms
-  quartic      step       9.8  (8.8)     delay 1e-5, 1.3e-4, 0.79 ms  n=16 Tsit5, 1.0e-3, 7.7 ms
-  uniform      ramp 10ms  14.0 (22.4)    delay 1e-4, 2.4e-4, 0.83 ms  n=12 Tsit5, 4.7e-4, 11.5 ms
-  trapezoidal  ramp 10ms  5.9  (6.6)     delay 1e-4, 1.9e-4, 1.88 ms  n=12 Tsit5, 4.6e-4, 11.1 ms
-  quartic      ramp 10ms  6.8  (8.2)     delay 1e-5, 1.7e-4, 1.84 ms  n=12 Tsit5, 1.6e-4, 12.6 ms
-  uniform      ramp 0.1s  24.8 (43.6)    delay 1e-4, 3.3e-4, 1.43 ms  n=12 Tsit5, 8.2e-4, 35.6 ms
-  trapezoidal  ramp 0.1s  8.6  (11.1)    delay 1e-4, 5.9e-5, 3.80 ms  n=12 Tsit5, 4.4e-4, 32.9 ms
-  quartic      ramp 0.1s  4.4  (5.9)     delay 1e-5, 4.2e-4, 4.65 ms  n=12 Tsit5, 1.5e-4, 20.3 ms
+  alpha load   scenario   ratio (CPU)  moments                        PDE
+  4  uniform   step       290  (285)   delay 1e-4, 1.5e-4, 0.36 ms    n=48 Tsit5, 8.7e-4, 105 ms
+  4  trapez.   step       12.8 (12.8)  delay 1e-4, 3.6e-5, 0.56 ms    n=16 Tsit5, 9.4e-4, 7.2 ms
+  4  quartic   step       5.2  (5.2)   delay 1e-5, 1.3e-4, 0.92 ms    n=16 Tsit5, 1.0e-3, 4.8 ms
+  4  uniform   ramp 10ms  11.6 (11.5)  delay 1e-4, 2.4e-4, 1.06 ms    n=12 Tsit5, 4.7e-4, 12.4 ms
+  4  trapez.   ramp 10ms  9.7  (9.7)   delay 1e-4, 1.9e-4, 1.30 ms    n=12 Tsit5, 4.6e-4, 12.7 ms
+  4  quartic   ramp 10ms  4.7  (4.7)   delay 1e-5, 1.7e-4, 2.58 ms    n=12 Tsit5, 1.6e-4, 12.1 ms
+  4  uniform   ramp 0.1s  23.1 (42.8)  delay 1e-4, 3.3e-4, 1.48 ms    n=12 Tsit5, 8.2e-4, 34.3 ms
+  4  trapez.   ramp 0.1s  12.0 (11.9)  delay 1e-4, 5.9e-5, 3.29 ms    n=12 Tsit5, 4.4e-4, 39.4 ms
+  4  quartic   ramp 0.1s  7.7  (9.1)   delay 1e-5, 4.2e-4, 4.29 ms    n=12 Tsit5, 1.5e-4, 32.9 ms
+  15 uniform   step       15.5 (13.0)  online 1e-5, 1.1e-4, 0.65 ms   n=24 Kvaerno5, 5.4e-4, 10.1 ms
+  15 trapez.   step       9.0  (10.3)  delay 1e-5, 1.7e-4, 1.15 ms    n=24 Kvaerno5, 5.3e-4, 10.3 ms
+  15 quartic   step       5.8  (7.1)   delay 1e-5, 1.1e-4, 1.08 ms    n=16 Kvaerno5, 6.0e-4, 6.2 ms
+  15 uniform   ramp 10ms  7.2  (11.7)  delay 1e-5, 3.4e-4, 1.15 ms    n=12 Tsit5, 3.1e-4, 8.3 ms
+  15 trapez.   ramp 10ms  4.8  (4.7)   delay 1e-5, 3.2e-4, 2.57 ms    n=12 Tsit5, 2.7e-4, 12.3 ms
+  15 quartic   ramp 10ms  3.1  (3.3)   delay 1e-5, 1.9e-4, 2.88 ms    n=12 Tsit5, 1.8e-4, 9.1 ms
+  15 uniform   ramp 0.1s  13.8 (25.5)  delay 1e-5, 2.4e-4, 2.13 ms    n=12 Tsit5, 1.4e-4, 29.4 ms
+  15 trapez.   ramp 0.1s  5.1  (5.4)   delay 1e-4, 8.0e-4, 5.87 ms    n=12 Tsit5, 2.7e-4, 29.7 ms
+  15 quartic   ramp 0.1s  4.0  (4.8)   delay 1e-5, 5.9e-4, 7.23 ms    n=12 Tsit5, 6.5e-5, 29.3 ms
 
-Compile: moments 2.7-6.0 s, PDE 1.9-4.0 s. The issue's 50x is met only where the PDE needs
-a fine grid (uniform load: n = 48). For the loads that vanish at the patch ends
-the PDE reaches 1e-3 at n = 12-16 (8-35 ms); the moments take 10-25 steps at rtol 1e-4 to
-1e-5, but a call still costs 0.8-4.7 ms (~0.1 ms dispatch, tens of microseconds per
-step for the edge states and inputs at the entry times). Before the Legendre basis and the
-delay closure (same script, load ~4): steps 4.3x (trapezoidal) and 5.8x (quartic) at
-rtol 1e-8, ramps 1.0-12x.
+Compile: moments 2.9-7.6 s, PDE 1.9-5.2 s. Run to run the small wall times move by up to
+2x with the load (a quick run at load ~1.7 gave 9.8x for the quartic step, 9.1x for the
+trapezoid). The issue's 50x is met only where the PDE needs a fine grid (uniform load at
+4 deg: n = 48). For the loads that vanish at the patch ends the PDE reaches 1e-3 at
+n = 12-24 (5-40 ms); the moments take 10-25 steps at rtol 1e-4 to 1e-5, but a call still
+costs 0.4-7 ms (~0.1 ms dispatch, tens of microseconds per step for the edge states and
+the inputs at the entry times). Before the Legendre basis and the delay closure (same
+script, quick, load ~4): steps 4.3x (trapezoidal) and 5.8x (quartic) at rtol 1e-8, ramps
+1.0-12x.
 """
 
 import json
