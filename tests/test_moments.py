@@ -56,7 +56,7 @@ def transients():
         for alpha_deg, kappa, ramp in ((4.0, 0.05, 0.0), (15.0, -0.1, 0.0), (15.0, -0.1, 0.01)):
             args = (jnp.asarray(alpha_deg), jnp.asarray(kappa), jnp.asarray(ramp))
             out[name, alpha_deg, ramp] = (
-                np.asarray(_run(mom, *args, 1e-11)) if ramp == 0.0 else None,
+                np.asarray(_run(mom, *args, 1e-12)) if ramp == 0.0 else None,
                 np.asarray(_run(pde, *args, 1e-8)),
                 np.asarray(_run(mom, *args, 1e-8, exact=True)),
                 tuple(f(0.0) for f in _inputs(alpha_deg, kappa)),
@@ -132,31 +132,70 @@ def test_densities_share_the_sliding_steady_state():
             assert np.all(np.sign(mu) == np.sign(sliding))
 
 
-def test_moments_derivative_matches_pde_moments():
-    """At an arbitrary smooth state with known edge values, eq. 41 equals the moments of the
-    PDE right-hand side (integration by parts done right)."""
+def _basis_moments(mom, f, nq=40):
+    """Moments of the function f(xi) in `mom.basis` by Gauss quadrature per piece, (P, K)."""
+    from numpy.polynomial import legendre as npleg
+
+    gx, gw = npleg.leggauss(nq)
+    K = mom.n_moments
+    out = []
+    for a, b in zip(np.asarray(mom.edges[:-1]), np.asarray(mom.edges[1:])):
+        h = b - a
+        x, w = 0.5 * (gx + 1), 0.5 * gw
+        xi = a + h * x
+        if mom.basis == "monomial":
+            phi = np.stack([h * xi**k for k in range(K)])
+        else:
+            phi = np.stack([npleg.legval(2 * x - 1, np.eye(K)[k]) for k in range(K)])
+        out.append(phi @ (w * f(xi)))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("basis", ["monomial", "legendre"])
+@pytest.mark.parametrize("load", [QuarticLoad(), TrapezoidalLoad(0.3)])
+def test_moments_derivative_matches_pde_moments(basis, load):
+    """At an arbitrary smooth state with known edge values, eq. 41 (in either basis) equals
+    the moments of the PDE right-hand side (integration by parts done right), and the forces
+    and moment of eqs. 46, 48 equal the PDE's quadrature of eqs. 32-33 at that state."""
     p = lugre2d_bakker1987()
-    load = QuarticLoad()
-    mom = MomentLuGre2D(p, load)
+    mom = MomentLuGre2D(p, load, basis=basis)
     pde = DistributedLuGre2D(p, load, n=40)
+    from vehsim.tire.distributed import interpolation_matrix
+
     xi = np.asarray(pde.nodes / p.L)
     z = jnp.asarray(np.stack([0.01 * xi * (1 - 0.3 * xi), -0.02 * np.sin(2 * xi)]))
     v_r, c = jnp.array([0.8, -1.2]), jnp.asarray(19.0)
     zdot = pde.derivative(z, v_r, c)
-    gx, gw = np.polynomial.legendre.leggauss(40)
-    xs, ws = 0.5 * (gx + 1), 0.5 * gw
-    from vehsim.tire.distributed import interpolation_matrix
 
-    P = interpolation_matrix(pde.n, xs)
-    K = mom.n_moments
-    m = jnp.asarray([[[ws @ (P @ np.asarray(z[i]) * xs**k) for k in range(K)]] for i in range(2)])
-    # the edge state carries the PDE's own trailing-edge deflection z(t, 1)
-    state = (m, z[:, -1:], jnp.asarray(5.0))
+    def interp(values):
+        return lambda x: interpolation_matrix(pde.n, x) @ np.asarray(values)
+
+    m = jnp.asarray(np.stack([_basis_moments(mom, interp(z[i])) for i in range(2)]))
+    # the edge states carry the PDE's own deflections at the piece edges
+    z_edge = jnp.asarray(np.stack([interp(z[i])(np.asarray(mom.edges[1:])) for i in range(2)]))
+    state = (m, z_edge, jnp.asarray(5.0))
     m_dot = mom.derivative(state, v_r, c)[0]
-    k = np.arange(K)
-    expected = jnp.asarray([[[ws @ (P @ np.asarray(zdot[i]) * xs**kk) for kk in k]]
-                            for i in range(2)])
-    np.testing.assert_allclose(m_dot, expected, rtol=1e-9, atol=1e-12)
+    expected = np.stack([_basis_moments(mom, interp(zdot[i])) for i in range(2)])
+    scale = np.max(np.abs(expected))
+    np.testing.assert_allclose(m_dot, expected, rtol=1e-8, atol=1e-11 * scale)
+    # a smooth state (not a polynomial): the n = 40 PDE quadrature is exact to rounding
+    np.testing.assert_allclose(mom.mu(state, v_r, c), pde.mu(z, v_r, c), rtol=1e-9)
+
+
+def test_legendre_and_monomial_bases_agree_along_transient(transients):
+    """The same moment system in two bases: a slip step with the report's monomial moments
+    and with per-piece Legendre moments gives the same F_x, F_y, M_z to solver tolerance."""
+    p, out = transients
+    load = LOADS["trapezoidal"]
+    mono = np.asarray(_run(MomentLuGre2D(p, load, basis="monomial"), jnp.asarray(15.0),
+                           jnp.asarray(-0.1), jnp.asarray(0.0), 1e-12))
+    leg = out["trapezoidal", 15.0, 0.0][0]
+    np.testing.assert_allclose(leg, mono, rtol=0, atol=1e-6 * np.max(np.abs(mono)))
+
+
+def test_basis_is_checked():
+    with pytest.raises(ValueError, match="MomentLuGre2D.basis"):
+        MomentLuGre2D(lugre2d_bakker1987(), basis="chebyshev")
 
 
 def test_piecewise_coefficients_reproduce_loads():
@@ -225,3 +264,40 @@ def test_exact_moments_gradient_matches_fd():
 
     # eps = 1e-4: below it the adaptive solves' tolerance noise dominates the differences
     assert_grad_matches_fd(fy, jnp.array([0.05, 1.0]), rtol=1e-4, eps=1e-4)
+
+
+def test_delay_and_history_closures_agree():
+    """The two exact closures of `simulate_moments` (entry times as ODE states, and the dense
+    input history searched by Newton) are different computations of the same edge values:
+    along a slip-angle ramp from a uniformly deflected patch (old tread leaving, which makes
+    the edge values jump at the first passage) they give the same F_x, F_y, M_z."""
+    p = lugre2d_bakker1987()
+    model = MomentLuGre2D(p, TrapezoidalLoad(0.25))
+    ts = jnp.linspace(0.0, 0.014, 15)
+    z0 = jnp.array([2e-3, -1e-3])
+
+    @eqx.filter_jit
+    def run(closure, z0):
+        return simulate_moments(model, ts, *_inputs(8.0, 0.03, 0.008), R, FZ, z0,
+                                closure=closure, rtol=1e-9, atol=1e-11).forces
+
+    delay, history = np.asarray(run("delay", z0)), np.asarray(run("history", z0))
+    peak = np.max(np.abs(history), axis=0)
+    np.testing.assert_allclose(delay, history, rtol=0, atol=1e-6 * np.max(peak))
+    # the initial deflection matters: the undeflected start differs by a lot
+    undeflected = np.asarray(run("delay", jnp.zeros(2)))
+    assert np.all(np.max(np.abs(undeflected - delay), axis=0) > 0.05 * peak)
+    with pytest.raises(ValueError, match="closure"):
+        simulate_moments(model, ts, 20.0, 0.0, 60.0, R, FZ, closure="frozen")
+
+
+def test_delay_closure_with_input_kink_at_loose_tolerance(transients):
+    """Told where the inputs kink (the end of the slip-angle ramp), the delay closure lands
+    steps there and where that tread reaches the piece edges, and the quartic (whose M_z
+    amplifies edge errors ~1000x) reproduces the PDE to 1e-3 at rtol 1e-5."""
+    p, out = transients
+    _, pde, _, _ = out["quartic", 15.0, 0.01]
+    forces = simulate_moments(MomentLuGre2D(p, LOADS["quartic"]), TS, *_inputs(15.0, -0.1, 0.01),
+                              R, FZ, kinks=0.01, rtol=1e-5, atol=1e-7).forces
+    err = np.max(np.abs(np.asarray(forces) - pde), axis=0) / np.max(np.abs(pde), axis=0)
+    assert np.all(err < 1e-3), err

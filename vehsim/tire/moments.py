@@ -18,6 +18,21 @@ $$\frac{M_z}{F_nL} = \sum_j\sum_k c^{(j)}_k\Bigl(\sigma_{0y}
 So moments up to degree $m+1$ per piece are needed, and the recursion is closed *except*
 for the boundary values $z_i(t, e_j)$ at the piece edges.
 
+**Basis.** The same system can be written against any basis of the polynomials of degree
+$< K$ on each piece (`basis_tables`); only the linear maps change, and exactness does not.
+The default is the shifted Legendre polynomials of each piece,
+$\mu^{(j)}_{k,i} = \int_0^1 z_i(t, e_j + h_jx)\tilde P_k(x)\,dx$, $h_j = e_{j+1}-e_j$:
+eq. 41 becomes
+$\dot\mu_k = v_r\delta_{k0} - C_0\mu_k - \frac{c}{Lh}\bigl(z(t,e_{j+1}) - (-1)^kz(t,e_j)
+- \sum_{l<k,\ k-l\ \text{odd}}2(2l+1)\mu_l\bigr)$ (from $\tilde P_k(1) = 1$,
+$\tilde P_k(0) = (-1)^k$ and $\tilde P_k'$ in the basis), and eqs. 46/48 take the Legendre
+coefficients of $q$ and of $q(\tfrac12-\xi)$ per piece, $O(1)$ where the monomial
+coefficients alternate ($30, -60, 30$ for the quartic). `basis="monomial"` is eq. 41
+verbatim. Both agree to solver tolerance; the Legendre form lowers the quartic's error at a
+given tolerance several-fold (5.8e-4 to 7e-5 at rtol 1e-8 with the online closure), but the
+amplification of edge errors below is a property of the truncated system, the same in every
+basis.
+
 **The boundary terms (eqs. 41-42).** At the leading edge $z(t,0) = 0$. At an edge $e>0$ (an
 interface or the trailing edge $e=1$) the value is tracked by a characteristic argument. The
 PDE is transport at speed $c/L$ of a point-model ODE whose coefficients do not depend on
@@ -30,20 +45,28 @@ $$\dot z_e = v_r - C_0\,z_e - H(s - e)\,\dot t_e\,e^{-\int_{t_e}^tC_0}\,v_r(t_e)
 whose last term is the deflection-free tread arriving from the leading edge. Before the
 first passage ($s < e$) the tread at $e$ was in the patch at $t = 0$; for a uniform initial
 deflection (zero, or a locked wheel's state) it obeys the point model, which is the same
-equation without the last term. We carry $z_e$ for every edge $e > 0$ and $s$ as states.
+equation without the last term.
 
 The only term that is not a function of the current state and inputs is the *delayed*
 arrival term (with $C_0 = 0$ the trailing edge obeys $\dot z(t,1) = v_r(t) - v_r(t_e)$, a
 delay equation), so no finite state closes it for arbitrary inputs. But the edge values
 are functionals of the *input history alone* (the coefficients $v_r$, $C_0$, $c$ do not
-depend on $z$), which gives two ways to close eqs. 41-42:
+depend on $z$), which gives these closures of eqs. 41-42:
 
-- **Exact, for inputs known in advance** (`simulate_moments`, the transients of Fig. 17,
-  a recorded manoeuvre): a first solve integrates five history states (tread travelled,
-  $\int C_0$, and the point model from rest) with dense output, and `TransitHistory`
-  returns the exact $z_i(t, e)$ at every edge from them and the entry time $t_e$. The
-  moment system then reproduces the PDE for *any* input history and any piecewise
-  polynomial load, up to solver tolerance.
+- **Exact, delay states** (`simulate_moments(closure="delay")`, the default, for inputs
+  known in advance: the transients of Fig. 17, a recorded manoeuvre). The entry time obeys
+  $\dot t_e = c(t)/c(t_e)$ (from $s(t) - s(t_e) = e$), and the inputs can be evaluated at
+  $t_e$, so $t_e$, $D_e = \int_{t_e}^tC_0$ ($\dot D_e = C_0(t) - \dot t_eC_0(t_e)$) and
+  $z_e$ with its exact edge equation are ODE states beside the moments, switched on at the
+  first passage $t_p$ ($s(t_p) = e$, found beforehand by Newton on a Gauss quadrature of
+  $c/L$). The moment system then reproduces the PDE for any rolling input history up to
+  solver tolerance. Needs $c(t_e) > 0$: tread that entered while the wheel was locked
+  needs the history closure.
+- **Exact, history** (`closure="history"`): a first solve integrates five history states
+  (tread travelled, $\int C_0$, and the point model from rest) with dense output, and
+  `TransitHistory` returns the exact $z_i(t, e)$ at every edge from them and the entry
+  time found by safeguarded Newton (locked phases included). Each right-hand side then
+  searches the dense output: 3-10x slower than the delay states.
 - **Online** (this class as an `AbstractTire` inside a vehicle, where the inputs depend on
   the state): we carry $z_e$ for every edge and $s$ as states, with the arrival term
   evaluated with the inputs frozen over the transit ($\dot t_e = 1$,
@@ -54,26 +77,36 @@ depend on $z$), which gives two ways to close eqs. 41-42:
   $\varphi(x) = (1-e^{-x})/x$, the closed form. Otherwise it errs through the arrival
   term, damped by $e^{-C_0eL/c}$.
 
-Loads that vanish at the trailing edge (quartic, trapezoid) do not escape this: the force
-combination $\sum_kc_km_k$ has no trailing-edge term, but the chain $q\to q'\to\dots\to$ const
-of lower moments it needs ends in $m_0$, whose equation (42) carries $z(t,1)$. The moment
-system is also badly conditioned in the edge values: the interior of the PDE never depends
-on the outflow value $z(t,1)$, but the moments do, and an error $\delta$ in it reaches $m_p$
-with steady gain $\sum_{j\le p}\frac{p!}{j!}\bigl(\frac{c}{LC_0}\bigr)^{p-j+1}$ (~100 for
-$p = 5$ at $c/(LC_0)\approx0.8$), which the alternating load coefficients
-($\sum|c_k|\approx100$ for the quartic) amplify again; hence the exact closure, and tight
-tolerances (rtol 1e-8) for the quartic.
+**Conditioning, and the kink at first passage.** Loads that vanish at the trailing edge
+(quartic, trapezoid) do not escape the edge values: the force combination has no
+trailing-edge term, but the chain $q\to q'\to\dots\to$ const of lower moments it needs ends
+in $m_0$, whose equation (42) carries $z(t,1)$. The interior of the PDE never depends on the
+outflow value $z(t,1)$, but the truncated moment system does: an error $\delta$ in it
+reaches $m_p$ with steady gain $\sum_{j\le p}\frac{p!}{j!}\bigl(\frac{c}{LC_0}\bigr)^{p-j+1}$,
+and for the quartic at 4 deg slip angle a relative error in $z(t,1)$ reaches $M_z$
+(relative) amplified about 1000 times (trapezoid 30, uniform 5), in any basis. The edge
+values are continuous but kink where fresh tread first reaches the edge ($t = t_p$); a step
+across that kink leaves a local error of the order of the step in $z_e$, which this gain
+turned into the dominant error (the quartic's $M_z$ needed rtol 1e-8). Landing a step on
+$t_p$ (a `jump_ts` of the solver, with the switch written in $t$ so that it falls exactly
+between steps) removes it: the quartic then reaches 1.4e-4 at rtol 1e-5 in 16 steps. The
+online closure cannot land on its switch (it depends on the state), and still needs tight
+tolerances.
 
 **Accuracy, measured** (`tests/test_moments.py`, `experiments/benchmarks/moments_vs_pde.py`,
-worst of F_x, F_y, M_z relative to its peak, against the PDE at n = 96-128): slip steps from
+worst of F_x, F_y, M_z relative to its peak, against the PDE at n = 64-128): slip steps from
 an undeflected patch, either closure, < 1e-4 at rtol 1e-8 and the closed-form steady state
-to 1e-6; slip-angle ramps over 10 ms (one transit) and 100 ms at 20 m/s, alpha = 4 and
-15 deg: exact closure < 2.2e-4 at rtol 1e-8 for uniform, trapezoidal and quartic loads
-(the frozen online closure errs by 0.20/1.8/20 (10 ms) and 0.46/1.9/3e2 (100 ms) there).
+to 1e-6 (online closure at rtol 1e-12); the delay closure reaches 1e-3 at rtol 1e-4
+(uniform 1.5e-4, trapezoid 3.6e-5) and 1e-5 (quartic 1.3e-4) in 10-16 steps. Slip-angle
+ramps over 10 ms (one transit) and 100 ms at 20 m/s, alpha = 4 and 15 deg: exact closures
+< 2.2e-4 at rtol 1e-8 for uniform, trapezoidal and quartic loads, and the delay closure told
+the ramp's end (`kinks`) < 8e-4 at rtol 1e-5 for every load (the quartic needs rtol 1e-8
+without it); the frozen online closure errs by 0.20/1.8/20 (10 ms) and 0.46/1.9/3e2
+(100 ms) there.
 
-State: `(m, z_edge, s)`: moments `m` of shape `(2, P, K)` (P pieces, K = load degree + 2),
-edge deflections `z_edge` of shape `(2, P)` (the right edge of every piece) and the
-travelled distance `s` (in patch lengths).
+State (online closure): `(m, z_edge, s)`: moments `m` (in `basis`) of shape `(2, P, K)`
+(P pieces, K = load degree + 2), edge deflections `z_edge` of shape `(2, P)` (the right
+edge of every piece) and the travelled distance `s` (in patch lengths).
 """
 
 from __future__ import annotations
@@ -136,10 +169,74 @@ def _powers(x, K):
     return jnp.stack([jnp.ones_like(x)] + [x**k for k in range(1, K)], axis=-1)
 
 
+BASES = ("legendre", "monomial")
+
+
+def _legendre_tables(K):
+    r"""Shifted Legendre polynomials $\tilde P_k(x) = P_k(2x-1)$ on $[0, 1]$, $k < K$: Gauss
+    nodes and weights on $[0, 1]$ exact to degree $2K+1$, the values $\tilde P_k(x_g)$
+    (K, G), and the derivative map $\tilde P_k' = \sum_{l<k,\ k-l\ \text{odd}}
+    2(2l+1)\tilde P_l$ as a strictly lower-triangular matrix (K, K)."""
+    x, w = np.polynomial.legendre.leggauss(K + 1)
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    vals = np.stack([np.polynomial.legendre.legval(2 * x - 1, np.eye(K)[k]) for k in range(K)])
+    k, j = np.meshgrid(np.arange(K), np.arange(K), indexing="ij")
+    deriv = np.where((j < k) & ((k - j) % 2 == 1), 2.0 * (2 * j + 1), 0.0)
+    return x, w, vals, deriv
+
+
+def basis_tables(edges, coeffs, K: int, basis: str):
+    r"""The moment system of eqs. 41-42 and 46/48 in `basis`, as arrays per piece.
+
+    For moments $\mu_k$ of $z$ against basis functions $\phi^{(j)}_k$ on piece $j$, eq. 31a
+    integrated by parts gives, in both bases,
+    $$\dot\mu = v_r\,s - C_0\mu - \frac cL\bigl(z(t,b)\,\rho - z(t,a)\,\lambda\bigr)
+      + \frac cL\,T\mu,\qquad \frac{F}{F_n} = w_F\cdot(\sigma_0\mu + \sigma_1\dot\mu)
+      + \sigma_2v_r,$$
+    with $s_k = \int\phi_k$, $\rho_k = \phi_k(b)$, $\lambda_k = \phi_k(a)$, $T$ the map of
+    $\phi_k'$ onto the basis, $w_F$ the coefficients of $q$ and $w_M$ those of
+    $q(\tfrac12-\xi)$ (for $M_z$). **Monomial** (eqs. 41-42 verbatim): $\phi_k = \xi^k$,
+    $s_k = (b^{k+1}-a^{k+1})/(k+1)$, $\rho_k = b^k$, $\lambda_k = a^k$, $T_{k,k-1} = k$.
+    **Legendre**: $\phi_k = \tilde P_k((\xi-a)/h)/h$, $h = b - a$, so
+    $\mu_k = \int_0^1 z(a+hx)\tilde P_k(x)\,dx$, $s_k = \delta_{k0}$, $\rho_k = 1/h$,
+    $\lambda_k = (-1)^k/h$, $T = $ (derivative map)$/h$; $w_{F,k} = h(2k+1)\int_0^1
+    q(a+hx)\tilde P_k\,dx$ (exact Gauss projection of the polynomial load).
+
+    **Returns:** `(src, right, left, transport, w_force, w_moment)`, shapes
+    `(P,K), (P,K), (P,K), (P,K,K), (P,K), (P,K)`.
+    """
+    a, b = edges[:-1], edges[1:]
+    P, m1 = coeffs.shape
+    if basis == "monomial":
+        pa, pb = _powers(a, K + 1), _powers(b, K + 1)
+        src = (pb[:, 1:] - pa[:, 1:]) / jnp.arange(1, K + 1)[None, :]
+        shift = np.diag(np.arange(1.0, K), -1)
+        transport = jnp.broadcast_to(jnp.asarray(shift), (P, K, K))
+        zero = jnp.zeros((P, K - m1))
+        w_force = jnp.concatenate([coeffs, zero], axis=1)
+        prev = jnp.concatenate([jnp.zeros((P, 1)), coeffs, zero[:, 1:]], axis=1)
+        w_moment = 0.5 * w_force - prev
+        return src, pb[:, :K], pa[:, :K], transport, w_force, w_moment
+    x, w, vals, deriv = _legendre_tables(K)
+    h = b - a
+    xi = a[:, None] + h[:, None] * jnp.asarray(x)[None, :]  # (P, G)
+    q = jnp.sum(coeffs[:, None, :] * _powers(xi, m1), axis=-1)
+    proj = jnp.asarray((2 * np.arange(K) + 1)[:, None] * vals * w[None, :])  # (K, G)
+    w_force = h[:, None] * (q @ proj.T)
+    w_moment = h[:, None] * ((q * (0.5 - xi)) @ proj.T)
+    ones = jnp.ones((P, K))
+    src = ones * jnp.asarray(np.eye(K)[0])[None, :]
+    right = ones / h[:, None]
+    left = jnp.asarray((-1.0) ** np.arange(K))[None, :] / h[:, None]
+    transport = jnp.asarray(deriv)[None, :, :] / h[:, None, None]
+    return src, right, left, transport, w_force, w_moment
+
+
 class MomentLuGre2D(AbstractPatchLuGre2D):
     r"""Method-of-moments model of the distributed 2D LuGre tire (eqs. 39-48).
 
-    See the module docstring for the equations and for when the moment system is exact.
+    See the module docstring for the equations, the basis, and when the moment system is
+    exact.
 
     **Arguments:**
 
@@ -147,6 +244,10 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     - `load`: normalised load shape (default uniform); polynomial and trapezoidal loads are
       represented exactly.
     - `degree`: polynomial degree per piece for other loads (see `piecewise_coefficients`).
+    - `basis`: `"legendre"` (default; shifted Legendre moments per piece, well conditioned)
+      or `"monomial"` (the report's $\int z\xi^p$ of eq. 39). The same moment system in two
+      bases (`basis_tables`): both are exact; they differ in rounding and in how the
+      solver's error control sees the state.
     """
 
     params: LuGre2DParams
@@ -154,12 +255,22 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     edges: Float[Array, " P1"]
     coeffs: Float[Array, "P K"]
     lever: Float[Array, ""]
+    src: Float[Array, "P K"]
+    right: Float[Array, "P K"]
+    left: Float[Array, "P K"]
+    transport: Float[Array, "P K K"]
+    w_force: Float[Array, "P K"]
+    w_moment: Float[Array, "P K"]
     n_moments: int = eqx.field(static=True)
+    basis: str = eqx.field(static=True)
 
     def __init__(self, params: LuGre2DParams, load: AbstractLoadDistribution | None = None,
-                 degree: int | None = None):
+                 degree: int | None = None, basis: str = "legendre"):
+        if basis not in BASES:
+            raise ValueError(f"MomentLuGre2D.basis must be one of {BASES}, got {basis!r}")
         self.params = params
         self.load = UniformLoad() if load is None else load
+        self.basis = basis
         self.edges, self.coeffs = piecewise_coefficients(self.load, degree)
         self.n_moments = int(self.coeffs.shape[1]) + 1
         # int_0^1 q (1/2 - xi) dxi from the piece coefficients (exact, differentiable).
@@ -167,6 +278,8 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
         a, b = self.edges[:-1], self.edges[1:]
         ints = (_powers(b, K + 2)[:, 1:] - _powers(a, K + 2)[:, 1:]) / jnp.arange(1, K + 2)[None, :]
         self.lever = jnp.sum(self.coeffs * (0.5 * ints[:, :K] - ints[:, 1:]))
+        (self.src, self.right, self.left, self.transport, self.w_force,
+         self.w_moment) = basis_tables(self.edges, self.coeffs, self.n_moments, basis)
 
     @property
     def pieces(self) -> int:
@@ -175,34 +288,25 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     def init_state(self, z0=None):
         r"""State of the uniform deflection `z0` (default 0), shape (2,) [m]."""
         z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
-        ints = self._ints(self.n_moments)[2]
         z_edge = jnp.broadcast_to(z0[:, None], (2, self.pieces))
-        return (z0[:, None, None] * ints[None, :, :], z_edge, jnp.zeros(()))
+        return (z0[:, None, None] * self.src[None, :, :], z_edge, jnp.zeros(()))
 
     def edge_values(self, state):
         r"""$z_i(t, e_j)$ at every piece edge, shape `(2, P+1)` ($z = 0$ at the leading edge)."""
         z_edge = state[1]
         return jnp.concatenate([jnp.zeros_like(z_edge[:, :1]), z_edge], axis=1)
 
-    def _ints(self, K):
-        a, b = self.edges[:-1], self.edges[1:]
-        pa, pb = _powers(a, K + 1), _powers(b, K + 1)
-        return pa, pb, (pb[:, 1:] - pa[:, 1:]) / jnp.arange(1, K + 1)[None, :]
-
     def moment_rates(self, m, zedge, v_r, c):
-        r"""Eqs. 41-42 for moments `m` (2, P, K) given the deflections at every piece edge,
-        `zedge` (2, P+1) (leading edge first)."""
-        K = self.n_moments
+        r"""Eqs. 41-42 (in `self.basis`, `basis_tables`) for moments `m` (2, P, K) given the
+        deflections at every piece edge, `zedge` (2, P+1) (leading edge first)."""
         C0 = decay_rates(self.params, v_r)
-        pa, pb, ints = self._ints(K)
-        boundary = zedge[:, 1:, None] * pb[None, :, :K] - zedge[:, :-1, None] * pa[None, :, :K]
-        p = jnp.arange(K)
-        lower = jnp.concatenate([jnp.zeros_like(m[..., :1]), m[..., :-1]], axis=-1)
+        boundary = (zedge[:, 1:, None] * self.right[None, :, :]
+                    - zedge[:, :-1, None] * self.left[None, :, :])
+        lower = jnp.einsum("jkl,ijl->ijk", self.transport, m)
         return (
-            v_r[:, None, None] * ints[None, :, :]
+            v_r[:, None, None] * self.src[None, :, :]
             - C0[:, None, None] * m
-            - (c / self.params.L) * boundary
-            + (c / self.params.L) * p[None, None, :] * lower
+            + (c / self.params.L) * (lower - boundary)
         )
 
     def derivative(self, state, v_r, c):
@@ -223,11 +327,9 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     def mu_from_moments(self, m, m_dot, v_r):
         r"""$(F_x/F_n, F_y/F_n, M_z/(F_nL))$ from the moments and their rates (eqs. 46, 48)."""
         p = self.params
-        K = self.n_moments
         agg = p.sigma0[:, None, None] * m + p.sigma1[:, None, None] * m_dot  # (2, P, K)
-        f = jnp.sum(self.coeffs[None, :, :] * agg[:, :, : K - 1], axis=(1, 2)) + p.sigma2 * v_r
-        lever_terms = 0.5 * agg[1, :, : K - 1] - agg[1, :, 1:]
-        mz = jnp.sum(self.coeffs * lever_terms) + p.sigma2[1] * v_r[1] * self.lever
+        f = jnp.sum(self.w_force[None, :, :] * agg, axis=(1, 2)) + p.sigma2 * v_r
+        mz = jnp.sum(self.w_moment * agg[1]) + p.sigma2[1] * v_r[1] * self.lever
         return jnp.stack([f[0], f[1], mz])
 
     def mu(self, state, v_r, c):
@@ -236,9 +338,7 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
 
     def mean_deflection(self, state):
         r"""$\bar z_i = \int_0^1 z_i q\,d\xi$ (eq. 20 per axis) [m]."""
-        K = self.n_moments
-        return jnp.sum(self.coeffs[None, :, :] * state[0][:, :, : K - 1], axis=(1, 2))
-
+        return jnp.sum(self.w_force[None, :, :] * state[0], axis=(1, 2))
 
 
 class TransitHistory(eqx.Module):
@@ -325,6 +425,134 @@ class TransitHistory(eqx.Module):
         return jax.vmap(one, out_axes=1)(edges)
 
 
+CLOSURES = ("delay", "history")
+
+
+def passage_times(c_of_t, t0, t1, distances, L, nodes: int = 32):
+    r"""First times $t_p\in[t_0, t_1]$ with $\int_{t_0}^{t_p}c/L = $ `distances` (P,), by Newton
+    on a `nodes`-point Gauss-Legendre quadrature of the transport speed; $t_1$ where the
+    tread has not travelled that far by $t_1$. The iterations see no tangents; one last
+    Newton step outside them gives the implicit-function gradient."""
+    import jax
+    from jax import lax
+
+    gx, gw = np.polynomial.legendre.leggauss(nodes)
+    gx, gw = jnp.asarray(0.5 * (gx + 1.0)), jnp.asarray(0.5 * gw)
+
+    def travelled(t):
+        tau = t0 + (t - t0) * gx
+        return (t - t0) * jnp.sum(gw * jax.vmap(c_of_t)(tau)) / L
+
+    def rate(t):
+        return c_of_t(t) / L
+
+    def one(d):
+        r0 = lax.stop_gradient(rate(t0))
+        t = jnp.clip(t0 + d / jnp.where(r0 > 0, r0, 1.0), t0, t1)
+        for _ in range(8):
+            r = lax.stop_gradient(rate(t))
+            f = lax.stop_gradient(travelled(t) - d)
+            t = lax.stop_gradient(jnp.clip(t - f / jnp.where(r > 0, r, jnp.inf), t0, t1))
+        r = rate(t)
+        t = t - (travelled(t) - d) / jnp.where(r > 0, r, 1.0)
+        return jnp.where(lax.stop_gradient(travelled(t1)) >= d, t, t1)
+
+    return jax.vmap(one)(distances)
+
+
+def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, throw, kinks=None):
+    r"""`simulate_moments` with the delay-state closure (see its docstring).
+
+    The edge equations switch on at the passage times $t_p$ (sorted, as the edges are): the
+    solve is split there into $P + 1$ segments with a fixed set of edges reached in each, so
+    the switch falls between steps and its gradient (through $t_p$, e.g. in the wheel speed)
+    comes from the segment bounds."""
+    import diffrax as dfx
+    import jax
+
+    from .lugre2d import Tire2DSolution, relative_velocity_2d
+
+    vx_s, vy_s, om_s, fz_s = signals
+    L = model.params.L
+    P, K = model.pieces, model.n_moments
+    edges = model.edges[1:]
+    t0, t1 = ts[0], ts[-1]
+    sizes = np.cumsum([2 * P * K, 2 * P, 2 * P])
+
+    def slip(t):
+        return (relative_velocity_2d(vx_s(t), vy_s(t), om_s(t), r), jnp.abs(om_s(t) * r))
+
+    passage = passage_times(lambda t: slip(t)[1], t0, t1, edges, L)
+
+    def unpack(y):
+        m, ye, D, te = jnp.split(y, sizes)
+        return m.reshape(2, P, K), ye.reshape(2, P), D.reshape(2, P), te
+
+    def rates(t, y, entered):
+        m, ye, D, te = unpack(y)
+        v_r, c = slip(t)
+        C0 = decay_rates(model.params, v_r)
+        v_re, c_e = jax.vmap(slip)(te)  # inputs when the tread now at each edge entered
+        C0e = jax.vmap(lambda v: decay_rates(model.params, v))(v_re)  # (P, 2)
+        moving = entered & (c_e > 0)
+        te_dot = jnp.where(moving, c / jnp.where(moving, c_e, 1.0), 0.0)
+        decay = jnp.exp(-D)
+        ye_dot = v_r[:, None] - C0[:, None] * ye - te_dot[None, :] * decay * v_re.T
+        D_dot = C0[:, None] - te_dot[None, :] * C0e.T
+        z_e = ye + jnp.where(entered[None, :], 0.0, decay * z0[:, None])
+        zedge = jnp.concatenate([jnp.zeros((2, 1)), z_e], axis=1)
+        m_dot = model.moment_rates(m, zedge, v_r, c)
+        dy = jnp.concatenate([m_dot.ravel(), ye_dot.ravel(), D_dot.ravel(), te_dot])
+        return dy, m, m_dot, v_r
+
+    y0 = jnp.concatenate([model.init_state(z0)[0].ravel(), jnp.zeros(4 * P), jnp.full(P, t0)])
+    # One solve in a segment clock tau in [0, P + 1]: segment k = [t_k, t_{k+1}] (between
+    # passages) is tau in [k, k + 1], t = t_k + (tau - k)(t_{k+1} - t_k). The switches sit at
+    # the integers (fixed jumps of the solver) and the passage times enter only through this
+    # map, so they are differentiated like any other parameter.
+    bounds = jnp.concatenate([t0[None], passage, t1[None]])
+    width = bounds[1:] - bounds[:-1]
+
+    def segment(tau):
+        return jnp.clip(jnp.floor(tau), 0, P).astype(int)
+
+    def field(tau, y, args):
+        k = segment(tau)
+        t = bounds[k] + (tau - k) * width[k]
+        return width[k] * rates(t, y, jnp.arange(P) < k)[0]
+
+    def to_tau(t):
+        k = jnp.clip(jnp.searchsorted(bounds, t, side="right") - 1, 0, P)
+        w = width[k]
+        frac = jnp.where(w > 0, (t - bounds[k]) / jnp.where(w > 0, w, 1.0), 0.0)
+        return k + jnp.clip(frac, 0.0, 1.0)
+
+    taus = to_tau(ts)
+    jumps = jnp.arange(1.0, P + 1.0)
+    if kinks is not None:
+        # input kinks at T, and their arrival at every edge (s(t) - s(T) = e): land steps there
+        T = jnp.atleast_1d(jnp.asarray(kinks, dtype=float))
+        arrive = jax.vmap(lambda tk: passage_times(lambda t: slip(t)[1], tk, t1, edges, L))(T)
+        kink_taus = jax.lax.stop_gradient(to_tau(jnp.concatenate([T, arrive.ravel()])))
+        jumps = jnp.sort(jnp.concatenate([jumps, kink_taus]))
+    sol = dfx.diffeqsolve(
+        dfx.ODETerm(field), solver, t0=0.0, t1=float(P + 1), dt0=None, y0=y0,
+        saveat=dfx.SaveAt(ts=taus),
+        stepsize_controller=dfx.ClipStepSizeController(controller, jump_ts=jumps),
+        max_steps=max_steps, throw=throw,
+    )
+    ys, result, num_steps = sol.ys, sol.result, sol.stats["num_steps"]
+
+    def force_at(t, y):
+        _, m, m_dot, v_r = rates(t, y, t >= passage)
+        scale = jnp.stack([jnp.ones(()), jnp.ones(()), L])
+        return fz_s(t) * model.mu_from_moments(m, m_dot, v_r) * scale, m
+
+    forces, moments = jax.vmap(force_at)(ts, ys)
+    return Tire2DSolution(ts=ts, state=moments, forces=forces, result=result,
+                          num_steps=num_steps)
+
+
 def simulate_moments(
     model: MomentLuGre2D,
     ts,
@@ -335,29 +563,42 @@ def simulate_moments(
     Fz,
     z0=None,
     *,
+    closure: str = "delay",
+    kinks=None,
     solver=None,
     rtol: float = 1e-8,
     atol: float = 1e-10,
     max_steps: int = 100_000,
     history_max_steps: int = 4096,
+    history_solver=None,
+    history_rtol: float | None = None,
+    history_atol: float | None = None,
     throw: bool = True,
 ):
     r"""Exact method of moments for inputs known in advance (eqs. 39-48, no closure).
 
     `MomentLuGre2D` as an `AbstractTire` closes the edge values with inputs frozen over a
     transit, exact only for piecewise-constant inputs. When the inputs are given as functions
-    of time (as in Fig. 17, or a recorded manoeuvre) the edge values are instead functionals
-    of the input history (`TransitHistory`): a first solve integrates the five history states
-    $(s, E, w)$ with dense output, and the moment ODE of eqs. 41-42 then uses the exact
-    $z_i(t, e_j)$ at every piece edge. The result equals the distributed PDE (eqs. 31-34) up
-    to solver tolerance for *any* input history and any piecewise-polynomial load.
+    of time (as in Fig. 17, or a recorded manoeuvre) the edge values are functionals of the
+    input history, and the moment ODE of eqs. 41-42 uses the exact $z_i(t, e_j)$ at every
+    piece edge (module docstring): with `closure="delay"` (default) from the entry times
+    $t_e$ carried as ODE states beside the moments, one solve, its steps landed on the first
+    passage of tread over each edge; with `closure="history"` from a first solve of five
+    history states with dense output (`TransitHistory`), which also handles tread that
+    entered while the wheel was locked ($c(t_e) = 0$, where the delay states fail). The
+    result equals the distributed PDE (eqs. 31-34) up to solver tolerance for any such
+    input history and any piecewise-polynomial load.
 
     **Arguments:** as `simulate_tire_2d` (`vx`, `vy`, `omega`, `Fz` constants, samples on
     `ts` or callables of `t`; `r` [m]), plus `z0` (2,), the uniform initial deflection [m]
-    (default 0). `solver` defaults to `Tsit5` for both solves. `history_max_steps` bounds the
-    history solve, whose dense output is stored: every edge lookup searches it, so a buffer
-    far larger than needed costs time (100 000 slots made a 30 ms transient 5x slower than
-    4096). A history needing more steps fails loudly (`throw=True`); raise it for long runs.
+    (default 0). `kinks` (delay closure): times where the inputs have a kink or a jump (the
+    end of a ramp); steps are landed on them and on their arrival at every edge, where they
+    kink the edge values. `solver` defaults to `Tsit5`. History closure only: `history_solver`,
+    `history_rtol`, `history_atol` (default: those of the moment solve) and
+    `history_max_steps`, which bounds the history solve, whose dense output is stored: every
+    edge lookup searches it, so a buffer far larger than needed costs time (100 000 slots
+    made a 30 ms transient 5x slower than 4096). A history needing more steps fails loudly
+    (`throw=True`); raise it for long runs.
 
     **Returns:** a `Tire2DSolution` whose `state` is the moments `(T, 2, P, K)`.
     """
@@ -369,12 +610,21 @@ def simulate_moments(
 
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"simulate_moments needs a MomentLuGre2D, got {type(model).__name__}")
+    if closure not in CLOSURES:
+        raise ValueError(f"simulate_moments closure must be one of {CLOSURES}, got {closure!r}")
     ts = jnp.asarray(ts, dtype=float)
     vx_s, vy_s, om_s, fz_s = (as_signal(ts, x) for x in (vx, vy, omega, Fz))
     z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
     L = model.params.L
     solver = dfx.Tsit5() if solver is None else solver
     controller = dfx.PIDController(rtol=rtol, atol=atol)
+    if closure == "delay":
+        return _simulate_delay(model, ts, (vx_s, vy_s, om_s, fz_s), r, z0, solver, controller,
+                               max_steps, throw, kinks)
+    history_solver = solver if history_solver is None else history_solver
+    history_controller = dfx.PIDController(
+        rtol=rtol if history_rtol is None else history_rtol,
+        atol=atol if history_atol is None else history_atol)
 
     def slip(t):
         return (relative_velocity_2d(vx_s(t), vy_s(t), om_s(t), r),
@@ -386,12 +636,17 @@ def simulate_moments(
         return jnp.concatenate([(c / L)[None], C0, v_r - C0 * h[3:5]])
 
     hist = dfx.diffeqsolve(
-        dfx.ODETerm(history_field), solver, t0=ts[0], t1=ts[-1], dt0=None, y0=jnp.zeros(5),
-        saveat=dfx.SaveAt(dense=True), stepsize_controller=controller,
+        dfx.ODETerm(history_field), history_solver, t0=ts[0], t1=ts[-1], dt0=None,
+        y0=jnp.zeros(5), saveat=dfx.SaveAt(dense=True), stepsize_controller=history_controller,
         max_steps=history_max_steps, throw=throw,
     )
     history = TransitHistory(hist, z0)
     edges = model.edges[1:]
+    # The first passage of tread over an edge (s = e) is a kink of z(t, e): land a step on it.
+    s_end = history.solution.evaluate(ts[-1])[0]
+    passage = jax.vmap(lambda e: history.entry_time(ts[-1], e))(jnp.minimum(edges, s_end))
+    passage = jax.lax.stop_gradient(jnp.where(edges <= s_end, passage, ts[-1]))
+    moment_controller = dfx.ClipStepSizeController(controller, step_ts=passage)
 
     def rates(t, m):
         v_r, c = slip(t)
@@ -402,7 +657,7 @@ def simulate_moments(
     m0 = model.init_state(z0)[0]
     sol = dfx.diffeqsolve(
         dfx.ODETerm(lambda t, m, args: rates(t, m)[0]), solver, t0=ts[0], t1=ts[-1], dt0=None,
-        y0=m0, saveat=dfx.SaveAt(ts=ts), stepsize_controller=controller, max_steps=max_steps,
+        y0=m0, saveat=dfx.SaveAt(ts=ts), stepsize_controller=moment_controller, max_steps=max_steps,
         throw=throw,
     )
 
