@@ -170,16 +170,21 @@ def _z_steady(model: LumpedLuGre, v, omega, r):
     return safe_div(v_r, a)
 
 
+def _substep_midpoints(d: BrakingData, substeps: int):
+    r"""$v$, $\omega$ (linear between samples) at the midpoint of every substep, and the
+    substep lengths $h$ [s]."""
+    frac = (jnp.arange(substeps) + 0.5) / substeps
+    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
+    return mid(d.v), mid(d.omega), jnp.repeat(jnp.diff(d.t) / substeps, substeps)
+
+
 def _coefficients(model: LumpedLuGre, d: BrakingData, substeps: int):
     r"""Per substep $m$ (unit steps in substep time): $a_m = h(\theta\sigma_0|v_r|/g +
     \kappa|\omega r|)$ and $b_m = h v_r$ at the substep midpoint, $h$ the substep [s];
     and the steady state $\bar z(t_0)$."""
     p = model.params
     kappa = model.kappa0 / p.L
-    frac = (jnp.arange(substeps) + 0.5) / substeps
-    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
-    v, om = mid(d.v), mid(d.omega)
-    h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
+    v, om, h = _substep_midpoints(d, substeps)
     v_r = d.r * om - v
     a = h * (decay_rate(p, v_r) + kappa * safe_abs(om * d.r))
     return a, h * v_r, _z_steady(model, d.v[0], d.omega[0], d.r)
@@ -276,12 +281,9 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
     # parameter tangents (directions x 9)
     dq = jax.vmap(lambda e: jax.jvp(lambda x: _lumped_parameters(model_of(x)), (u,), (e,))[1])(
         directions)
-    frac = (jnp.arange(substeps) + 0.5) / substeps
-    mid = lambda x: (x[:-1, None] + frac[None, :] * jnp.diff(x)[:, None]).reshape(-1)  # noqa: E731
     out = []
     for d in data:
-        v_mid, om_mid = mid(d.v), mid(d.omega)
-        h = jnp.repeat(jnp.diff(d.t) / substeps, substeps)
+        v_mid, om_mid, h = _substep_midpoints(d, substeps)
         v_r_mid = d.r * om_mid - v_mid
         P = _decay_rate_partials(q, v_r_mid, om_mid * d.r)
         # the coefficients of `_coefficients` from the same partials (a is 1-homogeneous in
