@@ -19,7 +19,6 @@ from vehsim.identify.fit import (
     PARAMETER_NAMES,
     FitError,
     _open_loop_sensitivities,
-    _sharded_sensitivities,
     _solve_batch,
     _unnamed,
     evaluate,
@@ -162,27 +161,6 @@ def test_levenberg_marquardt_jacobian_matches_forward_mode_autodiff(brakings):
         scale = np.max(np.abs(np.asarray(J)), axis=0)
         assert np.all(scale > 0)
         np.testing.assert_allclose(np.asarray(dF).T / scale, np.asarray(J) / scale, atol=1e-10)
-
-
-@pytest.mark.skipif(jax.device_count() < 2, reason="needs two (host) devices")
-def test_brakings_split_over_devices_give_the_same_sensitivities(brakings):
-    # three brakings of different lengths over two devices: padded in time (zero-length
-    # intervals) and in count (a dropped copy); the sensitivities must not change
-    cut = lambda d, n: jax.tree.map(  # noqa: E731
-        lambda x: x[:n] if getattr(x, "ndim", 0) == 1 else x, _unnamed(d))
-    data = [cut(brakings["braking_1"], 400), cut(brakings["braking_2"], 250),
-            cut(brakings["braking_3"], 330)]
-    model = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), TRUTH)
-    u = to_unconstrained(model, PARAMETER_NAMES)
-    model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
-    directions = jnp.eye(9)[:8]
-    ref = jax.jit(lambda x: _open_loop_sensitivities(x, directions, model_of, data, 2))(u)
-    split = jax.jit(lambda x: _sharded_sensitivities(x, directions, model_of, data, 2,
-                                                     tuple(jax.devices()[:2])))(u)
-    for (F, dF), (F_s, dF_s) in zip(ref, split):
-        assert F_s.shape == F.shape and dF_s.shape == dF.shape
-        np.testing.assert_allclose(F_s, F, rtol=1e-12, atol=1e-9)
-        np.testing.assert_allclose(dF_s, dF, rtol=1e-10, atol=1e-9 * float(jnp.max(jnp.abs(dF))))
 
 
 def test_exponential_scheme_matches_tight_kvaerno5(brakings):

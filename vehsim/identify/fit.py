@@ -316,45 +316,6 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
     return out
 
 
-def _sensitivities(u, directions, model_of, data, substeps, devices):
-    if devices is None or len(devices) < 2:
-        return _open_loop_sensitivities(u, directions, model_of, data, substeps)
-    return _sharded_sensitivities(u, directions, model_of, data, substeps, devices)
-
-
-def _pad_braking(d: BrakingData, T: int) -> BrakingData:
-    """`d` padded to `T` samples by repeating its last one: the padded intervals have zero
-    length (h = 0), over which the friction state and its tangents hold."""
-    pad = lambda x: jnp.concatenate([x, jnp.full(T - x.shape[0], x[-1])])  # noqa: E731
-    return jax.tree.map(lambda x: pad(x) if x.ndim == 1 else x, d)
-
-
-def _sharded_sensitivities(u, directions, model_of, data: Sequence[BrakingData],
-                           substeps: int, devices: tuple):
-    r"""`_open_loop_sensitivities` with the brakings split over `devices` (one
-    `jax.shard_map`, each device a group of brakings): the brakings are padded to the
-    longest (`_pad_braking`) and their count to a multiple of the device count with copies
-    of the first, whose outputs are dropped. On a CPU host with one forced host device per
-    core this runs the brakings' solves in parallel."""
-    lens = [d.t.shape[0] for d in data]
-    T, n_dev = max(lens), len(devices)
-    count = -(-len(data) // n_dev) * n_dev
-    padded = [_pad_braking(d, T) for d in list(data) + [data[0]] * (count - len(data))]
-    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *padded)
-    mesh = jax.sharding.Mesh(np.asarray(devices), ("brakings",))
-    spec = jax.sharding.PartitionSpec
-
-    def group(u, directions, brakings):
-        k = brakings.t.shape[0]
-        out = _open_loop_sensitivities(u, directions, model_of, [
-            jax.tree.map(lambda x, i=i: x[i], brakings) for i in range(k)], substeps)
-        return jnp.stack([F for F, _ in out]), jnp.stack([dF for _, dF in out])
-
-    F, dF = jax.shard_map(group, mesh=mesh, in_specs=(spec(), spec(), spec("brakings")),
-                          out_specs=spec("brakings"), check_vma=False)(u, directions, stacked)
-    return [(F[i, :n], dF[i, :, :n]) for i, n in enumerate(lens)]
-
-
 def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2, *,
                       adjoint=None):
     r"""Predicted $F_x(t_k)$ [N]: eqs. 22-23 driven by measured $v$, $\omega$, $F_n$.
@@ -549,8 +510,7 @@ def _jvp_columns(fn, x, mask):
     return r0, jax.lax.map(column, jnp.arange(x.shape[0]))
 
 
-def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol, slots=9,
-                                 devices=None):
+def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol, slots=9):
     r"""$u \mapsto r(u)$ (data residuals) carrying its forward-mode Jacobian.
 
     Levenberg-Marquardt needs the whole Jacobian $J$ at every step. Through a forward-mode
@@ -560,8 +520,7 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
     vector-valued tangent solves for the free directions, gathered into `slots` (static)
     rows (`_open_loop_sensitivities`); closed
     loop, one forward-mode JVP through the solve per *free* parameter (`lax.map` +
-    `lax.cond`: fixed columns cost nothing). `devices`: open loop, split the brakings over
-    these devices (`_sharded_sensitivities`). The JVP rule is the product with $J$:
+    `lax.cond`: fixed columns cost nothing). The JVP rule is the product with $J$:
     optimistix's `linearize` then keeps $J$ and its linear operator is a matrix product.
     """
     def residual(u):
@@ -577,7 +536,7 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
         used = (jnp.arange(slots) < jnp.sum(mask))[:, None]
         directions = jnp.eye(u.shape[0], dtype=u.dtype)[rows] * used
         model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
-        out = _sensitivities(u, directions, model_of, data, substeps, devices)
+        out = _open_loop_sensitivities(u, directions, model_of, data, substeps)
         r0 = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
         dF = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1) * used
         return r0, jnp.zeros((u.shape[0], dF.shape[1]), dF.dtype).at[rows].add(dF)
@@ -635,11 +594,11 @@ INITIAL_DAMPING = 1e-4
 @eqx.filter_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces: the tests check for retraces
 def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, substeps, rtol,
-                 tol, max_steps, slots=9, devices=None):
+                 tol, max_steps, slots=9):
     # All of PARAMETER_NAMES are always in `u`; fixed ones are masked (zero Jacobian columns,
     # so LM never moves them). One compilation serves every choice of free parameters.
     data_residual = _data_residual_with_jacobian(mask, model, data, mode, scales, substeps,
-                                                 rtol, slots, devices)
+                                                 rtol, slots)
 
     def residual(u, args):
         u = _merge(u, u_fixed, mask)
@@ -651,11 +610,10 @@ def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, su
         lambda_0 = INITIAL_DAMPING * jnp.max(jnp.sum(J**2, axis=0))
         solver = _LevenbergMarquardt(tol, tol, 1.0 / lambda_0)
         sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
-        # the residuals at the last accepted point, `sol.value`, are in the solver's state
-        # (no further solve)
-        r = sol.state.f_info.residual
-        return _merge(sol.value, u_fixed, mask), 0.5 * jnp.sum(r**2), \
-            sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+        u = _merge(sol.value, u_fixed, mask)
+        r = residual(u, None)
+        return u, 0.5 * jnp.sum(r**2), sol.result == optx.RESULTS.successful, \
+            sol.stats["num_steps"]
 
     if u0s.shape[0] == 1:  # no batch: a smaller program to compile (closed loop)
         return jax.tree.map(lambda x: x[None], one(u0s[0]))
@@ -663,7 +621,7 @@ def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, su
 
 
 @eqx.filter_jit
-def _jacobian(theta, model, data, mode, scales, substeps, rtol, devices=None):
+def _jacobian(theta, model, data, mode, scales, substeps, rtol):
     """Residuals and their Jacobian in the physical values of all PARAMETER_NAMES."""
     def residual(th):
         m = with_values(model, {n: th[i] for i, n in enumerate(PARAMETER_NAMES)})
@@ -677,7 +635,7 @@ def _jacobian(theta, model, data, mode, scales, substeps, rtol, devices=None):
     model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
     u = to_unconstrained(model, PARAMETER_NAMES)
     eye = jnp.eye(u.shape[0], dtype=u.dtype)
-    out = _sensitivities(u, eye, model_of, data, substeps, devices)
+    out = _open_loop_sensitivities(u, eye, model_of, data, substeps)
     r = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
     Jt_u = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1)
     dtheta_du = jax.jacfwd(lambda x: jnp.stack([jnp.asarray(v, dtype=float) for v in
@@ -730,7 +688,7 @@ def _values_batch(model, us):
 
 @eqx.filter_jit
 def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scales, substeps,
-              rtol, tol, max_steps, slots, devices):
+              rtol, tol, max_steps, slots):
     """Everything of a fit that runs in JAX, in one compiled call (eager dispatches of the
     small pre- and post-fit steps cost more than a Levenberg-Marquardt step): the starts,
     the batched solve, the best start, and its residuals and Jacobian in the physical
@@ -739,13 +697,13 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scal
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
     u0s = jnp.concatenate([u_fixed[None], u_fixed[None] + spread * noise * mask[None, :]])
     us, losses, ok, steps = _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode,
-                                         scales, substeps, rtol, tol, max_steps, slots, devices)
+                                         scales, substeps, rtol, tol, max_steps, slots)
     # the best start: the least finite loss among the converged ones, else among all
     rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
     best = jnp.argmin(rank)
     best_model = from_unconstrained(us[best], model, PARAMETER_NAMES)
     theta = _values_batch(model, us[best][None])[0]
-    r, J = _jacobian(theta, best_model, data, mode, scales, substeps, rtol, devices)
+    r, J = _jacobian(theta, best_model, data, mode, scales, substeps, rtol)
     return dict(u_fixed=u_fixed, us=us, losses=losses, ok=ok, steps=steps, best=best,
                 model=best_model, theta=theta, r=r, J=J, values=_values_batch(model, us),
                 initial=_values_batch(model, u0s))
@@ -762,7 +720,7 @@ def _singular_values(A):
 
 
 def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, substeps, rtol,
-         throw, verbose, prior_weight, devices=None, gtol=1e-6, ftol=1e-6) -> FitResult:
+         throw, verbose, prior_weight, gtol=1e-6, ftol=1e-6) -> FitResult:
     t_start = time.perf_counter()
     data = [data] if isinstance(data, BrakingData) else list(data)
     if not data:
@@ -780,11 +738,6 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
         raise ValueError("no free parameters")
     if n_starts < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts}")
-    if devices is not None:
-        devices = tuple(devices)
-        if mode != "open_loop" and len(devices) > 1:
-            raise ValueError("devices: only open-loop fits split brakings over devices")
-        devices = devices if len(devices) > 1 else None
     anon = [_unnamed(d) for d in data]
     # the scales from the concrete data in NumPy (no eager JAX dispatches)
     scales = tuple(np.asarray(max(float(np.max(np.abs(np.asarray(f(d))))) for d in data))
@@ -795,7 +748,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
          "(the first call compiles)...")
     core = _fit_core(model, anon, mask, np.asarray(float(prior_weight)), np.asarray(key),
                      np.asarray(float(spread)), n_starts, mode, scales, substeps, rtol, tol,
-                     max_steps, 8 if len(names) <= 8 else 9, devices)
+                     max_steps, 8 if len(names) <= 8 else 9)
     core = {k: v if k == "model" else np.asarray(v) for k, v in core.items()}
     us, losses, ok, steps, best = (core[k] for k in ("us", "losses", "ok", "steps", "best"))
     best = int(best)
@@ -923,7 +876,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
 def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, fixed=None,
                   n_starts: int = 8, spread: float = 0.3, key: int = 0, tol: float = 1e-6,
                   max_steps: int = 100, substeps: int = 2, prior_weight: float = 1e-4,
-                  devices=None, throw: bool = True, verbose: bool = False) -> FitResult:
+                  throw: bool = True, verbose: bool = False) -> FitResult:
     r"""Fit the lumped LuGre model (eqs. 22-25) to brakings, driven by measured $v$, $\omega$.
 
     **Arguments:**
@@ -942,11 +895,6 @@ def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, f
       parameters, appended to the residuals (scaled by the peak force): it keeps nearly flat
       directions from wandering. $w = 10^{-4}$ changes well-determined parameters by far
       less than their standard errors (and exact data are recovered to ~1e-5); 0 turns it off.
-    - `devices`: a sequence of JAX devices to split the brakings over (each device solves
-      its group of brakings and their sensitivities, every Levenberg-Marquardt step); on a
-      CPU host force one host device per core first
-      (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts) and pass
-      ``jax.devices()``. Default: one device.
     - `throw`: raise `FitError` (with the residual) if the best start did not converge or
       the parameters are not identifiable; with `False` check `result.status`.
     - `verbose`: progress on stderr.
@@ -954,7 +902,7 @@ def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, f
     **Returns:** a `FitResult`.
     """
     return _fit(data, init, free, fixed, "open_loop", n_starts, spread, key, tol, max_steps,
-                substeps, 1e-6, throw, verbose, prior_weight, devices)
+                substeps, 1e-6, throw, verbose, prior_weight)
 
 
 def fit_closed_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, fixed=None,
