@@ -490,10 +490,11 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
 
     def rates(t, y, entered):
         m, ye, D, te = unpack(y)
-        v_r, c = slip(t)
-        C0 = decay_rates(model.params, v_r)
-        v_re, c_e = jax.vmap(slip)(te)  # inputs when the tread now at each edge entered
-        C0e = jax.vmap(lambda v: decay_rates(model.params, v))(v_re)  # (P, 2)
+        # inputs now and when the tread now at each edge entered, in one vectorised pass
+        v_all, c_all = jax.vmap(slip)(jnp.concatenate([t[None], te]))
+        C_all = jax.vmap(lambda v: decay_rates(model.params, v))(v_all)  # (P + 1, 2)
+        v_r, c, C0 = v_all[0], c_all[0], C_all[0]
+        v_re, c_e, C0e = v_all[1:], c_all[1:], C_all[1:]
         moving = entered & (c_e > 0)
         te_dot = jnp.where(moving, c / jnp.where(moving, c_e, 1.0), 0.0)
         decay = jnp.exp(-D)
