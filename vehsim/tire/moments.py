@@ -517,10 +517,16 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
     def segment(tau):
         return jnp.clip(jnp.floor(tau), 0, P).astype(int)
 
-    def field(tau, y, args):
+    def clock(tau):
+        # (segment, t, dt/dtau) by a one-hot sum over the P + 1 segments (no gather)
         k = segment(tau)
-        t = bounds[k] + (tau - k) * width[k]
-        return width[k] * rates(t, y, jnp.arange(P) < k)[0]
+        here = jnp.arange(P + 1) == k
+        start, w = jnp.sum(jnp.where(here, bounds[:-1], 0.0)), jnp.sum(jnp.where(here, width, 0.0))
+        return k, start + (tau - k) * w, w
+
+    def field(tau, y, args):
+        k, t, w = clock(tau)
+        return w * rates(t, y, jnp.arange(P) < k)[0]
 
     def to_tau(t):
         k = jnp.clip(jnp.searchsorted(bounds, t, side="right") - 1, 0, P)
