@@ -68,10 +68,11 @@ step 290x with the delay closure at 0.36 ms, quartic step 5.2x).
 
 **Where 50x is met, and why not elsewhere.** Met where the PDE needs a fine grid: the uniform
 load (jumps at the patch ends; n = 48 per call at 4 deg, no grid <= 64 for a 1-15 deg
-sweep) and the batched quartic step (68x: small slip angles need n = 24 for 1e-3, which
-costs the explicit solver ~4x the steps of n = 16). Not met for single calls with the loads
-that vanish at the patch ends (5-12x for steps, 2.5-22x for ramps) nor for batched ramps
-(2-10x), for these measured reasons:
+sweep) and the batched quartic step (68x: the small slip angles of the sweep need n = 24
+for 1e-3, 11.5 ms per scenario, where alpha = 4 and 15 deg alone reach it at n = 16).
+Not met for single calls with the loads that vanish at the patch ends (6.5-12x for steps,
+2.5-9.4x for ramps; the uniform ramps 5.5-22x) nor for batched ramps (1.8-9.7x), for these
+measured reasons:
 
 - A moments call is 10-25 Tsit5 steps at rtol 1e-3 to 1e-5, and its cost is diffrax's
   machinery, not the vector field: per call ~15 us dispatch, ~30 us for the passage times
