@@ -490,10 +490,11 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
 
     def rates(t, y, entered):
         m, ye, D, te = unpack(y)
-        v_r, c = slip(t)
-        C0 = decay_rates(model.params, v_r)
-        v_re, c_e = jax.vmap(slip)(te)  # inputs when the tread now at each edge entered
-        C0e = jax.vmap(lambda v: decay_rates(model.params, v))(v_re)  # (P, 2)
+        # inputs now and when the tread now at each edge entered, in one vectorised pass
+        v_all, c_all = jax.vmap(slip)(jnp.concatenate([t[None], te]))
+        C_all = jax.vmap(lambda v: decay_rates(model.params, v))(v_all)  # (P + 1, 2)
+        v_r, c, C0 = v_all[0], c_all[0], C_all[0]
+        v_re, c_e, C0e = v_all[1:], c_all[1:], C_all[1:]
         moving = entered & (c_e > 0)
         te_dot = jnp.where(moving, c / jnp.where(moving, c_e, 1.0), 0.0)
         decay = jnp.exp(-D)
@@ -516,16 +517,31 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
     def segment(tau):
         return jnp.clip(jnp.floor(tau), 0, P).astype(int)
 
-    def field(tau, y, args):
+    def clock(tau):
+        # (segment, t, dt/dtau) by a one-hot sum over the P + 1 segments (no gather)
         k = segment(tau)
-        t = bounds[k] + (tau - k) * width[k]
-        return width[k] * rates(t, y, jnp.arange(P) < k)[0]
+        here = jnp.arange(P + 1) == k
+        start, w = jnp.sum(jnp.where(here, bounds[:-1], 0.0)), jnp.sum(jnp.where(here, width, 0.0))
+        return k, start + (tau - k) * w, w
+
+    def field(tau, y, args):
+        k, t, w = clock(tau)
+        return w * rates(t, y, jnp.arange(P) < k)[0]
 
     def to_tau(t):
         k = jnp.clip(jnp.searchsorted(bounds, t, side="right") - 1, 0, P)
         w = width[k]
         frac = jnp.where(w > 0, (t - bounds[k]) / jnp.where(w > 0, w, 1.0), 0.0)
         return k + jnp.clip(frac, 0.0, 1.0)
+
+    scale = jnp.stack([jnp.ones(()), jnp.ones(()), L])
+
+    def save(tau, y, args):
+        # forces and moments only (not the edge states): under vmap every save writes the
+        # whole batch's buffer, so a narrow buffer is cheaper than a vectorised pass after
+        k, t, _ = clock(tau)
+        _, m, m_dot, v_r = rates(t, y, jnp.arange(P) < k)
+        return fz_s(t) * model.mu_from_moments(m, m_dot, v_r) * scale, m
 
     taus = to_tau(ts)
     jumps = jnp.arange(1.0, P + 1.0)
@@ -537,18 +553,11 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
         jumps = jnp.sort(jnp.concatenate([jumps, kink_taus]))
     sol = dfx.diffeqsolve(
         dfx.ODETerm(field), solver, t0=0.0, t1=float(P + 1), dt0=None, y0=y0,
-        saveat=dfx.SaveAt(ts=taus),
+        saveat=dfx.SaveAt(ts=taus, fn=save),
         stepsize_controller=dfx.ClipStepSizeController(controller, jump_ts=jumps),
         max_steps=max_steps, throw=throw,
     )
-    ys, result, num_steps = sol.ys, sol.result, sol.stats["num_steps"]
-
-    def force_at(t, y):
-        _, m, m_dot, v_r = rates(t, y, t >= passage)
-        scale = jnp.stack([jnp.ones(()), jnp.ones(()), L])
-        return fz_s(t) * model.mu_from_moments(m, m_dot, v_r) * scale, m
-
-    forces, moments = jax.vmap(force_at)(ts, ys)
+    (forces, moments), result, num_steps = sol.ys, sol.result, sol.stats["num_steps"]
     return Tire2DSolution(ts=ts, state=moments, forces=forces, result=result,
                           num_steps=num_steps)
 
