@@ -652,7 +652,7 @@ _predict_closed_loop_jit = eqx.filter_jit(predict_closed_loop)
 
 def _unnamed(d: BrakingData) -> BrakingData:
     """`d` without its (static) name, so that compiled fits are shared between brakings."""
-    f = _strong_float
+    f = _strong_float  # no weak types, no eager dispatches
     return BrakingData(t=f(d.t), v=f(d.v), omega=f(d.omega), F_x=f(d.F_x), F_n=f(d.F_n),
                        r=f(d.r), T_b=f(d.T_b), m=f(d.m), J=f(d.J))
 
@@ -703,10 +703,10 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scal
     rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
     best = jnp.argmin(rank)
     best_model = from_unconstrained(us[best], model, PARAMETER_NAMES)
-    theta = _values_batch(model, us[best][None])[0]
-    r, J = _jacobian(theta, best_model, data, mode, scales, substeps, rtol)
+    values = _values_batch(model, us)
+    r, J = _jacobian(values[best], best_model, data, mode, scales, substeps, rtol)
     return dict(u_fixed=u_fixed, us=us, losses=losses, ok=ok, steps=steps, best=best,
-                model=best_model, theta=theta, r=r, J=J, values=_values_batch(model, us),
+                model=best_model, theta=values[best], r=r, J=J, values=values,
                 initial=_values_batch(model, u0s))
 
 

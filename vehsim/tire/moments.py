@@ -518,11 +518,9 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
         return jnp.clip(jnp.floor(tau), 0, P).astype(int)
 
     def clock(tau):
-        # (segment, t, dt/dtau) by a one-hot sum over the P + 1 segments (no gather)
+        # (segment, t, dt/dtau) on the segment clock
         k = segment(tau)
-        here = jnp.arange(P + 1) == k
-        start, w = jnp.sum(jnp.where(here, bounds[:-1], 0.0)), jnp.sum(jnp.where(here, width, 0.0))
-        return k, start + (tau - k) * w, w
+        return k, bounds[k] + (tau - k) * width[k], width[k]
 
     def field(tau, y, args):
         k, t, w = clock(tau)
