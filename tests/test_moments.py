@@ -1,17 +1,32 @@
 """Method of moments (eqs. 39-48) against the fine-grid distributed PDE (eqs. 31-34)."""
 
+import math
+
 import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
 from vehsim.params import lugre2d_bakker1987
 from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu
-from vehsim.tire.load import PolynomialLoad, QuarticLoad, TabulatedLoad, TrapezoidalLoad
-from vehsim.tire.lugre2d import simulate_tire_2d
-from vehsim.tire.moments import MomentLuGre2D, piecewise_coefficients, simulate_moments
+from vehsim.tire.load import (
+    PolynomialLoad,
+    QuarticLoad,
+    TabulatedLoad,
+    TrapezoidalLoad,
+    UniformLoad,
+)
+from vehsim.tire.lugre2d import decay_rates, simulate_tire_2d
+from vehsim.tire.moments import (
+    MomentLuGre2D,
+    decay_integrals,
+    moments_step_response,
+    piecewise_coefficients,
+    simulate_moments,
+)
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -111,7 +126,6 @@ def test_densities_share_the_sliding_steady_state():
     with k = C0 L / |omega r|; equality of the densities is exact for a locked wheel
     (k = inf) and holds to O(1/k) while rolling (a few per cent at large slip)."""
     p = lugre2d_bakker1987()
-    from vehsim.tire.lugre2d import decay_rates
 
     steady = jax.jit(steady_state_mu)
 
@@ -301,3 +315,146 @@ def test_delay_closure_with_input_kink_at_loose_tolerance(transients):
                               R, FZ, kinks=0.01, rtol=1e-5, atol=1e-7).forces
     err = np.max(np.abs(np.asarray(forces) - pde), axis=0) / np.max(np.abs(pde), axis=0)
     assert np.all(err < 1e-3), err
+
+
+# --- The moment system after a slip step solved exactly (`moments_step_response`): against
+# the moment ODE, the fine-grid PDE, the closed-form steady state, the point model of a
+# locked wheel, and finite differences.
+
+
+def _step(alpha_deg, kappa, v=20.0):
+    a = np.deg2rad(alpha_deg)
+    vx, vy = v * np.cos(a), -v * np.sin(a)
+    return vx, vy, vx * (1.0 + kappa) / R
+
+
+@eqx.filter_jit
+def _response(model, vx, vy, omega, z0=None, ts=TS):
+    return moments_step_response(model, ts, vx, vy, omega, R, FZ, z0).forces
+
+
+def test_decay_integrals_match_quadrature():
+    """I_j(x) = int_0^1 exp(-x u) u^j / j! du on both sides of the branch point x = 2, at 0
+    and far out, for up to 11 terms."""
+    xs = np.array([0.0, 1e-9, 0.3, 1.0, 1.999, 2.0, 2.001, 5.0, 40.0, 700.0, 1e4])
+    got = np.asarray(jax.jit(decay_integrals, static_argnums=1)(jnp.asarray(xs), 11))
+    for x, row in zip(xs, got):
+        ref = [quad(lambda u: math.exp(-x * u) * u**j / math.factorial(j), 0, 1,
+                    epsabs=0, epsrel=1e-13, limit=200)[0] for j in range(11)]
+        np.testing.assert_allclose(row[:7], ref[:7], rtol=1e-12)
+        np.testing.assert_allclose(row, ref, rtol=1e-9)  # j = 10 at x = 2: ~5 digits lost
+
+
+def test_decay_integrals_gradient_matches_fd():
+    from helpers import assert_grad_matches_fd
+
+    for x in (0.0, 0.7, 2.0, 3.5, 60.0):
+        assert_grad_matches_fd(lambda x: jnp.sum(decay_integrals(x, 7) * jnp.arange(1.0, 8.0)),
+                               jnp.asarray(x), rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(LOADS))
+def test_step_response_matches_moment_ode_and_pde(transients, name):
+    """The exact solution equals the moment ODE integrated at rtol 1e-12 (online closure,
+    exact for steps) to 1e-7 of each signal's peak, and the PDE (n = 64) to 1e-3."""
+    p, out = transients
+    for alpha_deg, kappa in ((4.0, 0.05), (15.0, -0.1)):
+        ode, pde, _, _ = out[name, alpha_deg, 0.0]
+        exact = np.asarray(_response(MomentLuGre2D(p, LOADS[name]), *_step(alpha_deg, kappa)))
+        peak = np.max(np.abs(ode), axis=0)
+        assert np.all(np.max(np.abs(exact - ode), axis=0) < 1e-7 * peak), (name, alpha_deg)
+        assert np.all(np.max(np.abs(exact - pde), axis=0) < 1e-3 * peak), (name, alpha_deg)
+
+
+@pytest.mark.parametrize("name", list(LOADS))
+def test_step_response_is_the_steady_state_after_one_transit(name):
+    """From t = L/|omega r| on, all tread on the patch entered after the step: the response is
+    the closed-form steady state exactly (not asymptotically)."""
+    p = lugre2d_bakker1987()
+    vx, vy, om = _step(8.0, 0.08)
+    transit = float(p.L) / (om * R)
+    ts = jnp.linspace(0.0, 3 * transit, 31)
+    forces = np.asarray(_response(MomentLuGre2D(p, LOADS[name]), vx, vy, om, ts=ts))
+    ss = np.asarray(steady_state_mu(p, LOADS[name], jnp.array([om * R - vx, -vy]), om * R)) * FZ
+    ss[2] *= float(p.L)
+    after = np.asarray(ts) >= transit * (1 + 1e-12)
+    np.testing.assert_allclose(forces[after], np.broadcast_to(ss, forces[after].shape),
+                               rtol=1e-10)
+    # ... and not before: the transient is still under way at half a transit
+    assert np.all(np.abs(forces[np.asarray(ts) < 0.5 * transit][-1] - ss) > 1e-3 * np.abs(ss))
+
+
+def test_step_response_from_deflected_patch_matches_delay_closure():
+    """From a uniform initial deflection (old tread leaves over the first transit) the exact
+    solution equals `simulate_moments` (delay closure, rtol 1e-11) to 1e-7 of the peaks."""
+    p = lugre2d_bakker1987()
+    model = MomentLuGre2D(p, TrapezoidalLoad(0.25))
+    vx, vy, om = _step(6.0, 0.03)
+    z0 = jnp.array([2e-3, -1e-3])
+    exact = np.asarray(_response(model, vx, vy, om, z0))
+    ode = np.asarray(eqx.filter_jit(simulate_moments)(model, TS, vx, vy, om, R, FZ, z0,
+                                                       rtol=1e-11, atol=1e-13).forces)
+    peak = np.max(np.abs(ode), axis=0)
+    np.testing.assert_array_less(np.max(np.abs(exact - ode), axis=0), 1e-7 * peak)
+    assert np.all(np.max(np.abs(exact - np.asarray(_response(model, vx, vy, om))), axis=0)
+                  > 0.02 * peak)  # the initial deflection matters
+
+
+def test_locked_wheel_is_the_point_model():
+    """omega = 0: no transport, every bristle obeys the point model (eqs. 26-30),
+    z = v_r (1 - exp(-C0 t)) / C0, so F/F_n = sigma0 z + sigma1 dz/dt + sigma2 v_r for any
+    load of unit mean; M_z = 0 for the symmetric quartic."""
+    p = lugre2d_bakker1987()
+    vx, vy = 15.0, -3.0
+    v_r = np.array([-vx, -vy])
+    C0 = np.asarray(decay_rates(p, jnp.asarray(v_r)))
+    t = np.asarray(TS)[:, None]
+    z = v_r * (1 - np.exp(-C0 * t)) / C0
+    zdot = v_r * np.exp(-C0 * t)
+    point = FZ * (np.asarray(p.sigma0) * z + np.asarray(p.sigma1) * zdot
+                  + np.asarray(p.sigma2) * v_r)
+    for name in ("trapezoidal", "quartic"):
+        forces = np.asarray(_response(MomentLuGre2D(p, LOADS[name]), vx, vy, 0.0))
+        np.testing.assert_allclose(forces[:, :2], point, rtol=1e-10)
+        np.testing.assert_allclose(forces[:, 2], 0.0, atol=1e-9 * np.abs(point).max())
+
+
+def test_step_response_gradients_match_fd():
+    """F_y + M_z/L at t = 6 ms against (kappa, alpha, sigma0_y scale): at a slip step, at zero
+    slip (v_r = 0, where C0 = 0 and the norm in C0 has a kink) and at a locked wheel."""
+    from helpers import assert_grad_matches_fd
+
+    p = lugre2d_bakker1987()
+    ts = jnp.array([0.0, 0.004, 0.006])
+
+    def f(x):
+        kappa, alpha, s0y = x[0], x[1], x[2]
+        q = eqx.tree_at(lambda t: t.sigma0, p, p.sigma0.at[1].multiply(s0y))
+        vx, vy = 20.0 * jnp.cos(alpha), -20.0 * jnp.sin(alpha)
+        out = moments_step_response(MomentLuGre2D(q, TrapezoidalLoad(0.25)), ts, vx, vy,
+                                    vx * (1.0 + kappa) / R, R, FZ).forces
+        return (out[-1, 1] + out[-1, 2] / q.L) / FZ
+
+    for x in ([0.05, 0.1, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.2, 1.2]):
+        assert_grad_matches_fd(f, jnp.asarray(x), rtol=1e-5, atol=1e-9, eps=1e-6)
+
+
+def test_step_response_checks_inputs_and_does_not_retrace():
+    p = lugre2d_bakker1987()
+    model = MomentLuGre2D(p, UniformLoad())
+    with pytest.raises(TypeError, match="vy must be a scalar"):
+        moments_step_response(model, TS, 20.0, lambda t: -t, 60.0, R, FZ)
+    with pytest.raises(TypeError, match="omega must be a scalar"):
+        moments_step_response(model, TS, 20.0, 0.0, jnp.ones(3), R, FZ)
+    with pytest.raises(TypeError, match="needs a MomentLuGre2D"):
+        moments_step_response(p, TS, 20.0, 0.0, 60.0, R, FZ)
+
+    @eqx.filter_jit
+    @eqx.debug.assert_max_traces(max_traces=1)
+    def run(model, vx, vy, om):
+        return moments_step_response(model, TS, vx, vy, om, R, FZ).forces
+
+    for scale, alpha in ((1.0, 3.0), (1.2, 9.0), (0.8, 0.0)):
+        q = eqx.tree_at(lambda t: t.sigma0, p, p.sigma0 * scale)
+        vx, vy, om = (jnp.asarray(v) for v in _step(alpha, 0.02))
+        run(MomentLuGre2D(q, TrapezoidalLoad(0.2 + 0.01 * scale)), vx, vy, om)

@@ -88,6 +88,7 @@ from .tire.magic_formula import (
 from .tire.moments import (
     MomentLuGre2D as MomentLuGre2D,
     TransitHistory as TransitHistory,
+    moments_step_response as moments_step_response,
     simulate_moments as simulate_moments,
 )
 from .tire.steady_state import (

@@ -23,7 +23,7 @@ times (`*_cpu_s`) and the load average (`load`) beside them: the machine is shar
 wall times are inflated by load.
 
 Run: PYTHONPATH=. python experiments/benchmarks/moments_vs_pde.py [--quick]
-     [--no-batch | --batch-only]
+     [--no-batch | --batch-only] [--steps-only]
 
 Results (full run, per-call rows at load average 1.3-3.0 and batched rows at 1.4-3.4 on 2
 shared cores; `moments_vs_pde_results.jsonl`, the last 24 lines). Per call: ratio wall
@@ -123,7 +123,11 @@ from vehsim.params import lugre2d_bakker1987  # noqa: E402
 from vehsim.tire.distributed2d import DistributedLuGre2D  # noqa: E402
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad  # noqa: E402
 from vehsim.tire.lugre2d import simulate_tire_2d  # noqa: E402
-from vehsim.tire.moments import MomentLuGre2D, simulate_moments  # noqa: E402
+from vehsim.tire.moments import (  # noqa: E402
+    MomentLuGre2D,
+    moments_step_response,
+    simulate_moments,
+)
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -153,17 +157,26 @@ def make_runner(u, solver, rtol, ts, simulate=simulate_tire_2d, batch=None, **kw
 
     def one(model, a=None):
         ui = u if a is None else u(a)
+        if simulate is moments_step_response:  # exact: no solver, no tolerance
+            return simulate(model, ts, *ui[:2], ui[2], R, FZ).forces
         return simulate(model, ts, *ui[:2], ui[2], R, FZ, solver=solver, rtol=rtol,
                         atol=1e-2 * rtol, max_steps=400_000, **kwargs).forces
 
     def build(model):
-        dyn, static = eqx.partition(model, eqx.is_array)
+        # the model's arrays as a flat list: flattening the module tree at every call costs
+        # ~20-40 us of Python on both sides
+        leaves, treedef = jax.tree_util.tree_flatten(eqx.filter(model, eqx.is_array))
+        static = eqx.filter(model, eqx.is_array, inverse=True)
+
+        def rebuild(lv):
+            return eqx.combine(jax.tree_util.tree_unflatten(treedef, lv), static)
+
         if batch is None:
-            f = jax.jit(lambda d: one(eqx.combine(d, static)))
-            return lambda: f(dyn)
-        f = jax.jit(lambda d, alphas: jax.vmap(lambda a: one(eqx.combine(d, static), a))(alphas))
+            f = jax.jit(lambda lv: one(rebuild(lv)))
+            return lambda: f(leaves)
+        f = jax.jit(lambda lv, alphas: jax.vmap(lambda a: one(rebuild(lv), a))(alphas))
         alphas = jnp.asarray(batch)
-        return lambda: f(dyn, alphas)
+        return lambda: f(leaves, alphas)
     return build
 
 
@@ -191,7 +204,7 @@ def rel_err(a, ref):
     return (np.max(np.abs(a - ref), axis=-2) / np.max(np.abs(ref), axis=-2)).max()
 
 
-def main(quick=False):
+def main(quick=False, steps_only=False):
     p = lugre2d_bakker1987()
     repeats = 5 if quick else 10
     grids = GRIDS
@@ -199,7 +212,7 @@ def main(quick=False):
              "quartic": QuarticLoad()}
     cases = [(4.0, 0.05)] if quick else [(4.0, 0.05), (15.0, -0.1)]
     for (alpha_deg, kappa) in cases:
-        for ramp_s in (0.0, 0.01, 0.1):
+        for ramp_s in ((0.0,) if steps_only else (0.0, 0.01, 0.1)):
             u = inputs(alpha_deg, kappa, ramp_s)
             ts = jnp.arange(0.0, ramp_s + 0.03 + 1e-9, 5e-4)
             for name, load in loads.items():
@@ -208,10 +221,12 @@ def main(quick=False):
                             DistributedLuGre2D(p, load, n=128), 0)[0]
                 closures = [("delay", simulate_moments)]
                 if ramp_s == 0.0:
-                    closures.insert(0, ("online", simulate_tire_2d))
+                    closures[:0] = [("exact_step", moments_step_response),
+                                    ("online", simulate_tire_2d)]
                 best, tried = None, {}
                 for closure, simulate in closures:
-                    for mom_rtol in MOMENT_RTOLS:
+                    rtols = (None,) if closure == "exact_step" else MOMENT_RTOLS
+                    for mom_rtol in rtols:
                         kw = dict(kinks=ramp_s) if closure == "delay" and ramp_s else {}
                         mom, c_s, w_s, cpu_s = timed(
                             make_runner(u, dfx.Tsit5(), mom_rtol, ts, simulate, **kw),
@@ -268,7 +283,7 @@ def batch_inputs(kappa, ramp_s):
     return u
 
 
-def main_batch(quick=False):
+def main_batch(quick=False, steps_only=False):
     """One vmapped jitted call per side for a sweep of 32 slip angles (1-15 deg): the
     moments at the loosest rtol whose worst member is within 1e-3, the PDE at the coarsest
     grid (best of Tsit5/Kvaerno5) whose worst member is within 1e-3."""
@@ -278,7 +293,7 @@ def main_batch(quick=False):
     alphas = np.deg2rad(BATCH_ALPHAS_DEG)
     loads = {"uniform": UniformLoad(), "trapezoidal": TrapezoidalLoad(0.25),
              "quartic": QuarticLoad()}
-    for ramp_s in ((0.0,) if quick else (0.0, 0.01)):
+    for ramp_s in ((0.0,) if quick or steps_only else (0.0, 0.01)):
         u = batch_inputs(kappa, ramp_s)
         ts = jnp.arange(0.0, ramp_s + 0.03 + 1e-9, 5e-4)
         for name, load in loads.items():
@@ -287,14 +302,17 @@ def main_batch(quick=False):
                         DistributedLuGre2D(p, load, n=128), 0)[0]
             best = None
             kw = dict(kinks=ramp_s) if ramp_s else {}
-            for mom_rtol in MOMENT_RTOLS:
+            ladder = [("delay", simulate_moments, r) for r in MOMENT_RTOLS]
+            if ramp_s == 0.0:
+                ladder.insert(0, ("exact_step", moments_step_response, None))
+            for closure, simulate, mom_rtol in ladder:
                 mom, c_s, w_s, cpu_s = timed(
-                    make_runner(u, dfx.Tsit5(), mom_rtol, ts, simulate_moments, batch=alphas, **kw),
+                    make_runner(u, dfx.Tsit5(), mom_rtol, ts, simulate, batch=alphas, **kw),
                     MomentLuGre2D(p, load), repeats)
                 err = rel_err(mom, ref)
-                log(f"  moments rtol={mom_rtol:g} err={err:.2e} wall={w_s * 1e3:.1f} ms")
+                log(f"  moments {closure} rtol={mom_rtol} err={err:.2e} wall={w_s * 1e3:.2f} ms")
                 if err < 1e-3:
-                    best = dict(moments_closure="delay", moments_err=err, moments_rtol=mom_rtol,
+                    best = dict(moments_closure=closure, moments_err=err, moments_rtol=mom_rtol,
                                 moments_wall_s=w_s, moments_cpu_s=cpu_s, moments_compile_s=c_s)
                     break
             base, last = None, None
@@ -333,8 +351,8 @@ def main_batch(quick=False):
 
 
 if __name__ == "__main__":
-    quick = "--quick" in sys.argv
+    quick, steps_only = "--quick" in sys.argv, "--steps-only" in sys.argv
     if "--batch-only" not in sys.argv:
-        main(quick=quick)
+        main(quick=quick, steps_only=steps_only)
     if "--no-batch" not in sys.argv:
-        main_batch(quick=quick)
+        main_batch(quick=quick, steps_only=steps_only)

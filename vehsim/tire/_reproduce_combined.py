@@ -36,7 +36,7 @@ def reproduce(ctx) -> None:
     from .lugre2d import simulate_tire_2d
     from .lugre2d_fit import default_slip_grid, match_residuals
     from .magic_formula import combined_forces
-    from .moments import MomentLuGre2D
+    from .moments import MomentLuGre2D, moments_step_response
 
     p, mf = lugre2d_bakker1987(), bakker1987()
     load = UniformLoad()
@@ -121,6 +121,10 @@ def reproduce(ctx) -> None:
         return simulate_tire_2d(model, ts, vx, vy, omega, R, FZ, solver=dfx.Tsit5(),
                                 rtol=1e-10, atol=1e-12).forces
 
+    @eqx.filter_jit
+    def step_response(model, vx, vy, omega):  # the moment system solved exactly
+        return moments_step_response(model, ts, vx, vy, omega, R, FZ).forces
+
     fig, ax = plt.subplots(3, 2, figsize=(11, 9), sharex=True)
     loads = {"trapezoidal": TrapezoidalLoad(0.25), "quartic": QuarticLoad()}
     errors = {}
@@ -144,7 +148,7 @@ def reproduce(ctx) -> None:
         jumps[f"alpha{a_deg:g}"] = jump.tolist()
         span = [[0.0, 0.0] for _ in range(3)]
         for name, ld in loads.items():
-            Fm = np.asarray(run(MomentLuGre2D(p, ld), vx, vy, om))
+            Fm = np.asarray(step_response(MomentLuGre2D(p, ld), vx, vy, om))
             for j in range(3):
                 ax[j, col].plot(t_plot, np.concatenate([[0.0, 0.0], Fm[:, j]]),
                                 label=f"{name} (moments)")
@@ -181,7 +185,8 @@ def reproduce(ctx) -> None:
     ctx.figure(fig, "fig17_transients",
                "Fig. 17: transient F_x, F_y, M_z after a slip step at t = 0 (dashed line) from "
                "an undeflected patch with zero force (v = 20 m/s), trapezoidal and quartic "
-               "loads, by the exact method of moments"
+               "loads, by the method of moments (the moment system of eqs. 41-42 solved "
+               "exactly: `moments_step_response`)"
                + ("" if ctx.quick else "; dotted: distributed PDE, n = 64")
                + ". At t = 0+ every bristle moves at dz/dt = v_r, so F_x, F_y jump by "
                "F_n(sigma1 + sigma2)v_r (vertical segment; M_z does not jump for these "

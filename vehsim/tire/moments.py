@@ -261,6 +261,7 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     transport: Float[Array, "P K K"]
     w_force: Float[Array, "P K"]
     w_moment: Float[Array, "P K"]
+    coupling_powers: Float[Array, "K1 D D"]
     n_moments: int = eqx.field(static=True)
     basis: str = eqx.field(static=True)
 
@@ -280,6 +281,11 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
         self.lever = jnp.sum(self.coeffs * (0.5 * ints[:, :K] - ints[:, 1:]))
         (self.src, self.right, self.left, self.transport, self.w_force,
          self.w_moment) = basis_tables(self.edges, self.coeffs, self.n_moments, basis)
+        N = coupling_matrix(self.transport, self.right, self.left)
+        powers = [jnp.eye(N.shape[0])]
+        for _ in range(self.n_moments):
+            powers.append(N @ powers[-1])
+        self.coupling_powers = jnp.stack(powers)
 
     @property
     def pieces(self) -> int:
@@ -677,3 +683,198 @@ def simulate_moments(
     result = dfx.RESULTS.where(hist.result == dfx.RESULTS.successful, sol.result, hist.result)
     return Tire2DSolution(ts=ts, state=sol.ys, forces=forces, result=result,
                           num_steps=hist.stats["num_steps"] + sol.stats["num_steps"])
+
+
+def decay_integrals(x, n: int, exp_neg_x=None):
+    r"""$I_j(x) = \int_0^1 e^{-xu}\,u^j/j!\,du$ for $j < n$, $x \ge 0$, shape `(..., n)`
+    (`exp_neg_x`: $e^{-x}$ if the caller has it).
+
+    Integration by parts gives $I_j = e^{-x}/(j+1)! + x\,I_{j+1}$, a recursion with positive
+    terms only: below $x = 2$ it runs downwards from $I_{n-1}$ by its series
+    $\sum_i (-x)^i/(i!\,(n-1)!\,(i+n))$ (24 terms; finite gradient at $x = 0$, where
+    $I_j = 1/(j+1)!$). From $x = 2$ on, $I_j = P(j+1, x)/x^{j+1}$ with the regularised
+    incomplete gamma function $P(j+1, x) = 1 - e^{-x}\sum_{i\le j}x^i/i!$, which loses at most
+    ~2 digits to cancellation for $j \le 6$ (5 for $j = 10$). Each branch sees only arguments in
+    its own range (double `where`); elementwise only, so that XLA fuses it (`gammainc` costs
+    30x more)."""
+    x = jnp.asarray(x, dtype=float)
+    small = x < 2.0
+    xs = jnp.where(small, x, 0.0)[..., None]
+    xl = jnp.where(small, 2.0, x)[..., None]
+    fact = np.cumprod([1.0] + list(range(1, max(n, 24) + 1)))
+    top = jnp.zeros_like(xs)
+    for i in range(23, -1, -1):
+        top = top * xs + (-1.0) ** i / (fact[i] * fact[n - 1] * (i + n))
+    ex = jnp.exp(-x) if exp_neg_x is None else exp_neg_x
+    e_s = jnp.where(small, ex, 1.0)[..., None]
+    e_l = jnp.where(small, np.exp(-2.0), ex)[..., None]
+    series = [top]
+    for j in range(n - 2, -1, -1):
+        series.append(e_s / fact[j + 1] + xs * series[-1])
+    series = jnp.concatenate(series[::-1], -1)
+    term, partial, power = jnp.ones_like(xl), [], []
+    for k in range(n):
+        partial.append(term if k == 0 else partial[-1] + term)
+        power.append(xl if k == 0 else power[-1] * xl)
+        term = term * xl / (k + 1)
+    partial, power = jnp.concatenate(partial, -1), jnp.concatenate(power, -1)
+    large = (1.0 - e_l * partial) / power
+    return jnp.where(small[..., None], series, large)
+
+
+def coupling_matrix(transport, right, left):
+    r"""$N$ of `moments_step_response`: eqs. 41-42 less the decay and the sources, per axis, on
+    $Y = (\mu^{(0)}, \dots, \mu^{(P-1)}, z_{e_1}, \dots, z_{e_P})$ (moments of each piece, then the
+    deflection at each piece's right edge): $\dot\mu^{(j)} \ni \lambda\bigl(T_j\mu^{(j)}
+    - \rho_j z_{e_{j+1}} + \lambda_j z_{e_j}\bigr)$, $z_{e_0} = 0$ (`basis_tables`).
+    Strictly block lower triangular, so $N^{K+1} = 0$. **Returns:** `(D, D)`, $D = PK + P$."""
+    P, K = right.shape
+    eye = jnp.eye(P)
+    Nmm = jnp.einsum("jkl,jJ->jkJl", transport, eye).reshape(P * K, P * K)
+    Nme = (-right[:, :, None] * eye[:, None, :]
+           + left[:, :, None] * jnp.eye(P, k=-1)[:, None, :]).reshape(P * K, P)
+    top = jnp.concatenate([Nmm, Nme], axis=1)
+    return jnp.concatenate([top, jnp.zeros((P, P * K + P))], axis=0)
+
+
+def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=None):
+    r"""The moment system (eqs. 41-42) after a slip step, solved exactly (no time stepping).
+
+    For inputs constant from `ts[0]` on (`vx`, `vy`, `omega` scalars: a step in slip, as in
+    Fig. 17) from a uniform deflection `z0`, $v_r$, $C_{0i}$ and $\lambda = |\omega r|/L$ are
+    constant, and tread reaches the piece edge $e_j$ at $t_j = e_jL/|\omega r|$. Per axis,
+    with $Y = (\mu, z_e)$ the moments of every piece and the edge deflections, eqs. 41-42 and
+    the edge equations (module docstring; exact here, since $t_e = t - e_jL/|\omega r|$) are
+    between passages the linear system
+    $$\dot Y = (-C_0I + \lambda N)Y + \beta_k,\qquad t\in[t_k, t_{k+1}),$$
+    with $N$ the transport and boundary couplings (`coupling_matrix`) and $\beta_k$ the source
+    $v_r$ less the arrival $e^{-C_0e_j/\lambda}v_r$ of undeflected tread at the edges reached;
+    at $t_k$ the edge value $z_{e_k}$ jumps by $-e^{-C_0t_k}z_0$ (the old tread, deflected by
+    the point model from $z_0$, leaves; no jump from rest). $N$ is nilpotent and commutes with
+    $C_0I$, hence exactly, for $\tau = t - t_k$,
+    $$Y(t) = \sum_{j=0}^{K}\Bigl(e^{-C_0\tau}\frac{(\lambda\tau)^j}{j!}N^jY(t_k)
+      + \lambda^j\tau^{j+1}I_j(C_0\tau)\,N^j\beta_k\Bigr)$$
+    (`decay_integrals`), and the forces and aligning moment follow from eqs. 46 and 48 with
+    $\dot Y = (-C_0I + \lambda N)Y + \beta_k$, contracted with the tables $N^jY(t_k)$,
+    $N^j\beta_k$ before the save times are visited. This is the step response of the
+    distributed PDE (eqs. 31-34) to rounding: from the last passage on
+    ($t \ge L/|\omega r|$) it is the closed-form steady state exactly. Differentiable in
+    everything (zero slip and a locked wheel, $\omega = 0$, included). For input histories use
+    `simulate_moments`.
+
+    **Arguments:** as `simulate_moments`, except that `vx`, `vy`, `omega` [m/s, rad/s] are
+    constants (`Fz` may still be a signal: it scales the forces); `z0` (2,) [m], default 0.
+
+    **Returns:** a `Tire2DSolution` whose `state` is the moments `(T, 2, P, K)` and whose
+    `num_steps` is 0 (no steps are taken).
+    """
+    import diffrax as dfx
+    import jax
+
+    from .lugre2d import Tire2DSolution, relative_velocity_2d
+    from .transient import as_signal
+
+    if not isinstance(model, MomentLuGre2D):
+        raise TypeError(f"moments_step_response needs a MomentLuGre2D, got {type(model).__name__}")
+    for name, x in (("vx", vx), ("vy", vy), ("omega", omega)):
+        if callable(x) or jnp.ndim(x) != 0:
+            raise TypeError(
+                f"moments_step_response: {name} must be a scalar (inputs constant after the "
+                f"step), got {'a callable' if callable(x) else f'shape {jnp.shape(x)}'}; for "
+                "input histories use simulate_moments")
+    ts = jnp.asarray(ts, dtype=float)
+    fz_s = as_signal(ts, Fz)
+    z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
+    p = model.params
+    P, K = model.pieces, model.n_moments
+    n, PK = K + 1, P * K
+    v_r = relative_velocity_2d(vx, vy, omega, r)
+    c = jnp.abs(jnp.asarray(omega, dtype=float) * r)
+    C0 = decay_rates(p, v_r)
+    lam = c / p.L
+    rolling = lam > 0
+    lam_safe = jnp.where(rolling, lam, 1.0)
+    edges = model.edges[1:]
+    t_rel = ts - ts[0]
+    passage = jnp.where(rolling, edges / lam_safe, jnp.inf)
+    bounds = jnp.concatenate([jnp.zeros(1), jnp.minimum(passage, t_rel[-1])])
+    arrival = jnp.exp(-C0[:, None] * edges[None, :] / lam_safe) * v_r[:, None]  # (2, P)
+    reached = jnp.arange(P + 1)[:, None] > jnp.arange(P)[None, :]  # (P + 1, P): segment, edge
+    # beta_k per axis and segment (2, P + 1, D); the initial state (2, D)
+    beta = jnp.concatenate([
+        jnp.broadcast_to((v_r[:, None] * model.src.ravel()[None, :])[:, None, :], (2, P + 1, PK)),
+        v_r[:, None, None] - jnp.where(reached[None], arrival[:, None, :], 0.0)], axis=-1)
+    y = jnp.concatenate([z0[:, None] * model.src.ravel()[None, :],
+                         jnp.broadcast_to(z0[:, None], (2, P))],
+                        axis=-1)
+    Npow = model.coupling_powers  # (n, D, D)
+    fact = jnp.asarray(np.cumprod([1.0] + list(range(1, n))))
+
+    def coefficients(tau):
+        # a_j, b_j of Y(t_k + tau) = sum_j a_j N^j Y(t_k) + b_j N^j beta_k, shape (2, ..., n)
+        x = C0[:, None] * tau[None, :]  # (2, S)
+        ex = jnp.exp(-x)
+        a = ex[..., None] * (_powers(lam * tau, n) / fact[None, :])[None]
+        b = ((_powers(lam, n)[None, :] * tau[:, None] * _powers(tau, n))[None]
+             * decay_integrals(x, n, ex))
+        return a, b
+
+    axis = np.array([0, 1, 1])  # F_x from the x moments, F_y and M_z from the y moments
+    sig0, sig1, C = p.sigma0[axis], p.sigma1[axis], C0[axis]
+    # Eqs. 46/48 are linear in (mu, mu_dot): contract with the load weights first. G[c, k, i] =
+    # w_c . N^i Y(t_k) (and w_c . N^i beta_k) for the force/moment c; since
+    # N^i Y(t_{k+1}) = sum_j a_j N^{i+j} Y(t_k) + b_j N^{i+j} beta_k, the segment starts need
+    # only these scalars (zero past i + j = K).
+    w = jnp.concatenate([jnp.stack([model.w_force.ravel()] * 2 + [model.w_moment.ravel()]),
+                         jnp.zeros((3, P))], axis=1)  # (3, D)
+    # (products and sums, not einsums: XLA CPU's dot costs ~5-10 us at these sizes)
+    wN = jnp.sum(w[:, None, :, None] * Npow[None], axis=2)  # (3, n, D)
+    GW = jnp.sum(wN[:, None] * beta[axis][:, :, None, :], axis=-1)  # (3, P + 1, n)
+    GU = [jnp.sum(wN * y[axis][:, None, :], axis=-1)]  # (3, n) per segment start
+    a_seg, b_seg = coefficients(bounds[1:] - bounds[:-1])  # (2, P, n)
+    hankel = np.arange(n)[:, None] + np.arange(n)[None, :]  # i + j
+
+    def ahead(G):  # G[..., i + j], zero past K
+        return jnp.concatenate([G, jnp.zeros_like(G)], axis=-1)[..., hankel]
+
+    # Where tread that entered after t_0 first reaches edge k, the edge value jumps from the
+    # old tread's deflection to the new one's: by -exp(-C0 t_k) z0 (zero from rest).
+    jump = -jnp.exp(-C0[None, :] * bounds[1:, None]) * z0[None, :]  # (P, 2)
+    for k in range(P):
+        GU.append(jnp.sum(a_seg[axis, k][:, None, :] * ahead(GU[-1])
+                          + b_seg[axis, k][:, None, :] * ahead(GW[:, k]), axis=-1)
+                  + jump[k, axis][:, None] * wN[:, :, PK + k])
+    GU = jnp.stack(GU, axis=1)  # (3, P + 1, n)
+
+    def rates(G):  # sigma0 w.N^i Y + sigma1 w.N^i (-C0 Y + lambda N Y), i.e. eq. 46 less beta
+        nxt = jnp.concatenate([G[..., 1:], jnp.zeros_like(G[..., :1])], axis=-1)
+        return ((sig0 - sig1 * C)[:, None, None] * G + (sig1 * lam)[:, None, None] * nxt)
+
+    FU, FW = rates(GU), rates(GW)
+    Fb = sig1[:, None] * GW[..., 0]  # sigma1 w.beta_k (the source in mu_dot)
+    const = p.sigma2[axis] * v_r[axis] * jnp.stack([jnp.ones(()), jnp.ones(()), model.lever])
+
+    seg = jnp.sum(t_rel[:, None] >= passage[None, :], axis=1)  # (T,)
+    a, b = coefficients(t_rel - bounds[seg])  # (2, T, n)
+    # every segment's table against every save time's coefficients, then the segment of
+    # each save time picked: one small batched matmul (the coefficients materialised once;
+    # fused into a gather of the tables, XLA recomputed them per output element, 3x slower)
+    X = jnp.einsum("ctj,csj->cts", jnp.concatenate([a[axis], b[axis]], axis=-1),
+                   jnp.concatenate([FU, FW], axis=-1))  # (3, T, P + 1)
+    mu = (jnp.take_along_axis(X, seg[None, :, None], axis=-1)[..., 0] + Fb[:, seg]
+          + const[:, None])  # (3, T)
+    scale = jnp.stack([jnp.ones(()), jnp.ones(()), p.L])
+    forces = jax.vmap(fz_s)(ts)[:, None] * mu.T * scale[None, :]
+
+    # The moments themselves (dropped by XLA when only the forces are used)
+    W = jnp.einsum("jde,ike->ikjd", Npow, beta)  # (2, P + 1, n, D)
+    U = [jnp.einsum("jde,ie->ijd", Npow, y)]
+    for k in range(P):
+        y_k = (jnp.einsum("ij,ijd->id", a_seg[:, k], U[-1])
+               + jnp.einsum("ij,ijd->id", b_seg[:, k], W[:, k])).at[:, PK + k].add(jump[k])
+        U.append(jnp.einsum("jde,ie->ijd", Npow, y_k))
+    U = jnp.stack(U, axis=1)  # (2, P + 1, n, D)
+    Y = jnp.einsum("itn,itnd->tid", a, U[:, seg]) + jnp.einsum("itn,itnd->tid", b, W[:, seg])
+    state = Y[..., :PK].reshape(-1, 2, P, K)
+    return Tire2DSolution(ts=ts, state=state, forces=forces, result=dfx.RESULTS.successful,
+                          num_steps=jnp.zeros((), dtype=int))
