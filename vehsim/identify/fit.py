@@ -109,23 +109,41 @@ def with_values(model: LumpedLuGre, values: dict[str, Any]) -> LumpedLuGre:
     return model
 
 
-def to_unconstrained(model: LumpedLuGre, names: Sequence[str]):
-    r"""$u$: logs of the named quantities, with $\log(\mu_s-\mu_c)$ in place of $\mu_s$."""
+def to_unconstrained(model: LumpedLuGre, names: Sequence[str], keep_mu_s=False):
+    r"""$u$: logs of the named quantities, with $\log(\mu_s-\mu_c)$ in place of $\mu_s$; with
+    `keep_mu_s` (a bool, may be traced: $\mu_s$ held fixed while $\mu_c$ is fitted)
+    $\operatorname{logit}(\mu_c/\mu_s)$ in place of $\log\mu_c$, so that $0<\mu_c<\mu_s$."""
     vals = parameter_values(model)
     out = []
     for n in names:
         x = vals[n] - vals["mu_c"] if n == "mu_s" else vals[n]
-        out.append(jnp.log(jnp.asarray(x, dtype=float)))
+        u = jnp.log(jnp.asarray(x, dtype=float))
+        if n == "mu_c" and keep_mu_s is not False:
+            ratio = jnp.where(keep_mu_s, vals["mu_c"] / vals["mu_s"], 0.5)
+            u = jnp.where(keep_mu_s, jnp.log(ratio) - jnp.log1p(-ratio), u)
+        out.append(u)
     return jnp.stack(out)
 
 
-def from_unconstrained(u, model: LumpedLuGre, names: Sequence[str]) -> LumpedLuGre:
-    """Inverse of `to_unconstrained`: every result is a valid parameter set."""
+def from_unconstrained(u, model: LumpedLuGre, names: Sequence[str],
+                       keep_mu_s=False) -> LumpedLuGre:
+    r"""Inverse of `to_unconstrained`: every result is a valid parameter set. With
+    `keep_mu_s`, $\mu_s$ stays at the value in `model` and $\mu_c = \mu_s\,
+    \mathrm{sigmoid}(u)$."""
     vals = {n: jnp.exp(u[i]) for i, n in enumerate(names) if n != "mu_s"}
+    if "mu_c" in vals and keep_mu_s is not False:
+        ratio = jax.nn.sigmoid(u[list(names).index("mu_c")])
+        vals["mu_c"] = jnp.where(keep_mu_s, model.params.mu_s * ratio, vals["mu_c"])
     if "mu_s" in names:
         mu_c = vals.get("mu_c", model.params.mu_c)
-        vals["mu_s"] = mu_c + jnp.exp(u[list(names).index("mu_s")])
+        vals["mu_s"] = jnp.where(keep_mu_s, model.params.mu_s,
+                                 mu_c + jnp.exp(u[list(names).index("mu_s")]))
     return with_values(model, vals)
+
+
+def _keeps_mu_s(mask):
+    """True where `mu_s` is held fixed while `mu_c` is fitted (`mask` over PARAMETER_NAMES)."""
+    return (~mask[PARAMETER_NAMES.index("mu_s")]) & mask[PARAMETER_NAMES.index("mu_c")]
 
 
 # --------------------------------------------------------------------------------------
@@ -523,8 +541,10 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
     `lax.cond`: fixed columns cost nothing). The JVP rule is the product with $J$:
     optimistix's `linearize` then keeps $J$ and its linear operator is a matrix product.
     """
+    keep = _keeps_mu_s(mask)
+
     def residual(u):
-        m = from_unconstrained(u, model, PARAMETER_NAMES)
+        m = from_unconstrained(u, model, PARAMETER_NAMES, keep)
         return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
 
     def with_jacobian(u):
@@ -535,7 +555,7 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
         rows = jnp.nonzero(mask, size=slots, fill_value=0)[0]
         used = (jnp.arange(slots) < jnp.sum(mask))[:, None]
         directions = jnp.eye(u.shape[0], dtype=u.dtype)[rows] * used
-        model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
+        model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES, keep)  # noqa: E731
         out = _open_loop_sensitivities(u, directions, model_of, data, substeps)
         r0 = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
         dF = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1) * used
@@ -666,6 +686,8 @@ def _dtheta_du(theta_all, names):
             T[idx["mu_s"], j] = theta_all[idx["mu_s"]] - theta_all[idx["mu_c"]]
         else:
             T[idx[n], j] = theta_all[idx[n]]
+            if n == "mu_c" and "mu_s" not in names:  # mu_c = mu_s sigmoid(u), mu_s held
+                T[idx[n], j] *= 1.0 - theta_all[idx["mu_c"]] / theta_all[idx["mu_s"]]
             if n == "mu_c":  # mu_s = mu_c + exp(u_mu_s) moves with mu_c when mu_s is free
                 T[idx["mu_s"], j] = theta_all[idx["mu_c"]] if "mu_s" in names else 0.0
     return T
@@ -681,10 +703,10 @@ def _strong_float(x):
     return np.asarray(x, dtype=float)
 
 
-def _values_batch(model, us):
+def _values_batch(model, us, keep_mu_s=False):
     """The values of `PARAMETER_NAMES` for each row of `us` (batch, 9)."""
     return jax.vmap(lambda u: jnp.stack([jnp.asarray(x, dtype=float) for x in parameter_values(
-        from_unconstrained(u, model, PARAMETER_NAMES)).values()]))(us)
+        from_unconstrained(u, model, PARAMETER_NAMES, keep_mu_s)).values()]))(us)
 
 
 @eqx.filter_jit
@@ -694,7 +716,8 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scal
     small pre- and post-fit steps cost more than a Levenberg-Marquardt step): the starts,
     the batched solve, the best start, and its residuals and Jacobian in the physical
     values (`_jacobian`)."""
-    u_fixed = to_unconstrained(model, PARAMETER_NAMES)
+    keep = _keeps_mu_s(mask)
+    u_fixed = to_unconstrained(model, PARAMETER_NAMES, keep)
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
     u0s = jnp.concatenate([u_fixed[None], u_fixed[None] + spread * noise * mask[None, :]])
     us, losses, ok, steps = _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode,
@@ -702,12 +725,12 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scal
     # the best start: the least finite loss among the converged ones, else among all
     rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
     best = jnp.argmin(rank)
-    best_model = from_unconstrained(us[best], model, PARAMETER_NAMES)
-    values = _values_batch(model, us)
+    best_model = from_unconstrained(us[best], model, PARAMETER_NAMES, keep)
+    values = _values_batch(model, us, keep)
     r, J = _jacobian(values[best], best_model, data, mode, scales, substeps, rtol)
     return dict(u_fixed=u_fixed, us=us, losses=losses, ok=ok, steps=steps, best=best,
                 model=best_model, theta=values[best], r=r, J=J, values=values,
-                initial=_values_batch(model, u0s))
+                initial=_values_batch(model, u0s, keep))
 
 
 def _singular_values(A):
@@ -733,6 +756,12 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
             raise ValueError(f"unknown parameter {n!r}; known: {list(PARAMETER_NAMES)}")
     if fixed:
         model = with_values(model, fixed)
+    if "mu_s" in fixed and "mu_c" in free and "mu_c" not in fixed:
+        mu_c, mu_s = float(model.params.mu_c), float(model.params.mu_s)
+        if not mu_c < mu_s:
+            raise ValueError(
+                f"fixed mu_s = {mu_s:g} must exceed the initial mu_c = {mu_c:g}: with mu_s held, "
+                "mu_c is fitted in (0, mu_s); give an initial guess with a smaller mu_c")
     model = jax.tree.map(_strong_float, model)
     names = tuple(n for n in PARAMETER_NAMES if n in free and n not in fixed)
     if not names:
