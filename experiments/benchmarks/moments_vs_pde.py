@@ -13,7 +13,9 @@ tolerance) and the implicit Kvaerno5 (rtol 1e-5; ~45 steps but dearer ones). Mom
 closure that applies: the online one (`simulate_tire_2d` on `MomentLuGre2D`, exact only
 for steps) and the exact delay-state closure (`simulate_moments`, told the ramp's end as
 an input kink, `kinks`, so that steps land on it and on its arrival at the piece edges); the
-fastest is quoted (`moments_closure`). The PDE is not told the kink: its steps are bound by
+fastest is quoted (`moments_closure`). For the steps also the exact solution of the moment
+system (`moments_step_response`, closure `exact_step`: no time stepping, no tolerance).
+The PDE is not told the kink: its steps are bound by
 the stiffness of the transport (~350 at n = 16 at any tolerance), not by the kink. Both
 sides Tsit5 unless stated, atol = 1e-2 rtol.
 
@@ -24,6 +26,33 @@ wall times are inflated by load.
 
 Run: PYTHONPATH=. python experiments/benchmarks/moments_vs_pde.py [--quick]
      [--no-batch | --batch-only] [--steps-only]
+
+**Slip steps with the exact solution (`--steps-only`, 2026-11-21, idle 2-core machine,
+load 1.2-1.9; three runs, the last two in `moments_vs_pde_results.jsonl`).** The moment
+system after a step is linear with a nilpotent coupling and is solved exactly
+(`moments_step_response`): errors 2.4e-6 to 1.8e-4 against the n = 128 PDE (the rest is the
+reference's own error), no tolerance to choose. Per call, ratio (moments wall per call):
+
+  alpha load     run 1        run 2        run 3        PDE
+  4  uniform   688 (152 us)  336 (delay)  281 (delay)  n=48 Tsit5, 77-105 ms
+  4  trapez.   61.5 (118 us) 29.5 (251)   31.6 (227)   n=16 Tsit5, 7.2-7.4 ms
+  4  quartic   33.8 (206 us) 24.4 (303)   26.1 (268)   n=16 Tsit5, 7.0-7.4 ms
+  15 uniform   74.4 (144 us) 47.4 (208)   47.9 (216)   n=24 Kvaerno5, 9.8-10.8 ms
+  15 trapez.   37.0 (289 us) 59.6 (177)   39.1 (297)   n=24 Kvaerno5, 10.5-11.6 ms
+  15 quartic   32.4 (163 us) 29.9 (223)   28.3 (225)   n=16 Tsit5/Kvaerno5, 5.3-6.7 ms
+
+(run 1 with an earlier version of the same function, ~66 XLA kernels for the quartic; runs
+2-3 with the final one, ~50.) Batched (32 slip angles, one vmapped call): trapezoidal step
+380x / 331x (1.06 / 0.91 ms vs 402 / 300 ms), quartic 512x / 878x (0.93 / 0.59 ms vs 475 /
+519 ms), uniform > 12000x (no PDE grid up to n = 64 reaches 1e-3).
+
+Per call the target of 50x is met only in run 1 for some rows: a call is ~50 small XLA
+kernels whose summed run time is ~50 us (xprof trace), and the rest of its 120-300 us is
+dispatch and the XLA CPU runtime's scheduling between kernels, which this VM's load
+triples within the hour (the same call measured 70 us and 310 us median an hour apart).
+The delay-closure diffrax solve at rtol 1e-3 costs about the same per call for the uniform
+load, so single-call latency is bound by the runtime, not by the moment system. Batched,
+where that overhead is shared, the exact solution is 330-15000x faster than the PDE.
 
 Results (full run, per-call rows at load average 1.3-3.0 and batched rows at 1.4-3.4 on 2
 shared cores; `moments_vs_pde_results.jsonl`, the last 24 lines). Per call: ratio wall

@@ -67,6 +67,11 @@ depend on $z$), which gives these closures of eqs. 41-42:
   `TransitHistory` returns the exact $z_i(t, e)$ at every edge from them and the entry
   time found by safeguarded Newton (locked phases included). Each right-hand side then
   searches the dense output: 3-10x slower than the delay states.
+- **Exact, solved in closed form** (`moments_step_response`, for a step in slip: inputs
+  constant from $t_0$ on, from a uniform deflection): between passages over the piece
+  edges the whole system is linear with constant coefficients and a nilpotent coupling,
+  so it is solved exactly by finite sums (no time stepping): the transients of Fig. 17 at
+  the cost of a few dozen small array operations, and exactly steady after one transit.
 - **Online** (this class as an `AbstractTire` inside a vehicle, where the inputs depend on
   the state): we carry $z_e$ for every edge and $s$ as states, with the arrival term
   evaluated with the inputs frozen over the transit ($\dot t_e = 1$,
