@@ -824,32 +824,35 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
              * decay_integrals(x, n, ex))
         return a, b
 
-    axis = np.array([0, 1, 1])  # F_x from the x moments, F_y and M_z from the y moments
-    sig0, sig1, C = p.sigma0[axis], p.sigma1[axis], C0[axis]
-    # Eqs. 46/48 are linear in (mu, mu_dot): contract with the load weights first. G[c, k, i] =
-    # w_c . N^i Y(t_k) (and w_c . N^i beta_k) for the force/moment c; since
-    # N^i Y(t_{k+1}) = sum_j a_j N^{i+j} Y(t_k) + b_j N^{i+j} beta_k, the segment starts need
-    # only these scalars (zero past i + j = K).
-    w = jnp.concatenate([jnp.stack([model.w_force.ravel()] * 2 + [model.w_moment.ravel()]),
-                         jnp.zeros((3, P))], axis=1)  # (3, D)
+    # Tables U[k, i] = N^i Y(t_k) and W[k, i] = N^i beta_k per axis, shape (2, P + 1, n, D).
+    # Since N^i Y(t_{k+1}) = sum_j a_j N^{i+j} Y(t_k) + b_j N^{i+j} beta_k (zero past
+    # i + j = K), the segment starts need no matrix products beyond the first table.
     # (products and sums, not einsums: XLA CPU's dot costs ~5-10 us at these sizes)
-    wN = jnp.sum(w[:, None, :, None] * Npow[None], axis=2)  # (3, n, D)
-    GW = jnp.sum(wN[:, None] * beta[axis][:, :, None, :], axis=-1)  # (3, P + 1, n)
-    GU = [jnp.sum(wN * y[axis][:, None, :], axis=-1)]  # (3, n) per segment start
+    W = jnp.sum(Npow[None, None] * beta[:, :, None, None, :], axis=-1)
+    U = [jnp.sum(Npow[None] * y[:, None, None, :], axis=-1)]  # (2, n, D)
     a_seg, b_seg = coefficients(bounds[1:] - bounds[:-1])  # (2, P, n)
     hankel = np.arange(n)[:, None] + np.arange(n)[None, :]  # i + j
 
-    def ahead(G):  # G[..., i + j], zero past K
-        return jnp.concatenate([G, jnp.zeros_like(G)], axis=-1)[..., hankel]
+    def ahead(T):  # T[:, i + j] (2, n, n, D), zero past K
+        return jnp.concatenate([T, jnp.zeros_like(T)], axis=1)[:, hankel]
 
     # Where tread that entered after t_0 first reaches edge k, the edge value jumps from the
     # old tread's deflection to the new one's: by -exp(-C0 t_k) z0 (zero from rest).
     jump = -jnp.exp(-C0[None, :] * bounds[1:, None]) * z0[None, :]  # (P, 2)
     for k in range(P):
-        GU.append(jnp.sum(a_seg[axis, k][:, None, :] * ahead(GU[-1])
-                          + b_seg[axis, k][:, None, :] * ahead(GW[:, k]), axis=-1)
-                  + jump[k, axis][:, None] * wN[:, :, PK + k])
-    GU = jnp.stack(GU, axis=1)  # (3, P + 1, n)
+        U.append(jnp.sum(a_seg[:, k, None, :, None] * ahead(U[-1])
+                         + b_seg[:, k, None, :, None] * ahead(W[:, k]), axis=2)
+                 + jump[k][:, None, None] * Npow[None, :, :, PK + k])
+    U = jnp.stack(U, axis=1)  # (2, P + 1, n, D)
+
+    # Eqs. 46/48 are linear in (mu, mu_dot): contract the tables with the load weights of
+    # each force/moment c before visiting the save times, G[c, k, i] = w_c . N^i Y(t_k).
+    axis = np.array([0, 1, 1])  # F_x from the x moments, F_y and M_z from the y moments
+    sig0, sig1, C = p.sigma0[axis], p.sigma1[axis], C0[axis]
+    w = jnp.concatenate([jnp.stack([model.w_force.ravel()] * 2 + [model.w_moment.ravel()]),
+                         jnp.zeros((3, P))], axis=1)  # (3, D)
+    GU = jnp.sum(w[:, None, None, :] * U[axis], axis=-1)  # (3, P + 1, n)
+    GW = jnp.sum(w[:, None, None, :] * W[axis], axis=-1)
 
     def rates(G):  # sigma0 w.N^i Y + sigma1 w.N^i (-C0 Y + lambda N Y), i.e. eq. 46 less beta
         nxt = jnp.concatenate([G[..., 1:], jnp.zeros_like(G[..., :1])], axis=-1)
@@ -870,15 +873,7 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
           + const[:, None])  # (3, T)
     scale = jnp.stack([jnp.ones(()), jnp.ones(()), p.L])
     forces = jax.vmap(fz_s)(ts)[:, None] * mu.T * scale[None, :]
-
-    # The moments themselves (dropped by XLA when only the forces are used)
-    W = jnp.einsum("jde,ike->ikjd", Npow, beta)  # (2, P + 1, n, D)
-    U = [jnp.einsum("jde,ie->ijd", Npow, y)]
-    for k in range(P):
-        y_k = (jnp.einsum("ij,ijd->id", a_seg[:, k], U[-1])
-               + jnp.einsum("ij,ijd->id", b_seg[:, k], W[:, k])).at[:, PK + k].add(jump[k])
-        U.append(jnp.einsum("jde,ie->ijd", Npow, y_k))
-    U = jnp.stack(U, axis=1)  # (2, P + 1, n, D)
+    # the moments themselves (dropped by XLA when only the forces are used)
     Y = jnp.einsum("itn,itnd->tid", a, U[:, seg]) + jnp.einsum("itn,itnd->tid", b, W[:, seg])
     state = Y[..., :PK].reshape(-1, 2, P, K)
     return Tire2DSolution(ts=ts, state=state, forces=forces, result=dfx.RESULTS.successful,
