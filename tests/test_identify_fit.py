@@ -123,6 +123,23 @@ def test_distributed_truth_held_out_error_below_3_percent(brakings):
                                                - np.asarray(d.F_x)) ** 2)), rtol=1e-9)
     # standard errors are finite and positive, and the multi-start spread is reported
     assert all(np.isfinite(s) and s > 0 for s in res.std_errors.values())
+    # ... and equal the Gauss-Newton covariance s^2 (J^T J)^-1 with J = dF/dtheta by
+    # jax.jacfwd through the plain diffrax solve (the fit reuses its solver's last Jacobian,
+    # in the unconstrained coordinates, mapped by the chain rule)
+    names = list(res.free)
+    theta = jnp.asarray([res.values[n] for n in names])
+    model = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), res.model)
+
+    def forces(th):
+        m = with_values(model, dict(zip(names, th)))
+        return jnp.concatenate([predict_open_loop(m, d, adjoint=dfx.ForwardMode()) for d in train])
+
+    F_meas = np.concatenate([np.asarray(d.F_x) for d in train])
+    r = np.asarray(forces(theta)) - F_meas
+    J = np.asarray(jax.jit(jax.jacfwd(forces))(theta))
+    cov = np.sum(r**2) / (len(r) - len(names)) * np.linalg.inv(J.T @ J)
+    np.testing.assert_allclose([res.std_errors[n] for n in names], np.sqrt(np.diag(cov)),
+                               rtol=1e-6)
     assert res.starts["n_starts"] == N_STARTS and len(res.starts["losses"]) == N_STARTS
     assert res.starts["n_at_best"] >= 1
     print("distributed truth, held-out braking_3:", err, "parameters:", res.values,

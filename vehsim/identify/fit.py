@@ -630,40 +630,16 @@ def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, su
         lambda_0 = INITIAL_DAMPING * jnp.max(jnp.sum(J**2, axis=0))
         solver = _LevenbergMarquardt(tol, tol, 1.0 / lambda_0)
         sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
-        # the residuals at the last accepted point, `sol.value`, are in the solver's state
-        # (no further solve)
+        # the residuals and the Jacobian (in u) at the last accepted point, `sol.value`, are
+        # in the solver's state (no further solve)
         r = sol.state.f_info.residual
         return _merge(sol.value, u_fixed, mask), 0.5 * jnp.sum(r**2), \
-            sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+            sol.result == optx.RESULTS.successful, sol.stats["num_steps"], r, \
+            sol.state.f_info.jac.as_matrix()
 
     if u0s.shape[0] == 1:  # no batch: a smaller program to compile (closed loop)
         return jax.tree.map(lambda x: x[None], one(u0s[0]))
     return jax.vmap(one)(u0s)
-
-
-@eqx.filter_jit
-def _jacobian(theta, model, data, mode, scales, substeps, rtol):
-    """Residuals and their Jacobian in the physical values of all PARAMETER_NAMES."""
-    def residual(th):
-        m = with_values(model, {n: th[i] for i, n in enumerate(PARAMETER_NAMES)})
-        return _residuals(m, data, mode, scales, substeps, rtol, dfx.ForwardMode())
-
-    if mode != "open_loop":
-        r, Jt = _jvp_columns(residual, theta, jnp.ones(theta.shape, dtype=bool))
-        return r, Jt.T
-    # open loop: the sensitivities in u (every direction), mapped to the physical values,
-    # J_theta = J_u (dtheta/du)^-1
-    model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
-    u = to_unconstrained(model, PARAMETER_NAMES)
-    eye = jnp.eye(u.shape[0], dtype=u.dtype)
-    out = _open_loop_sensitivities(u, eye, model_of, data, substeps)
-    r = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
-    Jt_u = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1)
-    dtheta_du = jax.jacfwd(lambda x: jnp.stack([jnp.asarray(v, dtype=float) for v in
-                                                parameter_values(model_of(x)).values()]))(u)
-    # the inverse of the 9 x 9 map, not a solve with ~4000 right-hand sides (XLA's
-    # triangular solves of a wide right-hand side cost ~5 ms on CPU, the product 0.05 ms)
-    return r, (jnp.linalg.inv(dtheta_du.T) @ Jt_u).T
 
 
 _predict_open_loop_jit = eqx.filter_jit(predict_open_loop)
@@ -714,23 +690,25 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, mode, scal
               rtol, tol, max_steps, slots):
     """Everything of a fit that runs in JAX, in one compiled call (eager dispatches of the
     small pre- and post-fit steps cost more than a Levenberg-Marquardt step): the starts,
-    the batched solve, the best start, and its residuals and Jacobian in the physical
-    values (`_jacobian`)."""
+    the batched solve, the best start, and its residuals and Jacobian (the solver's last,
+    in the unconstrained coordinates u)."""
     keep = _keeps_mu_s(mask)
     u_fixed = to_unconstrained(model, PARAMETER_NAMES, keep)
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
     u0s = jnp.concatenate([u_fixed[None], u_fixed[None] + spread * noise * mask[None, :]])
-    us, losses, ok, steps = _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode,
-                                         scales, substeps, rtol, tol, max_steps, slots)
+    us, losses, ok, steps, rs, Js = _solve_batch(u0s, u_fixed, mask, prior_weight, model, data,
+                                                 mode, scales, substeps, rtol, tol, max_steps,
+                                                 slots)
     # the best start: the least finite loss among the converged ones, else among all
     rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
     best = jnp.argmin(rank)
     best_model = from_unconstrained(us[best], model, PARAMETER_NAMES, keep)
     values = _values_batch(model, us, keep)
-    r, J = _jacobian(values[best], best_model, data, mode, scales, substeps, rtol)
+    # the data rows (the prior's rows last) of the best start's residuals and Jacobian in u
+    n_data = rs.shape[1] - len(PARAMETER_NAMES)
     return dict(u_fixed=u_fixed, us=us, losses=losses, ok=ok, steps=steps, best=best,
-                model=best_model, theta=values[best], r=r, J=J, values=values,
-                initial=_values_batch(model, u0s, keep))
+                model=best_model, theta=values[best], r=rs[best, :n_data],
+                J_u=Js[best, :n_data], values=values, initial=_values_batch(model, u0s, keep))
 
 
 def _singular_values(A):
@@ -786,9 +764,13 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     _log(verbose, f"solved {n_starts} start(s) in {time.perf_counter() - t_start:.1f}s: "
          f"{int(ok.sum())} converged, best loss {np.nanmin(np.where(finite, losses, np.nan)):.4g}"
          if finite.any() else "no start gave a finite loss")
-    best_model, theta_all, r, J_all = core["model"], core["theta"], core["r"], core["J"]
+    best_model, theta_all, r = core["model"], core["theta"], core["r"]
     cols = [PARAMETER_NAMES.index(n) for n in names]
-    J = J_all[:, cols]
+    # the solver's last Jacobian, in u: to the physical values by the chain rule,
+    # J_u = J_theta dtheta/du (the fixed values do not depend on the free u)
+    du = _dtheta_du(theta_all, names)
+    J_u = core["J_u"][:, cols]
+    J = J_u @ np.linalg.inv(du[cols, :])
     theta = theta_all[cols]
     N, p = J.shape
     loss = float(0.5 * np.sum(r**2))  # data term only (without the prior)
@@ -814,8 +796,7 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
     # between the residual vector (data and prior) and each Jacobian column. optimistix's LM
     # stops on small steps and small loss changes; with noisy data at the optimum every trial
     # step is rejected, so a fit can run out of steps although it sits at the minimum.
-    du = _dtheta_du(theta_all, names)
-    Ju = np.concatenate([J_all @ du, float(prior_weight) * np.eye(p)])
+    Ju = np.concatenate([J_u, float(prior_weight) * np.eye(p)])
     ru = np.concatenate([r, float(prior_weight) * (us[best] - core["u_fixed"])[cols]])
     # A parameter the data push towards zero (dL/du > 0) whose value is within two standard
     # errors of zero sits at its bound: the log transform reaches 0 only at u = -inf, so LM
