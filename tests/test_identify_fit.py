@@ -192,8 +192,9 @@ def test_fit_loss_gradient_matches_finite_differences(brakings):
 def test_levenberg_marquardt_jacobian_matches_forward_mode_autodiff(brakings):
     # The LM Jacobian comes from hand-derived forward sensitivities of the discrete scheme,
     # the directions as columns of vector-valued solves of at most 8 columns: for two
-    # brakings and all 9 parameters (two solves each) it must equal jax.jacfwd through
-    # the plain diffrax solve of each braking.
+    # brakings and all 9 parameters (two solves each), and for the fit's default directions
+    # (one augmented solve each), it must equal jax.jacfwd through the plain diffrax solve
+    # of each braking.
     cut = lambda d, n: jax.tree.map(  # noqa: E731
         lambda x: x[:n] if getattr(x, "ndim", 0) == 1 else x, _unnamed(d))
     data = [cut(brakings["braking_1"], 400), cut(brakings["braking_2"], 250)]
@@ -201,13 +202,22 @@ def test_levenberg_marquardt_jacobian_matches_forward_mode_autodiff(brakings):
     u = to_unconstrained(model, PARAMETER_NAMES)
     model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
     out = jax.jit(lambda x: _open_loop_sensitivities(x, jnp.eye(9), model_of, data, 2))(u)
-    for (F, dF), d in zip(out, data):
+    # the fit's default directions: the 5 that move the friction state (state and tangents
+    # in one augmented solve), then sigma1, sigma2 (force only)
+    order = [PARAMETER_NAMES.index(n) for n in
+             ("sigma0", "mu_c", "mu_s", "v_s", "kappa0", "sigma1", "sigma2")]
+    out5 = jax.jit(lambda x: _open_loop_sensitivities(
+        x, jnp.eye(9)[np.asarray(order)], model_of, data, 2, z_rows=5))(u)
+    for (F, dF), (F5, dF5), d in zip(out, out5, data):
         J = jax.jit(jax.jacfwd(lambda x, d=d: predict_open_loop(
             model_of(x), d, adjoint=dfx.ForwardMode())))(u)
         np.testing.assert_allclose(F, predict_open_loop(model, d), rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(F5, F, rtol=1e-12, atol=1e-9)
         scale = np.max(np.abs(np.asarray(J)), axis=0)
         assert np.all(scale > 0)
         np.testing.assert_allclose(np.asarray(dF).T / scale, np.asarray(J) / scale, atol=1e-10)
+        np.testing.assert_allclose(np.asarray(dF5).T / scale[order],
+                                   np.asarray(J)[:, order] / scale[order], atol=1e-10)
 
 
 def test_exponential_scheme_matches_tight_kvaerno5(brakings):

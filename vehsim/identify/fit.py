@@ -279,8 +279,79 @@ def _solve_columns(a, b, y0, adjoint):
         jnp.array_split(b, chunks, axis=1), jnp.array_split(y0, chunks))], axis=1)
 
 
+class _StepMapTerm(dfx.AbstractTerm):
+    r"""A term whose `vf` is the exact step map of a unit step, $y \mapsto y^+$ (for
+    `_StepMapSolver`; not a $dy/dt$)."""
+
+    step_map: Any
+
+    def vf(self, t, y, args):
+        return self.step_map(t, y, args)
+
+    def contr(self, t0, t1, **kwargs):
+        return t1 - t0
+
+    def prod(self, vf, control):
+        raise NotImplementedError("a step map has no product with a control")
+
+
+class _StepMapSolver(dfx.AbstractSolver):
+    r"""Fixed unit steps $y_1 = \Phi(t_m, y_0)$ of a `_StepMapTerm` ($t_m$ the midpoint)."""
+
+    term_structure: ClassVar = _StepMapTerm
+    interpolation_cls: ClassVar = dfx.LocalLinearInterpolation
+
+    def order(self, terms):
+        return 2
+
+    def init(self, terms, t0, t1, y0, args):
+        return None
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        y1 = terms.vf(0.5 * (t0 + t1), y0, args)
+        return y1, None, dict(y0=y0, y1=y1), None, dfx.RESULTS.successful
+
+    def func(self, terms, t0, y0, args):
+        raise NotImplementedError("a step map has no vector field")
+
+
+def _state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
+    r"""$\bar z$ and its tangents $\dot z_j$ ($j \le 5$) in one diffrax solve of the
+    augmented state $y = (\bar z, \dot z_1, \dots)$: per unit step the maps of
+    `_linear_solve` and of the tangent recurrence of `_open_loop_sensitivities`,
+    $\bar z^+ = e^{-a}\bar z + \varphi(a)b$,
+    $\dot z_j^+ = e^{-a}\dot z_j + \varphi(a)\,\dot a_j w(\bar z)$,
+    $w = (\varphi'(a)(b - a\bar z) - \varphi(a)\bar z)/\varphi(a)$ at the step start:
+    the same numbers as the state solve followed by the tangent solve, in one pass.
+
+    At most 5 tangents: XLA CPU compiles a while loop whose body is small (its bytes
+    accessed per iteration) into one kernel and runs larger bodies op by op, ~20x slower
+    per step; this body crosses that line at 7 columns (measured, 4000 steps: 40-80 ns per
+    step with 6 columns, 1.6-2 us with 7 or 8; the state and tangent solves apart: 100-200
+    ns)."""
+    num = a.shape[0]
+    phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
+    decay, ratio, phi_b, phi_da = jnp.exp(-a), dphi / phi, phi * b, phi[:, None] * da
+
+    def step_map(s, y, args):
+        m = jnp.clip(jnp.floor(s).astype(int), 0, num - 1)
+        w = ratio[m] * (b[m] - a[m] * y[0]) - y[0]
+        return decay[m] * y + jnp.concatenate([phi_b[m][None], w * phi_da[m]])
+
+    sol = dfx.diffeqsolve(
+        _StepMapTerm(step_map), _StepMapSolver(), 0.0, float(num), 1.0,
+        jnp.concatenate([z0[None], dz0]), saveat=dfx.SaveAt(steps=True), adjoint=adjoint,
+        max_steps=num,
+    )
+    return sol.ys
+
+
+# u-directions that move only the force of eq. 23, not the friction state (sigma1, sigma2)
+_FORCE_ONLY = np.array([n in ("sigma1", "sigma2") for n in PARAMETER_NAMES])
+
+
 def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData],
-                             substeps: int):
+                             substeps: int, z_rows: int | None = None):
     r"""Forces $F(t_k)$ of every braking and their derivatives along each row of
     `directions` (in $u$): a list of `(F (samples,), dF (directions, samples))`.
 
@@ -290,10 +361,15 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
     $c = \dot a\,(\varphi'(a)(b - az) - \varphi(a)z)$ ($b = hv_r$ does not depend on the
     parameters): the same linear recurrence with forcing $c/\varphi(a)$, solved for all
     directions at once by vector-valued diffrax solves (exact derivatives of the discrete
-    scheme). $\dot a$ comes from `_decay_rate_partials` and the chain rule through the
-    parameter map; the force of eq. 23 is differentiated by hand the same way.
+    scheme). `z_rows`: only the first `z_rows` directions may move the friction state (the
+    others move only $\sigma_1$, $\sigma_2$; their $\dot z = 0$); with at most 5 such
+    directions, state and tangents share one solve (`_state_and_tangent_solve`). $\dot a$
+    comes from `_decay_rate_partials` and the chain rule through the parameter map; the
+    force of eq. 23 is differentiated by hand the same way.
     """
     fm = dfx.ForwardMode()
+    n_dir = directions.shape[0]
+    n_z = n_dir if z_rows is None else z_rows
     model = model_of(u)
     q = _lumped_parameters(model)
     # parameter tangents (directions x 9)
@@ -308,17 +384,22 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
         # theta and kappa): a = h (theta da/dtheta + kappa da/dkappa), b = h v_r
         a, b = h * (q[0] * P[:, 0] + q[2] * P[:, 2]), h * v_r_mid
         z0 = _z_steady(model, d.v[0], d.omega[0], d.r)
-        da = h[:, None] * (P @ dq[:, :7].T)  # (steps, directions)
+        da = h[:, None] * (P @ dq[:n_z, :7].T)  # (steps, z directions)
         dz0 = jax.vmap(lambda e, d=d: jax.jvp(
             lambda x: _z_steady(model_of(x), d.v[0], d.omega[0], d.r), (u,), (e,))[1])(
-                directions)
-        zs = _linear_solve(a, b, z0, fm)
-        z_start = jnp.concatenate([z0[None], zs[:-1]])
-        phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
-        w = (dphi * (b - a * z_start) - phi * z_start) / phi
-        xs = _solve_columns(a, da * w[:, None], dz0, fm)
+                directions[:n_z])
+        if n_z <= 5:  # state and tangents in one solve
+            ys = _state_and_tangent_solve(a, b, da, z0, dz0, fm)
+            zs, xs = ys[:, 0], ys[:, 1:]
+        else:
+            zs = _linear_solve(a, b, z0, fm)
+            z_start = jnp.concatenate([z0[None], zs[:-1]])
+            phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
+            w = (dphi * (b - a * z_start) - phi * z_start) / phi
+            xs = _solve_columns(a, da * w[:, None], dz0, fm)
         z = jnp.concatenate([z0[None], zs[substeps - 1::substeps]])
         dz = jnp.concatenate([dz0[:, None], xs[substeps - 1::substeps].T], axis=1)
+        dz = jnp.concatenate([dz, jnp.zeros((n_dir - n_z, dz.shape[1]), dz.dtype)])
         # eq. 23: F/F_n = sigma0 z + sigma1 (v_r - a z) + sigma2 v_r, a at the samples
         v_r, om_r = d.r * d.omega - d.v, d.r * d.omega
         P = _decay_rate_partials(q, v_r, om_r)
@@ -528,17 +609,18 @@ def _jvp_columns(fn, x, mask):
     return r0, jax.lax.map(column, jnp.arange(x.shape[0]))
 
 
-def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol, slots=9):
+def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol, slots=7):
     r"""$u \mapsto r(u)$ (data residuals) carrying its forward-mode Jacobian.
 
     Levenberg-Marquardt needs the whole Jacobian $J$ at every step. Through a forward-mode
     `while_loop`, `jax.linearize` cannot split off a cheap linear part (it re-runs the solve
     for every column), and `jax.jacfwd` (a `vmap` of JVPs) batches the solve's saved
     trajectory, which is slow. So $J$ is built from forward sensitivities: open loop,
-    vector-valued tangent solves for the free directions, gathered into `slots` (static)
-    rows (`_open_loop_sensitivities`); closed
-    loop, one forward-mode JVP through the solve per *free* parameter (`lax.map` +
-    `lax.cond`: fixed columns cost nothing). The JVP rule is the product with $J$:
+    vector-valued tangent solves for the free directions that move the friction state,
+    gathered into `slots` (static: 5, or 7 when more are free) rows, plus $\sigma_1$,
+    $\sigma_2$, which move only the force (`_open_loop_sensitivities`); closed loop, one
+    forward-mode JVP through the solve per *free* parameter (`lax.map` + `lax.cond`: fixed
+    columns cost nothing). The JVP rule is the product with $J$:
     optimistix's `linearize` then keeps $J$ and its linear operator is a matrix product.
     """
     keep = _keeps_mu_s(mask)
@@ -550,13 +632,17 @@ def _data_residual_with_jacobian(mask, model, data, mode, scales, substeps, rtol
     def with_jacobian(u):
         if mode != "open_loop":
             return _jvp_columns(residual, u, mask)
-        # the free directions gathered into `slots` rows (padding rows are zero): up to 8
-        # free parameters share one tangent solve (9 directions cost 15 % more)
-        rows = jnp.nonzero(mask, size=slots, fill_value=0)[0]
-        used = (jnp.arange(slots) < jnp.sum(mask))[:, None]
+        # the free directions that move the friction state gathered into `slots` rows
+        # (padding rows are zero), then sigma1 and sigma2 (zero rows unless free): with at
+        # most 5 state directions the state and its tangents share one solve per braking
+        z_mask = mask & ~_FORCE_ONLY
+        rows = jnp.concatenate([jnp.nonzero(z_mask, size=slots, fill_value=0)[0],
+                                jnp.asarray(np.flatnonzero(_FORCE_ONLY))])
+        used = jnp.concatenate([jnp.arange(slots) < jnp.sum(z_mask),
+                                mask[_FORCE_ONLY]])[:, None]
         directions = jnp.eye(u.shape[0], dtype=u.dtype)[rows] * used
         model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES, keep)  # noqa: E731
-        out = _open_loop_sensitivities(u, directions, model_of, data, substeps)
+        out = _open_loop_sensitivities(u, directions, model_of, data, substeps, slots)
         r0 = jnp.concatenate([(F - d.F_x) / scales[0] for (F, _), d in zip(out, data)])
         dF = jnp.concatenate([dF / scales[0] for _, dF in out], axis=1) * used
         return r0, jnp.zeros((u.shape[0], dF.shape[1]), dF.dtype).at[rows].add(dF)
@@ -614,7 +700,7 @@ INITIAL_DAMPING = 1e-4
 @eqx.filter_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces: the tests check for retraces
 def _solve_batch(u0s, u_fixed, mask, prior_weight, model, data, mode, scales, substeps, rtol,
-                 tol, max_steps, slots=9):
+                 tol, max_steps, slots=7):
     # All of PARAMETER_NAMES are always in `u`; fixed ones are masked (zero Jacobian columns,
     # so LM never moves them). One compilation serves every choice of free parameters.
     data_residual = _data_residual_with_jacobian(mask, model, data, mode, scales, substeps,
@@ -756,7 +842,8 @@ def _fit(data, init, free, fixed, mode, n_starts, spread, key, tol, max_steps, s
          "(the first call compiles)...")
     core = _fit_core(model, anon, mask, np.asarray(float(prior_weight)), np.asarray(key),
                      np.asarray(float(spread)), n_starts, mode, scales, substeps, rtol, tol,
-                     max_steps, 8 if len(names) <= 8 else 9)
+                     max_steps, 5 if sum(n not in ("sigma1", "sigma2") for n in names) <= 5
+                     else 7)
     core = {k: v if k == "model" else np.asarray(v) for k, v in core.items()}
     us, losses, ok, steps, best = (core[k] for k in ("us", "losses", "ok", "steps", "best"))
     best = int(best)
