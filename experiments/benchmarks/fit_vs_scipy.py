@@ -13,19 +13,34 @@ which load distorts less).
 
 Run:  PYTHONPATH=. python experiments/benchmarks/fit_vs_scipy.py
 
-Results (idle 2-core machine, five runs on 2026-11-21; the last three in
-`fit_vs_scipy_results.jsonl`): ratio 8.8, 12.3, 10.3, 9.0, 10.1 (median 10.1x) wall, CPU
-8.5-12.4x (median 8.8x); vehsim 0.032-0.038 s (26 LM steps), scipy 0.29-0.41 s (194 residual
-evaluations); final losses agree to 6e-10. So the 10x target is met on the median wall time,
-not in every run. Where vehsim's time goes (in-loop measurements): ~1.2 ms per LM step, of
-which the forward sensitivities of both brakings are ~0.5 ms (two primal and two 8-column
-tangent diffrax solves, ~0.1 ms each, and the eq. 10 partials) and the rest is the
-Jacobian's assembly, `jax.linearize` and optimistix's step; ~3 ms fixed (the damping's
-first Jacobian, the post-fit Jacobian in all 9 parameters). Tried and not kept: splitting
-the two brakings over two host devices (slower, 50 vs 35 ms: the replicated LM step and a
-collective per step cost more than the halved solves); trust-region constants (high
-cutoff 0.5-0.99, growth 2-10, initial damping 1e-4-1e-2: 63-118 steps for the three train
-pairs against 66 now); a looser `tol` (1e-5: 23 steps, loss 5e-10 higher).
+Results (2-core machine, load 1.3-1.5 including the benchmark, five runs on 2026-11-21
+after the augmented solve below; the last five lines of `fit_vs_scipy_results.jsonl`):
+ratio 13.1, 12.2, 11.3, 14.0, 10.0 wall (median 12.2x), CPU 12.7, 10.9, 11.3, 13.2, 10.0
+(median 11.3x); vehsim 22-30 ms (26 LM steps), scipy 0.25-0.37 s (194 residual
+evaluations); final losses agree to 6e-10. Before it (ten runs, same day): 8.4-12.3x wall,
+vehsim 30-49 ms.
+
+What made the difference: per LM step and braking, the friction state and its tangents
+now run in one diffrax solve of the augmented state (`_state_and_tangent_solve`) instead
+of a state solve followed by a tangent solve, because sigma1 and sigma2 move only the
+force of eq. 23, so the default fit has 5 state directions, not 6. XLA CPU compiles a
+while loop whose body accesses few bytes per iteration into one kernel and runs larger
+bodies op by op (`SmallWhileLoopHoistingPass`, ~20x slower per step): the augmented body
+stays below that line up to 6 columns (40-80 ns per step for 4000 steps) and crosses it at
+7 (1.6-2 us per step); two separate solves cost 100-200 ns per step. A fit: 39-47 ms ->
+32-33 ms median in three interleaved A/B pairs of 15 fits. The standard errors now come
+from the solver's last Jacobian (no post-fit Jacobian of all 9 parameters).
+
+Where vehsim's time went before (in-loop measurements): ~1.2 ms per LM step, of which
+the forward sensitivities of both brakings were ~0.6 ms (two state and two tangent solves)
+and J^T J for the normal equations ~0.1-0.16 ms (a 9 x 4009 f64 product on XLA CPU); the
+rest the Jacobian's assembly, `jax.linearize` and optimistix's step. Tried and not kept:
+splitting the two brakings over two host devices (slower, 50 vs 35 ms: the replicated LM
+step and a collective per step cost more than the halved solves); trust-region constants
+(high cutoff 0.5-0.99, growth 2-10, initial damping 1e-4-1e-2: 63-118 steps for the three
+train pairs against 66 now); a looser `tol` (1e-5: 23 steps, loss 5e-10 higher); turning
+XNNPACK/YNN dot fusions off (no change beyond noise); J^T J as products and sums instead of
+a dot (2x slower).
 """
 
 from __future__ import annotations
