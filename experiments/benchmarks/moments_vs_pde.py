@@ -25,7 +25,7 @@ times (`*_cpu_s`) and the load average (`load`) beside them: the machine is shar
 wall times are inflated by load.
 
 Run: PYTHONPATH=. python experiments/benchmarks/moments_vs_pde.py [--quick]
-     [--no-batch | --batch-only] [--steps-only]
+     [--no-batch | --batch-only] [--steps-only] [--sync-dispatch]
 
 **Slip steps with the exact solution (`--steps-only`, 2026-11-21, idle 2-core machine,
 load 1.2-1.9; three runs, the last two in `moments_vs_pde_results.jsonl`).** The moment
@@ -46,7 +46,25 @@ reference's own error), no tolerance to choose. Per call, ratio (moments wall pe
 380x / 331x (1.06 / 0.91 ms vs 402 / 300 ms), quartic 512x / 878x (0.93 / 0.59 ms vs 475 /
 519 ms), uniform > 12000x (no PDE grid up to n = 64 reaches 1e-3).
 
-Per call the target of 50x is met only in run 1 for some rows: a call is ~50 small XLA
+**Per call, four more steps-only runs (2026-11-21, load 1.2-1.6; `--sync-dispatch` runs each
+computation on the calling thread instead of XLA's executor thread, both sides; the last 24
+lines of `moments_vs_pde_results.jsonl`).** Ratio per call (moments exact step, median us):
+
+  alpha load     async        async        sync         sync         sync
+  4  uniform   573 (177)    396 (212)    977 (85)     531 (201)    501 (136)
+  4  trapez.   18.9 (354)   31.5 (231)   35.8 (196)   28.5 (232)   36.9 (159)
+  4  quartic   30.2 (233)   35.9 (192)   34.3 (197)   52.9 (134)   85.2 (79)
+  15 uniform   58.0 (148)   58.5 (161)   65.7 (148)   55.5 (153)   64.8 (162)
+  15 trapez.   35.7 (273)   40.0 (234)   95.7 (94)    59.6 (172)   125 (88)
+  15 quartic   22.2 (283)   11.3 (376)   24.8 (215)   60.9 (108)   30.4 (204)
+
+The same exact-step call (~30 fused XLA kernels, no loops, no dot left but one 3 x 61 x 14
+contraction) takes 45-70 us at its fastest and 80-380 us as a median, run to run: the
+per-call ratio of the loads that vanish at the patch ends moves between 11x and 125x with
+the machine's state, and the uniform load stays above 50x. Replacing the last contraction
+by products and sums, or turning the dot fusions off, changed nothing measurable.
+
+Earlier: per call the target of 50x is met only in run 1 for some rows: a call is ~50 small XLA
 kernels whose summed run time is ~50 us (xprof trace), and the rest of its 120-300 us is
 dispatch and the XLA CPU runtime's scheduling between kernels, which this VM's load
 triples within the hour (the same call measured 70 us and 310 us median an hour apart).
@@ -142,6 +160,12 @@ import jax
 
 
 jax.config.update("jax_enable_x64", True)
+# --sync-dispatch: run each CPU computation on the calling thread (JAX's
+# jax_cpu_enable_async_dispatch = False), for latency-bound single calls; read once, when
+# the CPU client is created, so it is set here, before any computation, for both sides
+SYNC_DISPATCH = "--sync-dispatch" in sys.argv
+if SYNC_DISPATCH:
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 import diffrax as dfx  # noqa: E402
 import equinox as eqx  # noqa: E402
@@ -284,7 +308,7 @@ def main(quick=False, steps_only=False):
                         break
                 rec = dict(benchmark="moments_vs_pde", load=name, alpha_deg=alpha_deg,
                            kappa=kappa, ramp_s=ramp_s, moments_tried=tried,
-                           load_avg=os.getloadavg()[0])
+                           load_avg=os.getloadavg()[0], sync_dispatch=SYNC_DISPATCH)
                 if best is not None:
                     rec.update(best)
                 if base is not None and best is not None:
@@ -362,7 +386,8 @@ def main_batch(quick=False, steps_only=False):
                     break
             rec = dict(benchmark="moments_vs_pde_batch", load=name, batch=len(alphas),
                        alpha_deg=[float(BATCH_ALPHAS_DEG[0]), float(BATCH_ALPHAS_DEG[-1])],
-                       kappa=kappa, ramp_s=ramp_s, load_avg=os.getloadavg()[0])
+                       kappa=kappa, ramp_s=ramp_s, load_avg=os.getloadavg()[0],
+                       sync_dispatch=SYNC_DISPATCH)
             if best is not None:
                 rec.update(best, moments_per_scenario_s=best["moments_wall_s"] / len(alphas))
             if base is not None and best is not None:
