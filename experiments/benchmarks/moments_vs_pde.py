@@ -47,7 +47,7 @@ reference's own error), no tolerance to choose. Per call, ratio (moments wall pe
 519 ms), uniform > 12000x (no PDE grid up to n = 64 reaches 1e-3).
 
 **Per call, four more steps-only runs (2026-11-21, load 1.2-1.6; `--sync-dispatch` runs each
-computation on the calling thread instead of XLA's executor thread, both sides; the last 24
+computation on the calling thread instead of XLA's executor thread, both sides; the last 30
 lines of `moments_vs_pde_results.jsonl`).** Ratio per call (moments exact step, median us):
 
   alpha load     async        async        sync         sync         sync
