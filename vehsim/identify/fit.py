@@ -279,6 +279,19 @@ def _solve_columns(a, b, y0, adjoint):
         jnp.array_split(b, chunks, axis=1), jnp.array_split(y0, chunks))], axis=1)
 
 
+def _phi_and_log_slope(a):
+    r"""$\varphi(a)$ and $\varphi'(a)/\varphi(a)$, $\varphi(x) = (1 - e^{-x})/x$."""
+    phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
+    return phi, dphi / phi
+
+
+def _tangent_weight(log_slope, a, b, z):
+    r"""$w = (\varphi'(a)(b - az) - \varphi(a)z)/\varphi(a)$, $z$ at the step start: the
+    tangent of a step of the exponential midpoint rule along $\dot a$ is
+    $e^{-a}\dot z + \varphi(a)\,\dot a\,w$ (`_open_loop_sensitivities`)."""
+    return log_slope * (b - a * z) - z
+
+
 class _StepMapTerm(dfx.AbstractTerm):
     r"""A term whose `vf` is the exact step map of a unit step, $y \mapsto y^+$ (for
     `_StepMapSolver`; not a $dy/dt$)."""
@@ -330,12 +343,12 @@ def _state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
     step with 6 columns, 1.6-2 us with 7 or 8; the state and tangent solves apart: 100-200
     ns)."""
     num = a.shape[0]
-    phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
-    decay, ratio, phi_b, phi_da = jnp.exp(-a), dphi / phi, phi * b, phi[:, None] * da
+    phi, ratio = _phi_and_log_slope(a)
+    decay, phi_b, phi_da = jnp.exp(-a), phi * b, phi[:, None] * da
 
     def step_map(s, y, args):
         m = jnp.clip(jnp.floor(s).astype(int), 0, num - 1)
-        w = ratio[m] * (b[m] - a[m] * y[0]) - y[0]
+        w = _tangent_weight(ratio[m], a[m], b[m], y[0])
         return decay[m] * y + jnp.concatenate([phi_b[m][None], w * phi_da[m]])
 
     sol = dfx.diffeqsolve(
@@ -394,9 +407,8 @@ def _open_loop_sensitivities(u, directions, model_of, data: Sequence[BrakingData
         else:
             zs = _linear_solve(a, b, z0, fm)
             z_start = jnp.concatenate([z0[None], zs[:-1]])
-            phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
-            w = (dphi * (b - a * z_start) - phi * z_start) / phi
-            xs = _solve_columns(a, da * w[:, None], dz0, fm)
+            _, ratio = _phi_and_log_slope(a)
+            xs = _solve_columns(a, da * _tangent_weight(ratio, a, b, z_start)[:, None], dz0, fm)
         z = jnp.concatenate([z0[None], zs[substeps - 1::substeps]])
         dz = jnp.concatenate([dz0[:, None], xs[substeps - 1::substeps].T], axis=1)
         dz = jnp.concatenate([dz, jnp.zeros((n_dir - n_z, dz.shape[1]), dz.dtype)])
