@@ -27,7 +27,13 @@ def safe_pow_abs(x, p):
 
 def safe_norm(x, axis=-1):
     """Euclidean norm with zero gradient (not NaN) at the origin."""
-    sq = jnp.sum(x * x, axis=axis)
+    x = jnp.asarray(x)
+    if x.shape[axis] <= 4:  # as adds of slices: XLA fuses them into the consumers, where a
+        # reduction would be a kernel of its own (a few us each on CPU for 2-vectors)
+        parts = jnp.moveaxis(x, axis, 0)
+        sq = sum(parts[i] * parts[i] for i in range(x.shape[axis]))
+    else:
+        sq = jnp.sum(x * x, axis=axis)
     is_zero = sq == 0
     sq_safe = jnp.where(is_zero, jnp.ones_like(sq), sq)
     return jnp.where(is_zero, jnp.zeros_like(sq), jnp.sqrt(sq_safe))

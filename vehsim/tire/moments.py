@@ -267,6 +267,8 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
     w_force: Float[Array, "P K"]
     w_moment: Float[Array, "P K"]
     coupling_powers: Float[Array, "K1 D D"]
+    response_source: Float[Array, "3 K1"]
+    response_edges: Float[Array, "3 K1 P"]
     n_moments: int = eqx.field(static=True)
     basis: str = eqx.field(static=True)
 
@@ -291,6 +293,15 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
         for _ in range(self.n_moments):
             powers.append(N @ powers[-1])
         self.coupling_powers = jnp.stack(powers)
+        # The load rows w_c N^i of `moments_step_response` (F_x, F_y from w_force, M_z from
+        # w_moment; no weight on the edge deflections), applied to the source pattern
+        # (the moments' src, 1 at every edge) and to each edge deflection.
+        P, PK = self.pieces, self.coeffs.shape[0] * self.n_moments
+        w = jnp.concatenate([jnp.stack([self.w_force.ravel()] * 2 + [self.w_moment.ravel()]),
+                             jnp.zeros((3, P))], axis=1)  # (3, D)
+        rows = jnp.einsum("cd,ide->cie", w, self.coupling_powers)  # (3, K + 1, D)
+        self.response_source = rows @ jnp.concatenate([self.src.ravel(), jnp.ones(P)])
+        self.response_edges = rows[..., PK:]
 
     @property
     def pieces(self) -> int:
@@ -742,6 +753,31 @@ def coupling_matrix(transport, right, left):
     return jnp.concatenate([top, jnp.zeros((P, P * K + P))], axis=0)
 
 
+def _segment_starts(T0, TW, a_seg, b_seg, jumps):
+    r"""$N^iY(t_k)$ at every segment start $k = 0..P$ of `moments_step_response`, from
+    $N^iY(t_0)$ (`T0`, axis 1 the power $i$, any trailing axes), the sources $N^i\beta_k$
+    (`TW`, axis 1 the segment), the coefficients $a_j, b_j$ over each whole segment
+    (`a_seg`, `b_seg`, `(B, P, n)`) and the edge jumps at each passage (`jumps[k]`, like
+    `T0`): since $N^iY(t_{k+1}) = \sum_ja_jN^{i+j}Y(t_k) + b_jN^{i+j}\beta_k$ (zero past
+    $i + j = K$), no matrix product is needed beyond the first tables. Also applies to the
+    tables contracted with a row vector (the load rows of eqs. 46/48).
+    **Returns:** `(B, P + 1, n, ...)`."""
+    n = T0.shape[1]
+    lift = (None,) * (T0.ndim - 2)
+    # upper triangular Toeplitz form of the shift: (A T)[i] = sum_j a_j T[i + j]
+    gap = np.arange(n)[None, :] - np.arange(n)[:, None]  # m - i
+    ahead = jnp.asarray(gap >= 0)
+
+    def toeplitz(c):  # (B, n) -> (B, n, n, 1, ...)
+        return jnp.where(ahead, c[:, np.maximum(gap, 0)], 0.0)[(Ellipsis,) + lift]
+
+    out = [T0]
+    for k, jump in enumerate(jumps):
+        out.append(jump + jnp.sum(toeplitz(a_seg[:, k]) * out[-1][:, None]
+                                  + toeplitz(b_seg[:, k]) * TW[:, k][:, None], axis=2))
+    return jnp.stack(out, axis=1)
+
+
 def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=None):
     r"""The moment system (eqs. 41-42) after a slip step, solved exactly (no time stepping).
 
@@ -760,8 +796,15 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     $$Y(t) = \sum_{j=0}^{K}\Bigl(e^{-C_0\tau}\frac{(\lambda\tau)^j}{j!}N^jY(t_k)
       + \lambda^j\tau^{j+1}I_j(C_0\tau)\,N^j\beta_k\Bigr)$$
     (`decay_integrals`), and the forces and aligning moment follow from eqs. 46 and 48 with
-    $\dot Y = (-C_0I + \lambda N)Y + \beta_k$, contracted with the tables $N^jY(t_k)$,
-    $N^j\beta_k$ before the save times are visited. This is the step response of the
+    $\dot Y = (-C_0I + \lambda N)Y + \beta_k$. Those are linear in $Y$, so they need only
+    $w_cN^jY(t_k)$ and $w_cN^j\beta_k$ for the three load rows $w_c$ ($F_x$, $F_y$, $M_z$):
+    the model keeps $w_cN^j$ applied to the source pattern and to each edge deflection
+    (`response_source`, `response_edges`), and a call works on tables of shape
+    $(3, P+1, K+1)$, with no $(D, D)$ product (the moments themselves, `state`, take the full
+    tables, and XLA drops them when only the forces are used). Written so that XLA CPU
+    compiles it into few kernels with few independent branches (19 for one piece, 26 for
+    the trapezoid): its runtime dispatches independent kernels to other threads, which
+    costs more than the kernels at this size. This is the step response of the
     distributed PDE (eqs. 31-34) to rounding: from the last passage on
     ($t \ge L/|\omega r|$) it is the closed-form steady state exactly. Differentiable in
     everything (zero slip and a locked wheel, $\omega = 0$, included). For input histories use
@@ -812,7 +855,6 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     y = jnp.concatenate([z0[:, None] * model.src.ravel()[None, :],
                          jnp.broadcast_to(z0[:, None], (2, P))],
                         axis=-1)
-    Npow = model.coupling_powers  # (n, D, D)
     fact = jnp.asarray(np.cumprod([1.0] + list(range(1, n))))
 
     def coefficients(tau):
@@ -824,35 +866,31 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
              * decay_integrals(x, n, ex))
         return a, b
 
-    # Tables U[k, i] = N^i Y(t_k) and W[k, i] = N^i beta_k per axis, shape (2, P + 1, n, D).
-    # Since N^i Y(t_{k+1}) = sum_j a_j N^{i+j} Y(t_k) + b_j N^{i+j} beta_k (zero past
-    # i + j = K), the segment starts need no matrix products beyond the first table.
-    # (products and sums, not einsums: XLA CPU's dot costs ~5-10 us at these sizes)
-    W = jnp.sum(Npow[None, None] * beta[:, :, None, None, :], axis=-1)
-    U = [jnp.sum(Npow[None] * y[:, None, None, :], axis=-1)]  # (2, n, D)
-    a_seg, b_seg = coefficients(bounds[1:] - bounds[:-1])  # (2, P, n)
-    hankel = np.arange(n)[:, None] + np.arange(n)[None, :]  # i + j
-
-    def ahead(T):  # T[:, i + j] (2, n, n, D), zero past K
-        return jnp.concatenate([T, jnp.zeros_like(T)], axis=1)[:, hankel]
-
+    # the segment of each save time, and the coefficients over every whole segment and from
+    # each save time's segment start, in one pass (2, P + T, n)
+    seg = sum((t_rel >= passage[e]).astype(int) for e in range(P))  # (T,)
+    a_all, b_all = coefficients(jnp.concatenate([bounds[1:] - bounds[:-1], t_rel - bounds[seg]]))
+    a_seg, b_seg, a, b = a_all[:, :P], b_all[:, :P], a_all[:, P:], b_all[:, P:]
     # Where tread that entered after t_0 first reaches edge k, the edge value jumps from the
     # old tread's deflection to the new one's: by -exp(-C0 t_k) z0 (zero from rest).
     jump = -jnp.exp(-C0[None, :] * bounds[1:, None]) * z0[None, :]  # (P, 2)
-    for k in range(P):
-        U.append(jnp.sum(a_seg[:, k, None, :, None] * ahead(U[-1])
-                         + b_seg[:, k, None, :, None] * ahead(W[:, k]), axis=2)
-                 + jump[k][:, None, None] * Npow[None, :, :, PK + k])
-    U = jnp.stack(U, axis=1)  # (2, P + 1, n, D)
 
-    # Eqs. 46/48 are linear in (mu, mu_dot): contract the tables with the load weights of
-    # each force/moment c before visiting the save times, G[c, k, i] = w_c . N^i Y(t_k).
-    axis = np.array([0, 1, 1])  # F_x from the x moments, F_y and M_z from the y moments
-    sig0, sig1, C = p.sigma0[axis], p.sigma1[axis], C0[axis]
-    w = jnp.concatenate([jnp.stack([model.w_force.ravel()] * 2 + [model.w_moment.ravel()]),
-                         jnp.zeros((3, P))], axis=1)  # (3, D)
-    GU = jnp.sum(w[:, None, None, :] * U[axis], axis=-1)  # (3, P + 1, n)
-    GW = jnp.sum(w[:, None, None, :] * W[axis], axis=-1)
+    # Eqs. 46/48 are linear in (mu, mu_dot), so the forces need only the load rows
+    # w_c N^i of the model (`response_source`, `response_edges`: w_c N^i applied to the
+    # source pattern and to the edge deflections), contracted with the scalars: tables
+    # G[c, k, i] = w_c . N^i Y(t_k) of shape (3, P + 1, n), no (D, D) product at call time.
+    def per_output(x):  # F_x from the x moments, F_y and M_z from the y ones: x[[0, 1, 1]]
+        # as slices, which XLA fuses into every consumer (a gather it runs on its own)
+        return jnp.concatenate([x[:1], x[1:2], x[1:2]], axis=0)
+
+    sig0, sig1, C = per_output(p.sigma0), per_output(p.sigma1), per_output(C0)
+    src_rows, edge_rows = model.response_source, model.response_edges  # (3, n), (3, n, P)
+    GW = jnp.stack([per_output(v_r)[:, None] * src_rows
+                    - sum(edge_rows[..., e] * per_output(arrival)[:, e, None] for e in range(k))
+                    for k in range(P + 1)], axis=1)  # w_c . N^i beta_k
+    GU = _segment_starts(per_output(z0)[:, None] * src_rows, GW, per_output(a_seg),
+                         per_output(b_seg),
+                         [per_output(jump[k])[:, None] * edge_rows[..., k] for k in range(P)])
 
     def rates(G):  # sigma0 w.N^i Y + sigma1 w.N^i (-C0 Y + lambda N Y), i.e. eq. 46 less beta
         nxt = jnp.concatenate([G[..., 1:], jnp.zeros_like(G[..., :1])], axis=-1)
@@ -860,20 +898,24 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
 
     FU, FW = rates(GU), rates(GW)
     Fb = sig1[:, None] * GW[..., 0]  # sigma1 w.beta_k (the source in mu_dot)
-    const = p.sigma2[axis] * v_r[axis] * jnp.stack([jnp.ones(()), jnp.ones(()), model.lever])
-
-    seg = jnp.sum(t_rel[:, None] >= passage[None, :], axis=1)  # (T,)
-    a, b = coefficients(t_rel - bounds[seg])  # (2, T, n)
-    # every segment's table against every save time's coefficients, then the segment of
-    # each save time picked: one small batched matmul (the coefficients materialised once;
-    # fused into a gather of the tables, XLA recomputed them per output element, 3x slower)
-    X = jnp.einsum("ctj,csj->cts", jnp.concatenate([a[axis], b[axis]], axis=-1),
-                   jnp.concatenate([FU, FW], axis=-1))  # (3, T, P + 1)
-    mu = (jnp.take_along_axis(X, seg[None, :, None], axis=-1)[..., 0] + Fb[:, seg]
+    const = (per_output(p.sigma2) * per_output(v_r)
+             * jnp.stack([jnp.ones(()), jnp.ones(()), model.lever]))
+    mu = (jnp.sum(per_output(a) * FU[:, seg] + per_output(b) * FW[:, seg], axis=-1) + Fb[:, seg]
           + const[:, None])  # (3, T)
     scale = jnp.stack([jnp.ones(()), jnp.ones(()), p.L])
     forces = jax.vmap(fz_s)(ts)[:, None] * mu.T * scale[None, :]
-    # the moments themselves (dropped by XLA when only the forces are used)
+
+    # The moments themselves (dropped by XLA when only the forces are used): the same
+    # recursion on the full tables N^i Y(t_k), N^i beta_k per axis, shape (2, P + 1, n, D).
+    Npow = model.coupling_powers  # (n, D, D)
+    beta = jnp.concatenate([
+        jnp.broadcast_to((v_r[:, None] * model.src.ravel()[None, :])[:, None, :], (2, P + 1, PK)),
+        v_r[:, None, None] - jnp.where(reached[None], arrival[:, None, :], 0.0)], axis=-1)
+    y = jnp.concatenate([z0[:, None] * model.src.ravel()[None, :],
+                         jnp.broadcast_to(z0[:, None], (2, P))], axis=-1)
+    W = jnp.einsum("ide,ake->akid", Npow, beta)
+    U = _segment_starts(jnp.einsum("ide,ae->aid", Npow, y), W, a_seg, b_seg,
+                        [jump[k][:, None, None] * Npow[None, :, :, PK + k] for k in range(P)])
     Y = jnp.einsum("itn,itnd->tid", a, U[:, seg]) + jnp.einsum("itn,itnd->tid", b, W[:, seg])
     state = Y[..., :PK].reshape(-1, 2, P, K)
     return Tire2DSolution(ts=ts, state=state, forces=forces, result=dfx.RESULTS.successful,
