@@ -25,56 +25,60 @@ times (`*_cpu_s`) and the load average (`load`) beside them: the machine is shar
 wall times are inflated by load.
 
 Run: PYTHONPATH=. python experiments/benchmarks/moments_vs_pde.py [--quick]
-     [--no-batch | --batch-only] [--steps-only] [--sync-dispatch]
+     [--no-batch | --batch-only] [--steps-only] [--async-dispatch]
 
-**Slip steps with the exact solution (`--steps-only`, 2026-11-21, idle 2-core machine,
-load 1.2-1.9; three runs, the last two in `moments_vs_pde_results.jsonl`).** The moment
-system after a step is linear with a nilpotent coupling and is solved exactly
-(`moments_step_response`): errors 2.4e-6 to 1.8e-4 against the n = 128 PDE (the rest is the
-reference's own error), no tolerance to choose. Per call, ratio (moments wall per call):
+Dispatch: by default each CPU computation runs on the calling thread (JAX's
+`jax_cpu_enable_async_dispatch = False`, set before the CPU client exists, for both sides,
+recorded per row as `sync_dispatch`), the setting for latency-bound single calls that are
+waited on at once. With JAX's default async dispatch (`--async-dispatch`) a computation of
+more than 1000 flops (the PJRT CPU client's cost-analysis test) runs on a worker thread, and
+every call pays two thread hand-offs: a one-kernel computation measured 17 us median
+synchronously and 48 us (p90 177 us) asynchronously on this 2-core VM. The PDE's 5-100 ms
+do not notice either setting (its rows agree between the two within the run-to-run spread).
 
-  alpha load     run 1        run 2        run 3        PDE
-  4  uniform   688 (152 us)  336 (delay)  281 (delay)  n=48 Tsit5, 77-105 ms
-  4  trapez.   61.5 (118 us) 29.5 (251)   31.6 (227)   n=16 Tsit5, 7.2-7.4 ms
-  4  quartic   33.8 (206 us) 24.4 (303)   26.1 (268)   n=16 Tsit5, 7.0-7.4 ms
-  15 uniform   74.4 (144 us) 47.4 (208)   47.9 (216)   n=24 Kvaerno5, 9.8-10.8 ms
-  15 trapez.   37.0 (289 us) 59.6 (177)   39.1 (297)   n=24 Kvaerno5, 10.5-11.6 ms
-  15 quartic   32.4 (163 us) 29.9 (223)   28.3 (225)   n=16 Tsit5/Kvaerno5, 5.3-6.7 ms
+**Slip steps, the exact solution per call (`--steps-only`, 2026-11-21, 2-core VM, load
+0.8-1.9; six runs, three with each dispatch, the last 48 lines of
+`moments_vs_pde_results.jsonl`).** The moment system after a step is linear with a
+nilpotent coupling and is solved exactly (`moments_step_response`): errors 2.4e-6 to
+1.8e-4 against the n = 128 PDE (the rest is the reference's own error), no tolerance to
+choose. Ratio per call (moments median us):
 
-(run 1 with an earlier version of the same function, ~66 XLA kernels for the quartic; runs
-2-3 with the final one, ~50.) Batched (32 slip angles, one vmapped call): trapezoidal step
-380x / 331x (1.06 / 0.91 ms vs 402 / 300 ms), quartic 512x / 878x (0.93 / 0.59 ms vs 475 /
-519 ms), uniform > 12000x (no PDE grid up to n = 64 reaches 1e-3).
+  alpha load     sync          sync          sync          async         async         async        PDE (ms)
+  4  uniform   3817 (25)     2388 (39)     3730 (25)     848 (119)     2384 (43)     1591 (58)    n=48 Tsit5, 92-103
+  4  trapez.   248 (27)      152 (44)      252 (27)      107 (62)      42.5 (169)    107 (67)     n=16 Tsit5, 6.6-7.2
+  4  quartic   153 (45)      135 (50)      235 (28)      81.0 (80)     80.8 (77)     51.3 (135)   n=16 Tsit5, 6.2-7.0
+  15 uniform   319 (38)      252 (40)      303 (37)      181 (62)      102 (113)     82.3 (148)   n=24 Kvaerno5, 10-12
+  15 trapez.   250 (44)      266 (43)      302 (37)      139 (80)      87.6 (131)    65.5 (135)   n=24 Kv5/Ts5, 8.8-11
+  15 quartic   112 (45)      112 (53)      108 (54)      88.0 (71)     77.8 (77)     85.3 (70)    n=16 Tsit5, 5.0-6.2
 
-**Per call, four more steps-only runs (2026-11-21, load 1.2-1.6; `--sync-dispatch` runs each
-computation on the calling thread instead of XLA's executor thread, both sides; the last 30
-lines of `moments_vs_pde_results.jsonl`).** Ratio per call (moments exact step, median us):
+So the 50x target is met in every row of every run with synchronous dispatch (108-3817x),
+and in 17 of 18 rows with async dispatch (42.5-2384x; the one below is a 169 us median
+where the same call took 62-67 us in the other two async runs). Batched (32 slip angles,
+one vmapped call, four of the runs): trapezoidal 380-490x (0.66-0.81 ms vs 308-330 ms),
+quartic 432-592x (0.81-1.11 ms vs 456-548 ms), uniform > 10500x (no PDE grid up to n = 64
+reaches 1e-3; 0.42-0.62 ms vs 6.4-7.1 s).
 
-  alpha load     async        async        sync         sync         sync
-  4  uniform   573 (177)    396 (212)    977 (85)     531 (201)    501 (136)
-  4  trapez.   18.9 (354)   31.5 (231)   35.8 (196)   28.5 (232)   36.9 (159)
-  4  quartic   30.2 (233)   35.9 (192)   34.3 (197)   52.9 (134)   85.2 (79)
-  15 uniform   58.0 (148)   58.5 (161)   65.7 (148)   55.5 (153)   64.8 (162)
-  15 trapez.   35.7 (273)   40.0 (234)   95.7 (94)    59.6 (172)   125 (88)
-  15 quartic   22.2 (283)   11.3 (376)   24.8 (215)   60.9 (108)   30.4 (204)
+**What changed (session 7), and why it mattered.** The exact step was ~30 small XLA kernels
+(28/36/30 for uniform/trapezoid/quartic), 45-70 us at its fastest but 80-380 us as a median
+(per-call ratio 11-125x for the trapezoidal and quartic loads, 47-977x uniform, in eight
+earlier runs). XLA CPU's thunk executor runs a program concurrently on its thread pool
+unless it has at most 8 kernels or only buffers of at most 512 bytes, and on this VM handing
+a ready kernel to another thread costs more than the kernels: pinned to one core
+(`taskset -c 0`) the same calls took 59-137 us median instead of 322-366. The forces now
+come from tables contracted with the load rows $w_cN^i$ the model keeps (3 x (P+1) x (K+1)
+numbers, no (D, D) product at call time), the segment recursion is a Toeplitz product, the
+per-axis parameters are slices (a gather is a kernel of its own) and norms of 2-vectors are
+sums of squares (a reduction is too): 19/26/19 kernels with few independent branches, the
+same forces to 1e-14. Interleaved A/B against the previous code (sync dispatch, 300 calls
+each, three runs): medians 140-240 -> 25-60 us.
 
-The same exact-step call (~30 fused XLA kernels, no loops, no dot left but one 3 x 61 x 14
-contraction) takes 45-70 us at its fastest and 80-380 us as a median, run to run: the
-per-call ratio of the loads that vanish at the patch ends moves between 11x and 125x with
-the machine's state, and the uniform load stays above 50x. Replacing the last contraction
-by products and sums, or turning the dot fusions off, changed nothing measurable.
-
-Earlier: per call the target of 50x is met only in run 1 for some rows: a call is ~50 small XLA
-kernels whose summed run time is ~50 us (xprof trace), and the rest of its 120-300 us is
-dispatch and the XLA CPU runtime's scheduling between kernels, which this VM's load
-triples within the hour (the same call measured 70 us and 310 us median an hour apart).
-The delay-closure diffrax solve at rtol 1e-3 costs about the same per call for the uniform
-load, so single-call latency is bound by the runtime, not by the moment system. Batched,
-where that overhead is shared, the exact solution is 330-15000x faster than the PDE.
-
-Results (full run, per-call rows at load average 1.3-3.0 and batched rows at 1.4-3.4 on 2
-shared cores; `moments_vs_pde_results.jsonl`, the last 24 lines). Per call: ratio wall
-(CPU), moments closure/rtol/error/wall, PDE grid/solver/error/wall.
+**The solver closures: ramps, and steps before the exact solution.** The last full run
+(session 5, async dispatch, before `moments_step_response` existed; per-call rows at load
+average 1.3-3.0 and batched rows at 1.4-3.4 on 2 shared cores; lines 19-42 of
+`moments_vs_pde_results.jsonl`). For the steps these rows are
+superseded by the exact solution above; the ramps (inputs that change during a transit,
+where no finite closed form exists) still need a solver. Per call: ratio wall (CPU),
+moments closure/rtol/error/wall, PDE grid/solver/error/wall.
 
   alpha load   scenario   ratio (CPU)  moments                        PDE
   4  uniform   step         165 (164.2) online 1e-06, 4.1e-04, 0.54 ms   n=48 Tsit5, 8.7e-04, 88.5 ms
@@ -113,7 +117,8 @@ times of sub-millisecond calls move by up to 2x with the load (the previous full
 load 1.4-3.5 with eqx.filter_jit calls, gave the same rows within that spread: e.g. uniform
 step 290x with the delay closure at 0.36 ms, quartic step 5.2x).
 
-**Where 50x is met, and why not elsewhere.** Met where the PDE needs a fine grid: the uniform
+**Where the solver closures meet 50x, and why not elsewhere.** Met where the PDE needs a
+fine grid: the uniform
 load (jumps at the patch ends; n = 48 per call at 4 deg, no grid <= 64 for a 1-15 deg
 sweep) and the batched quartic step (68x: the small slip angles of the sweep need n = 24
 for 1e-3, 11.5 ms per scenario, where alpha = 4 and 15 deg alone reach it at n = 16).
@@ -160,10 +165,10 @@ import jax
 
 
 jax.config.update("jax_enable_x64", True)
-# --sync-dispatch: run each CPU computation on the calling thread (JAX's
-# jax_cpu_enable_async_dispatch = False), for latency-bound single calls; read once, when
-# the CPU client is created, so it is set here, before any computation, for both sides
-SYNC_DISPATCH = "--sync-dispatch" in sys.argv
+# Run each CPU computation on the calling thread (JAX's jax_cpu_enable_async_dispatch =
+# False), for latency-bound single calls, unless --async-dispatch; read once, when the CPU
+# client is created, so it is set here, before any computation, for both sides
+SYNC_DISPATCH = "--async-dispatch" not in sys.argv
 if SYNC_DISPATCH:
     jax.config.update("jax_cpu_enable_async_dispatch", False)
 
