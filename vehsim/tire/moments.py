@@ -847,14 +847,6 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     passage = jnp.where(rolling, edges / lam_safe, jnp.inf)
     bounds = jnp.concatenate([jnp.zeros(1), jnp.minimum(passage, t_rel[-1])])
     arrival = jnp.exp(-C0[:, None] * edges[None, :] / lam_safe) * v_r[:, None]  # (2, P)
-    reached = jnp.arange(P + 1)[:, None] > jnp.arange(P)[None, :]  # (P + 1, P): segment, edge
-    # beta_k per axis and segment (2, P + 1, D); the initial state (2, D)
-    beta = jnp.concatenate([
-        jnp.broadcast_to((v_r[:, None] * model.src.ravel()[None, :])[:, None, :], (2, P + 1, PK)),
-        v_r[:, None, None] - jnp.where(reached[None], arrival[:, None, :], 0.0)], axis=-1)
-    y = jnp.concatenate([z0[:, None] * model.src.ravel()[None, :],
-                         jnp.broadcast_to(z0[:, None], (2, P))],
-                        axis=-1)
     fact = jnp.asarray(np.cumprod([1.0] + list(range(1, n))))
 
     def coefficients(tau):
@@ -908,6 +900,8 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     # The moments themselves (dropped by XLA when only the forces are used): the same
     # recursion on the full tables N^i Y(t_k), N^i beta_k per axis, shape (2, P + 1, n, D).
     Npow = model.coupling_powers  # (n, D, D)
+    # beta_k per axis and segment (2, P + 1, D); the initial state (2, D)
+    reached = jnp.arange(P + 1)[:, None] > jnp.arange(P)[None, :]  # (P + 1, P): segment, edge
     beta = jnp.concatenate([
         jnp.broadcast_to((v_r[:, None] * model.src.ravel()[None, :])[:, None, :], (2, P + 1, PK)),
         v_r[:, None, None] - jnp.where(reached[None], arrival[:, None, :], 0.0)], axis=-1)
