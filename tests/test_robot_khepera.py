@@ -17,11 +17,11 @@ from vehsim.robot.khepera import (
     KheperaPlant,
     ideal_plant,
     realistic_plant,
-    simulate,
-    simulate_grid,
+    simulate_robot,
+    simulate_robot_grid,
 )
 from vehsim.robot.missions import EASY, LONG_DISTANCE
-from vehsim.robot.scoring import score
+from vehsim.robot.scoring import score_run
 from vehsim.robot.unicycle import SystemI, SystemII
 
 
@@ -40,7 +40,7 @@ B = 0.053
 
 def _run(v, omega, **effects):
     plant = ideal_plant(**effects)
-    return simulate(_Constant(v, omega), SystemII(), jnp.zeros(3), plant=plant,
+    return simulate_robot(_Constant(v, omega), SystemII(), jnp.zeros(3), plant=plant,
                     t_final=T_FINAL)
 
 
@@ -91,7 +91,7 @@ def test_encoder_odometry_quantised():
 
 def test_sensor_noise_level():
     plant = ideal_plant(noise=True, noise_position=1e-3, noise_heading=0.01)
-    run = simulate(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), plant=plant,
+    run = simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), plant=plant,
                    t_final=T_FINAL, key=jax.random.PRNGKey(3))
     std = np.std(np.asarray(run.measured), axis=0)
     np.testing.assert_allclose(std, [1e-3, 1e-3, 0.01], rtol=0.3)
@@ -109,8 +109,8 @@ def test_controller4_heading_is_noise_sensitive():
     cycles of the heading angle around the origin'. Position converges either way; the
     heading over the last 5 s is far worse with sensor noise than without."""
     c = PolarController()
-    noisy = simulate(c, SystemII(), EASY.pose0, plant=realistic_plant(), save=False)
-    quiet = simulate(c, SystemII(), EASY.pose0, plant=realistic_plant(noise=False),
+    noisy = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(), save=False)
+    quiet = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(noise=False),
                      save=False)
     for run in (noisy, quiet):
         assert float(run.stats.window_position) < 0.01
@@ -124,34 +124,34 @@ def test_controller2_commands_within_limits_where_controller1_saturates():
     saturation, while the unbounded eq. 1 asks for more than the robot can do."""
     peak = {}
     for name, c in (("1", DiscontinuousController()), ("2", BoundedController())):
-        run = simulate(c, SystemI(), LONG_DISTANCE.pose0, plant=realistic_plant(),
+        run = simulate_robot(c, SystemI(), LONG_DISTANCE.pose0, plant=realistic_plant(),
                        save=False)
         peak[name] = float(run.stats.peak_command[0])
     assert peak["2"] < 127 / 120 < peak["1"]
 
 
 def test_grid_equals_single_runs():
-    """`simulate_grid` (noise drawn in blocks per initial pose, each law evaluated on its own
-    group) gives the same runs as `simulate` one at a time: realistic plant with noise, a
+    """`simulate_robot_grid` (noise drawn in blocks per initial pose, each law evaluated on its own
+    group) gives the same runs as `simulate_robot` one at a time: realistic plant with noise, a
     sample count (115 = 5 x 23) that is not a multiple of the 50-sample noise block."""
     controllers = (DiscontinuousController(), PolarController())
     systems = (SystemII(),)
     poses = jnp.array([[-0.15, 0.03, 0.1], [0.1, 0.15, -1.0]])
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
-    grid = simulate_grid(controllers, systems, poses, keys, t_final=2.3, save=True)
+    grid = simulate_robot_grid(controllers, systems, poses, keys, t_final=2.3, save=True)
     assert grid.pose.shape == (2, 1, 2, 115, 3)
     for c, s, p in [(0, 0, 0), (1, 0, 1)]:
-        one = simulate(controllers[c], systems[s], poses[p], key=keys[p], t_final=2.3)
+        one = simulate_robot(controllers[c], systems[s], poses[p], key=keys[p], t_final=2.3)
         np.testing.assert_allclose(grid.pose[c, s, p], one.pose, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.measured[c, s, p], one.measured, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.command[c, s, p], one.command, rtol=0, atol=1e-12)
         stats = jax.tree_util.tree_map(lambda a: a[c, s, p], grid.stats)
         assert tree_allclose(stats, one.stats, rtol=0, atol=1e-12)
-        assert int(score(stats)) == int(score(one.stats))
+        assert int(score_run(stats)) == int(score_run(one.stats))
 
 
 def test_grid_sharded_across_devices_equals_single_device():
-    """`simulate_grid(..., devices=...)` shards the poses over a device mesh (conftest forces
+    """`simulate_robot_grid(..., devices=...)` shards the poses over a device mesh (conftest forces
     2 host devices); 3 poses are padded to 4 and the padding dropped. Same runs, same result."""
     from vehsim.robot.controllers import default_controllers
 
@@ -159,8 +159,8 @@ def test_grid_sharded_across_devices_equals_single_device():
     controllers = default_controllers()[:2]
     poses = jnp.array([[0.3, -0.2, 0.5], [-0.4, 0.1, -1.0], [0.05, 0.3, 2.0]])
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    single = simulate_grid(controllers, [SystemI()], poses, keys, t_final=2.0)
-    sharded = simulate_grid(controllers, [SystemI()], poses, keys, t_final=2.0,
+    single = simulate_robot_grid(controllers, [SystemI()], poses, keys, t_final=2.0)
+    sharded = simulate_robot_grid(controllers, [SystemI()], poses, keys, t_final=2.0,
                             devices=jax.devices())
     assert sharded.final_pose.shape == single.final_pose.shape == (2, 1, 3, 3)
     assert tree_allclose(sharded, single, rtol=0.0, atol=1e-12)

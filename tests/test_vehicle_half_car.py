@@ -17,8 +17,8 @@ from vehsim import (
     rally_gravel_tire,
     simulate,
 )
+from vehsim._signals import as_controls
 from vehsim.params import cdc1999
-from vehsim.simulate import as_controls
 
 
 TOL = dict(rtol=1e-10, atol=1e-10)
@@ -181,7 +181,7 @@ def test_input_forms():
 
 
 def test_bad_inputs_raise():
-    with pytest.raises(ValueError, match="inputs have shape"):
+    with pytest.raises(ValueError, match="inputs must be a constant of shape"):
         simulate(CAR, jnp.linspace(0.0, 1.0, 5), jnp.zeros((4, 3)), CAR.init_state(vx=1.0))
     with pytest.raises(ValueError, match="HalfCar.tire_R"):
         HalfCar(rally_gravel(), rally_gravel_tire(), IsotropicLumpedLuGre(cdc1999()))

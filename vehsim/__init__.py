@@ -1,11 +1,19 @@
 """vehsim: a differentiable vehicle simulator in JAX (after Tsiotras, 2004).
 
-The public API is flat: everything a user needs is importable from ``vehsim``.
+The public API is flat: everything a user needs is importable from ``vehsim``, each object
+under the one name it has in its own module.
 """
 
 from . import params as params
+from ._results import (
+    RESULTS as RESULTS,
+    is_successful as is_successful,
+    result_message as result_message,
+    result_name as result_name,
+    result_record as result_record,
+)
 
-# issue 4: braking data, quarter car, identification (report section 2.2)
+# braking data, quarter car, identification (report section 2.2)
 from .identify.braking import (
     BrakingData as BrakingData,
     load_braking as load_braking,
@@ -39,11 +47,11 @@ from .robot.khepera import (
     RobotRun as RobotRun,
     ideal_plant as ideal_plant,
     realistic_plant as realistic_plant,
-    simulate as simulate_robot,
-    simulate_grid as simulate_robot_grid,
+    simulate_robot as simulate_robot,
+    simulate_robot_grid as simulate_robot_grid,
 )
-from .robot.missions import MISSIONS as ROBOT_MISSIONS, Mission as Mission
-from .robot.scoring import RunStats as RunStats, score as score_run
+from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
+from .robot.scoring import RunStats as RunStats, score_run as score_run
 from .robot.unicycle import (
     AbstractSystem as AbstractSystem,
     SystemI as SystemI,
@@ -110,10 +118,11 @@ from .vehicle.quarter_car import (
 
 
 # isort: split
-# issue 5: vehicles, simulate, sweeps
+# vehicles, simulation, sweeps (report section 2.5)
+from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
 from .simulate import Trajectory as Trajectory, simulate as simulate
-from .solvers import ROS34PW2 as ROS34PW2
-from .sweep import SweepResult as SweepResult, grid as sweep_grid, sweep as sweep
+from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
+from .sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
 from .tire.friction_ellipse import (
     FrictionEllipseTire as FrictionEllipseTire,
     rally_gravel_tire as rally_gravel_tire,
@@ -122,13 +131,17 @@ from .tire.isotropic_lumped import IsotropicLumpedLuGre as IsotropicLumpedLuGre
 from .tire.linear import LinearTire as LinearTire
 from .vehicle.base import AbstractVehicle as AbstractVehicle
 from .vehicle.half_car import HalfCar as HalfCar
-from .vehicle.maneuvers import brake_in_turn as brake_in_turn, step_steer as step_steer
+from .vehicle.maneuvers import (
+    brake_in_turn as brake_in_turn,
+    half_car_scenario as half_car_scenario,
+    step_steer as step_steer,
+)
 from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rally_gravel
 from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
 
 
 # isort: split
-# issue 7: optimal driving primitives
+# optimal driving primitives (report section 2.5, Table 4, Fig. 20)
 from .optimal.nlp import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     IPOptions as IPOptions,
@@ -145,7 +158,7 @@ from .optimal.roads import Road as Road, road as road
 
 
 # isort: split
-# issue 7 item 7: replay of primitives on the full half-car
+# replay of primitives on the full half-car
 from .optimal.replay import (
     Replay as Replay,
     TrackingGains as TrackingGains,

@@ -53,3 +53,19 @@ def one_minus_exp_over(x):
     exact = -jnp.expm1(-x_safe) / x_safe
     series = 1.0 - x / 2.0 + x * x / 6.0 - x * x * x / 24.0
     return jnp.where(small, series, exact)
+
+
+def safe_sqrt(x):
+    """sqrt(x) for x >= 0, with a zero (not infinite) derivative at x = 0."""
+    is_zero = x == 0
+    return jnp.where(is_zero, jnp.zeros_like(x), jnp.sqrt(jnp.where(is_zero, jnp.ones_like(x), x)))
+
+
+def safe_hypot(x, y):
+    """sqrt(x^2 + y^2), elementwise, with zero gradient (not NaN) at the origin."""
+    return safe_sqrt(x * x + y * y)
+
+
+def wrap_angle(angle):
+    r"""The angle in $(-\pi, \pi]$."""
+    return -jnp.remainder(-angle + jnp.pi, 2 * jnp.pi) + jnp.pi

@@ -6,14 +6,14 @@ and `jax.grad` apply to `simulate` end to end.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._results import RESULTS, as_result
+from ._signals import as_controls
 from .vehicle.base import AbstractVehicle
 
 
@@ -23,7 +23,7 @@ class Trajectory(eqx.Module):
     `signals` maps names (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``,
     ``sideslip``, ``ax``, ``ay``, ``kappa_F``, ``alpha_F``, ``Fx_F``, ``Fy_F``, ``Fz_F``, ...,
     see the vehicle's ``signals``) to arrays over `ts`; ``traj["Fz_F"]`` is a shortcut.
-    `result` is diffrax's status (``throw=False`` leaves failures for the caller);
+    `result` is a `vehsim.RESULTS` (``throw=False`` leaves failures for the caller);
     `solution` holds the dense interpolant when `simulate(..., dense=True)`.
     """
 
@@ -31,7 +31,7 @@ class Trajectory(eqx.Module):
     states: Float[Array, "T n"]
     controls: Float[Array, "T m"]
     signals: dict
-    result: dfx.RESULTS
+    result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
     solution: dfx.Solution | None = None
 
@@ -41,34 +41,13 @@ class Trajectory(eqx.Module):
     @property
     def ok(self):
         """True where the solve succeeded."""
-        return self.result == dfx.RESULTS.successful
+        return self.result == RESULTS.successful
 
     def evaluate(self, t):
         """State at time ``t`` from the dense interpolant (needs ``dense=True``)."""
         if self.solution is None:
             raise ValueError("Trajectory.evaluate needs simulate(..., dense=True)")
         return self.solution.evaluate(t)
-
-
-def as_controls(ts, inputs, n_controls: int) -> tuple[Callable, bool]:
-    r"""Turn `inputs` into a control law $u(t, y)$; also say whether it is sampled on `ts`.
-
-    `inputs` is a constant vector ``(m,)``, samples ``(T, m)`` on `ts` (linear
-    interpolation), or a callable ``u(t, state) -> (m,)`` (a time function that ignores
-    the state, or a state feedback).
-    """
-    if callable(inputs):
-        return inputs, False
-    u = jnp.asarray(inputs, dtype=float)
-    if u.shape == (n_controls,):
-        return (lambda t, y: u), False
-    if u.shape == (jnp.shape(ts)[0], n_controls):
-        interp = dfx.LinearInterpolation(ts=ts, ys=u)
-        return (lambda t, y: interp.evaluate(t)), True
-    raise ValueError(
-        f"inputs have shape {u.shape}; expected ({n_controls},), "
-        f"({jnp.shape(ts)[0]}, {n_controls}) sampled on ts, or a callable u(t, state)"
-    )
 
 
 def simulate(

@@ -15,7 +15,7 @@ Prints JSON lines; headline key `ratio` = baseline wall time / vehsim wall time 
 the load (XLA's thread pool suffers more from it than the single-threaded baseline), so
 `ratio_cpu_time` (process CPU time, both sides) and the load average are reported too.
 The grid runs twice: on the default device, and sharded over one forced host device per core
-(`simulate_grid(..., devices=jax.devices())`); the faster is the headline, both are reported.
+(`simulate_robot_grid(..., devices=jax.devices())`); the faster is the headline, both are reported.
 Usage: PYTHONPATH=. python experiments/benchmarks/robot_montecarlo.py [--seeds 100] [--subset 24]
 """
 
@@ -41,9 +41,9 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vehsim.robot._reproduce_robot import run_grid  # noqa: E402
+from vehsim.reproduce.robot import run_grid  # noqa: E402
 from vehsim.robot.khepera import MAX_DELAY, realistic_plant  # noqa: E402
-from vehsim.robot.missions import MISSIONS  # noqa: E402
+from vehsim.robot.missions import ROBOT_MISSIONS  # noqa: E402
 
 
 # ---------------------------------------------------------------- plain Python baseline
@@ -201,7 +201,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3, help="timed vehsim calls (median)")
     args = ap.parse_args(argv)
     n_steps = 2000
-    n_m = len(MISSIONS)
+    n_m = len(ROBOT_MISSIONS)
     runs = 8 * 2 * n_m * args.seeds
 
     load_before = os.getloadavg()
@@ -234,7 +234,7 @@ def main(argv=None):
     k_pose, k_noise = jax.random.split(jax.random.PRNGKey(0))
     poses = np.asarray(jnp.concatenate([m.initial_poses(jax.random.fold_in(k_pose, i),
                                                         args.seeds)
-                                        for i, m in enumerate(MISSIONS)]))
+                                        for i, m in enumerate(ROBOT_MISSIONS)]))
     keys = jax.random.split(k_noise, poses.shape[0])
     plant = realistic_plant()
     sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])

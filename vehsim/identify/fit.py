@@ -48,7 +48,7 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import diffrax as dfx
 import equinox as eqx
@@ -59,6 +59,7 @@ import numpy as np
 import optimistix as optx
 
 from .._math import one_minus_exp_over, safe_abs, safe_div
+from ..solvers.exponential import ExponentialIntegrator, StepMapSolver, StepMapTerm
 from ..tire.lugre import LuGreParams, LumpedLuGre, decay_rate
 from ..vehicle.quarter_car import PrescribedLoad, QuarterCar, simulate_quarter_car
 from .braking import BrakingData
@@ -149,36 +150,6 @@ def _keeps_mu_s(mask):
 # --------------------------------------------------------------------------------------
 # Forward models
 # --------------------------------------------------------------------------------------
-
-
-class ExponentialIntegrator(dfx.AbstractSolver):
-    r"""Exponential (Lawson-free) midpoint rule for $\dot y = b(t) - a(t)\odot y$, $a\ge0$.
-
-    With $f_m = f(t_m, y_0)$ and $a = -\partial f/\partial y$ (diagonal, one JVP) at the
-    midpoint $t_m$ of the step $h$: $y_1 = y_0 + h\,\varphi(ah)\,f_m$,
-    $\varphi(x) = (1-e^{-x})/x$, i.e. $y_1 = e^{-ah}y_0 + h\varphi(ah)b$: exact when $a$, $b$
-    are constant over the step, second order otherwise, unconditionally stable. Fixed steps
-    only (no error estimate); for vector fields affine in $y$ with a diagonal linear part.
-    """
-
-    term_structure: ClassVar = dfx.AbstractTerm
-    interpolation_cls: ClassVar = dfx.LocalLinearInterpolation
-
-    def order(self, terms):
-        return 2
-
-    def init(self, terms, t0, t1, y0, args):
-        return None
-
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
-        h = t1 - t0
-        f, dfdy = jax.jvp(lambda y: terms.vf(t0 + 0.5 * h, y, args), (y0,),
-                          (jnp.ones_like(y0),))
-        y1 = y0 + h * one_minus_exp_over(-dfdy * h) * f
-        return y1, None, dict(y0=y0, y1=y1), None, dfx.RESULTS.successful
-
-    def func(self, terms, t0, y0, args):
-        return terms.vf(t0, y0, args)
 
 
 def _z_steady(model: LumpedLuGre, v, omega, r):
@@ -292,42 +263,6 @@ def _tangent_weight(log_slope, a, b, z):
     return log_slope * (b - a * z) - z
 
 
-class _StepMapTerm(dfx.AbstractTerm):
-    r"""A term whose `vf` is the exact step map of a unit step, $y \mapsto y^+$ (for
-    `_StepMapSolver`; not a $dy/dt$)."""
-
-    step_map: Any
-
-    def vf(self, t, y, args):
-        return self.step_map(t, y, args)
-
-    def contr(self, t0, t1, **kwargs):
-        return t1 - t0
-
-    def prod(self, vf, control):
-        raise NotImplementedError("a step map has no product with a control")
-
-
-class _StepMapSolver(dfx.AbstractSolver):
-    r"""Fixed unit steps $y_1 = \Phi(t_m, y_0)$ of a `_StepMapTerm` ($t_m$ the midpoint)."""
-
-    term_structure: ClassVar = _StepMapTerm
-    interpolation_cls: ClassVar = dfx.LocalLinearInterpolation
-
-    def order(self, terms):
-        return 2
-
-    def init(self, terms, t0, t1, y0, args):
-        return None
-
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
-        y1 = terms.vf(0.5 * (t0 + t1), y0, args)
-        return y1, None, dict(y0=y0, y1=y1), None, dfx.RESULTS.successful
-
-    def func(self, terms, t0, y0, args):
-        raise NotImplementedError("a step map has no vector field")
-
-
 def _state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
     r"""$\bar z$ and its tangents $\dot z_j$ ($j \le 5$) in one diffrax solve of the
     augmented state $y = (\bar z, \dot z_1, \dots)$: per unit step the maps of
@@ -352,7 +287,7 @@ def _state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
         return decay[m] * y + jnp.concatenate([phi_b[m][None], w * phi_da[m]])
 
     sol = dfx.diffeqsolve(
-        _StepMapTerm(step_map), _StepMapSolver(), 0.0, float(num), 1.0,
+        StepMapTerm(step_map), StepMapSolver(), 0.0, float(num), 1.0,
         jnp.concatenate([z0[None], dz0]), saveat=dfx.SaveAt(steps=True), adjoint=adjoint,
         max_steps=num,
     )

@@ -37,6 +37,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._checks import is_concrete
+from .._fields import array_field, int_field
 
 
 class AbstractStagewiseNLP(eqx.Module):
@@ -90,10 +91,10 @@ class IPOptions(eqx.Module):
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
-    max_iter: Int[Array, ""] = eqx.field(converter=jnp.asarray, default=300)
+    max_iter: Int[Array, ""] = int_field(default=300)
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
-    mu0: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.1)
+    mu0: Float[Array, ""] = array_field(default=0.1)
     verbose: bool = eqx.field(static=True, default=False)
 
 

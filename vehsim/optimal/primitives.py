@@ -162,13 +162,6 @@ class Primitive(eqx.Module):
                 out["time_budget"] = float(max(0.0, float(self.t_f - prob.tf_max)))
         return out
 
-    def figure(self, title: str = ""):
-        from .plot import maneuver_figure
-
-        p = self.problem.vehicle.params
-        return maneuver_figure(self.problem.road, np.asarray(self.time()), self.signals(),
-                               float(p.lF), float(p.lR), title=title)
-
 
 def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float = 0.52,
                      num_stages: int = 50, steps_per_stage: int = 3, tf_max: float = 4.0,

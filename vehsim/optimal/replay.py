@@ -35,6 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._fields import array_field
+from .._math import wrap_angle
 from ..simulate import Trajectory, simulate
 from ..tire.base import AbstractTire
 from ..tire.isotropic_lumped import IsotropicLumpedLuGre
@@ -77,12 +79,12 @@ class TrackingGains(eqx.Module):
     $\Delta T_i = k_\omega I_i (\omega^{\rm ref}_i - \omega_i)$ (slip tracking).
     """
 
-    k_y: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=2.0)
-    k_psi: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1.0)
-    V0: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1.0)
-    k_v: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=2.0)
-    k_s: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=1.0)
-    k_omega: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=50.0)
+    k_y: Float[Array, ""] = array_field(default=2.0)
+    k_psi: Float[Array, ""] = array_field(default=1.0)
+    V0: Float[Array, ""] = array_field(default=1.0)
+    k_v: Float[Array, ""] = array_field(default=2.0)
+    k_s: Float[Array, ""] = array_field(default=1.0)
+    k_omega: Float[Array, ""] = array_field(default=50.0)
 
     @classmethod
     def open_loop(cls) -> TrackingGains:
@@ -166,10 +168,6 @@ def _reference_solution(reduced, sched: _Schedule, state6_0, ts):
                     jump_ts=sched.jump_ts(), dense=True, max_steps=100_000)
 
 
-def _wrap(a):
-    return jnp.arctan2(jnp.sin(a), jnp.cos(a))
-
-
 @eqx.filter_jit
 def _run(vehicle: HalfCar, reduced: ReducedHalfCar, sched: _Schedule, state6_0, ts,
          gains: TrackingGains):
@@ -187,7 +185,7 @@ def _run(vehicle: HalfCar, reduced: ReducedHalfCar, sched: _Schedule, state6_0, 
         cp, sp = jnp.cos(y6[2]), jnp.sin(y6[2])
         dx, dy = y[0] - y6[0], y[1] - y6[1]
         e_s, e_y = cp * dx + sp * dy, -sp * dx + cp * dy
-        e_psi = _wrap(y[2] - y6[2])
+        e_psi = wrap_angle(y[2] - y6[2])
         V, V_ref = jnp.hypot(y[3], y[4]), jnp.hypot(y6[3], y6[4])
         delta = u[2] - gains.k_psi * e_psi - jnp.arctan(gains.k_y * e_y / (V + gains.V0))
         delta = jnp.clip(delta, -DELTA_MAX, DELTA_MAX)
@@ -287,35 +285,3 @@ def replay_tracking(primitive, vehicle: HalfCar | None = None,
     r"""As `replay_open_loop`, with the path-tracking feedback of `TrackingGains` around the
     primitive's feedforward (torques and steering)."""
     return _replay(primitive, vehicle, tire, suspension, gains, num_saves)
-
-
-def replay_figure(primitive, replays: dict, title: str = ""):
-    """Paths in the corridor: the primitive's nodes and each replay in ``replays``
-    ({label: `Replay`}), with speed histories."""
-    import matplotlib.pyplot as plt
-
-    from .plot import draw_road
-
-    fig, (ax, av) = plt.subplots(1, 2, figsize=(11, 5), width_ratios=[1.2, 1.0])
-    draw_road(ax, primitive.problem.road)
-    nodes = np.asarray(primitive.nodes())
-    ax.plot(nodes[:, 0], nodes[:, 1], "k.-", lw=1.0, ms=3, label="primitive (reduced model)")
-    av.plot(np.asarray(primitive.time()), np.hypot(nodes[:, 3], nodes[:, 4]), "k.-", ms=3,
-            label="primitive")
-    for label, rp in replays.items():
-        tr = rp.trajectory
-        ok = np.isfinite(np.asarray(tr["x"]))
-        v = rp.drift["max_corridor_violation"]
-        ax.plot(np.asarray(tr["x"])[ok], np.asarray(tr["y"])[ok], "-", lw=1.2,
-                label=f"{label} (off road {v:.2f} m)")
-        av.plot(np.asarray(tr.ts)[ok], np.asarray(tr["speed"])[ok], "-", label=label)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7, loc="lower left")
-    ax.set_title(title)
-    av.set_xlabel("t [s]")
-    av.set_ylabel("speed [m/s]")
-    av.grid(alpha=0.3)
-    av.legend(fontsize=7)
-    fig.tight_layout()
-    return fig

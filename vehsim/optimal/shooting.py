@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._constants import GRAVITY
+from .._fields import array_field
 from ..vehicle.reduced import ReducedHalfCar
 from .nlp import AbstractStagewiseNLP
 from .roads import Road
@@ -103,10 +105,10 @@ class ManeuverOCP(AbstractManeuverOCP):
     vehicle: ReducedHalfCar
     road: Road
     objective: str = eqx.field(static=True, default="min-time")
-    tf_max: Array = eqx.field(converter=jnp.asarray, default=4.0)
+    tf_max: Array = array_field(default=4.0)
     num_stages: int = eqx.field(static=True, default=50)
     steps_per_stage: int = eqx.field(static=True, default=3)
-    rate_weight: Array = eqx.field(converter=jnp.asarray, default=1e-5)
+    rate_weight: Array = array_field(default=1e-5)
     state_size: int = eqx.field(static=True, default=NX)
     control_size: int = eqx.field(static=True, default=NU)
 
@@ -178,14 +180,14 @@ class PointMassOCP(AbstractManeuverOCP):
     guesses of the car problem)."""
 
     road: Road
-    friction: Array = eqx.field(converter=jnp.asarray, default=0.52)
-    g: Array = eqx.field(converter=jnp.asarray, default=9.81)
+    friction: Array = array_field(default=0.52)
+    g: Array = array_field(default=GRAVITY)
     objective: str = eqx.field(static=True, default="min-time")
-    tf_max: Array = eqx.field(converter=jnp.asarray, default=4.0)
+    tf_max: Array = array_field(default=4.0)
     num_stages: int = eqx.field(static=True, default=50)
     steps_per_stage: int = eqx.field(static=True, default=3)
-    rate_weight: Array = eqx.field(converter=jnp.asarray, default=1e-6)
-    margin: Array = eqx.field(converter=jnp.asarray, default=0.0)
+    rate_weight: Array = array_field(default=1e-6)
+    margin: Array = array_field(default=0.0)
     state_size: int = eqx.field(static=True, default=5)
     control_size: int = eqx.field(static=True, default=2)
 

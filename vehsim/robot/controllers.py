@@ -11,7 +11,7 @@ Controller 4 (Aicardi et al.) is written in polar coordinates of the pose and ig
 system.
 
 Gains are array fields, so a bank of controllers (`default_controllers`) is one PyTree and a
-whole grid of runs is one vmapped, jitted call (`vehsim.robot.khepera.simulate_grid`).
+whole grid of runs is one vmapped, jitted call (`vehsim.robot.khepera.simulate_robot_grid`).
 The "documented time" of each controller (`DOCUMENTED_TIME`) is the time its closed loop
 on the ideal plant needs to bring the generic pose of the tests to 1 mm and 1 degree.
 """
@@ -27,25 +27,15 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_positive, is_concrete
-from .unicycle import AbstractSystem, Chained, Pose, s_function, wrap_angle
-
-
-def _field(default=None):
-    if default is None:
-        return eqx.field(converter=jnp.asarray)
-    return eqx.field(converter=jnp.asarray, default=default)
+from .._fields import array_field
+from .._math import safe_sqrt, wrap_angle
+from .unicycle import AbstractSystem, Chained, Pose, s_function
 
 
 def _safe_den(den):
     """(den with zeros replaced by 1, is_zero): the first half of the double-where trick."""
     zero = den == 0
     return jnp.where(zero, jnp.ones_like(den), den), zero
-
-
-def _safe_sqrt(x):
-    """sqrt(x) for x >= 0 with a zero (not infinite) derivative at x = 0."""
-    zero = x == 0
-    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, jnp.ones_like(x), x)))
 
 
 class AbstractController(eqx.Module):
@@ -97,10 +87,10 @@ class DiscontinuousController(AbstractChainedController):
     origin from 8 s on.
     """
 
-    k: Float[Array, ""] = _field(1.0)
-    mu: Float[Array, ""] = _field(3.0)
-    eta_bar: Float[Array, ""] = _field(2.0)
-    k_s: Float[Array, ""] = _field(2.0)
+    k: Float[Array, ""] = array_field(default=1.0)
+    mu: Float[Array, ""] = array_field(default=3.0)
+    eta_bar: Float[Array, ""] = array_field(default=2.0)
+    k_s: Float[Array, ""] = array_field(default=2.0)
 
     def __check_init__(self):
         check_positive("DiscontinuousController", "k", self.k)
@@ -152,9 +142,9 @@ class BoundedController(AbstractChainedController):
     origin from 8 s on.
     """
 
-    k_in: Float[Array, ""] = _field(1.0)
-    k_out: Float[Array, ""] = _field(-0.5)
-    mu: Float[Array, ""] = _field(3.0)
+    k_in: Float[Array, ""] = array_field(default=1.0)
+    k_out: Float[Array, ""] = array_field(default=-0.5)
+    mu: Float[Array, ""] = array_field(default=3.0)
 
     def __check_init__(self):
         if is_concrete(self.k_in) and is_concrete(self.mu):
@@ -211,9 +201,9 @@ class TwoStageController(AbstractChainedController):
     origin from 8 s on.
     """
 
-    k: Float[Array, ""] = _field(1.0)
-    k1: Float[Array, ""] = _field(2.0)
-    c: Float[Array, ""] = _field(1.0)
+    k: Float[Array, ""] = array_field(default=1.0)
+    k1: Float[Array, ""] = array_field(default=2.0)
+    c: Float[Array, ""] = array_field(default=1.0)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "k1", "c")
 
@@ -223,7 +213,7 @@ class TwoStageController(AbstractChainedController):
         stage1 = w < self.c * jnp.abs(z)
         w_safe, zero = _safe_den(w)
         root = jnp.sqrt(w_safe)
-        speed = self.k1 * _safe_sqrt(jnp.abs(z))
+        speed = self.k1 * safe_sqrt(jnp.abs(z))
         u_stage1 = jnp.where(zero, jnp.stack([speed, 0 * speed]),
                              speed * jnp.stack([x[0], x[1]]) / root)
         alpha = 2 * self.k * z / w_safe
@@ -253,9 +243,9 @@ class PolarController(AbstractController):
     origin from 10 s on.
     """
 
-    lam: Float[Array, ""] = _field(1.0)
-    k: Float[Array, ""] = _field(3.0)
-    h: Float[Array, ""] = _field(1.5)
+    lam: Float[Array, ""] = array_field(default=1.0)
+    k: Float[Array, ""] = array_field(default=3.0)
+    h: Float[Array, ""] = array_field(default=1.5)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("lam", "k", "h")
 
@@ -299,9 +289,9 @@ class TeelMurrayWalshController(AbstractChainedController):
     makes it exponential.
     """
 
-    k: Float[Array, ""] = _field(1.0)
-    a: Float[Array, ""] = _field(1.0)
-    omega: Float[Array, ""] = _field(1.0)
+    k: Float[Array, ""] = array_field(default=1.0)
+    a: Float[Array, ""] = array_field(default=1.0)
+    omega: Float[Array, ""] = array_field(default=1.0)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
 
@@ -336,9 +326,9 @@ class MCloskeyMurray93Controller(AbstractChainedController):
     origin from 40 s on.
     """
 
-    k: Float[Array, ""] = _field(1.0)
-    a: Float[Array, ""] = _field(1.0)
-    omega: Float[Array, ""] = _field(1.0)
+    k: Float[Array, ""] = array_field(default=1.0)
+    a: Float[Array, ""] = array_field(default=1.0)
+    omega: Float[Array, ""] = array_field(default=1.0)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
 
@@ -371,8 +361,8 @@ class PometController(AbstractChainedController):
     cannot make it exponential either.
     """
 
-    k: Float[Array, ""] = _field(1.0)
-    omega: Float[Array, ""] = _field(1.0)
+    k: Float[Array, ""] = array_field(default=1.0)
+    omega: Float[Array, ""] = array_field(default=1.0)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "omega")
 
@@ -405,7 +395,7 @@ def homogeneous_norm_newton(x: Chained, steps: int = 6):
     """
     a = x[0] ** 2 + x[1] ** 2
     b = x[2] ** 2
-    r0 = _safe_sqrt(a) + _safe_sqrt(_safe_sqrt(b))
+    r0 = safe_sqrt(a) + safe_sqrt(safe_sqrt(b))
     r0_safe, zero = _safe_den(r0)
 
     def body(_, r):
@@ -439,9 +429,9 @@ class MCloskeyMurray97Controller(AbstractChainedController):
     origin from 25 s on.
     """
 
-    k: Float[Array, ""] = _field(2.0)
-    a: Float[Array, ""] = _field(2.0)
-    omega: Float[Array, ""] = _field(2.0)
+    k: Float[Array, ""] = array_field(default=2.0)
+    a: Float[Array, ""] = array_field(default=2.0)
+    omega: Float[Array, ""] = array_field(default=2.0)
     newton_steps: int = eqx.field(static=True, default=6)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")

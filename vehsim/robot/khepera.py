@@ -17,13 +17,13 @@ ZOH remains: it is the control rate). Values not in the report are marked **unve
 (../shared/spec/parameters.md): wheel base 53 mm, speed unit, saturation; the motor time
 constants, delay and noise levels are modelling choices.
 
-`simulate` runs one closed loop; `simulate_grid` runs controllers x systems x initial poses x
+`simulate_robot` runs one closed loop; `simulate_robot_grid` runs controllers x systems x initial poses x
 seeds in one jitted call: one `lax.scan` over time whose body evaluates each
 (controller, system) group's law vmapped over its runs (all gains in one PyTree) and
 advances the shared plant vmapped over all runs, keeping only the scoring statistics. The
 sensor noise depends only on the run's key and the sample index, so it is drawn once per
 initial pose (not per group) for blocks of 50 samples at a time; the result is identical to
-`simulate` run by run.
+`simulate_robot` run by run.
 """
 
 from __future__ import annotations
@@ -34,12 +34,11 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
-from ..sweep import pad_members
+from .._fields import array_field, bool_field, int_field
+from ..sharding import pad_members, shard_members
 from .controllers import AbstractController
 from .scoring import RunStats
 from .unicycle import AbstractSystem, body_velocity, unicycle_step, wheel_speeds
@@ -47,10 +46,6 @@ from .unicycle import AbstractSystem, body_velocity, unicycle_step, wheel_speeds
 
 MAX_DELAY = 8
 """Length of the command delay buffer (largest allowed `delay_samples`)."""
-
-
-def _f(default):
-    return eqx.field(converter=jnp.asarray, default=default)
 
 
 class KheperaPlant(eqx.Module):
@@ -74,21 +69,21 @@ class KheperaPlant(eqx.Module):
       `noise`: booleans.
     """
 
-    sample_time: Float[Array, ""] = _f(0.02)
-    wheel_base: Float[Array, ""] = _f(0.053)
-    pulses_per_meter: Float[Array, ""] = _f(12_000.0)
-    speed_unit: Float[Array, ""] = _f(1.0 / 120.0)
-    speed_limit: Float[Array, ""] = _f(127.0 / 120.0)
-    motor_time_constant: Float[Array, 2] = _f((0.06, 0.09))
-    delay_samples: Array = _f(2)
-    noise_position: Float[Array, ""] = _f(0.0002)
-    noise_heading: Float[Array, ""] = _f(0.2 * 3.141592653589793 / 180)
-    motor_dynamics: Array = _f(True)
-    delay: Array = _f(True)
-    quantization: Array = _f(True)
-    saturation: Array = _f(True)
-    encoders: Array = _f(True)
-    noise: Array = _f(True)
+    sample_time: Float[Array, ""] = array_field(default=0.02)
+    wheel_base: Float[Array, ""] = array_field(default=0.053)
+    pulses_per_meter: Float[Array, ""] = array_field(default=12_000.0)
+    speed_unit: Float[Array, ""] = array_field(default=1.0 / 120.0)
+    speed_limit: Float[Array, ""] = array_field(default=127.0 / 120.0)
+    motor_time_constant: Float[Array, 2] = array_field(default=(0.06, 0.09))
+    delay_samples: Array = int_field(default=2)
+    noise_position: Float[Array, ""] = array_field(default=0.0002)
+    noise_heading: Float[Array, ""] = array_field(default=0.2 * 3.141592653589793 / 180)
+    motor_dynamics: Array = bool_field(default=True)
+    delay: Array = bool_field(default=True)
+    quantization: Array = bool_field(default=True)
+    saturation: Array = bool_field(default=True)
+    encoders: Array = bool_field(default=True)
+    noise: Array = bool_field(default=True)
 
     def __check_init__(self):
         owner = "KheperaPlant"
@@ -229,7 +224,7 @@ def _velocity(controller, system, t, pose):
     return controller.velocity(t, pose, system)
 
 
-def simulate(controller: AbstractController, system: AbstractSystem, pose0,
+def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0,
              key: PRNGKeyArray | None = None, plant: KheperaPlant | None = None,
              t_final: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
     """Closed loop of one controller on the Khepera plant from `pose0` = (x, y, gamma).
@@ -290,7 +285,7 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
     return jax.tree_util.tree_map(lambda a: a.reshape((G, P) + a.shape[1:]), run)
 
 
-def simulate_grid(controllers: Sequence[AbstractController],
+def simulate_robot_grid(controllers: Sequence[AbstractController],
                   systems: Sequence[AbstractSystem], poses0, keys,
                   plant: KheperaPlant | None = None, t_final: float = 40.0,
                   substeps: int = 4, save: bool = False, devices=None) -> RobotRun:
@@ -301,7 +296,7 @@ def simulate_grid(controllers: Sequence[AbstractController],
     flattened), `plant`, `t_final`, `substeps`, `save` (keep trajectories: memory grows as
     C x S x P x samples, so only for small grids).
     **Returns:** a `RobotRun` whose fields have leading axes (C, S, P); score its `stats`
-    with `vehsim.robot.scoring.score` under `jax.vmap`.
+    with `vehsim.robot.scoring.score_run` under `jax.vmap`.
 
     `devices`: shard the initial poses across these JAX devices (a one-dimensional mesh,
     `jax.shard_map`; poses padded to a multiple of the device count, padding dropped), as
@@ -323,17 +318,15 @@ def simulate_grid(controllers: Sequence[AbstractController],
         n = poses0.shape[0]
         poses0, keys = pad_members((poses0, keys), len(devices))
         run = _sharded_grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save),
-                            Mesh(np.asarray(list(devices)), ("runs",)))
+                            tuple(devices))
         run = jax.tree_util.tree_map(lambda a: a[:, :n], run)
     return jax.tree_util.tree_map(lambda a: a.reshape((C, S) + a.shape[1:]), run)
 
 
 @eqx.filter_jit
-def _sharded_grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, mesh):
-    spec = PartitionSpec("runs")
-
+def _sharded_grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, devices):
     def shard(p, k, plant):
         return _grid(controllers, systems, p, k, plant, n_steps, substeps, save)
 
-    return jax.shard_map(shard, mesh=mesh, in_specs=(spec, spec, PartitionSpec()),
-                         out_specs=PartitionSpec(None, "runs"), check_vma=False)(poses, keys, plant)
+    # `_grid` returns (groups, runs, ...): the runs, which are split, are the second axis
+    return shard_members(shard, devices, in_axes=(0, 0, None), out_axis=1)(poses, keys, plant)

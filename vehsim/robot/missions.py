@@ -22,13 +22,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from .._fields import array_field
+
 
 class Mission(eqx.Module):
     """An initial pose `pose0` [m, m, rad] and its Monte-Carlo `spread` (std per component)."""
 
     name: str = eqx.field(static=True)
-    pose0: Float[Array, 3] = eqx.field(converter=jnp.asarray)
-    spread: Float[Array, 3] = eqx.field(converter=jnp.asarray)
+    pose0: Float[Array, 3] = array_field()
+    spread: Float[Array, 3] = array_field()
 
     def initial_poses(self, key: PRNGKeyArray, n: int) -> Float[Array, "n 3"]:
         """`n` initial poses: the nominal one, then `n - 1` perturbed ones."""
@@ -44,5 +46,5 @@ NORMAL = Mission("Normal", (0.10, 0.15, -jnp.pi / 3), _SPREAD)
 SINGULAR = Mission("Singular", (0.0, 0.10, 0.0), (0.0, 0.005, 0.0))
 LONG_DISTANCE = Mission("Long-distance", (-0.60, 0.40, 0.0), _SPREAD)
 
-MISSIONS: tuple[Mission, ...] = (EASY, NORMAL, SINGULAR, LONG_DISTANCE)
+ROBOT_MISSIONS: tuple[Mission, ...] = (EASY, NORMAL, SINGULAR, LONG_DISTANCE)
 """The missions of Table 2, in its column order (E, N, S, L)."""

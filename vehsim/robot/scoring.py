@@ -22,6 +22,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .._math import safe_hypot, wrap_angle
+
 
 LETTERS = "EGSCOU"
 """Letter of each score code: 0 E, 1 G, 2 S, 3 C, 4 O, 5 U."""
@@ -88,13 +90,13 @@ class RunStats(eqx.Module):
     def update(self, t, pose: Float[Array, 3], command: Float[Array, 2]) -> RunStats:
         """Account for the true `pose` at time `t` and the `command` (v, omega) issued then."""
         dt = jnp.asarray(t, dtype=self.t_final.dtype)
-        position_error = _hypot(pose[0], pose[1])
-        heading_error = jnp.abs(_wrap(pose[2]))
+        position_error = safe_hypot(pose[0], pose[1])
+        heading_error = jnp.abs(wrap_angle(pose[2]))
         t_out_position = jnp.where(
             position_error > POSITION_TOL, dt, self.t_out_position)
         t_out_heading = jnp.where(heading_error > HEADING_TOL, dt, self.t_out_heading)
         band = jnp.asarray(CROSSING_BAND, dtype=pose.dtype)
-        coord = jnp.stack([pose[0], pose[1], _wrap(pose[2])])
+        coord = jnp.stack([pose[0], pose[1], wrap_angle(pose[2])])
         new_side = jnp.where(coord > band, 1.0, jnp.where(coord < -band, -1.0, self.side))
         crossed = (new_side != self.side) & (self.side != 0)
         increment = command - self.previous_command
@@ -126,19 +128,7 @@ class RunStats(eqx.Module):
         return jnp.maximum(tp, th)
 
 
-def _hypot(x, y):
-    """sqrt(x^2 + y^2), zero gradient (not NaN) at the origin; elementwise (no reduction,
-    which costs a kernel launch per sample inside the simulation loop)."""
-    sq = x * x + y * y
-    zero = sq == 0
-    return jnp.where(zero, jnp.zeros_like(sq), jnp.sqrt(jnp.where(zero, jnp.ones_like(sq), sq)))
-
-
-def _wrap(angle):
-    return -jnp.remainder(-angle + jnp.pi, 2 * jnp.pi) + jnp.pi
-
-
-def score(stats: RunStats, position: bool = True, heading: bool = True) -> Int[Array, ""]:
+def score_run(stats: RunStats, position: bool = True, heading: bool = True) -> Int[Array, ""]:
     """The Table 2 letter code of a run (index into `LETTERS`).
 
     Decision (first match): not converged -> O if it stays within (OSCILLATION_POSITION,
@@ -170,7 +160,7 @@ def score(stats: RunStats, position: bool = True, heading: bool = True) -> Int[A
 @ft.partial(jax.jit, static_argnames=("position", "heading"))
 def score_trajectory(ts, poses, commands, position: bool = True, heading: bool = True):
     """Score a stored trajectory: `ts` (n,), `poses` (n, 3), `commands` (n, 2)."""
-    return score(accumulate(ts, poses, commands), position, heading)
+    return score_run(accumulate(ts, poses, commands), position, heading)
 
 
 @jax.jit

@@ -25,15 +25,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_positive
+from .._fields import array_field
+from .._math import wrap_angle
 
 
 Pose = Float[Array, "3"]
 Chained = Float[Array, "3"]
-
-
-def wrap_angle(angle):
-    r"""The angle in $(-\pi, \pi]$."""
-    return -jnp.remainder(-angle + jnp.pi, 2 * jnp.pi) + jnp.pi
 
 
 def unicycle_rhs(pose: Pose, v, omega) -> Pose:
@@ -108,7 +105,7 @@ class SystemI(AbstractSystem):
     Inverse: $\tilde x = x_1\cos x_2 + x_3\sin x_2$, $\tilde y = x_1\sin x_2 - x_3\cos x_2$.
     """
 
-    length: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.1)
+    length: Float[Array, ""] = array_field(default=0.1)
 
     def __check_init__(self):
         check_positive("SystemI", "length", self.length)
@@ -143,7 +140,7 @@ class SystemII(AbstractSystem):
     $|\gamma| < \pi/2$). Inverse: $\gamma = \arctan x_2$, $\tilde y = x_1x_2 - x_3$.
     """
 
-    length: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.1)
+    length: Float[Array, ""] = array_field(default=0.1)
 
     def __check_init__(self):
         check_positive("SystemII", "length", self.length)

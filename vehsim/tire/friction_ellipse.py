@@ -12,17 +12,12 @@ opposes the slip velocity $(V_x - \omega r, V_y)$ with magnitude $\mu(s)F_z$ and
 $s = |\text{slip velocity}|/(\omega r)$. The tire is static (state shape ``(0,)``).
 """
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._arrays import float_array
 from .._checks import check_positive
+from .._fields import array_field
 from .base import AbstractTire
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=float_array, **kwargs)
 
 
 ROLLING_FLOOR = 1e-3
@@ -56,9 +51,9 @@ class FrictionEllipseTire(AbstractTire):
       with $\kappa \in (-1, \infty)$ the control input and `tan_alpha` $= V_y/V_x$.
     """
 
-    B: Float[Array, "..."] = _array_field()
-    C: Float[Array, "..."] = _array_field()
-    D: Float[Array, "..."] = _array_field()
+    B: Float[Array, "..."] = array_field()
+    C: Float[Array, "..."] = array_field()
+    D: Float[Array, "..."] = array_field()
 
     def __check_init__(self):
         check_positive("FrictionEllipseTire", "B", self.B)

@@ -10,12 +10,11 @@ the `simulate_batch` benchmark use; the anisotropic 2D models of report section 
 (eqs. 31-48) plug into the vehicles the same way, through `AbstractTire`.
 """
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._arrays import float_array
 from .._checks import check_range
+from .._fields import array_field
 from .._math import safe_abs, safe_norm
 from .base import AbstractTire
 from .lugre import LuGreParams, stribeck
@@ -28,7 +27,7 @@ class IsotropicLumpedLuGre(AbstractTire):
     """
 
     params: LuGreParams
-    kappa0: Float[Array, "..."] = eqx.field(converter=float_array, default=1.0)
+    kappa0: Float[Array, "..."] = array_field(default=1.0)
 
     def __check_init__(self):
         check_range("IsotropicLumpedLuGre", "kappa0", self.kappa0, lower=0.0)

@@ -7,12 +7,11 @@ cornering stiffness $C_\alpha = c_\alpha F_z$. Useful for closed forms (underste
 At $V_x = 0$ the forces are zero (the slips are defined as 0 there, with finite gradients).
 """
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._arrays import float_array
 from .._checks import check_positive
+from .._fields import array_field
 from .._math import safe_div
 from .base import AbstractTire
 
@@ -24,8 +23,8 @@ class LinearTire(AbstractTire):
     unit normal load.
     """
 
-    c_kappa: Float[Array, "..."] = eqx.field(converter=float_array)
-    c_alpha: Float[Array, "..."] = eqx.field(converter=float_array)
+    c_kappa: Float[Array, "..."] = array_field()
+    c_alpha: Float[Array, "..."] = array_field()
 
     def __check_init__(self):
         check_positive("LinearTire", "c_kappa", self.c_kappa)

@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_range, is_concrete
+from .._fields import array_field
 
 
 class AbstractLoadDistribution(eqx.Module):
@@ -109,7 +110,7 @@ class TrapezoidalLoad(AbstractLoadDistribution):
     `ramp` $=\epsilon\in(0, 1/2]$; $\epsilon = 1/2$ is the triangle.
     """
 
-    ramp: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.25)
+    ramp: Float[Array, ""] = array_field(default=0.25)
 
     def __check_init__(self):
         check_range("TrapezoidalLoad", "ramp", self.ramp, lower=0.0, upper=0.5, lower_open=True)

@@ -19,11 +19,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_order, check_positive, check_range
+from .._fields import array_field
 from .._math import safe_abs, safe_pow_abs
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=jnp.asarray, **kwargs)
 
 
 class LuGreParams(eqx.Module):
@@ -44,15 +41,15 @@ class LuGreParams(eqx.Module):
     parameter sets is just a `LuGreParams` with leading batch axes (use `jax.vmap`).
     """
 
-    sigma0: Float[Array, ...] = _array_field()
-    sigma1: Float[Array, ...] = _array_field()
-    sigma2: Float[Array, ...] = _array_field()
-    mu_c: Float[Array, ...] = _array_field()
-    mu_s: Float[Array, ...] = _array_field()
-    v_s: Float[Array, ...] = _array_field()
-    alpha: Float[Array, ...] = _array_field(default=0.5)
-    theta: Float[Array, ...] = _array_field(default=1.0)
-    L: Float[Array, ...] = _array_field(default=0.2)
+    sigma0: Float[Array, ...] = array_field()
+    sigma1: Float[Array, ...] = array_field()
+    sigma2: Float[Array, ...] = array_field()
+    mu_c: Float[Array, ...] = array_field()
+    mu_s: Float[Array, ...] = array_field()
+    v_s: Float[Array, ...] = array_field()
+    alpha: Float[Array, ...] = array_field(default=0.5)
+    theta: Float[Array, ...] = array_field(default=1.0)
+    L: Float[Array, ...] = array_field(default=0.2)
 
     def __check_init__(self):
         owner = "LuGreParams"
@@ -148,7 +145,7 @@ class LumpedLuGre(AbstractLongitudinalTire):
     """
 
     params: LuGreParams
-    kappa0: Float[Array, ...] = _array_field(default=1.0)
+    kappa0: Float[Array, ...] = array_field(default=1.0)
 
     def __check_init__(self):
         check_range("LumpedLuGre", "kappa0", self.kappa0, lower=0.0)

@@ -28,12 +28,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_order, check_positive, check_range
+from .._fields import array_field
 from .._math import safe_abs, safe_div, safe_norm, safe_pow_abs
+from .._results import RESULTS, as_result
 from .base import AbstractTire
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), **kwargs)
 
 
 class LuGre2DParams(eqx.Module):
@@ -52,14 +50,14 @@ class LuGre2DParams(eqx.Module):
     - `L` [m]: contact-patch length $> 0$ (distributed, lumped and moment models).
     """
 
-    sigma0: Float[Array, "... 2"] = _array_field()
-    sigma1: Float[Array, "... 2"] = _array_field()
-    sigma2: Float[Array, "... 2"] = _array_field()
-    mu_k: Float[Array, "... 2"] = _array_field()
-    mu_s: Float[Array, "... 2"] = _array_field()
-    v_s: Float[Array, ...] = _array_field()
-    gamma: Float[Array, ...] = _array_field(default=0.5)
-    L: Float[Array, ...] = _array_field(default=0.2)
+    sigma0: Float[Array, "... 2"] = array_field()
+    sigma1: Float[Array, "... 2"] = array_field()
+    sigma2: Float[Array, "... 2"] = array_field()
+    mu_k: Float[Array, "... 2"] = array_field()
+    mu_s: Float[Array, "... 2"] = array_field()
+    v_s: Float[Array, ...] = array_field()
+    gamma: Float[Array, ...] = array_field(default=0.5)
+    L: Float[Array, ...] = array_field(default=0.2)
 
     def __check_init__(self):
         owner = "LuGre2DParams"
@@ -187,7 +185,7 @@ class Tire2DSolution(eqx.Module):
     ts: Float[Array, " T"]
     state: object
     forces: Float[Array, "T 3"]
-    result: object
+    result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
 
 
@@ -218,7 +216,7 @@ def simulate_tire_2d(
     import diffrax as dfx
     import jax
 
-    from .transient import as_signal
+    from .._signals import as_signal
 
     ts = jnp.asarray(ts, dtype=float)
     sig = [as_signal(ts, x) for x in (vx, vy, omega, Fz)]

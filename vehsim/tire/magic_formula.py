@@ -41,12 +41,9 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._fields import array_field
 from .._math import safe_div, safe_norm
 from .base import AbstractTire
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), **kwargs)
 
 
 class MagicFormula1987Params(eqx.Module):
@@ -56,12 +53,12 @@ class MagicFormula1987Params(eqx.Module):
       `c` (13,): aligning $c_1..c_{13}$; `C_y`, `C_x`, `C_z`: shape factors (1.30, 1.65, 2.40).
     """
 
-    a: Float[Array, 13] = _array_field()
-    b: Float[Array, 8] = _array_field()
-    c: Float[Array, 13] = _array_field()
-    C_y: Float[Array, ""] = _array_field(default=1.30)
-    C_x: Float[Array, ""] = _array_field(default=1.65)
-    C_z: Float[Array, ""] = _array_field(default=2.40)
+    a: Float[Array, 13] = array_field()
+    b: Float[Array, 8] = array_field()
+    c: Float[Array, 13] = array_field()
+    C_y: Float[Array, ""] = array_field(default=1.30)
+    C_x: Float[Array, ""] = array_field(default=1.65)
+    C_z: Float[Array, ""] = array_field(default=2.40)
 
     def __check_init__(self):
         for name, n in (("a", 13), ("b", 8), ("c", 13)):
@@ -166,7 +163,7 @@ class MagicFormula1987(AbstractTire):
     """
 
     params: MagicFormula1987Params
-    v_eps: Float[Array, ""] = _array_field(default=0.5)
+    v_eps: Float[Array, ""] = array_field(default=0.5)
 
     def init_state(self):
         return jnp.zeros((0,))

@@ -634,8 +634,8 @@ def simulate_moments(
     import diffrax as dfx
     import jax
 
+    from .._signals import as_signal
     from .lugre2d import Tire2DSolution, relative_velocity_2d
-    from .transient import as_signal
 
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"simulate_moments needs a MomentLuGre2D, got {type(model).__name__}")
@@ -819,8 +819,8 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     import diffrax as dfx
     import jax
 
+    from .._signals import as_signal
     from .lugre2d import Tire2DSolution, relative_velocity_2d
-    from .transient import as_signal
 
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"moments_step_response needs a MomentLuGre2D, got {type(model).__name__}")

@@ -6,14 +6,14 @@ compare models, and by `vehsim.identify` to fit parameters against braking data)
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PyTree
 
+from .._results import RESULTS, as_result
+from .._signals import as_signal
 from .lugre import AbstractLongitudinalTire
 
 
@@ -25,20 +25,8 @@ class TireSolution(eqx.Module):
     mu: Float[Array, " T"]
     v: Float[Array, " T"]
     omega: Float[Array, " T"]
-    result: dfx.RESULTS
+    result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
-
-
-def as_signal(ts, x) -> Callable:
-    """A callable t -> x(t): ``x`` is a callable already, a constant, or samples on ``ts``."""
-    if callable(x):
-        return x
-    x = jnp.asarray(x, dtype=float)
-    if x.ndim == 0:
-        return lambda t: x
-    if x.shape != jnp.shape(ts):
-        raise ValueError(f"input samples have shape {x.shape}, expected {jnp.shape(ts)} (ts)")
-    return dfx.LinearInterpolation(ts=ts, ys=x).evaluate
 
 
 def simulate_tire(

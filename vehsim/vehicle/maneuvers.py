@@ -8,6 +8,11 @@ efficient and the inputs stay differentiable).
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
+from collections.abc import Sequence
+
+import equinox as eqx
 import jax.numpy as jnp
 
 
@@ -55,3 +60,54 @@ def brake_in_turn(
 
 
 MANEUVERS = {"step_steer": step_steer, "brake_in_turn": brake_in_turn}
+
+
+def half_car_scenario(params, tire, maneuver: str, speed: float, axes: Sequence[str]):
+    r"""``member -> (HalfCar, inputs, state0)`` for a sweep (`vehsim.sweep`) of the
+    `HalfCar` over named axes.
+
+    **Arguments:** `params` (`HalfCarParams`) and `tire` (any static or dynamic
+    `AbstractTire`) of the base vehicle; `maneuver`: a key of `MANEUVERS`; `speed` [m/s]:
+    the initial speed unless ``"speed"`` is an axis; `axes`: the member's names, each a
+    `HalfCarParams` field, an array field of the tire, ``"speed"`` or an argument of the
+    maneuver (``delta``, ``brake_torque``, ...). Unknown names raise `ValueError`.
+    """
+    from .half_car import HalfCar
+
+    if maneuver not in MANEUVERS:
+        raise ValueError(f"unknown maneuver {maneuver!r}; known: {sorted(MANEUVERS)}")
+    build = MANEUVERS[maneuver]
+    build_args = set(inspect.signature(build).parameters)
+    maneuver_args = build_args | {"speed"}
+    vehicle_fields = set(type(params).__dataclass_fields__)
+    tire_fields = {k for k, v in vars(tire).items() if eqx.is_array(v)}
+    for name in axes:
+        if name not in vehicle_fields | tire_fields | maneuver_args:
+            raise ValueError(
+                f"unknown sweep axis {name!r}; vehicle fields {sorted(vehicle_fields)}, "
+                f"tire fields {sorted(tire_fields)}, maneuver arguments {sorted(maneuver_args)}"
+            )
+    defaults = {k: v for k, v in {"delta": 0.1, "brake_torque": 1500.0}.items()
+                if k in build_args}
+
+    def scenario(member):
+        p = _replace(params, {k: member[k] for k in axes if k in vehicle_fields})
+        t = _replace(tire, {k: member[k] for k in axes if k in tire_fields})
+        kw = dict(defaults) | {k: member[k] for k in axes if k in build_args}
+        car = HalfCar(p, t)
+        v0 = member["speed"] if "speed" in member else speed
+        return car, build(**kw), car.init_state(vx=v0)
+
+    return scenario
+
+
+def _replace(module, changes: dict):
+    """`module` with some fields changed, rebuilt through its constructor where it has the
+    default one (so that its field checks run on concrete values); else by `eqx.tree_at`."""
+    if not changes:
+        return module
+    try:
+        return dataclasses.replace(module, **changes)
+    except TypeError:  # a custom __init__ that does not take every field
+        return eqx.tree_at(lambda m: [getattr(m, k) for k in changes], module,
+                           list(changes.values()))

@@ -7,12 +7,9 @@ stiffnesses and damping coefficients are *per axle* (both wheels together).
 import equinox as eqx
 from jaxtyping import Array, Float
 
-from .._arrays import float_array
 from .._checks import check_positive, check_range
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=float_array, **kwargs)
+from .._constants import GRAVITY
+from .._fields import array_field
 
 
 class HalfCarParams(eqx.Module):
@@ -36,20 +33,20 @@ class HalfCarParams(eqx.Module):
     axes, and gradients with respect to any field work.
     """
 
-    m: Float[Array, "..."] = _array_field()
-    Iz: Float[Array, "..."] = _array_field()
-    lF: Float[Array, "..."] = _array_field()
-    lR: Float[Array, "..."] = _array_field()
-    h: Float[Array, "..."] = _array_field()
-    r: Float[Array, "..."] = _array_field()
-    Iw_F: Float[Array, "..."] = _array_field()
-    Iw_R: Float[Array, "..."] = _array_field()
-    Iy: Float[Array, "..."] = _array_field(default=2500.0)
-    K_F: Float[Array, "..."] = _array_field(default=65_000.0)
-    K_R: Float[Array, "..."] = _array_field(default=65_000.0)
-    C_F: Float[Array, "..."] = _array_field(default=5_000.0)
-    C_R: Float[Array, "..."] = _array_field(default=5_000.0)
-    g: Float[Array, "..."] = _array_field(default=9.81)
+    m: Float[Array, "..."] = array_field()
+    Iz: Float[Array, "..."] = array_field()
+    lF: Float[Array, "..."] = array_field()
+    lR: Float[Array, "..."] = array_field()
+    h: Float[Array, "..."] = array_field()
+    r: Float[Array, "..."] = array_field()
+    Iw_F: Float[Array, "..."] = array_field()
+    Iw_R: Float[Array, "..."] = array_field()
+    Iy: Float[Array, "..."] = array_field(default=2500.0)
+    K_F: Float[Array, "..."] = array_field(default=65_000.0)
+    K_R: Float[Array, "..."] = array_field(default=65_000.0)
+    C_F: Float[Array, "..."] = array_field(default=5_000.0)
+    C_R: Float[Array, "..."] = array_field(default=5_000.0)
+    g: Float[Array, "..."] = array_field(default=GRAVITY)
 
     def __check_init__(self):
         owner = "HalfCarParams"
@@ -94,5 +91,5 @@ def rally_gravel() -> HalfCarParams:
     """
     return HalfCarParams(
         m=1450.0, Iz=2740.0, lF=1.3, lR=1.4, h=0.4, r=0.3, Iw_F=1.8, Iw_R=1.8,
-        Iy=2500.0, K_F=65_000.0, K_R=65_000.0, C_F=5_000.0, C_R=5_000.0, g=9.81,
+        Iy=2500.0, K_F=65_000.0, K_R=65_000.0, C_F=5_000.0, C_R=5_000.0, g=GRAVITY,
     )

@@ -26,16 +26,12 @@ import optimistix as optx
 from jaxtyping import Array, Float, PyTree
 
 from .._checks import check_positive, check_range
+from .._constants import GRAVITY
+from .._fields import array_field
 from .._math import safe_abs
+from .._results import RESULTS, as_result
+from .._signals import as_signal
 from ..tire.lugre import AbstractLongitudinalTire, relative_velocity
-from ..tire.transient import as_signal
-
-
-GRAVITY = 9.81
-
-
-def _array_field(**kwargs):
-    return eqx.field(converter=jnp.asarray, **kwargs)
 
 
 # --------------------------------------------------------------------------------------
@@ -52,11 +48,11 @@ class MagicFormulaParams(eqx.Module):
     Vehicle Dynamics* (2012), ch. 7 for the relaxation length.
     """
 
-    B: Float[Array, "*batch"] = _array_field(default=12.0)
-    C: Float[Array, "*batch"] = _array_field(default=1.65)
-    D: Float[Array, "*batch"] = _array_field(default=1.0)
-    E: Float[Array, "*batch"] = _array_field(default=0.3)
-    relaxation_length: Float[Array, "*batch"] = _array_field(default=0.25)
+    B: Float[Array, "*batch"] = array_field(default=12.0)
+    C: Float[Array, "*batch"] = array_field(default=1.65)
+    D: Float[Array, "*batch"] = array_field(default=1.0)
+    E: Float[Array, "*batch"] = array_field(default=0.3)
+    relaxation_length: Float[Array, "*batch"] = array_field(default=0.25)
 
     def __check_init__(self):
         owner = "MagicFormulaParams"
@@ -131,8 +127,8 @@ class LoadRelaxation(AbstractNormalLoad):
     $\tau$ [s] is the pitch/suspension lag.
     """
 
-    gain: Float[Array, ""] = _array_field(default=0.4)
-    tau: Float[Array, ""] = _array_field(default=0.08)
+    gain: Float[Array, ""] = array_field(default=0.4)
+    tau: Float[Array, ""] = array_field(default=0.08)
 
     def __check_init__(self):
         check_range("LoadRelaxation", "gain", self.gain, lower=0.0)
@@ -149,8 +145,8 @@ class PrescribedLoad(AbstractNormalLoad):
     noisy measured load does not enter the stiff part of the solve as a state.
     """
 
-    ts: Float[Array, " T"] = _array_field()
-    values: Float[Array, " T"] = _array_field()
+    ts: Float[Array, " T"] = array_field()
+    values: Float[Array, " T"] = array_field()
 
     def __check_init__(self):
         if self.ts.shape != self.values.shape or self.ts.ndim != 1:
@@ -201,12 +197,12 @@ class QuarterCar(eqx.Module):
     """
 
     tire: AbstractLongitudinalTire
-    mass: Float[Array, ""] = _array_field()
-    inertia: Float[Array, ""] = _array_field()
-    radius: Float[Array, ""] = _array_field()
+    mass: Float[Array, ""] = array_field()
+    inertia: Float[Array, ""] = array_field()
+    radius: Float[Array, ""] = array_field()
     load: AbstractNormalLoad = eqx.field(default_factory=ConstantLoad)
     Fn_static: Float[Array, ""] | None = eqx.field(default=None)
-    omega_eps: Float[Array, ""] = _array_field(default=0.05)
+    omega_eps: Float[Array, ""] = array_field(default=0.05)
 
     def __post_init__(self):
         if self.Fn_static is None:
@@ -261,7 +257,7 @@ class QuarterCarSolution(eqx.Module):
     Fx: Float[Array, " T"]
     brake_torque: Float[Array, " T"]
     tire: PyTree
-    result: dfx.RESULTS
+    result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
 
 

@@ -6,7 +6,8 @@ import time
 
 import numpy as np
 
-from .nlp import IPOptions
+from ..optimal.nlp import IPOptions
+from ..plot import primitive_figure, replay_figure
 
 
 TITLE = "Optimal driving primitives: minimum time and maximum exit speed (section 2.5, Fig. 20)"
@@ -41,7 +42,7 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    from .primitives import (
+    from ..optimal.primitives import (
         max_exit_primitive,
         min_time_primitive,
         point_mass_bound,
@@ -92,7 +93,7 @@ def reproduce(ctx) -> None:
             f"{rec['violations']['corridor']:.1e} | {rec['violations']['boundary']:.1e} | "
             f"{rec['iterations']} | {wall:.1f} |"
         )
-        fig = prim.figure(title=f"({panel}) {road}, {objective}: t_f = {rec['t_f']:.3f} s")
+        fig = primitive_figure(prim, title=f"({panel}) {road}, {objective}: t_f = {rec['t_f']:.3f} s")
         ctx.figure(fig, f"fig20{panel}_{key}",
                    f"Fig. 20({panel}): {road}, {objective}; car outline every 0.3 s, "
                    "speed, sideslip, slips, steering.")
@@ -109,7 +110,11 @@ def reproduce(ctx) -> None:
 
 def _replay_section(ctx, prim) -> None:
     """Item 7: the primitive's recovered torques on the full half-car, open loop and tracked."""
-    from .replay import matched_lugre_tire, replay_figure, replay_open_loop, replay_tracking
+    from ..optimal.replay import (
+        matched_lugre_tire,
+        replay_open_loop,
+        replay_tracking,
+    )
 
     ctx.log("replay of corner90 min-time on the full half-car")
     kR_min = float(np.min(prim.signals()["kappa_R"]))

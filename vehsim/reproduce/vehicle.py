@@ -12,9 +12,9 @@ import numpy as np
 
 from ..simulate import simulate
 from ..tire.friction_ellipse import rally_gravel_tire
-from .half_car import HalfCar
-from .maneuvers import brake_in_turn, step_steer
-from .params import rally_gravel
+from ..vehicle.half_car import HalfCar
+from ..vehicle.maneuvers import brake_in_turn, step_steer
+from ..vehicle.params import rally_gravel
 
 
 TITLE = "Half-car maneuvers: step steer and braking in a turn (section 2.5, eqs. 49-60)"

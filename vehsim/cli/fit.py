@@ -36,8 +36,9 @@ def _fit(args) -> int:
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
-    from .braking import load_braking
-    from .report import VARIANTS, figure_force_histories, identify
+    from ..identify.braking import load_braking
+    from ..plot import force_histories_figure
+    from ..reproduce.identify import VARIANTS, identify
 
     train = [load_braking(f, r=args.radius) for f in args.data]
     validate = [load_braking(f, r=args.radius) for f in args.validate]
@@ -54,7 +55,7 @@ def _fit(args) -> int:
     summary["files"] = {"train": [str(f) for f in args.data],
                         "validate": [str(f) for f in args.validate]}
     write_json(folder / "fit.json", summary)
-    fig = figure_force_histories(train + validate, out["predictions"], list(variants),
+    fig = force_histories_figure(train + validate, out["predictions"], list(variants),
                                  title="measured vs predicted friction force (lumped LuGre)",
                                  held_out=[d.name for d in validate])
     save_figure(fig, folder / "fit.png")

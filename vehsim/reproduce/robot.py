@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .controllers import CONTROLLER_NAMES, DOCUMENTED_TIME, default_controllers
-from .khepera import realistic_plant, simulate_grid
-from .missions import MISSIONS
-from .scoring import LETTERS, score
-from .unicycle import SystemI, SystemII
+from ..robot.controllers import CONTROLLER_NAMES, DOCUMENTED_TIME, default_controllers
+from ..robot.khepera import realistic_plant, simulate_robot_grid
+from ..robot.missions import ROBOT_MISSIONS
+from ..robot.scoring import LETTERS, score_run
+from ..robot.unicycle import SystemI, SystemII
 
 
 TITLE = "Unicycle controllers on the Khepera plant (section 2.1, Table 2, Figs. 4-5)"
@@ -62,28 +62,28 @@ def _majority(codes):
 
 def run_grid(n_seeds: int, plant=None, extra_poses=None, save=False, key=0, devices=None):
     """All controllers x systems x missions x seeds (plus `extra_poses`), one call
-    (sharded across `devices` if given, see `simulate_grid`)."""
+    (sharded across `devices` if given, see `simulate_robot_grid`)."""
     k_pose, k_noise = jax.random.split(jax.random.PRNGKey(key))
     poses = jnp.concatenate([m.initial_poses(jax.random.fold_in(k_pose, i), n_seeds)
-                             for i, m in enumerate(MISSIONS)])
+                             for i, m in enumerate(ROBOT_MISSIONS)])
     if extra_poses is not None:
         poses = jnp.concatenate([poses, jnp.asarray(extra_poses, dtype=poses.dtype)])
     keys = jax.random.split(k_noise, poses.shape[0])
-    run = simulate_grid(default_controllers(), [SystemI(), SystemII()], poses, keys,
+    run = simulate_robot_grid(default_controllers(), [SystemI(), SystemII()], poses, keys,
                         plant=plant if plant is not None else realistic_plant(), save=save,
                         devices=devices)
     return run
 
 
 def _codes(stats, **kw):
-    return np.asarray(jax.vmap(jax.vmap(jax.vmap(lambda s: score(s, **kw))))(stats))
+    return np.asarray(jax.vmap(jax.vmap(jax.vmap(lambda s: score_run(s, **kw))))(stats))
 
 
 def reproduce(ctx) -> None:
     import matplotlib.pyplot as plt
 
     n_seeds = 4 if ctx.quick else 100
-    n_m = len(MISSIONS)
+    n_m = len(ROBOT_MISSIONS)
     t0 = time.perf_counter()
     if ctx.quick:
         run = run_grid(n_seeds, extra_poses=FIGURE_POSES, save=True)
@@ -143,7 +143,7 @@ def reproduce(ctx) -> None:
                             cr=int(np.median(cr[c, s, m])))
                         quiet_m = LETTERS[_majority(codes_quiet[c, s, m])[0]]
                         explanations.append(
-                            f"- Controller {c + 1}, System {sys_name}, {MISSIONS[m].name}: ours "
+                            f"- Controller {c + 1}, System {sys_name}, {ROBOT_MISSIONS[m].name}: ours "
                             f"{letters[m]}, report {rep[m]}: {why} (without sensor noise: "
                             f"{quiet_m}).")
     ctx.text(

@@ -1,7 +1,7 @@
 """`vehsim reproduce`: regenerate the report's figures and tables into one folder.
 
-Each part of the report contributes a *section*: a module listed in `SECTIONS` with a
-``TITLE`` and a function ``reproduce(ctx)``. A section draws its figures with
+Each part of the report contributes a *section*: a module of this package, listed in
+`SECTIONS`, with a ``TITLE`` and a function ``reproduce(ctx)``. A section draws its figures with
 `ReproduceContext.figure`, writes tables and text with `ReproduceContext.text`, and records
 numbers with `ReproduceContext.record`; `run` writes ``report.md`` and ``results.json``.
 """
@@ -15,16 +15,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ._io import save_figure, write_atomic, write_json
+from .._io import save_figure, write_atomic, write_json
 
 
 SECTIONS: tuple[str, ...] = (  # in the order of the report
-    "vehsim.robot._reproduce_robot",  # 2.1
-    "vehsim.tire._reproduce_longitudinal",  # 2.2
-    "vehsim.identify._reproduce_identify",  # 2.2, Figs. 10-11
-    "vehsim.tire._reproduce_combined",  # 2.3-2.4
-    "vehsim.vehicle._reproduce_vehicle",  # 2.5
-    "vehsim.optimal._reproduce_optimal",  # 2.5, Table 4, Fig. 20
+    "vehsim.reproduce.robot",  # 2.1, Table 2, Figs. 4-5
+    "vehsim.reproduce.longitudinal",  # 2.2, Fig. 7
+    "vehsim.reproduce.identify",  # 2.2, Figs. 10-11
+    "vehsim.reproduce.combined",  # 2.3-2.4, Figs. 13-15, 17
+    "vehsim.reproduce.vehicle",  # 2.5, eqs. 49-63
+    "vehsim.reproduce.optimal",  # 2.5, Table 4, Fig. 20
 )
 
 
@@ -58,7 +58,7 @@ class ReproduceContext:
 
 
 def run(out: str | Path = "results", quick: bool = True, only: list[str] | None = None) -> Path:
-    """Run every section (or those whose module name contains one of `only`)."""
+    """Run every section (or those whose name contains one of the words in `only`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -70,9 +70,10 @@ def run(out: str | Path = "results", quick: bool = True, only: list[str] | None 
         f"Mode: {'quick' if quick else 'full'}. Equation, figure and table numbers refer to "
         "Tsiotras, *Analysis and Control of High-Speed Wheeled Mobile Robots*, final report, 2004.",
     )
-    sections = [s for s in SECTIONS if not only or any(o in s for o in only)]
+    sections = [s for s in SECTIONS if not only or any(o in s.rsplit('.', 1)[1] for o in only)]
     if not sections:
-        raise ValueError(f"no section matches {only}; sections: {list(SECTIONS)}")
+        raise ValueError(f"no section matches {only}; sections: "
+                         f"{[s.rsplit('.', 1)[1] for s in SECTIONS]}")
     for i, name in enumerate(sections, 1):
         module = importlib.import_module(name)
         print(f"[{i}/{len(sections)}] {module.TITLE}", file=sys.stderr, flush=True)

@@ -8,11 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..params import table3
-from .distributed import DistributedLuGre
-from .load import QuarticLoad, TrapezoidalLoad, UniformLoad
-from .lugre import LumpedLuGre, PointLuGre, decay_rate
-from .steady_state import braking_mu_uniform, steady_state_mu
-from .transient import simulate_tire
+from ..tire.distributed import DistributedLuGre
+from ..tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
+from ..tire.lugre import LumpedLuGre, PointLuGre, decay_rate
+from ..tire.steady_state import braking_mu_uniform, steady_state_mu
+from ..tire.transient import simulate_tire
 
 
 TITLE = "Longitudinal LuGre tire friction (report 2.2, Figs. 6-7, eqs. 8-25)"

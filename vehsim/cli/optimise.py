@@ -27,14 +27,15 @@ def register(subparsers) -> None:
 
 def _optimise(args) -> int:
     from .._io import save_figure, write_json
-    from .nlp import IPOptions
-    from .primitives import (
+    from ..optimal.nlp import IPOptions
+    from ..optimal.primitives import (
         max_exit_primitive,
         min_time_primitive,
         point_mass_bound,
         rally_gravel_car,
         solution_record,
     )
+    from ..plot import primitive_figure
 
     if args.segments < 2:
         raise ValueError(f"--segments must be >= 2, got {args.segments}")
@@ -59,7 +60,7 @@ def _optimise(args) -> int:
     out = Path(args.out)
     stem = f"{args.road}_{args.objective}"
     write_json(out / f"{stem}.json", rec)
-    fig = prim.figure(title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
+    fig = primitive_figure(prim, title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
                             f"exit {rec['exit_speed']:.2f} m/s")
     save_figure(fig, out / f"{stem}.png")
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "

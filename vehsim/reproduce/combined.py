@@ -21,7 +21,7 @@ V, FZ, R = 20.0, 4000.0, 0.3
 
 
 def _steady_grid(params, load, kappa, alpha):
-    from .distributed2d import steady_state_forces
+    from ..tire.distributed2d import steady_state_forces
 
     f = jax.jit(jax.vmap(jax.vmap(lambda k, a: steady_state_forces(params, load, V, k, a, FZ),
                                   in_axes=(0, None)), in_axes=(None, 0)))
@@ -32,11 +32,11 @@ def reproduce(ctx) -> None:
     import matplotlib.pyplot as plt
 
     from ..params import bakker1987, lugre2d_bakker1987
-    from .load import QuarticLoad, TrapezoidalLoad, UniformLoad
-    from .lugre2d import simulate_tire_2d
-    from .lugre2d_fit import default_slip_grid, match_residuals
-    from .magic_formula import combined_forces
-    from .moments import MomentLuGre2D, moments_step_response
+    from ..tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
+    from ..tire.lugre2d import simulate_tire_2d
+    from ..tire.lugre2d_fit import default_slip_grid, match_residuals
+    from ..tire.magic_formula import combined_forces
+    from ..tire.moments import MomentLuGre2D, moments_step_response
 
     p, mf = lugre2d_bakker1987(), bakker1987()
     load = UniformLoad()
@@ -156,7 +156,7 @@ def reproduce(ctx) -> None:
             ctx.record(f"fig17.alpha{a_deg:g}.{name}.final", Fm[-1].tolist())
             ctx.record(f"fig17.alpha{a_deg:g}.{name}.at_0plus", Fm[0].tolist())
             if not ctx.quick:
-                from .distributed2d import DistributedLuGre2D
+                from ..tire.distributed2d import DistributedLuGre2D
 
                 Fp = np.asarray(run(DistributedLuGre2D(p, ld, n=64), vx, vy, om))
                 for j in range(3):

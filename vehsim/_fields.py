@@ -1,0 +1,45 @@
+"""Parameter fields: arrays inside `eqx.Module`s, with one converter.
+
+A preset built from Python floats and the same module with values traced under
+``jit``/``vmap``/``grad`` must have identical abstract values, so that they share one
+compilation: ``jnp.asarray(1.0)`` is *weakly* typed while a traced float64 is not, so every
+floating-point parameter is converted to a strongly typed array of the default float type.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+
+
+def float_array(x):
+    """``x`` as a strongly typed floating-point array (float64 when x64 is on)."""
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+def int_array(x):
+    """``x`` as a strongly typed integer array; a non-integer ``x`` is left as it is, for
+    the owner's ``__check_init__`` to refuse with the field's name."""
+    a = jnp.asarray(x)
+    if jnp.issubdtype(a.dtype, jnp.integer):
+        return jnp.asarray(a, dtype=jnp.result_type(int))
+    return a
+
+
+def bool_array(x):
+    """``x`` as a boolean array."""
+    return jnp.asarray(x, dtype=bool)
+
+
+def array_field(**kwargs):
+    """A floating-point parameter field (`float_array` converter); ``default=`` etc. as
+    `eqx.field`."""
+    return eqx.field(converter=float_array, **kwargs)
+
+
+def int_field(**kwargs):
+    """An integer parameter field (`int_array` converter)."""
+    return eqx.field(converter=int_array, **kwargs)
+
+
+def bool_field(**kwargs):
+    """A boolean switch field (`bool_array` converter)."""
+    return eqx.field(converter=bool_array, **kwargs)

@@ -1,0 +1,94 @@
+r"""One way to ask "did it work?": the `RESULTS` enumeration every solve in vehsim returns.
+
+As optimistix extends lineax's `RESULTS` and diffrax extends optimistix's, `vehsim.RESULTS`
+extends diffrax's with the cases of our own solvers. `Trajectory`, `TireSolution`,
+`IPSolution`, `FitResult` and `SweepResult` each carry a `.result`; ``throw=True`` raises
+with the case's message (``result.error_if(...)`` under `jit`), ``throw=False`` leaves the
+result for the caller (what batched runs use). Result files write the case's name and its
+message (`result_record`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import diffrax as dfx
+import numpy as np
+
+
+class RESULTS(dfx.RESULTS):  # pyright: ignore
+    """The outcome of a vehsim solve: diffrax's cases (and through it optimistix's and
+    lineax's) plus those of vehsim's own solvers."""
+
+    ip_max_iterations = (
+        "The interior-point method reached its iteration limit before the scaled KKT error "
+        "met its tolerance. Increase `IPOptions.max_iter`, or start from a better guess."
+    )
+    not_identifiable = (
+        "The data do not determine the parameters: the Jacobian (in relative parameters) is "
+        "numerically rank deficient. Is there slip excitation in the data?"
+    )
+
+
+# Every case by name: the names of the parent enumerations (those present in the installed
+# versions) and ours. Enumerations expose their items by attribute, not as a list.
+_PARENT_NAMES = (
+    "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim",
+    "nonfinite_input", "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite",
+    "dt_min_reached", "event_occurred", "max_steps_rejected", "internal_error",
+)
+_OWN_NAMES = ("ip_max_iterations", "not_identifiable")
+
+
+@functools.cache
+def result_names() -> tuple[str, ...]:
+    """The names of the cases of `RESULTS` (those of the installed diffrax included)."""
+    return tuple(n for n in _PARENT_NAMES + _OWN_NAMES if hasattr(RESULTS, n))
+
+
+def _message_of(name: str) -> str:
+    message = RESULTS[getattr(RESULTS, name)]
+    return message.split("\n")[0] if message else "successful"
+
+
+def result_name(result) -> str | list:
+    """The name of a concrete `RESULTS` item (``"successful"``, ``"ip_max_iterations"``, ...);
+    nested lists of names for a batched item (e.g. a sweep's per-member results)."""
+    result = as_result(result)
+    shape = np.shape(np.asarray(result == RESULTS.successful))
+    out = np.full(shape, "unknown", dtype=object)
+    for name in result_names():
+        out[np.asarray(result == getattr(RESULTS, name))] = name
+    return out.item() if out.ndim == 0 else out.tolist()
+
+
+def result_message(result) -> str | list:
+    """The first line of the message of a concrete `RESULTS` item (nested lists of messages
+    for a batched item)."""
+    return _map_nested(result_name(result), result_message_of_name)
+
+
+def _map_nested(x, fn):
+    return fn(x) if isinstance(x, str) else [_map_nested(v, fn) for v in x]
+
+
+def result_message_of_name(name: str) -> str:
+    """The message of the case called `name` (``"successful"`` for success)."""
+    return _message_of(name) if name in result_names() else "unknown result"
+
+
+def result_record(result) -> dict:
+    """``{"status": name, "message": message}`` of a concrete (scalar) `RESULTS` item, the
+    fields result files carry."""
+    name = result_name(result)
+    return {"status": name, "message": result_message_of_name(name)}
+
+
+def is_successful(result):
+    """Boolean array: where `result` is `RESULTS.successful`."""
+    return as_result(result) == RESULTS.successful
+
+
+def as_result(result) -> RESULTS:
+    """`result` as an item of `RESULTS` (a diffrax, optimistix or lineax item is promoted)."""
+    return result if isinstance(result, RESULTS) else RESULTS.promote(result)

@@ -1,0 +1,26 @@
+"""`vehsim reproduce`: regenerate the report's figures and tables into a folder."""
+
+from __future__ import annotations
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "reproduce", help="regenerate the report's figures and tables into a folder"
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--quick", dest="quick", action="store_true", default=True,
+                      help="small grids and few runs (default, a few minutes on 2 cores)")
+    mode.add_argument("--full", dest="quick", action="store_false",
+                      help="the report's resolution (slower)")
+    p.add_argument("--out", default="results", help="output folder (default: results/)")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="run only sections whose name contains one of these words "
+                        "(robot, longitudinal, identify, combined, vehicle, optimal)")
+    p.set_defaults(func=_reproduce)
+
+
+def _reproduce(args) -> int:
+    from ..reproduce import run
+
+    run(args.out, quick=args.quick, only=args.only)
+    return 0

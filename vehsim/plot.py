@@ -1,0 +1,134 @@
+"""Figures drawn by `vehsim reproduce` and the command line, in the style of the report.
+
+Model code never draws: these functions take results (arrays, `Primitive`, `Replay`,
+`BrakingData`) and return matplotlib figures.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def _car_outline(x, y, psi, lF, lR, width=1.6):
+    """Rectangle of the car body (wheelbase plus overhangs) at pose (x, y, psi)."""
+    front, rear = lF + 0.6, lR + 0.6
+    pts = np.array([[front, width / 2], [front, -width / 2], [-rear, -width / 2],
+                    [-rear, width / 2], [front, width / 2]])
+    c, s = np.cos(psi), np.sin(psi)
+    return np.stack([x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]], 1)
+
+
+def draw_road(ax, road):
+    from matplotlib.patches import Rectangle
+
+    for leg in road.legs:
+        ax.add_patch(Rectangle((leg.xmin, leg.ymin), leg.xmax - leg.xmin, leg.ymax - leg.ymin,
+                               facecolor="0.88", edgecolor="none", zorder=0))
+    ax.set_aspect("equal")
+
+
+def maneuver_figure(road, t, signals: dict, lF: float, lR: float, title: str = "",
+                    outline_every: float = 0.3):
+    """Path in the corridor with the car outline every ``outline_every`` seconds, and
+    histories of speed, sideslip, slips and steering (report Fig. 20)."""
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(11, 6.5))
+    gs = fig.add_gridspec(4, 2, width_ratios=[1.25, 1.0])
+    ax = fig.add_subplot(gs[:, 0])
+    draw_road(ax, road)
+    x, y, psi = signals["x"], signals["y"], signals["psi"]
+    ax.plot(x, y, "k-", lw=1.2, label="centre of gravity")
+    t_marks = np.arange(0.0, t[-1] + 1e-9, outline_every)
+    for tm in t_marks:
+        i = int(np.argmin(np.abs(t - tm)))
+        o = _car_outline(x[i], y[i], psi[i], lF, lR)
+        ax.plot(o[:, 0], o[:, 1], "-", color="tab:blue", lw=0.7)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    panels = [
+        ("speed [m/s]", [("speed", "speed")]),
+        ("sideslip [deg]", [("sideslip_deg", "beta")]),
+        ("slip kappa", [("kappa_F", "front"), ("kappa_R", "rear")]),
+        ("steering [deg]", [("delta_deg", "delta")]),
+    ]
+    sig = dict(signals)
+    sig["sideslip_deg"] = np.degrees(signals["sideslip"])
+    sig["delta_deg"] = np.degrees(signals["delta"])
+    for j, (label, keys) in enumerate(panels):
+        a = fig.add_subplot(gs[j, 1])
+        for key, name in keys:
+            a.plot(t, sig[key], label=name)
+        a.set_ylabel(label)
+        a.grid(alpha=0.3)
+        if len(keys) > 1:
+            a.legend(fontsize=7, loc="best")
+        if j == len(panels) - 1:
+            a.set_xlabel("t [s]")
+    fig.tight_layout()
+    return fig
+
+
+def force_histories_figure(brakings: Sequence, predictions: dict, labels,
+                           title: str = "", held_out: Sequence[str] = ()):
+    """Measured vs predicted $F_x(t)$, one panel per braking (report Figs. 10-11)."""
+    import matplotlib.pyplot as plt
+
+    n = len(brakings)
+    fig, axes = plt.subplots(n, 1, figsize=(7.5, 2.3 * n + 0.6), sharex=False, squeeze=False)
+    styles = ["--", "-.", "-"]
+    for ax, d in zip(axes[:, 0], brakings):
+        t = np.asarray(d.t)
+        ax.plot(t, -np.asarray(d.F_x), color="0.6", lw=1.0, label="measured")
+        for k, label in enumerate(labels):
+            ax.plot(t, -predictions[label][d.name], styles[k % 3], lw=1.3, label=label)
+        tag = " (held out)" if d.name in held_out else ""
+        ax.set_title(f"{d.name}{tag}", fontsize=9)
+        ax.set_ylabel("$-F_x$ [N]")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[0, 0].legend(fontsize=8, loc="lower right")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def replay_figure(primitive, replays: dict, title: str = ""):
+    """Paths in the corridor: the primitive's nodes and each replay in ``replays``
+    ({label: `Replay`}), with speed histories."""
+    import matplotlib.pyplot as plt
+
+    fig, (ax, av) = plt.subplots(1, 2, figsize=(11, 5), width_ratios=[1.2, 1.0])
+    draw_road(ax, primitive.problem.road)
+    nodes = np.asarray(primitive.nodes())
+    ax.plot(nodes[:, 0], nodes[:, 1], "k.-", lw=1.0, ms=3, label="primitive (reduced model)")
+    av.plot(np.asarray(primitive.time()), np.hypot(nodes[:, 3], nodes[:, 4]), "k.-", ms=3,
+            label="primitive")
+    for label, rp in replays.items():
+        tr = rp.trajectory
+        ok = np.isfinite(np.asarray(tr["x"]))
+        v = rp.drift["max_corridor_violation"]
+        ax.plot(np.asarray(tr["x"])[ok], np.asarray(tr["y"])[ok], "-", lw=1.2,
+                label=f"{label} (off road {v:.2f} m)")
+        av.plot(np.asarray(tr.ts)[ok], np.asarray(tr["speed"])[ok], "-", label=label)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(title)
+    av.set_xlabel("t [s]")
+    av.set_ylabel("speed [m/s]")
+    av.grid(alpha=0.3)
+    av.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def primitive_figure(primitive, title: str = ""):
+    """`maneuver_figure` of a car `Primitive` (report Fig. 20)."""
+    p = primitive.problem.vehicle.params
+    return maneuver_figure(primitive.problem.road, np.asarray(primitive.time()),
+                           primitive.signals(), float(p.lF), float(p.lR), title=title)

@@ -1,0 +1,118 @@
+r"""Batches split across devices: the runner under `vehsim.sweep` and the robot grid.
+
+A batch is a PyTree whose leaves share a leading *member* axis. `shard_members` splits that
+axis over a one-dimensional device mesh with `jax.shard_map`, so that each device works on
+its own slice (an adaptive solve inside stops when *its* members are done), and the same
+call uses one CPU, several GPUs or several hosts. `sharded_vmap` is the common case: the
+per-member function vmapped on each device. On a CPU host, forcing one host device per
+core (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts) runs one
+shard per core.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxtyping import PyTree
+
+
+AXIS = "members"
+"""Name of the mesh axis the members are split along."""
+
+
+def num_members(members: PyTree) -> int:
+    """The length of the leading axis shared by every leaf of `members`."""
+    leaves = jax.tree.leaves(members)
+    if not leaves:
+        raise ValueError("a batch needs at least one array (no leaves in `members`)")
+    n = {jnp.shape(x)[0] if jnp.ndim(x) else -1 for x in leaves}
+    if len(n) != 1 or -1 in n:
+        raise ValueError(f"every leaf of `members` needs the same leading axis, got sizes {n}")
+    return n.pop()
+
+
+def pad_members(members: PyTree, multiple: int) -> PyTree:
+    """Pad the leading (member) axis of every leaf to a multiple of `multiple` by repeating
+    the last member (drop the padding from the results with ``x[:n]``)."""
+    n = num_members(members)
+    n_pad = math.ceil(n / multiple) * multiple
+    return jax.tree.map(
+        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], n_pad - n, axis=0)]), members
+    )
+
+
+def device_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
+    """A one-dimensional mesh (axis `AXIS`) over `devices` (default: all)."""
+    return Mesh(np.asarray(list(jax.devices() if devices is None else devices)), (AXIS,))
+
+
+def put_members(members: PyTree, devices: Sequence[jax.Device] | None = None) -> PyTree:
+    """`members` placed on `devices`, split along the member axis."""
+    return jax.device_put(members, NamedSharding(device_mesh(devices), PartitionSpec(AXIS)))
+
+
+def shard_members(
+    fn: Callable,
+    devices: Sequence[jax.Device] | None = None,
+    in_axes: int | None | tuple = 0,
+    out_axis: int = 0,
+) -> Callable:
+    r"""Run the *batched* `fn` on each device's slice of the member axis.
+
+    Arguments with ``in_axes`` 0 are split along their leading axis, those with None are
+    replicated; every output has the member axis at `out_axis`. The member count must be a
+    multiple of the device count (see `pad_members`). Wrap the result in `jax.jit`.
+    """
+    mesh = device_mesh(devices)
+    out_spec = PartitionSpec(*((None,) * out_axis + (AXIS,)))
+
+    def run(*args):
+        axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
+        specs = tuple(PartitionSpec() if a is None else PartitionSpec(AXIS) for a in axes)
+        return jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=out_spec,
+                             check_vma=False)(*args)
+
+    return run
+
+
+def sharded_vmap(
+    fn: Callable,
+    devices: Sequence[jax.Device] | None = None,
+    in_axes: int | None | tuple = 0,
+    batch_size: int | None = None,
+) -> Callable:
+    r"""``jax.vmap(fn, in_axes)`` with the member axis split across `devices`
+    (`shard_members`); every output has the member axis first. Wrap the result in `jax.jit`.
+
+    `batch_size`: if given, each device runs its slice in vmapped chunks of this many
+    members one after another (`jax.lax.map`): each chunk's adaptive solves stop at the
+    chunk's slowest member instead of the slice's, and a chunk's working set stays in
+    cache (on CPU; on a GPU keep the whole slice in one chunk).
+    """
+
+    def batched(*args):
+        axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
+        return _chunked_vmap(fn, axes, batch_size, *args)
+
+    return shard_members(batched, devices, in_axes)
+
+
+def _chunked_vmap(fn, axes, batch_size, *args):
+    if batch_size is None:
+        return jax.vmap(fn, in_axes=axes)(*args)
+    mapped = [a for a, ax in zip(args, axes) if ax is not None]
+
+    def one(member_args):
+        it = iter(member_args)
+        return fn(*(a if ax is None else next(it) for a, ax in zip(args, axes)))
+
+    return jax.lax.map(one, mapped, batch_size=batch_size)
+
+
+__all__ = ["device_mesh", "num_members", "pad_members", "put_members", "shard_members",
+           "sharded_vmap"]
