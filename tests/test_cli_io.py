@@ -10,9 +10,10 @@ from vehsim import _io, cli, reproduce
 
 def test_write_json_is_atomic_and_converts_arrays(tmp_path):
     path = tmp_path / "sub" / "r.json"
-    _io.write_json(path, {"t_f": jnp.asarray(3.25), "xs": np.arange(3), "bad": math.nan})
+    _io.write_json(path, {"t_f": jnp.asarray(3.25), "xs": np.arange(3), "bad": math.nan,
+                          "worse": [np.inf, -np.inf]})
     data = json.loads(path.read_text())
-    assert data == {"t_f": 3.25, "xs": [0, 1, 2], "bad": None}
+    assert data == {"t_f": 3.25, "xs": [0, 1, 2], "bad": None, "worse": [None, None]}
     assert [p.name for p in path.parent.iterdir()] == ["r.json"]  # no temporary left behind
 
 

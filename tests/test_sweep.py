@@ -13,7 +13,7 @@ from vehsim import HalfCar, rally_gravel, rally_gravel_tire, result_name, simula
 from vehsim.cli import main
 from vehsim.sharding import pad_members, sharded_vmap
 from vehsim.sweep import _sweep_run, sweep, sweep_grid
-from vehsim.vehicle.maneuvers import step_steer
+from vehsim.vehicle.maneuvers import half_car_scenario, step_steer
 
 
 def test_grid_is_a_cartesian_product():
@@ -88,3 +88,18 @@ def test_sharded_vmap_in_chunks_equals_vmap():
     np.testing.assert_allclose(got[0], expected[0], rtol=1e-12)
     np.testing.assert_array_equal(got[1], expected[1])
     assert len(set(np.asarray(got[1]))) > 3  # the members take different step counts
+
+
+def test_bad_member_values_are_refused_before_the_run(capsys, tmp_path):
+    """A negative mass is refused with the single model's error (field and range), from the
+    library and from the command line (exit status 2), before any batched work."""
+    scenario = half_car_scenario(rally_gravel(), rally_gravel_tire(), "brake_in_turn", 20.0,
+                                 ["m", "delta"])
+    traces = eqx.debug.get_num_traces(_sweep_run)
+    with pytest.raises(ValueError, match=r"HalfCarParams\.m must lie in \(0, inf\), got -5$"):
+        sweep(scenario, sweep_grid(m=[1200.0, -5.0], delta=[0.02, 0.04]), jnp.linspace(0, 1, 3))
+    assert eqx.debug.get_num_traces(_sweep_run) == traces  # nothing was compiled or run
+    rc = main(["sweep", "--maneuver", "brake_in_turn", "--set", "m=-5",
+               "--out", str(tmp_path / "unused.json")])
+    assert rc == 2
+    assert "HalfCarParams.m must lie in (0, inf), got -5" in capsys.readouterr().err

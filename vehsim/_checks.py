@@ -24,11 +24,20 @@ def _values(x) -> np.ndarray | None:
     return np.asarray(x, dtype=float)
 
 
+def plain(x) -> str:
+    """Numbers as a person writes them: ``-5``, ``0.25``, ``[1, -1]`` (at most 8 values)."""
+    v = np.asarray(x, dtype=float)
+    if v.ndim == 0:
+        return f"{float(v):g}"
+    flat = [f"{float(e):g}" for e in v.ravel()[:8]]
+    return "[" + ", ".join(flat) + (", ...]" if v.size > 8 else "]")
+
+
 def check_finite(owner: str, name: str, x) -> None:
     """Raise ``ValueError`` if ``x`` has a NaN or inf."""
     v = _values(x)
     if v is not None and not np.all(np.isfinite(v)):
-        raise ValueError(f"{owner}.{name} must be finite, got {v}")
+        raise ValueError(f"{owner}.{name} must be finite, got {plain(v)}")
 
 
 def check_range(
@@ -49,10 +58,10 @@ def check_range(
     lo_ok = np.all(v > lower) if lower_open else np.all(v >= lower)
     hi_ok = np.all(v < upper) if upper_open else np.all(v <= upper)
     if not (lo_ok and hi_ok):
-        lb = "(" if lower_open else "["
-        ub = ")" if upper_open else "]"
+        lb = "(" if lower_open or lower == -math.inf else "["
+        ub = ")" if upper_open or upper == math.inf else "]"
         raise ValueError(
-            f"{owner}.{name} must lie in {lb}{lower}, {upper}{ub}, got {v if v.ndim else float(v)}"
+            f"{owner}.{name} must lie in {lb}{lower:g}, {upper:g}{ub}, got {plain(v)}"
         )
 
 
@@ -70,4 +79,5 @@ def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     if a is None or b is None:
         return
     if not np.all(a <= b):
-        raise ValueError(f"{owner} needs {small} <= {big}, got {small}={a}, {big}={b}")
+        raise ValueError(f"{owner} needs {small} <= {big}, got {small} = {plain(a)}, "
+                         f"{big} = {plain(b)}")

@@ -1,14 +1,11 @@
-"""Atomic result files and progress display."""
+"""Atomic result files: JSON without sentinel numbers, and figures."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
-import sys
 import tempfile
-import time
-from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -29,7 +26,7 @@ def _jsonable(obj: Any) -> Any:
             return _jsonable(arr.item())
         return [_jsonable(v) for v in arr.tolist()]
     if isinstance(obj, float) and not math.isfinite(obj):
-        return None if math.isnan(obj) else (1e308 if obj > 0 else -1e308)
+        return None  # JSON has no NaN or inf: null, beside the status that says why
     if isinstance(obj, np.integer):
         return int(obj)
     if isinstance(obj, np.floating):
@@ -68,13 +65,3 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 130) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight")
     return write_atomic(path, buf.getvalue())
-
-
-def progress(items: Iterable[T], desc: str, total: int | None = None) -> Iterator[T]:
-    """Yield from ``items`` printing ``desc [i/n] elapsed`` lines to stderr."""
-    items = list(items) if total is None else items
-    n = len(items) if total is None else total
-    t0 = time.perf_counter()
-    for i, item in enumerate(items, 1):
-        print(f"  {desc} [{i}/{n}] {time.perf_counter() - t0:6.1f}s", file=sys.stderr, flush=True)
-        yield item

@@ -1,8 +1,8 @@
-"""Named parameter presets from the literature (../shared/spec/parameters.md).
+"""Named parameter presets from the literature (sources in docs/parameters.md).
 
 Each preset is a function returning fresh parameter modules; `preset(name)` looks one up by
-name (the names the command line and result files use). Values marked "unverified" in the
-spec are kept, and say so.
+name (the names the command line and result files use). Values we could not confirm from a
+second source are kept, and marked "unverified".
 """
 
 from __future__ import annotations
@@ -57,8 +57,8 @@ def bakker1987() -> MagicFormula1987Params:
     49.6, 226, 0.069, -0.006, 0.056, 0.486 (copies with b5 = 0.69 carry a typo). Aligning
     moment (C = 2.40): c1..c8 = -2.72, -2.28, -1.86, -2.73, 0.110, -0.070, 0.643, -4.04;
     camber c9..c13 = 0.015, -0.066, 0.945, 0.030, 0.070 (camber not modelled).
-    Source: ../shared/spec/parameters.md ("bakker1987"); these are the Magic Formula values
-    of the report's Fig. 15 (its ref. [5]).
+    Source: Bakker, Nyborg and Pacejka, SAE 870421 (1987), as listed in docs/parameters.md;
+    these are the Magic Formula values of the report's Fig. 15 (its ref. [5]).
     """
     return MagicFormula1987Params(
         a=[-22.1, 1011.0, 1078.0, 1.82, 0.208, 0.0, -0.354, 0.707, 0.028, 0.0, 14.8, 0.022, 0.0],
@@ -94,7 +94,7 @@ PRESETS: dict[str, Callable[[], Any]] = {
     "cdc1999": cdc1999,
     "bakker1987": bakker1987,
     "lugre2d_bakker1987": lugre2d_bakker1987,
-    # issue 5: the maneuver spec's vehicle and tire (../shared/spec/maneuvers.md)
+    # the benchmark maneuvers' vehicle and tire (docs/maneuvers.md)
     "rally_gravel": rally_gravel,
     "rally_gravel_tire": rally_gravel_tire,
 }

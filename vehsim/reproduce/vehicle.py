@@ -1,7 +1,7 @@
 """Reproduce section: half-car maneuvers (report section 2.5, eqs. 49-60).
 
 A step steer and a braking-in-a-turn maneuver of the rally-gravel half-car with the
-spec's friction-ellipse tire, showing sideslip, forces and the dynamic load transfer of the
+benchmark maneuvers' friction-ellipse tire, showing sideslip, forces and the dynamic load transfer of the
 suspension model (eqs. 54-60) beside the quasi-static transfer of the reduced model.
 """
 
@@ -40,7 +40,7 @@ def _plot(tr, tr_qs, title, static):
     ax[0, 2].legend(fontsize=8)
     for k, c in (("F", "C0"), ("R", "C1")):
         ax[1, 0].plot(t, tr[f"Fz_{k}"], c, label=f"F_z{k}, suspension (eqs. 54-60)")
-        ax[1, 0].plot(t, tr_qs[f"Fz_{k}"], c + ":", label=f"F_z{k}, quasi-static (spec)")
+        ax[1, 0].plot(t, tr_qs[f"Fz_{k}"], c + ":", label=f"F_z{k}, quasi-static")
         ax[1, 1].plot(t, tr[f"Fx_{k}"], c, label=f"f_{k}x")
         ax[1, 1].plot(t, tr[f"Fy_{k}"], c + "--", label=f"f_{k}y")
     for s in static:
@@ -98,6 +98,6 @@ def reproduce(ctx) -> None:
         )
     ctx.text(
         "The suspension model (eqs. 54-60) carries the load transfer as states: it lags and "
-        "overshoots the quasi-static transfer of the reduced model (maneuvers spec) when the "
+        "overshoots the quasi-static transfer of the reduced model (docs/maneuvers.md) when the "
         "brakes come on, then settles onto it (eq. 55 with no pitch acceleration)."
     )

@@ -14,11 +14,11 @@ Each control sample (period $T = 1/50$ s, zero-order hold):
 
 Every effect has a switch (boolean array field), and `ideal_plant()` turns all off (the
 ZOH remains: it is the control rate). Values not in the report are marked **unverified**
-(../shared/spec/parameters.md): wheel base 53 mm, speed unit, saturation; the motor time
+(docs/parameters.md): wheel base 53 mm, speed unit, saturation; the motor time
 constants, delay and noise levels are modelling choices.
 
-`simulate_robot` runs one closed loop; `simulate_robot_grid` runs controllers x systems x initial poses x
-seeds in one jitted call: one `lax.scan` over time whose body evaluates each
+`simulate_robot` runs one closed loop; `simulate_robot_grid` runs controllers x systems x
+initial poses x seeds in one jitted call: one `lax.scan` over time whose body evaluates each
 (controller, system) group's law vmapped over its runs (all gains in one PyTree) and
 advances the shared plant vmapped over all runs, keeping only the scoring statistics. The
 sensor noise depends only on the run's key and the sample index, so it is drawn once per
@@ -54,10 +54,10 @@ class KheperaPlant(eqx.Module):
     **Fields** (SI units):
 
     - `sample_time` [s]: control period, 0.02 (50 Hz, report).
-    - `wheel_base` [m]: 0.053 (**unverified**, spec).
+    - `wheel_base` [m]: 0.053 (**unverified**, docs/parameters.md).
     - `pulses_per_meter` [1/m]: encoder resolution, 12 000 (12 pulses/mm, report).
     - `speed_unit` [m/s]: speed-command quantum, one pulse per 10 ms = 1/120 m/s
-      (**unverified**, spec).
+      (**unverified**, docs/parameters.md).
     - `speed_limit` [m/s]: wheel-speed saturation, 127 units = 1.058 m/s (**unverified**).
     - `motor_time_constant` [s]: first-order lag of the (left, right) wheel, (0.06, 0.09):
       different on purpose, as the report says the two motors differ.
@@ -302,9 +302,8 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     `jax.shard_map`; poses padded to a multiple of the device count, padding dropped), as
     `vehsim.sweep` does. Default: no sharding (the default device). On a CPU host, forcing
     host devices (`XLA_FLAGS=--xla_force_host_platform_device_count=2`) and passing
-    `jax.devices()` runs one shard per core, faster than XLA's intra-op threading (measured
-    1.7x on 2 cores for the Table 2 grid; results equal to ~1e-12, operations fuse
-    differently).
+    `jax.devices()` runs one shard per core, usually faster than XLA's intra-op threading
+    (results equal to rounding: operations fuse differently; docs/performance.md).
     """
     plant = realistic_plant() if plant is None else plant
     poses0 = jnp.asarray(poses0, dtype=float)

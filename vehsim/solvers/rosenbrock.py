@@ -20,20 +20,12 @@ $$W k_i = h f\Big(t_0 + c_i h,\ y_0 + \sum_{j<i} a_{ij}k_j\Big) + hJ\sum_{j<i}\g
 with the coefficients of ROS34PW2 (Rang and Angermann, BIT 45 (2005) 761-787): 4 stages,
 order 3, L-stable, stiffly accurate, embedded order-2 solution for the error estimate.
 
-When it pays (half-car with lumped LuGre tires, 5 s braking in a turn, benchmark
-`simulate_batch`): at a final-state accuracy of 1e-3 it takes about 360 steps where Tsit5,
-held by the stiff blocks, takes about 2840 at any tolerance, and costs 5x less. Being of
-order 3 it needs much tighter tolerances for high accuracy: at 3e-5 it is slower than Tsit5.
+When it pays: at loose and moderate accuracy on vehicles with dynamic tires, where it takes
+several times fewer steps than an explicit solver held by the stiff blocks. Being of order
+3 it needs tight tolerances for high accuracy, where an explicit higher-order solver wins.
 Its error estimate understates the global error of the wheel speeds, so choose the
-tolerance by the accuracy reached, not by the tolerance's value.
-
-Tried on that benchmark and not kept: a block-diagonal $J$ without the stiff rows' chassis
-columns (the wheel speed is stiffly coupled to $v_x$ through the slip velocity: 8x more
-steps and 35x the error at the same tolerance); carrying $f(t_1, y_1)$ and its
-linearisation into the next step (one evaluation fewer per step, no faster: the carried
-residuals cost as much); the stages in a `lax.scan` (forward-mode derivatives compile in
-half the time, but steps are 30 % slower); other PI coefficients, safety factors and growth
-limits (they move along the same error-versus-steps curve).
+tolerance by the accuracy reached, not by the tolerance's value (measurements and the
+variants tried: docs/performance.md).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ the front and rear axle torques [N m] and the steering angle [rad].
   $\Delta z_F = z - \ell_F\sin\theta$, $\Delta z_R = z + \ell_R\sin\theta$ (and their rates).
 
 With ``suspension=False`` the loads instead follow the quasi-static load transfer of the
-reduced model (../shared/spec/maneuvers.md) and $z, \dot z, \theta, \dot\theta$ stay 0;
+reduced model (docs/maneuvers.md) and $z, \dot z, \theta, \dot\theta$ stay 0;
 this is the model the reduced one (eqs. 61-63) is exactly equivalent to.
 """
 

@@ -78,12 +78,13 @@ class HalfCarParams(eqx.Module):
 
 
 def rally_gravel() -> HalfCarParams:
-    r"""The "rally-gravel" half-car of ../shared/spec/maneuvers.md (after Velenis, Tsiotras, Lu).
+    r"""The "rally-gravel" half-car of the benchmark maneuvers (docs/maneuvers.md; after
+    Velenis, Tsiotras and Lu).
 
-    From the spec: m = 1450 kg, Iz = 2740 kg m^2, lF = 1.3 m, lR = 1.4 m, h = 0.4 m,
+    From the maneuver definition: m = 1450 kg, Iz = 2740 kg m^2, lF = 1.3 m, lR = 1.4 m, h = 0.4 m,
     r = 0.3 m, Iw = 1.8 kg m^2 per axle, g = 9.81 m/s^2.
 
-    Not in the spec (only the full model's suspension uses them; chosen as plausible values
+    Not in the maneuver definition (only the full model's suspension uses them; chosen as plausible values
     for a soft rally car, **not from a source**): pitch inertia Iy = 2500 kg m^2 (about
     0.9 Iz, typical of a compact car); axle stiffness K_F = K_R = 65 kN/m, giving a heave
     frequency $\sqrt{(K_F+K_R)/m}/2\pi \approx 1.5$ Hz; axle damping C_F = C_R = 5 kN s/m,

@@ -62,7 +62,7 @@ def quasi_static_loads(
     body_fx_R: Callable,
     iterations: int = 1,
 ):
-    r"""Normal loads with quasi-static longitudinal load transfer (../shared/spec/maneuvers.md).
+    r"""Normal loads with quasi-static longitudinal load transfer (docs/maneuvers.md).
 
     Solves $F_{zF} + F_{zR} = mg$ and
     $F_{zR}\ell_R - F_{zF}\ell_F - h(F_{zF}\mu_{F,bx} + F_{zR}\mu_{R,bx}) = 0$
@@ -70,7 +70,7 @@ def quasi_static_loads(
     force per unit load of axle $i$:
     $$F_{zF} = \frac{mg(\ell_R - h\mu_{R,bx})}{\ell_F + \ell_R + h(\mu_{F,bx} - \mu_{R,bx})},
       \qquad F_{zR} = mg - F_{zF}.$$
-    For tires whose forces are proportional to the load (the spec's friction-ellipse tire,
+    For tires whose forces are proportional to the load (the maneuvers' friction-ellipse tire,
     `LinearTire`) $\mu_{i,bx}$ does not depend on the load and one iteration is the exact
     solution of the 2x2 system. For other tires, $\mu_{i,bx}$ is re-evaluated at the latest
     loads `iterations` times (a fixed-point iteration starting from eqs. 57-58).

@@ -3,7 +3,7 @@ r"""Reduced half-car with slip inputs (report eqs. 61-63) and torque recovery.
 The longitudinal slips $\kappa_F$, $\kappa_R$ of the two axles are the inputs (with the
 steering angle $\delta$): the wheel spin dynamics (eqs. 52-53) and the suspension
 (eqs. 54-60) drop out, and the normal loads follow the quasi-static load transfer of
-../shared/spec/maneuvers.md, solved exactly (`vehsim.vehicle.planar.quasi_static_loads`).
+the benchmark maneuvers (docs/maneuvers.md), solved exactly (`vehsim.vehicle.planar.quasi_static_loads`).
 
 The torques that realise a slip history are recovered afterwards (report text after
 eq. 63): $\omega_i = (1+\kappa_i)V_{ix}/r$, and by eqs. 52-53
@@ -33,13 +33,13 @@ class ReducedHalfCar(AbstractVehicle):
     $v_x, v_y$ [m/s] body-frame velocity, $r$ [rad/s] yaw rate. The practical slip
     $\kappa_i = (\omega_i r - V_{ix})/V_{ix}$ ($\kappa = -1$: locked wheel) is defined with
     the wheel-frame longitudinal speed $V_{ix}$ of the axle; the model is singular at
-    $V_{ix} = 0$ (the spec's path constraint keeps $V_{ix} \ge 1$ m/s).
+    $V_{ix} = 0$ (the maneuvers' path constraint keeps $V_{ix} \ge 1$ m/s).
 
     **Arguments:**
 
     - `params`: `HalfCarParams` (the suspension fields are not used).
     - `tire`: a *static* `AbstractTire` (empty friction state), for the front axle and,
-      unless `tire_R` is given, the rear; e.g. `FrictionEllipseTire` (the spec's) or
+      unless `tire_R` is given, the rear; e.g. `FrictionEllipseTire` (the maneuvers' tire) or
       `LinearTire`.
     - `tire_R`: the rear tire if it differs (static too).
     - `load_iterations`: fixed-point iterations of the load transfer; 1 is exact for tires
@@ -70,7 +70,7 @@ class ReducedHalfCar(AbstractVehicle):
     def axle_velocities(self, state, delta):
         r"""$(V_{Fx}, V_{Fy}, V_{Rx}, V_{Ry})$: wheel-frame velocities of the axle centres [m/s].
 
-        $V_{Fx}$ and $V_{Rx}$ are the speeds of the spec's path constraint ($\ge 1$ m/s).
+        $V_{Fx}$ and $V_{Rx}$ are the speeds of the maneuvers' path constraint ($\ge 1$ m/s).
         """
         return axle_velocities(self.params, state[3], state[4], state[5], delta)
 
@@ -104,7 +104,7 @@ class ReducedHalfCar(AbstractVehicle):
         return front(FzF), rear(FzR), FzF, FzR
 
     def normal_loads(self, state, controls):
-        r"""$(F_{zF}, F_{zR})$ [N], quasi-static load transfer (spec; eq. 55 with $\theta=0$)."""
+        r"""$(F_{zF}, F_{zR})$ [N], quasi-static load transfer (eq. 55 with $\theta=0$)."""
         _, _, FzF, FzR = self._axle_forces(state, controls)
         return FzF, FzR
 
