@@ -1,0 +1,111 @@
+"""The package's layers only point down.
+
+Model packages compute; the drawing (`vehsim.plot`), the report sections (`vehsim.reproduce`)
+and the command line (`vehsim.cli`) sit on top of them. Read from the source (every import
+statement, module level or inside functions): no model module imports an upper layer, the
+upper layers import each other only downwards, and the packages have no import cycle.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+
+ROOT = Path(__file__).parent.parent / "vehsim"
+UPPER = ("plot", "reproduce", "cli")  # bottom to top
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Absolute names of the vehsim modules `path` imports."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.split(".")[0] == "vehsim"}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            if mod.split(".")[0] == "vehsim":
+                out.add(mod)
+                out |= {f"{mod}.{a.name}" for a in node.names}  # `from . import params`
+    return out
+
+
+def _unit(module: str) -> str | None:
+    """The top-level unit of a vehsim module: `vehsim.tire.lugre` -> "tire"."""
+    parts = module.split(".")
+    if len(parts) == 1:
+        return None
+    return "cli" if parts[1] == "__main__" else parts[1]  # `python -m vehsim` is the CLI
+
+
+GRAPH = {_module_name(p): _imports(p) for p in ROOT.rglob("*.py")}
+
+
+def _existing(module: str) -> str:
+    """The module itself, or its parent when `module` names an object inside it."""
+    return module if module in GRAPH else module.rpartition(".")[0]
+
+
+def test_model_packages_never_import_the_upper_layers():
+    bad = []
+    for mod, deps in GRAPH.items():
+        unit = _unit(mod)
+        if unit is None or unit in UPPER:
+            continue
+        bad += [f"{mod} -> {d}" for d in deps if _unit(_existing(d)) in UPPER]
+    assert not bad, "model code imports a drawing, report or CLI module:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("layer", UPPER)
+def test_upper_layers_only_import_downwards(layer):
+    rank = UPPER.index(layer)
+    bad = [f"{mod} -> {d}" for mod, deps in GRAPH.items() if _unit(mod) == layer
+           for d in deps if _unit(_existing(d)) in UPPER[rank + 1:]]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_cycle_between_packages():
+    edges: dict[str, set[str]] = {}
+    for mod, deps in GRAPH.items():
+        unit = _unit(mod)
+        if unit is None:
+            continue
+        for d in deps:
+            target = _unit(_existing(d))
+            if target is not None and target != unit:
+                edges.setdefault(unit, set()).add(target)
+    # depth-first search for a back edge, reporting the cycle found
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(u):
+        state[u] = 1
+        path.append(u)
+        for v in sorted(edges.get(u, ())):
+            if state.get(v) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(path[path.index(v):] + [v]))
+            if v not in state:
+                visit(v)
+        path.pop()
+        state[u] = 2
+
+    for u in sorted(edges):
+        if u not in state:
+            visit(u)
+
+
+def test_the_public_api_does_not_pull_in_the_upper_layers():
+    deps = {_unit(_existing(d)) for d in GRAPH["vehsim"]}
+    assert not deps & set(UPPER)
