@@ -69,47 +69,64 @@ def run_grid(n_seeds: int, plant=None, extra_poses=None, save=False, key=0, devi
     if extra_poses is not None:
         poses = jnp.concatenate([poses, jnp.asarray(extra_poses, dtype=poses.dtype)])
     keys = jax.random.split(k_noise, poses.shape[0])
-    run = simulate_robot_grid(default_controllers(), [SystemI(), SystemII()], poses, keys,
-                        plant=plant if plant is not None else realistic_plant(), save=save,
-                        devices=devices)
-    return run
+    return simulate_robot_grid(default_controllers(), [SystemI(), SystemII()], poses, keys,
+                               plant=plant if plant is not None else realistic_plant(),
+                               save=save, devices=devices)
 
 
 def _codes(stats, **kw):
     return np.asarray(jax.vmap(jax.vmap(jax.vmap(lambda s: score_run(s, **kw))))(stats))
 
 
-def reproduce(ctx) -> None:
-    import matplotlib.pyplot as plt
+class _Scores:
+    """Scores of a Monte-Carlo grid, shaped (controller, system, mission, seed)."""
 
+    def __init__(self, stats, n_seeds: int):
+        n_m = len(ROBOT_MISSIONS)
+        self.stats = jax.tree_util.tree_map(lambda a: a[:, :, : n_m * n_seeds], stats)
+        shape = (8, 2, n_m, n_seeds)
+        st = self.stats
+        self.codes = _codes(st).reshape(shape)
+        self.codes_position = _codes(st, heading=False).reshape(shape)
+        self.codes_heading = _codes(st, position=False).reshape(shape)
+        self.tc = np.asarray(st.convergence_time()).reshape(shape)
+        self.rate = (np.asarray(st.reversals).sum(-1) / np.asarray(st.t_final)).reshape(shape)
+        self.window_position_mm = 1e3 * np.asarray(st.window_position).reshape(shape)
+        self.window_heading_deg = np.degrees(np.asarray(st.window_heading)).reshape(shape)
+        self.crossings = np.asarray(st.crossings).max(-1).reshape(shape)
+
+    def letters(self, c, s, codes=None) -> str:
+        """Majority letter per mission of controller `c` on system `s`."""
+        codes = self.codes if codes is None else codes
+        return "".join(LETTERS[_majority(codes[c, s, m])[0]] for m in range(codes.shape[2]))
+
+
+def reproduce(ctx) -> None:
     n_seeds = 4 if ctx.quick else 100
     n_m = len(ROBOT_MISSIONS)
     t0 = time.perf_counter()
     if ctx.quick:
         run = run_grid(n_seeds, extra_poses=FIGURE_POSES, save=True)
-        fig_run = run
-        fig_offset = n_m * n_seeds
+        fig_run, fig_offset = run, n_m * n_seeds
     else:
         run = run_grid(n_seeds)
-        fig_run = run_grid(1, extra_poses=FIGURE_POSES, save=True)
-        fig_offset = n_m
+        fig_run, fig_offset = run_grid(1, extra_poses=FIGURE_POSES, save=True), n_m
     ctx.log(f"Monte-Carlo grid ({8 * 2 * n_m * n_seeds} runs): {time.perf_counter() - t0:.1f} s")
-    stats = jax.tree_util.tree_map(lambda a: a[:, :, : n_m * n_seeds], run.stats)
-    codes = _codes(stats).reshape(8, 2, n_m, n_seeds)
-    codes_pos = _codes(stats, heading=False).reshape(8, 2, n_m, n_seeds)
-    codes_head = _codes(stats, position=False).reshape(8, 2, n_m, n_seeds)
-    tc = np.asarray(stats.convergence_time()).reshape(8, 2, n_m, n_seeds)
-    rate = (np.asarray(stats.reversals).sum(-1) / np.asarray(stats.t_final)).reshape(
-        8, 2, n_m, n_seeds)
-    wp = 1e3 * np.asarray(stats.window_position).reshape(8, 2, n_m, n_seeds)
-    wh = np.degrees(np.asarray(stats.window_heading)).reshape(8, 2, n_m, n_seeds)
-    cr = np.asarray(stats.crossings).max(-1).reshape(8, 2, n_m, n_seeds)
+    noisy = _Scores(run.stats, n_seeds)
+    quiet_run = run_grid(n_seeds, plant=realistic_plant(noise=False),
+                         extra_poses=FIGURE_POSES if ctx.quick else None, save=ctx.quick)
+    quiet = _Scores(quiet_run.stats, n_seeds)
+    ours = _table(ctx, noisy, quiet, n_seeds)
+    _findings(ctx, noisy, quiet, ours, n_seeds)
+    for c, fig_no in ((0, 4), (1, 5)):
+        ctx.figure(_paths_figure(fig_run, c, fig_offset), f"fig{fig_no}_controller{c + 1}_paths",
+                   f"Fig. {fig_no}: paths of controller {c + 1} ({CONTROLLER_NAMES[c]}) from "
+                   "six initial poses (arrows: initial heading), 40 s each.")
 
-    quiet = run_grid(n_seeds, plant=realistic_plant(noise=False),
-                     extra_poses=FIGURE_POSES if ctx.quick else None, save=ctx.quick)
-    qstats = jax.tree_util.tree_map(lambda a: a[:, :, : n_m * n_seeds], quiet.stats)
-    codes_quiet = _codes(qstats).reshape(8, 2, n_m, n_seeds)
 
+def _table(ctx, noisy: _Scores, quiet: _Scores, n_seeds: int) -> dict:
+    """Table 2 beside the report's, and the cell-by-cell differences; returns our letters."""
+    n_m = len(ROBOT_MISSIONS)
     ours = {}
     lines = ["| Ctr. | Sys. | ours E N S L | report | ours: share of seeds with that letter | "
              "ours without sensor noise |",
@@ -117,35 +134,20 @@ def reproduce(ctx) -> None:
     explanations = []
     for c in range(8):
         for s, sys_name in enumerate(("I", "II")):
-            letters, shares = "", []
-            for m in range(n_m):
-                code, counts = _majority(codes[c, s, m])
-                letters += LETTERS[code]
-                shares.append(f"{counts[code] / n_seeds:.0%}")
+            letters = noisy.letters(c, s)
+            shares = [f"{_majority(noisy.codes[c, s, m])[1].max() / n_seeds:.0%}"
+                      for m in range(n_m)]
             ours[(c + 1, sys_name)] = letters
             report = REPORT_TABLE2[c + 1]
             rep = report.get(sys_name) or next(iter(report.values()))
             extra = ""
             if c == 3:
-                pos = "".join(LETTERS[_majority(codes_pos[c, s, m])[0]] for m in range(n_m))
-                head = "".join(LETTERS[_majority(codes_head[c, s, m])[0]] for m in range(n_m))
-                extra = f" (x,y alone: {pos}; gamma alone: {head})"
-            quiet_letters = " ".join(LETTERS[_majority(codes_quiet[c, s, m])[0]]
-                                     for m in range(n_m))
+                extra = (f" (x,y alone: {noisy.letters(c, s, noisy.codes_position)}; "
+                         f"gamma alone: {noisy.letters(c, s, noisy.codes_heading)})")
             lines.append(f"| {c + 1} | {sys_name} | {' '.join(letters)}{extra} | {rep} | "
-                         f"{' '.join(shares)} | {quiet_letters} |")
+                         f"{' '.join(shares)} | {' '.join(quiet.letters(c, s))} |")
             if c != 3 and len(rep) == 4:
-                for m in range(n_m):
-                    if letters[m] != rep[m]:
-                        why = _WHY[letters[m]].format(
-                            rate=float(np.median(rate[c, s, m])), wp=float(np.median(wp[c, s, m])),
-                            wh=float(np.median(wh[c, s, m])), tc=float(np.median(tc[c, s, m])),
-                            cr=int(np.median(cr[c, s, m])))
-                        quiet_m = LETTERS[_majority(codes_quiet[c, s, m])[0]]
-                        explanations.append(
-                            f"- Controller {c + 1}, System {sys_name}, {ROBOT_MISSIONS[m].name}: ours "
-                            f"{letters[m]}, report {rep[m]}: {why} (without sensor noise: "
-                            f"{quiet_m}).")
+                explanations += _differences(noisy, quiet, c, s, sys_name, letters, rep)
     ctx.text(
         f"Table 2 reproduced: {8 * 2 * n_m * n_seeds} closed-loop runs of 40 s at 50 Hz "
         f"({n_seeds} seeds per cell: noise and perturbed initial poses) on the realistic "
@@ -164,18 +166,36 @@ def reproduce(ctx) -> None:
         "report's; (iv) our plant measures the pose with noise at every sample and has no "
         "stopping logic near the goal, which punishes laws that are discontinuous at the "
         "origin (controllers 1-3) with chattering commands.")
+    return ours
 
-    # Headline findings.
-    rank = codes.astype(float)
-    mean_rank = rank.mean(axis=(2, 3))
+
+def _differences(noisy: _Scores, quiet: _Scores, c, s, sys_name, letters, rep) -> list[str]:
+    out = []
+    for m in range(len(ROBOT_MISSIONS)):
+        if letters[m] == rep[m]:
+            continue
+        med = lambda a: float(np.median(a[c, s, m]))  # noqa: E731
+        why = _WHY[letters[m]].format(
+            rate=med(noisy.rate), wp=med(noisy.window_position_mm),
+            wh=med(noisy.window_heading_deg), tc=med(noisy.tc),
+            cr=int(np.median(noisy.crossings[c, s, m])))
+        out.append(f"- Controller {c + 1}, System {sys_name}, {ROBOT_MISSIONS[m].name}: ours "
+                   f"{letters[m]}, report {rep[m]}: {why} (without sensor noise: "
+                   f"{quiet.letters(c, s)[m]}).")
+    return out
+
+
+def _findings(ctx, noisy: _Scores, quiet: _Scores, ours: dict, n_seeds: int) -> None:
+    """The report's four headline findings, checked, and the numbers recorded."""
+    mean_rank = noisy.codes.astype(float).mean(axis=(2, 3))
+    quiet_rank = quiet.codes.astype(float).mean(axis=(2, 3))
     best_ii = int(np.argmin(mean_rank[:, 1])) + 1
-    quiet_rank = codes_quiet.astype(float).mean(axis=(2, 3))
     best_ii_quiet = int(np.argmin(quiet_rank[:, 1])) + 1
-    tv_conv = np.mean(tc[4:8] <= 35.0)
-    ti_conv = np.mean(tc[[0, 1, 2, 3]] <= 35.0)
+    tc = noisy.tc
+    tv_conv, ti_conv = np.mean(tc[4:8] <= 35.0), np.mean(tc[[0, 1, 2, 3]] <= 35.0)
     tv_tc = float(np.median(tc[4:8][tc[4:8] <= 35.0])) if np.any(tc[4:8] <= 35.0) else None
     ti_tc = float(np.median(tc[:4][tc[:4] <= 35.0])) if np.any(tc[:4] <= 35.0) else None
-    wh_quiet = np.degrees(np.asarray(qstats.window_heading)).reshape(8, 2, n_m, n_seeds)
+    wh, wh_quiet = noisy.window_heading_deg, quiet.window_heading_deg
     c6_i = ours[(6, "I")]
     findings = [
         f"- *Controller 2 the most satisfactory on all missions*: the best mean letter on "
@@ -195,7 +215,7 @@ def reproduce(ctx) -> None:
         f"- *Controller 4 sensitive to sensor noise*: its worst heading error over the "
         f"last 5 s is {np.median(wh[3]):.0f} deg (median) with noise and "
         f"{np.median(wh_quiet[3]):.0f} deg without; position alone scores "
-        f"{''.join(LETTERS[_majority(codes_pos[3, 0, m])[0]] for m in range(n_m))}. "
+        f"{noisy.letters(3, 0, noisy.codes_position)}. "
         + ("Agrees." if np.median(wh[3]) > 2 * np.median(wh_quiet[3]) else "Not reproduced."),
         f"- *Controller 6 diverging on System I*: ours {c6_i} on System I. "
         + ("Agrees." if c6_i.count("U") >= 3 else "Not reproduced: with our gains and "
@@ -208,29 +228,28 @@ def reproduce(ctx) -> None:
     ctx.record("robot.mean_letter_rank_system_II", mean_rank[:, 1])
     ctx.record("robot.mean_letter_rank_system_II_no_noise", quiet_rank[:, 1])
     ctx.record("robot.table2.ours_no_noise", {
-        f"{c + 1}-{n}": "".join(LETTERS[_majority(codes_quiet[c, s, m])[0]] for m in range(n_m))
-        for c in range(8) for s, n in enumerate(("I", "II"))})
+        f"{c + 1}-{n}": quiet.letters(c, s) for c in range(8) for s, n in enumerate(("I", "II"))})
     ctx.record("robot.controller4_heading_window_deg", {
         "noise": float(np.median(wh[3])), "no_noise": float(np.median(wh_quiet[3]))})
 
-    # Figs. 4-5.
-    for c, fig_no in ((0, 4), (1, 5)):
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4.6), sharex=True, sharey=True)
-        for s, ax in enumerate(axes):
-            for j in range(FIGURE_POSES.shape[0]):
-                p = np.asarray(fig_run.pose[c, s, fig_offset + j])
-                ax.plot(p[:, 0] * 100, p[:, 1] * 100, lw=1.2)
-                x0, y0, g0 = FIGURE_POSES[j]
-                ax.annotate("", xy=(100 * x0 + 3 * np.cos(g0), 100 * y0 + 3 * np.sin(g0)),
-                            xytext=(100 * x0, 100 * y0),
-                            arrowprops=dict(arrowstyle="->", color="k"))
-            ax.plot(0, 0, "k+", ms=12)
-            ax.set_aspect("equal")
-            ax.set_title(f"System {'I' * (s + 1)}")
-            ax.set_xlabel("x [cm]")
-            ax.grid(alpha=0.3)
-        axes[0].set_ylabel("y [cm]")
-        fig.suptitle(f"Controller {c + 1} on the realistic Khepera plant")
-        ctx.figure(fig, f"fig{fig_no}_controller{c + 1}_paths",
-                   f"Fig. {fig_no}: paths of controller {c + 1} ({CONTROLLER_NAMES[c]}) from "
-                   "six initial poses (arrows: initial heading), 40 s each.")
+
+def _paths_figure(fig_run, c: int, offset: int):
+    """Figs. 4-5: paths of controller `c` on both systems from `FIGURE_POSES`."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.6), sharex=True, sharey=True)
+    for s, ax in enumerate(axes):
+        for j in range(FIGURE_POSES.shape[0]):
+            p = np.asarray(fig_run.pose[c, s, offset + j])
+            ax.plot(p[:, 0] * 100, p[:, 1] * 100, lw=1.2)
+            x0, y0, g0 = FIGURE_POSES[j]
+            ax.annotate("", xy=(100 * x0 + 3 * np.cos(g0), 100 * y0 + 3 * np.sin(g0)),
+                        xytext=(100 * x0, 100 * y0), arrowprops=dict(arrowstyle="->", color="k"))
+        ax.plot(0, 0, "k+", ms=12)
+        ax.set_aspect("equal")
+        ax.set_title(f"System {'I' * (s + 1)}")
+        ax.set_xlabel("x [cm]")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("y [cm]")
+    fig.suptitle(f"Controller {c + 1} on the realistic Khepera plant")
+    return fig
