@@ -4,8 +4,8 @@ import os
 
 
 # Two host devices (the sharding tests), and LLVM's backend optimisation off: the suite is
-# bound by XLA compile time, not run time (650 -> 582 s on 2 cores, every test passing at
-# its unchanged tolerance). Benchmarks and `vehsim reproduce` keep XLA's default.
+# bound by XLA compile time, not run time (docs/performance.md). Benchmarks and
+# `vehsim reproduce` keep XLA's default.
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2 "
                                    "--xla_backend_optimization_level=0")
 
