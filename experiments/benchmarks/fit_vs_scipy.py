@@ -5,42 +5,14 @@ NumPy simulation of the same model, same data, same start, same objective.
 Model: lumped LuGre (eqs. 22-23) driven by the measured v, omega of the shipped brakings 1-2
 (exponential midpoint rule, 2 substeps per sample, identical in both; the NumPy side
 vectorises the coefficients and loops only over the scalar recurrence), parameters in logs
-(mu_s - mu_c in logs), the same weak prior. Prints JSON lines; the headline is
+(mu_s - mu_c in logs), the same weak prior. Prints a JSON line; the headline is
 ``ratio`` = scipy wall time / vehsim wall time (after compilation; compile time separate),
 each the best of `REPEATS` alternating runs (the development machine is shared; its load
 average is printed with the result, and ``cpu_ratio``, the same ratio in process CPU time,
-which load distorts less).
+which load distorts less). Results and what made the difference: docs/performance.md,
+"Braking identification".
 
 Run:  PYTHONPATH=. python experiments/benchmarks/fit_vs_scipy.py
-
-Results (2-core machine, load 1.3-1.5 including the benchmark, five runs on 2026-11-21
-after the augmented solve below; the last five lines of `fit_vs_scipy_results.jsonl`):
-ratio 13.1, 12.2, 11.3, 14.0, 10.0 wall (median 12.2x), CPU 12.7, 10.9, 11.3, 13.2, 10.0
-(median 11.3x); vehsim 22-30 ms (26 LM steps), scipy 0.25-0.37 s (194 residual
-evaluations); final losses agree to 6e-10. Before it (ten runs, same day): 8.4-12.3x wall,
-vehsim 30-49 ms.
-
-What made the difference: per LM step and braking, the friction state and its tangents
-now run in one diffrax solve of the augmented state (`_state_and_tangent_solve`) instead
-of a state solve followed by a tangent solve, because sigma1 and sigma2 move only the
-force of eq. 23, so the default fit has 5 state directions, not 6. XLA CPU compiles a
-while loop whose body accesses few bytes per iteration into one kernel and runs larger
-bodies op by op (`SmallWhileLoopHoistingPass`, ~20x slower per step): the augmented body
-stays below that line up to 6 columns (40-80 ns per step for 4000 steps) and crosses it at
-7 (1.6-2 us per step); two separate solves cost 100-200 ns per step. A fit: 39-47 ms ->
-32-33 ms median in three interleaved A/B pairs of 15 fits. The standard errors now come
-from the solver's last Jacobian (no post-fit Jacobian of all 9 parameters).
-
-Where vehsim's time went before (in-loop measurements): ~1.2 ms per LM step, of which
-the forward sensitivities of both brakings were ~0.6 ms (two state and two tangent solves)
-and J^T J for the normal equations ~0.1-0.16 ms (a 9 x 4009 f64 product on XLA CPU); the
-rest the Jacobian's assembly, `jax.linearize` and optimistix's step. Tried and not kept:
-splitting the two brakings over two host devices (slower, 50 vs 35 ms: the replicated LM
-step and a collective per step cost more than the halved solves); trust-region constants
-(high cutoff 0.5-0.99, growth 2-10, initial damping 1e-4-1e-2: 63-118 steps for the three
-train pairs against 66 now); a looser `tol` (1e-5: 23 steps, loss 5e-10 higher); turning
-XNNPACK/YNN dot fusions off (no change beyond noise); J^T J as products and sums instead of
-a dot (2x slower).
 """
 
 from __future__ import annotations
@@ -59,12 +31,12 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
+from vehsim import result_name  # noqa: E402
 from vehsim.identify.braking import load_braking, shipped_brakings  # noqa: E402
-from vehsim.identify.fit import (  # noqa: E402
+from vehsim.identify.fit import fit_loss, fit_open_loop  # noqa: E402
+from vehsim.identify.parameters import (  # noqa: E402
     DEFAULT_FREE,
     default_initial_guess,
-    fit_loss,
-    fit_open_loop,
     parameter_values,
 )
 
@@ -75,11 +47,11 @@ REPEATS = 7
 
 
 def numpy_forces(theta: dict, d: dict) -> np.ndarray:
-    """The lumped LuGre force history, same scheme as vehsim.identify.fit, in NumPy.
+    """The lumped LuGre force history, same scheme as vehsim.identify.friction_state, in NumPy.
 
     The coefficients of every substep are vectorised NumPy; only the scalar recurrence
     z <- e^{-x} z + h phi(x) v_r (sequential by nature) is a Python loop over floats, the
-    fastest way to run it without a compiler (3.8x faster than a per-sample Python loop).
+    fastest way to run it without a compiler.
     """
     s0, s1, s2 = theta["sigma0"], theta["sigma1"], theta["sigma2"]
     mc, ms, vs, al, th = theta["mu_c"], theta["mu_s"], theta["v_s"], theta["alpha"], theta["theta"]
@@ -166,7 +138,7 @@ def main() -> int:
         scipy_time = min(scipy_time, time.perf_counter() - t3)
         scipy_cpu = min(scipy_cpu, time.process_time() - c3)
     compile_time = first - vehsim_time
-    print(f"vehsim: {res.status} in {vehsim_time:.3f}s ({res.num_steps} LM steps)",
+    print(f"vehsim: {result_name(res.result)} in {vehsim_time:.3f}s ({res.num_steps} LM steps)",
           file=sys.stderr, flush=True)
     # MINPACK's nfev leaves out the finite-difference evaluations: count every call
     print(f"scipy: status {sp.status} in {scipy_time:.2f}s ({sp.nfev} iterations' "
@@ -183,7 +155,7 @@ def main() -> int:
         "vehsim_wall_s": vehsim_time,
         "vehsim_cpu_s": vehsim_cpu,
         "vehsim_compile_s": compile_time,
-        "vehsim_status": res.status,
+        "vehsim_status": result_name(res.result),
         "vehsim_lm_steps": res.num_steps,
         "vehsim_loss": data_loss(th_v),
         "vehsim_loss_jax": jax_loss,
