@@ -12,19 +12,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vehsim import RESULTS
+from vehsim import RESULTS, result_record
 from vehsim.identify.braking import BrakingData, load_braking, shipped_brakings
-from vehsim.identify.closed_loop import predict_closed_loop
+from vehsim.identify.closed_loop import ClosedLoopBraking, predict_closed_loop
 from vehsim.identify.fit import (
     FitError,
     _unnamed,
+    braking_model,
     evaluate,
     fit_closed_loop,
     fit_loss,
     fit_open_loop,
 )
 from vehsim.identify.levenberg_marquardt import solve_batch
-from vehsim.identify.open_loop import predict_open_loop
+from vehsim.identify.open_loop import OpenLoopBraking, predict_open_loop
 from vehsim.identify.parameters import (
     DEFAULT_FREE,
     LUMPED_PARAMETERS,
@@ -172,7 +173,29 @@ def test_no_slip_excitation_reports_nonconvergence_and_residual(brakings):
     res = info.value.result
     assert not res.converged and res.result == RESULTS.not_identifiable
     assert "RMS force residual" in res.message
+    record = res.to_dict()
+    assert record["status"] == "not_identifiable" and not record["converged"]
+    assert record["status_message"] == result_record(RESULTS.not_identifiable)["message"]
     np.testing.assert_allclose(res.rms_force_residual_N, 25.0, rtol=0.1)
+
+
+def test_braking_models_by_name_and_as_objects(brakings):
+    """`evaluate` and `fit_loss` take a braking model or its name; the names are those
+    written in result files."""
+    d = jax.tree.map(lambda x: x[:200] if getattr(x, "ndim", 0) == 1 else x,
+                     brakings["braking_1"])
+    assert braking_model("open_loop") == OpenLoopBraking(2)
+    assert braking_model("closed_loop", rtol=1e-7) == ClosedLoopBraking(rtol=1e-7)
+    assert (OpenLoopBraking.name, ClosedLoopBraking.name) == ("open_loop", "closed_loop")
+    with pytest.raises(ValueError, match="unknown mode"):
+        braking_model("open")
+    for mode, substeps in (("open_loop", 2), (OpenLoopBraking(4), 4)):
+        F, err = evaluate(TRUTH, d, mode)
+        np.testing.assert_allclose(F, predict_open_loop(TRUTH, d, substeps), rtol=1e-12)
+        rms = np.sqrt(np.mean((F - np.asarray(d.F_x)) ** 2))
+        np.testing.assert_allclose(err["rms_error_N"], rms, rtol=1e-12)
+    np.testing.assert_allclose(fit_loss(TRUTH, [d], OpenLoopBraking(4)),
+                               fit_loss(TRUTH, [d], substeps=4), rtol=1e-12)
 
 
 def test_fit_loss_gradient_matches_finite_differences(brakings):

@@ -36,7 +36,7 @@ class AbstractBrakingModel(eqx.Module):
     name: eqx.AbstractClassVar[str]
 
     @abc.abstractmethod
-    def force(self, model: LumpedLuGre, data: BrakingData):
+    def predict_force(self, model: LumpedLuGre, data: BrakingData):
         r"""Predicted $F_x(t_k)$ [N] on one braking (compiled)."""
 
     @abc.abstractmethod

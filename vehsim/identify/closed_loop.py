@@ -75,7 +75,7 @@ class ClosedLoopBraking(AbstractBrakingModel):
     rtol: float = 1e-6
     name: ClassVar[str] = "closed_loop"
 
-    def force(self, model, data):
+    def predict_force(self, model, data):
         return _predict_closed_loop_jit(model, data, rtol=self.rtol, atol=self.rtol * 1e-2,
                                         solver=self.solver, adjoint=dfx.ForwardMode(),
                                         throw=False)[2]
@@ -96,4 +96,4 @@ class ClosedLoopBraking(AbstractBrakingModel):
     def fitted_forces(self, model, data, r, scales):
         # at the default tolerance (rtol 1e-6) whatever the fit's `rtol`, as fits report them
         at_default = ClosedLoopBraking(solver=self.solver)
-        return [np.asarray(at_default.force(model, d)) for d in data]
+        return [np.asarray(at_default.predict_force(model, d)) for d in data]

@@ -138,7 +138,7 @@ def evaluate(model: LumpedLuGre, data: BrakingData,
              mode: str | AbstractBrakingModel = "open_loop") -> tuple[np.ndarray, dict]:
     """Predicted force on `data` and its `force_errors` (e.g. on a held-out braking);
     `mode` a braking model or its name (see `braking_model`)."""
-    F = braking_model(mode).force(model, _unnamed(data))
+    F = braking_model(mode).predict_force(model, _unnamed(data))
     return np.asarray(F), force_errors(F, data.F_x)
 
 
@@ -166,7 +166,7 @@ def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, f
       directions from wandering. $w = 10^{-4}$ changes well-determined parameters by far
       less than their standard errors (and exact data are recovered to ~1e-5); 0 turns it off.
     - `throw`: raise `FitError` (with the residual) if the best start did not converge or
-      the parameters are not identifiable; with `False` check `result.result`.
+      the parameters are not identifiable; with `False` check `FitResult.result`.
     - `verbose`: progress on stderr.
 
     **Returns:** a `FitResult`.
@@ -211,10 +211,7 @@ def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, sprea
     problem = _prepare(data, init, free, fixed, n_starts)
     core = _solve(problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
                   verbose, t_start)
-    best, cols = int(core["best"]), [PARAMETER_NAMES.index(n) for n in problem.names]
-    diag = diagnose(core["J_u"][:, cols], core["r"],
-                    float(prior_weight) * (core["us"][best] - core["u_fixed"])[cols],
-                    core["theta"], problem.names, prior_weight)
+    diag = _diagnose(problem, core, prior_weight)
     result = _assemble(problem, braking, core, diag, max_steps, gtol, ftol, t_start)
     _log(verbose, f"{result_name(result.result)}: {result.message} "
          f"({result.wall_time_s:.1f}s)")
@@ -296,6 +293,15 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, braking, s
                 model=from_unconstrained(us[best], model, PARAMETER_NAMES, keep),
                 theta=values[best], r=rs[best, :n_data], J_u=Js[best, :n_data], values=values,
                 initial=values_batch(model, u0s, keep))
+
+
+def _diagnose(problem: _Problem, core, prior_weight) -> Diagnostics:
+    """`diagnose` the best start: its data residuals and Jacobian in the free u, and the
+    prior's residuals."""
+    best, cols = int(core["best"]), [PARAMETER_NAMES.index(n) for n in problem.names]
+    prior = float(prior_weight) * (core["us"][best] - core["u_fixed"])[cols]
+    return diagnose(core["J_u"][:, cols], core["r"], prior, core["theta"], problem.names,
+                    prior_weight)
 
 
 def _assemble(problem: _Problem, braking, core, diag: Diagnostics, max_steps, gtol, ftol,

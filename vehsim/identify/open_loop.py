@@ -58,7 +58,7 @@ class OpenLoopBraking(AbstractBrakingModel):
     substeps: int = eqx.field(static=True, default=2)
     name: ClassVar[str] = "open_loop"
 
-    def force(self, model, data):
+    def predict_force(self, model, data):
         return _predict_open_loop_jit(model, data, self.substeps, adjoint=dfx.ForwardMode())
 
     def residuals(self, model, data, scales, adjoint=None):

@@ -65,6 +65,12 @@ def decay_rate_partials(q, v_r, omega_r):
                       -w * alpha / v_s, w * log_x], axis=-1)
 
 
+def _decay_rate_from_partials(q, P):
+    r"""$a = \theta\,\partial a/\partial\theta + \kappa\,\partial a/\partial\kappa$ from the
+    partials `P` of `decay_rate_partials` ($a$ is 1-homogeneous in $\theta$ and $\kappa$)."""
+    return q[0] * P[:, 0] + q[2] * P[:, 2]
+
+
 def phi_and_log_slope(a):
     r"""$\varphi(a)$ and $\varphi'(a)/\varphi(a)$, $\varphi(x) = (1 - e^{-x})/x$."""
     phi, dphi = jax.jvp(one_minus_exp_over, (a,), (jnp.ones_like(a),))
@@ -118,9 +124,8 @@ def _state_tangents(q, dq, model: LumpedLuGre, d: BrakingData, substeps: int, dz
     v_mid, om_mid, h = substep_midpoints(d, substeps)
     v_r_mid = d.r * om_mid - v_mid
     P = decay_rate_partials(q, v_r_mid, om_mid * d.r)
-    # the coefficients of `coefficients` from the same partials (a is 1-homogeneous in
-    # theta and kappa): a = h (theta da/dtheta + kappa da/dkappa), b = h v_r
-    a, b = h * (q[0] * P[:, 0] + q[2] * P[:, 2]), h * v_r_mid
+    # the coefficients of `coefficients`, a from the same partials
+    a, b = h * _decay_rate_from_partials(q, P), h * v_r_mid
     z0 = steady_friction_state(model, d.v[0], d.omega[0], d.r)
     da = h[:, None] * (P @ dq[:, :7].T)  # (steps, directions)
     if dq.shape[0] <= 5:  # state and tangents in one solve
@@ -141,7 +146,7 @@ def _force_tangents(q, dq, z, dz, d: BrakingData):
     samples), and its tangents (rows) along `dq` and `dz`."""
     v_r, om_r = d.r * d.omega - d.v, d.r * d.omega
     P = decay_rate_partials(q, v_r, om_r)
-    a_k = q[0] * P[:, 0] + q[2] * P[:, 2]
+    a_k = _decay_rate_from_partials(q, P)
     da_k = dq[:, :7] @ P.T
     sigma0, sigma1, sigma2 = q[1], q[7], q[8]
     zdot = v_r - a_k * z
