@@ -3,7 +3,7 @@ accuracy on data from a different (distributed) model, gradients, integrator acc
 non-convergence reporting.
 
 All fits here use the same data shapes and 2 vmapped starts, so they share one compiled
-solver (the masked-parameter design of `vehsim.identify.fit`)."""
+solver (the masked-parameter design of `vehsim.identify.levenberg_marquardt`)."""
 
 import diffrax as dfx
 import equinox as eqx
@@ -12,26 +12,30 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim import RESULTS, result_record
 from vehsim.identify.braking import BrakingData, load_braking, shipped_brakings
+from vehsim.identify.closed_loop import ClosedLoopBraking, predict_closed_loop
 from vehsim.identify.fit import (
-    DEFAULT_FREE,
-    LUMPED_PARAMETERS,
-    PARAMETER_NAMES,
     FitError,
-    _open_loop_sensitivities,
-    _solve_batch,
     _unnamed,
+    braking_model,
     evaluate,
     fit_closed_loop,
     fit_loss,
     fit_open_loop,
+)
+from vehsim.identify.levenberg_marquardt import solve_batch
+from vehsim.identify.open_loop import OpenLoopBraking, predict_open_loop
+from vehsim.identify.parameters import (
+    DEFAULT_FREE,
+    LUMPED_PARAMETERS,
+    PARAMETER_NAMES,
     from_unconstrained,
     parameter_values,
-    predict_closed_loop,
-    predict_open_loop,
     to_unconstrained,
     with_values,
 )
+from vehsim.identify.sensitivities import open_loop_sensitivities
 from vehsim.params import table3
 from vehsim.tire.lugre import LuGreParams, LumpedLuGre, decay_rate
 from vehsim.tire.transient import simulate_tire
@@ -65,7 +69,7 @@ def test_noise_free_lumped_data_recovers_every_parameter(brakings):
     start = with_values(TRUTH, {n: truth[n] * (1.3 if i % 2 else 0.7)
                                 for i, n in enumerate(LUMPED_PARAMETERS)})
     res = fit_open_loop(data, start, free=LUMPED_PARAMETERS, n_starts=N_STARTS, key=1)
-    assert res.converged and res.status == "converged"
+    assert res.converged and res.result == RESULTS.successful
     for n in LUMPED_PARAMETERS:
         np.testing.assert_allclose(res.values[n], float(truth[n]), rtol=1e-3, err_msg=n)
     # the 30 %-off start itself reached the optimum (not only a lucky random start); the
@@ -89,7 +93,7 @@ def test_fixed_mu_s_stays_fixed_while_mu_c_is_fitted(brakings):
     start = with_values(TRUTH, {n: truth[n] * (1.3 if i % 2 else 0.7) for i, n in enumerate(free)})
     res = fit_open_loop(data, start, free=free, fixed={"mu_s": float(truth["mu_s"])},
                         n_starts=1)
-    assert res.converged and res.status == "converged"
+    assert res.converged and res.result == RESULTS.successful
     assert res.values["mu_s"] == float(truth["mu_s"])
     for n in free:
         np.testing.assert_allclose(res.values[n], float(truth[n]), rtol=1e-3, err_msg=n)
@@ -146,9 +150,9 @@ def test_distributed_truth_held_out_error_below_3_percent(brakings):
           "std errors:", res.std_errors)
     # another fit of the same shapes (other starts, kappa0 fixed as in report Fig. 10)
     # reuses the compiled solver: fixed parameters are masked, values are arrays
-    traces = eqx.debug.get_num_traces(_solve_batch)
+    traces = eqx.debug.get_num_traces(solve_batch)
     res2 = fit_open_loop(train, n_starts=N_STARTS, key=3, fixed={"kappa0": 1.0}, throw=False)
-    assert eqx.debug.get_num_traces(_solve_batch) == traces
+    assert eqx.debug.get_num_traces(solve_batch) == traces
     assert res2.values["kappa0"] == 1.0 and res2.loss >= res.loss * (1 - 1e-9)
 
 
@@ -167,9 +171,31 @@ def test_no_slip_excitation_reports_nonconvergence_and_residual(brakings):
     with pytest.raises(FitError, match=r"not identifiable.*RMS force residual") as info:
         fit_open_loop(data, n_starts=N_STARTS)
     res = info.value.result
-    assert not res.converged and res.status == "not_identifiable"
+    assert not res.converged and res.result == RESULTS.not_identifiable
     assert "RMS force residual" in res.message
+    record = res.to_dict()
+    assert record["status"] == "not_identifiable" and not record["converged"]
+    assert record["status_message"] == result_record(RESULTS.not_identifiable)["message"]
     np.testing.assert_allclose(res.rms_force_residual_N, 25.0, rtol=0.1)
+
+
+def test_braking_models_by_name_and_as_objects(brakings):
+    """`evaluate` and `fit_loss` take a braking model or its name; the names are those
+    written in result files."""
+    d = jax.tree.map(lambda x: x[:200] if getattr(x, "ndim", 0) == 1 else x,
+                     brakings["braking_1"])
+    assert braking_model("open_loop") == OpenLoopBraking(2)
+    assert braking_model("closed_loop", rtol=1e-7) == ClosedLoopBraking(rtol=1e-7)
+    assert (OpenLoopBraking.name, ClosedLoopBraking.name) == ("open_loop", "closed_loop")
+    with pytest.raises(ValueError, match="unknown mode"):
+        braking_model("open")
+    for mode, substeps in (("open_loop", 2), (OpenLoopBraking(4), 4)):
+        F, err = evaluate(TRUTH, d, mode)
+        np.testing.assert_allclose(F, predict_open_loop(TRUTH, d, substeps), rtol=1e-12)
+        rms = np.sqrt(np.mean((F - np.asarray(d.F_x)) ** 2))
+        np.testing.assert_allclose(err["rms_error_N"], rms, rtol=1e-12)
+    np.testing.assert_allclose(fit_loss(TRUTH, [d], OpenLoopBraking(4)),
+                               fit_loss(TRUTH, [d], substeps=4), rtol=1e-12)
 
 
 def test_fit_loss_gradient_matches_finite_differences(brakings):
@@ -201,12 +227,12 @@ def test_levenberg_marquardt_jacobian_matches_forward_mode_autodiff(brakings):
     model = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), TRUTH)
     u = to_unconstrained(model, PARAMETER_NAMES)
     model_of = lambda x: from_unconstrained(x, model, PARAMETER_NAMES)  # noqa: E731
-    out = jax.jit(lambda x: _open_loop_sensitivities(x, jnp.eye(9), model_of, data, 2))(u)
+    out = jax.jit(lambda x: open_loop_sensitivities(x, jnp.eye(9), model_of, data, 2))(u)
     # the fit's default directions: the 5 that move the friction state (state and tangents
     # in one augmented solve), then sigma1, sigma2 (force only)
     order = [PARAMETER_NAMES.index(n) for n in
              ("sigma0", "mu_c", "mu_s", "v_s", "kappa0", "sigma1", "sigma2")]
-    out5 = jax.jit(lambda x: _open_loop_sensitivities(
+    out5 = jax.jit(lambda x: open_loop_sensitivities(
         x, jnp.eye(9)[np.asarray(order)], model_of, data, 2, z_rows=5))(u)
     for (F, dF), (F5, dF5), d in zip(out, out5, data):
         J = jax.jit(jax.jacfwd(lambda x, d=d: predict_open_loop(
@@ -283,7 +309,7 @@ def test_closed_loop_fit_recovers_the_lumped_quarter_car():
     # explicit Tsit5 (adaptive, rtol 1e-8): it compiles in a fraction of Kvaerno5's time
     res = fit_closed_loop(d, start, solver=dfx.Tsit5(), rtol=1e-8, tol=1e-6)
     assert res.converged and res.mode == "closed_loop"
-    print("closed loop:", res.status, res.num_steps, "steps;", {
+    print("closed loop:", res.message, res.num_steps, "steps;", {
         n: res.values[n] / float(truth[n]) - 1 for n in DEFAULT_FREE}, res.std_errors)
     for n in DEFAULT_FREE:
         np.testing.assert_allclose(res.values[n], float(truth[n]), rtol=RTOL_CLOSED, err_msg=n)

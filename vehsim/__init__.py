@@ -12,6 +12,7 @@ from ._results import (
     result_name as result_name,
     result_record as result_record,
 )
+from .identify.base import AbstractBrakingModel as AbstractBrakingModel
 
 # braking data, quarter car, identification (report section 2.2)
 from .identify.braking import (
@@ -20,12 +21,18 @@ from .identify.braking import (
     save_braking as save_braking,
     shipped_brakings as shipped_brakings,
 )
+from .identify.closed_loop import (
+    ClosedLoopBraking as ClosedLoopBraking,
+    predict_closed_loop as predict_closed_loop,
+)
 from .identify.fit import (
     FitError as FitError,
     FitResult as FitResult,
     fit_closed_loop as fit_closed_loop,
     fit_open_loop as fit_open_loop,
-    predict_closed_loop as predict_closed_loop,
+)
+from .identify.open_loop import (
+    OpenLoopBraking as OpenLoopBraking,
     predict_open_loop as predict_open_loop,
 )
 from .params import PRESETS as PRESETS, preset as preset

@@ -5,42 +5,14 @@ NumPy simulation of the same model, same data, same start, same objective.
 Model: lumped LuGre (eqs. 22-23) driven by the measured v, omega of the shipped brakings 1-2
 (exponential midpoint rule, 2 substeps per sample, identical in both; the NumPy side
 vectorises the coefficients and loops only over the scalar recurrence), parameters in logs
-(mu_s - mu_c in logs), the same weak prior. Prints JSON lines; the headline is
+(mu_s - mu_c in logs), the same weak prior. Prints a JSON line; the headline is
 ``ratio`` = scipy wall time / vehsim wall time (after compilation; compile time separate),
 each the best of `REPEATS` alternating runs (the development machine is shared; its load
 average is printed with the result, and ``cpu_ratio``, the same ratio in process CPU time,
-which load distorts less).
+which load distorts less). Results and what made the difference: docs/performance.md,
+"Braking identification".
 
 Run:  PYTHONPATH=. python experiments/benchmarks/fit_vs_scipy.py
-
-Results (2-core machine, load 1.3-1.5 including the benchmark, five runs on 2026-11-21
-after the augmented solve below; the last five lines of `fit_vs_scipy_results.jsonl`):
-ratio 13.1, 12.2, 11.3, 14.0, 10.0 wall (median 12.2x), CPU 12.7, 10.9, 11.3, 13.2, 10.0
-(median 11.3x); vehsim 22-30 ms (26 LM steps), scipy 0.25-0.37 s (194 residual
-evaluations); final losses agree to 6e-10. Before it (ten runs, same day): 8.4-12.3x wall,
-vehsim 30-49 ms.
-
-What made the difference: per LM step and braking, the friction state and its tangents
-now run in one diffrax solve of the augmented state (`_state_and_tangent_solve`) instead
-of a state solve followed by a tangent solve, because sigma1 and sigma2 move only the
-force of eq. 23, so the default fit has 5 state directions, not 6. XLA CPU compiles a
-while loop whose body accesses few bytes per iteration into one kernel and runs larger
-bodies op by op (`SmallWhileLoopHoistingPass`, ~20x slower per step): the augmented body
-stays below that line up to 6 columns (40-80 ns per step for 4000 steps) and crosses it at
-7 (1.6-2 us per step); two separate solves cost 100-200 ns per step. A fit: 39-47 ms ->
-32-33 ms median in three interleaved A/B pairs of 15 fits. The standard errors now come
-from the solver's last Jacobian (no post-fit Jacobian of all 9 parameters).
-
-Where vehsim's time went before (in-loop measurements): ~1.2 ms per LM step, of which
-the forward sensitivities of both brakings were ~0.6 ms (two state and two tangent solves)
-and J^T J for the normal equations ~0.1-0.16 ms (a 9 x 4009 f64 product on XLA CPU); the
-rest the Jacobian's assembly, `jax.linearize` and optimistix's step. Tried and not kept:
-splitting the two brakings over two host devices (slower, 50 vs 35 ms: the replicated LM
-step and a collective per step cost more than the halved solves); trust-region constants
-(high cutoff 0.5-0.99, growth 2-10, initial damping 1e-4-1e-2: 63-118 steps for the three
-train pairs against 66 now); a looser `tol` (1e-5: 23 steps, loss 5e-10 higher); turning
-XNNPACK/YNN dot fusions off (no change beyond noise); J^T J as products and sums instead of
-a dot (2x slower).
 """
 
 from __future__ import annotations
@@ -59,12 +31,12 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
+from vehsim import result_name  # noqa: E402
 from vehsim.identify.braking import load_braking, shipped_brakings  # noqa: E402
-from vehsim.identify.fit import (  # noqa: E402
+from vehsim.identify.fit import fit_loss, fit_open_loop  # noqa: E402
+from vehsim.identify.parameters import (  # noqa: E402
     DEFAULT_FREE,
     default_initial_guess,
-    fit_loss,
-    fit_open_loop,
     parameter_values,
 )
 
@@ -75,11 +47,11 @@ REPEATS = 7
 
 
 def numpy_forces(theta: dict, d: dict) -> np.ndarray:
-    """The lumped LuGre force history, same scheme as vehsim.identify.fit, in NumPy.
+    """The lumped LuGre force history, same scheme as vehsim.identify.friction_state, in NumPy.
 
     The coefficients of every substep are vectorised NumPy; only the scalar recurrence
     z <- e^{-x} z + h phi(x) v_r (sequential by nature) is a Python loop over floats, the
-    fastest way to run it without a compiler (3.8x faster than a per-sample Python loop).
+    fastest way to run it without a compiler.
     """
     s0, s1, s2 = theta["sigma0"], theta["sigma1"], theta["sigma2"]
     mc, ms, vs, al, th = theta["mu_c"], theta["mu_s"], theta["v_s"], theta["alpha"], theta["theta"]
@@ -112,88 +84,96 @@ def numpy_forces(theta: dict, d: dict) -> np.ndarray:
     return (s0 * z + s1 * (vr - a * z) + s2 * vr) * d["F_n"]
 
 
+class ScipyProblem:
+    """The same least-squares problem for scipy: free parameters in logs (mu_s - mu_c in
+    logs), force residuals scaled by the peak force, the same weak prior; counts its calls."""
+
+    def __init__(self, train, init):
+        self.base = {k: float(v) for k, v in parameter_values(init).items()}
+        self.base["L"] = float(init.params.L)
+        self.data = [{k: np.asarray(getattr(d, k)) for k in ("t", "v", "omega", "F_n", "F_x")}
+                     | {"r": float(d.r)} for d in train]
+        self.F_scale = max(float(np.max(np.abs(d["F_x"]))) for d in self.data)
+        self.names = list(DEFAULT_FREE)
+        self.u0 = np.array([math.log(self.base[n] - self.base["mu_c"]) if n == "mu_s"
+                            else math.log(self.base[n]) for n in self.names])
+        self.calls = 0
+
+    def theta_of(self, u):
+        th = dict(self.base)
+        for n, x in zip(self.names, u):
+            if n != "mu_s":
+                th[n] = math.exp(x)
+        th["mu_s"] = th["mu_c"] + math.exp(u[self.names.index("mu_s")])
+        return th
+
+    def residuals(self, u):
+        self.calls += 1
+        th = self.theta_of(u)
+        r = [(numpy_forces(th, d) - d["F_x"]) / self.F_scale for d in self.data]
+        return np.concatenate(r + [PRIOR * (u - self.u0)])
+
+    def data_loss(self, th):
+        return 0.5 * sum(float(np.sum(((numpy_forces(th, d) - d["F_x"]) / self.F_scale) ** 2))
+                         for d in self.data)
+
+
+def timed_runs(train, init, problem: ScipyProblem):
+    """vehsim: the first call compiles, the next ones are timed (the whole fit: LM solve,
+    Jacobian and standard errors at the optimum, per-braking errors). scipy: MINPACK
+    Levenberg-Marquardt, 2-point finite differences. The runs alternate (the machine's
+    speed drifts) and each side keeps its best."""
+    t0 = time.perf_counter()
+    fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
+    first = time.perf_counter() - t0
+    best = dict(vehsim_wall_s=math.inf, vehsim_cpu_s=math.inf, scipy_wall_s=math.inf,
+                scipy_cpu_s=math.inf)
+    for _ in range(REPEATS):
+        t1, c1 = time.perf_counter(), time.process_time()
+        res = fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
+        best["vehsim_wall_s"] = min(best["vehsim_wall_s"], time.perf_counter() - t1)
+        best["vehsim_cpu_s"] = min(best["vehsim_cpu_s"], time.process_time() - c1)
+        problem.calls = 0
+        t3, c3 = time.perf_counter(), time.process_time()
+        sp = least_squares(problem.residuals, problem.u0, jac="2-point", method="lm",
+                           xtol=1e-9, ftol=1e-9, gtol=1e-9, max_nfev=4000)
+        best["scipy_wall_s"] = min(best["scipy_wall_s"], time.perf_counter() - t3)
+        best["scipy_cpu_s"] = min(best["scipy_cpu_s"], time.process_time() - c3)
+    best["vehsim_compile_s"] = first - best["vehsim_wall_s"]
+    return res, sp, best
+
+
 def main() -> int:
     files = shipped_brakings()
     train = [load_braking(files["braking_1"]), load_braking(files["braking_2"])]
     init = default_initial_guess()
-    base = {k: float(v) for k, v in parameter_values(init).items()}
-    base["L"] = float(init.params.L)
-    np_data = [{k: np.asarray(getattr(d, k)) for k in ("t", "v", "omega", "F_n", "F_x")}
-               | {"r": float(d.r)} for d in train]
-    F_scale = max(float(np.max(np.abs(d["F_x"]))) for d in np_data)
-    names = list(DEFAULT_FREE)
-
-    def theta_of(u):
-        th = dict(base)
-        for n, x in zip(names, u):
-            if n != "mu_s":
-                th[n] = math.exp(x)
-        th["mu_s"] = th["mu_c"] + math.exp(u[names.index("mu_s")])
-        return th
-
-    u0 = np.array([math.log(base[n] - base["mu_c"]) if n == "mu_s" else math.log(base[n])
-                   for n in names])
-
-    calls = [0]
-
-    def residuals(u):
-        calls[0] += 1
-        th = theta_of(u)
-        r = [(numpy_forces(th, d) - d["F_x"]) / F_scale for d in np_data]
-        return np.concatenate(r + [PRIOR * (u - u0)])
-
-    def data_loss(th):
-        return 0.5 * sum(float(np.sum(((numpy_forces(th, d) - d["F_x"]) / F_scale) ** 2))
-                         for d in np_data)
-
-    # vehsim: the first call compiles, the next ones are timed (the whole fit: LM solve,
-    # Jacobian and standard errors at the optimum, per-braking errors). scipy: MINPACK
-    # Levenberg-Marquardt, 2-point finite differences. The runs alternate (the machine's
-    # speed drifts) and each side keeps its best.
-    t0 = time.perf_counter()
-    fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
-    first = time.perf_counter() - t0
-    vehsim_time = scipy_time = vehsim_cpu = scipy_cpu = math.inf
-    for _ in range(REPEATS):
-        t1, c1 = time.perf_counter(), time.process_time()
-        res = fit_open_loop(train, init, n_starts=1, prior_weight=PRIOR, throw=False)
-        vehsim_time = min(vehsim_time, time.perf_counter() - t1)
-        vehsim_cpu = min(vehsim_cpu, time.process_time() - c1)
-        calls[0] = 0
-        t3, c3 = time.perf_counter(), time.process_time()
-        sp = least_squares(residuals, u0, jac="2-point", method="lm", xtol=1e-9, ftol=1e-9,
-                           gtol=1e-9, max_nfev=4000)
-        scipy_time = min(scipy_time, time.perf_counter() - t3)
-        scipy_cpu = min(scipy_cpu, time.process_time() - c3)
-    compile_time = first - vehsim_time
-    print(f"vehsim: {res.status} in {vehsim_time:.3f}s ({res.num_steps} LM steps)",
-          file=sys.stderr, flush=True)
+    problem = ScipyProblem(train, init)
+    res, sp, t = timed_runs(train, init, problem)
+    print(f"vehsim: {result_name(res.result)} in {t['vehsim_wall_s']:.3f}s ({res.num_steps} "
+          "LM steps)", file=sys.stderr, flush=True)
     # MINPACK's nfev leaves out the finite-difference evaluations: count every call
-    print(f"scipy: status {sp.status} in {scipy_time:.2f}s ({sp.nfev} iterations' "
-          f"evaluations, {calls[0]} residual evaluations in all)", file=sys.stderr, flush=True)
-
-    th_v = {k: float(v) for k, v in res.values.items()} | {"L": base["L"]}
-    th_s = theta_of(sp.x)
-    # cross-check: both implementations agree on the loss at vehsim's optimum
-    jax_loss = float(fit_loss(res.model, train))
+    print(f"scipy: status {sp.status} in {t['scipy_wall_s']:.2f}s ({sp.nfev} iterations' "
+          f"evaluations, {problem.calls} residual evaluations in all)", file=sys.stderr,
+          flush=True)
+    th_v = {k: float(v) for k, v in res.values.items()} | {"L": problem.base["L"]}
+    th_s = problem.theta_of(sp.x)
+    names = problem.names
     row = {
         "benchmark": "fit_vs_scipy",
-        "ratio": scipy_time / vehsim_time,
-        "cpu_ratio": scipy_cpu / vehsim_cpu,
-        "vehsim_wall_s": vehsim_time,
-        "vehsim_cpu_s": vehsim_cpu,
-        "vehsim_compile_s": compile_time,
-        "vehsim_status": res.status,
+        "ratio": t["scipy_wall_s"] / t["vehsim_wall_s"],
+        "cpu_ratio": t["scipy_cpu_s"] / t["vehsim_cpu_s"],
+        **{k: t[k] for k in ("vehsim_wall_s", "vehsim_cpu_s", "vehsim_compile_s")},
+        "vehsim_status": result_name(res.result),
         "vehsim_lm_steps": res.num_steps,
-        "vehsim_loss": data_loss(th_v),
-        "vehsim_loss_jax": jax_loss,
-        "scipy_wall_s": scipy_time,
-        "scipy_cpu_s": scipy_cpu,
+        "vehsim_loss": problem.data_loss(th_v),
+        # cross-check: both implementations agree on the loss at vehsim's optimum
+        "vehsim_loss_jax": float(fit_loss(res.model, train)),
+        **{k: t[k] for k in ("scipy_wall_s", "scipy_cpu_s")},
         "scipy_status": int(sp.status),
         "scipy_nfev": int(sp.nfev),
-        "scipy_residual_evaluations": calls[0],
-        "scipy_loss": data_loss(th_s),
-        "n_samples": int(sum(len(d["t"]) for d in np_data)),
+        "scipy_residual_evaluations": problem.calls,
+        "scipy_loss": problem.data_loss(th_s),
+        "n_samples": int(sum(len(d["t"]) for d in problem.data)),
         "n_parameters": len(names),
         "vehsim_parameters": {n: th_v[n] for n in names},
         "scipy_parameters": {n: th_s[n] for n in names},

@@ -65,7 +65,7 @@ def _fit(args) -> int:
     for n in best.free:
         print(f"  {n:7s} = {best.values[n]:.6g} +/- {best.std_errors[n]:.2g}", file=sys.stderr)
     if not all(f.converged for f in out["fits"].values()):
-        print("vehsim fit: warning: some fits did not converge (see 'status' in fit.json)",
-              file=sys.stderr)
+        print("vehsim fit: warning: some fits did not converge (see 'status' and 'message' "
+              "in fit.json)", file=sys.stderr)
         return 1
     return 0

@@ -91,6 +91,20 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such braking file")
+    values = _read_columns(path)
+    _check_columns(path, values)
+    scalars = _read_wheel_data(path, r)
+    return BrakingData(
+        t=jnp.asarray(values["t"]), v=jnp.asarray(values["v"]),
+        omega=jnp.asarray(values["omega"]), F_x=jnp.asarray(values["F_x"]),
+        F_n=jnp.asarray(values["F_n"]),
+        T_b=jnp.asarray(values["T_b"]) if "T_b" in values else None,
+        name=path.stem if name is None else name, **scalars,
+    )
+
+
+def _read_columns(path: Path) -> dict[str, np.ndarray]:
+    """The known columns of the CSV, each value a finite number."""
     with open(path, newline="") as f:
         reader = csv.reader(f)
         try:
@@ -121,8 +135,13 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
             if not math.isfinite(x):
                 _fail(path, i, c, f"value must be finite, got {text!r} (NaN or inf)")
             values[c][i - 1] = x
-    if len(rows) < 3:
-        raise ValueError(f"{path}: need at least 3 data rows, got {len(rows)}")
+    return values
+
+
+def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
+    """At least 3 rows, time strictly increasing, load and torque not negative."""
+    if len(values["t"]) < 3:
+        raise ValueError(f"{path}: need at least 3 data rows, got {len(values['t'])}")
     dt = np.diff(values["t"])
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0)) + 2
@@ -133,6 +152,9 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
             i = int(np.argmax(values[c] < 0)) + 1
             _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {values[c][i - 1]!r}")
 
+
+def _read_wheel_data(path: Path, r: float | None) -> dict:
+    """`r` (required), `m`, `J` from the side file (`r` overridden by the argument)."""
     meta = {}
     side = path.with_suffix(".json")
     if side.is_file():
@@ -155,13 +177,7 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
             if not (math.isfinite(x) and x > 0):
                 raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in (0, inf), got {x}")
             scalars[key] = jnp.asarray(x)
-    return BrakingData(
-        t=jnp.asarray(values["t"]), v=jnp.asarray(values["v"]),
-        omega=jnp.asarray(values["omega"]), F_x=jnp.asarray(values["F_x"]),
-        F_n=jnp.asarray(values["F_n"]),
-        T_b=jnp.asarray(values["T_b"]) if "T_b" in values else None,
-        name=path.stem if name is None else name, **scalars,
-    )
+    return scalars
 
 
 def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: int = 10):

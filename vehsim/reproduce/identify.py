@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from .._results import result_name
 from ..identify.braking import BrakingData, load_braking, shipped_brakings
 from ..identify.fit import FitResult, evaluate, fit_closed_loop, fit_open_loop
 from ..plot import force_histories_figure
@@ -57,7 +58,7 @@ def identify(train: Sequence[BrakingData], validate: Sequence[BrakingData] = (),
             val = "; ".join(f"{k}: RMS {v['rms_error_N']:.0f} N "
                             f"({100 * v['rms_error_rel_peak']:.2f}% of peak)"
                             for k, v in entry["validation_errors"].items())
-            print(f"  {label}: {res.status}, kappa0 = {res.values['kappa0']:.3g}"
+            print(f"  {label}: {result_name(res.result)}, kappa0 = {res.values['kappa0']:.3g}"
                   + (f"; held out {val}" if val else ""), file=sys.stderr, flush=True)
     return {"fits": fits, "predictions": preds, "summary": summary}
 
@@ -82,7 +83,7 @@ def reproduce(ctx) -> None:
         v, se = res.values, res.std_errors
         err = out["summary"]["fits"][label]["validation_errors"]["braking_3"]
         fmt = lambda n: f"{v[n]:.4g}" + (f" ± {se[n]:.2g}" if n in se else "")  # noqa: E731
-        rows.append(f"| {label} | {res.status} | {fmt('kappa0')} | {fmt('sigma0')} | "
+        rows.append(f"| {label} | {result_name(res.result)} | {fmt('kappa0')} | {fmt('sigma0')} | "
                     f"{fmt('mu_c')} | {fmt('mu_s')} | {fmt('v_s')} | {err['rms_error_N']:.1f} | "
                     f"{100 * err['rms_error_rel_peak']:.2f} |")
         ctx.record(f"identify.{label}.held_out_rms_rel_peak", err["rms_error_rel_peak"])
@@ -100,6 +101,6 @@ def reproduce(ctx) -> None:
     ctx.figure(fig, "identify_magic_formula",
                "Lumped LuGre fitted to a braking made by a Magic Formula tire with relaxation "
                "length (another model family).")
-    ctx.text(f"Magic Formula braking: lumped LuGre fit {res.status}, RMS error "
+    ctx.text(f"Magic Formula braking: lumped LuGre fit {result_name(res.result)}, RMS error "
              f"{err['rms_error_N']:.1f} N = {100 * err['rms_error_rel_peak']:.2f}% of peak.")
     ctx.record("identify.magic_formula.rms_rel_peak", err["rms_error_rel_peak"])
