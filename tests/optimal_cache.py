@@ -5,7 +5,7 @@ solve) is the slowest step of both, so the session does it once. Import it as
 
 import functools
 
-from vehsim.optimal.nlp import IPOptions
+from vehsim.optimal.ip import IPOptions
 from vehsim.optimal.primitives import min_time_primitive
 
 

@@ -142,7 +142,7 @@ from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
 
 # isort: split
 # optimal driving primitives (report section 2.5, Table 4, Fig. 20)
-from .optimal.nlp import (
+from .optimal.ip import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     IPOptions as IPOptions,
     IPSolution as IPSolution,

@@ -33,7 +33,8 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from vehsim.optimal.nlp import IPOptions, interior_point  # noqa: E402
+from vehsim import result_name  # noqa: E402
+from vehsim.optimal.ip import IPOptions, interior_point  # noqa: E402
 from vehsim.optimal.primitives import car_guess, rally_gravel_car  # noqa: E402
 from vehsim.optimal.roads import SMOOTHING, road as road_by_name  # noqa: E402
 from vehsim.optimal.shooting import (  # noqa: E402
@@ -216,7 +217,7 @@ def main(argv=None):
         print(json.dumps(dict(
             problem=spec, segments=N, method=args.method,
             vehsim_value=ours_v, ipopt_value=ip_v, rel_diff=(ours_v - ip_v) / abs(ip_v),
-            vehsim_status=int(sol.status), vehsim_iterations=int(sol.iterations),
+            vehsim_status=result_name(sol.result), vehsim_iterations=int(sol.iterations),
             ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],
             vehsim_corridor_violation=violations(rd, prob.nodes(sol.xs, sol.us).__array__()),
             ipopt_corridor_violation=violations(rd, ip["xs"]),
@@ -247,10 +248,10 @@ def batch_benchmark(n: int, N: int, method: str) -> None:
         wall = time.perf_counter() - t0
         if mode == "vmap":
             tfs = np.asarray(out.solution.xs[:, -1, IDX_TF])
-            ok = int(np.sum(np.asarray(out.solution.status) == 0))
+            ok = int(np.sum(np.asarray(out.solution.converged)))
         else:
             tfs = np.array([float(p.t_f) for p in out])
-            ok = sum(int(p.status) == 0 for p in out)
+            ok = sum(bool(p.solution.converged) for p in out)
         if mode == "continuation":
             tf_cont = tfs
             wall_cont = wall

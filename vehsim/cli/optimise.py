@@ -27,7 +27,7 @@ def register(subparsers) -> None:
 
 def _optimise(args) -> int:
     from .._io import save_figure, write_json
-    from ..optimal.nlp import IPOptions
+    from ..optimal.ip import IPOptions
     from ..optimal.primitives import (
         max_exit_primitive,
         min_time_primitive,
@@ -68,4 +68,4 @@ def _optimise(args) -> int:
           f"{rec['max_corridor_violation']:.2e} m, "
           f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
           file=sys.stderr)
-    return 0 if rec["status"] == 0 else 1
+    return 0 if rec["status"] == "successful" else 1

@@ -4,7 +4,7 @@ speed maneuvers of the reduced half-car (eqs. 61-63) on the benchmark roads.
 Pipeline: a constant-speed guess along the road's centreline -> the point-mass problem
 ($|a| \le Dg$, the spec's lower bound) -> its path and speed mapped to the car (heading along
 the velocity, kinematic steering, slips from the tangential acceleration) -> the car problem,
-all solved by the structured interior-point method of `vehsim.optimal.nlp`.
+all solved by the structured interior-point method of `vehsim.optimal.ip`.
 """
 
 from __future__ import annotations
@@ -18,10 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._results import result_name, result_record
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
-from .nlp import IPOptions, IPSolution, interior_point
+from .ip import IPOptions, IPSolution, interior_point
 from .roads import Road, road as road_by_name
 from .shooting import DELTA_MAX, IDX_TF, ManeuverOCP, PointMassOCP
 
@@ -101,7 +102,7 @@ def car_guess(car: ReducedHalfCar, road: Road, num_stages: int, steps_per_stage:
 
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem``, the interior-point ``solution``, and convenience
-    fields ``t_f`` [s], ``exit_speed`` [m/s] and ``status``."""
+    fields ``t_f`` [s], ``exit_speed`` [m/s] and ``result`` (`vehsim.RESULTS`)."""
 
     problem: Any
     solution: IPSolution
@@ -116,8 +117,8 @@ class Primitive(eqx.Module):
         return jnp.hypot(x[3], x[4])
 
     @property
-    def status(self):
-        return self.solution.status
+    def result(self):
+        return self.solution.result
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
@@ -163,6 +164,14 @@ class Primitive(eqx.Module):
         return out
 
 
+def _better(sol: IPSolution, best: IPSolution | None) -> bool:
+    """A converged solution beats a failed one, then the lower objective wins."""
+    return best is None or (
+        bool(sol.converged)
+        and (not bool(best.converged) or float(sol.objective) < float(best.objective))
+    )
+
+
 def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float = 0.52,
                      num_stages: int = 50, steps_per_stage: int = 3, tf_max: float = 4.0,
                      options: IPOptions = IPOptions(), throw: bool = True):
@@ -174,10 +183,9 @@ def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float 
     for speed in (4.0, 7.0):
         xs0, us0 = centreline_guess(rd, num_stages, speed)
         sol = interior_point(prob, xs0, us0, options, throw=False)
-        if best is None or (int(sol.status) == 0 and (
-                int(best.status) != 0 or float(sol.objective) < float(best.objective))):
+        if _better(sol, best):
             best = sol
-    if throw and int(best.status) != 0:
+    if throw and not bool(best.converged):
         interior_point(prob, xs0, us0, options, throw=True)
     return Primitive(problem=prob, solution=best)
 
@@ -205,13 +213,9 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     best = None
     for xs0, us0 in guesses:
         sol = interior_point(prob, xs0, us0, options, throw=False)
-        better = best is None or (
-            int(sol.status) == 0
-            and (int(best.status) != 0 or float(sol.objective) < float(best.objective))
-        )
-        if better:
+        if _better(sol, best):
             best = sol
-    if throw and int(best.status) != 0:
+    if throw and not bool(best.converged):
         interior_point(prob, *guesses[-1], options, throw=True)  # raises with residuals
     return Primitive(problem=prob, solution=best)
 
@@ -246,14 +250,15 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
 
 
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
-    """JSON-ready record of a solved primitive: t_f, exit_speed, status, residuals,
+    """JSON-ready record of a solved primitive: t_f, exit_speed, ``status`` (the result's
+    name) and ``message``, residuals,
     violations, the point-mass bound and its ratio, states and inputs at every node."""
     sol = prim.solution
     sig = prim.signals()
     rec = dict(
         road=prim.problem.road.name, objective=prim.problem.objective,
-        t_f=float(prim.t_f), exit_speed=float(prim.exit_speed), status=int(sol.status),
-        message=sol.message, iterations=int(sol.iterations),
+        t_f=float(prim.t_f), exit_speed=float(prim.exit_speed), **result_record(sol.result),
+        iterations=int(sol.iterations),
         residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
                        compl=float(sol.compl)),
         segments=prim.problem.num_stages, nodes=int(prim.nodes().shape[0]),
@@ -264,7 +269,7 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     if bound is not None:
         rec["point_mass_t_f"] = float(bound.t_f)
         rec["point_mass_exit_speed"] = float(bound.exit_speed)
-        rec["point_mass_status"] = int(bound.status)
+        rec["point_mass_status"] = result_name(bound.result)
         rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
     rec["t"] = np.asarray(prim.time())
     rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
@@ -294,7 +299,7 @@ def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *
     ``mode='vmap'``: one vmapped solve (every member iterates until the slowest converges;
     suited to accelerators). ``mode='continuation'``: sequential solves, each warm-started
     from its neighbour's solution (sort the frictions; usually fastest on CPU).
-    Never raises on a member's failure: check ``solution.status`` (per member).
+    Never raises on a member's failure: check ``result`` (per member).
 
     **Returns:** a `Primitive` whose problem and solution are batched along axis 0 (vmap), or
     a list of `Primitive` (continuation).
@@ -323,7 +328,7 @@ def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *
     for i, D in enumerate(frictions):
         prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
         sol = interior_point(prob, *guess, options if i == 0 else warm, throw=False)
-        if int(sol.status) == 0:
+        if bool(sol.converged):
             guess = (sol.xs, sol.us)
         out.append(Primitive(problem=prob, solution=sol))
     return out

@@ -26,7 +26,7 @@ from jaxtyping import Array
 from .._constants import GRAVITY
 from .._fields import array_field
 from ..vehicle.reduced import ReducedHalfCar
-from .nlp import AbstractStagewiseNLP
+from .ip import AbstractStagewiseNLP
 from .roads import Road
 
 

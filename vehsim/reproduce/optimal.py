@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from ..optimal.nlp import IPOptions
+from ..optimal.ip import IPOptions
 from ..plot import primitive_figure, replay_figure
 
 
