@@ -148,8 +148,8 @@ from .optimal.ip import (
     IPSolution as IPSolution,
     interior_point as interior_point,
 )
+from .optimal.primitive import Primitive as Primitive
 from .optimal.primitives import (
-    Primitive as Primitive,
     max_exit_primitive as max_exit_primitive,
     min_time_primitive as min_time_primitive,
     point_mass_bound as point_mass_bound,

@@ -34,8 +34,9 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from vehsim import result_name  # noqa: E402
+from vehsim.optimal.guesses import car_guess  # noqa: E402
 from vehsim.optimal.ip import IPOptions, interior_point  # noqa: E402
-from vehsim.optimal.primitives import car_guess, rally_gravel_car  # noqa: E402
+from vehsim.optimal.primitives import rally_gravel_car  # noqa: E402
 from vehsim.optimal.roads import SMOOTHING, road as road_by_name  # noqa: E402
 from vehsim.optimal.shooting import (  # noqa: E402
     DELTA_MAX,

@@ -28,12 +28,12 @@ def register(subparsers) -> None:
 def _optimise(args) -> int:
     from .._io import save_figure, write_json
     from ..optimal.ip import IPOptions
+    from ..optimal.primitive import solution_record
     from ..optimal.primitives import (
         max_exit_primitive,
         min_time_primitive,
         point_mass_bound,
         rally_gravel_car,
-        solution_record,
     )
     from ..plot import primitive_figure
 

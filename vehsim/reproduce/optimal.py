@@ -42,12 +42,8 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    from ..optimal.primitives import (
-        max_exit_primitive,
-        min_time_primitive,
-        point_mass_bound,
-        solution_record,
-    )
+    from ..optimal.primitive import solution_record
+    from ..optimal.primitives import max_exit_primitive, min_time_primitive, point_mass_bound
 
     segments = 50 if ctx.quick else 150
     problems = PROBLEMS[:1] if ctx.quick else PROBLEMS
