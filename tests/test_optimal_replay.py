@@ -1,5 +1,5 @@
 """Replay of an optimal primitive on the full half-car: torque recovery, open-loop drift,
-path tracking (issue 7 item 7). One coarse corner90 min-time primitive (the settings of
+path tracking. One coarse corner90 min-time primitive (the settings of
 tests/test_optimal_primitives.py) serves every test."""
 
 import equinox as eqx

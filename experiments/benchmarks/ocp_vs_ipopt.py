@@ -78,7 +78,7 @@ def _corridor(rd, x, y):
 
 
 def casadi_model(D):
-    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (spec formulas)."""
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
     B, C = 7.0, 1.6
     X = ca.SX.sym("X", 10)
@@ -190,8 +190,8 @@ def main(argv=None):
         batch_benchmark(args.batch, N, args.method)
         return
     car = rally_gravel_car()
-    for spec in args.problems:
-        name, objective = spec.split(":")
+    for problem in args.problems:
+        name, objective = problem.split(":")
         rd = road_by_name(name)
         print(f"# {name} {objective}", file=sys.stderr, flush=True)
         xs0, us0 = car_guess(car, rd, N, 1)
@@ -216,7 +216,7 @@ def main(argv=None):
             lambda x: math.hypot(x[-1, 3], x[-1, 4]))
         ours_v, ip_v = float(val(xs)), float(val(ip["xs"]))
         print(json.dumps(dict(
-            problem=spec, segments=N, method=args.method,
+            problem=problem, segments=N, method=args.method,
             vehsim_value=ours_v, ipopt_value=ip_v, rel_diff=(ours_v - ip_v) / abs(ip_v),
             vehsim_status=result_name(sol.result), vehsim_iterations=int(sol.iterations),
             ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],

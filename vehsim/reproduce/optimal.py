@@ -105,7 +105,7 @@ def reproduce(ctx) -> None:
 
 
 def _replay_section(ctx, prim) -> None:
-    """Item 7: the primitive's recovered torques on the full half-car, open loop and tracked."""
+    """Replay: the primitive's recovered torques on the full half-car, open loop and tracked."""
     from ..optimal.replay import (
         matched_lugre_tire,
         replay_open_loop,
@@ -133,7 +133,7 @@ def _replay_section(ctx, prim) -> None:
                     f"{d['final_position_error']:.3f} | {d['final_heading_error']:.3f} | "
                     f"{d['max_deviation_from_reference']:.3f} |")
     ctx.text(
-        "Replay (item 7). The torques that realise the optimal slips are recovered along the "
+        "Replay. The torques that realise the optimal slips are recovered along the "
         "primitive (T_i = I_i domega_i/dt + f_ix r, eqs. 52-53, with the piecewise-linear "
         "slips' exact rates) and drive the full half-car (wheel spin, suspension of eqs. "
         "54-60) from the primitive's start (wheel speeds from the slips, suspension and tire "
