@@ -78,7 +78,8 @@ def _corridor(rd, x, y):
 
 
 def casadi_model(D):
-    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of docs/maneuvers.md)."""
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
+    docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
     B, C = 7.0, 1.6
     X = ca.SX.sym("X", 10)

@@ -11,8 +11,9 @@ $$\begin{pmatrix} W + \delta I & -A^T & J_e^T \\ -A & -\delta_c I & 0 \\ J_e & 0
 
 per stage, coupled to the next stage by the defects (`block_tridiagonal`); then
 $\Delta s = J_g \Delta y + g - s$ and $\Delta z = \mu S^{-1} e - z - \Sigma \Delta s$.
-The inertia correction is IPOPT's (Wächter and Biegler 2006, section 3.1): $\delta$ grows until
-the matrix has exactly one negative eigenvalue per constraint row.
+The inertia correction is IPOPT's (Wächter and Biegler 2006): $\delta$ grows until the matrix
+has exactly one negative eigenvalue per multiplier row (padded rows included) and the solve is
+accurate.
 """
 
 from __future__ import annotations
@@ -81,8 +82,8 @@ class NewtonStep(eqx.Module):
 
 
 def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
-    """Residuals and the scaled KKT errors $E_0$, $E_\\mu$ (IPOPT's, eq. 5 of Wächter and
-    Biegler 2006): dual infeasibility scaled by $s_d$, complementarity by $s_c$."""
+    """Residuals and the scaled KKT errors $E_0$, $E_\\mu$ (IPOPT's, Wächter and Biegler
+    2006): dual infeasibility scaled by $s_d$, complementarity by $s_c$."""
     mk = lay.masks()
     M, nx, ne = lay.M, lay.nx, lay.ne
     lam, nu, z, s = it.lam, it.nu, it.z, it.s

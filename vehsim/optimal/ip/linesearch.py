@@ -1,6 +1,6 @@
 r"""Step length: the fraction-to-boundary rule and a filter line search.
 
-The filter method of Wächter and Biegler (2006, section 2.3), without its restoration phase,
+The filter method of Wächter and Biegler (2006), without its restoration phase,
 on the barrier objective and the $\ell_1$ constraint violation
 
 $$\varphi_\mu(y, s) = f(y) - \mu \sum \ln s,\qquad
@@ -60,8 +60,9 @@ class Filter(eqx.Module):
 
     def cleared_where(self, pred) -> Filter:
         """The filter emptied where ``pred`` (its bounds and count kept)."""
-        return eqx.tree_at(lambda f: (f.theta, f.phi), self,
-                           (jnp.where(pred, jnp.inf, self.theta), jnp.where(pred, jnp.inf, self.phi)))
+        theta = jnp.where(pred, jnp.inf, self.theta)
+        phi = jnp.where(pred, jnp.inf, self.phi)
+        return eqx.tree_at(lambda f: (f.theta, f.phi), self, (theta, phi))
 
     def dominates(self, theta, phi):
         return jnp.any((theta >= self.theta) & (phi >= self.phi))
@@ -127,6 +128,7 @@ def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate
         ok, f_type = acceptable(alpha)
         return alpha, n + 1, ok, f_type
 
-    alpha, n, accepted, f_type = jax.lax.while_loop(cond, body, strong((alpha_max, 0, False, False)))
+    init = strong((alpha_max, 0, False, False))
+    alpha, n, accepted, f_type = jax.lax.while_loop(cond, body, init)
     filt = filt.augmented_where(~f_type & accepted, theta0, phi0).cleared_where(~accepted)
     return alpha, n, filt
