@@ -1,15 +1,15 @@
 """One coarse corner90 min-time primitive shared by the optimal-driving test modules
 (tests/test_optimal_primitives.py and tests/test_optimal_replay.py): building it (compile and
-solve) is the slowest step of both, so the session does it once. Import it as
+solve) is the slowest step of both, so it is built once per test run. Import it as
 ``from optimal_cache import ...`` everywhere (one module object, one cache)."""
 
 import functools
 
-from vehsim.optimal.nlp import IPOptions
+from vehsim.optimal.ip import IPOptions
 from vehsim.optimal.primitives import min_time_primitive
 
 
-M = 30  # coarse: the spec's comparisons use >= 150 nodes (see the reproduce section)
+M = 30  # coarse: the benchmark uses >= 150 nodes (docs/maneuvers.md, the reproduce section)
 
 
 @functools.cache

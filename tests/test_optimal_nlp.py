@@ -6,16 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vehsim.optimal.nlp import (
-    MAX_ITERATIONS,
-    SUCCESS,
-    AbstractStagewiseNLP,
-    IPOptions,
-    _block_factor,
-    _block_matvec,
-    _block_solve,
-    interior_point,
-)
+from vehsim import RESULTS
+from vehsim.optimal.ip import AbstractStagewiseNLP, IPOptions, interior_point
+from vehsim.optimal.ip.block_tridiagonal import block_factor, block_matvec, block_solve
 
 
 class RestToRest(AbstractStagewiseNLP):
@@ -64,7 +57,7 @@ def bang_bang():
 
 def test_bang_bang_min_time_matches_analytic(bang_bang):
     prob, sol = bang_bang
-    assert int(sol.status) == SUCCESS
+    assert sol.result == RESULTS.successful
     t_exact = 2 * np.sqrt(10.0 / 5.0)
     assert abs(float(sol.xs[-1, 4]) - t_exact) < 1e-6
     # bang-bang: full acceleration, then full braking, along x
@@ -74,7 +67,7 @@ def test_bang_bang_min_time_matches_analytic(bang_bang):
     assert float(sol.inf_pr) < 1e-9
 
 
-def test_batch_by_vmap_and_status(bang_bang):
+def test_batch_by_vmap_and_result(bang_bang):
     prob, _ = bang_bang
     amax = jnp.array([5.0, 2.5])
     xs0, us0 = _guess(prob.num_stages)
@@ -84,15 +77,15 @@ def test_batch_by_vmap_and_status(bang_bang):
         return interior_point(p, xs0, us0, IPOptions(max_iter=60), throw=False)
 
     sols = jax.vmap(solve)(amax)
-    assert np.all(np.asarray(sols.status) == SUCCESS)
+    assert np.all(np.asarray(sols.converged))
     np.testing.assert_allclose(sols.xs[:, -1, 4], 2 * np.sqrt(10.0 / amax), atol=1e-6)
 
 
-def test_iteration_limit_reports_status_and_residuals(bang_bang):
+def test_iteration_limit_reports_result_and_residuals(bang_bang):
     prob, _ = bang_bang
     xs0, us0 = _guess(prob.num_stages)
     sol = interior_point(prob, xs0, us0, IPOptions(max_iter=3), throw=False)
-    assert int(sol.status) == MAX_ITERATIONS
+    assert sol.result == RESULTS.ip_max_iterations and not sol.converged
     assert int(sol.iterations) == 3
     assert float(sol.inf_pr) > 1e-6 and np.isfinite(float(sol.inf_du))
     with pytest.raises(RuntimeError, match="inf_pr="):
@@ -115,12 +108,12 @@ def test_block_tridiagonal_solve_matches_dense():
                 r, c = (k + 1) * nb + i, k * nb + nx + nu + i
                 K[r, c] = K[c, r] = 1.0
     rhs = rng.normal(size=(M + 1, nb))
-    W, V, neg, _ = _block_factor(jnp.asarray(Kd), nx, nu, 0.0)
-    sol = np.asarray(_block_solve(W, V, jnp.asarray(rhs), nx, nu))
+    W, V, neg, _ = block_factor(jnp.asarray(Kd), nx, nu)
+    sol = np.asarray(block_solve(W, V, jnp.asarray(rhs), nx, nu))
     ref = np.linalg.solve(K, rhs.reshape(-1))
     np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-7, atol=1e-9)
     assert int(neg) == int(np.sum(np.linalg.eigvalsh(K) < 0))  # Sylvester inertia
     np.testing.assert_allclose(
-        np.asarray(_block_matvec(jnp.asarray(Kd), jnp.asarray(sol), nx, nu)).reshape(-1),
+        np.asarray(block_matvec(jnp.asarray(Kd), jnp.asarray(sol), nx, nu)).reshape(-1),
         K @ sol.reshape(-1), rtol=1e-9, atol=1e-9,
     )

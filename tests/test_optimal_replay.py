@@ -1,5 +1,5 @@
 """Replay of an optimal primitive on the full half-car: torque recovery, open-loop drift,
-path tracking (issue 7 item 7). One coarse corner90 min-time primitive (the settings of
+path tracking. One coarse corner90 min-time primitive (the settings of
 tests/test_optimal_primitives.py) serves every test."""
 
 import equinox as eqx
@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from optimal_cache import corner90_min_time
 
-from vehsim.optimal.nlp import SUCCESS
 from vehsim.optimal.replay import (
     default_vehicle,
     initial_state,
@@ -23,7 +22,7 @@ from vehsim.tire.friction_ellipse import rally_gravel_tire
 @pytest.fixture(scope="module")
 def prim():
     p = corner90_min_time()  # shared with tests/test_optimal_primitives.py
-    assert int(p.status) == SUCCESS
+    assert p.solution.converged
     return p
 
 

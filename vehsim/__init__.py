@@ -149,14 +149,14 @@ from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
 
 # isort: split
 # optimal driving primitives (report section 2.5, Table 4, Fig. 20)
-from .optimal.nlp import (
+from .optimal.ip import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     IPOptions as IPOptions,
     IPSolution as IPSolution,
     interior_point as interior_point,
 )
+from .optimal.primitive import Primitive as Primitive
 from .optimal.primitives import (
-    Primitive as Primitive,
     max_exit_primitive as max_exit_primitive,
     min_time_primitive as min_time_primitive,
     point_mass_bound as point_mass_bound,

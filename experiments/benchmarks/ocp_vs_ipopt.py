@@ -33,8 +33,10 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from vehsim.optimal.nlp import IPOptions, interior_point  # noqa: E402
-from vehsim.optimal.primitives import car_guess, rally_gravel_car  # noqa: E402
+from vehsim import result_name  # noqa: E402
+from vehsim.optimal.guesses import car_guess  # noqa: E402
+from vehsim.optimal.ip import IPOptions, interior_point  # noqa: E402
+from vehsim.optimal.primitives import rally_gravel_car  # noqa: E402
 from vehsim.optimal.roads import SMOOTHING, road as road_by_name  # noqa: E402
 from vehsim.optimal.shooting import (  # noqa: E402
     DELTA_MAX,
@@ -76,7 +78,8 @@ def _corridor(rd, x, y):
 
 
 def casadi_model(D):
-    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (spec formulas)."""
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
+    docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
     B, C = 7.0, 1.6
     X = ca.SX.sym("X", 10)
@@ -188,8 +191,8 @@ def main(argv=None):
         batch_benchmark(args.batch, N, args.method)
         return
     car = rally_gravel_car()
-    for spec in args.problems:
-        name, objective = spec.split(":")
+    for problem in args.problems:
+        name, objective = problem.split(":")
         rd = road_by_name(name)
         print(f"# {name} {objective}", file=sys.stderr, flush=True)
         xs0, us0 = car_guess(car, rd, N, 1)
@@ -214,9 +217,9 @@ def main(argv=None):
             lambda x: math.hypot(x[-1, 3], x[-1, 4]))
         ours_v, ip_v = float(val(xs)), float(val(ip["xs"]))
         print(json.dumps(dict(
-            problem=spec, segments=N, method=args.method,
+            problem=problem, segments=N, method=args.method,
             vehsim_value=ours_v, ipopt_value=ip_v, rel_diff=(ours_v - ip_v) / abs(ip_v),
-            vehsim_status=int(sol.status), vehsim_iterations=int(sol.iterations),
+            vehsim_status=result_name(sol.result), vehsim_iterations=int(sol.iterations),
             ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],
             vehsim_corridor_violation=violations(rd, prob.nodes(sol.xs, sol.us).__array__()),
             ipopt_corridor_violation=violations(rd, ip["xs"]),
@@ -247,10 +250,10 @@ def batch_benchmark(n: int, N: int, method: str) -> None:
         wall = time.perf_counter() - t0
         if mode == "vmap":
             tfs = np.asarray(out.solution.xs[:, -1, IDX_TF])
-            ok = int(np.sum(np.asarray(out.solution.status) == 0))
+            ok = int(np.sum(np.asarray(out.solution.converged)))
         else:
             tfs = np.array([float(p.t_f) for p in out])
-            ok = sum(int(p.status) == 0 for p in out)
+            ok = sum(bool(p.solution.converged) for p in out)
         if mode == "continuation":
             tf_cont = tfs
             wall_cont = wall

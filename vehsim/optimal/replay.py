@@ -1,4 +1,4 @@
-r"""Replay of an optimal primitive on the full half-car (report section 2.5, issue 7 item 7).
+r"""Replay of an optimal primitive on the full half-car (report section 2.5).
 
 A primitive is computed on the reduced model (eqs. 61-63: slips $\kappa_F, \kappa_R$ and
 steering $\delta$ as inputs, quasi-static loads, static tire). The full half-car
@@ -48,8 +48,8 @@ from .shooting import DELTA_MAX, IDX_TF
 
 
 def matched_lugre_tire() -> IsotropicLumpedLuGre:
-    r"""An isotropic lumped LuGre tire whose steady state roughly matches the spec's
-    friction-ellipse tire ($B = 7$, $C = 1.6$, $D = 0.52$).
+    r"""An isotropic lumped LuGre tire whose steady state roughly matches the benchmark's
+    friction-ellipse tire (docs/maneuvers.md) ($B = 7$, $C = 1.6$, $D = 0.52$).
 
     In steady state ($\dot z = 0$, $\sigma_2 = 0$) the force per load is
     $|\mu| = \sigma_0|v_r| / (\theta\sigma_0|v_r|/g(|v_r|) + \kappa_0\omega r/L)$, a

@@ -1,4 +1,4 @@
-r"""Roads of the maneuver benchmark (../shared/spec/maneuvers.md, report Table 4).
+r"""Roads of the maneuver benchmark (docs/maneuvers.md, report Table 4).
 
 A road is a union of rectangular legs (2 m wide corridors). The optimiser sees it as smooth
 inequalities $c(x, y) \ge 0$ on the centre of gravity: the outer walls as linear bounds, and

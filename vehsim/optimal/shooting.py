@@ -1,4 +1,4 @@
-r"""Direct multiple shooting of the maneuver problems (../shared/spec/maneuvers.md).
+r"""Direct multiple shooting of the maneuver problems (docs/maneuvers.md).
 
 Time is the independent variable, scaled by the free final time, $t = \tau t_f$,
 $\tau \in [0, 1]$. The horizon is cut into $M$ segments; segment $k$ is integrated by $S$
@@ -26,7 +26,7 @@ from jaxtyping import Array
 from .._constants import GRAVITY
 from .._fields import array_field
 from ..vehicle.reduced import ReducedHalfCar
-from .nlp import AbstractStagewiseNLP
+from .ip import AbstractStagewiseNLP
 from .roads import Road
 
 
@@ -172,9 +172,9 @@ class ManeuverOCP(AbstractManeuverOCP):
 
 
 class PointMassOCP(AbstractManeuverOCP):
-    r"""The spec's physical lower bound: a point mass with $|a| \le D g$ through the same
-    corridor and boundary conditions (position and the zero inertial velocity component; the
-    heading conditions become "velocity along the heading"). State
+    r"""The benchmark's physical lower bound (docs/maneuvers.md): a point mass with
+    $|a| \le D g$ through the same corridor and boundary conditions (position and the zero
+    inertial velocity component; the heading conditions become "velocity along the heading"). State
     $(x, y, v_x, v_y, t_f)$ (inertial velocity), control $a$ (piecewise constant).
     ``margin`` [m] shrinks the corridor (0 for the bound; > 0 for comfortable initial
     guesses of the car problem)."""

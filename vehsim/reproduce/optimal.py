@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from ..optimal.nlp import IPOptions
+from ..optimal.ip import IPOptions
 from ..plot import primitive_figure, replay_figure
 
 
@@ -42,12 +42,8 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    from ..optimal.primitives import (
-        max_exit_primitive,
-        min_time_primitive,
-        point_mass_bound,
-        solution_record,
-    )
+    from ..optimal.primitive import solution_record
+    from ..optimal.primitives import max_exit_primitive, min_time_primitive, point_mass_bound
 
     segments = 50 if ctx.quick else 150
     problems = PROBLEMS[:1] if ctx.quick else PROBLEMS
@@ -109,7 +105,7 @@ def reproduce(ctx) -> None:
 
 
 def _replay_section(ctx, prim) -> None:
-    """Item 7: the primitive's recovered torques on the full half-car, open loop and tracked."""
+    """Replay: the primitive's recovered torques on the full half-car, open loop and tracked."""
     from ..optimal.replay import (
         matched_lugre_tire,
         replay_open_loop,
@@ -137,7 +133,7 @@ def _replay_section(ctx, prim) -> None:
                     f"{d['final_position_error']:.3f} | {d['final_heading_error']:.3f} | "
                     f"{d['max_deviation_from_reference']:.3f} |")
     ctx.text(
-        "Replay (item 7). The torques that realise the optimal slips are recovered along the "
+        "Replay. The torques that realise the optimal slips are recovered along the "
         "primitive (T_i = I_i domega_i/dt + f_ix r, eqs. 52-53, with the piecewise-linear "
         "slips' exact rates) and drive the full half-car (wheel spin, suspension of eqs. "
         "54-60) from the primitive's start (wheel speeds from the slips, suspension and tire "

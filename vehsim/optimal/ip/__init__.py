@@ -1,0 +1,25 @@
+r"""A primal-dual interior-point method for stage-structured (multiple-shooting) NLPs.
+
+The problem (`AbstractStagewiseNLP`) has stage costs, transitions $x_{k+1} = F_k(x_k, u_k)$,
+path inequalities and boundary conditions at the first and last knots, each depending on one
+stage only. So first and second derivatives are taken per stage (`derivatives`), and the Newton
+(KKT) system is block tridiagonal: it is factorised by a block $LDL^T$ (Riccati-like)
+recursion in `lax.scan`, whose pivots' inertia (Sylvester) drives an IPOPT-style Hessian
+regularisation (`kkt`, `block_tridiagonal`). Inequalities get slacks and the primal-dual
+barrier equations, condensed into the stage blocks. Steps obey the fraction-to-boundary rule
+and a filter line search (Wächter and Biegler 2006, without restoration phase; `linesearch`);
+the barrier parameter follows the monotone Fiacco-McCormick rule (`solver`). A free final time
+(or any global parameter) is best carried as a state with $p_{k+1} = p_k$, which keeps the
+band (a dense column coupling every defect is what ruins sparse solvers).
+"""
+
+from .problem import (
+    AbstractStagewiseNLP as AbstractStagewiseNLP,
+    problem_sizes as problem_sizes,
+)
+from .solver import (
+    IPLog as IPLog,
+    IPOptions as IPOptions,
+    IPSolution as IPSolution,
+    interior_point as interior_point,
+)

@@ -1,0 +1,110 @@
+r"""Stage values and derivatives: every function of the NLP depends on one stage only, so its
+values, Jacobians and the Hessian of the Lagrangian are taken per stage, under one `vmap`.
+
+With the stage vector $v_k(y_k) = (\ell_k, F_k, e_k, g_k)$ of `stage_function` and the
+weights $w_k = (1, -\lambda_k, \nu_k, -z_k)$ (masked), the Hessian of stage $k$ is
+$\nabla^2 (w_k \cdot v_k)$; the defect $x_{k+1} - F_k$ contributes its $-F_k$ through
+$-\lambda_k$ and its $x_{k+1}$ linearly (no curvature).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .problem import AbstractStagewiseNLP, StageLayout, stage_function
+
+
+class StageDerivatives(eqx.Module):
+    """Values and first and second derivatives of every stage, at one iterate.
+
+    ``objective`` $\\sum_k \\ell_k + \\phi$; ``c`` defects $x_{k+1} - F_k$ (last row 0);
+    ``e``, ``g`` equalities and inequalities (``e`` masked); ``grad_f`` the cost gradient;
+    ``A`` $= \\partial F_k/\\partial y_k$, ``Je``, ``Jg`` (masked); ``H`` the symmetrised
+    Hessian of the stage Lagrangian."""
+
+    objective: Float[Array, ""]
+    c: Float[Array, "M+1 nx"]
+    e: Float[Array, "M+1 ne"]
+    g: Float[Array, "M+1 ng"]
+    grad_f: Float[Array, "M+1 ny"]
+    A: Float[Array, "M+1 nx ny"]
+    Je: Float[Array, "M+1 ne ny"]
+    Jg: Float[Array, "M+1 ng ny"]
+    H: Float[Array, "M+1 ny ny"]
+
+
+def _defects(lay: StageLayout, ys, F):
+    return jnp.concatenate([ys[1:, : lay.nx] - F[:-1], jnp.zeros((1, lay.nx))], 0)
+
+
+def stage_values(prob: AbstractStagewiseNLP, lay: StageLayout, ys: Float[Array, "M+1 ny"]):
+    """Objective, defects, (masked) equalities and inequalities at ``ys``, no derivatives."""
+    masks = lay.masks()
+    vec = stage_function(prob, lay)
+    f, F, e, g = lay.split(jax.vmap(vec)(ys, jnp.arange(lay.M + 1)))
+    return jnp.sum(f), _defects(lay, ys, F), e * masks.eq, g
+
+
+def _forward_over_forward(vec, y, k):
+    """Value, Jacobian and per-output Hessians of the stage vector in one forward-over-forward
+    pass (batched tangents, no transposes: compact to compile)."""
+
+    def f1(yy):
+        v = vec(yy, k)
+        return v, v
+
+    def f2(yy):
+        J, v = jax.jacfwd(f1, has_aux=True)(yy)
+        return J, (J, v)
+
+    T, (J, v) = jax.jacfwd(f2, has_aux=True)(y)
+    return v, J, T
+
+
+def _forward_over_reverse(vec, y, k, w):
+    """Value, Jacobian and the Hessian of $w \\cdot v$ in one forward pass over the reverse
+    pass: the tangents of the gradient of the weighted stage Lagrangian are its Hessian,
+    those of the primal outputs the Jacobian (one traced derivative instead of two)."""
+
+    def grad_and_value(yy):
+        v, pullback = jax.vjp(lambda z: vec(z, k), yy)
+        return (pullback(w)[0], v), v
+
+    (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
+    return V, J, H
+
+
+def stage_derivatives(
+    prob: AbstractStagewiseNLP,
+    lay: StageLayout,
+    ys: Float[Array, "M+1 ny"],
+    lam: Float[Array, "M+1 nx"],
+    nu: Float[Array, "M+1 ne"],
+    z: Float[Array, "M+1 ng"],
+    hessian: str = "forward-over-reverse",
+) -> StageDerivatives:
+    """Values, Jacobians and the Lagrangian Hessian of every stage (one `vmap`).
+
+    ``hessian``: 'forward-over-reverse' (the Hessian of the weighted stage Lagrangian only)
+    or 'forward-over-forward' (every per-output Hessian, then weighted)."""
+    masks = lay.masks()
+    vec = stage_function(prob, lay)
+    ks = jnp.arange(lay.M + 1)
+    w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -lam * masks.lam, nu * masks.eq,
+                         -z * masks.g], 1)
+    if hessian == "forward-over-forward":
+        V, J, T = jax.vmap(lambda y, k: _forward_over_forward(vec, y, k))(ys, ks)
+        H = jnp.einsum("ko,koij->kij", w, T)
+    else:
+        V, J, H = jax.vmap(lambda y, k, ww: _forward_over_reverse(vec, y, k, ww))(ys, ks, w)
+    H = 0.5 * (H + jnp.swapaxes(H, 1, 2))
+    f, F, e, g = lay.split(V)
+    _, J_F, J_e, J_g = lay.split(J)
+    return StageDerivatives(
+        objective=jnp.sum(f), c=_defects(lay, ys, F), e=e * masks.eq, g=g, grad_f=J[:, 0],
+        A=J_F * masks.lam[:, :, None], Je=J_e * masks.eq[:, :, None],
+        Jg=J_g * masks.g[:, :, None], H=H,
+    )

@@ -1,0 +1,207 @@
+r"""The primal-dual iterate, the KKT residuals and the Newton step on the condensed KKT system.
+
+Inequalities get slacks, $g(y) - s = 0$, $s > 0$, and the barrier problem's primal-dual
+equations $S z = \mu e$. Eliminating $(\Delta s, \Delta z)$ condenses them into the stage
+blocks: with $\Sigma = S^{-1} Z$ the primal block is $W = H + J_g^T \Sigma J_g$ and
+
+$$\begin{pmatrix} W + \delta I & -A^T & J_e^T \\ -A & -\delta_c I & 0 \\ J_e & 0 &
+-\delta_c I \end{pmatrix}
+\begin{pmatrix} \Delta y \\ \Delta\lambda \\ \Delta\nu \end{pmatrix} = -
+\begin{pmatrix} \nabla_y \mathcal{L}_\mu \\ c \\ e \end{pmatrix}$$
+
+per stage, coupled to the next stage by the defects (`block_tridiagonal`); then
+$\Delta s = J_g \Delta y + g - s$ and $\Delta z = \mu S^{-1} e - z - \Sigma \Delta s$.
+The inertia correction is IPOPT's (Wächter and Biegler 2006): $\delta$ grows until the matrix
+has exactly one negative eigenvalue per multiplier row (padded rows included) and the solve is
+accurate.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._carry import strong
+from .block_tridiagonal import block_factor, block_matvec, block_solve
+from .derivatives import StageDerivatives
+from .problem import StageLayout
+
+
+S_MAX = 100.0
+"""Scaling threshold of the multipliers in the scaled KKT error (IPOPT's $s_{max}$)."""
+DELTA_C = 1e-9
+"""Regularisation of the constraint rows ($-\\delta_c I$)."""
+DELTA_FIRST = 1e-4
+"""First primal regularisation tried when none was needed before."""
+DELTA_MIN = 1e-20
+"""Smallest first regularisation tried (the last one, divided by `DELTA_DECREASE`)."""
+DELTA_DECREASE = 3.0
+DELTA_GROWTH_FIRST = 100.0
+"""Growth factor of the regularisation while no regularisation was needed before."""
+DELTA_GROWTH = 8.0
+MAX_FACTORISATIONS = 40
+BACKWARD_ERROR_TOL = 1e-10
+"""Largest accepted componentwise backward error of the solve (Oettli-Prager)."""
+
+
+class Iterate(eqx.Module):
+    """A primal-dual point: unknowns ``ys`` $(x_k, u_k)$, slacks ``s``, inequality multipliers
+    ``z``, defect multipliers ``lam`` and equality multipliers ``nu``, per knot."""
+
+    ys: Float[Array, "M+1 ny"]
+    s: Float[Array, "M+1 ng"]
+    z: Float[Array, "M+1 ng"]
+    lam: Float[Array, "M+1 nx"]
+    nu: Float[Array, "M+1 ne"]
+
+
+class Residuals(eqx.Module):
+    """Optimality measures of an iterate: ``inf_pr`` max constraint violation, ``inf_du`` max
+    Lagrangian-gradient entry, ``compl`` max complementarity $|s z|$, ``error`` the scaled KKT
+    error (convergence test) and ``error_mu`` the same for the barrier problem (barrier
+    update)."""
+
+    inf_pr: Float[Array, ""]
+    inf_du: Float[Array, ""]
+    compl: Float[Array, ""]
+    error: Float[Array, ""]
+    error_mu: Float[Array, ""]
+
+
+class NewtonStep(eqx.Module):
+    """A primal-dual Newton direction and the primal regularisation ``delta`` it took."""
+
+    dy: Float[Array, "M+1 ny"]
+    dlam: Float[Array, "M+1 nx"]
+    dnu: Float[Array, "M+1 ne"]
+    ds: Float[Array, "M+1 ng"]
+    dz: Float[Array, "M+1 ng"]
+    delta: Float[Array, ""]
+
+
+def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
+    """Residuals and the scaled KKT errors $E_0$, $E_\\mu$ (IPOPT's, Wächter and Biegler
+    2006): dual infeasibility scaled by $s_d$, complementarity by $s_c$."""
+    mk = lay.masks()
+    M, nx, ne = lay.M, lay.nx, lay.ne
+    lam, nu, z, s = it.lam, it.nu, it.z, it.s
+    # Lagrangian gradient per stage: grad f + Je' nu - A' lam - Jg' z + [lam_{k-1} on x_k]
+    rd = (
+        d.grad_f
+        + jnp.einsum("kij,ki->kj", d.Je, nu * mk.eq)
+        - jnp.einsum("kij,ki->kj", d.A, lam * mk.lam)
+        - jnp.einsum("kij,ki->kj", d.Jg, z * mk.g)
+    )
+    rd = rd.at[1:, :nx].add(lam[:-1] * mk.lam[:-1])
+    rd = rd * mk.y
+    inf_du = jnp.max(jnp.abs(rd))
+    inf_pr = jnp.maximum(
+        jnp.maximum(jnp.max(jnp.abs(d.c)), jnp.max(jnp.abs(d.e), initial=0.0)),
+        jnp.max(jnp.abs((d.g - s) * mk.g), initial=0.0),
+    )
+    compl0 = jnp.max(jnp.abs((s * z) * mk.g), initial=0.0)
+    compl_mu = jnp.max(jnp.abs((s * z - mu) * mk.g), initial=0.0)
+    n_mult = (M + 1) * (nx + ne) + jnp.sum(mk.g)
+    s_d = jnp.maximum(
+        S_MAX,
+        (jnp.sum(jnp.abs(lam)) + jnp.sum(jnp.abs(nu)) + jnp.sum(jnp.abs(z * mk.g))) / n_mult,
+    ) / S_MAX
+    s_c = jnp.maximum(S_MAX, jnp.sum(jnp.abs(z * mk.g)) / jnp.maximum(jnp.sum(mk.g), 1.0)) / S_MAX
+    base = jnp.maximum(inf_du / s_d, inf_pr)
+    return Residuals(inf_pr=inf_pr, inf_du=inf_du, compl=compl0,
+                     error=jnp.maximum(base, compl0 / s_c),
+                     error_mu=jnp.maximum(base, compl_mu / s_c))
+
+
+def _condensed_system(lay: StageLayout, it: Iterate, d: StageDerivatives, mu):
+    """Right-hand side and primal blocks $W = H + J_g^T \\Sigma J_g$ of the condensed system
+    (rows and columns of unused controls set to the identity)."""
+    mk = lay.masks()
+    nx, mg, um = lay.nx, mk.g, mk.y
+    sg = jnp.where(mg > 0, it.s, 1.0)
+    Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
+    rhs_y = -(
+        d.grad_f
+        + jnp.einsum("kij,ki->kj", d.Je, it.nu)
+        - jnp.einsum("kij,ki->kj", d.A, it.lam * mk.lam)
+    )
+    rhs_y = rhs_y.at[1:, :nx].add(-it.lam[:-1] * mk.lam[:-1])
+    rhs_y = rhs_y + jnp.einsum("kij,ki->kj", d.Jg, (mu / sg - Sigma * (d.g - it.s)) * mg)
+    rhs_y = rhs_y * um
+    rhs = jnp.concatenate([rhs_y, -d.c, -d.e], axis=1)
+    W0 = d.H + jnp.einsum("kij,ki,kil->kjl", d.Jg, Sigma, d.Jg)
+    W0 = W0 * um[:, :, None] * um[:, None, :] + jax.vmap(jnp.diag)(1.0 - um)
+    return rhs, W0
+
+
+def kkt_blocks(lay: StageLayout, W0, d: StageDerivatives, delta) -> Float[Array, "M+1 nb nb"]:
+    """Diagonal blocks of the KKT matrix with primal regularisation ``delta`` (the rows of
+    unused multipliers are $-1$ on the diagonal)."""
+    mk = lay.masks()
+    um, A, Je = mk.y, d.A, d.Je
+    ze = jnp.zeros((lay.M + 1, lay.nx, lay.ne))
+    Wd = W0 + delta * jax.vmap(jnp.diag)(um)
+    dl = -jax.vmap(jnp.diag)(jnp.where(mk.lam > 0, DELTA_C, 1.0))
+    de = -jax.vmap(jnp.diag)(jnp.where(mk.eq > 0, DELTA_C, 1.0))
+    row1 = jnp.concatenate([Wd, -jnp.swapaxes(A, 1, 2), jnp.swapaxes(Je, 1, 2)], 2)
+    row2 = jnp.concatenate([-A, dl, ze], 2)
+    row3 = jnp.concatenate([Je, jnp.swapaxes(ze, 1, 2), de], 2)
+    return jnp.concatenate([row1, row2, row3], 1)
+
+
+def checked_solve(lay: StageLayout, Kd, rhs):
+    """Solve with one step of iterative refinement; ``ok`` when the inertia is the expected
+    one (one negative eigenvalue per constraint row, none zero) and the componentwise
+    backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`."""
+    nx, nu = lay.nx, lay.nu
+    n_neg_expected = (lay.M + 1) * (nx + lay.ne)
+    Wv, Vv, neg, tiny = block_factor(Kd, nx, nu)
+    sol = block_solve(Wv, Vv, rhs, nx, nu)
+    res = rhs - block_matvec(Kd, sol, nx, nu)
+    sol = sol + block_solve(Wv, Vv, res, nx, nu)
+    res = rhs - block_matvec(Kd, sol, nx, nu)
+    scale = block_matvec(jnp.abs(Kd), jnp.abs(sol), nx, nu) + jnp.abs(rhs)
+    accurate = jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale)
+    ok = (neg == n_neg_expected) & (tiny == 0) & accurate & jnp.all(jnp.isfinite(sol))
+    return sol, ok
+
+
+def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_last):
+    """Inertia correction: $\\delta = 0$ first, then `DELTA_FIRST` (or the last $\\delta$ over
+    `DELTA_DECREASE`), growing until `checked_solve` accepts (at most `MAX_FACTORISATIONS`)."""
+    d_first = jnp.where(
+        delta_last == 0.0, DELTA_FIRST, jnp.maximum(DELTA_MIN, delta_last / DELTA_DECREASE)
+    )
+    growth = jnp.where(delta_last == 0.0, DELTA_GROWTH_FIRST, DELTA_GROWTH)
+
+    def cond(carry):
+        _, _, ok, n = carry
+        return (~ok) & (n < MAX_FACTORISATIONS)
+
+    def body(carry):
+        delta, _, _, n = carry
+        delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, delta * growth))
+        sol, ok = checked_solve(lay, kkt_blocks(lay, W0, d, delta), rhs)
+        return delta, sol, ok, n + 1
+
+    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0))
+    delta, sol, _, _ = jax.lax.while_loop(cond, body, init)
+    return delta, sol
+
+
+def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
+    """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
+    regularisation that gives the right inertia (``delta_last``: the previous one)."""
+    mk = lay.masks()
+    ny, nx, mg = lay.ny, lay.nx, mk.g
+    rhs, W0 = _condensed_system(lay, it, d, mu)
+    delta, sol = _regularised_solve(lay, W0, d, rhs, delta_last)
+    dy = sol[:, :ny] * mk.y
+    sg = jnp.where(mg > 0, it.s, 1.0)
+    Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
+    ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + d.g - it.s) * mg
+    dz = (mu / sg - it.z - Sigma * ds) * mg
+    return NewtonStep(dy=dy, dlam=sol[:, ny : ny + nx] * mk.lam, dnu=sol[:, ny + nx :] * mk.eq,
+                      ds=ds, dz=dz, delta=delta)

@@ -1,0 +1,273 @@
+r"""The interior-point loop: options, solution, state, and `interior_point`.
+
+One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
+
+1. stage values and derivatives (`stage_derivatives`), the residuals and the scaled KKT
+   errors (`kkt_residuals`); stop when $E_0 \le$ ``tol`` and the constraint violation is
+   below ``constr_tol``;
+2. the monotone (Fiacco-McCormick) barrier update: when $E_\mu \le 10\mu$,
+   $\mu \leftarrow \max(\text{tol}/10, \min(0.2\mu, \mu^{1.5}))$;
+3. the Newton step of the condensed, inertia-corrected KKT system (`newton_step`);
+4. fraction to the boundary ($\tau = \max(0.99, 1 - \mu)$) for the slacks (primal step) and
+   the multipliers $z$ (dual step), then the filter line search on the primal step;
+5. the step, with $z$ kept within a factor $\kappa_\Sigma$ of $\mu S^{-1}$.
+
+The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
+together.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from ..._checks import is_concrete
+from ..._fields import array_field, int_field
+from ..._results import RESULTS, as_result, result_message
+from ._carry import strong
+from .derivatives import stage_derivatives, stage_values
+from .kkt import Iterate, NewtonStep, Residuals, kkt_residuals, newton_step
+from .linesearch import Filter, constraint_violation, filter_line_search, fraction_to_boundary
+from .problem import AbstractStagewiseNLP, StageLayout, stage_layout
+
+
+KAPPA_SIGMA = 1e10
+"""Bound on the deviation of $z$ from $\\mu S^{-1}$ (IPOPT's $\\kappa_\\Sigma$)."""
+TAU_MIN = 0.99
+"""Smallest fraction-to-boundary parameter $\\tau$."""
+MU_DECREASE, MU_POWER, MU_TEST = 0.2, 1.5, 10.0
+"""Barrier update: $\\mu \\leftarrow \\min(0.2\\mu, \\mu^{1.5})$ once $E_\\mu \\le 10\\mu$."""
+INITIAL_SLACK = 1e-2
+"""Initial slacks are at least $\\min(10^{-2}, 10\\mu_0)$."""
+
+
+class IPOptions(eqx.Module):
+    """Interior-point settings. ``tol``: scaled KKT error for convergence; ``constr_tol``:
+    largest constraint violation at convergence; ``max_iter``; ``log_size``: length of the
+    iteration log; ``hessian``: 'forward-over-reverse' (the Hessian of the weighted stage
+    Lagrangian only; the default) or 'forward-over-forward' (every per-output Hessian, then
+    weighted); ``mu0``: initial barrier (small for warm starts); ``verbose``: print one line
+    per iteration to stderr."""
+
+    tol: float = eqx.field(static=True, default=1e-8)
+    constr_tol: float = eqx.field(static=True, default=1e-9)
+    max_iter: Int[Array, ""] = int_field(default=300)
+    log_size: int = eqx.field(static=True, default=1000)
+    hessian: str = eqx.field(static=True, default="forward-over-reverse")
+    mu0: Float[Array, ""] = array_field(default=0.1)
+    verbose: bool = eqx.field(static=True, default=False)
+
+
+class IPLog(eqx.Module):
+    """Per-iteration history (arrays of length ``log_size``; entries past the last iteration
+    are NaN): ``objective``, ``inf_pr``, ``inf_du``, barrier ``mu``, step ``alpha`` and the
+    primal ``regularisation`` $\\delta$."""
+
+    objective: Float[Array, " L"]
+    inf_pr: Float[Array, " L"]
+    inf_du: Float[Array, " L"]
+    mu: Float[Array, " L"]
+    alpha: Float[Array, " L"]
+    regularisation: Float[Array, " L"]
+
+    @classmethod
+    def empty(cls, size: int) -> IPLog:
+        nan = jnp.full((size,), jnp.nan)
+        return cls(objective=nan, inf_pr=nan, inf_du=nan, mu=nan, alpha=nan, regularisation=nan)
+
+    def record(self, i, **values) -> IPLog:
+        """The log with entry ``i`` of each named history set."""
+        return eqx.tree_at(lambda log: [getattr(log, k) for k in values], self,
+                           [getattr(self, k).at[i].set(v) for k, v in values.items()])
+
+
+class IPSolution(eqx.Module):
+    """Result of `interior_point`: knots ``xs`` (M+1, nx), controls ``us`` (M, nu),
+    multipliers (``lam`` of the defects, ``nu`` of the equalities, ``z`` of the
+    inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations`` or
+    ``nonfinite``), ``iterations``, the final ``objective`` and residuals (``inf_pr``: max
+    constraint violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
+    complementarity), and the iteration ``log`` (`IPLog`)."""
+
+    xs: Float[Array, "M+1 nx"]
+    us: Float[Array, "M nu"]
+    lam: Float[Array, "M+1 nx"]
+    nu: Array
+    z: Array
+    result: RESULTS = eqx.field(converter=as_result)
+    iterations: Int[Array, ""]
+    objective: Float[Array, ""]
+    inf_pr: Float[Array, ""]
+    inf_du: Float[Array, ""]
+    compl: Float[Array, ""]
+    log: IPLog
+
+    @property
+    def converged(self):
+        """Whether the solve converged (a boolean array for a batch)."""
+        return self.result == RESULTS.successful
+
+    @property
+    def message(self) -> str | list:
+        """The first line of the result's message (nested lists for a batch)."""
+        return result_message(self.result)
+
+
+class IPState(eqx.Module):
+    """The loop state: the ``iterate``, barrier ``mu``, the last nonzero regularisation
+    ``delta_last``, the line-search ``filter``, the ``iteration`` count, ``done``, the
+    ``result`` so far, and the ``objective`` and ``residuals`` at the iterate (from the last
+    pass), with the ``log``."""
+
+    iterate: Iterate
+    mu: Float[Array, ""]
+    delta_last: Float[Array, ""]
+    filter: Filter
+    iteration: Int[Array, ""]
+    done: Array
+    result: RESULTS
+    objective: Float[Array, ""]
+    residuals: Residuals
+    log: IPLog
+
+
+def interior_point(
+    prob: AbstractStagewiseNLP,
+    xs0: Float[Array, "M+1 nx"],
+    us0: Float[Array, "M nu"],
+    options: IPOptions = IPOptions(),
+    *,
+    throw: bool = True,
+) -> IPSolution:
+    """Solve ``prob`` from the guess (``xs0``, ``us0``) by the structured interior-point method.
+
+    **Arguments:** ``prob`` (an `AbstractStagewiseNLP`), the initial knots (M+1, nx) and
+    controls (M, nu), ``options`` (`IPOptions`), ``throw``: raise unless the solve converged
+    (``False`` for batches: check ``result``).
+
+    **Returns:** an `IPSolution`.
+    """
+    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), options)
+    return _raise_if_failed(sol) if throw else sol
+
+
+def _raise_if_failed(sol: IPSolution) -> IPSolution:
+    """Raise with the residuals (concrete result), or thread a runtime error (traced)."""
+    failed = sol.result != RESULTS.successful
+    if not is_concrete(failed):
+        return eqx.tree_at(lambda s: s.xs, sol, sol.result.error_if(sol.xs, failed))
+    if bool(failed):
+        raise RuntimeError(
+            f"interior point did not converge: {sol.message} after "
+            f"{int(sol.iterations)} iterations; residuals inf_pr={float(sol.inf_pr):.3e}, "
+            f"inf_du={float(sol.inf_du):.3e}, compl={float(sol.compl):.3e} "
+            "(use throw=False to get the partial solution)"
+        )
+    return sol
+
+
+@eqx.filter_jit
+def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions) -> IPSolution:
+    lay = stage_layout(prob)
+    state = jax.lax.while_loop(
+        lambda st: (~st.done) & (st.iteration < options.max_iter),
+        lambda st: _iteration(prob, lay, options, st),
+        _initial_state(prob, lay, xs0, us0, options),
+    )
+    it = state.iterate
+    # the residuals were evaluated at the returned iterate (no step is taken on the last pass)
+    return IPSolution(
+        xs=it.ys[:, : lay.nx], us=it.ys[:-1, lay.nx :], lam=it.lam, nu=it.nu, z=it.z,
+        result=state.result, iterations=state.iteration, objective=state.objective,
+        inf_pr=state.residuals.inf_pr, inf_du=state.residuals.inf_du,
+        compl=state.residuals.compl, log=state.log,
+    )
+
+
+def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions) -> IPState:
+    """Slacks $s = \\max(g, \\min(10^{-2}, 10\\mu_0))$ and $z = \\mu_0 / s$ on the inequalities
+    in use, zero equality and defect multipliers."""
+    mg = lay.masks().g
+    ys = lay.join(xs0, us0)
+    _, c0, e0, g0 = stage_values(prob, lay, ys)
+    mu0 = options.mu0
+    s = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, 10.0 * mu0)), 1.0)
+    z = jnp.where(mg > 0, mu0 / s, 0.0)
+    iterate = Iterate(ys=ys, s=s, z=z, lam=jnp.zeros((lay.M + 1, lay.nx)),
+                      nu=jnp.zeros((lay.M + 1, lay.ne)))
+    inf = jnp.asarray(jnp.inf)
+    state = IPState(
+        iterate=iterate, mu=jnp.asarray(mu0), delta_last=jnp.asarray(0.0),
+        filter=Filter.initial(constraint_violation(c0, e0, g0, s, mg)),
+        iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
+        objective=jnp.asarray(jnp.nan),
+        residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf, error_mu=inf),
+        log=IPLog.empty(options.log_size),
+    )
+    return strong(state)
+
+
+def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
+    """One pass: test convergence at the iterate, update the barrier, step."""
+    it = st.iterate
+    d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
+    res = kkt_residuals(lay, it, d, st.mu)
+    converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol)
+    mu, mu_changed = _barrier_update(st.mu, res.error_mu, options.tol)
+    step = newton_step(lay, it, d, mu, st.delta_last)
+    tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+    mg = lay.masks().g
+    alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
+    alpha_dual = fraction_to_boundary(jnp.where(mg > 0, it.z, 1.0), step.dz, mg, tau)
+    alpha, n_trials, filt = filter_line_search(
+        prob, lay, it, step, d.grad_f, mu, st.filter.cleared_where(mu_changed), alpha_max
+    )
+    trial = _take_step(lay, it, step, alpha, alpha_dual, mu)
+    log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
+                        inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta)
+    if options.verbose:
+        jax.debug.callback(_print_iteration, st.iteration, d.objective, res.inf_pr, res.inf_du,
+                           mu, alpha, step.delta, n_trials)
+    finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
+    # keep the iterate whose residuals are reported when the loop ends on this pass
+    hold = converged | ~finite | (st.iteration == options.max_iter - 1)
+    return IPState(
+        iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
+        mu=mu, delta_last=jnp.where(step.delta > 0, step.delta, st.delta_last), filter=filt,
+        iteration=st.iteration + jnp.where(converged, 0, 1), done=converged | ~finite,
+        result=RESULTS.where(converged, RESULTS.successful,
+                             RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
+        objective=d.objective, residuals=res, log=log,
+    )
+
+
+def _barrier_update(mu, error_mu, tol):
+    """Monotone Fiacco-McCormick rule; also says whether $\\mu$ changed."""
+    changed = (error_mu <= MU_TEST * mu) & (mu > tol / 10.0)
+    new = jnp.maximum(tol / 10.0, jnp.minimum(MU_DECREASE * mu, mu**MU_POWER))
+    return jnp.where(changed, new, mu), changed
+
+
+def _take_step(lay: StageLayout, it: Iterate, step: NewtonStep, alpha, alpha_dual, mu) -> Iterate:
+    """Primal step ``alpha``, dual step ``alpha_dual`` for $z$ (then kept within a factor
+    `KAPPA_SIGMA` of $\\mu S^{-1}$), ``alpha`` for $\\lambda$ and $\\nu$."""
+    mg = lay.masks().g
+    s = jnp.where(mg > 0, jnp.maximum(it.s + alpha * step.ds, 1e-300), 1.0)
+    z = jnp.where(mg > 0, it.z + alpha_dual * step.dz, 0.0)
+    z = jnp.where(mg > 0, jnp.clip(z, mu / (KAPPA_SIGMA * s), KAPPA_SIGMA * mu / s), 0.0)
+    return Iterate(ys=it.ys + alpha * step.dy, s=s, z=z, lam=it.lam + alpha * step.dlam,
+                   nu=it.nu + alpha * step.dnu)
+
+
+def _print_iteration(it, f, inf_pr, inf_du, mu, alpha, delta, n_trials):
+    print(
+        f"  ip {int(it):4d}  obj {float(f): .8e}  inf_pr {float(inf_pr):.2e}  "
+        f"inf_du {float(inf_du):.2e}  mu {float(mu):.1e}  alpha {float(alpha):.2e}  "
+        f"reg {float(delta):.1e}  ls {int(n_trials)}",
+        file=sys.stderr,
+        flush=True,
+    )

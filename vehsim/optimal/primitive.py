@@ -1,0 +1,111 @@
+"""A solved maneuver (`Primitive`): the problem and its interior-point solution, with the
+quantities read off it (final time, exit speed, signals at every node, constraint
+violations), and its JSON record (`solution_record`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._results import result_name, result_record
+from .ip import IPSolution
+from .shooting import DELTA_MAX, IDX_TF, ManeuverOCP
+
+
+class Primitive(eqx.Module):
+    """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
+    ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] and ``result`` (`vehsim.RESULTS`) read
+    off the solution."""
+
+    problem: Any
+    solution: IPSolution
+
+    @property
+    def t_f(self):
+        return self.solution.xs[-1, IDX_TF]
+
+    @property
+    def exit_speed(self):
+        x = self.solution.xs[-1]
+        return jnp.hypot(x[3], x[4])
+
+    @property
+    def result(self):
+        return self.solution.result
+
+    def nodes(self):
+        """States at every integration node (M S + 1, nx), uniform in tau."""
+        return self.problem.nodes(self.solution.xs, self.solution.us)
+
+    def time(self):
+        n = self.nodes()
+        return jnp.linspace(0.0, 1.0, n.shape[0]) * self.t_f
+
+    def signals(self) -> dict:
+        """Named signals at every node (car problems): pose, speeds, sideslip, slips, forces."""
+        n = self.nodes()
+        sig = jax.vmap(self.problem.vehicle.signals)(n[:, :6], n[:, 6:9])
+        return {k: np.asarray(v) for k, v in sig.items()}
+
+    def violations(self) -> dict:
+        """Constraint violations of the solution, measured exactly at every node: distance off
+        the road (union of legs, not the smooth corridor) [m], boundary conditions (max abs,
+        m/rad/(m/s)), input bounds, axle-speed floor [m/s], shooting defects."""
+        prob, sol = self.problem, self.solution
+        n = np.asarray(self.nodes())
+        rd = prob.road
+        off = rd.distance_off_road(n[:, 0], n[:, 1])
+        bc = max(float(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])))),
+                 float(jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])))))
+        box = [prob.road.boundary_inequality(rd.start, sol.xs[0]),
+               prob.road.boundary_inequality(rd.end, sol.xs[-1])]
+        bc = max(bc, float(max(jnp.max(jnp.maximum(-b, 0.0), initial=0.0) for b in box)))
+        defects = np.asarray(sol.xs[1:]) - np.asarray(
+            jax.vmap(prob.transition)(sol.xs[:-1], sol.us, jnp.arange(prob.num_stages)))
+        out = dict(corridor=float(np.max(off)), boundary=bc,
+                   defects=float(np.max(np.abs(defects))))
+        if isinstance(prob, ManeuverOCP):
+            kF, kR, d = n[:, 6], n[:, 7], n[:, 8]
+            inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
+                                  np.abs(d) - float(DELTA_MAX)])
+            out["inputs"] = float(max(np.max(inp), 0.0))
+            sig = self.signals()
+            out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
+                                                               sig["Vx_R"].min())))
+            if prob.objective == "max-exit":
+                out["time_budget"] = float(max(0.0, float(self.t_f - prob.tf_max)))
+        return out
+
+
+def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
+    """JSON-ready record of a solved car primitive: t_f, exit_speed, ``status`` (the result's
+    name) and ``message``, iterations, residuals, violations, the point-mass ``bound`` and
+    the ratio to it, states and inputs at every node."""
+    sol = prim.solution
+    sig = prim.signals()
+    rec = dict(
+        road=prim.problem.road.name, objective=prim.problem.objective,
+        t_f=float(prim.t_f), exit_speed=float(prim.exit_speed), **result_record(sol.result),
+        iterations=int(sol.iterations),
+        residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
+                       compl=float(sol.compl)),
+        segments=prim.problem.num_stages, nodes=int(prim.nodes().shape[0]),
+    )
+    v = prim.violations()
+    rec["violations"] = v
+    rec["max_corridor_violation"] = v["corridor"]
+    if bound is not None:
+        rec["point_mass_t_f"] = float(bound.t_f)
+        rec["point_mass_exit_speed"] = float(bound.exit_speed)
+        rec["point_mass_status"] = result_name(bound.result)
+        rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
+    rec["t"] = np.asarray(prim.time())
+    rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
+    rec["inputs"] = {k: sig[k] for k in ("kappa_F", "kappa_R", "delta")}
+    rec["signals"] = {k: sig[k] for k in ("speed", "sideslip", "Fz_F", "Fz_R", "Fx_F", "Fx_R",
+                                          "Fy_F", "Fy_R", "Vx_F", "Vx_R")}
+    return rec
