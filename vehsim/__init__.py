@@ -66,6 +66,7 @@ from .tire.distributed2d import (
 )
 from .tire.load import (
     AbstractLoadDistribution as AbstractLoadDistribution,
+    AbstractPolynomialLoad as AbstractPolynomialLoad,
     PolynomialLoad as PolynomialLoad,
     QuarticLoad as QuarticLoad,
     TabulatedLoad as TabulatedLoad,

@@ -121,7 +121,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .load import AbstractLoadDistribution, PolynomialLoad, TrapezoidalLoad, UniformLoad
+from .load import (
+    AbstractLoadDistribution,
+    AbstractPolynomialLoad,
+    TrapezoidalLoad,
+    UniformLoad,
+)
 from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
 
 
@@ -129,14 +134,14 @@ def piecewise_coefficients(load: AbstractLoadDistribution, degree: int | None = 
     r"""Edges $0 = e_0 < \dots < e_P = 1$ and monomial coefficients $c^{(j)}_k$ (in global
     $\xi$) with $q(\xi) = \sum_kc^{(j)}_k\xi^k$ on $[e_j, e_{j+1}]$.
 
-    Exact for `PolynomialLoad` (uniform, quartic, user polynomials) and `TrapezoidalLoad`
+    Exact for `AbstractPolynomialLoad` (uniform, quartic, user polynomials) and `TrapezoidalLoad`
     (differentiable in the ramp). Any other load needs `degree`: each piece between its
     kinks is interpolated at `degree + 1` Chebyshev points (the Taylor-type approximation of
     eq. 43), and the moment model is then exact for that interpolant.
 
     **Returns:** `(edges (P+1,), coeffs (P, K))`.
     """
-    if isinstance(load, PolynomialLoad):
+    if isinstance(load, AbstractPolynomialLoad):
         c = load.coefficients
         if degree is not None and degree + 1 > c.shape[0]:
             c = jnp.concatenate([c, jnp.zeros(degree + 1 - c.shape[0])])
