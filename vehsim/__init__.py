@@ -100,6 +100,10 @@ from .tire.moments import (
     moments_step_response as moments_step_response,
     simulate_moments as simulate_moments,
 )
+from .tire.relaxed_magic_formula import (
+    MagicFormulaParams as MagicFormulaParams,
+    RelaxedMagicFormula as RelaxedMagicFormula,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
@@ -110,10 +114,8 @@ from .tire.transient import TireSolution as TireSolution, simulate_tire as simul
 from .vehicle.quarter_car import (
     ConstantLoad as ConstantLoad,
     LoadRelaxation as LoadRelaxation,
-    MagicFormulaParams as MagicFormulaParams,
     PrescribedLoad as PrescribedLoad,
     QuarterCar as QuarterCar,
-    RelaxedMagicFormula as RelaxedMagicFormula,
     simulate_quarter_car as simulate_quarter_car,
 )
 
