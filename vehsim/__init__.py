@@ -63,6 +63,7 @@ from .tire.distributed import DistributedLuGre as DistributedLuGre
 from .tire.distributed2d import (
     DistributedLuGre2D as DistributedLuGre2D,
     steady_state_forces as steady_state_forces,
+    steady_state_mu_2d as steady_state_mu_2d,
 )
 from .tire.load import (
     AbstractLoadDistribution as AbstractLoadDistribution,
@@ -85,7 +86,6 @@ from .tire.lugre import (
 from .tire.lugre2d import (
     LuGre2DParams as LuGre2DParams,
     PointLuGre2D as PointLuGre2D,
-    simulate_tire_2d as simulate_tire_2d,
     slip_angle as slip_angle,
 )
 from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
@@ -110,7 +110,12 @@ from .tire.steady_state import (
     steady_state_mu as steady_state_mu,
     z_ss as z_ss,
 )
-from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
+from .tire.transient import (
+    Tire2DSolution as Tire2DSolution,
+    TireSolution as TireSolution,
+    simulate_tire as simulate_tire,
+    simulate_tire_2d as simulate_tire_2d,
+)
 from .vehicle.quarter_car import (
     ConstantLoad as ConstantLoad,
     LoadRelaxation as LoadRelaxation,

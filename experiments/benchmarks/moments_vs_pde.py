@@ -180,12 +180,12 @@ import numpy as np  # noqa: E402
 from vehsim.params import lugre2d_bakker1987  # noqa: E402
 from vehsim.tire.distributed2d import DistributedLuGre2D  # noqa: E402
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad  # noqa: E402
-from vehsim.tire.lugre2d import simulate_tire_2d  # noqa: E402
 from vehsim.tire.moments import (  # noqa: E402
     MomentLuGre2D,
     moments_step_response,
     simulate_moments,
 )
+from vehsim.tire.transient import simulate_tire_2d  # noqa: E402
 
 
 R, FZ, V = 0.3, 4000.0, 20.0

@@ -137,7 +137,7 @@ def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
     return jnp.where(rolling, z_roll, z_lock)
 
 
-def steady_state_mu(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
+def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
     r"""Closed-form steady state $(F_x/F_n, F_y/F_n, M_z/(F_nL))$ of eqs. 31-33.
 
     Gauss-Legendre quadrature of $z_{ss}q$ on panels split at the load's kinks and graded to
@@ -178,5 +178,5 @@ def steady_state_forces(params: LuGre2DParams, load: AbstractLoadDistribution, v
     r"""Steady $(F_x, F_y, M_z)$ [N, N, N m] at speed $v$ [m/s], slip ratio $\kappa$ and slip
     angle $\alpha$ [rad] (the curves of Figs. 13-15)."""
     v_r, c = slip_velocities(v, kappa, alpha)
-    mu = steady_state_mu(params, load, v_r, c)
+    mu = steady_state_mu_2d(params, load, v_r, c)
     return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), params.L])

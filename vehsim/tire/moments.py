@@ -497,7 +497,8 @@ def _simulate_delay(model, ts, signals, r, z0, solver, controller, max_steps, th
     import diffrax as dfx
     import jax
 
-    from .lugre2d import Tire2DSolution, relative_velocity_2d
+    from .lugre2d import relative_velocity_2d
+    from .transient import Tire2DSolution
 
     vx_s, vy_s, om_s, fz_s = signals
     L = model.params.L
@@ -640,7 +641,8 @@ def simulate_moments(
     import jax
 
     from .._signals import as_signal
-    from .lugre2d import Tire2DSolution, relative_velocity_2d
+    from .lugre2d import relative_velocity_2d
+    from .transient import Tire2DSolution
 
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"simulate_moments needs a MomentLuGre2D, got {type(model).__name__}")
@@ -825,7 +827,8 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     import jax
 
     from .._signals import as_signal
-    from .lugre2d import Tire2DSolution, relative_velocity_2d
+    from .lugre2d import relative_velocity_2d
+    from .transient import Tire2DSolution
 
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"moments_step_response needs a MomentLuGre2D, got {type(model).__name__}")
