@@ -41,11 +41,13 @@ from vehsim.identify.braking import BrakingData, save_braking  # noqa: E402
 from vehsim.params import table3  # noqa: E402
 from vehsim.tire.distributed import DistributedLuGre  # noqa: E402
 from vehsim.tire.load import QuarticLoad  # noqa: E402
+from vehsim.tire.relaxed_magic_formula import (  # noqa: E402
+    MagicFormulaParams,
+    RelaxedMagicFormula,
+)
 from vehsim.vehicle.quarter_car import (  # noqa: E402
     LoadRelaxation,
-    MagicFormulaParams,
     QuarterCar,
-    RelaxedMagicFormula,
     simulate_quarter_car,
 )
 

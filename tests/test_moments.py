@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import quad
 
 from vehsim.params import lugre2d_bakker1987
-from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu
+from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu_2d
 from vehsim.tire.load import (
     PolynomialLoad,
     QuarticLoad,
@@ -19,7 +19,7 @@ from vehsim.tire.load import (
     TrapezoidalLoad,
     UniformLoad,
 )
-from vehsim.tire.lugre2d import decay_rates, simulate_tire_2d
+from vehsim.tire.lugre2d import decay_rates
 from vehsim.tire.moments import (
     MomentLuGre2D,
     decay_integrals,
@@ -27,6 +27,7 @@ from vehsim.tire.moments import (
     piecewise_coefficients,
     simulate_moments,
 )
+from vehsim.tire.transient import simulate_tire_2d
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -114,7 +115,7 @@ def test_moments_reach_closed_form_steady_state(transients, name):
     for alpha_deg in (4.0, 15.0):
         mom, _, _, (vx, vy, om) = out[name, alpha_deg, 0.0]
         v_r = jnp.stack([om * R - vx, -vy])
-        ss = np.asarray(jax.jit(steady_state_mu)(p, LOADS[name], v_r, om * R)) * FZ
+        ss = np.asarray(jax.jit(steady_state_mu_2d)(p, LOADS[name], v_r, om * R)) * FZ
         ss[2] *= p.L
         np.testing.assert_allclose(mom[-1], ss, rtol=1e-6)
 
@@ -127,7 +128,7 @@ def test_densities_share_the_sliding_steady_state():
     (k = inf) and holds to O(1/k) while rolling (a few per cent at large slip)."""
     p = lugre2d_bakker1987()
 
-    steady = jax.jit(steady_state_mu)
+    steady = jax.jit(steady_state_mu_2d)
 
     v_r = jnp.array([-15.0, 4.0])
     locked = [np.asarray(steady(p, load, v_r, jnp.zeros(())))[:2]
@@ -375,7 +376,8 @@ def test_step_response_is_the_steady_state_after_one_transit(name):
     transit = float(p.L) / (om * R)
     ts = jnp.linspace(0.0, 3 * transit, 31)
     forces = np.asarray(_response(MomentLuGre2D(p, LOADS[name]), vx, vy, om, ts=ts))
-    ss = np.asarray(steady_state_mu(p, LOADS[name], jnp.array([om * R - vx, -vy]), om * R)) * FZ
+    v_r = jnp.array([om * R - vx, -vy])
+    ss = np.asarray(steady_state_mu_2d(p, LOADS[name], v_r, om * R)) * FZ
     ss[2] *= float(p.L)
     after = np.asarray(ts) >= transit * (1 + 1e-12)
     np.testing.assert_allclose(forces[after], np.broadcast_to(ss, forces[after].shape),

@@ -12,8 +12,8 @@ from vehsim.tire.distributed2d import (
     slip_velocities,
     steady_state_forces,
     steady_state_forces as _steady_state_forces,
-    steady_state_mu,
-    steady_state_mu as _steady_state_mu,
+    steady_state_mu_2d,
+    steady_state_mu_2d as _steady_state_mu_2d,
 )
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
 from vehsim.tire.lugre2d import PointLuGre2D
@@ -31,7 +31,7 @@ def _discrete_and_closed(model, kappa, alpha):
         v_r, c = slip_velocities(20.0, k, a)
         z = model.steady_state(v_r, c)
         return (model.derivative(z, v_r, c), model.mu(z, v_r, c),
-                steady_state_mu(model.params, model.load, v_r, c))
+                steady_state_mu_2d(model.params, model.load, v_r, c))
 
     return jax.vmap(one)(kappa, alpha)
 
@@ -53,7 +53,7 @@ def test_closed_form_reduces_to_longitudinal_eq_17():
     for load in LOADS:
         for v, omega in ((20.0, 60.0), (20.0, 72.0), (20.0, 0.0)):
             v_r = jnp.array([omega * 0.3 - v, 0.0])
-            mu = jax.jit(steady_state_mu)(p2, load, v_r, jnp.asarray(omega * 0.3))
+            mu = jax.jit(steady_state_mu_2d)(p2, load, v_r, jnp.asarray(omega * 0.3))
             np.testing.assert_allclose(mu[0], jax.jit(steady_state_mu_1d)(p1, load, v, omega, 0.3),
                                        rtol=1e-10)
             np.testing.assert_allclose(mu[1:], 0.0, atol=1e-14)
@@ -80,7 +80,7 @@ def test_locked_wheel_collapses_to_point_model():
 def test_symmetry_of_steady_state():
     """F_y, M_z odd in alpha; F_x odd in the driving slip s = v_rx/(omega r) at fixed omega."""
     steady_state_forces = jax.jit(_steady_state_forces)
-    steady_state_mu = jax.jit(_steady_state_mu)
+    steady_state_mu_2d = jax.jit(_steady_state_mu_2d)
     for load in LOADS:
         for kappa, alpha in SLIPS:
             f = steady_state_forces(P, load, 20.0, kappa, alpha, 4000.0)
@@ -89,8 +89,8 @@ def test_symmetry_of_steady_state():
             np.testing.assert_allclose(g[0], f[0], rtol=1e-12, atol=1e-9)
         for s, vy in ((0.05, 1.0), (0.3, -2.0)):
             c = jnp.asarray(20.0)
-            a = steady_state_mu(P, load, jnp.array([s * c, vy]), c)
-            b = steady_state_mu(P, load, jnp.array([-s * c, vy]), c)
+            a = steady_state_mu_2d(P, load, jnp.array([s * c, vy]), c)
+            b = steady_state_mu_2d(P, load, jnp.array([-s * c, vy]), c)
             np.testing.assert_allclose(b[0], -a[0], rtol=1e-12)
             np.testing.assert_allclose(b[1:], a[1:], rtol=1e-12)
         # aligning: M_z opposes F_y (force builds up behind the patch centre)

@@ -8,7 +8,7 @@ from helpers import assert_grad_matches_fd
 
 from vehsim.params import lugre2d_bakker1987
 from vehsim.tire.base import AbstractTire
-from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu
+from vehsim.tire.distributed2d import DistributedLuGre2D, steady_state_mu_2d
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad
 from vehsim.tire.lumped2d import LumpedLuGre2D
 
@@ -48,7 +48,7 @@ def _lumped_and_closed(lumped, v_r, c):
         f = lambda s: lumped.derivative(s, v_r, c)  # noqa: E731
         J = jax.jacfwd(f)(jnp.zeros(3))
         s = jnp.linalg.solve(J, -f(jnp.zeros(3)))
-        return lumped.mu(s, v_r, c), steady_state_mu(lumped.params, lumped.load, v_r, c)
+        return lumped.mu(s, v_r, c), steady_state_mu_2d(lumped.params, lumped.load, v_r, c)
 
     return jax.vmap(one)(v_r, c)
 

@@ -1,4 +1,4 @@
-"""Friction-ellipse Magic Formula of ../shared/spec/maneuvers.md."""
+"""Friction-ellipse Magic Formula of docs/maneuvers.md."""
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +10,7 @@ from vehsim import FrictionEllipseTire, LinearTire, preset, rally_gravel_tire
 
 
 def _spec_numpy(B, C, D, kappa, tan_alpha):
-    """The spec's formulas, literally, in NumPy (s != 0)."""
+    """The formulas of docs/maneuvers.md, literally, in NumPy (s != 0)."""
     sx = -kappa / (1 + kappa)
     sy = tan_alpha / (1 + kappa)
     s = np.sqrt(sx**2 + sy**2)

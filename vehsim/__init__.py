@@ -70,9 +70,11 @@ from .tire.distributed import DistributedLuGre as DistributedLuGre
 from .tire.distributed2d import (
     DistributedLuGre2D as DistributedLuGre2D,
     steady_state_forces as steady_state_forces,
+    steady_state_mu_2d as steady_state_mu_2d,
 )
 from .tire.load import (
     AbstractLoadDistribution as AbstractLoadDistribution,
+    AbstractPolynomialLoad as AbstractPolynomialLoad,
     PolynomialLoad as PolynomialLoad,
     QuarticLoad as QuarticLoad,
     TabulatedLoad as TabulatedLoad,
@@ -91,7 +93,6 @@ from .tire.lugre import (
 from .tire.lugre2d import (
     LuGre2DParams as LuGre2DParams,
     PointLuGre2D as PointLuGre2D,
-    simulate_tire_2d as simulate_tire_2d,
     slip_angle as slip_angle,
 )
 from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
@@ -106,20 +107,27 @@ from .tire.moments import (
     moments_step_response as moments_step_response,
     simulate_moments as simulate_moments,
 )
+from .tire.relaxed_magic_formula import (
+    MagicFormulaParams as MagicFormulaParams,
+    RelaxedMagicFormula as RelaxedMagicFormula,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
     steady_state_mu as steady_state_mu,
     z_ss as z_ss,
 )
-from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
+from .tire.transient import (
+    Tire2DSolution as Tire2DSolution,
+    TireSolution as TireSolution,
+    simulate_tire as simulate_tire,
+    simulate_tire_2d as simulate_tire_2d,
+)
 from .vehicle.quarter_car import (
     ConstantLoad as ConstantLoad,
     LoadRelaxation as LoadRelaxation,
-    MagicFormulaParams as MagicFormulaParams,
     PrescribedLoad as PrescribedLoad,
     QuarterCar as QuarterCar,
-    RelaxedMagicFormula as RelaxedMagicFormula,
     simulate_quarter_car as simulate_quarter_car,
 )
 

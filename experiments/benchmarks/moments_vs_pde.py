@@ -58,7 +58,7 @@ one vmapped call, four of the runs): trapezoidal 380-490x (0.66-0.81 ms vs 308-3
 quartic 432-592x (0.81-1.11 ms vs 456-548 ms), uniform > 10500x (no PDE grid up to n = 64
 reaches 1e-3; 0.42-0.62 ms vs 6.4-7.1 s).
 
-**What changed (session 7), and why it mattered.** The exact step was ~30 small XLA kernels
+**What changed, and why it mattered.** The exact step was ~30 small XLA kernels
 (28/36/30 for uniform/trapezoid/quartic), 45-70 us at its fastest but 80-380 us as a median
 (per-call ratio 11-125x for the trapezoidal and quartic loads, 47-977x uniform, in eight
 earlier runs). XLA CPU's thunk executor runs a program concurrently on its thread pool
@@ -73,7 +73,7 @@ same forces to 1e-14. Interleaved A/B against the previous code (sync dispatch, 
 each, three runs): medians 140-240 -> 25-60 us.
 
 **The solver closures: ramps, and steps before the exact solution.** The last full run
-(session 5, async dispatch, before `moments_step_response` existed; per-call rows at load
+(async dispatch, before `moments_step_response` existed; per-call rows at load
 average 1.3-3.0 and batched rows at 1.4-3.4 on 2 shared cores; lines 19-42 of
 `moments_vs_pde_results.jsonl`). For the steps these rows are
 superseded by the exact solution above; the ramps (inputs that change during a transit,
@@ -180,12 +180,12 @@ import numpy as np  # noqa: E402
 from vehsim.params import lugre2d_bakker1987  # noqa: E402
 from vehsim.tire.distributed2d import DistributedLuGre2D  # noqa: E402
 from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad  # noqa: E402
-from vehsim.tire.lugre2d import simulate_tire_2d  # noqa: E402
 from vehsim.tire.moments import (  # noqa: E402
     MomentLuGre2D,
     moments_step_response,
     simulate_moments,
 )
+from vehsim.tire.transient import simulate_tire_2d  # noqa: E402
 
 
 R, FZ, V = 0.3, 4000.0, 20.0

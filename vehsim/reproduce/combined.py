@@ -33,10 +33,10 @@ def reproduce(ctx) -> None:
 
     from ..params import bakker1987, lugre2d_bakker1987
     from ..tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
-    from ..tire.lugre2d import simulate_tire_2d
     from ..tire.lugre2d_fit import default_slip_grid, match_residuals
     from ..tire.magic_formula import combined_forces
     from ..tire.moments import MomentLuGre2D, moments_step_response
+    from ..tire.transient import simulate_tire_2d
 
     p, mf = lugre2d_bakker1987(), bakker1987()
     load = UniformLoad()

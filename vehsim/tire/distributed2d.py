@@ -105,7 +105,6 @@ class DistributedLuGre2D(AbstractPatchLuGre2D):
         m = integrand[1] @ self.w_m + p.sigma2[1] * v_r[1] * self.lever
         return jnp.stack([f[0], f[1], m])
 
-
     def steady_state(self, v_r, c):
         """Discrete steady state for constant inputs (one linear solve per axis)."""
         C0 = decay_rates(self.params, v_r)
@@ -137,11 +136,12 @@ def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
     return jnp.where(rolling, z_roll, z_lock)
 
 
-def steady_state_mu(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
+def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
     r"""Closed-form steady state $(F_x/F_n, F_y/F_n, M_z/(F_nL))$ of eqs. 31-33.
 
     Gauss-Legendre quadrature of $z_{ss}q$ on panels split at the load's kinks and graded to
-    the leading-edge boundary layers of thickness $1/k_i$ (accurate to ~1e-12).
+    the leading-edge boundary layers of thickness $1/k_i$, so that they are resolved at any
+    slip. The 2D counterpart of `vehsim.tire.steady_state.steady_state_mu`.
     """
     C0 = decay_rates(params, v_r)
     c_safe = jnp.where(c > 0, c, 1.0)
@@ -178,5 +178,5 @@ def steady_state_forces(params: LuGre2DParams, load: AbstractLoadDistribution, v
     r"""Steady $(F_x, F_y, M_z)$ [N, N, N m] at speed $v$ [m/s], slip ratio $\kappa$ and slip
     angle $\alpha$ [rad] (the curves of Figs. 13-15)."""
     v_r, c = slip_velocities(v, kappa, alpha)
-    mu = steady_state_mu(params, load, v_r, c)
+    mu = steady_state_mu_2d(params, load, v_r, c)
     return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), params.L])

@@ -1,4 +1,4 @@
-r"""Isotropic Magic Formula with friction ellipse (combined slip), ../shared/spec/maneuvers.md.
+r"""Isotropic Magic Formula with friction ellipse (combined slip), as in `docs/maneuvers.md`.
 
 $$\mu(s) = D\sin(C\arctan(Bs)),$$
 with, for a wheel of practical longitudinal slip $\kappa = (\omega r - V_x)/V_x$ and
@@ -70,9 +70,10 @@ class FrictionEllipseTire(AbstractTire):
         return -sx * g, -sy * g
 
     def mu(self, kappa, tan_alpha):
-        r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (spec formulas).
+        r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (module docstring).
 
-        Singular at $\kappa = -1$ (locked wheel); the spec bounds $\kappa \ge -0.99$.
+        Singular at $\kappa = -1$ (locked wheel); the maneuvers of `docs/maneuvers.md` bound
+        $\kappa \ge -0.99$.
         """
         one_plus = 1.0 + kappa
         return self.mu_theoretical(-kappa / one_plus, tan_alpha / one_plus)
@@ -90,5 +91,5 @@ class FrictionEllipseTire(AbstractTire):
 
 
 def rally_gravel_tire() -> FrictionEllipseTire:
-    """The maneuver benchmark's gravel tire (../shared/spec/maneuvers.md): B=7, C=1.6, D=0.52."""
+    """The maneuver benchmark's gravel tire (`docs/maneuvers.md`): B=7, C=1.6, D=0.52."""
     return FrictionEllipseTire(B=7.0, C=1.6, D=0.52)

@@ -51,33 +51,32 @@ class AbstractLoadDistribution(eqx.Module):
         return Fn * self.q(zeta / L) / L
 
 
-class PolynomialLoad(AbstractLoadDistribution):
-    r"""$q(\xi) = \sum_k c_k \xi^k$ (eq. 43 in the normalised coordinate), normalised on build.
+def _normalised(owner: str, coefficients) -> Float[Array, " m"]:
+    r"""$c_k / \sum_k c_k/(k+1)$, so that $\int_0^1 q = 1$; checked when concrete."""
+    c = jnp.asarray(coefficients, dtype=float)
+    if c.ndim != 1 or c.shape[0] == 0:
+        raise ValueError(f"{owner}.coefficients must be a non-empty 1-D sequence")
+    if is_concrete(c):
+        cn = np.asarray(c)
+        if not np.all(np.isfinite(cn)):
+            raise ValueError(f"{owner}.coefficients must be finite, got {cn}")
+        total = float(np.sum(cn / np.arange(1, cn.size + 1)))
+        shape = np.polyval(cn[::-1], np.linspace(0.0, 1.0, 201))
+        if total <= 0 or np.any(shape * np.sign(total) < -1e-12):
+            raise ValueError(
+                f"{owner}.coefficients must give a non-negative shape with positive "
+                f"total load on [0, 1], got {cn}"
+            )
+    return c / jnp.sum(c / jnp.arange(1, c.shape[0] + 1))
 
-    **Arguments:**
 
-    - `coefficients`: $c_0, c_1, \dots, c_m$, any overall scale (they are divided by
-      $\sum_k c_k/(k+1)$ so that $\int_0^1 q = 1$). The shape must be non-negative on [0, 1].
+class AbstractPolynomialLoad(AbstractLoadDistribution):
+    r"""$q(\xi) = \sum_k c_k \xi^k$ (eq. 43 in the normalised coordinate), $\int_0^1 q = 1$.
+
+    Subclasses store the normalised `coefficients` $c_0, \dots, c_m$; `q` and `dq` follow.
     """
 
-    coefficients: Float[Array, " m"]
-
-    def __init__(self, coefficients):
-        c = jnp.asarray(coefficients, dtype=float)
-        if c.ndim != 1 or c.shape[0] == 0:
-            raise ValueError("PolynomialLoad.coefficients must be a non-empty 1-D sequence")
-        if is_concrete(c):
-            cn = np.asarray(c)
-            if not np.all(np.isfinite(cn)):
-                raise ValueError(f"PolynomialLoad.coefficients must be finite, got {cn}")
-            total = float(np.sum(cn / np.arange(1, cn.size + 1)))
-            shape = np.polyval(cn[::-1], np.linspace(0.0, 1.0, 201))
-            if total <= 0 or np.any(shape * np.sign(total) < -1e-12):
-                raise ValueError(
-                    "PolynomialLoad.coefficients must give a non-negative shape with positive "
-                    f"total load on [0, 1], got {cn}"
-                )
-        self.coefficients = c / jnp.sum(c / jnp.arange(1, c.shape[0] + 1))
+    coefficients: eqx.AbstractVar[Float[Array, " m"]]
 
     def q(self, xi):
         return jnp.polyval(self.coefficients[::-1], xi)
@@ -88,19 +87,42 @@ class PolynomialLoad(AbstractLoadDistribution):
         return jnp.polyval((c[1:] * k)[::-1], xi) if c.shape[0] > 1 else jnp.zeros_like(xi)
 
 
-def UniformLoad() -> PolynomialLoad:
+class PolynomialLoad(AbstractPolynomialLoad):
+    r"""A user polynomial $q(\xi) = \sum_k c_k \xi^k$, normalised on build.
+
+    **Arguments:**
+
+    - `coefficients`: $c_0, c_1, \dots, c_m$, any overall scale (they are divided by
+      $\sum_k c_k/(k+1)$ so that $\int_0^1 q = 1$). The shape must be non-negative on [0, 1].
+    """
+
+    coefficients: Float[Array, " m"]
+
+    def __init__(self, coefficients):
+        self.coefficients = _normalised("PolynomialLoad", coefficients)
+
+
+class UniformLoad(AbstractPolynomialLoad):
     r"""Uniform load $q(\xi) = 1$ (the case of eqs. 18-19)."""
-    return PolynomialLoad(jnp.array([1.0]))
+
+    coefficients: Float[Array, " 1"]
+
+    def __init__(self):
+        self.coefficients = _normalised("UniformLoad", jnp.array([1.0]))
 
 
-def QuarticLoad() -> PolynomialLoad:
+class QuarticLoad(AbstractPolynomialLoad):
     r"""Quartic load $q(\xi) = \tfrac54\,(1 - (2\xi-1)^4)$: flat in the middle, zero at both edges.
 
     Our reading of the report's "quartic" shape (Fig. 16a); it resembles the measured
     distributions of Fig. 16b (Zomotor 1987).
     """
-    # 1 - (2x-1)^4 expanded: 8x - 24x^2 + 32x^3 - 16x^4
-    return PolynomialLoad(jnp.array([0.0, 8.0, -24.0, 32.0, -16.0]))
+
+    coefficients: Float[Array, " 5"]
+
+    def __init__(self):
+        # 1 - (2x-1)^4 expanded: 8x - 24x^2 + 32x^3 - 16x^4
+        self.coefficients = _normalised("QuarticLoad", jnp.array([0.0, 8.0, -24.0, 32.0, -16.0]))
 
 
 class TrapezoidalLoad(AbstractLoadDistribution):

@@ -30,7 +30,6 @@ from jaxtyping import Array, Float
 from .._checks import check_order, check_positive, check_range
 from .._fields import array_field
 from .._math import safe_abs, safe_div, safe_norm, safe_pow_abs
-from .._results import RESULTS, as_result
 from .base import AbstractTire
 
 
@@ -177,71 +176,3 @@ class AbstractPatchLuGre2D(AbstractTire):
     def forces(self, state, vx, vy, omega, r, Fz):
         mu = self.mu(state, relative_velocity_2d(vx, vy, omega, r), safe_abs(omega * r))
         return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), self.params.L])
-
-
-class Tire2DSolution(eqx.Module):
-    """Result of `simulate_tire_2d`: states and ``(F_x, F_y, M_z)`` at the save times."""
-
-    ts: Float[Array, " T"]
-    state: object
-    forces: Float[Array, "T 3"]
-    result: RESULTS = eqx.field(converter=as_result)
-    num_steps: Array
-
-
-def simulate_tire_2d(
-    model: AbstractTire,
-    ts,
-    vx,
-    vy,
-    omega,
-    r,
-    Fz,
-    state0=None,
-    *,
-    solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 100_000,
-    throw: bool = True,
-) -> Tire2DSolution:
-    r"""Integrate a combined-slip tire driven by $v_x(t), v_y(t), \omega(t)$ (diffrax).
-
-    **Arguments:** `model` (any `AbstractTire`), save times `ts` [s]; `vx`, `vy` [m/s],
-    `omega` [rad/s], `Fz` [N]: constants, samples on `ts` or callables of `t`; `r` [m];
-    `solver` (default `Kvaerno5`: the bristle dynamics are stiff); `throw` as in diffrax.
-
-    **Returns:** a `Tire2DSolution` with `forces[:, k]` = $F_x, F_y, M_z$.
-    """
-    import diffrax as dfx
-    import jax
-
-    from .._signals import as_signal
-
-    ts = jnp.asarray(ts, dtype=float)
-    sig = [as_signal(ts, x) for x in (vx, vy, omega, Fz)]
-    y0 = model.init_state() if state0 is None else state0
-
-    def inputs(t):
-        return tuple(f(t) for f in sig)
-
-    def vector_field(t, y, args):
-        vx_, vy_, om_, fz_ = inputs(t)
-        return model.dynamics(y, vx_, vy_, om_, r, fz_)
-
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field),
-        dfx.Kvaerno5() if solver is None else solver,
-        t0=ts[0], t1=ts[-1], dt0=None, y0=y0,
-        saveat=dfx.SaveAt(ts=ts),
-        stepsize_controller=dfx.PIDController(rtol=rtol, atol=atol),
-        max_steps=max_steps, throw=throw,
-    )
-
-    def force_at(t, y):
-        vx_, vy_, om_, fz_ = inputs(t)
-        return model.forces(y, vx_, vy_, om_, r, fz_)
-
-    forces = jax.vmap(force_at)(ts, sol.ys)
-    return Tire2DSolution(ts=ts, state=sol.ys, forces=forces, result=sol.result,
-                          num_steps=sol.stats["num_steps"])

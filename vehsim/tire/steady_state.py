@@ -63,7 +63,8 @@ def steady_state_mu(params: LuGreParams, load: AbstractLoadDistribution, v, omeg
 
     $$\frac{F_{ss}}{F_n} = \sigma_0\int_0^1 z_{ss}(\xi)\,q(\xi)\,d\xi + \sigma_2 v_r,$$
     by Gauss-Legendre quadrature on panels graded to the boundary layer of thickness $1/k$
-    at the leading edge and split at the load's kinks (accurate to ~1e-12 for any slip).
+    at the leading edge and split at the load's kinks, so that the layer is resolved at any
+    slip.
     """
     v_r, g, c, rolling, k = _rolling_terms(params, v, omega, r)
     edges = _panels(load, k)

@@ -4,8 +4,8 @@ $$m\dot v = F_x,\qquad J\dot\omega = -rF_x - T_b(t)\tanh(\omega/\omega_\epsilon)
   F_x = \mu(\text{tire state}, v, \omega)\,F_n,$$
 
 with the tire any `AbstractLongitudinalTire` (point, lumped or distributed LuGre, or the
-relaxed Magic Formula below) and the normal load $F_n$ constant, relaxing to a
-load-transfer target, or prescribed (e.g. measured). This is the plant of report
+relaxed Magic Formula of `vehsim.tire.relaxed_magic_formula`) and the normal load $F_n$
+constant, relaxing to a load-transfer target, or prescribed (e.g. measured). This is the plant of report
 section 2.2: the brakings of Figs. 10-11 are the response of such a wheel to the brake
 torque. Sign conventions as in `vehsim.tire.lugre`: $F_x<0$ decelerates the car.
 
@@ -28,67 +28,9 @@ from jaxtyping import Array, Float, PyTree
 from .._checks import check_positive, check_range
 from .._constants import GRAVITY
 from .._fields import array_field
-from .._math import safe_abs
 from .._results import RESULTS, as_result
 from .._signals import as_signal
-from ..tire.lugre import AbstractLongitudinalTire, relative_velocity
-
-
-# --------------------------------------------------------------------------------------
-# A longitudinal Magic Formula with a relaxation length (a model family other than LuGre)
-# --------------------------------------------------------------------------------------
-
-
-class MagicFormulaParams(eqx.Module):
-    r"""Longitudinal Magic Formula $\mu(s) = D\sin(C\arctan(Bs - E(Bs - \arctan Bs)))$.
-
-    **Fields:** `B` stiffness factor [-] (> 0), `C` shape factor [-] (> 0), `D` peak
-    friction [-] (> 0), `E` curvature factor [-] ($\le 1$), `relaxation_length`
-    $\sigma_\kappa$ [m] (> 0). Bakker, Nyborg and Pacejka (1987); Pacejka, *Tire and
-    Vehicle Dynamics* (2012), ch. 7 for the relaxation length.
-    """
-
-    B: Float[Array, "*batch"] = array_field(default=12.0)
-    C: Float[Array, "*batch"] = array_field(default=1.65)
-    D: Float[Array, "*batch"] = array_field(default=1.0)
-    E: Float[Array, "*batch"] = array_field(default=0.3)
-    relaxation_length: Float[Array, "*batch"] = array_field(default=0.25)
-
-    def __check_init__(self):
-        owner = "MagicFormulaParams"
-        check_positive(owner, "B", self.B)
-        check_positive(owner, "C", self.C)
-        check_positive(owner, "D", self.D)
-        check_range(owner, "E", self.E, upper=1.0)
-        check_positive(owner, "relaxation_length", self.relaxation_length)
-
-
-def magic_formula(p: MagicFormulaParams, s):
-    r"""$\mu(s) = D\sin(C\arctan(Bs - E(Bs - \arctan Bs)))$ with $s$ the (transient) slip."""
-    bs = p.B * s
-    return p.D * jnp.sin(p.C * jnp.arctan(bs - p.E * (bs - jnp.arctan(bs))))
-
-
-class RelaxedMagicFormula(AbstractLongitudinalTire):
-    r"""Magic Formula driven by a transient slip with relaxation length $\sigma_\kappa$.
-
-    The state $u$ [m] is the carcass deflection,
-    $\dot u = v_r - |v|\,u/\sigma_\kappa$, and the transient slip is $s' = u/\sigma_\kappa$,
-    which tends to $v_r/|v|$ (the braking/driving slip) with time constant $\sigma_\kappa/|v|$;
-    $\mu = \mu_{MF}(s')$. Finite at $v = 0$ (the state is then held).
-    """
-
-    params: MagicFormulaParams
-
-    def init_state(self):
-        return jnp.zeros(())
-
-    def dynamics(self, state, v, omega, r):
-        p = self.params
-        return relative_velocity(v, omega, r) - safe_abs(v) * state / p.relaxation_length
-
-    def mu(self, state, v, omega, r):
-        return magic_formula(self.params, state / self.params.relaxation_length)
+from ..tire.lugre import AbstractLongitudinalTire
 
 
 # --------------------------------------------------------------------------------------
