@@ -55,7 +55,7 @@ def test_z_ss_solves_the_steady_pde(p):
 
 
 def test_road_condition_scales_saturated_friction(p):
-    # at a locked wheel the force is exactly g / theta (spec: "scales roughly as g/theta")
+    # at a locked wheel the force is exactly g / theta (docs/parameters.md: "scales roughly as g/theta")
     for theta in [1.0, 1.25, 2.5]:
         q = eqx.tree_at(lambda m: m.theta, p, jnp.asarray(theta))
         assert np.isclose(vs.braking_mu_uniform(q, -1.0, 20.0) + q.sigma2 * 20.0,

@@ -1,4 +1,4 @@
-"""Reduced half-car (eqs. 61-63) with the spec's quasi-static load transfer."""
+"""Reduced half-car (eqs. 61-63) with the benchmark maneuvers' quasi-static load transfer (docs/maneuvers.md)."""
 
 import jax
 import jax.numpy as jnp

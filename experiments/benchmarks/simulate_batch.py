@@ -38,7 +38,7 @@ its working set stays in cache. The setup line reports the device count; each
 ``simulate_batch.vehsim`` row its devices, chunk size, wall and CPU ratios and the largest
 difference to the single-device results.
 
-``--tire ellipse`` runs the same benchmark with the spec's static friction-ellipse tire
+``--tire ellipse`` runs the same benchmark with the benchmark maneuvers' static friction-ellipse tire
 (12 states, not stiff) for comparison.
 
     PYTHONPATH=. python experiments/benchmarks/simulate_batch.py [--scenarios 1024]
@@ -105,7 +105,7 @@ def scenarios(n, seed=0):
 
 TIRES = {
     "lugre": lambda: IsotropicLumpedLuGre(cdc1999(), kappa0=1.0),  # dynamic: 16 states
-    "ellipse": rally_gravel_tire,  # the spec's static friction-ellipse MF: 12 states
+    "ellipse": rally_gravel_tire,  # the maneuvers' static friction-ellipse MF: 12 states
 }
 CAR = HalfCar(rally_gravel(), TIRES["lugre"]())
 
@@ -233,7 +233,7 @@ def main():
     ap.add_argument("--scenarios", type=int, default=1024)
     ap.add_argument("--tire", choices=sorted(TIRES), default="lugre",
                     help="lugre: dynamic isotropic lumped LuGre (the benchmark); ellipse: the "
-                         "spec's static friction-ellipse MF (for comparison)")
+                         "the maneuvers' static friction-ellipse MF (for comparison)")
     ap.add_argument("--baseline-scenarios", type=int, default=48)
     ap.add_argument("--reference-scenarios", type=int, default=16)
     ap.add_argument("--target-error", type=float, default=3e-5,
