@@ -45,11 +45,8 @@ from vehsim.tire.relaxed_magic_formula import (  # noqa: E402
     MagicFormulaParams,
     RelaxedMagicFormula,
 )
-from vehsim.vehicle.quarter_car import (  # noqa: E402
-    LoadRelaxation,
-    QuarterCar,
-    simulate_quarter_car,
-)
+from vehsim.vehicle.normal_load import LoadRelaxation  # noqa: E402
+from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car  # noqa: E402
 
 
 OUT = Path(__file__).resolve().parent.parent / "vehsim" / "data" / "brakings"

@@ -39,12 +39,8 @@ from vehsim.identify.sensitivities import open_loop_sensitivities
 from vehsim.params import table3
 from vehsim.tire.lugre import LuGreParams, LumpedLuGre, decay_rate
 from vehsim.tire.transient import simulate_tire
-from vehsim.vehicle.quarter_car import (
-    LoadRelaxation,
-    PrescribedLoad,
-    QuarterCar,
-    simulate_quarter_car,
-)
+from vehsim.vehicle.normal_load import LoadRelaxation, PrescribedLoad
+from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car
 
 
 TRUTH = LumpedLuGre(table3(), kappa0=1.3)

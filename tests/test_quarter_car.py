@@ -10,17 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim._constants import GRAVITY
 from vehsim.params import table3
 from vehsim.tire.lugre import LumpedLuGre, stribeck
 from vehsim.tire.magic_formula import magic_formula
 from vehsim.tire.relaxed_magic_formula import MagicFormulaParams, RelaxedMagicFormula
-from vehsim.vehicle.quarter_car import (
-    GRAVITY,
-    LoadRelaxation,
-    PrescribedLoad,
-    QuarterCar,
-    simulate_quarter_car,
-)
+from vehsim.vehicle.normal_load import LoadRelaxation, PrescribedLoad
+from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car
 
 
 TS = jnp.linspace(0.0, 1.0, 101)

@@ -123,10 +123,13 @@ from .tire.transient import (
     simulate_tire as simulate_tire,
     simulate_tire_2d as simulate_tire_2d,
 )
-from .vehicle.quarter_car import (
+from .vehicle.normal_load import (
+    AbstractNormalLoad as AbstractNormalLoad,
     ConstantLoad as ConstantLoad,
     LoadRelaxation as LoadRelaxation,
     PrescribedLoad as PrescribedLoad,
+)
+from .vehicle.quarter_car import (
     QuarterCar as QuarterCar,
     simulate_quarter_car as simulate_quarter_car,
 )

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..tire.lugre import LumpedLuGre
-from ..vehicle.quarter_car import PrescribedLoad, QuarterCar, simulate_quarter_car
+from ..vehicle.normal_load import PrescribedLoad
+from ..vehicle.quarter_car import QuarterCar, simulate_quarter_car
 from .base import AbstractBrakingModel
 from .braking import BrakingData
 from .friction_state import steady_friction_state

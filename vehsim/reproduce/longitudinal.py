@@ -55,21 +55,30 @@ def _fig7(ctx, p):
              "grows, the velocity dependence the report stresses.", *rows)
 
 
-def _transient(ctx, p):
-    import matplotlib.pyplot as plt
+def _braking_ramp():
+    """Emergency braking at 25 m/s: slip ramps to -0.5 in 0.3 s, held, released at 0.7 s;
+    returns v(t), the slip s(t) and omega(t)."""
+    def v_fn(t):
+        return 25.0 - 6.0 * t
 
-    # Emergency-braking ramp: slip ramps to -0.5 in 0.3 s, held, released at 0.7 s.
-    v_fn = lambda t: 25.0 - 6.0 * t
-    slip = lambda t: -0.5 * jnp.clip(t / 0.3, 0.0, 1.0) * (1.0 - jnp.clip((t - 0.7) / 0.2, 0, 1))
-    om_fn = lambda t: v_fn(t) * (1.0 + slip(t)) / R
+    def slip(t):
+        return -0.5 * jnp.clip(t / 0.3, 0.0, 1.0) * (1.0 - jnp.clip((t - 0.7) / 0.2, 0, 1))
+
+    def om_fn(t):
+        return v_fn(t) * (1.0 + slip(t)) / R
+
+    return v_fn, slip, om_fn
+
+
+def _transient(ctx, p):
+    v_fn, slip, om_fn = _braking_ramp()
     ts = jnp.linspace(0.0, 1.2, 241 if ctx.quick else 1201)
     n = 32 if ctx.quick else 64
     dist = DistributedLuGre(p, UniformLoad(), n=n)
-    distq = DistributedLuGre(p, QuarticLoad(), n=n)
     models = {
         "point (eqs. 8-9)": PointLuGre(p),
         "distributed, uniform (eq. 14)": dist,
-        "distributed, quartic (eq. 14)": distq,
+        "distributed, quartic (eq. 14)": DistributedLuGre(p, QuarticLoad(), n=n),
         r"lumped $\kappa_0$ = 1 (eq. 25)": LumpedLuGre(p, 1.0),
         r"lumped $\kappa_0$ = 2 (eq. 25)": LumpedLuGre(p, 2.0),
     }
@@ -77,10 +86,31 @@ def _transient(ctx, p):
     for name, m in models.items():
         ctx.log(f"transient: {name}")
         out[name] = np.asarray(jax.jit(lambda m: simulate_tire(m, ts, v_fn, om_fn, R).mu)(m))
+    z, mu_exact = _exact_kappa_lumped(ctx, p, dist, ts, v_fn, om_fn)
+    ref = out["distributed, uniform (eq. 14)"]
+    peak = float(np.max(np.abs(ref)))
+    errs = {k: float(np.max(np.abs(v - ref)) / peak) for k, v in out.items()}
+    errs[r"lumped, exact $\kappa(t)$ (eq. 24)"] = float(
+        np.max(np.abs(np.asarray(mu_exact) - ref))) / peak
+    ctx.figure(_transient_figure(p, dist, ts, out, mu_exact, z, slip, v_fn),
+               "longitudinal_transient",
+               "Braking ramp at 25 m/s (slip to -0.5 in 0.3 s, released at 0.7 s), Table 3 "
+               "parameters: point, distributed and lumped LuGre models.")
+    ctx.record("transient_max_error_vs_distributed_uniform", errs)
+    rows = ["| model | max abs error / peak |", "|---|---|"]
+    rows += [f"| {k} | {v:.2e} |" for k, v in errs.items()]
+    ctx.text("Force error along the transient, relative to the peak force of the distributed "
+             "model (uniform load). The lumped model with the exact kappa(t) of eq. 24 is the "
+             "PDE's own average, so it agrees to solver tolerance. The point model keeps its "
+             "force after release: at v_r = 0 its bristle has no way to relax, whereas in the "
+             "distributed model the rolling patch carries the deflected rubber out.", *rows)
 
-    # Lumped model with the exact kappa(t) of eq. 24, integrated alongside the PDE. kappa is
-    # K/zbar, singular where zbar crosses zero (at release), so the transport term
-    # kappa(t) |w r| zbar is integrated in its product form |w r| K(t) / L.
+
+def _exact_kappa_lumped(ctx, p, dist, ts, v_fn, om_fn):
+    """The lumped model with the exact kappa(t) of eq. 24, integrated alongside the PDE;
+    returns the PDE states and the lumped force. kappa is K/zbar, singular where zbar
+    crosses zero (at release), so the transport term kappa(t) |w r| zbar is integrated in
+    its product form |w r| K(t) / L."""
     def field(t, y, args):
         z, zbar = y
         v, w = v_fn(t), om_fn(t)
@@ -96,15 +126,14 @@ def _transient(ctx, p):
                           max_steps=100_000)
     z, zbar = sol.ys
     ctx.log(f"exact-kappa lumped + PDE: {int(sol.stats['num_steps'])} steps")
-    kap = jax.vmap(dist.kappa)(z)
     dzbar = jax.vmap(lambda t, zz, zb: field(t, (zz, zb), None)[1])(ts, z, zbar)
     v_r_t = R * jax.vmap(om_fn)(ts) - jax.vmap(v_fn)(ts)
-    mu_exact = p.sigma0 * zbar + p.sigma1 * dzbar + p.sigma2 * v_r_t
-    ref = out["distributed, uniform (eq. 14)"]
-    err_exact = float(np.max(np.abs(np.asarray(mu_exact) - ref)))
-    peak = float(np.max(np.abs(ref)))
-    errs = {k: float(np.max(np.abs(v - ref)) / peak) for k, v in out.items()}
-    errs[r"lumped, exact $\kappa(t)$ (eq. 24)"] = err_exact / peak
+    return z, p.sigma0 * zbar + p.sigma1 * dzbar + p.sigma2 * v_r_t
+
+
+def _transient_figure(p, dist, ts, out, mu_exact, z, slip, v_fn):
+    """Force histories, the force-slip plane (hysteresis) and the exact kappa(t) L."""
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for name, mu in out.items():
@@ -121,6 +150,7 @@ def _transient(ctx, p):
     axes[1].set(xlabel="braking slip |s|", ylabel=r"$-F/F_n$",
                 title="the same in the force-slip plane: hysteresis")
     axes[1].legend(fontsize=7)
+    kap = jax.vmap(dist.kappa)(z)
     zb = np.asarray(jax.vmap(dist.mean_deflection)(z))
     shown = np.abs(zb) > 0.02 * np.max(np.abs(zb))
     axes[2].plot(np.asarray(ts)[shown], (np.asarray(kap) * p.L)[shown], ".", ms=2)
@@ -131,17 +161,7 @@ def _transient(ctx, p):
     axes[2].legend()
     for ax in axes:
         ax.grid(alpha=0.3)
-    ctx.figure(fig, "longitudinal_transient",
-               "Braking ramp at 25 m/s (slip to -0.5 in 0.3 s, released at 0.7 s), Table 3 "
-               "parameters: point, distributed and lumped LuGre models.")
-    ctx.record("transient_max_error_vs_distributed_uniform", errs)
-    rows = ["| model | max abs error / peak |", "|---|---|"]
-    rows += [f"| {k} | {v:.2e} |" for k, v in errs.items()]
-    ctx.text("Force error along the transient, relative to the peak force of the distributed "
-             "model (uniform load). The lumped model with the exact kappa(t) of eq. 24 is the "
-             "PDE's own average, so it agrees to solver tolerance. The point model keeps its "
-             "force after release: at v_r = 0 its bristle has no way to relax, whereas in the "
-             "distributed model the rolling patch carries the deflected rubber out.", *rows)
+    return fig
 
 
 def _kappa0(ctx, p):

@@ -42,9 +42,6 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    from ..optimal.primitive import solution_record
-    from ..optimal.primitives import max_exit_primitive, min_time_primitive, point_mass_bound
-
     segments = 50 if ctx.quick else 150
     problems = PROBLEMS[:1] if ctx.quick else PROBLEMS
     # several point-mass seeds (corridor margin, friction fraction): the problems have several
@@ -62,46 +59,55 @@ def reproduce(ctx) -> None:
             "corridor viol. [m] | BC viol. | iterations | solve [s] |",
             "|---|---|---|---|---|---|---|---|---|---|"]
     for road, objective, panel in problems:
-        ctx.log(f"{road} {objective} ({segments} segments)")
-        opts = IPOptions(max_iter=500)
-        t0 = time.perf_counter()
-        if objective == "min-time":
-            prim = min_time_primitive(road, num_stages=segments, steps_per_stage=1,
-                                      options=opts, starts=starts, throw=False)
-        else:
-            prim = max_exit_primitive(road, num_stages=segments, steps_per_stage=1,
-                                      options=opts, starts=starts, throw=False)
-        wall = time.perf_counter() - t0
-        bound = point_mass_bound(road, objective, num_stages=segments, steps_per_stage=1,
-                                 throw=False)
-        rec = solution_record(prim, bound)
-        tech = techniques(prim.signals(), np.asarray(prim.time()))
-        key = f"{road}_{objective}"
-        ctx.record(key, {k: rec[k] for k in ("t_f", "exit_speed", "status", "iterations",
-                                             "violations", "point_mass_t_f",
-                                             "point_mass_exit_speed", "t_f_over_bound")}
-                   | {"techniques": tech, "wall_time_s": wall})
-        b = rec["point_mass_t_f"] if objective == "min-time" else rec["point_mass_exit_speed"]
-        ratio = (rec["t_f"] / b) if objective == "min-time" else (rec["exit_speed"] / b)
-        rows.append(
-            f"| {road} {objective} | {rec['message']} | {rec['t_f']:.3f} | "
-            f"{rec['exit_speed']:.2f} | {b:.3f} | {ratio:.3f} | "
-            f"{rec['violations']['corridor']:.1e} | {rec['violations']['boundary']:.1e} | "
-            f"{rec['iterations']} | {wall:.1f} |"
-        )
-        fig = primitive_figure(prim, title=f"({panel}) {road}, {objective}: t_f = {rec['t_f']:.3f} s")
-        ctx.figure(fig, f"fig20{panel}_{key}",
-                   f"Fig. 20({panel}): {road}, {objective}; car outline every 0.3 s, "
-                   "speed, sideslip, slips, steering.")
-        if (road, objective) == ("corner90", "min-time"):
-            _replay_section(ctx, prim)
-        ctx.text(
-            f"{road} {objective}: trail braking {tech['trail_braking_s']:.2f} s, rear slip "
-            f"below -0.5 for {tech['rear_locking_s']:.2f} s (min kappa_R "
-            f"{tech['min_kappa_R']:.2f}), opposite-sign axle slips (left-foot braking) "
-            f"{tech['left_foot_braking_s']:.2f} s, max sideslip {tech['max_sideslip_deg']:.1f} deg."
-        )
+        rows.append(_problem(ctx, road, objective, panel, segments, starts))
     ctx.text(*rows)
+
+
+def _problem(ctx, road: str, objective: str, panel: str, segments: int, starts) -> str:
+    """Solve one benchmark problem, draw its Fig. 20 panel, record it; returns its table row."""
+    from ..optimal.primitive import solution_record
+    from ..optimal.primitives import max_exit_primitive, min_time_primitive, point_mass_bound
+
+    ctx.log(f"{road} {objective} ({segments} segments)")
+    opts = IPOptions(max_iter=500)
+    t0 = time.perf_counter()
+    if objective == "min-time":
+        prim = min_time_primitive(road, num_stages=segments, steps_per_stage=1,
+                                  options=opts, starts=starts, throw=False)
+    else:
+        prim = max_exit_primitive(road, num_stages=segments, steps_per_stage=1,
+                                  options=opts, starts=starts, throw=False)
+    wall = time.perf_counter() - t0
+    bound = point_mass_bound(road, objective, num_stages=segments, steps_per_stage=1,
+                             throw=False)
+    rec = solution_record(prim, bound)
+    tech = techniques(prim.signals(), np.asarray(prim.time()))
+    key = f"{road}_{objective}"
+    ctx.record(key, {k: rec[k] for k in ("t_f", "exit_speed", "status", "iterations",
+                                         "violations", "point_mass_t_f",
+                                         "point_mass_exit_speed", "t_f_over_bound")}
+               | {"techniques": tech, "wall_time_s": wall})
+    b = rec["point_mass_t_f"] if objective == "min-time" else rec["point_mass_exit_speed"]
+    ratio = (rec["t_f"] / b) if objective == "min-time" else (rec["exit_speed"] / b)
+    row = (
+        f"| {road} {objective} | {rec['message']} | {rec['t_f']:.3f} | "
+        f"{rec['exit_speed']:.2f} | {b:.3f} | {ratio:.3f} | "
+        f"{rec['violations']['corridor']:.1e} | {rec['violations']['boundary']:.1e} | "
+        f"{rec['iterations']} | {wall:.1f} |"
+    )
+    fig = primitive_figure(prim, title=f"({panel}) {road}, {objective}: t_f = {rec['t_f']:.3f} s")
+    ctx.figure(fig, f"fig20{panel}_{key}",
+               f"Fig. 20({panel}): {road}, {objective}; car outline every 0.3 s, "
+               "speed, sideslip, slips, steering.")
+    if (road, objective) == ("corner90", "min-time"):
+        _replay_section(ctx, prim)
+    ctx.text(
+        f"{road} {objective}: trail braking {tech['trail_braking_s']:.2f} s, rear slip "
+        f"below -0.5 for {tech['rear_locking_s']:.2f} s (min kappa_R "
+        f"{tech['min_kappa_R']:.2f}), opposite-sign axle slips (left-foot braking) "
+        f"{tech['left_foot_braking_s']:.2f} s, max sideslip {tech['max_sideslip_deg']:.1f} deg."
+    )
+    return row
 
 
 def _replay_section(ctx, prim) -> None:
