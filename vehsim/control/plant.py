@@ -1,0 +1,129 @@
+r"""The braked quarter car between two control samples, and a surface change along the road.
+
+The plant is `vehsim.QuarterCar` (constant load by default) with the brake torque of the
+actuator (`vehsim.control.hardware`), plus the distance travelled $x$ and the wheel angle
+$\varphi$ (for the tone wheel), one flat state
+$$y = (x,\ v,\ \omega,\ F_n,\ \bar z,\ \varphi),\qquad \dot x = v,\quad \dot\varphi = \omega.$$
+Between samples it is integrated by fixed sub-steps of `vehsim.ROS34PW2`, linearly implicit in
+the stiff block $(v, \omega, \bar z)$ (the bristle decay reaches $10^5$ 1/s on a sliding
+wheel on ice; the tire damping through the wheel inertia, $r^2\sigma_1F_n/J$, $10^3$ 1/s).
+The tire in effect is chosen at the start of each sub-step: the `SurfaceChange` tire from the
+first sub-step at which the distance or the time has reached the change.
+"""
+
+from __future__ import annotations
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float
+
+from .._fields import array_field
+from ..solvers import ROS34PW2
+from ..tire.lugre import AbstractLongitudinalTire
+from ..vehicle.quarter_car import QuarterCar
+from .hardware import BrakeHardware, brake_torque
+from .sensors import EncoderState, count_edges
+
+
+class SurfaceChange(eqx.Module):
+    r"""The road changes to `tire` (a tire of the same kind on the new surface) once the
+    distance travelled reaches `distance` [m] or the time reaches `time` [s] (either may be
+    `inf`: never)."""
+
+    tire: AbstractLongitudinalTire
+    distance: Float[Array, ""] = array_field(default=float("inf"))
+    time: Float[Array, ""] = array_field(default=float("inf"))
+
+    def __check_init__(self):
+        for name in ("distance", "time"):
+            value = getattr(self, name)
+            if not isinstance(value, jax.core.Tracer) and np.any(np.asarray(value) < 0):
+                raise ValueError(f"SurfaceChange.{name} must lie in [0, inf], got {value}")
+
+
+class BrakingScenario(eqx.Module):
+    """A braking: the quarter car `car` (its tire on the first surface), the initial speed
+    `speed` [m/s] (> 0, free rolling), and the `change` of surface (default: none)."""
+
+    car: QuarterCar
+    speed: Float[Array, ""] = array_field()
+    change: SurfaceChange | None = None
+
+    def __post_init__(self):
+        if self.change is None:
+            self.change = SurfaceChange(self.car.tire)
+
+    def __check_init__(self):
+        if not isinstance(self.speed, jax.core.Tracer) and np.any(np.asarray(self.speed) <= 0):
+            raise ValueError(f"BrakingScenario.speed must lie in (0, inf), got {self.speed}")
+        a = jax.tree_util.tree_structure(self.car.tire)
+        b = jax.tree_util.tree_structure(self.change.tire)
+        if a != b:
+            raise ValueError("BrakingScenario.change.tire must be the same kind of tire as "
+                             "car.tire")
+
+    def tire_at(self, t, x) -> AbstractLongitudinalTire:
+        """The tire in effect at time `t` after travelling `x`."""
+        changed = (x >= self.change.distance) | (t >= self.change.time)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(changed, b, a), self.car.tire,
+                                      self.change.tire)
+
+
+def braking_quarter_car(tire: AbstractLongitudinalTire, mass=350.0, inertia=1.0,
+                        radius=0.3) -> QuarterCar:
+    """The quarter car of the braking scenarios: a quarter of a 1400 kg car on a wheel of
+    1 kg m^2 and 0.3 m radius (values of the order used by Savaresi and Tanelli 2010)."""
+    return QuarterCar(tire, mass=mass, inertia=inertia, radius=radius)
+
+
+def initial_plant_state(scenario: BrakingScenario) -> Float[Array, " n"]:
+    """Free rolling at the scenario's speed, undeflected tire, at the origin."""
+    qs = scenario.car.init_state(scenario.speed)
+    return ravel_pytree((jnp.zeros(()), qs, jnp.zeros(())))[0]
+
+
+def unpack(scenario: BrakingScenario, y):
+    """``(x, QuarterCarState, phi)`` of the flat state `y`."""
+    return ravel_pytree((jnp.zeros(()), scenario.car.init_state(1.0), jnp.zeros(())))[1](y)
+
+
+def _stiff_block(scenario: BrakingScenario) -> tuple[int, ...]:
+    n_tire = ravel_pytree(scenario.car.tire.init_state())[0].shape[0]
+    return (1, 2) + tuple(range(4, 4 + n_tire))
+
+
+def _vector_field(t, y, args):
+    scenario, tire, hw, torque0, target, t_sample = args
+    x, qs, phi = unpack(scenario, y)
+    car = eqx.tree_at(lambda c: c.tire, scenario.car, tire)
+    rates = car.dynamics(t, qs, brake_torque(hw, torque0, target, t - t_sample))
+    return ravel_pytree((qs.v, rates, qs.omega))[0]
+
+
+def advance(scenario: BrakingScenario, hw: BrakeHardware, y, enc: EncoderState, t_sample,
+            torque0, target, substeps: int):
+    """Integrate the plant over one sample from `t_sample` under the brake torque that
+    starts at `torque0` and lags towards `target`, counting tone-wheel edges.
+
+    **Returns:** the state and the encoder state at the next sample.
+    """
+    h = hw.sample_time / substeps
+    solver = ROS34PW2((_stiff_block(scenario),))
+    term = dfx.ODETerm(_vector_field)
+    phi_index = y.shape[0] - 1
+
+    def sub(carry, j):
+        y, enc = carry
+        t0 = t_sample + j * h
+        x = unpack(scenario, y)[0]
+        args = (scenario, scenario.tire_at(t0, x), hw, torque0, target, t_sample)
+        y1 = solver.step(term, t0, t0 + h, y, args, None, False)[0]
+        enc = count_edges(hw, enc, t0, h, y[phi_index], y1[phi_index])
+        return (y1, enc), None
+
+    (y, enc), _ = jax.lax.scan(sub, (y, enc), jnp.arange(substeps))
+    return y, enc
