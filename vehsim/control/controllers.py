@@ -12,9 +12,11 @@ full torque): there slip measurement is poor and a locked wheel costs little dis
 - `SlipTracking`: the wheel held at a fixed target slip $s^*$ by the torque that would hold
   it there on the estimated road plus PI feedback,
   $T_c = T_{ff} + K_pe + I$, $\dot I = K_ie$, on the error in wheel peripheral speed
-  $e = e_{max}\tanh\bigl((r\hat\omega - (1 + s^*)\hat v)/e_{max}\bigr)$ [m/s] (so that the
-  gains do not change with speed; saturated smoothly at $e_{max}$ = 1 m/s, so that the
-  feedback corrects the feedforward rather than overriding it at the onset), with
+  $\epsilon = r\hat\omega - (1 + s^*)\hat v$ [m/s] (so that the gains do not change with
+  speed), taken as $e = e_{max}\tanh(\epsilon/e_{max})$ when the wheel is too fast
+  ($\epsilon > 0$, saturating at $e_{max}$ = 1 m/s, so that the feedback corrects the
+  feedforward rather than overriding it at the onset) and $e = \epsilon$ when it slips too
+  much (a wheel running away past the peak is pulled back at full gain), with
   $T_{ff} = \hat\mu(s^*)F_n\,(r + J(1+s^*)/(mr))$, $\hat\mu$ eq. 19 at $\hat\theta$ and
   $\hat v$: the brake torque that balances the friction torque and decelerates the wheel
   with the car ($J\dot\omega = -rF - T_b$, $\dot\omega = (1+s^*)\dot v/r$, $m\dot v = F$).
@@ -142,8 +144,9 @@ ERROR_SCALE = 1.0
 
 
 class AbstractSlipTracking(AbstractBrakeController):
-    r"""PI control of the wheel peripheral speed to $(1 + s^*)\hat v$ (module docstring),
-    the integral clamped to $[0, T_{max}]$ (anti-windup)."""
+    r"""PI control of the wheel peripheral speed to $(1 + s^*)\hat v$ around the feedforward
+    (module docstring), the integral clamped to $[-T_{ff}, T_{max} - T_{ff}]$ (anti-windup:
+    it never asks for a torque the actuator cannot give)."""
 
     kp: eqx.AbstractVar[Float[Array, ""]]
     ki: eqx.AbstractVar[Float[Array, ""]]
@@ -161,8 +164,9 @@ class AbstractSlipTracking(AbstractBrakeController):
         r = car.radius
         feedforward = mu_target * car.Fn_static * (r + car.inertia * (1.0 + s_target) / (
             car.mass * r))
-        e = ERROR_SCALE * jnp.tanh((r * m.omega - (1.0 + s_target) * m.v) / ERROR_SCALE)
-        integral = jnp.clip(state + self.ki * e * dt, -max_torque, max_torque)
+        eps = r * m.omega - (1.0 + s_target) * m.v
+        e = jnp.where(eps > 0, ERROR_SCALE * jnp.tanh(eps / ERROR_SCALE), eps)
+        integral = jnp.clip(state + self.ki * e * dt, -feedforward, max_torque - feedforward)
         torque = jnp.clip(feedforward + integral + self.kp * e, 0.0, max_torque)
         return integral, torque, jnp.zeros((), int)
 

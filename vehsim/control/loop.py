@@ -19,7 +19,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from .controllers import AbstractBrakeController, measurement
 from .hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
-from .observer import FrictionObserver
+from .observer import FrictionObserver, ObserverState
 from .plant import BrakingScenario, advance, initial_plant_state, unpack
 from .sensors import EncoderState, vehicle_speed, wheel_speed
 
@@ -46,37 +46,78 @@ class BrakingRun(eqx.Module):
         return self.signals[name]
 
 
-def _sample(scenario, controller, observer, hw, key, substeps, save, handback, carry, k):
-    y, enc, act, obs, ctrl, prev, stop = carry
-    car, T = scenario.car, hw.sample_time
+class LoopState(eqx.Module):
+    """Everything a run carries from sample to sample except the controller's own state:
+    the plant state `y`, the encoder, the actuator, the observer, the last measured wheel
+    speed with the actuator's torque and target over the last sample (`previous`), and the
+    stop record (distance, time)."""
+
+    y: Array
+    encoder: EncoderState
+    actuator: ActuatorState
+    observer: ObserverState
+    previous: tuple
+    stop: tuple
+
+
+def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardware):
+    y0 = initial_plant_state(scenario)
+    qs = unpack(scenario, y0)[1]
+    inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
+    z = jnp.zeros((), y0.dtype)
+    return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
+                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf))
+
+
+def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
+    """Measure, update the observer: ``(state, Measurement, signals to save)``."""
+    T = hw.sample_time
     t = k * T
-    x, qs, _ = unpack(scenario, y)
-    omega_m, stamp, fresh, enc = wheel_speed(hw, enc, t, qs.omega)
+    qs = unpack(scenario, st.y)[1]
+    omega_m, stamp, fresh, enc = wheel_speed(hw, st.encoder, t, qs.omega)
     v_m = vehicle_speed(hw, key, k, qs.v)
-    omega_prev, torque_prev, target_prev = prev
+    omega_prev, torque_prev, target_prev = st.previous
     obs = jax.lax.cond(
-        k > 0, lambda o: observer.update(o, car, hw, substeps, v_m, omega_m, stamp, fresh,
-                                         torque_prev, target_prev, t - T),
-        lambda o: o, obs)
-    m = measurement(omega_m, obs.v, omega_prev, car.radius, T)
-    ctrl, cmd, phase = controller.command(ctrl, m, obs.theta, observer.model, car, T,
-                                          hw.max_torque)
-    cmd = jnp.where(obs.v < handback, hw.max_torque, cmd)
-    act, target = actuator_target(hw, act, k, cmd)
-    prev = (omega_m, act.torque, target)
-    y1, enc = advance(scenario, hw, y, enc, t, act.torque, target, substeps)
-    torque = act.torque
+        k > 0, lambda o: observer.update(o, scenario.car, hw, substeps, v_m, omega_m, stamp,
+                                         fresh, torque_prev, target_prev, t - T),
+        lambda o: o, st.observer)
+    m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
+    seen = dict(v_meas=v_m, omega_meas=omega_m, v_hat=obs.v, theta_hat=obs.theta,
+                innovation=obs.innovation)
+    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop)
+    return st, m, seen
+
+
+def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
+    """Actuate and integrate the plant to the next sample: ``(state, signals to save)``."""
+    T = hw.sample_time
+    t = k * T
+    cmd = jnp.where(st.observer.v < handback, hw.max_torque, cmd)
+    act, target = actuator_target(hw, st.actuator, k, cmd)
+    y1, enc = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
+    out = _signals(scenario, st.y, t, act.torque, cmd, phase) if save else None
+    previous = (st.previous[0], act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
-    stop = _stop(stop, scenario, y, y1, t, T)
-    out = None
-    if save:
-        tire = scenario.tire_at(t, x)
-        mu = tire.mu(qs.tire, qs.v, qs.omega, car.radius)
-        slip = qs.omega * car.radius / jnp.maximum(qs.v, 1e-9) - 1.0
-        out = dict(ts=t, x=x, v=qs.v, omega=qs.omega, slip=slip, mu=mu, torque=torque,
-                   command=cmd, phase=phase, v_meas=v_m, omega_meas=omega_m, v_hat=obs.v,
-                   theta_hat=obs.theta, innovation=obs.innovation)
-    return (y1, enc, act, obs, ctrl, prev, stop), out
+    stop = _stop(st.stop, scenario, st.y, y1, t, T)
+    return LoopState(y1, enc, act, st.observer, previous, stop), out
+
+
+def _signals(scenario, y, t, torque, cmd, phase):
+    x, qs, _ = unpack(scenario, y)
+    r = scenario.car.radius
+    mu = scenario.tire_at(t, x).mu(qs.tire, qs.v, qs.omega, r)
+    slip = qs.omega * r / jnp.maximum(qs.v, 1e-9) - 1.0
+    return dict(ts=t, x=x, v=qs.v, omega=qs.omega, slip=slip, mu=mu, torque=torque,
+                command=cmd, phase=phase)
+
+
+def _sample(scenario, controller, observer, hw, key, substeps, save, handback, carry, k):
+    st, ctrl = carry
+    st, m, seen = _sense(scenario, observer, hw, substeps, key, st, k)
+    ctrl, cmd, phase = controller.command(ctrl, m, st.observer.theta, observer.model,
+                                          scenario.car, hw.sample_time, hw.max_torque)
+    st, out = _move(scenario, hw, substeps, handback, save, st, k, cmd, phase)
+    return (st, ctrl), (out | seen if save else None)
 
 
 def _stop(stop, scenario, y0, y1, t, T):
@@ -95,18 +136,15 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
                 handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
     jit, vmap over scenarios, keys and array fields, grad with respect to any of them)."""
-    y0 = initial_plant_state(scenario)
-    qs = unpack(scenario, y0)[1]
-    inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
-    carry0 = (y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
-              observer.init(qs.omega, qs.v), controller.init(hw.max_torque),
-              (qs.omega, jnp.zeros(()), jnp.zeros(())), (inf, inf))
+    carry0 = (_init(scenario, observer, hw), controller.init(hw.max_torque))
     step = ft.partial(_sample, scenario, controller, observer, hw, key, substeps, save,
-                      jnp.asarray(handback_speed, dtype=y0.dtype))
-    step = jax.checkpoint(step, static_argnums=())
-    carry, out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
-    stop = carry[6]
-    return BrakingRun(stop[0], stop[1], unpack(scenario, carry[0])[1].v, out)
+                      jnp.asarray(handback_speed, dtype=float))
+    (st, _), out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
+    return _run(scenario, st, out)
+
+
+def _run(scenario, st: LoopState, out) -> BrakingRun:
+    return BrakingRun(st.stop[0], st.stop[1], unpack(scenario, st.y)[1].v, out)
 
 
 @eqx.filter_jit
@@ -137,3 +175,71 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
     n_steps = int(round(duration / float(hw.sample_time)))
     return _simulate(scenario, controller, observer, hw, key, n_steps, int(substeps),
                      bool(save), jnp.asarray(handback_speed, dtype=float))
+
+
+def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, handback, carry,
+               k):
+    """One sample of every run: sense and move vmapped over all runs, each controller's
+    law vmapped over its own group only (a `lax.switch` on a batched index would evaluate
+    every law for every run)."""
+    st, ctrls = carry
+    st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
+        scenarios, observers, keys, st)
+    M = keys.shape[0] // len(controllers)
+    cmds, phases, new_ctrls = [], [], []
+    for g, controller in enumerate(controllers):
+        part = slice(g * M, (g + 1) * M)
+        take = ft.partial(jax.tree_util.tree_map, lambda a: a[part])
+        ctrl, cmd, phase = jax.vmap(
+            lambda c, mm, th, ob, sc: controller.command(c, mm, th, ob.model, sc.car,
+                                                         hw.sample_time, hw.max_torque))(
+            ctrls[g], take(m), st.observer.theta[part], take(observers), take(scenarios))
+        new_ctrls.append(ctrl)
+        cmds.append(cmd)
+        phases.append(jnp.broadcast_to(phase, cmd.shape))
+    st, out = jax.vmap(lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
+        scenarios, st, jnp.concatenate(cmds), jnp.concatenate(phases))
+    return (st, tuple(new_ctrls)), (out | seen if save else None)
+
+
+@eqx.filter_jit
+def _grid(scenarios, controllers, observers, hw, keys, n_steps, substeps, save, handback):
+    G = len(controllers)
+    tile = ft.partial(jax.tree_util.tree_map, lambda a: jnp.concatenate([a] * G))
+    scenarios, observers, keys = tile(scenarios), tile(observers), tile(keys)
+    st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
+    M = keys.shape[0] // G
+    ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
+    step = ft.partial(_grid_step, scenarios, controllers, observers, hw, keys, substeps, save,
+                      handback)
+    (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
+    if save:  # scan stacks time first
+        out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
+    run = jax.vmap(_run)(scenarios, st, out)
+    return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
+
+
+def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+                          keys, hardware: BrakeHardware | None = None, duration: float = 5.0,
+                          substeps: int = 4, save: bool = False,
+                          handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
+    """Every controller on every run, in one jitted call.
+
+    **Arguments:** `scenarios`, `observers` and `keys` with a leading axis of M runs (stack
+    them with `stack`), `controllers` (C of them, each with its own code), `hardware`,
+    `duration`, `substeps`, `save` (keep the signals: memory grows as C x M x samples),
+    `handback_speed`.
+
+    **Returns:** a `BrakingRun` whose fields have leading axes (C, M).
+    """
+    from .hardware import realistic_hardware
+
+    hw = realistic_hardware() if hardware is None else hardware
+    n_steps = int(round(duration / float(hw.sample_time)))
+    return _grid(scenarios, tuple(controllers), observers, hw, keys, n_steps, int(substeps),
+                 bool(save), jnp.asarray(handback_speed, dtype=float))
+
+
+def stack(items):
+    """A batch (leading axis) of modules of the same structure, e.g. scenarios."""
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)

@@ -14,11 +14,13 @@ $\theta$ is adapted from the wheel-speed innovation. Per sample $k$ (period $T$)
    the last tone-wheel edge interval, `vehsim.control.sensors`; linear between sub-steps);
 2. *adapt* $\vartheta = \log\hat\theta$ by recursive least squares on the innovation
    $e = \omega_m - \hat\omega^-(t_m)$ with the regressor $\phi = \partial\hat\omega^-(t_m)/
-   \partial\vartheta$ (carried through the copy by sensitivity states, forward mode):
+   \partial\vartheta$ (carried through the copy by sensitivity states; the directional
+   derivative by a central difference of two copies, one vmapped call):
    $K = P\phi/(R + \phi^2P)$, $\vartheta \leftarrow \Pi(\vartheta + \operatorname{clip}(Ke,
-   \pm\Delta_{max}))$, $P \leftarrow \min((1 - K\phi)P/\lambda, P_{max})$, with $\Pi$ the
-   projection onto $[\log\theta_{min}, \log\theta_{max}]$ and $\Delta_{max}$ a step bound
-   against outliers;
+   \pm\Delta_{max}))$, $P \leftarrow \min((1 - fK\phi)P/\lambda, P_{max})$, with $\Pi$ the
+   projection onto $[\log\theta_{min}, \log\theta_{max}]$, $\Delta_{max}$ a step bound
+   against outliers and $f\in[0, 1]$ the fraction of the step taken (a step cut short
+   leaves the covariance large, so that a far-off prior is left at the step bound's pace);
 3. *correct*: $\hat\omega_k = \hat\omega_k^- + Le$, $\hat v_k = \hat v_k^- + L_v(v_k -
    \hat v_k^-)$ with the measured (noisy) vehicle speed $v_k$: a filtered speed, which the
    controllers use.
@@ -46,6 +48,9 @@ from ..tire.lugre import LuGreParams
 from ..vehicle.quarter_car import QuarterCar, QuarterCarState
 from .hardware import BrakeHardware, brake_torque
 from .tire import UniformLumpedLuGre
+
+
+_DIFFERENCE_STEP = 1e-5
 
 
 class ObserverState(eqx.Module):
@@ -145,18 +150,26 @@ class FrictionObserver(eqx.Module):
         `torque0` lagging towards `target`), compared with the measured wheel speed `omega`
         standing for time `stamp` (a measurement only if `fresh`) and the measured vehicle
         speed `v` at the sample's end."""
-        ds = state.sensitivity
-        (omega_m, omega_pred, z, v_pred), (d_omega, d_end, dz, dv) = jax.jvp(
-            lambda w, z, u, lt: self._predict(car, hw, substeps, u, w, z, lt, torque0, target,
-                                              t0, stamp),
-            (state.omega, state.z, state.v, state.log_theta), (ds[0], ds[1], ds[2], jnp.ones(())))
+        x = jnp.stack([state.omega, state.z, state.v, state.log_theta])
+        d = jnp.concatenate([state.sensitivity, jnp.ones(1)])
+        h = _DIFFERENCE_STEP
+
+        def predict(x):
+            return jnp.stack(self._predict(car, hw, substeps, x[2], x[0], x[1], x[3], torque0,
+                                           target, t0, stamp))
+
+        mid, plus, minus = jax.vmap(predict)(jnp.stack([x, x + h * d, x - h * d]))
+        omega_m, omega_pred, z, v_pred = mid
+        d_omega, d_end, dz, dv = (plus - minus) / (2.0 * h)
         e = jnp.where(fresh, omega - omega_m, 0.0)
         P = state.covariance
         K = jnp.where(fresh, P * d_omega / (self.noise_variance + d_omega * d_omega * P), 0.0)
-        step = jnp.clip(K * e, -self.max_step, self.max_step)
+        full = K * e
+        step = jnp.clip(full, -self.max_step, self.max_step)
+        taken = jnp.where(full == 0, 1.0, step / jnp.where(full == 0, 1.0, full))
         log_theta = jnp.clip(state.log_theta + step, jnp.log(self.theta_min),
                              jnp.log(self.theta_max))
-        P = jnp.minimum((1.0 - K * d_omega) * P / self.forgetting, self.max_covariance)
+        P = jnp.minimum((1.0 - taken * K * d_omega) * P / self.forgetting, self.max_covariance)
         L = jnp.where(fresh, self.injection, 0.0)
         omega_hat = jnp.where(fresh, omega_pred + L * e, jnp.minimum(omega_pred, omega))
         v_hat = v_pred + self.speed_injection * (v - v_pred)

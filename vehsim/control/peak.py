@@ -5,12 +5,16 @@ r"""The peak of a tire's steady-state force-slip curve at a given speed.
 `LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its transient slip tends to
 $v_r/|v| = s$). `driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
 `peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
-near zero slip, where the peaks are) and Newton steps on $d\mu/ds = 0$ inside the best
-grid cell: smooth in the tire's parameters and the speed (the estimate-based controller
-differentiates through it), and the same code the physical limit uses.
+near zero slip, where the peaks are) and a golden-section search inside the best grid
+cell; the derivative of the peak slip with respect to the tire's parameters and the speed
+is that of the implicit function $\partial\mu/\partial s = 0$,
+$ds^*/dp = -\mu_{sp}/\mu_{ss}$ (zero at the ends of the slip range), so the estimate-based
+controller is differentiable through it. The physical limit uses the same code.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +26,8 @@ from .tire import UniformLumpedLuGre
 
 
 _GRID = 64
-_NEWTON_STEPS = 6
+_GOLDEN_STEPS = 40
+_INVERSE_GOLDEN = 0.5 * (5.0**0.5 - 1.0)
 
 
 def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
@@ -44,29 +49,55 @@ def driving_curve(tire: UniformLumpedLuGre, s, v):
     return tire.driving_mu(s, v / (1.0 - s), 1.0)
 
 
-def _peak(curve, lo, hi):
-    """Slip in [lo, hi] (magnitudes, hi <= 1) of the largest |curve|, and |curve| there."""
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _argmax(curve, lo, hi, args):
+    """Slip in [lo, hi] of the largest `curve(s, args)` (module docstring)."""
     u = jnp.linspace(0.0, 1.0, _GRID)
     grid = lo + (hi - lo) * u * u  # finer near zero slip
-    values = jax.vmap(curve)(grid)
-    i = jnp.argmax(values)
+    i = jnp.argmax(jax.vmap(lambda s: curve(s, args))(grid))
     a, b = grid[jnp.maximum(i - 1, 0)], grid[jnp.minimum(i + 1, _GRID - 1)]
-    d1 = jax.grad(curve)
-    d2 = jax.grad(d1)
-    s = grid[i]
-    for _ in range(_NEWTON_STEPS):
-        step = -d1(s) / jnp.where(d2(s) < 0, d2(s), -1.0)  # ascent if not concave
-        s = jnp.clip(s + step, a, b)
-    return s, curve(s)
+
+    def shrink(_, ab):
+        a, b = ab
+        c, d = b - _INVERSE_GOLDEN * (b - a), a + _INVERSE_GOLDEN * (b - a)
+        left = curve(c, args) >= curve(d, args)
+        return jnp.where(left, a, c), jnp.where(left, d, b)
+
+    a, b = jax.lax.fori_loop(0, _GOLDEN_STEPS, shrink, (a, b))
+    return 0.5 * (a + b)
+
+
+@_argmax.defjvp
+def _argmax_jvp(curve, lo, hi, primals, tangents):
+    (args,), (d_args,) = primals, tangents
+    s = _argmax(curve, lo, hi, args)
+    slope = jax.grad(curve, argnums=0)
+    curvature = jax.grad(slope, argnums=0)(s, args)
+    d_slope = jax.jvp(lambda a: slope(s, a), (args,), (d_args,))[1]
+    interior = (s > lo) & (s < hi) & (curvature < 0)
+    return s, jnp.where(interior, -d_slope / jnp.where(interior, curvature, -1.0), 0.0)
+
+
+def _braking_magnitude(lam, args):
+    tire, v, r = args
+    return -braking_curve(tire, -lam, v, r)
+
+
+def _driving_magnitude(s, args):
+    tire, v = args
+    return driving_curve(tire, s, v)
 
 
 def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
     r"""Braking slip $s^* < 0$ of the largest braking force at speed `v`, and
     $\mu^* = |\mu(s^*)|$; slips beyond `max_slip` in magnitude are not considered."""
-    lam, mu = _peak(lambda lam: -braking_curve(tire, -lam, v, r), 0.0, max_slip)
-    return -lam, mu
+    args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
+    lam = _argmax(_braking_magnitude, 0.0, float(max_slip), args)
+    return -lam, _braking_magnitude(lam, args)
 
 
 def peak_driving(tire: UniformLumpedLuGre, v, max_slip=0.95):
     r"""Driving slip $s^* > 0$ of the largest traction force at speed `v`, and $\mu^*$."""
-    return _peak(lambda s: driving_curve(tire, s, v), 0.0, max_slip)
+    args = (tire, jnp.asarray(v, dtype=float))
+    s = _argmax(_driving_magnitude, 0.0, float(max_slip), args)
+    return s, _driving_magnitude(s, args)
