@@ -5,8 +5,10 @@ the braking slip (docs/parameters.md, with the sources' caveats). `fit_burckhard
 fits eq. 19 (uniform load, $v$ = 20 m/s) to five of them with **one tire** and a road
 condition $\theta$ per road, the model of Canudas de Wit and Tsiotras (1999): shared
 $\sigma_0$, $v_s$, $\alpha$ and $\mu_c/\mu_s$, and $\theta$ per road, with $\mu_s = 1$ (so
-that $g/\theta$ is the road's friction level), $\sigma_1$ and $L$ of the CDC 1999 set and
-$\sigma_2 = 0$ held. (The CDC set's $\sigma_2$ = 0.0018 s/m fits Burckhardt's curves at
+that $g/\theta$ is the road's friction level), and held: $L$ of the CDC 1999 set, $\sigma_1$
+= 0.7 s/m (the damping quoted with Table 3's $\sigma_0$ = 181.54 1/m, nearer the fitted
+stiffness than the CDC set's 4.9487 s/m with its $\sigma_0$ = 40; it only enters
+transients) and $\sigma_2 = 0$. (The CDC set's $\sigma_2$ = 0.0018 s/m fits Burckhardt's curves at
 20 m/s better, but adds $\sigma_2v$ = 0.054 to a locked wheel's friction at 30 m/s: as much
 as ice has, so that a locked wheel would out-brake any ABS on ice.) Cobblestone, whose
 peak lies at 40 % slip where the others peak below 20 %, gets its own $\sigma_0$: no
@@ -37,7 +39,7 @@ BURCKHARDT = {
 FIT_SPEED = 20.0
 """Speed [m/s] at which eq. 19 is fitted (the CDC 1999 operating point)."""
 
-HELD = dict(sigma1=4.9487, sigma2=0.0, mu_s=1.0, L=0.25)
+HELD = dict(sigma1=0.7, sigma2=0.0, mu_s=1.0, L=0.25)
 """Held fields of the fitted family (sigma1, sigma2, L from the CDC 1999 set)."""
 
 

@@ -17,8 +17,16 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from .._results import RESULTS, as_result
 from .controllers import AbstractBrakeController, measurement
-from .hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
+from .hardware import (
+    ActuatorState,
+    BrakeHardware,
+    actuator_target,
+    brake_torque,
+    realistic_hardware,
+)
+from .integrate import SUBSTEPS
 from .observer import FrictionObserver, ObserverState
 from .plant import BrakingScenario, advance, initial_plant_state, unpack
 from .sensors import EncoderState, vehicle_speed, wheel_speed
@@ -32,7 +40,9 @@ HANDBACK_SPEED = 3.0
 
 class BrakingRun(eqx.Module):
     """One closed-loop braking: `stopping_distance` [m] and `stopping_time` [s] (inf if the
-    speed stayed above `STOP_SPEED`), and, if saved, samples at the control rate: `ts`, the
+    speed stayed above `STOP_SPEED`), the `final_speed`, `result` (a `vehsim.RESULTS` item:
+    the first sample whose solve failed, e.g. `max_steps_reached`), and, if saved, samples at
+    the control rate: `ts`, the
     distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
     $= F_x/F_n$, the applied brake `torque`, the controller's `command` and `phase`, the
     measured `v_meas`, `omega_meas`, and the observer's `theta_hat`."""
@@ -40,6 +50,7 @@ class BrakingRun(eqx.Module):
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
     final_speed: Float[Array, ""]
+    result: RESULTS
     signals: dict | None
 
     def __getitem__(self, name):
@@ -49,8 +60,8 @@ class BrakingRun(eqx.Module):
 class LoopState(eqx.Module):
     """Everything a run carries from sample to sample except the controller's own state:
     the plant state `y`, the encoder, the actuator, the observer, the last measured wheel
-    speed with the actuator's torque and target over the last sample (`previous`), and the
-    stop record (distance, time)."""
+    speed with the actuator's torque and target over the last sample (`previous`), the
+    stop record (distance, time) and the first unsuccessful result of a sample's solve."""
 
     y: Array
     encoder: EncoderState
@@ -58,6 +69,7 @@ class LoopState(eqx.Module):
     observer: ObserverState
     previous: tuple
     stop: tuple
+    result: RESULTS
 
 
 def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardware):
@@ -66,7 +78,8 @@ def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardwa
     inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
     z = jnp.zeros((), y0.dtype)
     return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
-                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf))
+                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf),
+                     RESULTS.successful)
 
 
 def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
@@ -84,7 +97,8 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
     m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
     seen = dict(v_meas=v_m, omega_meas=omega_m, v_hat=obs.v, theta_hat=obs.theta,
                 innovation=obs.innovation)
-    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop)
+    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
+                   st.result)
     return st, m, seen
 
 
@@ -94,18 +108,19 @@ def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
     t = k * T
     cmd = jnp.where(st.observer.v < handback, hw.max_torque, cmd)
     act, target = actuator_target(hw, st.actuator, k, cmd)
-    y1, enc = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
+    y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
     out = _signals(scenario, st.y, t, act.torque, cmd, phase) if save else None
     previous = (st.previous[0], act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
     stop = _stop(st.stop, scenario, st.y, y1, t, T)
-    return LoopState(y1, enc, act, st.observer, previous, stop), out
+    result = RESULTS.where(st.result == RESULTS.successful, as_result(result), st.result)
+    return LoopState(y1, enc, act, st.observer, previous, stop, result), out
 
 
 def _signals(scenario, y, t, torque, cmd, phase):
     x, qs, _ = unpack(scenario, y)
     r = scenario.car.radius
-    mu = scenario.tire_at(t, x).mu(qs.tire, qs.v, qs.omega, r)
+    mu = scenario.tire_at(t, x, qs.v).mu(qs.tire, qs.v, qs.omega, r)
     slip = qs.omega * r / jnp.maximum(qs.v, 1e-9) - 1.0
     return dict(ts=t, x=x, v=qs.v, omega=qs.omega, slip=slip, mu=mu, torque=torque,
                 command=cmd, phase=phase)
@@ -132,7 +147,7 @@ def _stop(stop, scenario, y0, y1, t, T):
 
 def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
                 observer: FrictionObserver, hw: BrakeHardware, key: PRNGKeyArray,
-                n_steps: int, substeps: int = 4, save: bool = True,
+                n_steps: int, substeps: int = SUBSTEPS, save: bool = True,
                 handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
     jit, vmap over scenarios, keys and array fields, grad with respect to any of them)."""
@@ -144,7 +159,7 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
 
 
 def _run(scenario, st: LoopState, out) -> BrakingRun:
-    return BrakingRun(st.stop[0], st.stop[1], unpack(scenario, st.y)[1].v, out)
+    return BrakingRun(st.stop[0], st.stop[1], unpack(scenario, st.y)[1].v, st.result, out)
 
 
 @eqx.filter_jit
@@ -156,7 +171,7 @@ def _simulate(scenario, controller, observer, hw, key, n_steps, substeps, save, 
 def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeController,
                      observer: FrictionObserver, hardware: BrakeHardware | None = None,
                      key: PRNGKeyArray | None = None, duration: float = 5.0,
-                     substeps: int = 4, save: bool = True,
+                     substeps: int = SUBSTEPS, save: bool = True,
                      handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
     """Simulate one closed-loop braking (jitted; new array values do not recompile).
 
@@ -168,8 +183,6 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
 
     **Returns:** a `BrakingRun`.
     """
-    from .hardware import realistic_hardware
-
     hw = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
     n_steps = int(round(duration / float(hw.sample_time)))
@@ -221,7 +234,7 @@ def _grid(scenarios, controllers, observers, hw, keys, n_steps, substeps, save, 
 
 def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
                           keys, hardware: BrakeHardware | None = None, duration: float = 5.0,
-                          substeps: int = 4, save: bool = False,
+                          substeps: int = SUBSTEPS, save: bool = False,
                           handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
     """Every controller on every run, in one jitted call.
 
@@ -232,8 +245,6 @@ def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: Fr
 
     **Returns:** a `BrakingRun` whose fields have leading axes (C, M).
     """
-    from .hardware import realistic_hardware
-
     hw = realistic_hardware() if hardware is None else hardware
     n_steps = int(round(duration / float(hw.sample_time)))
     return _grid(scenarios, tuple(controllers), observers, hw, keys, n_steps, int(substeps),

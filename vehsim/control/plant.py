@@ -4,18 +4,22 @@ The plant is `vehsim.QuarterCar` (constant load by default) with the brake torqu
 actuator (`vehsim.control.hardware`), plus the distance travelled $x$ and the wheel angle
 $\varphi$ (for the tone wheel), one flat state
 $$y = (x,\ v,\ \omega,\ F_n,\ \bar z,\ \varphi),\qquad \dot x = v,\quad \dot\varphi = \omega.$$
-Between samples it is integrated by fixed sub-steps of `vehsim.ROS34PW2`, linearly implicit in
-the stiff block $(v, \omega, \bar z)$ (the bristle decay reaches $10^5$ 1/s on a sliding
-wheel on ice; the tire damping through the wheel inertia, $r^2\sigma_1F_n/J$, $10^3$ 1/s).
-The tire in effect is chosen at the start of each sub-step: the `SurfaceChange` tire from the
-first sub-step at which the distance or the time has reached the change. Once stopped
+Between samples it is integrated by `vehsim.ROS34PW2`, linearly implicit in the stiff block
+$(v, \omega, \bar z)$ (the bristle decay reaches $10^5$ 1/s on a sliding wheel on ice; the
+tire damping through the wheel inertia, $r^2\sigma_1F_n/J$, $10^3$ 1/s), with step-size
+control (`vehsim.control.integrate`). A `SurfaceChange` is crossed over
+the contact patch: the tire's parameters are blended by the fraction $w$ of the patch on
+the new surface, $w = (x - x_c)/L_c$ clipped to [0, 1] for a change at distance $x_c$
+($(t - t_c)v/L_c$ for one at time $t_c$), $L_c$ the transition length (the patch length,
+0.25 m, by default). An instant change would hit the friction state with a new decay rate
+$10^2$-$10^3$ times the old (dry to ice), and the damping term $\sigma_1\dot z$ with a force
+spike of a hundred times the normal load. Once stopped
 (below `STANDSTILL` m/s) the plant is held: a standing car has nothing more to show, and the
 friction state's decay has no scale there.
 """
 
 from __future__ import annotations
 
-import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,11 +27,12 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
+from .._checks import check_positive
 from .._fields import array_field
-from ..solvers import ROS34PW2
 from ..tire.lugre import AbstractLongitudinalTire
 from ..vehicle.quarter_car import QuarterCar
 from .hardware import BrakeHardware, brake_torque
+from .integrate import integrate_sample
 from .sensors import EncoderState, count_edges
 
 
@@ -38,13 +43,15 @@ STANDSTILL = 0.05
 class SurfaceChange(eqx.Module):
     r"""The road changes to `tire` (a tire of the same kind on the new surface) once the
     distance travelled reaches `distance` [m] or the time reaches `time` [s] (either may be
-    `inf`: never)."""
+    `inf`: never), over the transition `length` [m] (module docstring)."""
 
     tire: AbstractLongitudinalTire
     distance: Float[Array, ""] = array_field(default=float("inf"))
     time: Float[Array, ""] = array_field(default=float("inf"))
+    length: Float[Array, ""] = array_field(default=0.25)
 
     def __check_init__(self):
+        check_positive("SurfaceChange", "length", self.length)
         for name in ("distance", "time"):
             value = getattr(self, name)
             if not isinstance(value, jax.core.Tracer) and np.any(np.asarray(value) < 0):
@@ -72,11 +79,19 @@ class BrakingScenario(eqx.Module):
             raise ValueError("BrakingScenario.change.tire must be the same kind of tire as "
                              "car.tire")
 
-    def tire_at(self, t, x) -> AbstractLongitudinalTire:
-        """The tire in effect at time `t` after travelling `x`."""
-        changed = (x >= self.change.distance) | (t >= self.change.time)
-        return jax.tree_util.tree_map(lambda a, b: jnp.where(changed, b, a), self.car.tire,
+    def tire_at(self, t, x, v=None) -> AbstractLongitudinalTire:
+        """The tire in effect at time `t` after travelling `x` at speed `v` (blended over
+        the change's transition; the speed matters only for a change in time)."""
+        w = change_fraction(self.change, t, x, self.speed if v is None else v)
+        return jax.tree_util.tree_map(lambda a, b: a + w * (b - a), self.car.tire,
                                       self.change.tire)
+
+
+def change_fraction(change: SurfaceChange, t, x, v):
+    """The fraction of the contact patch on the new surface (module docstring)."""
+    d = jnp.where(jnp.isinf(change.distance), -1.0, x - change.distance)
+    s = jnp.where(jnp.isinf(change.time), -1.0, (t - change.time) * jnp.maximum(v, 0.0))
+    return jnp.clip(jnp.maximum(d, s) / change.length, 0.0, 1.0)
 
 
 def braking_quarter_car(tire: AbstractLongitudinalTire, mass=350.0, inertia=1.0,
@@ -109,9 +124,9 @@ def _stiff_block(scenario: BrakingScenario) -> tuple[int, ...]:
 
 
 def _vector_field(t, y, args):
-    scenario, tire, hw, torque0, target, t_sample = args
+    scenario, hw, torque0, target, t_sample = args
     x, qs, phi = unpack(scenario, y)
-    car = eqx.tree_at(lambda c: c.tire, scenario.car, tire)
+    car = eqx.tree_at(lambda c: c.tire, scenario.car, scenario.tire_at(t, x, qs.v))
     rates = car.dynamics(t, qs, brake_torque(hw, torque0, target, t - t_sample))
     return ravel_pytree((qs.v, rates, qs.omega))[0]
 
@@ -121,23 +136,14 @@ def advance(scenario: BrakingScenario, hw: BrakeHardware, y, enc: EncoderState, 
     """Integrate the plant over one sample from `t_sample` under the brake torque that
     starts at `torque0` and lags towards `target`, counting tone-wheel edges.
 
-    **Returns:** the state and the encoder state at the next sample.
+    **Returns:** the state and the encoder state at the next sample, and the solve's
+    result.
     """
-    h = hw.sample_time / substeps
-    solver = ROS34PW2((_stiff_block(scenario),))
-    term = dfx.ODETerm(_vector_field)
-    phi_index = y.shape[0] - 1
-
-    def sub(carry, j):
-        y, enc = carry
-        t0 = t_sample + j * h
-        x = unpack(scenario, y)[0]
-        args = (scenario, scenario.tire_at(t0, x), hw, torque0, target, t_sample)
-        y1 = solver.step(term, t0, t0 + h, y, args, None, False)[0]
-        enc = count_edges(hw, enc, t0, h, y[phi_index], y1[phi_index])
-        return (y1, enc), None
-
+    args = (scenario, hw, torque0, target, t_sample)
+    y1, result = integrate_sample(_vector_field, y, args, t_sample, hw.sample_time,
+                                  _stiff_block(scenario), substeps)
+    w0, w1 = unpack(scenario, y)[1].omega, unpack(scenario, y1)[1].omega
+    enc1 = count_edges(hw, enc, t_sample, hw.sample_time, y[-1], y1[-1], w0, w1)
     moving = unpack(scenario, y)[1].v > STANDSTILL
-    (y1, enc1), _ = jax.lax.scan(sub, (y, enc), jnp.arange(substeps))
     return jnp.where(moving, y1, y), jax.tree_util.tree_map(
-        lambda a, b: jnp.where(moving, a, b), enc1, enc)
+        lambda a, b: jnp.where(moving, a, b), enc1, enc), result

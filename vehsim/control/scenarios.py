@@ -68,3 +68,4 @@ def true_theta(scenario: BrakingScenario, ts, x):
     changed = (jnp.asarray(x) >= scenario.change.distance) | (
         jnp.asarray(ts) >= scenario.change.time)
     return jnp.where(changed, tire1.params.theta, tire0.params.theta)
+

@@ -2,7 +2,8 @@ r"""Wheel speed by edge timing on a tone wheel, and a noisy vehicle speed.
 
 The tone wheel has $N$ teeth ($\Delta = 2\pi/N$). Between samples the simulator records the
 count of edges passed, $n = \lfloor\varphi/\Delta\rfloor$ of the wheel angle $\varphi$, and the
-times of the last two edges (interpolated within the integration sub-step where they fell).
+times of the last two edges (within the sample, on the cubic through the angles and wheel
+speeds at its ends, by Newton's method).
 At a sample at which an edge has arrived since the last one, the speed is one tooth over the
 last edge interval, $\hat\omega = \Delta/(t^e_1 - t^e_2)$, as ABS units time the edges of
 their wheel-speed sensors: the mean speed over that interval, stamped at its midpoint
@@ -20,6 +21,7 @@ from jaxtyping import Array, Float
 
 from .._math import safe_div
 from .hardware import BrakeHardware
+from .integrate import hermite
 
 
 class EncoderState(eqx.Module):
@@ -41,20 +43,34 @@ class EncoderState(eqx.Module):
         return EncoderState(z, z, z, before, omega0)
 
 
-def count_edges(hw: BrakeHardware, enc: EncoderState, t0, h, phi0, phi1) -> EncoderState:
-    """Edges passed during a sub-step from `t0` of length `h` in which the wheel angle went
-    from `phi0` to `phi1` (their times by linear interpolation)."""
+def count_edges(hw: BrakeHardware, enc: EncoderState, t0, T, phi0, phi1, omega0, omega1
+                ) -> EncoderState:
+    """Edges passed during the sample from `t0` of length `T` in which the wheel angle went
+    from `phi0` to `phi1` and its speed from `omega0` to `omega1`."""
     delta = 2.0 * jnp.pi / hw.encoder_pulses
     n1 = jnp.floor(phi1 / delta)
 
     def time_of(n):
-        return t0 + h * jnp.clip(safe_div(n * delta - phi0, phi1 - phi0), 0.0, 1.0)
+        target = n * delta
+        tau = jnp.clip(safe_div(target - phi0, phi1 - phi0), 0.0, 1.0)
+        for _ in range(3):
+            rate = T * hermite_rate(tau, T, phi0, phi1, omega0, omega1)
+            tau = jnp.clip(tau - safe_div(hermite(tau, T, phi0, phi1, omega0, omega1) - target,
+                                          rate), 0.0, 1.0)
+        return t0 + tau * T
 
     new = n1 > enc.count
     before = jnp.where(n1 - enc.count >= 2, time_of(n1 - 1.0), enc.edge_time)
     return EncoderState(jnp.where(new, n1, enc.count), enc.count_sample,
                         jnp.where(new, time_of(n1), enc.edge_time),
                         jnp.where(new, before, enc.edge_time_before), enc.omega)
+
+
+def hermite_rate(tau, T, p0, p1, d0, d1):
+    """The time derivative of `hermite` at the fraction `tau` of the sample."""
+    t2 = tau * tau
+    return ((6 * t2 - 6 * tau) * p0 + (3 * t2 - 4 * tau + 1) * T * d0
+            + (6 * tau - 6 * t2) * p1 + (3 * t2 - 2 * tau) * T * d1) / T
 
 
 def wheel_speed(hw: BrakeHardware, enc: EncoderState, t, omega_true):

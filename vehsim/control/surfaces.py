@@ -13,7 +13,7 @@ friction level scales as $g/\theta$; larger $\theta$ is more slippery):
 - ``dry_asphalt``, ``wet_asphalt``, ``cobblestone``, ``snow``, ``ice``: the LuGre family
   fitted to Burckhardt's curves (`vehsim.control.burckhardt`): $\sigma_0$ = 301.5 1/m
   (cobblestone 72.00), $v_s$ = 17.95 m/s, $\alpha$ = 1.853, $\mu_s$ = 1, $\mu_c$ = 0.5689,
-  $\sigma_1$ = 4.9487 s/m, $\sigma_2$ = 0, $L$ = 0.25 m, and $\theta$ per road: dry asphalt
+  $\sigma_1$ = 0.7 s/m, $\sigma_2$ = 0, $L$ = 0.25 m, and $\theta$ per road: dry asphalt
   0.8093, wet asphalt 1.211, cobblestone 0.8662, snow 5.283, ice 18.59.
 
 **Fit quality** (eq. 19 minus Burckhardt's curve over braking slip 0.002-1, relative to
@@ -39,7 +39,7 @@ from ..tire.lugre import LuGreParams
 from .tire import UniformLumpedLuGre
 
 
-_BURCKHARDT_TIRE = dict(sigma0=301.52818508, sigma1=4.9487, sigma2=0.0, mu_c=0.56888825,
+_BURCKHARDT_TIRE = dict(sigma0=301.52818508, sigma1=0.7, sigma2=0.0, mu_c=0.56888825,
                         mu_s=1.0, v_s=17.95266838, alpha=1.85257065, L=0.25)
 _BURCKHARDT_THETA = {"dry_asphalt": 0.80925581, "wet_asphalt": 1.21057950,
                      "cobblestone": 0.86615674, "snow": 5.28298157, "ice": 18.59314464}
