@@ -44,8 +44,10 @@ class BrakingRun(eqx.Module):
     the first sample whose solve failed, e.g. `max_steps_reached`), and, if saved, samples at
     the control rate: `ts`, the
     distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
-    $= F_x/F_n$, the applied brake `torque`, the controller's `command` and `phase`, the
-    measured `v_meas`, `omega_meas`, and the observer's `theta_hat`."""
+    $= F_x/F_n$, the brake `torque` at the sample and the `target` it lags towards over the
+    sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
+    (standing for time `omega_stamp`; a measurement if `fresh`), and the observer's
+    `theta_hat`, `v_hat` and wheel-speed `innovation`."""
 
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
@@ -95,8 +97,8 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
                                          fresh, torque_prev, target_prev, t - T),
         lambda o: o, st.observer)
     m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
-    seen = dict(v_meas=v_m, omega_meas=omega_m, v_hat=obs.v, theta_hat=obs.theta,
-                innovation=obs.innovation)
+    seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
+                theta_hat=obs.theta, innovation=obs.innovation)
     st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
                    st.result)
     return st, m, seen
@@ -109,7 +111,8 @@ def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
     cmd = jnp.where(st.observer.v < handback, hw.max_torque, cmd)
     act, target = actuator_target(hw, st.actuator, k, cmd)
     y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
-    out = _signals(scenario, st.y, t, act.torque, cmd, phase) if save else None
+    out = _signals(scenario, st.y, t, act.torque, cmd, phase) | {"target": target} if save \
+        else None
     previous = (st.previous[0], act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
     stop = _stop(st.stop, scenario, st.y, y1, t, T)
