@@ -6,8 +6,9 @@ how truly an estimate of $\theta$ settles.
   ``distance_over_bound`` = stopping distance / bound distance ($\ge 1$ up to the limit's
   quadrature and the plant's transients).
 - `settling`: the time from ``t_from`` after which the estimate stays within ``tol`` (5 %)
-  of the truth up to ``t_to``, and its bias (mean relative error) from then on; `inf` and
-  the bias over the whole window when it never settles.
+  of the truth up to ``t_to`` (the time of its first sample if it never leaves), and its
+  bias (mean relative error) from then on; `inf` and the bias over the whole window when
+  it never settles.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def settling(ts, estimate, truth, t_from: float, t_to: float, tol: float = 0.05)
         return math.inf, math.nan
     outside = np.nonzero(np.abs(rel) > tol)[0]
     if outside.size == 0:
-        return 0.0, float(np.mean(rel))
+        return float(ts[0] - t_from), float(np.mean(rel))
     last = outside[-1]
     if last == ts.size - 1:
         return math.inf, float(np.mean(rel))

@@ -83,7 +83,7 @@ class FrictionObserver(eqx.Module):
     `theta_min`, `theta_max` (the projection range, containing the prior), `forgetting`
     $\lambda\in(0, 1]$ (0.98), `initial_covariance` $P_0$ (1, in $(\log\theta)^2$),
     `max_covariance` $P_{max}$ (10), `noise_variance` $R$ of the wheel-speed innovation
-    [rad^2/s^2] (0.05), `max_step` $\Delta_{max}$ (0.2), `injection` $L\in[0, 1]$ (1),
+    [rad^2/s^2] (0.05), `max_step` $\Delta_{max}$ (0.2), `injection` $L\in[0, 1]$ (0.5),
     `speed_injection` $L_v\in[0, 1]$ (0.05).
     """
 
@@ -95,7 +95,7 @@ class FrictionObserver(eqx.Module):
     max_covariance: Float[Array, ""] = array_field(default=10.0)
     noise_variance: Float[Array, ""] = array_field(default=0.05)
     max_step: Float[Array, ""] = array_field(default=0.2)
-    injection: Float[Array, ""] = array_field(default=1.0)
+    injection: Float[Array, ""] = array_field(default=0.5)
     speed_injection: Float[Array, ""] = array_field(default=0.05)
 
     def __check_init__(self):
