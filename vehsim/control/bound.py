@@ -1,5 +1,5 @@
-r"""The physical limit of a braking: the stopping distance if the tire delivered the peak of
-its steady-state curve at every instant.
+r"""The physical limit of a braking (and of a traction run): the stopping distance if the tire
+delivered the peak of its steady-state curve at every instant.
 
 A point mass $m$ on the normal load $F_n$ decelerating at $\mu^*(v)F_n/m$, with
 $\mu^*(v)$ the peak of the true surface's curve at the current speed (`peak_braking`, the
@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .loop import STOP_SPEED
-from .peak import peak_braking
+from .._constants import GRAVITY
+from .peak import peak_braking, peak_driving
 from .plant import BrakingScenario
 
 
@@ -63,3 +64,32 @@ def physical_limit(scenario: BrakingScenario, stop_speed: float = STOP_SPEED):
     xb, tb = _integrals(change.tire, car, v_stop, v_c)
     xb, tb = jnp.where(reached, xb, 0.0), jnp.where(reached, tb, 0.0)
     return xa + xb, ta + tb
+
+
+def _driving_time(tire, car, v_lo, v_hi):
+    """Time for the point mass to accelerate from `v_lo` to `v_hi` at the driving peak."""
+    edges = jnp.linspace(0.0, 1.0, _PANELS + 1)
+    a, b = edges[:-1, None], edges[1:, None]
+    u = (0.5 * (b - a) * jnp.asarray(_NODES)[None] + 0.5 * (a + b)).ravel()
+    w = (0.5 * (b - a) * jnp.asarray(_WEIGHTS)[None]).ravel()
+    speeds = v_lo + (v_hi - v_lo) * u
+    mu = jax.vmap(lambda v: peak_driving(tire, v)[1])(speeds)
+    return (v_hi - v_lo) * jnp.sum(w * car.mass / (mu * car.Fn_static))
+
+
+def traction_limit(scenario: BrakingScenario, duration):
+    r"""The speed [m/s] a point mass reaches from the scenario's speed after `duration` [s]
+    if the tire delivered the peak of its driving curve (eq. 18, `peak_driving`) at every
+    instant: the speed $v$ at which $\int_{v_0}^v m\,du/(\mu^*(u)F_n)$ = `duration`, by
+    bisection (no surface change)."""
+    car, v0 = scenario.car, scenario.speed
+    v_max = v0 + 1.5 * GRAVITY * duration  # mu* < 1.5 on every named surface
+
+    def bisect(i, bracket):
+        lo, hi = bracket
+        mid = 0.5 * (lo + hi)
+        late = _driving_time(car.tire, car, v0, mid) > duration
+        return jnp.where(late, lo, mid), jnp.where(late, mid, hi)
+
+    lo, hi = jax.lax.fori_loop(0, _BISECTIONS, bisect, (v0, v_max))
+    return 0.5 * (lo + hi)

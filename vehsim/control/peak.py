@@ -96,7 +96,7 @@ def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
     return -lam, _braking_magnitude(lam, args)
 
 
-def peak_driving(tire: UniformLumpedLuGre, v, max_slip=0.95):
+def peak_driving(tire: UniformLumpedLuGre, v, max_slip=0.99):
     r"""Driving slip $s^* > 0$ of the largest traction force at speed `v`, and $\mu^*$."""
     args = (tire, jnp.asarray(v, dtype=float))
     s = _argmax(_driving_magnitude, 0.0, float(max_slip), args)
