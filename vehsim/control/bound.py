@@ -16,8 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .loop import STOP_SPEED
 from .._constants import GRAVITY
+from .loop import STOP_SPEED
 from .peak import peak_braking, peak_driving
 from .plant import BrakingScenario
 

@@ -25,15 +25,15 @@ SUBSTEPS = 8
 """Integration steps per control sample."""
 
 
-def integrate_sample(vector_field, y0, args, t0, T, block, substeps: int = SUBSTEPS):
+def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBSTEPS):
     r"""Integrate $\dot y$ = `vector_field(t, y, args)` over $[t_0, t_0 + T]$ by `substeps`
-    equal steps of `ROS34PW2`, implicit in the states `block`.
+    equal steps of `ROS34PW2`, implicit in the stiff `blocks` (index tuples of one length).
 
     **Returns:** ``(y1, result)``: the state at $t_0 + T$ and `RESULTS.nonfinite` if it is
     not finite (else `successful`).
     """
     h = T / substeps
-    solver, term = ROS34PW2((tuple(block),)), dfx.ODETerm(vector_field)
+    solver, term = ROS34PW2(tuple(tuple(b) for b in blocks)), dfx.ODETerm(vector_field)
 
     def sub(y, j):
         t = t0 + j * h

@@ -117,7 +117,7 @@ class MovingHorizonEstimator(eqx.Module):
         def sample(y, d):
             t0, torque0, target, stamp = d
             args = (car, unravel, hw, torque0, target, t0)
-            y1, _ = integrate_sample(_copy_rates, y, args, t0, T, (0, 1, 3), SUBSTEPS)
+            y1, _ = integrate_sample(_copy_rates, y, args, t0, T, ((0, 1, 3),), SUBSTEPS)
             r0, r1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
             omega = hermite(jnp.clip((stamp - t0) / T, 0.0, 1.0), T, y[1], y1[1], r0[1],
                             r1[1])

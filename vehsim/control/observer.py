@@ -128,7 +128,7 @@ class FrictionObserver(eqx.Module):
         y, unravel = ravel_pytree(QuarterCarState(v, omega, car.Fn_static, z))
         args = (car, unravel, hw, torque0, target, t0)
         T = hw.sample_time
-        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, (0, 1, 3), substeps)
+        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, ((0, 1, 3),), substeps)
         rate0, rate1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
         tau = jnp.clip((stamp - t0) / T, 0.0, 1.0)
         at_stamp = hermite(tau, T, y[1], y1[1], rate0[1], rate1[1])

@@ -141,7 +141,7 @@ def advance(scenario: BrakingScenario, hw: BrakeHardware, y, enc: EncoderState, 
     """
     args = (scenario, hw, torque0, target, t_sample)
     y1, result = integrate_sample(_vector_field, y, args, t_sample, hw.sample_time,
-                                  _stiff_block(scenario), substeps)
+                                  (_stiff_block(scenario),), substeps)
     w0, w1 = unpack(scenario, y)[1].omega, unpack(scenario, y1)[1].omega
     enc1 = count_edges(hw, enc, t_sample, hw.sample_time, y[-1], y1[-1], w0, w1)
     moving = unpack(scenario, y)[1].v > STANDSTILL
