@@ -40,7 +40,8 @@ HANDBACK_SPEED = 3.0
 
 class BrakingRun(eqx.Module):
     """One closed-loop braking: `stopping_distance` [m] and `stopping_time` [s] (inf if the
-    speed stayed above `STOP_SPEED`), the `final_speed`, `result` (a `vehsim.RESULTS` item:
+    speed stayed above `STOP_SPEED`), the `final_speed` and `final_distance` at the end of
+    the run, `result` (a `vehsim.RESULTS` item:
     the first sample whose solve failed, e.g. `max_steps_reached`), and, if saved, samples at
     the control rate: `ts`, the
     distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
@@ -52,6 +53,7 @@ class BrakingRun(eqx.Module):
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
     final_speed: Float[Array, ""]
+    final_distance: Float[Array, ""]
     result: RESULTS
     signals: dict | None
 
@@ -162,7 +164,8 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
 
 
 def _run(scenario, st: LoopState, out) -> BrakingRun:
-    return BrakingRun(st.stop[0], st.stop[1], unpack(scenario, st.y)[1].v, st.result, out)
+    x, qs, _ = unpack(scenario, st.y)
+    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out)
 
 
 @eqx.filter_jit
