@@ -5,13 +5,14 @@ A point mass $m$ on the normal load $F_n$ decelerating at $\mu^*(v)F_n/m$, with
 $\mu^*(v)$ the peak of the true surface's curve at the current speed (`peak_braking`, the
 code the estimate-based controller aims with). Taking the speed as the variable,
 $$x(v) = \int_v^{v_0}\frac{mu}{\mu^*(u)F_n}du,\qquad t(v) = \int_v^{v_0}\frac{m}{\mu^*(u)F_n}du,$$
-by composite Gauss-Legendre quadrature down to `STOP_SPEED`. With a surface change the first
+by composite Gauss-Legendre quadrature down to `STOP_SPEED` (jitted). With a surface change the first
 surface acts down to the speed $v_c$ at which $x(v_c)$ reaches the change's distance (or
 $t(v_c)$ its time), found by bisection, and the second from there.
 """
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -40,6 +41,7 @@ def _integrals(tire, car, v_lo, v_hi):
     return scale * jnp.sum(w * dtdv * speeds), scale * jnp.sum(w * dtdv)
 
 
+@eqx.filter_jit
 def physical_limit(scenario: BrakingScenario, stop_speed: float = STOP_SPEED):
     r"""``(bound_distance, bound_time)`` [m, s] of `scenario` (module docstring)."""
     car, change = scenario.car, scenario.change
@@ -77,6 +79,7 @@ def _driving_time(tire, car, v_lo, v_hi):
     return (v_hi - v_lo) * jnp.sum(w * car.mass / (mu * car.Fn_static))
 
 
+@eqx.filter_jit
 def traction_limit(scenario: BrakingScenario, duration):
     r"""The speed [m/s] a point mass reaches from the scenario's speed after `duration` [s]
     if the tire delivered the peak of its driving curve (eq. 18, `peak_driving`) at every

@@ -17,21 +17,19 @@ import functools
 import math
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .bound import physical_limit
 from .loop import BrakingRun
+from .peak import peak_braking
 from .plant import BrakingScenario
-
-
-@functools.cache
-def _limit():
-    return eqx.filter_jit(physical_limit)
 
 
 def braking_record(run: BrakingRun, scenario: BrakingScenario) -> dict[str, float]:
     """The distances and times of a run beside its physical limit (module docstring)."""
-    bound_distance, bound_time = (float(v) for v in _limit()(scenario))
+    bound_distance, bound_time = (float(v) for v in physical_limit(scenario))
     distance = float(run.stopping_distance)
     return {
         "stopping_distance_m": distance,
@@ -57,3 +55,31 @@ def settling(ts, estimate, truth, t_from: float, t_to: float, tol: float = 0.05)
     if last == ts.size - 1:
         return math.inf, float(np.mean(rel))
     return float(ts[last + 1] - t_from), float(np.mean(rel[last + 1:]))
+
+
+@functools.cache
+def _available():
+    def fn(scenario, ts, x, v):
+        def one(t, xx, vv):
+            return peak_braking(scenario.tire_at(t, xx, vv), jnp.maximum(vv, 0.5),
+                                scenario.car.radius)
+
+        return jax.vmap(one)(ts, x, v)
+
+    return eqx.filter_jit(fn)
+
+
+def available_friction(scenario: BrakingScenario, signals: dict):
+    """``(peak slip, peak |mu|)`` of the true surface at each saved sample: what the tire
+    could deliver at the current speed (the physical limit's integrand)."""
+    ts, x, v = (jnp.asarray(signals[k]) for k in ("ts", "x", "v"))
+    return tuple(np.asarray(a) for a in _available()(scenario, ts, x, v))
+
+
+def estimate_record(ts, theta_hat, theta_true, t_from: float, t_to: float) -> dict:
+    """The settling time and bias of an estimate (`settling`), with the final estimate."""
+    t_settle, bias = settling(ts, theta_hat, theta_true, t_from, t_to)
+    ts = np.asarray(ts)
+    last = np.nonzero(ts <= t_to)[0]
+    return {"theta_settling_time_s": t_settle, "theta_bias": bias,
+            "theta_estimate": float(np.asarray(theta_hat)[last[-1]]) if last.size else math.nan}
