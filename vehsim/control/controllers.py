@@ -88,16 +88,17 @@ class RuleBasedABS(AbstractBrakeController):
     last dump began: the memory of production ABS logic), *slow build* (at `slow_rate` until
     $a_w < -$`decel_threshold`: dump, the next cycle). In every phase $\lambda >$
     `lock_slip` dumps. $a_w$ is filtered with time constant `filter_time`. Defaults:
-    thresholds 15 and 5 m/s^2, rates 30 000, 15 000 and 3000 N m/s, slips 0.12 and 0.5,
-    fraction 0.8, 5 ms.
+    thresholds 25 and 5 m/s^2, rates 30 000, 15 000 and 3000 N m/s, slips 0.2 and 0.5,
+    fraction 0.8, 5 ms (thresholds chosen on the named surfaces from 30 m/s among a few
+    settings; the cycle itself has no model of the road).
     """
 
-    decel_threshold: Float[Array, ""] = array_field(default=15.0)
+    decel_threshold: Float[Array, ""] = array_field(default=25.0)
     accel_threshold: Float[Array, ""] = array_field(default=5.0)
     build_rate: Float[Array, ""] = array_field(default=30_000.0)
     dump_rate: Float[Array, ""] = array_field(default=15_000.0)
     slow_rate: Float[Array, ""] = array_field(default=3000.0)
-    slip_threshold: Float[Array, ""] = array_field(default=0.12)
+    slip_threshold: Float[Array, ""] = array_field(default=0.2)
     lock_slip: Float[Array, ""] = array_field(default=0.5)
     rebuild_fraction: Float[Array, ""] = array_field(default=0.8)
     filter_time: Float[Array, ""] = array_field(default=0.005)
