@@ -66,10 +66,9 @@ class BrakeHardware(eqx.Module):
                      "encoder_pulses"):
             check_positive(owner, name, getattr(self, name))
         check_nonnegative(owner, "speed_noise_std", self.speed_noise_std)
-        check_nonnegative(owner, "actuator_delay", self.actuator_delay)
-        if is_concrete(self.actuator_delay) and is_concrete(self.sample_time):
-            check_range(owner, "actuator_delay", self.actuator_delay,
-                        upper=MAX_DELAY * float(self.sample_time))
+        longest = MAX_DELAY * float(self.sample_time) if is_concrete(self.sample_time) \
+            else float("inf")
+        check_range(owner, "actuator_delay", self.actuator_delay, lower=0.0, upper=longest)
 
     def delay_samples(self):
         """The command delay in samples (0 when the delay is switched off)."""

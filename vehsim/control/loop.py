@@ -221,21 +221,26 @@ def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, hand
     return (st, tuple(new_ctrls)), (out | seen if save else None)
 
 
-@eqx.filter_jit
-def _grid(scenarios, controllers, observers, hw, keys, n_steps, substeps, save, handback):
+def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+                     hw: BrakeHardware, keys, n_steps: int, substeps: int = SUBSTEPS,
+                     save: bool = False, handback=HANDBACK_SPEED) -> BrakingRun:
+    """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
     G = len(controllers)
     tile = ft.partial(jax.tree_util.tree_map, lambda a: jnp.concatenate([a] * G))
     scenarios, observers, keys = tile(scenarios), tile(observers), tile(keys)
     st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
     M = keys.shape[0] // G
     ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
-    step = ft.partial(_grid_step, scenarios, controllers, observers, hw, keys, substeps, save,
-                      handback)
+    step = ft.partial(_grid_step, scenarios, tuple(controllers), observers, hw, keys, substeps,
+                      save, jnp.asarray(handback, dtype=float))
     (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
     if save:  # scan stacks time first
         out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
     run = jax.vmap(_run)(scenarios, st, out)
     return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
+
+
+_grid = eqx.filter_jit(closed_loop_grid)
 
 
 def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,

@@ -148,7 +148,7 @@ class MovingHorizonEstimator(eqx.Module):
         h = _DIFFERENCE_STEP * jnp.maximum(jnp.abs(u), 1.0)
         points = jnp.concatenate([u[None], u[None] + jnp.diag(h)])
         rs = jax.vmap(lambda v: self._residuals(v, car, hw, data))(points)
-        return rs[0], ((rs[1:] - rs[0]) / h[:, None]).T
+        return rs[0], ((rs[1:] - rs[0][None]) / h[:, None]).T
 
     def fit_window(self, car: QuarterCar, hw: BrakeHardware, data):
         """``(theta, theta_se, cost, result)`` of one window (`data`: the run's signals
@@ -178,9 +178,12 @@ class MovingHorizonEstimator(eqx.Module):
         lm_result = RESULTS.where(results[best] == 0, RESULTS.successful,
                                   RESULTS.nonlinear_max_steps_reached)
         r, J = self._residuals_and_jacobian(u, car, hw, data)
-        info_inv = jnp.linalg.pinv(J.T @ J)
         s2 = jnp.sum(r * r) / jnp.maximum(r.shape[0] - u.shape[0], 1)
-        log_se_prior = jnp.sqrt(jnp.maximum(info_inv[0, 0], 0.0))
+        # information on log(theta) left after the other unknowns: the Schur complement
+        J_t, J_n = J[:, 0], J[:, 1:]
+        projected = J_t - J_n @ (jnp.linalg.pinv(J_n) @ J_t)
+        info = jnp.sum(projected * projected)
+        log_se_prior = 1.0 / jnp.sqrt(jnp.where(info > 0, info, 1e-300))
         theta = jnp.exp(u[0])
         theta_se = theta * jnp.sqrt(s2) * log_se_prior
         identifiable = jnp.isfinite(log_se_prior) & (log_se_prior <= self.max_log_se)
