@@ -218,44 +218,50 @@ def robot_grid_to_xarray(run, controllers: Sequence, systems: Sequence,
     ``convergence_time``, the final pose (``final_x``, ``final_y``, ``final_gamma``) and
     the peak commands; with saved trajectories also ``x``, ``y``, ``gamma`` over ``t``.
     """
-    from .robot.scoring import letters, score_run
-
     xr = require_xarray()
     C, S, P = np.shape(run.final_pose)[:3]
     coords = {"controller": [_label(c) for c in controllers],
               "system": [_label(s) for s in systems]}
-    runs = ("run",)
-    if missions is not None:
+    if missions is None:
+        runs = {"run": np.arange(P)}
+    else:
         n_seeds, rem = divmod(P, len(missions))
         if rem:
             raise ValueError(f"{P} runs are not missions x seeds for {len(missions)} missions")
-        runs = ("mission", "seed")
-        coords |= {"mission": [getattr(m, "name", m) for m in missions],
-                   "seed": np.arange(n_seeds)}
-    shape = (C, S) + tuple(len(coords[d]) for d in runs) if missions is not None else (C, S, P)
-    dims = ("controller", "system") + runs
-    stats = run.stats
-    flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[3:]), stats)
-    codes = np.asarray(jax.jit(jax.vmap(score_run))(flat)).reshape(shape)
-    fields = {
-        "score": np.asarray(letters(codes.ravel()), dtype=str).reshape(shape),
-        "status": np.where(np.asarray(stats.finite).reshape(shape), "successful", "nonfinite"),
-        "convergence_time": np.asarray(stats.convergence_time()).reshape(shape),
-        "peak_v": np.asarray(stats.peak_command[..., 0]).reshape(shape),
-        "peak_omega": np.asarray(stats.peak_command[..., 1]).reshape(shape),
-    }
-    for i, k in enumerate(("x", "y", "gamma")):
-        fields[f"final_{k}"] = np.asarray(run.final_pose[..., i]).reshape(shape)
-    data = {k: _variable(dims, v, k) for k, v in fields.items()}
+        runs = {"mission": [getattr(m, "name", m) for m in missions],
+                "seed": np.arange(n_seeds)}
+    coords |= runs
+    dims = ("controller", "system") + tuple(runs)
+    shape = (C, S) + tuple(len(v) for v in runs.values())
+    data = {k: _variable(dims, v.reshape(shape), k) for k, v in _run_fields(run).items()}
     data["score"][2].update(long_name="Table 2 letter (E, G, S, C, O, U)")
     if run.ts is not None:
         coords["t"] = np.asarray(run.ts).reshape((-1, np.shape(run.ts)[-1]))[0]
         for i, k in enumerate(("x", "y", "gamma")):
-            v = np.asarray(run.pose[..., i]).reshape(shape + (-1,))
-            data[k] = _variable(dims, v, k, ("t",))
+            data[k] = _variable(dims, np.asarray(run.pose[..., i]).reshape(shape + (-1,)), k,
+                                ("t",))
     ds = xr.Dataset(data, coords=coords)
     ds.attrs.update({"title": "vehsim robot Monte-Carlo grid", **dict(attrs or {})})
     return ds
+
+
+def _run_fields(run) -> dict[str, np.ndarray]:
+    """Per-run outcomes of a robot grid (leading axes controllers x systems x runs)."""
+    from .robot.scoring import letters, score_run
+
+    stats = run.stats
+    flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[3:]), stats)
+    codes = np.asarray(jax.jit(jax.vmap(score_run))(flat))
+    fields = {
+        "score": np.asarray(letters(codes), dtype=str),
+        "status": np.where(np.asarray(stats.finite), "successful", "nonfinite"),
+        "convergence_time": np.asarray(stats.convergence_time()),
+        "peak_v": np.asarray(stats.peak_command[..., 0]),
+        "peak_omega": np.asarray(stats.peak_command[..., 1]),
+    }
+    for i, k in enumerate(("x", "y", "gamma")):
+        fields[f"final_{k}"] = np.asarray(run.final_pose[..., i])
+    return fields
 
 
 def _primitive_members(prims) -> list:
