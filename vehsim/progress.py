@@ -14,7 +14,8 @@ means the default set by `set_default`: off in the library, on in the command li
 microseconds against milliseconds or seconds of work (docs/performance.md).
 
 For a single `vehsim.simulate`, or your own ``jax.vmap(simulate)``, diffrax's progress
-meters work under `vmap`: ``simulate(..., progress_meter=diffrax.TqdmProgressMeter())``.
+meters work under `vmap` (they follow the slowest member):
+``simulate(..., progress_meter=diffrax.TextProgressMeter())``.
 """
 
 from __future__ import annotations

@@ -7,6 +7,11 @@ call uses one CPU, several GPUs or several hosts. `sharded_vmap` is the common c
 per-member function vmapped on each device. On a CPU host, forcing one host device per
 core (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts) runs one
 shard per core.
+
+After `jax.distributed.initialize`, the mesh may hold the devices of several processes
+(machines): every process calls the same function with the same members, `put_members`
+places the slices of each process's own devices, each process runs them, and
+`gather_members` brings the whole result to every process (docs/sweeps.md).
 """
 
 from __future__ import annotations

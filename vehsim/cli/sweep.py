@@ -37,7 +37,7 @@ def register(subparsers) -> None:
                         "chunk; default: a tenth of a device's share, at most 64; 0: the "
                         "whole share at once, better on a GPU)")
     g = p.add_argument_group(
-        "several processes or hosts (jax.distributed.initialize; see the docs' cluster page)")
+        "several processes or hosts (jax.distributed.initialize; docs/sweeps.md)")
     g.add_argument("--distributed", action="store_true",
                    help="join a multi-process run, its settings detected from the cluster "
                         "(SLURM, Open MPI, ...)")
@@ -141,6 +141,8 @@ def join_distributed(args: argparse.Namespace) -> None:
 
     if jax.distributed.is_initialized():
         return
+    if args.coordinator and (args.num_processes is None or args.process_id is None):
+        raise ValueError("--coordinator needs --num-processes and --process-id")
     settings = {"coordinator_address": args.coordinator, "num_processes": args.num_processes,
                 "process_id": args.process_id}
     sys.stdout.flush()
