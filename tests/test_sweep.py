@@ -51,11 +51,14 @@ def test_sweep_is_sharded_equals_loop_and_reports_failures():
     assert res.trajectories.states.shape == (3, 16, 12)
     np.testing.assert_array_equal(res.ok, [True, True, False])
     assert result_name(res.result) == ["successful", "successful", "max_steps_reached"]
-    for i in range(2):
-        member = jax.tree.map(lambda x: x[i], members)
+    @eqx.filter_jit
+    def alone(member):  # the loop's body: one member, not batched, on one device
         car, u, y0 = scenario(member)
-        one = simulate(car, ts, u, y0, max_steps=3000)
-        np.testing.assert_allclose(res.trajectories.states[i], one.states, rtol=1e-9, atol=1e-9)
+        return simulate(car, ts, u, y0, max_steps=3000).states
+
+    for i in range(2):
+        states = alone(jax.tree.map(lambda x: x[i], members))
+        np.testing.assert_allclose(res.trajectories.states[i], states, rtol=1e-9, atol=1e-9)
     # another sweep of the same scenario over other member values reuses the compiled run
     traces = eqx.debug.get_num_traces(_sweep_run)
     again = sweep(scenario, jax.tree.map(lambda x: x[::-1], members), ts, max_steps=3000)
