@@ -186,4 +186,16 @@ from .optimal.replay import (
 )
 
 
+# isort: split
+# labelled results (xarray, netCDF), sweeps across processes, the compilation cache
+from .compilation_cache import enable_compilation_cache as enable_compilation_cache
+from .labelled import (
+    primitives_to_xarray as primitives_to_xarray,
+    robot_grid_to_xarray as robot_grid_to_xarray,
+    sweep_to_xarray as sweep_to_xarray,
+    write_netcdf as write_netcdf,
+)
+from .sharding import gather_members as gather_members
+
+
 __version__ = "0.1.0"

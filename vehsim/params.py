@@ -98,6 +98,8 @@ PRESETS: dict[str, Callable[[], Any]] = {
     "rally_gravel": rally_gravel,
     "rally_gravel_tire": rally_gravel_tire,
 }
+"""The named parameter sets: name -> a function building fresh parameter modules (sources:
+docs/parameters.md)."""
 
 
 def preset(name: str):

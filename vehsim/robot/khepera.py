@@ -38,6 +38,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
 from .._fields import array_field, bool_field, int_field
+from ..progress import advance, progress_bar, resolve
 from ..sharding import pad_members, shard_members
 from .controllers import AbstractController
 from .scoring import RunStats
@@ -248,7 +249,7 @@ def _block_size(n_steps: int, largest: int = 50) -> int:
 
 
 @eqx.filter_jit
-def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
+def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, progress=False):
     # One scan over time, in blocks of B samples. Per block: the sensor noise of the P
     # initial poses for all B samples, drawn at once (each (controller, system) group
     # reuses the same P noise sequences, so they are drawn once, not G times). Per sample:
@@ -275,7 +276,8 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
     def block(carry, ks):
         noise = jax.vmap(lambda k: jax.vmap(lambda key: _noise(plant, key, k, poses.dtype))(
             keys))(ks)
-        return jax.lax.scan(step, carry, (ks, noise))
+        carry, out = jax.lax.scan(step, carry, (ks, noise))
+        return (advance(B, carry) if progress else carry), out
 
     carry, out = jax.lax.scan(block, carry0, jnp.arange(n_steps).reshape(-1, B))
     if save:  # scan stacks time first: (n / B, B, G P, ...) -> (G P, n, ...)
@@ -288,7 +290,8 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save):
 def simulate_robot_grid(controllers: Sequence[AbstractController],
                   systems: Sequence[AbstractSystem], poses0, keys,
                   plant: KheperaPlant | None = None, t_final: float = 40.0,
-                  substeps: int = 4, save: bool = False, devices=None) -> RobotRun:
+                  substeps: int = 4, save: bool = False, devices=None,
+                  progress: bool | None = None) -> RobotRun:
     r"""Every controller x system x initial pose (with its noise key), in one jitted call.
 
     **Arguments:** `controllers` (C of them), `systems` (S), `poses0` of shape (P, 3) and
@@ -304,6 +307,9 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     host devices (`XLA_FLAGS=--xla_force_host_platform_device_count=2`) and passing
     `jax.devices()` runs one shard per core, usually faster than XLA's intra-op threading
     (results equal to rounding: operations fuse differently; docs/performance.md).
+
+    `progress`: show the control samples simulated on stderr, per block of samples
+    (`vehsim.progress`; default off, on in the command line).
     """
     plant = realistic_plant() if plant is None else plant
     poses0 = jnp.asarray(poses0, dtype=float)
@@ -311,21 +317,27 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     C, S = len(controllers), len(systems)
     n_steps = int(round(t_final / float(plant.sample_time)))
     static = (tuple(controllers), tuple(systems))
-    if devices is None or len(devices) <= 1:
-        run = _grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save))
-    else:
-        n = poses0.shape[0]
-        poses0, keys = pad_members((poses0, keys), len(devices))
-        run = _sharded_grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save),
-                            tuple(devices))
-        run = jax.tree_util.tree_map(lambda a: a[:, :n], run)
+    progress = resolve(progress)
+    shards = 1 if devices is None else max(1, len(devices))
+    with progress_bar("robot grid", n_steps * shards, "samples", enabled=progress):
+        if shards == 1:
+            run = _grid(*static, poses0, keys, plant, n_steps, int(substeps), bool(save),
+                        progress)
+        else:
+            n = poses0.shape[0]
+            poses0, keys = pad_members((poses0, keys), len(devices))
+            run = _sharded_grid(*static, poses0, keys, plant, n_steps, int(substeps),
+                                bool(save), tuple(devices), progress)
+            run = jax.tree_util.tree_map(lambda a: a[:, :n], run)
+        run = jax.block_until_ready(run)
     return jax.tree_util.tree_map(lambda a: a.reshape((C, S) + a.shape[1:]), run)
 
 
 @eqx.filter_jit
-def _sharded_grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, devices):
+def _sharded_grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, devices,
+                  progress=False):
     def shard(p, k, plant):
-        return _grid(controllers, systems, p, k, plant, n_steps, substeps, save)
+        return _grid(controllers, systems, p, k, plant, n_steps, substeps, save, progress)
 
     # `_grid` returns (groups, runs, ...): the runs, which are split, are the second axis
     return shard_members(shard, devices, in_axes=(0, 0, None), out_axis=1)(poses, keys, plant)
