@@ -170,7 +170,7 @@ def _fit_table(ctx, mf) -> None:
         "**Fit of the steady 2D LuGre model to the Magic Formula** (`fit_to_magic_formula`): "
         "RMS (worst) error of each pure-slip curve in % of the Magic Formula's peak of that "
         "curve at that load; F_x on kappa in [-0.5, 0.5], F_y and M_z on alpha in "
-        "[0.5, 20] deg, v = 20 m/s.",
+        "[0.5, 20] deg, v = 20 m/s.", "",
         "| parameter set | Fz [kN] | F_x | F_y | M_z |", "|---|---|---|---|---|", *rows)
     _aligning_text(ctx, mf)
 
@@ -450,7 +450,7 @@ def _steady_table(ctx, p, alphas, wheel, steps) -> None:
     ctx.text(
         f"**Steady state of Fig. 17** (kappa = {FIG17_KAPPA:g}, v = 20 m/s, Fz = 4 kN; "
         "closed form of eqs. 31-33; the last column: the largest difference from it of "
-        "both transients at t = 40 ms, in N or N m).",
+        "both transients at t = 40 ms, in N or N m).", "",
         "| alpha [deg] | load | F_x [N] | F_y [N] | M_z [N m] | transients' end |",
         "|---|---|---|---|---|---|", *rows)
     ctx.text(

@@ -107,7 +107,7 @@ def reproduce(ctx) -> None:
                    "plant (true pose; the controller sees the odometry).")
 
 
-def _table_rows(new: _PlantScores, previous: _PlantScores, n_seeds: int) -> list[str]:
+def _table_rows(new: _PlantScores, previous: _PlantScores) -> list[str]:
     rows = []
     for c in range(8):
         for s, sys_name in enumerate(SYSTEMS):
@@ -144,11 +144,11 @@ def _table(ctx, new: _PlantScores, previous: _PlantScores, n_seeds: int) -> None
         "robot sees) and on the odometry (what the host logs, the pose of the report's "
         "Figs. 4-5). **The previous plant** (last column) added white noise of 0.2 mm and "
         "0.2 deg to the odometry at every sample, without wheel mismatch or read delay "
-        "(`PREVIOUS_PLANT`).",
+        "(`PREVIOUS_PLANT`).", "",
         "| Ctr. | Sys. | report E N S L | ours (true pose) | share of seeds | scored on the "
         "odometry | pose measured exactly | previous plant |",
         "|---|---|---|---|---|---|---|---|",
-        *_table_rows(new, previous, n_seeds))
+        *_table_rows(new, previous))
     ctx.record("robot.table2.ours", {f"{c + 1}-{n}": new.true.letters(c, s)
                                      for c in range(8) for s, n in enumerate(SYSTEMS)})
     for key, scores in (("ours_odometry", new.odometry), ("ours_exact_pose", new.exact),
@@ -221,7 +221,7 @@ def _agreement(ctx, new: _PlantScores, previous: _PlantScores) -> None:
         "whose majority letter equals the report's, out of the comparable ones (controller "
         "4's four cells match when x,y alone score E and gamma alone O), and whether each "
         "of the four findings the report draws from Table 2 is reproduced (tests in "
-        "`vehsim.robot.table2`).",
+        "`vehsim.robot.table2`).", "",
         "| plant | matching cells | " + " | ".join(_FINDING_TITLES[f] for f in HEADLINE_FINDINGS)
         + " |", "|---|---|" + "---|" * len(HEADLINE_FINDINGS), *rows)
     _findings_text(ctx, result)
