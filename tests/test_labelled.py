@@ -129,7 +129,8 @@ def test_robot_grid_labels_controllers_systems_missions_and_seeds():
     stats = stats.__class__(**{**{k: getattr(stats, k) for k in stats.__dataclass_fields__},
                                "t_out_position": jnp.asarray(code / 10),
                                "finite": jnp.asarray(code != 7)})
-    run = RobotRun(None, None, None, None, jnp.stack([code, -code, 0 * code], -1), stats)
+    run = RobotRun(None, None, None, None, jnp.stack([code, -code, 0 * code], -1), stats,
+                   stats)
     ds = robot_grid_to_xarray(run, ["c1", "c2"], ["I", "II"], missions=["E", "N", "S"])
     assert ds["final_x"].dims == ("controller", "system", "mission", "seed")
     # run 7 = controller 0, system 1, pose index 1 = mission E, seed 1
