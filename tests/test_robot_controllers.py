@@ -178,23 +178,64 @@ def test_time_varying_polynomial_rate(c):
     assert np.degrees(np.abs(np.asarray(run.pose[ts >= 400.0, 2]))).max() < 1.0
 
 
-def test_no_nan_jacobians_at_singular_points():
-    """Double-where everywhere: finite Jacobians at the origin and on the x3-axis."""
+# Origin, x3-axis (nu = 0), x-axis (polar angle switching), the generic pose; for each
+# (controller, pose) the coordinates (x, y, gamma) along which the law is not differentiable:
+# the sgn(s) of the bad region (controllers 1-3) and rho = |x3|^(1/2) (6, 8) on the x3-axis,
+# the undefined polar angle at the origin and the wrap of theta - gamma at +-pi (4).
+SINGULAR_POSES = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.05, 0.0, 0.0],
+                            [-0.1, 0.05, 0.3]])
+NOT_DIFFERENTIABLE = {
+    ("DiscontinuousController", 0): {1}, ("BoundedController", 0): {1},
+    ("BoundedController", 1): {0, 2}, ("TwoStageController", 0): {1},
+    ("TwoStageController", 1): {0, 2}, ("PolarController", 0): {0, 1},
+    ("PolarController", 2): {1, 2}, ("MCloskeyMurray93Controller", 0): {1},
+    ("MCloskeyMurray97Controller", 0): {1},
+}
+
+
+def test_jacobians_at_singular_points_forward_reverse_and_one_sided_slopes():
+    """Double-where everywhere: at the origin and on the axes forward- and reverse-mode
+    Jacobians agree and are finite, and along every coordinate where the law is
+    differentiable they equal its one-sided slopes (which agree, and do not change with
+    the step); along the others the slopes differ or grow like 1/h."""
     system = SystemI()
-    poses = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.05, 0.0, 0.0]])
+    h = np.array([1e-6, 5e-7, 1e-7, 5e-8])  # two Richardson pairs (h, h/2)
+    offsets = np.concatenate([h, -h])[None, :, None] * np.eye(3)[:, None, :]  # (3, 8, 3)
+    n = SINGULAR_POSES.shape[0]
+    probes = SINGULAR_POSES[:, None, None, :] + jnp.asarray(offsets)[None]  # (4, 3, 8, 3)
+    points = jnp.concatenate([SINGULAR_POSES, probes.reshape(-1, 3)])
 
     @jax.jit
-    def jacobians(controllers):
+    def evaluate(controllers):
         out = []
         for c in controllers:
             f = lambda p, c=c: jnp.stack(c.velocity(1.0, p, system))
-            out.append((jax.vmap(jax.jacfwd(f))(poses), jax.vmap(jax.jacrev(f))(poses)))
+            out.append((jax.vmap(f)(points), jax.vmap(jax.jacfwd(f))(SINGULAR_POSES),
+                        jax.vmap(jax.jacrev(f))(SINGULAR_POSES)))
         return out
 
     controllers = default_controllers()
-    for c, jacs in zip(controllers, jacobians(controllers)):
-        for jac in jacs:
-            assert np.all(np.isfinite(jac)), type(c).__name__
+    for c, (values, jac_fwd, jac_rev) in zip(controllers, evaluate(controllers)):
+        name = type(c).__name__
+        np.testing.assert_allclose(jac_fwd, jac_rev, rtol=1e-12, atol=1e-12, err_msg=name)
+        assert np.all(np.isfinite(jac_fwd)), name
+        values = np.asarray(values)
+        f0, fp = values[:n, None, None, :], values[n:].reshape(n, 3, 8, 2)
+        one = (fp[:, :, :4] - f0) / h[:, None]
+        right = 2 * one[:, :, 1::2] - one[:, :, 0::2]  # (pose, coord, 2 step sizes, 2)
+        one = (f0 - fp[:, :, 4:]) / h[:, None]
+        left = 2 * one[:, :, 1::2] - one[:, :, 0::2]
+        for k in range(n):
+            for i in range(3):
+                lo, hi = left[k, i], right[k, i]
+                smooth = (np.allclose(lo[0], lo[1], rtol=1e-5, atol=1e-6)
+                          and np.allclose(hi[0], hi[1], rtol=1e-5, atol=1e-6)
+                          and np.allclose(lo[0], hi[0], rtol=1e-5, atol=1e-6))
+                where = (name, np.asarray(SINGULAR_POSES[k]).tolist(), "x y gamma".split()[i])
+                assert smooth == (i not in NOT_DIFFERENTIABLE.get((name, k), ())), where
+                if smooth:
+                    np.testing.assert_allclose(jac_fwd[k, :, i], hi[0], rtol=1e-5, atol=1e-6,
+                                               err_msg=str(where))
 
 
 def test_gradient_through_closed_loop_matches_finite_differences():
