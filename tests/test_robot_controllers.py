@@ -12,13 +12,15 @@ from vehsim.robot.controllers import (
     DOCUMENTED_TIME,
     BoundedController,
     DiscontinuousController,
+    MCloskeyMurray93Controller,
     PometController,
     TeelMurrayWalshController,
+    TwoStageController,
     default_controllers,
     homogeneous_norm_newton,
 )
 from vehsim.robot.khepera import ideal_plant, simulate_robot, simulate_robot_grid
-from vehsim.robot.unicycle import SystemI, s_function, unicycle_rhs
+from vehsim.robot.unicycle import SystemI, chained_rhs, s_function, unicycle_rhs
 
 
 GENERIC_POSE = jnp.array([-0.1, 0.05, 0.3])
@@ -44,6 +46,27 @@ def _closed_loop_pose(controller, system, pose0, n, h):
 
     _, poses = jax.lax.scan(step, pose0, jnp.arange(n))
     return jnp.concatenate([pose0[None], poses])
+
+
+@eqx.filter_jit
+def _chained_closed_loop(controller, x0, n, h):
+    """The nonholonomic integrator of eq. 3 under ``controller`` by classical RK4 with step
+    h: chained states at t = 0, h, ..., n h."""
+
+    def rhs(t, x):
+        return chained_rhs(x, controller(t, x))
+
+    def step(x, k):
+        t = k * h
+        k1 = rhs(t, x)
+        k2 = rhs(t + h / 2, x + h / 2 * k1)
+        k3 = rhs(t + h / 2, x + h / 2 * k2)
+        k4 = rhs(t + h, x + h * k3)
+        new = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return new, new
+
+    _, xs = jax.lax.scan(step, x0, jnp.arange(n))
+    return jnp.concatenate([x0[None], xs])
 
 
 def test_controller1_eq2_and_eta_decay_along_closed_loop():
@@ -107,6 +130,56 @@ def test_controller2_gain_conditions(kw, match):
 def test_controller1_gain_condition():
     with pytest.raises(ValueError, match="mu > 2 k"):
         DiscontinuousController(k=2.0, mu=3.0)
+
+
+def test_controller3_follows_its_two_stages_in_closed_form():
+    """Controller 3 on eq. 3, with W = x1^2 + x2^2 and z = 2 s: in stage 2 (W >= c|z|)
+    W = W0 e^(-2kt) and z = z0 e^(-2kt); from stage 1 (near the x3-axis) sqrt(W) grows
+    as sqrt(W0) + k1 sqrt(|z0|) t with z fixed until W = c|z| at t*, then slides on that
+    surface with the stage-2 exponentials."""
+    c, h = TwoStageController(), 1e-3
+    k, k1, cc = float(c.k), float(c.k1), float(c.c)
+    t = h * np.arange(3001)
+    for x0 in ([0.1, -0.05, 0.001], [0.01, 0.0, 0.04]):
+        xs = np.asarray(_chained_closed_loop(c, jnp.asarray(x0), 3000, h))
+        W, z = xs[:, 0] ** 2 + xs[:, 1] ** 2, 2 * xs[:, 2] - xs[:, 0] * xs[:, 1]
+        W0, z0 = W[0], z[0]
+        t_star = max(0.0, (np.sqrt(cc * abs(z0)) - np.sqrt(W0)) / (k1 * np.sqrt(abs(z0))))
+        stage1 = t < t_star
+        W_cf = np.where(stage1, (np.sqrt(W0) + k1 * np.sqrt(abs(z0)) * t) ** 2,
+                        max(W0, cc * abs(z0)) * np.exp(-2 * k * (t - t_star)))
+        z_cf = z0 * np.exp(-2 * k * np.maximum(t - t_star, 0.0))
+        # RK4 to rounding within a stage; the switch costs O(h) of W's scale
+        tol = 1e-10 if t_star == 0.0 else 2 * h
+        np.testing.assert_allclose(W, W_cf, rtol=0, atol=tol * W_cf.max())
+        np.testing.assert_allclose(z, z_cf, rtol=0, atol=tol * abs(z0))
+    assert 0.4 < t_star < 0.6  # the second start does spend time in stage 1
+
+
+def test_controller6_homogeneous_and_exponential_per_period():
+    """Controller 6 (M'Closkey-Murray 1993) is homogeneous of degree 1 under the dilation
+    (l x1, l x2, l^2 x3): u(t, D_l x) = l u(t, x). So the closed loop of eq. 3 commutes with
+    the dilation (a scaled start gives the scaled trajectory) and its period map contracts
+    rho = (x1^4 + x2^4 + x3^2)^(1/4) by the same factor every period (< 1: exponential)."""
+    c = MCloskeyMurray93Controller()
+    rng = np.random.default_rng(0)
+    xs = jnp.asarray(rng.normal(size=(64, 3)) * rng.choice([1e-3, 1.0, 1e3], size=(64, 1)))
+    lam = 3.7
+    dil = jnp.array([lam, lam, lam**2])
+    u = jax.vmap(lambda x: c(0.7, x))(xs)
+    np.testing.assert_allclose(jax.vmap(lambda x: c(0.7, x))(xs * dil[None]), lam * u, rtol=1e-12)
+    n_per, periods = 400, 6
+    h = 2 * np.pi / float(c.omega) / n_per
+    x0 = jnp.array([-0.1, 0.05, 0.02])
+    small = jnp.array([1e-2, 1e-2, 1e-4])
+    run = _chained_closed_loop(c, x0, n_per * periods, h)
+    scaled = _chained_closed_loop(c, x0 * small, n_per * periods, h)
+    np.testing.assert_allclose(scaled / small[None], run, rtol=1e-9, atol=1e-15)
+    x = np.asarray(run[::n_per])
+    rho = (x[:, 0] ** 4 + x[:, 1] ** 4 + x[:, 2] ** 2) ** 0.25
+    ratio = rho[1:] / rho[:-1]
+    np.testing.assert_allclose(ratio[-3:], ratio[-1], rtol=1e-6)
+    assert ratio[-1] < 0.6
 
 
 def test_homogeneous_norm_newton():
