@@ -16,6 +16,10 @@ from vehsim.optimal.primitives import (
 from vehsim.optimal.shooting import DELTA_MAX
 
 
+# one worker for this module and its peer: they share the compiled, solved primitive
+pytestmark = pytest.mark.xdist_group("corner90_min_time")
+
+
 def _check_solution(prim):
     sol = prim.solution
     assert sol.converged, (sol.message, float(sol.inf_pr), float(sol.inf_du))

@@ -19,6 +19,10 @@ from vehsim.optimal.replay import (
 from vehsim.tire.friction_ellipse import rally_gravel_tire
 
 
+# one worker for this module and its peer: they share the compiled, solved primitive
+pytestmark = pytest.mark.xdist_group("corner90_min_time")
+
+
 @pytest.fixture(scope="module")
 def prim():
     p = corner90_min_time()  # shared with tests/test_optimal_primitives.py
