@@ -43,6 +43,10 @@ from vehsim.vehicle.normal_load import LoadRelaxation, PrescribedLoad
 from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car
 
 
+# one worker for the module (and `vehsim fit` in tests/test_cli_faces.py): its fits share
+# compiled solvers and the brakings fixture
+pytestmark = pytest.mark.xdist_group("identify_fit")
+
 TRUTH = LumpedLuGre(table3(), kappa0=1.3)
 N_STARTS = 2
 RTOL_CLOSED = 1e-3  # closed-loop recovery (measured: 7e-5 at rtol 1e-8, 20 % off)
@@ -286,7 +290,6 @@ def test_closed_loop_prediction_reproduces_the_quarter_car():
     np.testing.assert_allclose(F, sol.Fx, atol=5e-3 * float(jnp.max(jnp.abs(sol.Fx))))
 
 
-@pytest.mark.xdist_group("closed_loop_fit")  # one worker: the two fits share a compilation
 def test_closed_loop_fit_recovers_the_lumped_quarter_car():
     # noise-free data from the lumped-tire quarter car itself (tight adaptive solve): a short
     # braking (0.3 s, 61 samples at 200 Hz) whose torque ramp takes the wheel through the
@@ -314,7 +317,6 @@ def test_closed_loop_fit_recovers_the_lumped_quarter_car():
     assert res.errors["closed"]["rms_error_rel_peak"] < 1e-3
 
 
-@pytest.mark.xdist_group("closed_loop_fit")
 def test_closed_loop_fit_on_distributed_truth_matches_the_force(brakings):
     """Closed loop on data the fitted model did not make: braking 1 (distributed LuGre PDE,
     quartic load, load lag, sensor noise, lags and quantisation) from the brake's onset
