@@ -251,12 +251,13 @@ def test_time_varying_polynomial_rate(c):
     assert np.degrees(np.abs(np.asarray(run.pose[ts >= 400.0, 2]))).max() < 1.0
 
 
-# Origin, x3-axis (nu = 0), x-axis (polar angle switching), the generic pose; for each
-# (controller, pose) the coordinates (x, y, gamma) along which the law is not differentiable:
+# Origin, x3-axis (nu = 0), x-axis (polar angle switching), the generic pose and one in
+# controller 3's second stage; for each (controller, pose) the coordinates (x, y, gamma)
+# along which the law is not differentiable:
 # the sgn(s) of the bad region (controllers 1-3) and rho = |x3|^(1/2) (6, 8) on the x3-axis,
 # the undefined polar angle at the origin and the wrap of theta - gamma at +-pi (4).
 SINGULAR_POSES = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.05, 0.0, 0.0],
-                            [-0.1, 0.05, 0.3]])
+                            [-0.1, 0.05, 0.3], [0.3, 0.02, -0.4]])
 NOT_DIFFERENTIABLE = {
     ("DiscontinuousController", 0): {1}, ("BoundedController", 0): {1},
     ("BoundedController", 1): {0, 2}, ("TwoStageController", 0): {1},
@@ -275,7 +276,7 @@ def test_jacobians_at_singular_points_forward_reverse_and_one_sided_slopes():
     h = np.array([1e-6, 5e-7, 1e-7, 5e-8])  # two Richardson pairs (h, h/2)
     offsets = np.concatenate([h, -h])[None, :, None] * np.eye(3)[:, None, :]  # (3, 8, 3)
     n = SINGULAR_POSES.shape[0]
-    probes = SINGULAR_POSES[:, None, None, :] + jnp.asarray(offsets)[None]  # (4, 3, 8, 3)
+    probes = SINGULAR_POSES[:, None, None, :] + jnp.asarray(offsets)[None]  # (n, 3, 8, 3)
     points = jnp.concatenate([SINGULAR_POSES, probes.reshape(-1, 3)])
 
     @jax.jit
