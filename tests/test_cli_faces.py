@@ -41,7 +41,6 @@ def _is_png(path: Path) -> bool:
     return path.is_file() and path.read_bytes()[:8] == PNG
 
 
-@pytest.mark.xdist_group("identify_fit")  # after (or before) the same fits in-process
 def test_fit_writes_parameters_errors_and_figure(tmp_path):
     """`vehsim fit` on two shipped brakings with a third held out (fitted kappa0, one start):
     exit 0, fit.json with every parameter, standard errors for the free ones, the status,

@@ -43,8 +43,7 @@ from vehsim.vehicle.normal_load import LoadRelaxation, PrescribedLoad
 from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car
 
 
-# one worker for the module (and `vehsim fit` in tests/test_cli_faces.py): its fits share
-# compiled solvers and the brakings fixture
+# one worker for the module: its fits share compiled solvers and the brakings fixture
 pytestmark = pytest.mark.xdist_group("identify_fit")
 
 TRUTH = LumpedLuGre(table3(), kappa0=1.3)

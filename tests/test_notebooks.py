@@ -7,11 +7,9 @@ import pytest
 
 
 NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
-# notebooks that compile what a group of tests compiles (the corner90 primitive on 30
-# segments, the open-loop fit of brakings 1-2): on that group's worker, they load the
-# compiled programs from the run's cache (tests/conftest.py)
-GROUPS = {"optimal_cornering.ipynb": "corner90_min_time",
-          "braking_identification.ipynb": "identify_fit"}
+# the corner90 notebook solves the tests' primitive (30 segments): on the worker of the
+# corner90 tests it loads the compiled programs from the run's cache (tests/conftest.py)
+GROUPS = {"optimal_cornering.ipynb": "corner90_min_time"}
 
 
 @pytest.mark.skipif(not NOTEBOOKS, reason="no notebooks yet")
