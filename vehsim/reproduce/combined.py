@@ -44,7 +44,7 @@ def _steady_grid(params, load, kappa, alpha, Fz=FZ):
 
 def reproduce(ctx) -> None:
     p, mf = lugre2d_bakker1987(), bakker1987()
-    n = 41 if ctx.quick else 101
+    n = 11 if ctx.tiny else 41 if ctx.quick else 101
     kappa = jnp.linspace(-0.5, 0.5, n)
     alpha = jnp.deg2rad(jnp.linspace(-15.0, 15.0, n))
     ctx.log("Fig. 13-14: steady-state 2D LuGre (uniform load, v = 20 m/s, Fz = 4 kN)")

@@ -85,7 +85,7 @@ class _PlantScores:
 
 
 def reproduce(ctx) -> None:
-    n_seeds = 4 if ctx.quick else 100
+    n_seeds = 1 if ctx.tiny else 4 if ctx.quick else 100
     n_m = len(ROBOT_MISSIONS)
     extra = FIGURE_POSES if ctx.quick else None
     t0 = time.perf_counter()
