@@ -79,8 +79,8 @@ def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
     each (jax.distributed), run the same sweep and gather it into one netCDF file."""
     grid = ["sweep", "--maneuver", "step_steer", "--set", "delta=0.02,0.04,0.08",
             "--duration", "2", "--samples", "11", "--speed", "15", "--signals"]
-    env = dict(os.environ, PYTHONPATH=str(ROOT), XLA_FLAGS="--xla_force_host_platform_device_"
-               "count=1 --xla_backend_optimization_level=0")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_NUM_CPU_DEVICES="1",  # one device each
+               XLA_FLAGS="--xla_backend_optimization_level=0")
     port = _free_port()
     procs = [subprocess.Popen(
         [sys.executable, "-m", "vehsim", *grid, "--coordinator", f"127.0.0.1:{port}",

@@ -4,6 +4,11 @@ The public API is flat: everything a user needs is importable from ``vehsim``, e
 under the one name it has in its own module.
 """
 
+from ._xla_cpu import guard_cpu_scheduler as _guard_cpu_scheduler
+
+
+_guard_cpu_scheduler()  # before JAX starts its CPU backend (vehsim/_xla_cpu.py)
+
 from . import params as params
 from ._results import (
     RESULTS as RESULTS,
