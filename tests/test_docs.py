@@ -20,8 +20,9 @@ API = ROOT / "docs" / "api"
 def public_names() -> list[str]:
     """The names `vehsim/__init__.py` exports (its ``from ... import x as x`` lines)."""
     tree = ast.parse((ROOT / "vehsim" / "__init__.py").read_text())
-    return [a.asname or a.name for node in tree.body if isinstance(node, ast.ImportFrom)
-            for a in node.names]
+    names = [a.asname or a.name for node in tree.body if isinstance(node, ast.ImportFrom)
+             for a in node.names]
+    return [n for n in names if not n.startswith("_")]
 
 
 def documented() -> dict[str, str]:

@@ -4,10 +4,10 @@ The public API is flat: everything a user needs is importable from ``vehsim``, e
 under the one name it has in its own module.
 """
 
-from ._xla_cpu import guard_cpu_scheduler as _guard_cpu_scheduler
+from . import _xla_cpu
 
 
-_guard_cpu_scheduler()  # before JAX starts its CPU backend (vehsim/_xla_cpu.py)
+_xla_cpu.guard_cpu_scheduler()  # before JAX starts its CPU backend (vehsim/_xla_cpu.py)
 
 from . import params as params
 from ._results import (
