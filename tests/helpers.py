@@ -65,3 +65,17 @@ def module_grad_matches_fd(f, module, fields, *, rtol=1e-4, atol=1e-8, eps=1e-6)
         offset += size
         assert np.all(np.isfinite(gi)), f"non-finite gradient wrt {name}"
         np.testing.assert_allclose(gi, fi, rtol=rtol, atol=atol, err_msg=f"gradient wrt {name}")
+
+
+def one_sided_slopes(f, x, direction, h=1e-6):
+    """Left and right derivatives of ``f`` (scalar or array valued) at ``x`` along
+    ``direction``, each by one-sided differences at steps h and h/2 extrapolated to second
+    order (Richardson): they differ where ``f`` has a kink, and agree with the derivative
+    where it has one."""
+    x = np.asarray(x, dtype=float)
+    d = h * np.asarray(direction, dtype=float)
+    val = lambda y: np.asarray(f(jnp.asarray(y)), dtype=float)  # noqa: E731
+    f0 = val(x)
+    right = 2 * (val(x + d / 2) - f0) / (h / 2) - (val(x + d) - f0) / h
+    left = 2 * (f0 - val(x - d / 2)) / (h / 2) - (f0 - val(x - d)) / h
+    return left, right

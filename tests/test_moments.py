@@ -40,6 +40,9 @@ LOADS = {
 }
 
 
+# one worker for the module: the transients fixture (PDE at n = 64) is computed once
+pytestmark = pytest.mark.xdist_group("moments")
+
 def _inputs(alpha_deg, kappa, ramp=0.0):
     """Slip angle stepped (ramp = 0) or ramped linearly over `ramp` seconds to `alpha_deg`."""
     a = jnp.deg2rad(alpha_deg)

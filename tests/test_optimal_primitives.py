@@ -1,19 +1,27 @@
 """Maneuver primitives on the benchmark problems (coarse grids to keep CI small)."""
 
 import math
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from optimal_cache import M, corner90_min_time
 
+from vehsim.optimal import roads
+from vehsim.optimal.guesses import car_guess
 from vehsim.optimal.ip import IPOptions
 from vehsim.optimal.primitives import (
     max_exit_primitive,
     min_time_primitive,
     point_mass_bound,
+    rally_gravel_car,
 )
-from vehsim.optimal.shooting import DELTA_MAX
+from vehsim.optimal.shooting import DELTA_MAX, IDX_TF
+
+
+# one worker for this module and its peer: they share the compiled, solved primitive
+pytestmark = pytest.mark.xdist_group("corner90_min_time")
 
 
 def _check_solution(prim):
@@ -39,14 +47,52 @@ def test_corner90_min_time_feasible_and_above_point_mass_bound(corner_min_time):
     _check_solution(prim)
     bound = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
     assert bound.solution.converged
-    # the point mass with |a| <= D g bounds every min-time result from below
+    # the point mass with |a| <= D g bounds every min-time result from below (how far above
+    # it the optimum lies is checked against IPOPT's optimum below)
     assert float(bound.t_f) < float(prim.t_f)
-    assert float(prim.t_f) < 1.25 * float(bound.t_f)
     # boundary conditions of Table 4 (literal heading)
     x0, xT = np.asarray(prim.solution.xs[0]), np.asarray(prim.solution.xs[-1])
     assert abs(x0[0] + 5.0) < 1e-6 and 8.0 <= x0[1] <= 10.0
     assert abs(xT[1] + 5.0) < 1e-6 and 8.0 <= xT[0] <= 10.0
     assert abs(xT[2] + math.pi / 2) < 1e-6
+
+
+def _ipopt_benchmark():
+    """The benchmark's CasADi + IPOPT transcription (experiments/benchmarks/ocp_vs_ipopt.py):
+    its own CasADi model of the reduced half-car (eqs. 61-63), friction ellipse and
+    quasi-static loads, the same corridor, bounds, objective and RK4 nodes."""
+    import importlib.util
+
+    path = Path(__file__).parent.parent / "experiments" / "benchmarks" / "ocp_vs_ipopt.py"
+    spec = importlib.util.spec_from_file_location("ocp_vs_ipopt", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _against_ipopt(prim, road, objective, tf_max=4.0):
+    """IPOPT from vehsim's own starting guess; returns (vehsim, IPOPT) t_f or exit speed
+    and IPOPT's knots."""
+    xs0, us0 = car_guess(rally_gravel_car(), roads.road(road), M, 1)
+    if objective == "max-exit":
+        xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+    ip = _ipopt_benchmark().ipopt_solve(roads.road(road), objective, 0.52, M, xs0, us0,
+                                        tf_max=tf_max)
+    assert ip["ok"], ip["status"]
+    value = ((lambda x: x[-1, IDX_TF]) if objective == "min-time"
+             else (lambda x: math.hypot(x[-1, 3], x[-1, 4])))
+    return float(value(np.asarray(prim.solution.xs))), float(value(ip["xs"])), ip["xs"]
+
+
+def test_corner90_min_time_is_ipopts_optimum(corner_min_time):
+    """An independent optimum: IPOPT on the benchmark's CasADi model finds the same t_f
+    (to 1e-6; measured 2e-10) and the same knots: positions within 1 mm, speeds 1 mm/s,
+    angles and slips 1e-4."""
+    ours, theirs, xs = _against_ipopt(corner_min_time, "corner90", "min-time")
+    assert abs(ours - theirs) <= 1e-6 * theirs, (ours, theirs)
+    diff = np.abs(np.asarray(corner_min_time.solution.xs) - xs)
+    assert np.all(diff[:, :2] < 1e-3) and np.all(diff[:, 3:5] < 1e-3), diff.max(axis=0)
+    assert np.all(diff[:, [2, 5, 6, 7, 8]] < 1e-4), diff.max(axis=0)
 
 
 def test_warm_start_reproduces_the_optimum(corner_min_time):
@@ -62,10 +108,13 @@ def test_warm_start_reproduces_the_optimum(corner_min_time):
 @pytest.mark.slow
 @pytest.mark.parametrize("road, objective", [("corner90", "max-exit"), ("uturn", "min-time"),
                                              ("sturn", "min-time")])
-def test_other_benchmark_problems_feasible(road, objective):
+def test_other_benchmark_problems_feasible_and_ipopts_optimum(road, objective):
+    """The other benchmark problems: feasible, and within 1e-3 of IPOPT's optimum from the
+    same start (measured: 1.6e-4 below for max-exit, 2e-9 for the others)."""
     f = min_time_primitive if objective == "min-time" else max_exit_primitive
     prim = f(road, num_stages=M, steps_per_stage=1, options=IPOptions(max_iter=400))
     _check_solution(prim)
     if objective == "max-exit":
         assert float(prim.t_f) <= 4.0 + 1e-6
-        assert float(jnp.hypot(prim.solution.xs[-1, 3], prim.solution.xs[-1, 4])) > 5.0
+    ours, theirs, _ = _against_ipopt(prim, road, objective)
+    assert abs(ours - theirs) <= 1e-3 * theirs, (ours, theirs)

@@ -12,10 +12,10 @@ import pytest
 
 from vehsim._constants import GRAVITY
 from vehsim.params import table3
-from vehsim.tire.lugre import LumpedLuGre, stribeck
+from vehsim.tire.lugre import LumpedLuGre, PointLuGre, stribeck
 from vehsim.tire.magic_formula import magic_formula
 from vehsim.tire.relaxed_magic_formula import MagicFormulaParams, RelaxedMagicFormula
-from vehsim.vehicle.normal_load import LoadRelaxation, PrescribedLoad
+from vehsim.vehicle.normal_load import ConstantLoad, LoadRelaxation, PrescribedLoad
 from vehsim.vehicle.quarter_car import QuarterCar, simulate_quarter_car
 
 
@@ -58,6 +58,31 @@ def test_locked_wheel_matches_stribeck_and_load_transfer():
     # momentum balance m dv = F_x dt over the run (trapezoid on the save grid)
     impulse = float(jnp.trapezoid(sol.Fx, TS))
     np.testing.assert_allclose(400.0 * (sol.v[-1] - sol.v[0]), impulse, rtol=2e-3)
+
+
+def test_default_constant_load_gives_coulomb_sliding():
+    """The default load (`ConstantLoad`): F_n = m g throughout. With a point LuGre tire
+    without Stribeck effect or viscous friction (mu_s = mu_c, sigma2 = 0) a sliding wheel
+    (v_r < 0 throughout, the bristle at its steady deflection) brakes at F_x = -mu_c F_n
+    exactly, so v falls linearly at mu_c g (Coulomb), whatever the mass. (A soft brake
+    smoothing omega_eps and Tsit5: a non-stiff wheel, compiled in a fraction of Kvaerno5's
+    time.)"""
+    p = table3()
+    coulomb = eqx.tree_at(lambda q: (q.mu_s, q.sigma2), p, (p.mu_c, jnp.asarray(0.0)))
+    torque = jnp.where(TS > 0.05, 6000.0, 6000.0 * TS / 0.05)
+    sim = eqx.filter_jit(lambda car: simulate_quarter_car(car, TS, torque, 20.0, rtol=1e-8,
+                                                          atol=1e-10, solver=dfx.Tsit5()))
+    for mass in (400.0, 250.0):
+        car = QuarterCar(PointLuGre(coulomb), mass=mass, inertia=1.2, radius=0.3,
+                         omega_eps=5.0)
+        assert isinstance(car.load, ConstantLoad)
+        sol = sim(car)
+        np.testing.assert_allclose(sol.Fn, mass * GRAVITY, rtol=1e-15)
+        after = TS >= 0.3  # sliding by then (checked), the bristle at its sliding state
+        assert np.all(np.asarray(0.3 * sol.omega - sol.v)[after] < -5.0)
+        np.testing.assert_allclose(sol.Fx[after], -float(p.mu_c) * mass * GRAVITY, rtol=1e-7)
+        np.testing.assert_allclose(sol.v[after], sol.v[after][0] - float(p.mu_c) * GRAVITY
+                                   * (TS[after] - 0.3), rtol=1e-7)
 
 
 def test_magic_formula_locked_wheel_and_prescribed_load():

@@ -67,9 +67,19 @@ def test_motor_lags_differ_per_wheel():
 
 
 def test_delay_shifts_motion():
-    run = _run(0.1, 0.0, delay=True)
-    np.testing.assert_allclose(run.final_pose[0], 0.1 * (T_FINAL - 2 * 0.02), rtol=1e-12)
-    assert float(run.pose[2, 0]) == 0.0 and float(run.pose[3, 0]) > 0.0
+    run = _run(0.1, 0.0, delay=True, delay_samples=3)
+    np.testing.assert_allclose(run.final_pose[0], 0.1 * (T_FINAL - 3 * 0.02), rtol=1e-12)
+    assert float(run.pose[3, 0]) == 0.0 and float(run.pose[4, 0]) > 0.0
+
+
+def test_read_delay_returns_the_pose_of_d_samples_ago():
+    """The link reports the pose `read_delay_samples` samples old; before the first reading
+    arrives the host holds the initial pose."""
+    plant = ideal_plant(delay=True, delay_samples=0, read_delay_samples=3)
+    pose0 = jnp.array([0.01, -0.02, 0.3])
+    run = simulate_robot(_Constant(0.1, 0.8), SystemII(), pose0, plant=plant, t_final=T_FINAL)
+    np.testing.assert_array_equal(run.measured[3:], run.pose[:-3])
+    np.testing.assert_array_equal(run.measured[:3], jnp.tile(pose0, (3, 1)))
 
 
 @pytest.mark.parametrize("v,expected", [(0.004, 0.0), (0.013, 2 / 120), (5.0, None)])
@@ -89,12 +99,60 @@ def test_encoder_odometry_quantised():
     assert err[:, :2].max() > 1e-6               # but not exact: counts are quantised
 
 
-def test_sensor_noise_level():
+def test_wheel_mismatch_odometry_sees_a_line_the_robot_drives_an_arc():
+    """Wheel diameters 1 % apart and a wheel base 3 % larger than the nominal ones: the
+    encoders count the commanded pulses, so the odometry (nominal geometry) reads a straight
+    line, while the ground moves at v s_{L,R} under the wheels: an exact arc with
+    v = v_c (s_L + s_R)/2 and omega = v_c (s_R - s_L)/(1.03 b)."""
+    scale = np.array([0.995, 1.005])
+    run = _run(0.1, 0.0, encoders=True, mismatch=True, wheel_scale=scale,
+               wheel_base_scale=1.03)
+    v, w = 0.1 * scale.mean(), 0.1 * (scale[1] - scale[0]) / (1.03 * B)
+    t = T_FINAL
+    expected = [v / w * np.sin(w * t), v / w * (1 - np.cos(w * t)), w * t]
+    np.testing.assert_allclose(run.final_pose, expected, rtol=1e-12)
+    ts = np.asarray(run.ts)
+    np.testing.assert_allclose(run.measured[:, 0], 0.1 * ts, atol=1 / 12000)  # one pulse
+    np.testing.assert_array_equal(run.measured[:, 1:], 0.0)
+    # turning on the spot: the odometry's heading is the commanded one (to a pulse), the
+    # true heading 1/1.03 of it
+    turn = _run(0.0, 0.8, encoders=True, mismatch=True, wheel_scale=(1.0, 1.0),
+                wheel_base_scale=1.03)
+    np.testing.assert_allclose(turn.final_pose[2], 0.8 * t / 1.03, rtol=1e-12)
+    np.testing.assert_allclose(turn.measured[-1, 2], 0.8 * (t - 0.02), atol=2 / 12000 / B)
+
+
+def test_wheel_slip_moves_the_robot_and_not_the_odometry():
+    """Random slip s_{i,k} ~ N(0, slip_std^2) per wheel and sample (the last two of the five
+    normal numbers drawn from fold_in(key, k)):
+    on a straight command the true heading is exactly sum_k v T (s_L,k - s_R,k) / b, and
+    the encoders, on the motor axes, do not see it."""
+    key = jax.random.PRNGKey(7)
+    plant = ideal_plant(encoders=True, slip=True, slip_std=0.05)
+    run = simulate_robot(_Constant(0.1, 0.0), SystemII(), jnp.zeros(3), plant=plant,
+                         t_final=T_FINAL, key=key)
+    s = 0.05 * jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(key, k), (5,))[3:])(
+        jnp.arange(N))
+    np.testing.assert_allclose(run.final_pose[2], np.sum(0.1 * 0.02 * (s[:, 0] - s[:, 1])) / B,
+                               rtol=1e-12)
+    assert abs(float(run.final_pose[2])) > 1e-3                 # the slip did turn it
+    no_slip = _run(0.1, 0.0, encoders=True)
+    np.testing.assert_array_equal(run.measured, no_slip.measured)
+
+
+def test_sensor_noise_is_the_documented_draw():
+    """White noise on the measured pose: sample k adds sigma * N(0, 1), the first three of
+    the five normal numbers drawn from fold_in(key, k), exactly (position 1 mm, heading
+    0.01 rad)."""
+    key = jax.random.PRNGKey(3)
     plant = ideal_plant(noise=True, noise_position=1e-3, noise_heading=0.01)
     run = simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), plant=plant,
-                   t_final=T_FINAL, key=jax.random.PRNGKey(3))
-    std = np.std(np.asarray(run.measured), axis=0)
-    np.testing.assert_allclose(std, [1e-3, 1e-3, 0.01], rtol=0.3)
+                         t_final=T_FINAL, key=key)
+    draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(key, k), (5,))[:3])(
+        jnp.arange(N))
+    np.testing.assert_array_equal(run.pose, 0.0)
+    np.testing.assert_allclose(run.measured, draws * jnp.array([[1e-3, 1e-3, 0.01]]),
+                               rtol=1e-15, atol=0)
 
 
 def test_plant_validation():
@@ -102,16 +160,23 @@ def test_plant_validation():
         KheperaPlant(delay_samples=20)
     with pytest.raises(ValueError, match="motor_time_constant"):
         KheperaPlant(motor_time_constant=(0.05, -1.0))
+    with pytest.raises(ValueError, match="read_delay_samples"):
+        KheperaPlant(read_delay_samples=1.5)
+    with pytest.raises(ValueError, match="wheel_scale"):
+        KheperaPlant(wheel_scale=(1.0, 0.0))
+    with pytest.raises(ValueError, match="slip_std"):
+        KheperaPlant(slip_std=-0.1)
 
 
 def test_controller4_heading_is_noise_sensitive():
     """Report: controller 4 'sensitive to sensor noise resulting in relatively large limit
     cycles of the heading angle around the origin'. Position converges either way; the
-    heading over the last 5 s is far worse with sensor noise than without."""
+    heading over the last 5 s is far worse with white noise on the pose than with the
+    odometry alone."""
     c = PolarController()
-    noisy = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(), save=False)
-    quiet = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(noise=False),
-                     save=False)
+    noisy = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(noise=True),
+                           save=False)
+    quiet = simulate_robot(c, SystemII(), EASY.pose0, plant=realistic_plant(), save=False)
     for run in (noisy, quiet):
         assert float(run.stats.window_position) < 0.01
     assert float(noisy.stats.window_heading) > 5 * float(quiet.stats.window_heading)
@@ -131,22 +196,27 @@ def test_controller2_commands_within_limits_where_controller1_saturates():
 
 
 def test_grid_equals_single_runs():
-    """`simulate_robot_grid` (noise drawn in blocks per initial pose, each law evaluated on its own
-    group) gives the same runs as `simulate_robot` one at a time: realistic plant with noise, a
-    sample count (115 = 5 x 23) that is not a multiple of the 50-sample noise block."""
+    """`simulate_robot_grid` (noise and slip drawn in blocks per initial pose, each law evaluated
+    on its own group) gives the same runs as `simulate_robot` one at a time: realistic plant
+    with noise and slip, a sample count (115 = 5 x 23) that is not a multiple of the 50-sample noise block."""
     controllers = (DiscontinuousController(), PolarController())
     systems = (SystemII(),)
     poses = jnp.array([[-0.15, 0.03, 0.1], [0.1, 0.15, -1.0]])
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
-    grid = simulate_robot_grid(controllers, systems, poses, keys, t_final=2.3, save=True)
+    plant = realistic_plant(noise=True, slip=True)
+    grid = simulate_robot_grid(controllers, systems, poses, keys, plant=plant, t_final=2.3,
+                               save=True)
     assert grid.pose.shape == (2, 1, 2, 115, 3)
     for c, s, p in [(0, 0, 0), (1, 0, 1)]:
-        one = simulate_robot(controllers[c], systems[s], poses[p], key=keys[p], t_final=2.3)
+        one = simulate_robot(controllers[c], systems[s], poses[p], key=keys[p], plant=plant,
+                             t_final=2.3)
         np.testing.assert_allclose(grid.pose[c, s, p], one.pose, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.measured[c, s, p], one.measured, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.command[c, s, p], one.command, rtol=0, atol=1e-12)
         stats = jax.tree_util.tree_map(lambda a: a[c, s, p], grid.stats)
         assert tree_allclose(stats, one.stats, rtol=0, atol=1e-12)
+        odometry_stats = jax.tree_util.tree_map(lambda a: a[c, s, p], grid.odometry_stats)
+        assert tree_allclose(odometry_stats, one.odometry_stats, rtol=0, atol=1e-12)
         assert int(score_run(stats)) == int(score_run(one.stats))
 
 

@@ -1,6 +1,11 @@
 """Batched sweeps sharded across (2 forced host) devices, and the `vehsim sweep` command."""
 
 import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import diffrax as dfx
 import equinox as eqx
@@ -14,6 +19,9 @@ from vehsim.cli import main
 from vehsim.sharding import pad_members, sharded_vmap
 from vehsim.sweep import _sweep_run, sweep, sweep_grid
 from vehsim.vehicle.maneuvers import half_car_scenario, step_steer
+
+
+ROOT = Path(__file__).parent.parent
 
 
 def test_grid_is_a_cartesian_product():
@@ -43,11 +51,14 @@ def test_sweep_is_sharded_equals_loop_and_reports_failures():
     assert res.trajectories.states.shape == (3, 16, 12)
     np.testing.assert_array_equal(res.ok, [True, True, False])
     assert result_name(res.result) == ["successful", "successful", "max_steps_reached"]
-    for i in range(2):
-        member = jax.tree.map(lambda x: x[i], members)
+    @eqx.filter_jit
+    def alone(member):  # the loop's body: one member, not batched, on one device
         car, u, y0 = scenario(member)
-        one = simulate(car, ts, u, y0, max_steps=3000)
-        np.testing.assert_allclose(res.trajectories.states[i], one.states, rtol=1e-9, atol=1e-9)
+        return simulate(car, ts, u, y0, max_steps=3000).states
+
+    for i in range(2):
+        states = alone(jax.tree.map(lambda x: x[i], members))
+        np.testing.assert_allclose(res.trajectories.states[i], states, rtol=1e-9, atol=1e-9)
     # another sweep of the same scenario over other member values reuses the compiled run
     traces = eqx.debug.get_num_traces(_sweep_run)
     again = sweep(scenario, jax.tree.map(lambda x: x[::-1], members), ts, max_steps=3000)
@@ -57,11 +68,34 @@ def test_sweep_is_sharded_equals_loop_and_reports_failures():
         sweep(scenario, {"m": jnp.zeros(2), "delta": jnp.zeros(3)}, ts)
 
 
-def test_cli_sweep_writes_json(tmp_path):
-    out = tmp_path / "sweep.json"
-    rc = main(["sweep", "--maneuver", "step_steer", "--set", "delta=0.02,0.04,0.08",
-               "--duration", "2", "--samples", "11", "--speed", "15", "--out", str(out)])
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
+    """One process writes JSON; two CPU processes on the loopback interface, one device
+    each (jax.distributed), run the same sweep and gather it into one netCDF file."""
+    grid = ["sweep", "--maneuver", "step_steer", "--set", "delta=0.02,0.04,0.08",
+            "--duration", "2", "--samples", "11", "--speed", "15", "--signals"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_NUM_CPU_DEVICES="1",  # one device each
+               XLA_FLAGS="--xla_backend_optimization_level=0")
+    port = _free_port()
+    procs = [subprocess.Popen(
+        [sys.executable, "-m", "vehsim", *grid, "--coordinator", f"127.0.0.1:{port}",
+         "--num-processes", "2", "--process-id", str(i), "--out", str(tmp_path / "two.nc")],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for i in range(2)]
+    try:
+        out = tmp_path / "sweep.json"
+        rc = main(grid + ["--out", str(out)])
+        logs = [p.communicate(timeout=600)[0] for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
     assert rc == 0
+    assert capsys.readouterr().err.count("sweep: 100% (4/4 members)") == 1  # 3 padded to 4
     data = json.loads(out.read_text())
     assert data["num_devices"] == 2 and data["axes"] == {"delta": [0.02, 0.04, 0.08]}
     rows = data["members"]
@@ -69,6 +103,19 @@ def test_cli_sweep_writes_json(tmp_path):
     assert all(r["ok"] and r["status"] == "successful" for r in rows)
     yaw = [r["max_abs_yaw_rate"] for r in rows]
     assert yaw[0] < yaw[1] < yaw[2]  # more steering, more yaw
+    print("\n".join(f"--- process {i}:\n{log}" for i, log in enumerate(logs)))
+    assert [p.returncode for p in procs] == [0, 0], logs
+    assert "of 2 processes (this is process 1)" in logs[1]
+    assert "sweep: 100% (2/2 members)" in logs[0]  # each process runs its own half
+    xr = pytest.importorskip("xarray")
+    two = xr.load_dataset(tmp_path / "two.nc")
+    assert two.attrs["num_devices"] == 2 and list(two["status"].values) == ["successful"] * 3
+    np.testing.assert_array_equal(two["delta"], [0.02, 0.04, 0.08])
+    for name in ("yaw_rate", "Fz_F", "x"):  # the gathered result equals the single process's
+        np.testing.assert_allclose(two[name], [r["signals"][name] for r in rows],
+                                   rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(two["max_abs_yaw_rate"], yaw, rtol=1e-12)
+    assert two["yaw_rate"].attrs["units"] == "rad/s"
     assert main(["sweep", "--set", "nonsense=1", "--out", str(out)]) == 2
 
 

@@ -4,6 +4,11 @@ The public API is flat: everything a user needs is importable from ``vehsim``, e
 under the one name it has in its own module.
 """
 
+from . import _xla_cpu
+
+
+_xla_cpu.guard_cpu_scheduler()  # before JAX starts its CPU backend (vehsim/_xla_cpu.py)
+
 from . import params as params
 from ._results import (
     RESULTS as RESULTS,
@@ -59,6 +64,11 @@ from .robot.khepera import (
 )
 from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
 from .robot.scoring import RunStats as RunStats, score_run as score_run
+from .robot.table2 import (
+    Table2Scores as Table2Scores,
+    headline_findings as headline_findings,
+    table2_agreement as table2_agreement,
+)
 from .robot.unicycle import (
     AbstractSystem as AbstractSystem,
     SystemI as SystemI,
@@ -184,6 +194,18 @@ from .optimal.replay import (
     replay_open_loop as replay_open_loop,
     replay_tracking as replay_tracking,
 )
+
+
+# isort: split
+# labelled results (xarray, netCDF), sweeps across processes, the compilation cache
+from .compilation_cache import enable_compilation_cache as enable_compilation_cache
+from .labelled import (
+    primitives_to_xarray as primitives_to_xarray,
+    robot_grid_to_xarray as robot_grid_to_xarray,
+    sweep_to_xarray as sweep_to_xarray,
+    write_netcdf as write_netcdf,
+)
+from .sharding import gather_members as gather_members
 
 
 __version__ = "0.1.0"

@@ -1,3 +1,5 @@
+"""`python -m vehsim`: the command line (`vehsim.cli`)."""
+
 from .cli import main
 
 

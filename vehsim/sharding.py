@@ -7,6 +7,11 @@ call uses one CPU, several GPUs or several hosts. `sharded_vmap` is the common c
 per-member function vmapped on each device. On a CPU host, forcing one host device per
 core (``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts) runs one
 shard per core.
+
+After `jax.distributed.initialize`, the mesh may hold the devices of several processes
+(machines): every process calls the same function with the same members, `put_members`
+places the slices of each process's own devices, each process runs them, and
+`gather_members` brings the whole result to every process (docs/sweeps.md).
 """
 
 from __future__ import annotations
@@ -19,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import PyTree
+
+from .progress import advance
 
 
 AXIS = "members"
@@ -52,8 +59,26 @@ def device_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
 
 
 def put_members(members: PyTree, devices: Sequence[jax.Device] | None = None) -> PyTree:
-    """`members` placed on `devices`, split along the member axis."""
-    return jax.device_put(members, NamedSharding(device_mesh(devices), PartitionSpec(AXIS)))
+    """`members` placed on `devices`, split along the member axis. With devices of several
+    processes, each process places the slices of its own devices (every process passes
+    the same `members`)."""
+    sharding = NamedSharding(device_mesh(devices), PartitionSpec(AXIS))
+    if all(d.process_index == jax.process_index() for d in sharding.device_set):
+        return jax.device_put(members, sharding)
+    return jax.tree.map(lambda x: jax.make_array_from_callback(
+        np.shape(x), sharding, lambda index: np.asarray(x)[index]), members)
+
+
+def gather_members(tree: PyTree) -> PyTree:
+    """`tree` with every leaf whole on this process: leaves split over the devices of
+    several processes (a sweep after `jax.distributed.initialize`) are gathered from all
+    of them (`jax.experimental.multihost_utils.process_allgather`; every process must
+    call this); other leaves are returned as they are."""
+    if all(x.is_fully_addressable for x in jax.tree.leaves(tree) if isinstance(x, jax.Array)):
+        return tree
+    from jax.experimental import multihost_utils
+
+    return jax.tree.map(jnp.asarray, multihost_utils.process_allgather(tree, tiled=True))
 
 
 def shard_members(
@@ -85,34 +110,50 @@ def sharded_vmap(
     devices: Sequence[jax.Device] | None = None,
     in_axes: int | None | tuple = 0,
     batch_size: int | None = None,
+    progress: bool = False,
 ) -> Callable:
     r"""``jax.vmap(fn, in_axes)`` with the member axis split across `devices`
     (`shard_members`); every output has the member axis first. Wrap the result in `jax.jit`.
 
     `batch_size`: if given, each device runs its slice in vmapped chunks of this many
-    members one after another (`jax.lax.map`): each chunk's adaptive solves stop at the
-    chunk's slowest member instead of the slice's, and a chunk's working set stays in
-    cache (on CPU; on a GPU keep the whole slice in one chunk).
+    members one after another (as `jax.lax.map` with `batch_size`): each chunk's adaptive
+    solves stop at the chunk's slowest member instead of the slice's, and a chunk's
+    working set stays in cache (on CPU; on a GPU keep the whole slice in one chunk).
+
+    `progress`: after each chunk, count its members on the open `vehsim.progress` bar (one
+    host callback per chunk; without `batch_size`, one per device).
     """
 
     def batched(*args):
         axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
-        return _chunked_vmap(fn, axes, batch_size, *args)
+        return _chunked_vmap(fn, axes, batch_size, progress, *args)
 
     return shard_members(batched, devices, in_axes)
 
 
-def _chunked_vmap(fn, axes, batch_size, *args):
-    if batch_size is None:
-        return jax.vmap(fn, in_axes=axes)(*args)
+def _chunked_vmap(fn, axes, batch_size, progress, *args):
     mapped = [a for a, ax in zip(args, axes) if ax is not None]
 
-    def one(member_args):
-        it = iter(member_args)
-        return fn(*(a if ax is None else next(it) for a, ax in zip(args, axes)))
+    def chunk(member_args):  # vmapped over a chunk of members, reported when done
+        def one(margs):
+            it = iter(margs)
+            return fn(*(a if ax is None else next(it) for a, ax in zip(args, axes)))
 
-    return jax.lax.map(one, mapped, batch_size=batch_size)
+        out = jax.vmap(one)(member_args)
+        size = jax.tree.leaves(member_args)[0].shape[0]
+        return advance(size, out) if progress else out
+
+    n = num_members(mapped)
+    if batch_size is None or batch_size >= n:
+        return chunk(mapped)
+    n_full = n // batch_size * batch_size
+    head = jax.tree.map(lambda x: x[:n_full].reshape((-1, batch_size) + x.shape[1:]), mapped)
+    out = jax.tree.map(lambda y: y.reshape((n_full,) + y.shape[2:]), jax.lax.map(chunk, head))
+    if n_full == n:
+        return out
+    tail = chunk(jax.tree.map(lambda x: x[n_full:], mapped))
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), out, tail)
 
 
-__all__ = ["device_mesh", "num_members", "pad_members", "put_members", "shard_members",
-           "sharded_vmap"]
+__all__ = ["device_mesh", "gather_members", "num_members", "pad_members", "put_members",
+           "shard_members", "sharded_vmap"]

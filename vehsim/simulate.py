@@ -66,6 +66,7 @@ def simulate(
     adjoint: dfx.AbstractAdjoint | None = None,
     dense: bool = False,
     throw: bool = True,
+    progress_meter: dfx.AbstractProgressMeter | None = None,
 ) -> Trajectory:
     r"""Integrate $\dot y = f(y, u(t, y))$ of `vehicle` and evaluate its named signals.
 
@@ -90,6 +91,8 @@ def simulate(
     - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
     - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
       (what batched sweeps do).
+    - `progress_meter`: a diffrax progress meter (``diffrax.TqdmProgressMeter()``,
+      ``TextProgressMeter()``); under `jax.vmap` it follows the slowest member.
 
     **Returns:** a `Trajectory`.
     """
@@ -119,6 +122,7 @@ def simulate(
         max_steps=max_steps,
         adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
         throw=throw,
+        progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
     )
     controls = jax.vmap(u_fn)(ts, sol.ys)
     signals = jax.vmap(vehicle.signals)(sol.ys, controls)

@@ -25,7 +25,8 @@ import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
 from ._results import RESULTS
-from .sharding import num_members, pad_members, put_members, sharded_vmap
+from .progress import progress_bar, resolve
+from .sharding import gather_members, num_members, pad_members, put_members, sharded_vmap
 from .simulate import Trajectory, simulate
 
 
@@ -48,6 +49,22 @@ class SweepResult(eqx.Module):
     def ok(self) -> Bool[Array, " N"]:
         """Where the solve succeeded (and every state is finite)."""
         return self.result == RESULTS.successful
+
+    def to_xarray(self, **kwargs):
+        """The sweep as an `xarray.Dataset`: the swept parameters as coordinates, every
+        signal over (members, ``t``) with its units, the per-member ``status``. Keyword
+        arguments as `vehsim.labelled.sweep_to_xarray` (`signals`, `outputs`, `attrs`).
+        Needs xarray (``pip install "vehsim[xarray]"``)."""
+        from .labelled import sweep_to_xarray
+
+        return sweep_to_xarray(self, **kwargs)
+
+    def to_netcdf(self, path, **kwargs):
+        """Write `to_xarray` (same keyword arguments) to a netCDF file at `path`
+        (atomically); returns the path."""
+        from .labelled import write_netcdf
+
+        return write_netcdf(self.to_xarray(**kwargs), path)
 
 
 def sweep_grid(**axes: Sequence[float]) -> dict[str, Array]:
@@ -86,6 +103,7 @@ def sweep(
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     check: bool = True,
+    progress: bool | None = None,
     **simulate_kwargs,
 ) -> SweepResult:
     r"""Simulate every member of a batch, sharded across devices, with per-member results.
@@ -97,16 +115,22 @@ def sweep(
     - `members`: a PyTree of arrays whose leading axis indexes the members (see
       `sweep_grid`).
     - `ts`: save times shared by all members.
-    - `devices`: devices to split the members across (default: all, `jax.devices()`).
-      The member count is padded to a multiple of the device count (padding is dropped).
+    - `devices`: devices to split the members across (default: all, `jax.devices()`:
+      after `jax.distributed.initialize`, the devices of every process, each process
+      running the slices of its own devices). The member count is padded to a multiple of
+      the device count (padding is dropped).
     - `batch_size`: members per vmapped chunk on each device (see
       `vehsim.sharding.sharded_vmap`; default: the device's whole slice at once).
     - `check`: first build the scenario of every member value with concrete numbers
       (`check_members`), so that an invalid value raises `ValueError` before the run.
+    - `progress`: show the members done on stderr, counted per chunk (`vehsim.progress`;
+      default off, on in the command line).
     - `simulate_kwargs`: passed to `simulate` (solver, tolerances, `max_steps`, ...);
       `throw` is always False.
 
-    **Returns:** a `SweepResult`.
+    **Returns:** a `SweepResult`. In a run of several processes every process calls
+    `sweep` with the same arguments and receives the whole result (gathered from all
+    processes, `vehsim.sharding.gather_members`).
     """
     devices = list(jax.devices() if devices is None else devices)
     n = num_members(members)
@@ -115,15 +139,21 @@ def sweep(
     padded = put_members(pad_members(members, len(devices)), devices)
     ts = jnp.asarray(ts, dtype=float)
     simulate_kwargs = dict(simulate_kwargs, throw=False)
-    traj, result = _sweep_run(scenario, padded, ts, tuple(devices), batch_size, simulate_kwargs)
-    traj, result = jax.tree.map(lambda x: x[:n], (traj, result))
+    progress = resolve(progress)
+    local = sum(d.process_index == jax.process_index() for d in devices)
+    share = num_members(padded) * local // len(devices)
+    with progress_bar("sweep", share, "members", enabled=progress):
+        out = _sweep_run(scenario, padded, ts, tuple(devices), batch_size, progress,
+                         simulate_kwargs)
+        out = jax.block_until_ready(gather_members(out))
+    traj, result = jax.tree.map(lambda x: x[:n], out)
     return SweepResult(members=members, trajectories=traj, result=result,
                        num_devices=len(devices))
 
 
 @eqx.filter_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces: tests/test_sweep.py checks reuse
-def _sweep_run(scenario, padded, ts, devices, batch_size, simulate_kwargs):
+def _sweep_run(scenario, padded, ts, devices, batch_size, progress, simulate_kwargs):
     """The jitted body of `sweep`: compiled once per scenario function, shapes, devices and
     solver settings, so repeated sweeps (e.g. over other member values) reuse it."""
     def one(member):
@@ -132,4 +162,4 @@ def _sweep_run(scenario, padded, ts, devices, batch_size, simulate_kwargs):
         finite = jnp.all(jnp.isfinite(traj.states))
         return traj, RESULTS.where(traj.ok & ~finite, RESULTS.nonfinite, traj.result)
 
-    return sharded_vmap(one, list(devices), batch_size=batch_size)(padded)
+    return sharded_vmap(one, list(devices), batch_size=batch_size, progress=progress)(padded)

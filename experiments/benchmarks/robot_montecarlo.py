@@ -1,7 +1,8 @@
 """Benchmark: the Table 2 Monte-Carlo grid in one vmapped, jitted call vs a plain Python loop.
 
 Grid: 8 controllers x 2 systems x 4 missions x N seeds (default 100: 6400 runs), 40 s at
-50 Hz with 4 motor sub-steps per sample on the realistic Khepera plant.
+50 Hz with 4 motor sub-steps per sample on the realistic Khepera plant (odometry with wheel
+mismatch and link delays, plus white pose noise).
 
 Baseline: the same closed loop written as a plain Python loop over runs and samples
 (scalar `math` arithmetic, which is faster than NumPy for 3-vectors), with the same
@@ -45,6 +46,9 @@ from vehsim.reproduce.robot import run_grid  # noqa: E402
 from vehsim.robot.khepera import MAX_DELAY, realistic_plant  # noqa: E402
 from vehsim.robot.missions import ROBOT_MISSIONS  # noqa: E402
 
+
+#: The realistic plant with white pose noise on its odometry, so the timed call draws noise.
+PLANT = realistic_plant(noise=True)
 
 # ---------------------------------------------------------------- plain Python baseline
 L = 0.1  # chained length scale of SystemI/SystemII defaults
@@ -151,21 +155,24 @@ def _polar(x, y, g):
 
 
 def python_run(ci, si, pose0, noise, n_steps, substeps=4):
-    """One closed loop, plain Python: same model as vehsim.robot.khepera (all effects on)."""
+    """One closed loop, plain Python: same model as vehsim.robot.khepera (its default
+    effects, plus the pose noise given in `noise`)."""
     T, b, ppm, unit, vmax = 0.02, 0.053, 12000.0, 1 / 120, 127 / 120
     tau = (0.06, 0.09)
-    delay = 2
+    delay, read_delay = 1, 1
+    scale, base = (0.9985, 1.0015), 0.053 * 1.02      # true wheels and wheel base
     h = T / substeps
     lag = [-math.expm1(-h / tau[0]), -math.expm1(-h / tau[1])]
     pose = list(pose0)
     odo = list(pose0)
+    readings = [list(pose0) for _ in range(read_delay + 1)]   # newest first
     wheels = [0.0, 0.0]
     travel = [0.0, 0.0]
     buffer = [[0.0, 0.0] for _ in range(MAX_DELAY + 1)]
     for k in range(n_steps):
         t = k * T
-        nk = noise[k]
-        meas = [odo[0] + nk[0], odo[1] + nk[1], odo[2] + nk[2]]
+        nk, seen = noise[k], readings[read_delay]
+        meas = [seen[0] + nk[0], seen[1] + nk[1], seen[2] + nk[2]]
         if ci == 3:
             v, w = _polar(*meas)
         else:
@@ -179,7 +186,8 @@ def python_run(ci, si, pose0, noise, n_steps, substeps=4):
         before = [math.floor(travel[0] * ppm), math.floor(travel[1] * ppm)]
         for _ in range(substeps):
             wheels = [wheels[i] + lag[i] * (applied[i] - wheels[i]) for i in range(2)]
-            vv, ww = 0.5 * (wheels[0] + wheels[1]), (wheels[1] - wheels[0]) / b
+            gl, gr = wheels[0] * scale[0], wheels[1] * scale[1]
+            vv, ww = 0.5 * (gl + gr), (gr - gl) / base
             half = 0.5 * ww * h
             chord = vv * h * (math.sin(half) / half if half != 0 else 1.0)
             mid = pose[2] + half
@@ -190,6 +198,7 @@ def python_run(ci, si, pose0, noise, n_steps, substeps=4):
         ds, dg = 0.5 * (d[0] + d[1]), (d[1] - d[0]) / b
         mid = odo[2] + 0.5 * dg
         odo = [odo[0] + ds * math.cos(mid), odo[1] + ds * math.sin(mid), odo[2] + dg]
+        readings = [list(odo)] + readings[:-1]
     return np.array(pose)
 
 
@@ -208,13 +217,13 @@ def main(argv=None):
 
     def timed(devices):
         t0 = time.perf_counter()
-        run = run_grid(args.seeds, devices=devices)
+        run = run_grid(args.seeds, plant=PLANT, devices=devices)
         jax.block_until_ready(run.final_pose)
         first = time.perf_counter() - t0
         walls, cpus = [], []
         for _ in range(args.repeats):
             t0, c0 = time.perf_counter(), time.process_time()
-            run = run_grid(args.seeds, devices=devices)
+            run = run_grid(args.seeds, plant=PLANT, devices=devices)
             jax.block_until_ready(run.final_pose)
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
@@ -236,8 +245,7 @@ def main(argv=None):
                                                         args.seeds)
                                         for i, m in enumerate(ROBOT_MISSIONS)]))
     keys = jax.random.split(k_noise, poses.shape[0])
-    plant = realistic_plant()
-    sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading])
+    sigma = jnp.stack([PLANT.noise_position, PLANT.noise_position, PLANT.noise_heading])
 
     rng = np.random.default_rng(0)
     subset = [(i % 8, (i // 8) % 2, int(rng.integers(poses.shape[0])))
@@ -245,7 +253,8 @@ def main(argv=None):
     errors, t_py, cpu_py = [], 0.0, 0.0
     for j, (ci, si, pi) in enumerate(subset):
         noise = np.asarray(jax.vmap(lambda k: jax.random.normal(
-            jax.random.fold_in(keys[pi], k), (3,), jnp.float64) * sigma)(jnp.arange(n_steps)))
+            jax.random.fold_in(keys[pi], k), (5,), jnp.float64)[:3] * sigma)(
+                jnp.arange(n_steps)))
         t0, c0 = time.perf_counter(), time.process_time()
         final = python_run(ci, si, [float(p) for p in poses[pi]], noise.tolist(), n_steps)
         t_py += time.perf_counter() - t0

@@ -41,14 +41,23 @@ difference to the single-device results.
 ``--tire ellipse`` runs the same benchmark with the benchmark maneuvers' static friction-ellipse tire
 (12 states, not stiff) for comparison.
 
+``--progress-overhead`` measures instead what showing progress costs (no baseline, no
+tolerance search: ``--rtol``, each solver of ``--solvers``): the sharded, chunked run with
+and without its per-chunk progress callbacks (`vehsim.progress`, what `vehsim sweep`
+shows), and the single-device vmapped run with and without diffrax's `TextProgressMeter`
+(its lines sent to /dev/null), each timed ``--repeats`` times interleaved, best kept;
+``simulate_batch.progress`` rows give both times and ``overhead`` = on / off - 1.
+
     PYTHONPATH=. python experiments/benchmarks/simulate_batch.py [--scenarios 1024]
         [--tire lugre|ellipse] [--target-error 3e-5] [--solvers Tsit5,ROS34PW2]
         [--batch-size 64] [--methods LSODA,BDF,Radau,RK45,DOP853]
+        [--progress-overhead --rtol 2e-6 --repeats 5]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -78,6 +87,7 @@ from vehsim import (  # noqa: E402
     simulate,
 )
 from vehsim.params import cdc1999  # noqa: E402
+from vehsim.progress import progress_bar  # noqa: E402
 from vehsim.sweep import pad_members, sharded_vmap  # noqa: E402
 from vehsim.vehicle.maneuvers import brake_in_turn  # noqa: E402
 
@@ -119,14 +129,14 @@ def vehsim_solver(name):
     return dfx.Tsit5() if name == "Tsit5" else ROS34PW2(CAR.stiff_blocks)
 
 
-def vehsim_final(member, rtol, solver="Tsit5"):
+def vehsim_final(member, rtol, solver="Tsit5", progress_meter=None):
     u = brake_in_turn(member["delta"], member["brake_torque"], t_brake=T_BRAKE, rise=RISE,
                       front_share=FRONT_SHARE, t_steer=T_STEER, omega_lock=OMEGA_LOCK)
     controller = dfx.PIDController(rtol=rtol, atol=rtol, pcoeff=0.4, icoeff=0.3,
                                    jump_ts=jnp.asarray(KINKS))
     tr = simulate(CAR, jnp.array([0.0, T_END]), u, CAR.init_state(vx=member["speed"]),
                   solver=vehsim_solver(solver), stepsize_controller=controller,
-                  max_steps=100_000, throw=False)
+                  max_steps=100_000, throw=False, progress_meter=progress_meter)
     return tr.states[-1], tr.num_steps, tr.ok
 
 
@@ -225,6 +235,47 @@ def scipy_final(member, method, rtol):
     return sol.y[:, -1], sol.nfev, sol.status == 0
 
 
+def progress_overhead(full, solver, rtol, batch_size, repeats):
+    """Best wall and CPU times of the batch with and without progress, interleaved (see the
+    module docstring); emits one ``simulate_batch.progress`` row per way."""
+    rtol = jnp.asarray(rtol)
+    meter = dfx.TextProgressMeter(minimum_increase=0.05)
+    ways = {"sharded_chunks": pad_members(full, jax.device_count()), "vmap": full}
+    programs = {}
+    for way, batch in ways.items():
+        for on in (False, True):
+            if way == "vmap":
+                fn = jax.jit(jax.vmap(lambda m, r, on=on: vehsim_final(
+                    m, r, solver, meter if on else None), in_axes=(0, None)))
+            else:
+                fn = jax.jit(sharded_vmap(lambda m, r: vehsim_final(m, r, solver),
+                                          jax.devices(), in_axes=(0, None),
+                                          batch_size=batch_size, progress=on))
+            programs[way, on] = fn.lower(batch, rtol).compile()
+    best = {k: (np.inf, np.inf) for k in programs}
+    for _ in range(repeats):
+        for (way, on), fn in programs.items():
+            bar = progress_bar("batch", len(ways[way]["speed"]), "members",
+                               enabled=on and way != "vmap")
+            quiet = contextlib.redirect_stdout(open(os.devnull, "w"))  # diffrax prints
+            with bar, quiet:
+                t0, c0 = time.perf_counter(), time.process_time()
+                jax.block_until_ready(fn(ways[way], rtol))
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            best[way, on] = (min(best[way, on][0], wall), min(best[way, on][1], cpu))
+    for way in ways:
+        (off_w, off_c), (on_w, on_c) = best[way, False], best[way, True]
+        emit(name="simulate_batch.progress", solver=solver, way=way,
+             progress=("vehsim.progress per chunk" if way != "vmap"
+                       else "diffrax TextProgressMeter"),
+             devices=jax.device_count() if way != "vmap" else 1,
+             batch_size=batch_size if way != "vmap" else None, rtol=float(rtol),
+             scenarios=len(full["speed"]), repeats=repeats, wall_off_s=round(off_w, 4),
+             wall_on_s=round(on_w, 4), overhead=round(on_w / off_w - 1, 4),
+             cpu_off_s=round(off_c, 4), cpu_on_s=round(on_c, 4),
+             cpu_overhead=round(on_c / off_c - 1, 4), load_average=os.getloadavg())
+
+
 RTOLS = tuple(round(m * 10.0 ** -e, 16) for e in range(4, 11) for m in (1.0, 0.5, 0.2))  # 1e-4, 5e-5, 2e-5, ...
 
 
@@ -244,10 +295,20 @@ def main():
                     help="sharded run: members per vmapped chunk on each device (0: whole slice)")
     ap.add_argument("--methods", default="LSODA,BDF,Radau,RK45,DOP853",
                     help="scipy methods to try (the fastest at the target error is the baseline)")
+    ap.add_argument("--progress-overhead", action="store_true",
+                    help="only measure what showing progress costs (see the docstring)")
+    ap.add_argument("--rtol", type=float, default=2e-6,
+                    help="--progress-overhead: the tolerance (2e-6: ROS34PW2 at 1e-3)")
+    ap.add_argument("--repeats", type=int, default=5, help="--progress-overhead: timings")
     args = ap.parse_args()
     configure(args.tire)
     n_states = 12 + 2 * N_TIRE
     S = scenarios(args.scenarios)
+    if args.progress_overhead:
+        for solver in args.solvers.split(","):
+            progress_overhead({k: jnp.asarray(v) for k, v in S.items()}, solver, args.rtol,
+                              args.batch_size or None, args.repeats)
+        return
     member = lambda i: {k: v[i] for k, v in S.items()}  # noqa: E731
     emit(name="simulate_batch.setup", tire=args.tire, scenarios=args.scenarios,
          duration_s=T_END, states=n_states, target_error=args.target_error,

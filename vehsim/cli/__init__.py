@@ -3,6 +3,7 @@
 One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`), each with
 ``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
+Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vehsim", description="Differentiable vehicle simulation (after Tsiotras, 2004)."
     )
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress lines on stderr for long batched work")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(sub)
@@ -29,13 +32,19 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import jax
 
+    from ..progress import set_default
+
     jax.config.update("jax_enable_x64", True)
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    library_default = set_default(not args.no_progress)
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as e:
         print(f"vehsim: error: {e}", file=sys.stderr)
         return 2
+    finally:
+        set_default(library_default)
 
 
 __all__ = ["build_parser", "main"]

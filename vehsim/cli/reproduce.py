@@ -12,6 +12,9 @@ def register(subparsers) -> None:
                       help="small grids and few runs (default, a few minutes on 2 cores)")
     mode.add_argument("--full", dest="quick", action="store_false",
                       help="the report's resolution (slower)")
+    mode.add_argument("--tiny", action="store_true",
+                      help="the smallest sizes that run every step (for testing the command; "
+                           "its numbers are not results)")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
     p.add_argument("--only", nargs="*", default=None,
                    help="run only sections whose name contains one of these words "
@@ -22,5 +25,5 @@ def register(subparsers) -> None:
 def _reproduce(args) -> int:
     from ..reproduce import run
 
-    run(args.out, quick=args.quick, only=args.only)
+    run(args.out, quick=args.quick, only=args.only, tiny=args.tiny)
     return 0

@@ -1,17 +1,21 @@
-"""`vehsim sweep`: a grid of half-car maneuvers, sharded over every device, to one JSON file."""
+"""`vehsim sweep`: a grid of half-car maneuvers, sharded over every device, to one JSON or
+netCDF file."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "sweep",
-        help="simulate a grid of half-car scenarios (sharded over all devices), write JSON",
+        help="simulate a grid of half-car scenarios (sharded over all devices), write JSON or netCDF",
         description=(
             "Run a grid of HalfCar maneuvers. --set NAME=V1,V2,... adds a grid axis; NAME "
             "is a HalfCarParams field (m, Iz, h, K_F, ...), a tire field (B, C, D for the "
@@ -28,7 +32,21 @@ def register(subparsers) -> None:
     p.add_argument("--duration", type=float, default=5.0, help="simulated time [s]")
     p.add_argument("--samples", type=int, default=101, help="saved time samples")
     p.add_argument("--signals", action="store_true", help="also write every signal's history")
-    p.add_argument("--out", default="sweep.json", help="output JSON file")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="members per vmapped chunk on each device (progress is counted per "
+                        "chunk; default: a tenth of a device's share, at most 64; 0: the "
+                        "whole share at once, better on a GPU)")
+    g = p.add_argument_group(
+        "several processes or hosts (jax.distributed.initialize; docs/sweeps.md)")
+    g.add_argument("--distributed", action="store_true",
+                   help="join a multi-process run, its settings detected from the cluster "
+                        "(SLURM, Open MPI, ...)")
+    g.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="address of process 0's coordinator service (implies --distributed)")
+    g.add_argument("--num-processes", type=int, help="number of processes in the run")
+    g.add_argument("--process-id", type=int, help="this process's id, 0 to num-processes - 1")
+    p.add_argument("--out", default="sweep.json",
+                   help="output file: JSON, or netCDF if it ends in .nc (needs vehsim[xarray])")
     p.set_defaults(func=_sweep)
 
 
@@ -71,49 +89,96 @@ def _sweep(args: argparse.Namespace) -> int:
     import jax
     import jax.numpy as jnp
 
-    from .._io import write_json
-    from .._results import result_message_of_name, result_name
+    from .._results import result_name
     from ..params import preset
     from ..sharding import num_members
     from ..sweep import sweep, sweep_grid
     from ..vehicle.maneuvers import half_car_scenario
 
     axes = parse_axes(args.axes)
+    if args.distributed or args.coordinator:
+        join_distributed(args)
     params, tire = preset(args.vehicle), preset(args.tire)
     members = sweep_grid(**axes) if axes else {"speed": jnp.asarray([args.speed])}
-    names = list(members)
     n = num_members(members)
-    scenario = half_car_scenario(params, tire, args.maneuver, args.speed, names)
-    print(f"vehsim sweep: {n} members x {args.duration} s on {len(jax.devices())} device(s)",
-          file=sys.stderr, flush=True)
+    scenario = half_car_scenario(params, tire, args.maneuver, args.speed, list(members))
+    where = f"{len(jax.devices())} device(s)" + (
+        f" of {jax.process_count()} processes (this is process {jax.process_index()})"
+        if jax.process_count() > 1 else "")
+    print(f"vehsim sweep: {n} members x {args.duration} s on {where}", file=sys.stderr,
+          flush=True)
     ts = jnp.linspace(0.0, args.duration, args.samples)
     t0 = time.perf_counter()
-    res = sweep(scenario, members, ts)
-    jax.block_until_ready(res.trajectories.states)
+    batch_size = default_batch_size(n) if args.batch_size is None else args.batch_size or None
+    res = sweep(scenario, members, ts, batch_size=batch_size)
     wall = time.perf_counter() - t0
+    n_ok = result_name(res.result).count("successful")
+    if jax.process_index() != 0:  # every process has the gathered result; process 0 writes
+        return 0 if n_ok == n else 1
     stats = jax.vmap(summary)(res.trajectories)
-    statuses = result_name(res.result)
-    out = {
-        "maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
-        "speed": args.speed, "duration": args.duration, "axes": axes,
-        "num_devices": res.num_devices, "wall_time_s": round(wall, 3),
-        "members": [
-            {
-                **{k: float(members[k][i]) for k in names},
-                "ok": statuses[i] == "successful",
-                "status": statuses[i],
-                "message": result_message_of_name(statuses[i]),
-                **{k: v[i] for k, v in stats.items()},
-                **({"signals": {k: v[i] for k, v in res.trajectories.signals.items()}}
-                   if args.signals else {}),
-            }
-            for i in range(n)
-        ],
-    }
-    if args.signals:
-        out["ts"] = ts
-    path = write_json(args.out, out)
-    n_ok = statuses.count("successful")
+    info = {"maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
+            "speed": args.speed, "duration": args.duration}
+    if Path(args.out).suffix == ".nc":
+        path = res.to_netcdf(args.out, signals=args.signals, outputs=stats,
+                             attrs=info | {"wall_time_s": round(wall, 3)})
+    else:
+        path = _write_json(args.out, res, stats, info | {"axes": axes}, wall, args.signals)
     print(f"vehsim sweep: {n_ok}/{n} ok in {wall:.1f} s (compile included); wrote {path}",
           file=sys.stderr)
     return 0 if n_ok == n else 1
+
+
+_BOOT = ("import json, sys; import jax; jax.distributed.initialize(**json.loads(sys.argv[1])); "
+         "from vehsim.cli import main; sys.exit(main(sys.argv[2:]))")
+
+
+def join_distributed(args: argparse.Namespace) -> None:
+    """Join a multi-process run (`jax.distributed.initialize`). JAX's runtime must start
+    before the first array exists, and importing vehsim creates arrays (parameter presets,
+    default options): so, unless it is already started, the command restarts its process
+    (same process id, same arguments) with the runtime started first."""
+    import jax
+
+    if jax.distributed.is_initialized():
+        return
+    if args.coordinator and (args.num_processes is None or args.process_id is None):
+        raise ValueError("--coordinator needs --num-processes and --process-id")
+    settings = {"coordinator_address": args.coordinator, "num_processes": args.num_processes,
+                "process_id": args.process_id}
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, "-c", _BOOT, json.dumps(settings), *args.argv])
+
+
+def default_batch_size(n: int) -> int:
+    """Members per chunk on each device: about a tenth of a device's share (so progress
+    moves in steps of about 10 %), at most 64 (a good chunk on a CPU core)."""
+    import jax
+
+    share = -(-n // len(jax.devices()))
+    return max(1, min(64, -(-share // 10)))
+
+
+def _write_json(out, res, stats, info, wall, signals) -> Path:
+    """The sweep as JSON: one record per member (parameters, status, summary outputs)."""
+    from .._io import write_json
+    from .._results import result_message_of_name, result_name
+
+    members, statuses = res.members, result_name(res.result)
+    rows = [
+        {
+            **{k: float(v[i]) for k, v in members.items()},
+            "ok": statuses[i] == "successful",
+            "status": statuses[i],
+            "message": result_message_of_name(statuses[i]),
+            **{k: v[i] for k, v in stats.items()},
+            **({"signals": {k: v[i] for k, v in res.trajectories.signals.items()}}
+               if signals else {}),
+        }
+        for i in range(len(statuses))
+    ]
+    out_data = {**info, "num_devices": res.num_devices, "wall_time_s": round(wall, 3),
+                "members": rows}
+    if signals:
+        out_data["ts"] = res.trajectories.ts[0]
+    return write_json(out, out_data)

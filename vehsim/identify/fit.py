@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._results import RESULTS, result_name, result_record
+from ..progress import progress_bar, resolve
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel, peak_scales
 from .braking import BrakingData
@@ -145,7 +146,8 @@ def evaluate(model: LumpedLuGre, data: BrakingData,
 def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, fixed=None,
                   n_starts: int = 8, spread: float = 0.3, key: int = 0, tol: float = 1e-6,
                   max_steps: int = 100, substeps: int = 2, prior_weight: float = 1e-4,
-                  throw: bool = True, verbose: bool = False) -> FitResult:
+                  throw: bool = True, verbose: bool = False,
+                  progress: bool | None = None) -> FitResult:
     r"""Fit the lumped LuGre model (eqs. 22-25) to brakings, driven by measured $v$, $\omega$
     (`OpenLoopBraking`).
 
@@ -167,19 +169,21 @@ def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, f
       less than their standard errors (and exact data are recovered to ~1e-5); 0 turns it off.
     - `throw`: raise `FitError` (with the residual) if the best start did not converge or
       the parameters are not identifiable; with `False` check `FitResult.result`.
-    - `verbose`: progress on stderr.
+    - `verbose`: the stages of the fit on stderr.
+    - `progress`: the Levenberg-Marquardt steps and the best loss on stderr, step by step
+      (`vehsim.progress`; default off, on in the command line).
 
     **Returns:** a `FitResult`.
     """
     return _fit(data, init, free, fixed, OpenLoopBraking(substeps), n_starts, spread, key, tol,
-                max_steps, throw, verbose, prior_weight)
+                max_steps, throw, verbose, prior_weight, progress)
 
 
 def fit_closed_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, fixed=None,
                     n_starts: int = 1, spread: float = 0.3, key: int = 0, tol: float = 1e-8,
                     max_steps: int = 100, rtol: float = 1e-6, solver=None,
                     prior_weight: float = 1e-4, throw: bool = True,
-                    verbose: bool = False) -> FitResult:
+                    verbose: bool = False, progress: bool | None = None) -> FitResult:
     r"""Fit the quarter car (lumped tire) driven by the measured brake torque $T_b(t)$,
     predicting $v$, $\omega$, $F_x$ together (`ClosedLoopBraking`).
 
@@ -188,7 +192,7 @@ def fit_closed_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE,
     with forward-mode sensitivities. Other arguments as in `fit_open_loop`.
     """
     return _fit(data, init, free, fixed, ClosedLoopBraking(solver, rtol), n_starts, spread,
-                key, tol, max_steps, throw, verbose, prior_weight)
+                key, tol, max_steps, throw, verbose, prior_weight, progress)
 
 
 # --------------------------------------------------------------------------------------
@@ -206,11 +210,12 @@ class _Problem(NamedTuple):
 
 
 def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, spread, key, tol,
-         max_steps, throw, verbose, prior_weight, gtol=1e-6, ftol=1e-6) -> FitResult:
+         max_steps, throw, verbose, prior_weight, progress=None, gtol=1e-6,
+         ftol=1e-6) -> FitResult:
     t_start = time.perf_counter()
     problem = _prepare(data, init, free, fixed, n_starts)
     core = _solve(problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
-                  verbose, t_start)
+                  verbose, t_start, resolve(progress))
     diag = _diagnose(problem, core, prior_weight)
     result = _assemble(problem, braking, core, diag, max_steps, gtol, ftol, t_start)
     _log(verbose, f"{result_name(result.result)}: {result.message} "
@@ -251,7 +256,7 @@ def _prepare(data, init, free, fixed, n_starts) -> _Problem:
 
 
 def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
-           verbose, t_start) -> dict[str, Any]:
+           verbose, t_start, progress=False) -> dict[str, Any]:
     """Every start solved in one compiled call (`_fit_core`); the outputs in NumPy."""
     _log(verbose, f"{braking.name}: {len(problem.names)} parameters {list(problem.names)}, "
          f"{n_starts} start(s), {sum(len(d) for d in problem.data)} samples in "
@@ -259,10 +264,13 @@ def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, pr
     # rows for the free directions that move the friction state (open loop): 5 keep the
     # state and its tangents in one solve
     slots = 5 if int(np.sum(problem.mask & ~FORCE_ONLY)) <= 5 else 7
-    core = _fit_core(problem.model, problem.anon, problem.mask,
-                     np.asarray(float(prior_weight)), np.asarray(key), np.asarray(float(spread)),
-                     n_starts, braking, problem.scales, tol, max_steps, slots)
-    core = {k: v if k == "model" else np.asarray(v) for k, v in core.items()}
+    with progress_bar("fit", max_steps, "steps", enabled=progress,
+                      value_name="loss", eta=False):
+        core = _fit_core(problem.model, problem.anon, problem.mask,
+                         np.asarray(float(prior_weight)), np.asarray(key),
+                         np.asarray(float(spread)), n_starts, braking, problem.scales, tol,
+                         max_steps, slots, progress)
+        core = {k: v if k == "model" else np.asarray(v) for k, v in core.items()}
     losses, finite = core["losses"], np.isfinite(core["losses"])
     _log(verbose, f"solved {n_starts} start(s) in {time.perf_counter() - t_start:.1f}s: "
          f"{int(core['ok'].sum())} converged, best loss "
@@ -273,7 +281,7 @@ def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, pr
 
 @eqx.filter_jit
 def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, braking, scales, tol,
-              max_steps, slots):
+              max_steps, slots, progress=False):
     """Everything of a fit that runs in JAX, in one compiled call (eager dispatches of the
     small pre- and post-fit steps cost more than a Levenberg-Marquardt step): the starts,
     the batched solve, the best start, and its data residuals and Jacobian (the solver's
@@ -283,7 +291,8 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, braking, s
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
     u0s = jnp.concatenate([u_fixed[None], u_fixed[None] + spread * noise * mask[None, :]])
     us, losses, ok, steps, rs, Js = solve_batch(u0s, u_fixed, mask, prior_weight, model, data,
-                                                braking, scales, tol, max_steps, slots)
+                                                braking, scales, tol, max_steps, slots,
+                                                progress)
     # the best start: the least finite loss among the converged ones, else among all
     rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
     best = jnp.argmin(rank)

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from ..progress import reach
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel
 from .braking import BrakingData
@@ -54,11 +55,17 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
     search: Any
     verbose: Any
 
-    def __init__(self, rtol, atol, initial_step_size):
+    def __init__(self, rtol, atol, initial_step_size, progress: bool = False):
         self.rtol, self.atol, self.norm = rtol, atol, optx.max_norm
         self.descent = optx.DampedNewtonDescent(linear_solver=lx.Normal(lx.Cholesky()))
         self.search = ScaledTrustRegion(initial_step_size=initial_step_size)
-        self.verbose = lambda **kwargs: None
+        self.verbose = _report_step if progress else (lambda **kwargs: None)
+
+
+def _report_step(**info) -> None:
+    """Optimistix's per-step report, as progress: the step and the last accepted loss."""
+    loss = info["loss_last_accepted_step"][1]
+    reach(info["num_steps"][1] + 1, jnp.where(info["accepted_steps"][1] > 0, loss, jnp.inf))
 
 
 def residual_with_jacobian(braking: AbstractBrakingModel, mask, model: LumpedLuGre,
@@ -92,7 +99,7 @@ def residual_with_jacobian(braking: AbstractBrakingModel, mask, model: LumpedLuG
 @eqx.filter_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces: the tests check for retraces
 def solve_batch(u0s, u_fixed, mask, prior_weight, model, data, braking, scales, tol,
-                max_steps, slots=7):
+                max_steps, slots=7, progress=False):
     r"""Levenberg-Marquardt from each row of `u0s` on the residuals of `braking` and the
     prior $w(u - u_0)$ on the free entries ($w$ = `prior_weight`, $u_0$ = `u_fixed`, which
     also holds the fixed entries).
@@ -111,7 +118,7 @@ def solve_batch(u0s, u_fixed, mask, prior_weight, model, data, braking, scales, 
     def one(u0):
         J = jax.jacfwd(lambda u: residual(u, None))(u0)
         lambda_0 = INITIAL_DAMPING * jnp.max(jnp.sum(J**2, axis=0))
-        solver = LevenbergMarquardt(tol, tol, 1.0 / lambda_0)
+        solver = LevenbergMarquardt(tol, tol, 1.0 / lambda_0, progress)
         sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
         r = sol.state.f_info.residual  # at the last accepted point, `sol.value`
         return jnp.where(mask, sol.value, u_fixed), 0.5 * jnp.sum(r**2), \

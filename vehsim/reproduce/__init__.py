@@ -31,10 +31,13 @@ SECTIONS: tuple[str, ...] = (  # in the order of the report
 
 @dataclasses.dataclass
 class ReproduceContext:
-    """What a section gets: where to write, how much work to do, and the report to fill."""
+    """What a section gets: where to write, how much work to do, and the report to fill.
+    ``tiny`` (implies ``quick``): the smallest sizes that still run every step, for the tests
+    of the command line; its numbers are not results."""
 
     out: Path
     quick: bool
+    tiny: bool = False
     lines: list[str] = dataclasses.field(default_factory=list)
     results: dict[str, Any] = dataclasses.field(default_factory=dict)
 
@@ -58,17 +61,20 @@ class ReproduceContext:
         print(f"  {message}", file=sys.stderr, flush=True)
 
 
-def run(out: str | Path = "results", quick: bool = True, only: list[str] | None = None) -> Path:
-    """Run every section (or those whose name contains one of the words in `only`)."""
+def run(out: str | Path = "results", quick: bool = True, only: list[str] | None = None,
+        tiny: bool = False) -> Path:
+    """Run every section (or those whose name contains one of the words in `only`);
+    ``tiny``: see `ReproduceContext`."""
     import matplotlib
 
     matplotlib.use("Agg")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    ctx = ReproduceContext(out=out, quick=quick)
+    ctx = ReproduceContext(out=out, quick=quick or tiny, tiny=tiny)
+    mode = "tiny" if tiny else "quick" if quick else "full"
     ctx.text(
         "# vehsim reproduction report",
-        f"Mode: {'quick' if quick else 'full'}. Equation, figure and table numbers refer to "
+        f"Mode: {mode}. Equation, figure and table numbers refer to "
         "Tsiotras, *Analysis and Control of High-Speed Wheeled Mobile Robots*, final report, 2004.",
     )
     sections = [s for s in SECTIONS if not only or any(o in s.rsplit('.', 1)[1] for o in only)]

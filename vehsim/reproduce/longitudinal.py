@@ -73,7 +73,7 @@ def _braking_ramp():
 def _transient(ctx, p):
     v_fn, slip, om_fn = _braking_ramp()
     ts = jnp.linspace(0.0, 1.2, 241 if ctx.quick else 1201)
-    n = 32 if ctx.quick else 64
+    n = 8 if ctx.tiny else 32 if ctx.quick else 64
     dist = DistributedLuGre(p, UniformLoad(), n=n)
     models = {
         "point (eqs. 8-9)": PointLuGre(p),
@@ -220,7 +220,7 @@ def _kappa0(ctx, p):
 def _convergence(ctx, p):
     import matplotlib.pyplot as plt
 
-    ns = [4, 6, 8, 12, 16, 24, 32, 48, 64]
+    ns = [4, 8] if ctx.tiny else [4, 6, 8, 12, 16, 24, 32, 48, 64]
     slips = [-0.02, -0.2, -0.9, -0.99]
     v = 20.0
     fig, ax = plt.subplots(figsize=(5.5, 4))

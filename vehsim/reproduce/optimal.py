@@ -42,7 +42,7 @@ def techniques(sig: dict, t: np.ndarray) -> dict:
 
 
 def reproduce(ctx) -> None:
-    segments = 50 if ctx.quick else 150
+    segments = 30 if ctx.tiny else 50 if ctx.quick else 150  # tiny: the tests' grid
     problems = PROBLEMS[:1] if ctx.quick else PROBLEMS
     # several point-mass seeds (corridor margin, friction fraction): the problems have several
     # local optima and the best converged one is kept

@@ -2,50 +2,96 @@ r"""Choosing 2D LuGre parameters whose steady state matches the Magic Formula (r
 
 The report says the LuGre parameters were chosen to match static tire models. We make that
 choice reproducible: a least-squares fit, through the closed-form steady state of the
-distributed model (`steady_state_forces`), of the pure-slip curves $F_x(\kappa)$ at
-$\alpha = 0$ and $F_y(\alpha)$ at $\kappa = 0$ of a Magic Formula, at one load and speed:
-$$\min_\theta\;\sum_j\Bigl(\frac{F^\text{LuGre}_j(\theta) - F^\text{MF}_j}{F_z}\Bigr)^2,$$
-solved by `optimistix.LevenbergMarquardt`. The free parameters are
-$\sigma_{0x}, \sigma_{0y}, \mu_{kx}, \mu_{ky}, \mu_{sx}-\mu_{kx}, \mu_{sy}-\mu_{ky}, v_s, \gamma$
-(through their logarithms, so they stay positive); $L$, $\sigma_1$, $\sigma_2$ are held.
+distributed model (`steady_state_forces`, eqs. 31-33), of the pure-slip curves
+$F_x(\kappa)$ at $\alpha = 0$, and $F_y(\alpha)$ and $M_z(\alpha)$ at $\kappa = 0$, of a
+Magic Formula, at several loads $F_z$ and one speed:
+$$\min_\theta\;\sum_{F_z}\sum_{Q\in\{F_x, F_y, M_z\}}\sum_j
+  \Bigl(\frac{Q^\text{LuGre}_j(\theta; F_z) - Q^\text{MF}_j(F_z)}
+             {\max_j|Q^\text{MF}_j(F_z)|}\Bigr)^2,$$
+each curve relative to its peak, solved by `optimistix.LevenbergMarquardt`. The free
+parameters are $\sigma_{0x}, \sigma_{0y}, \mu_{kx}, \mu_{ky}, \mu_{sx}-\mu_{kx},
+\mu_{sy}-\mu_{ky}, v_s, \gamma$ (through their logarithms, so they stay positive);
+$\sigma_1$, $\sigma_2$ are held (they do not enter the steady state, or are set to zero).
+
+**The normal load is fitted too** (`fit_load=True`): its shape, a quartic in the Bernstein
+form $q(\xi) \propto \sum_{k=0}^4 w_k\binom4k\xi^k(1-\xi)^{4-k}$ with weights $w_k \ge 0$
+($w_2 = 1$; fitted through their square roots; any such shape is non-negative, equal weights give the uniform load, and
+unequal ones skew it: a general polynomial of Fig. 16a), and the patch length as a power
+of the load, $L = L_0(F_z/F_{z,0})^p$: with the shape, this is the only way the model's
+normalised forces $F/F_z$ can depend on the load.
+
+What the fit can and cannot do follows from eq. 33 at steady state. Along the patch the
+deflection $z_y(\xi)$ grows monotonically from the leading edge, where bristles enter
+undeflected, towards $v_{ry}/C_{0y}$, so for a load symmetric about the centre
+$M_z = \sigma_{0y}F_zL\int_0^1 q\,z_y\,(1/2-\xi)\,d\xi \le 0$ at every slip angle (pair
+$\xi$ with $1-\xi$): it is aligning, and tends to zero as the patch saturates. The sign
+change of the Magic Formula's $M_z$ at large slip angles needs the load's centre of
+pressure ahead of the patch centre: then $M_z \to F_yL\int_0^1 q\,(1/2-\xi)\,d\xi > 0$
+as the whole patch slides.
 """
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
+from jaxtyping import Array, Float
 
 from .distributed2d import steady_state_forces
-from .load import AbstractLoadDistribution, UniformLoad
+from .load import AbstractLoadDistribution, PolynomialLoad, UniformLoad
 from .lugre2d import LuGre2DParams
 from .magic_formula import MagicFormula1987Params, combined_forces
 
 
+QUANTITIES = ("F_x", "F_y", "M_z")
+"""The curves fitted, in the order of the error arrays."""
+
+_DEGREE = 4
+_BERNSTEIN = np.array([  # row k: monomial coefficients of binom(4, k) x^k (1 - x)^(4 - k)
+    np.pad(math.comb(_DEGREE, k) * np.polynomial.polynomial.polypow([1.0, -1.0],
+                                                                     _DEGREE - k),
+           (k, 0))[: _DEGREE + 1]
+    for k in range(_DEGREE + 1)])
+
+
+def bernstein_load(weights: Float[Array, " 5"]) -> PolynomialLoad:
+    r"""The load $q(\xi)\propto\sum_k w_k\binom4k\xi^k(1-\xi)^{4-k}$ (normalised), for
+    weights $w_k \ge 0$ (module docstring)."""
+    return PolynomialLoad(jnp.asarray(weights) @ jnp.asarray(_BERNSTEIN))
+
+
 class MatchResult(eqx.Module):
-    """Fitted parameters, residuals and optimistix result of `fit_to_magic_formula`."""
+    """What `fit_to_magic_formula` found: `params` (with $L = L_0$, the patch length at
+    `reference_load`), the normal-load shape `load` (its Bernstein `load_weights` when it
+    was fitted, else None), the exponent `patch_exponent` $p$ of
+    $L = L_0(F_z/F_{z,0})^p$, the `loads` fitted, the errors relative to each curve's peak
+    `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$), the optimistix
+    `result` and `num_steps`."""
 
     params: LuGre2DParams
-    rms_residual: jax.Array
-    max_residual: jax.Array
+    load: AbstractLoadDistribution
+    load_weights: Float[Array, " 5"] | None
+    patch_exponent: Float[Array, ""]
+    reference_load: Float[Array, ""]
+    loads: Float[Array, " n"]
+    rms_error: Float[Array, "n 3"]
+    max_error: Float[Array, "n 3"]
     result: optx.RESULTS
-    num_steps: jax.Array
+    num_steps: Array
+
+    def params_at(self, Fz) -> LuGre2DParams:
+        """The parameters at load `Fz` [N] (the patch length scaled to it)."""
+        return scaled_patch(self.params, self.patch_exponent, self.reference_load, Fz)
 
 
-def _unpack(theta, fixed: LuGre2DParams):
-    e = jnp.exp(theta)
-    mu_k = e[2:4]
-    return LuGre2DParams(
-        sigma0=e[0:2], sigma1=fixed.sigma1, sigma2=fixed.sigma2, mu_k=mu_k,
-        mu_s=mu_k + e[4:6], v_s=e[6], gamma=e[7], L=fixed.L,
-    )
-
-
-def _pack(p: LuGre2DParams):
-    # a small floor keeps log finite when a start has mu_s = mu_k
-    gap = jnp.maximum(p.mu_s - p.mu_k, 1e-3)
-    return jnp.log(jnp.concatenate([p.sigma0, p.mu_k, gap, jnp.stack([p.v_s, p.gamma])]))
+def scaled_patch(params: LuGre2DParams, exponent, reference_load, Fz) -> LuGre2DParams:
+    r"""`params` with $L = L_0(F_z/F_{z,0})^p$ ($L_0$ = `params.L`, $p$ = `exponent`)."""
+    L = params.L * (jnp.asarray(Fz, dtype=float) / reference_load) ** exponent
+    return eqx.tree_at(lambda q: q.L, params, L)
 
 
 def default_slip_grid():
@@ -55,58 +101,163 @@ def default_slip_grid():
     return kappa, alpha
 
 
-def match_residuals(params: LuGre2DParams, mf: MagicFormula1987Params, Fz, v, kappa, alpha,
-                    load: AbstractLoadDistribution | None = None):
-    r"""Normalised residuals $(F^\text{LuGre} - F^\text{MF})/F_z$ on the pure-slip grids."""
-    load = UniformLoad() if load is None else load
+def magic_formula_curves(mf: MagicFormula1987Params, Fz, kappa, alpha):
+    r"""The Magic Formula's pure-slip $(F_x(\kappa), F_y(\alpha), M_z(\alpha))$ at load
+    `Fz` [N] on the `kappa` and `alpha` [rad] grids."""
+    zeros_k, zeros_a = jnp.zeros_like(kappa), jnp.zeros_like(alpha)
+    lat = combined_forces(mf, zeros_a, alpha, Fz)
+    return combined_forces(mf, kappa, zeros_k, Fz)[:, 0], lat[:, 1], lat[:, 2]
+
+
+def lugre_curves(params: LuGre2DParams, load: AbstractLoadDistribution, Fz, v, kappa, alpha):
+    r"""The steady distributed LuGre model's pure-slip $(F_x(\kappa), F_y(\alpha),
+    M_z(\alpha))$ at load `Fz` [N] and speed `v` [m/s] (`params.L`: the patch length at
+    this load)."""
 
     def lugre(k, a):
         return steady_state_forces(params, load, v, k, a, Fz)
 
-    zeros_k, zeros_a = jnp.zeros_like(kappa), jnp.zeros_like(alpha)
-    fx = jax.vmap(lugre)(kappa, zeros_k)[:, 0] - combined_forces(mf, kappa, zeros_k, Fz)[:, 0]
-    fy = jax.vmap(lugre)(zeros_a, alpha)[:, 1] - combined_forces(mf, zeros_a, alpha, Fz)[:, 1]
-    return jnp.concatenate([fx, fy]) / Fz
+    lat = jax.vmap(lugre)(jnp.zeros_like(alpha), alpha)
+    return jax.vmap(lugre)(kappa, jnp.zeros_like(kappa))[:, 0], lat[:, 1], lat[:, 2]
+
+
+def _relative(lugre, target):
+    return tuple((lu - t) / jnp.max(jnp.abs(t)) for lu, t in zip(lugre, target))
+
+
+def match_errors(params: LuGre2DParams, load: AbstractLoadDistribution,
+                 mf: MagicFormula1987Params, Fz, v, kappa, alpha):
+    r"""$(Q^\text{LuGre} - Q^\text{MF})/\max|Q^\text{MF}|$ at load `Fz` for $Q = F_x$ on
+    the `kappa` grid and $Q = F_y, M_z$ on the `alpha` grid (a tuple of three arrays;
+    `params.L` is the patch length at this load)."""
+    return _relative(lugre_curves(params, load, Fz, v, kappa, alpha),
+                     magic_formula_curves(mf, Fz, kappa, alpha))
+
+
+class _Fit(eqx.Module):
+    """The fit's fixed data: what is held, the grids, the loads and the switches."""
+
+    init: LuGre2DParams
+    load: AbstractLoadDistribution
+    mf: MagicFormula1987Params
+    loads: Float[Array, " n"]
+    reference_load: Float[Array, ""]
+    v: Float[Array, ""]
+    kappa: Float[Array, " k"]
+    alpha: Float[Array, " a"]
+    weights0: Float[Array, " 5"]
+    exponent0: Float[Array, ""]
+    moment: bool = eqx.field(static=True)
+    fit_load: bool = eqx.field(static=True)
+    symmetric: bool = eqx.field(static=True)
+
+    def pack(self, p: LuGre2DParams):
+        # a small floor keeps log finite when a start has mu_s = mu_k
+        gap = jnp.maximum(p.mu_s - p.mu_k, 1e-3)
+        theta = jnp.log(jnp.concatenate([p.sigma0, p.mu_k, gap, jnp.stack([p.v_s, p.gamma])]))
+        if self.fit_load:  # log L0, p, sqrt(w_k / w_2) (k = 0, 1, 3, 4, or 0, 1 if symmetric)
+            w = jnp.sqrt(self.weights0 / self.weights0[2])
+            free = jnp.array([0, 1] if self.symmetric else [0, 1, 3, 4])
+            theta = jnp.concatenate([theta, jnp.stack([jnp.log(p.L), self.exponent0]),
+                                     w[free]])
+        return theta
+
+    def unpack(self, theta):
+        """(params at the reference load, load shape, its weights or None, patch exponent)
+        of `theta`."""
+        e = jnp.exp(theta[:8])
+        init = self.init
+        L, exponent, load, weights = init.L, jnp.zeros(()), self.load, None
+        if self.fit_load:
+            L, exponent = jnp.exp(theta[8]), theta[9]
+            w = theta[10:] ** 2  # squares: zero weights (a shape vanishing at an edge) reachable
+            w = w[jnp.array([0, 1, 1, 0])] if self.symmetric else w
+            weights = jnp.stack([w[0], w[1], jnp.ones(()), w[2], w[3]])
+            load = bernstein_load(weights)
+        params = LuGre2DParams(sigma0=e[0:2], sigma1=init.sigma1, sigma2=init.sigma2,
+                               mu_k=e[2:4], mu_s=e[2:4] + e[4:6], v_s=e[6], gamma=e[7], L=L)
+        return params, load, weights, exponent
+
+    def targets(self):
+        """The Magic Formula's three curves at each load, (loads, points) each."""
+        return jax.vmap(lambda Fz: magic_formula_curves(self.mf, Fz, self.kappa, self.alpha))(
+            self.loads)
+
+    def errors(self, theta, targets):
+        """The relative errors of `match_errors`: (F_x, F_y, M_z), each (loads, points)."""
+        params, load, _, exponent = self.unpack(theta)
+
+        def at(Fz, target):
+            at_load = scaled_patch(params, exponent, self.reference_load, Fz)
+            return _relative(lugre_curves(at_load, load, Fz, self.v, self.kappa, self.alpha),
+                             target)
+
+        return jax.vmap(at)(self.loads, targets)
+
+    def residuals(self, theta, targets):
+        errors = self.errors(theta, targets)
+        return jnp.concatenate([e.ravel() for e in (errors if self.moment else errors[:2])])
+
+
+@eqx.filter_jit
+def _solve(fit: _Fit, init: LuGre2DParams, solver, max_steps: int, throw: bool):
+    targets = fit.targets()
+    sol = optx.least_squares(fit.residuals, solver, fit.pack(init), targets,
+                             max_steps=max_steps, throw=throw)
+    params, shape, weights, exponent = fit.unpack(sol.value)
+    errors = fit.errors(sol.value, targets)  # F_x, F_y, M_z, each (loads, points)
+    rms = jnp.stack([jnp.sqrt(jnp.mean(e**2, axis=-1)) for e in errors], axis=-1)
+    worst = jnp.stack([jnp.max(jnp.abs(e), axis=-1) for e in errors], axis=-1)
+    return MatchResult(params=params, load=shape, load_weights=weights, patch_exponent=exponent,
+                       reference_load=fit.reference_load, loads=fit.loads, rms_error=rms,
+                       max_error=worst, result=sol.result, num_steps=sol.stats["num_steps"])
 
 
 def fit_to_magic_formula(
     mf: MagicFormula1987Params,
     init: LuGre2DParams,
-    Fz=4000.0,
+    loads=(2000.0, 4000.0, 6000.0),
     v=20.0,
     kappa=None,
     alpha=None,
     load: AbstractLoadDistribution | None = None,
     *,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 256,
+    moment: bool = True,
+    fit_load: bool = True,
+    symmetric_load: bool = False,
+    load_weights=(1.0, 1.0, 1.0, 1.0, 1.0),
+    patch_exponent: float = 0.0,
+    reference_load: float = 4000.0,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    max_steps: int = 1024,
     throw: bool = True,
 ) -> MatchResult:
     r"""Fit the steady state of the distributed 2D LuGre model to the Magic Formula `mf`.
 
     **Arguments:** `mf` Magic Formula coefficients; `init` starting `LuGre2DParams` (also
-    supplies the held `L`, `sigma1`, `sigma2`); load `Fz` [N] and speed `v` [m/s];
-    `kappa`, `alpha` [rad] grids (default `default_slip_grid()`); `load` shape (uniform);
-    `throw`: raise if Levenberg-Marquardt does not converge (else check `result`).
+    supplies the held `sigma1`, `sigma2`, and the start of $L_0$); `loads` [N] fitted
+    together and the speed `v` [m/s]; `kappa`, `alpha` [rad] grids (default
+    `default_slip_grid()`); `moment`: fit $M_z$ too; `fit_load`: fit the load shape and
+    the patch length law (module docstring), starting from the Bernstein weights
+    `load_weights` (default: the uniform shape; `symmetric_load`: keep $w_{4-k} = w_k$)
+    and the exponent `patch_exponent`; else
+    hold `load` (default uniform) and $L$; `reference_load` $F_{z,0}$ [N] of the patch
+    length law; `throw`: raise if Levenberg-Marquardt does not converge (else check
+    `result`).
 
-    **Returns:** a `MatchResult` with the fitted parameters and the RMS and maximum of the
-    normalised residual $|F^\text{LuGre} - F^\text{MF}|/F_z$.
+    **Returns:** a `MatchResult`: fitted parameters, load shape and patch-length exponent,
+    and the RMS and maximum relative errors of each curve at each load.
     """
     if kappa is None or alpha is None:
         k0, a0 = default_slip_grid()
         kappa = k0 if kappa is None else jnp.asarray(kappa)
         alpha = a0 if alpha is None else jnp.asarray(alpha)
-
-    def fn(theta, args):
-        return match_residuals(_unpack(theta, init), mf, Fz, v, kappa, alpha, load)
-
+    fit = _Fit(init, UniformLoad() if load is None else load, mf,
+               jnp.asarray(loads, dtype=float), jnp.asarray(reference_load, dtype=float),
+               jnp.asarray(v, dtype=float), jnp.asarray(kappa), jnp.asarray(alpha),
+               jnp.asarray(load_weights, dtype=float),
+               jnp.asarray(patch_exponent, dtype=float), bool(moment), bool(fit_load),
+               bool(symmetric_load))
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    sol = optx.least_squares(fn, solver, _pack(init), max_steps=max_steps, throw=throw)
-    params = _unpack(sol.value, init)
-    res = fn(sol.value, None)
-    return MatchResult(
-        params=params, rms_residual=jnp.sqrt(jnp.mean(res**2)),
-        max_residual=jnp.max(jnp.abs(res)), result=sol.result,
-        num_steps=sol.stats["num_steps"],
-    )
+    return _solve(fit, init, solver, int(max_steps), bool(throw))

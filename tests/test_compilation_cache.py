@@ -1,0 +1,49 @@
+"""`vehsim.enable_compilation_cache`: a program compiled once is loaded from the cache folder
+by the next compilation (in a fresh process, so the test process's settings are untouched)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from vehsim.compilation_cache import default_cache_dir
+
+
+ROOT = Path(__file__).parent.parent
+
+SCRIPT = """
+import io, logging, sys
+import jax, jax.numpy as jnp
+import vehsim as vs
+
+log = io.StringIO()
+logger = logging.getLogger("jax._src.compiler")
+logger.addHandler(logging.StreamHandler(log))
+logger.setLevel(logging.DEBUG)
+print(vs.enable_compilation_cache(sys.argv[1], min_compile_time=0.0))
+f = jax.jit(lambda x: jnp.sin(x) @ x.T)
+first = f(jnp.ones((3, 3)))
+jax.clear_caches()  # forget the compiled program in memory: the next call compiles again
+second = f(jnp.ones((3, 3)))
+assert (first == second).all()
+print("\\n".join(line for line in log.getvalue().splitlines() if "jit__lambda" in line))
+"""
+
+
+def test_a_program_compiled_once_is_loaded_from_the_cache(tmp_path):
+    cache = tmp_path / "cache"
+    out = subprocess.run([sys.executable, "-c", SCRIPT, str(cache)], capture_output=True,
+                         text=True, env={"PYTHONPATH": str(ROOT), "PATH": ""}, timeout=300)
+    assert out.returncode == 0, out.stderr
+    path, log = out.stdout.split("\n", 1)
+    assert Path(path) == cache.resolve()
+    miss, hit = log.find("MISS for 'jit__lambda'"), log.find("cache hit for 'jit__lambda'")
+    assert 0 <= miss < hit, log  # compiled and written, then read back
+    assert any(p.name.startswith("jit__lambda") for p in cache.iterdir())
+
+
+def test_default_cache_folder(monkeypatch, tmp_path):
+    monkeypatch.setenv("VEHSIM_CACHE_DIR", str(tmp_path / "a"))
+    assert default_cache_dir() == tmp_path / "a"
+    monkeypatch.delenv("VEHSIM_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "vehsim" / "jax"
