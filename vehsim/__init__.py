@@ -208,4 +208,73 @@ from .labelled import (
 from .sharding import gather_members as gather_members
 
 
+# isort: split
+# closing the loop: road surfaces, braking hardware, friction estimation, ABS and
+# traction control on the lumped LuGre tire (report section 2.2)
+from .control.bound import (
+    physical_limit as physical_limit,
+    traction_limit as traction_limit,
+)
+from .control.burckhardt import (
+    burckhardt_mu as burckhardt_mu,
+    fit_burckhardt_family as fit_burckhardt_family,
+)
+from .control.controllers import (
+    AbstractBrakeController as AbstractBrakeController,
+    AbstractSlipTracking as AbstractSlipTracking,
+    LockedWheel as LockedWheel,
+    PeakSlipTracking as PeakSlipTracking,
+    RuleBasedABS as RuleBasedABS,
+    SlipTracking as SlipTracking,
+)
+from .control.experiment import braking_experiment as braking_experiment
+from .control.half_car_abs import (
+    TurnScenario as TurnScenario,
+    simulate_turn as simulate_turn,
+    turn_scenario as turn_scenario,
+)
+from .control.hardware import (
+    BrakeHardware as BrakeHardware,
+    ideal_hardware as ideal_hardware,
+    realistic_hardware as realistic_hardware,
+)
+from .control.loop import (
+    BrakingRun as BrakingRun,
+    closed_loop_grid as closed_loop_grid,
+    simulate_braking as simulate_braking,
+    simulate_braking_grid as simulate_braking_grid,
+)
+from .control.metrics import (
+    braking_record as braking_record,
+    estimate_record as estimate_record,
+)
+from .control.mhe import (
+    MHEResult as MHEResult,
+    MovingHorizonEstimator as MovingHorizonEstimator,
+)
+from .control.observer import FrictionObserver as FrictionObserver
+from .control.peak import (
+    peak_braking as peak_braking,
+    peak_driving as peak_driving,
+)
+from .control.plant import (
+    BrakingScenario as BrakingScenario,
+    SurfaceChange as SurfaceChange,
+    braking_quarter_car as braking_quarter_car,
+)
+from .control.scenarios import braking_scenario as braking_scenario
+from .control.surfaces import (
+    SURFACES as SURFACES,
+    Surface as Surface,
+    surface as surface,
+)
+from .control.tire import UniformLumpedLuGre as UniformLumpedLuGre
+from .control.traction import (
+    FullThrottle as FullThrottle,
+    TractionControl as TractionControl,
+    traction_scenario as traction_scenario,
+)
+from .control.tuning import tune_gains as tune_gains
+
+
 __version__ = "0.1.0"

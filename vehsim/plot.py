@@ -132,3 +132,72 @@ def primitive_figure(primitive, title: str = ""):
     p = primitive.problem.vehicle.params
     return maneuver_figure(primitive.problem.road, np.asarray(primitive.time()),
                            primitive.signals(), float(p.lF), float(p.lR), title=title)
+
+
+def braking_figure(runs: dict, title: str = ""):
+    """Closed-loop brakings (`vehsim.control`): speed, wheel slip with the peak slip, friction
+    used against the friction available (the peak of the steady-state curve at the current
+    speed), the estimated road condition against the truth, the brake command and torque,
+    and the distance. `runs` maps a label to a dict of arrays: ``ts``, ``v``, ``slip``,
+    ``mu``, ``theta_hat``, ``command``, ``torque``, ``x`` and, where known, ``peak_slip``,
+    ``peak_mu``, ``theta_true``; each is drawn while the car moves (above 0.5 m/s)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(3, 2, figsize=(11, 8.5), sharex=True)
+    for i, (label, s) in enumerate(runs.items()):
+        c = f"C{i}"
+        moving = np.asarray(s["v"]) > 0.5
+        s = {k: np.asarray(v)[moving] for k, v in s.items()}
+        t = s["ts"]
+        ax[0, 0].plot(t, s["v"], c, label=label)
+        ax[0, 1].plot(t, np.clip(s["slip"], -1.0, 0.2), c, lw=1.0)
+        ax[1, 0].plot(t, np.abs(s["mu"]), c, lw=1.0)
+        ax[1, 1].plot(t, s["theta_hat"], c, lw=1.2)
+        ax[2, 0].plot(t, s["command"], c + ":", lw=0.8)
+        ax[2, 0].plot(t, s["torque"], c, lw=1.0)
+        ax[2, 1].plot(t, s["x"], c)
+        if "peak_slip" in s:
+            ax[0, 1].plot(t, s["peak_slip"], "k:", lw=0.8)
+            ax[1, 0].plot(t, s["peak_mu"], "k:", lw=0.8)
+        if "theta_true" in s:
+            ax[1, 1].plot(t, s["theta_true"], "k--", lw=0.8)
+    labels = [("speed [m/s]", "wheel slip s (dotted: peak of eq. 19)"),
+              ("|F_x|/F_n: used, available (dotted)", "road condition theta: estimate, truth"),
+              ("brake torque [N m] (dotted: command)", "distance [m]")]
+    for row, (left, right) in enumerate(labels):
+        ax[row, 0].set_ylabel(left, fontsize=8)
+        ax[row, 1].set_ylabel(right, fontsize=8)
+        for a in ax[row]:
+            a.grid(alpha=0.3)
+    ax[1, 1].set_yscale("log")
+    ax[2, 0].set_xlabel("t [s]")
+    ax[2, 1].set_xlabel("t [s]")
+    ax[0, 0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def turn_figure(runs: dict, title: str = ""):
+    """The half car braking in a turn: paths, yaw rates and sideslip angles; `runs` maps a
+    label to the signals of `vehsim.control.half_car_abs.simulate_turn`."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
+    for label, s in runs.items():
+        moving = np.asarray(s["speed"]) > 0.5
+        ax[0].plot(np.asarray(s["x"])[moving], np.asarray(s["y"])[moving], label=label)
+        ax[1].plot(s["ts"], s["yaw_rate"])
+        ax[2].plot(s["ts"], np.degrees(s["sideslip"]))
+    ax[0].set(xlabel="x [m]", ylabel="y [m]", title="path")
+    ax[0].set_aspect("equal", adjustable="datalim")
+    ax[1].set(xlabel="t [s]", ylabel="yaw rate [rad/s]")
+    ax[2].set(xlabel="t [s]", ylabel="sideslip [deg]")
+    ax[0].legend(fontsize=8)
+    for a in ax:
+        a.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig

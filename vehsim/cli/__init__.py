@@ -1,6 +1,6 @@
 """The ``vehsim`` command line (also ``python -m vehsim``).
 
-One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`), each with
+One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`), each with
 ``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import fit, optimise, reproduce, sweep
+from . import brake, fit, optimise, reproduce, sweep
 
 
-COMMANDS = (reproduce, sweep, fit, optimise)
+COMMANDS = (reproduce, sweep, fit, optimise, brake)
 
 
 def build_parser() -> argparse.ArgumentParser:

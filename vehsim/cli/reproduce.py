@@ -18,7 +18,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="results", help="output folder (default: results/)")
     p.add_argument("--only", nargs="*", default=None,
                    help="run only sections whose name contains one of these words "
-                        "(robot, longitudinal, identify, combined, vehicle, optimal)")
+                        "(robot, longitudinal, identify, combined, vehicle, optimal, "
+                        "braking_control)")
     p.set_defaults(func=_reproduce)
 
 

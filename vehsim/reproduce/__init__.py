@@ -25,6 +25,7 @@ SECTIONS: tuple[str, ...] = (  # in the order of the report
     "vehsim.reproduce.combined",  # 2.3-2.4, Figs. 13-15, 17
     "vehsim.reproduce.vehicle",  # 2.5, eqs. 49-63
     "vehsim.reproduce.optimal",  # 2.5, Table 4, Fig. 20
+    "vehsim.reproduce.braking_control",  # 2.2, closing the loop: ABS, estimation
 )
 
 

@@ -1,0 +1,136 @@
+r"""ABS on both axles of the half car braking in a turn (report eqs. 49-60).
+
+The `HalfCar` (suspension dynamics, so that the load moves to the front as it brakes) on
+dynamic isotropic lumped LuGre tires (`IsotropicLumpedLuGre`, the surface's parameters,
+$\kappa_0$ = 1.5), steered to a constant angle `delta` from the start and braked from
+`brake_time` on. Each axle has its own actuator (`BrakeHardware`, per-axle torque) and
+controller, sampled at the hardware's rate; the controllers see the axle's wheel speed and
+its longitudinal speed over the ground (measured with the hardware's speed noise; the
+tone wheels are not modelled here). Axle torques are $T_i = -T_{b,i}\tanh(\omega_i/
+\omega_\epsilon)$, $\omega_\epsilon$ = 1 rad/s. Integration as the quarter car's
+(`integrate_sample`, implicit in each wheel with its tire).
+
+With locked wheels a tire has no lateral grip left to give: locked front wheels plough the
+car straight on (the yaw rate falls to nothing while steered), a locked rear axle lets the
+car spin (yaw rate and sideslip grow); ABS keeps the wheels rolling near their peak, the car
+follows the steering and its yaw rate stays bounded.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .._fields import array_field
+from ..tire.isotropic_lumped import IsotropicLumpedLuGre
+from ..vehicle.half_car import HalfCar
+from ..vehicle.maneuvers import smooth_step
+from ..vehicle.params import rally_gravel
+from ..vehicle.planar import axle_velocities
+from .controllers import AbstractBrakeController, RuleBasedABS, measurement
+from .hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
+from .integrate import integrate_sample
+from .surfaces import surface
+
+
+OMEGA_EPS = 1.0
+"""Brake-torque smoothing [rad/s] (as `braking_quarter_car`)."""
+
+
+class TurnScenario(eqx.Module):
+    """The car, its initial speed [m/s], the steering angle [rad] (reached over 0.2 s), the
+    time braking starts [s] and the rear brakes' share `rear_share` of the front brakes'
+    torque capacity (the front-biased proportioning of a passenger car)."""
+
+    car: HalfCar
+    speed: Float[Array, ""] = array_field()
+    delta: Float[Array, ""] = array_field()
+    brake_time: Float[Array, ""] = array_field()
+    rear_share: Float[Array, ""] = array_field(default=0.4)
+
+
+def turn_scenario(name: str = "dry_asphalt", speed=25.0, delta=0.02, brake_time=0.5,
+                  rear_share=0.4):
+    """The rally-gravel half car (`vehsim.rally_gravel`) on the surface `name`."""
+    tire = IsotropicLumpedLuGre(surface(name).params, kappa0=1.5)
+    return TurnScenario(HalfCar(rally_gravel(), tire), speed, delta, brake_time, rear_share)
+
+
+def rear_abs() -> RuleBasedABS:
+    """The rear axle's ABS: the rule-based cycle held to small slips (dump above 4 %, at once
+    above 10 %), as production systems keep the rear axle stable at the cost of some of
+    its braking force."""
+    return RuleBasedABS(slip_threshold=0.04, lock_slip=0.1)
+
+
+def _controls(sc: TurnScenario, hw, y, t, t0, torque0, target):
+    brake = brake_torque(hw, torque0, target, t - t0)
+    omega = y[6:8]
+    axle = -brake * jnp.tanh(omega / OMEGA_EPS)
+    delta = sc.delta * smooth_step(t, 0.0, 0.2)
+    return jnp.stack([axle[0], axle[1], delta])
+
+
+def _rates(t, y, args):
+    sc, hw, t0, torque0, target = args
+    return sc.car.f(y, _controls(sc, hw, y, t, t0, torque0, target))
+
+
+def _sample(sc, controllers, hw, key, carry, k):
+    y, act, ctrl, omega_prev = carry
+    T = hw.sample_time
+    t = k * T
+    p = sc.car.params
+    delta = sc.delta * smooth_step(t, 0.0, 0.2)
+    VFx, _, VRx, _ = axle_velocities(p, y[3], y[4], y[5], delta)
+    noise = hw.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (2,))
+    v_m = jnp.stack([VFx, VRx]) + jnp.where(hw.noise, noise, 0.0)
+    omega = y[6:8]
+    cmds, phases, new_ctrl = [], [], []
+    for i, controller in enumerate(controllers):
+        m = measurement(omega[i], v_m[i], omega_prev[i], p.r, T)
+        c, cmd, phase = controller.command(ctrl[i], m, None, None, None, T, hw.max_torque)
+        new_ctrl.append(c)
+        cap = hw.max_torque * (1.0 if i == 0 else sc.rear_share)
+        cmds.append(jnp.where(t >= sc.brake_time, jnp.minimum(cmd, cap), 0.0))
+        phases.append(phase)
+    act, target = jax.vmap(lambda a, c: actuator_target(hw, a, k, c))(act, jnp.stack(cmds))
+    args = (sc, hw, t, act.torque, target)
+    y1, _ = integrate_sample(_rates, y, args, t, T, sc.car.stiff_blocks)
+    out = dict(ts=t, state=y, torque=act.torque, phase=jnp.stack(phases),
+               slip=p.r * omega / jnp.stack([VFx, VRx]) - 1.0)
+    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
+    return (y1, act, tuple(new_ctrl), omega), out
+
+
+@eqx.filter_jit
+def _simulate(sc, controllers, hw, key, n_steps):
+    y0 = sc.car.init_state(vx=sc.speed)
+    act0 = jax.vmap(lambda _: ActuatorState.init())(jnp.arange(2))
+    ctrl0 = tuple(c.init(hw.max_torque) for c in controllers)
+    step = lambda carry, k: _sample(sc, controllers, hw, key, carry, k)  # noqa: E731
+    carry0 = (y0, act0, ctrl0, y0[6:8])
+    return jax.lax.scan(step, carry0, jnp.arange(n_steps))[1]
+
+
+def simulate_turn(sc: TurnScenario, front: AbstractBrakeController,
+                  rear: AbstractBrakeController, hardware: BrakeHardware | None = None,
+                  key: PRNGKeyArray | None = None, duration: float = 4.0) -> dict:
+    """Brake in a turn with the `front` and `rear` axle controllers.
+
+    **Returns:** the signals at the control rate: ``ts``, the car's named signals
+    (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``, ``sideslip``, ...),
+    the axle brake ``torque`` (T, 2), ``slip`` (T, 2) and controller ``phase`` (T, 2).
+    """
+    hw = BrakeHardware(max_torque=4000.0) if hardware is None else hardware
+    key = jax.random.PRNGKey(0) if key is None else key
+    n_steps = int(round(duration / float(hw.sample_time)))
+    out = _simulate(sc, (front, rear), hw, key, n_steps)
+    delta = sc.delta * smooth_step(out["ts"], 0.0, 0.2)
+    controls = jnp.stack([jnp.zeros_like(delta), jnp.zeros_like(delta), delta], axis=1)
+    named = jax.vmap(sc.car.signals)(out["state"], controls)
+    for name in ("T_F", "T_R"):
+        named.pop(name)
+    return {k: v for k, v in out.items() if k != "state"} | named

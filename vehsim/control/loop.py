@@ -1,0 +1,267 @@
+r"""The closed braking loop at the controller's rate, one `lax.scan` over samples.
+
+Per sample $k$ at $t_k = kT$: measure (`vehsim.control.sensors`), update the observer with
+the mean brake torque of the last sample, let the controller command a torque (the full
+torque below `handback_speed`), pass it through the actuator (`vehsim.control.hardware`) and
+integrate the plant to $t_{k+1}$ (`vehsim.control.plant`). The stopping distance and time
+are recorded when the speed first falls below `stop_speed` (linear interpolation within
+the sample), so a batch need not keep trajectories.
+"""
+
+from __future__ import annotations
+
+import functools as ft
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .._results import RESULTS, as_result
+from .controllers import AbstractBrakeController, measurement
+from .hardware import (
+    ActuatorState,
+    BrakeHardware,
+    actuator_target,
+    brake_torque,
+    realistic_hardware,
+)
+from .integrate import SUBSTEPS
+from .observer import FrictionObserver, ObserverState
+from .plant import BrakingScenario, advance, initial_plant_state, unpack
+from .sensors import EncoderState, vehicle_speed, wheel_speed
+
+
+STOP_SPEED = 1.0
+"""Speed [m/s] at which a braking counts as stopped (the stopping distance's end)."""
+HANDBACK_SPEED = 3.0
+"""Measured speed [m/s] below which the controllers hand back to plain braking."""
+
+
+class BrakingRun(eqx.Module):
+    """One closed-loop braking: `stopping_distance` [m] and `stopping_time` [s] (inf if the
+    speed stayed above `STOP_SPEED`), the `final_speed` and `final_distance` at the end of
+    the run, `result` (a `vehsim.RESULTS` item:
+    the first sample whose solve failed, e.g. `max_steps_reached`), and, if saved, samples at
+    the control rate: `ts`, the
+    distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
+    $= F_x/F_n$, the brake `torque` at the sample and the `target` it lags towards over the
+    sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
+    (standing for time `omega_stamp`; a measurement if `fresh`), and the observer's
+    `theta_hat`, `v_hat` and wheel-speed `innovation`."""
+
+    stopping_distance: Float[Array, ""]
+    stopping_time: Float[Array, ""]
+    final_speed: Float[Array, ""]
+    final_distance: Float[Array, ""]
+    result: RESULTS
+    signals: dict | None
+
+    def __getitem__(self, name):
+        return self.signals[name]
+
+
+class LoopState(eqx.Module):
+    """Everything a run carries from sample to sample except the controller's own state:
+    the plant state `y`, the encoder, the actuator, the observer, the last measured wheel
+    speed with the actuator's torque and target over the last sample (`previous`), the
+    stop record (distance, time) and the first unsuccessful result of a sample's solve."""
+
+    y: Array
+    encoder: EncoderState
+    actuator: ActuatorState
+    observer: ObserverState
+    previous: tuple
+    stop: tuple
+    result: RESULTS
+
+
+def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardware):
+    y0 = initial_plant_state(scenario)
+    qs = unpack(scenario, y0)[1]
+    inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
+    z = jnp.zeros((), y0.dtype)
+    return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
+                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf),
+                     RESULTS.successful)
+
+
+def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
+    """Measure, update the observer: ``(state, Measurement, signals to save)``."""
+    T = hw.sample_time
+    t = k * T
+    qs = unpack(scenario, st.y)[1]
+    omega_m, stamp, fresh, enc = wheel_speed(hw, st.encoder, t, qs.omega)
+    v_m = vehicle_speed(hw, key, k, qs.v)
+    omega_prev, torque_prev, target_prev = st.previous
+    obs = jax.lax.cond(
+        k > 0, lambda o: observer.update(o, scenario.car, hw, substeps, v_m, omega_m, stamp,
+                                         fresh, torque_prev, target_prev, t - T),
+        lambda o: o, st.observer)
+    m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
+    seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
+                theta_hat=obs.theta, innovation=obs.innovation)
+    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
+                   st.result)
+    return st, m, seen
+
+
+def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
+    """Actuate and integrate the plant to the next sample: ``(state, signals to save)``."""
+    T = hw.sample_time
+    t = k * T
+    cmd = jnp.where(st.observer.v < handback, hw.max_torque, cmd)
+    act, target = actuator_target(hw, st.actuator, k, cmd)
+    y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
+    out = _signals(scenario, st.y, t, act.torque, cmd, phase) | {"target": target} if save \
+        else None
+    previous = (st.previous[0], act.torque, target)
+    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
+    stop = _stop(st.stop, scenario, st.y, y1, t, T)
+    result = RESULTS.where(st.result == RESULTS.successful, as_result(result), st.result)
+    return LoopState(y1, enc, act, st.observer, previous, stop, result), out
+
+
+def _signals(scenario, y, t, torque, cmd, phase):
+    x, qs, _ = unpack(scenario, y)
+    r = scenario.car.radius
+    mu = scenario.tire_at(t, x, qs.v).mu(qs.tire, qs.v, qs.omega, r)
+    slip = qs.omega * r / jnp.maximum(qs.v, 1e-9) - 1.0
+    return dict(ts=t, x=x, v=qs.v, omega=qs.omega, slip=slip, mu=mu, torque=torque,
+                command=cmd, phase=phase)
+
+
+def _sample(scenario, controller, observer, hw, key, substeps, save, handback, carry, k):
+    st, ctrl = carry
+    st, m, seen = _sense(scenario, observer, hw, substeps, key, st, k)
+    ctrl, cmd, phase = controller.command(ctrl, m, st.observer.theta, observer.model,
+                                          scenario.car, hw.sample_time, hw.max_torque)
+    st, out = _move(scenario, hw, substeps, handback, save, st, k, cmd, phase)
+    return (st, ctrl), (out | seen if save else None)
+
+
+def _stop(stop, scenario, y0, y1, t, T):
+    """(distance, time) of the first crossing of `STOP_SPEED`, interpolated in the sample."""
+    x0, q0, _ = unpack(scenario, y0)
+    x1, q1, _ = unpack(scenario, y1)
+    crossing = (q0.v >= STOP_SPEED) & (q1.v < STOP_SPEED) & jnp.isinf(stop[0])
+    w = jnp.clip((q0.v - STOP_SPEED) / jnp.where(crossing, q0.v - q1.v, 1.0), 0.0, 1.0)
+    return (jnp.where(crossing, x0 + w * (x1 - x0), stop[0]),
+            jnp.where(crossing, t + w * T, stop[1]))
+
+
+def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
+                observer: FrictionObserver, hw: BrakeHardware, key: PRNGKeyArray,
+                n_steps: int, substeps: int = SUBSTEPS, save: bool = True,
+                handback_speed=HANDBACK_SPEED) -> BrakingRun:
+    """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
+    jit, vmap over scenarios, keys and array fields, grad with respect to any of them)."""
+    carry0 = (_init(scenario, observer, hw), controller.init(hw.max_torque))
+    step = ft.partial(_sample, scenario, controller, observer, hw, key, substeps, save,
+                      jnp.asarray(handback_speed, dtype=float))
+    (st, _), out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
+    return _run(scenario, st, out)
+
+
+def _run(scenario, st: LoopState, out) -> BrakingRun:
+    x, qs, _ = unpack(scenario, st.y)
+    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out)
+
+
+@eqx.filter_jit
+def _simulate(scenario, controller, observer, hw, key, n_steps, substeps, save, handback):
+    return closed_loop(scenario, controller, observer, hw, key, n_steps, substeps, save,
+                       handback)
+
+
+def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeController,
+                     observer: FrictionObserver, hardware: BrakeHardware | None = None,
+                     key: PRNGKeyArray | None = None, duration: float = 5.0,
+                     substeps: int = SUBSTEPS, save: bool = True,
+                     handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
+    """Simulate one closed-loop braking (jitted; new array values do not recompile).
+
+    **Arguments:** `scenario` (`BrakingScenario`), `controller`, `observer`
+    (`FrictionObserver`, run for every controller), `hardware` (default: realistic),
+    `key` (sensor noise; default PRNGKey(0)), `duration` [s] (rounded to whole samples),
+    `substeps` (integration sub-steps per sample), `save` (keep the signals),
+    `handback_speed` [m/s].
+
+    **Returns:** a `BrakingRun`.
+    """
+    hw = realistic_hardware() if hardware is None else hardware
+    key = jax.random.PRNGKey(0) if key is None else key
+    n_steps = int(round(duration / float(hw.sample_time)))
+    return _simulate(scenario, controller, observer, hw, key, n_steps, int(substeps),
+                     bool(save), jnp.asarray(handback_speed, dtype=float))
+
+
+def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, handback, carry,
+               k):
+    """One sample of every run: sense and move vmapped over all runs, each controller's
+    law vmapped over its own group only (a `lax.switch` on a batched index would evaluate
+    every law for every run)."""
+    st, ctrls = carry
+    st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
+        scenarios, observers, keys, st)
+    M = keys.shape[0] // len(controllers)
+    cmds, phases, new_ctrls = [], [], []
+    for g, controller in enumerate(controllers):
+        part = slice(g * M, (g + 1) * M)
+        take = ft.partial(jax.tree_util.tree_map, lambda a: a[part])
+        ctrl, cmd, phase = jax.vmap(
+            lambda c, mm, th, ob, sc: controller.command(c, mm, th, ob.model, sc.car,
+                                                         hw.sample_time, hw.max_torque))(
+            ctrls[g], take(m), st.observer.theta[part], take(observers), take(scenarios))
+        new_ctrls.append(ctrl)
+        cmds.append(cmd)
+        phases.append(jnp.broadcast_to(phase, cmd.shape))
+    st, out = jax.vmap(lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
+        scenarios, st, jnp.concatenate(cmds), jnp.concatenate(phases))
+    return (st, tuple(new_ctrls)), (out | seen if save else None)
+
+
+def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+                     hw: BrakeHardware, keys, n_steps: int, substeps: int = SUBSTEPS,
+                     save: bool = False, handback=HANDBACK_SPEED) -> BrakingRun:
+    """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
+    G = len(controllers)
+    tile = ft.partial(jax.tree_util.tree_map, lambda a: jnp.concatenate([a] * G))
+    scenarios, observers, keys = tile(scenarios), tile(observers), tile(keys)
+    st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
+    M = keys.shape[0] // G
+    ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
+    step = ft.partial(_grid_step, scenarios, tuple(controllers), observers, hw, keys, substeps,
+                      save, jnp.asarray(handback, dtype=float))
+    (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
+    if save:  # scan stacks time first
+        out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
+    run = jax.vmap(_run)(scenarios, st, out)
+    return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
+
+
+_grid = eqx.filter_jit(closed_loop_grid)
+
+
+def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+                          keys, hardware: BrakeHardware | None = None, duration: float = 5.0,
+                          substeps: int = SUBSTEPS, save: bool = False,
+                          handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
+    """Every controller on every run, in one jitted call.
+
+    **Arguments:** `scenarios`, `observers` and `keys` with a leading axis of M runs (stack
+    them with `stack`), `controllers` (C of them, each with its own code), `hardware`,
+    `duration`, `substeps`, `save` (keep the signals: memory grows as C x M x samples),
+    `handback_speed`.
+
+    **Returns:** a `BrakingRun` whose fields have leading axes (C, M).
+    """
+    hw = realistic_hardware() if hardware is None else hardware
+    n_steps = int(round(duration / float(hw.sample_time)))
+    return _grid(scenarios, tuple(controllers), observers, hw, keys, n_steps, int(substeps),
+                 bool(save), jnp.asarray(handback_speed, dtype=float))
+
+
+def stack(items):
+    """A batch (leading axis) of modules of the same structure, e.g. scenarios."""
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)

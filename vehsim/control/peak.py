@@ -1,0 +1,103 @@
+r"""The peak of a tire's steady-state force-slip curve at a given speed.
+
+`braking_curve` is the steady-state $\mu(s)$ at braking slip $s = r\omega/v - 1\in[-1, 0]$
+(negative: braking): eq. 19 for `UniformLumpedLuGre`, the lumped steady state for
+`LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its transient slip tends to
+$v_r/|v| = s$). `driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
+`peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
+near zero slip, where the peaks are) and a golden-section search inside the best grid
+cell; the derivative of the peak slip with respect to the tire's parameters and the speed
+is that of the implicit function $\partial\mu/\partial s = 0$,
+$ds^*/dp = -\mu_{sp}/\mu_{ss}$ (zero at the ends of the slip range), so the estimate-based
+controller is differentiable through it. The physical limit uses the same code.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ..tire.lugre import AbstractLongitudinalTire, LumpedLuGre
+from ..tire.magic_formula import magic_formula
+from ..tire.relaxed_magic_formula import RelaxedMagicFormula
+from .tire import UniformLumpedLuGre
+
+
+_GRID = 64
+_GOLDEN_STEPS = 40
+_INVERSE_GOLDEN = 0.5 * (5.0**0.5 - 1.0)
+
+
+def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
+    r"""Steady-state $\mu = F/F_n$ at braking slip `s` and speed `v` [m/s] (module docstring;
+    `r` [m] matters for `LumpedLuGre` only). Negative: a braking force."""
+    if isinstance(tire, UniformLumpedLuGre):
+        return tire.braking_mu(s, v)
+    if isinstance(tire, RelaxedMagicFormula):
+        p = tire.params
+        return magic_formula(s, p.B, p.C, p.D, p.E)
+    if isinstance(tire, LumpedLuGre):
+        return tire.steady_state_mu(v, (1.0 + s) * v / r, r)
+    raise TypeError(f"no steady-state curve for {type(tire).__name__}")
+
+
+def driving_curve(tire: UniformLumpedLuGre, s, v):
+    r"""Steady-state $\mu$ at driving slip `s` $\in[0, 1)$ and speed `v` (eq. 18, with
+    $r\omega = v/(1-s)$)."""
+    return tire.driving_mu(s, v / (1.0 - s), 1.0)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _argmax(curve, lo, hi, args):
+    """Slip in [lo, hi] of the largest `curve(s, args)` (module docstring)."""
+    u = jnp.linspace(0.0, 1.0, _GRID)
+    grid = lo + (hi - lo) * u * u  # finer near zero slip
+    i = jnp.argmax(jax.vmap(lambda s: curve(s, args))(grid))
+    a, b = grid[jnp.maximum(i - 1, 0)], grid[jnp.minimum(i + 1, _GRID - 1)]
+
+    def shrink(_, ab):
+        a, b = ab
+        c, d = b - _INVERSE_GOLDEN * (b - a), a + _INVERSE_GOLDEN * (b - a)
+        left = curve(c, args) >= curve(d, args)
+        return jnp.where(left, a, c), jnp.where(left, d, b)
+
+    a, b = jax.lax.fori_loop(0, _GOLDEN_STEPS, shrink, (a, b))
+    return 0.5 * (a + b)
+
+
+@_argmax.defjvp
+def _argmax_jvp(curve, lo, hi, primals, tangents):
+    (args,), (d_args,) = primals, tangents
+    s = _argmax(curve, lo, hi, args)
+    slope = jax.grad(curve, argnums=0)
+    curvature = jax.grad(slope, argnums=0)(s, args)
+    d_slope = jax.jvp(lambda a: slope(s, a), (args,), (d_args,))[1]
+    interior = (s > lo) & (s < hi) & (curvature < 0)
+    return s, jnp.where(interior, -d_slope / jnp.where(interior, curvature, -1.0), 0.0)
+
+
+def _braking_magnitude(lam, args):
+    tire, v, r = args
+    return -braking_curve(tire, -lam, v, r)
+
+
+def _driving_magnitude(s, args):
+    tire, v = args
+    return driving_curve(tire, s, v)
+
+
+def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
+    r"""Braking slip $s^* < 0$ of the largest braking force at speed `v`, and
+    $\mu^* = |\mu(s^*)|$; slips beyond `max_slip` in magnitude are not considered."""
+    args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
+    lam = _argmax(_braking_magnitude, 0.0, float(max_slip), args)
+    return -lam, _braking_magnitude(lam, args)
+
+
+def peak_driving(tire: UniformLumpedLuGre, v, max_slip=0.99):
+    r"""Driving slip $s^* > 0$ of the largest traction force at speed `v`, and $\mu^*$."""
+    args = (tire, jnp.asarray(v, dtype=float))
+    s = _argmax(_driving_magnitude, 0.0, float(max_slip), args)
+    return s, _driving_magnitude(s, args)
