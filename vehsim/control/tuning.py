@@ -94,7 +94,7 @@ def _bfgs(controller, scenarios, observers, keys, bounds, hw, n_steps, max_steps
 
 def tune_gains(controller: AbstractSlipTracking, scenarios, observers, keys, bounds,
                hw: BrakeHardware, n_steps: int, max_steps: int = 12):
-    """Minimise $J$ over $\log(K_p, K_i)$ from the controller's gains by BFGS.
+    r"""Minimise $J$ over $\log(K_p, K_i)$ from the controller's gains by BFGS.
 
     The search and the two evaluations of $J$ are separate compiled programs (one copy of
     the closed loop each; the evaluations share one), which keeps compilation small.
