@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._io import atomic_path
 from ._results import result_name
 
 
@@ -329,15 +329,6 @@ def write_netcdf(dataset, path: str | os.PathLike) -> Path:
     """Write `dataset` to a netCDF file at `path`, atomically (a temporary file in the same
     folder, then a rename); the folder is created if needed."""
     require_xarray()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         dataset.to_netcdf(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return Path(path)
