@@ -308,11 +308,7 @@ def _fig17_wheel_figure(ctx, ts, alphas, F, rise_time) -> None:
                 ax[j, col].plot(t_ms, F[col, k, :, j], label=name)
         ax[0, col].set_title(f"alpha = {a_deg:g} deg, kappa = {FIG17_KAPPA:g}")
         ax[2, col].set_xlabel("t [ms]")
-    for j, lab in enumerate(["F_x [N]", "F_y [N]", "M_z [N m]"]):
-        ax[j, 0].set_ylabel(lab)
-        for c in range(2):
-            ax[j, c].grid(alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
+    _label_force_panels(ax)
     ctx.figure(fig, "fig17_transients",
                "Fig. 17: transient F_x, F_y, M_z for the uniform, trapezoidal and quartic "
                "loads at alpha = 4 and 15 deg (v = 20 m/s, preset lugre2d_bakker1987), the "
@@ -325,6 +321,15 @@ def _fig17_wheel_figure(ctx, ts, alphas, F, rise_time) -> None:
     ctx.record("fig17.wheel.peak_abs_N", {
         f"alpha{a:g}.{name}": np.abs(F[c, k]).max(axis=0).tolist()
         for c, a in enumerate(alphas) for k, name in enumerate(FIG17_LOADS)})
+
+
+def _label_force_panels(ax) -> None:
+    """Axis labels, grids and the legend of Fig. 17's 3 x 2 panels (F_x, F_y, M_z rows)."""
+    for j, lab in enumerate(["F_x [N]", "F_y [N]", "M_z [N m]"]):
+        ax[j, 0].set_ylabel(lab)
+        for c in range(2):
+            ax[j, c].grid(alpha=0.3)
+    ax[0, 0].legend(fontsize=8)
 
 
 @eqx.filter_jit
@@ -348,11 +353,7 @@ def _fig17_step(ctx, p, ts, alphas) -> np.ndarray:
         F, jumps[f"alpha{a_deg:g}"] = _fig17_column(ctx, p, ts, ax[:, col], a_deg, errors)
         forces.append(F)
     ctx.record("fig17.jump_at_step_N", jumps)
-    for j, lab in enumerate(["F_x [N]", "F_y [N]", "M_z [N m]"]):
-        ax[j, 0].set_ylabel(lab)
-        for c in range(2):
-            ax[j, c].grid(alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
+    _label_force_panels(ax)
     ctx.figure(fig, "fig17_pure_step",
                "Fig. 17 with a pure slip step at t = 0 (dashed line) from an undeflected "
                "patch with zero force (v = 20 m/s), by the method of moments (the moment "
