@@ -8,6 +8,10 @@ settings and three gains (array fields: no recompilation). The controllers regul
 0.5 m/s (no hand-back before the stop, whose switch would make the distance jump)."""
 
 import functools
+import os
+import pathlib
+import subprocess
+import sys
 
 import equinox as eqx
 import jax
@@ -25,6 +29,7 @@ from vehsim.control.scenarios import braking_scenario
 from vehsim.control.surfaces import surface
 
 
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROADS = ("dry_asphalt", "snow")
 N_STEPS = 540  # 2.7 s at 200 Hz: dry asphalt stops from 30 m/s in 2.6 s
 
@@ -134,3 +139,69 @@ def test_stopping_distance_gradient_matches_finite_differences():
                 for d in (h, -h))
     assert np.isfinite(ad) and abs(ad) > 1e-3
     assert ad == pytest.approx((up - down) / (2 * h), rel=2e-3)
+
+
+OBSERVER_STEP = """
+import jax, jax.numpy as jnp, equinox as eqx
+from vehsim.control.hardware import ideal_hardware
+from vehsim.control.scenarios import braking_scenario
+scenario, observer = braking_scenario("snow", 30.0)  # the dry-asphalt prior: far off
+v, omega = jnp.asarray(28.0), jnp.asarray(28.0 / 0.3 * 0.95)
+state = observer.init(omega, v)
+state = eqx.tree_at(lambda s: s.sensitivity, state, jnp.asarray([-0.5, 0.0, 0.0]))
+hw, torque = ideal_hardware(), jnp.asarray(600.0)
+new = eqx.filter_jit(lambda st, c, h, *a: observer.update(st, c, h, 8, *a))(
+    state, scenario.car, hw, v, omega - 0.02, hw.sample_time, jnp.asarray(True), torque,
+    torque, jnp.asarray(0.0))
+step = new.log_theta - state.log_theta
+print(step.dtype, float(step), float(new.covariance))
+"""
+
+
+def test_observer_step_is_the_same_in_float32_as_in_float64(capsys):
+    # the regressor is a forward-mode derivative: a finite difference of wheel speeds near
+    # 90 rad/s would cancel to nothing in float32 and the estimate would never move. The
+    # same update (a wheel 0.02 rad/s slower than the copy starts) here in float64 and in a
+    # process in JAX's default float32
+    exec(OBSERVER_STEP, {})
+    dtype64, step64, cov64 = capsys.readouterr().out.split()
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env.pop("JAX_ENABLE_X64", None)
+    out = subprocess.run([sys.executable, "-c", OBSERVER_STEP], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    dtype32, step32, cov32 = out.stdout.split()
+    assert (dtype32, dtype64) == ("float32", "float64")
+    # a slower wheel than predicted: a more slippery road; the covariance (1 at the start,
+    # forgetting 0.98) shrinks by what the sample told
+    assert float(step64) > 1e-3 and float(cov64) < 0.9
+    assert float(step32) == pytest.approx(float(step64), rel=1e-3)
+    assert float(cov32) == pytest.approx(float(cov64), rel=1e-3)
+
+
+@functools.cache
+def _after_change():
+    """Snow to dry asphalt at 20 m from 30 m/s, the estimate-based ABS on noise-free
+    hardware, the observer with its change detector and without it."""
+    scenario, observer = braking_scenario("snow", 30.0, "dry_asphalt", 20.0)
+    observers = stack([observer, eqx.tree_at(lambda o: o.change_threshold, observer,
+                                             jnp.asarray(jnp.inf))])
+    runs = eqx.filter_jit(closed_loop_grid)(
+        stack([scenario] * 2), [PeakSlipTracking()], observers, HARDWARE["noise-free"],
+        jax.random.split(jax.random.PRNGKey(0), 2), N_STEPS, save=True, handback=0.5)
+    theta = float(surface("dry_asphalt").params.theta)
+    return [jax.tree_util.tree_map(lambda a: np.asarray(a[0, i]), runs) for i in (0, 1)], theta
+
+
+def test_change_detector_lets_the_estimate_leave_the_old_road_at_once():
+    (on, off), theta = _after_change()
+    settle = []
+    for run in (on, off):
+        s = run.signals
+        t_change = s["ts"][np.argmax(s["x"] >= 20.0)]
+        t, est = s["ts"], s["theta_hat"]
+        window = (t >= t_change) & (s["v"] > 3.0)
+        outside = window & (np.abs(est / theta - 1.0) > 0.05)
+        settle.append(t[outside][-1] - t_change)
+    assert settle[0] < 0.15  # with the detector: within 5 % in a few samples
+    assert settle[1] > 2.0 * settle[0]  # without it, at the pace of forgetting

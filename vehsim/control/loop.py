@@ -48,7 +48,8 @@ class BrakingRun(eqx.Module):
     $= F_x/F_n$, the brake `torque` at the sample and the `target` it lags towards over the
     sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
     (standing for time `omega_stamp`; a measurement if `fresh`), and the observer's
-    `theta_hat`, `v_hat` and wheel-speed `innovation`."""
+    `theta_hat`, `v_hat`, wheel-speed `innovation` and the covariance of its log,
+    `theta_covariance`."""
 
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
@@ -100,7 +101,8 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
         lambda o: o, st.observer)
     m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
     seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
-                theta_hat=obs.theta, innovation=obs.innovation)
+                theta_hat=obs.theta, innovation=obs.innovation,
+                theta_covariance=obs.covariance)
     st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
                    st.result)
     return st, m, seen

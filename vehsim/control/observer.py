@@ -15,12 +15,19 @@ $\theta$ is adapted from the wheel-speed innovation. Per sample $k$ (period $T$)
 2. *adapt* $\vartheta = \log\hat\theta$ by recursive least squares on the innovation
    $e = \omega_m - \hat\omega^-(t_m)$ with the regressor $\phi = \partial\hat\omega^-(t_m)/
    \partial\vartheta$ (carried through the copy by sensitivity states; the directional
-   derivative by a forward difference, the copy and a displaced one in one vmapped call):
+   derivative by forward-mode differentiation through the copy's integrator, exact in
+   any precision, where a finite difference of wheel speeds near 100 rad/s cancels to
+   nothing in float32):
    $K = P\phi/(R + \phi^2P)$, $\vartheta \leftarrow \Pi(\vartheta + \operatorname{clip}(Ke,
    \pm\Delta_{max}))$, $P \leftarrow \min((1 - fK\phi)P/\lambda, P_{max})$, with $\Pi$ the
    projection onto $[\log\theta_{min}, \log\theta_{max}]$, $\Delta_{max}$ a step bound
    against outliers and $f\in[0, 1]$ the fraction of the step taken (a step cut short
    leaves the covariance large, so that a far-off prior is left at the step bound's pace);
+   A change of road shows as innovations far larger than the covariance expects, when
+   $P$ has long since shrunk: a CUSUM detector on the normalised innovation squared
+   $\nu = e^2/(R + \phi^2P)$, $g \leftarrow \max(0, g + \nu - \delta)$, raises $P$ to
+   $P_0$ when $g > h$ and restarts (covariance resetting), so the estimate leaves the old
+   road in a few samples instead of at the pace of forgetting;
 3. *correct*: $\hat\omega_k = \hat\omega_k^- + Le$, $\hat v_k = \hat v_k^- + L_v(v_k -
    \hat v_k^-)$ with the measured (noisy) vehicle speed $v_k$: a filtered speed, which the
    controllers use.
@@ -49,13 +56,10 @@ from .integrate import hermite, integrate_sample
 from .tire import UniformLumpedLuGre
 
 
-_DIFFERENCE_STEP = 1e-6
-
-
 class ObserverState(eqx.Module):
     r"""$\hat z$, $\hat\omega$, $\hat v$, $\vartheta = \log\hat\theta$, its covariance
-    $P$, the sensitivities $\partial(\hat\omega, \hat z, \hat v)/\partial\vartheta$, and the
-    last innovation."""
+    $P$, the sensitivities $\partial(\hat\omega, \hat z, \hat v)/\partial\vartheta$, the
+    last innovation and the change detector's statistic $g$."""
 
     z: Float[Array, ""]
     omega: Float[Array, ""]
@@ -64,6 +68,7 @@ class ObserverState(eqx.Module):
     covariance: Float[Array, ""]
     sensitivity: Float[Array, " 3"]
     innovation: Float[Array, ""]
+    change_statistic: Float[Array, ""]
 
     @property
     def theta(self):
@@ -84,7 +89,8 @@ class FrictionObserver(eqx.Module):
     $\lambda\in(0, 1]$ (0.98), `initial_covariance` $P_0$ (1, in $(\log\theta)^2$),
     `max_covariance` $P_{max}$ (10), `noise_variance` $R$ of the wheel-speed innovation
     [rad^2/s^2] (0.05), `max_step` $\Delta_{max}$ (0.2), `injection` $L\in[0, 1]$ (0.5),
-    `speed_injection` $L_v\in[0, 1]$ (0.05).
+    `speed_injection` $L_v\in[0, 1]$ (0.05), the change detector's `change_drift`
+    $\delta$ (20) and `change_threshold` $h$ (200; `inf` turns it off).
     """
 
     model: LuGreParams
@@ -97,6 +103,8 @@ class FrictionObserver(eqx.Module):
     max_step: Float[Array, ""] = array_field(default=0.2)
     injection: Float[Array, ""] = array_field(default=0.5)
     speed_injection: Float[Array, ""] = array_field(default=0.05)
+    change_drift: Float[Array, ""] = array_field(default=20.0)
+    change_threshold: Float[Array, ""] = array_field(default=200.0)
 
     def __check_init__(self):
         owner = "FrictionObserver"
@@ -107,7 +115,8 @@ class FrictionObserver(eqx.Module):
                         lower=float(self.theta_min), upper=float(self.theta_max))
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
-        for name in ("initial_covariance", "max_covariance", "noise_variance", "max_step"):
+        for name in ("initial_covariance", "max_covariance", "noise_variance", "max_step",
+                     "change_drift", "change_threshold"):
             check_positive(owner, name, getattr(self, name))
         check_range(owner, "injection", self.injection, lower=0.0, upper=1.0)
         check_range(owner, "speed_injection", self.speed_injection, lower=0.0, upper=1.0)
@@ -116,7 +125,8 @@ class FrictionObserver(eqx.Module):
         """Undeflected tire, the measured speeds, the prior $\\hat\\theta_0$."""
         z = jnp.zeros(())
         return ObserverState(z, jnp.asarray(omega0, dtype=float), jnp.asarray(v0, dtype=float),
-                             jnp.log(self.model.theta), self.initial_covariance, jnp.zeros(3), z)
+                             jnp.log(self.model.theta), self.initial_covariance, jnp.zeros(3), z,
+                             z)
 
     def _predict(self, car: QuarterCar, hw: BrakeHardware, substeps, v, omega, z, log_theta,
                  torque0, target, t0, stamp):
@@ -143,17 +153,21 @@ class FrictionObserver(eqx.Module):
         speed `v` at the sample's end."""
         x = jnp.stack([state.omega, state.z, state.v, state.log_theta])
         d = jnp.concatenate([state.sensitivity, jnp.ones(1)])
-        h = _DIFFERENCE_STEP
 
         def predict(x):
             return jnp.stack(self._predict(car, hw, substeps, x[2], x[0], x[1], x[3], torque0,
                                            target, t0, stamp))
 
-        mid, plus = jax.vmap(predict)(jnp.stack([x, x + h * d]))
-        omega_m, omega_pred, z, v_pred = mid
-        d_omega, d_end, dz, dv = (plus - mid) / h
+        (omega_m, omega_pred, z, v_pred), (d_omega, d_end, dz, dv) = jax.jvp(predict, (x,),
+                                                                              (d,))
         e = jnp.where(fresh, omega - omega_m, 0.0)
         P = state.covariance
+        nis = e * e / (self.noise_variance + d_omega * d_omega * P)
+        g = jnp.maximum(state.change_statistic + jnp.where(fresh, nis - self.change_drift, 0.0),
+                        0.0)
+        changed = g > self.change_threshold
+        P = jnp.where(changed, jnp.maximum(P, self.initial_covariance), P)
+        g = jnp.where(changed, 0.0, g)
         K = jnp.where(fresh, P * d_omega / (self.noise_variance + d_omega * d_omega * P), 0.0)
         full = K * e
         step = jnp.clip(full, -self.max_step, self.max_step)
@@ -165,4 +179,4 @@ class FrictionObserver(eqx.Module):
         omega_hat = jnp.where(fresh, omega_pred + L * e, jnp.minimum(omega_pred, omega))
         v_hat = v_pred + self.speed_injection * (v - v_pred)
         sensitivity = jnp.stack([(1.0 - L) * d_end, dz, (1.0 - self.speed_injection) * dv])
-        return ObserverState(z, omega_hat, v_hat, log_theta, P, sensitivity, e)
+        return ObserverState(z, omega_hat, v_hat, log_theta, P, sensitivity, e, g)
