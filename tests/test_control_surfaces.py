@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from vehsim import cli
-from vehsim.control.bound import physical_limit
+from vehsim.control.bound import actuated_limit, physical_limit
 from vehsim.control.burckhardt import fit_errors
-from vehsim.control.hardware import BrakeHardware
+from vehsim.control.hardware import BrakeHardware, ideal_hardware, realistic_hardware
 from vehsim.control.loop import STOP_SPEED
 from vehsim.control.observer import FrictionObserver
 from vehsim.control.peak import peak_braking
 from vehsim.control.plant import BrakingScenario, SurfaceChange, braking_quarter_car
+from vehsim.control.scenarios import braking_scenario
 from vehsim.control.surfaces import SURFACES, surface
 from vehsim.control.tire import UniformLumpedLuGre, decay
 from vehsim.tire.steady_state import braking_mu_uniform, driving_mu_uniform
@@ -119,3 +120,19 @@ def test_every_named_surface_builds_and_belongs_to_its_family():
         srf = surface(name)
         lo, hi = srf.theta_range
         assert lo <= float(srf.params.theta) <= hi and lo <= srf.prior_theta <= hi
+
+
+def test_actuated_limit_is_the_physical_limit_plus_the_actuator_delay():
+    # ideal hardware: the same limit; a pure delay: the car rolls free for the delay, then
+    # brakes exactly as the limit does from the same speed (exact, up to the quadrature)
+    scenario = braking_scenario("wet_asphalt", 25.0)[0]
+    x, t = (float(a) for a in physical_limit(scenario))
+    xi, ti = (float(a) for a in actuated_limit(scenario, ideal_hardware()))
+    assert xi == pytest.approx(x, rel=1e-6) and ti == pytest.approx(t, rel=1e-6)
+    delayed = ideal_hardware(delay=True)
+    xd, td = (float(a) for a in actuated_limit(scenario, delayed))
+    delay = float(delayed.actuator_delay)
+    assert xd == pytest.approx(x + 25.0 * delay, rel=1e-6)
+    assert td == pytest.approx(t + delay, rel=1e-6)
+    xr = float(actuated_limit(scenario, realistic_hardware())[0])
+    assert xr > xd  # the lag and the rate limit cost more than the delay alone

@@ -212,6 +212,7 @@ from .sharding import gather_members as gather_members
 # closing the loop: road surfaces, braking hardware, friction estimation, ABS and
 # traction control on the lumped LuGre tire (report section 2.2)
 from .control.bound import (
+    actuated_limit as actuated_limit,
     physical_limit as physical_limit,
     traction_limit as traction_limit,
 )

@@ -18,7 +18,8 @@ def register(subparsers) -> None:
         description="Brake the quarter car with the lumped LuGre tire on a named surface "
         "through the realistic hardware (actuator delay, rate limit and lag; tone wheel; "
         "speed noise) and write brake.json (stopping_distance_m, bound_distance_m, "
-        "distance_over_bound, the locked wheel beside them, the estimate of theta, status) "
+        "distance_over_bound, the same against the limit on this hardware "
+        "(actuated_bound_distance_m, distance_over_actuated_bound), the locked wheel beside them, the estimate of theta, status) "
         "and brake.png (speed, wheel slip, friction used vs available, estimated theta, "
         "brake command, distance).")
     p.add_argument("--surface", default="dry_asphalt", help=f"one of: {', '.join(SURFACES)}")
@@ -67,6 +68,8 @@ def _brake(args) -> int:
     print(f"wrote {folder / 'brake.json'} and {folder / 'brake.png'}", file=sys.stderr)
     print(f"  stopping distance {record['stopping_distance_m']:.2f} m, limit "
           f"{record['bound_distance_m']:.2f} m: {record['distance_over_bound']:.4f} of it "
-          f"(locked wheel {record['locked_wheel']['distance_over_bound']:.4f})",
+          f"(locked wheel {record['locked_wheel']['distance_over_bound']:.4f}); limit on this "
+          f"hardware {record['actuated_bound_distance_m']:.2f} m: "
+          f"{record['distance_over_actuated_bound']:.4f}",
           file=sys.stderr)
     return 0 if record["status"] == "successful" else 1

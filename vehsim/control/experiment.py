@@ -42,7 +42,9 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     [s]) from `speed` [m/s] with the controller `controller_name` and with a locked wheel.
 
     **Returns:** ``(record, signals)``: the JSON-ready record (the controller's
-    ``stopping_distance_m``, ``bound_distance_m``, ``distance_over_bound``, times, the
+    ``stopping_distance_m``, ``bound_distance_m``, ``distance_over_bound``, the same over
+    the limit on this hardware (``actuated_bound_distance_m``,
+    ``distance_over_actuated_bound``), times, the
     estimate of theta, ``status`` and ``message``, and the same distances under
     ``locked_wheel``), and the saved signals of both runs by label, with the peak slip and
     friction of the true surface and the true theta at each sample.
@@ -59,7 +61,7 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     out = {}
     for i, label in enumerate((controller_name, "locked")):
         run = jax.tree_util.tree_map(lambda a: a[i, 0], runs)
-        out[label] = dict(braking_record(run, scenario), **result_record(run.result))
+        out[label] = dict(braking_record(run, scenario, hw), **result_record(run.result))
     signals = {label: _signals_of(runs, i, scenario)
                for i, label in enumerate((controller_name, "locked"))}
     s = signals[controller_name]

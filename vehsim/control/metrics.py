@@ -4,7 +4,9 @@ how truly an estimate of $\theta$ settles.
 - `braking_record`: ``stopping_distance_m`` and ``stopping_time_s`` (until the speed falls
   below `STOP_SPEED`), ``bound_distance_m`` and ``bound_time_s`` (`physical_limit`), and
   ``distance_over_bound`` = stopping distance / bound distance ($\ge 1$ up to the limit's
-  quadrature and the plant's transients).
+  quadrature and the plant's transients); given the hardware, also
+  ``actuated_bound_distance_m`` (`actuated_limit`: the same limit with the brake torque's
+  rise on that hardware) and ``distance_over_actuated_bound``.
 - `settling`: the time from ``t_from`` after which the estimate stays within ``tol`` (5 %)
   of the truth up to ``t_to`` (the time of its first sample if it never leaves), and its
   bias (mean relative error) from then on; `inf` and the bias over the whole window when
@@ -21,23 +23,31 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .bound import physical_limit
+from .bound import actuated_limit, physical_limit
+from .hardware import BrakeHardware
 from .loop import BrakingRun
 from .peak import peak_braking
 from .plant import BrakingScenario
 
 
-def braking_record(run: BrakingRun, scenario: BrakingScenario) -> dict[str, float]:
-    """The distances and times of a run beside its physical limit (module docstring)."""
+def braking_record(run: BrakingRun, scenario: BrakingScenario,
+                   hardware: BrakeHardware | None = None) -> dict[str, float]:
+    """The distances and times of a run beside its physical limit, and beside the limit on
+    `hardware` if given (module docstring)."""
     bound_distance, bound_time = (float(v) for v in physical_limit(scenario))
     distance = float(run.stopping_distance)
-    return {
+    record = {
         "stopping_distance_m": distance,
         "stopping_time_s": float(run.stopping_time),
         "bound_distance_m": bound_distance,
         "bound_time_s": bound_time,
         "distance_over_bound": distance / bound_distance,
     }
+    if hardware is not None:
+        actuated = float(actuated_limit(scenario, hardware)[0])
+        record |= {"actuated_bound_distance_m": actuated,
+                   "distance_over_actuated_bound": distance / actuated}
+    return record
 
 
 def settling(ts, estimate, truth, t_from: float, t_to: float, tol: float = 0.05):

@@ -51,7 +51,7 @@ def grid_records(cases, hw, duration, key=0):
     for j, case in enumerate(cases):
         for i, name in enumerate(CONTROLLERS):
             run = jax.tree_util.tree_map(lambda a: a[i, j], runs)
-            records[case, name] = braking_record(run, pairs[j][0]) | _estimates(
+            records[case, name] = braking_record(run, pairs[j][0], hw) | _estimates(
                 run, pairs[j][0], case)
     return records, runs
 
@@ -75,8 +75,9 @@ def _case_name(case):
 
 
 def _distance_table(ctx, records, cases, label):
-    lines = ["| road | " + " | ".join(CONTROLLERS) + " | estimate: theta settles (s), bias |",
-             "|---|" + "---|" * (len(CONTROLLERS) + 1)]
+    lines = ["| road | " + " | ".join(CONTROLLERS) + " | estimate over the limit on this "
+             "hardware | estimate: theta settles (s), bias |",
+             "|---|" + "---|" * (len(CONTROLLERS) + 2)]
     for case in cases:
         cells = []
         for name in CONTROLLERS:
@@ -84,6 +85,7 @@ def _distance_table(ctx, records, cases, label):
             cells.append(f"{r['distance_over_bound']:.4f}")
             ctx.record(f"braking_control.{label}.{_case_name(case)}.{name}", r)
         est = records[case, "estimate"]
+        cells.append(f"{est['distance_over_actuated_bound']:.4f}")
         key = "theta_settling_time_s" + ("" if case[1] is None else "_after_change")
         bias = "theta_bias" + ("" if case[1] is None else "_after_change")
         cells.append(f"{est[key]:.3f}, {est[bias]:+.4f}")
