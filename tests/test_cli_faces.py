@@ -117,3 +117,38 @@ def test_reproduce_every_section_at_its_smallest(tmp_path):
     assert results["vehicle.step_steer.final_speed_m_s"] > 0
     rc, _, err = _vehsim("reproduce", "--out", tmp_path / "x", "--only", "no-such-section")
     assert rc == 2 and "no section matches" in err and "optimal" in err
+
+
+def test_brake_writes_the_braking_against_its_limits_and_caches_what_it_compiled(tmp_path):
+    """`vehsim brake` on wet asphalt from 20 m/s: exit 0, brake.json with the distances, the
+    limits (the hardware's above the tire's, the run above both) and the estimate;
+    brake.png; the compiled programs written to the cache folder. Run again with
+    ``--no-compilation-cache``: the same record, and its cache folder stays empty. An unknown
+    surface: exit 2, the known ones named."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    records = []
+    for flags, cache in (((), tmp_path / "cache"), (("--no-compilation-cache",),
+                                                      tmp_path / "no-cache")):
+        out = subprocess.run([sys.executable, "-m", "vehsim", *flags, "brake", "--surface",
+                              "wet_asphalt", "--speed", "20", "--out", tmp_path / cache.name],
+                             capture_output=True, text=True, timeout=900,
+                             env=env | {"VEHSIM_CACHE_DIR": str(cache / "jax")})
+        assert out.returncode == 0, out.stderr
+        records.append(json.loads((tmp_path / cache.name / "brake.json").read_text()))
+        assert _is_png(tmp_path / cache.name / "brake.png")
+    cached, uncached = tmp_path / "cache" / "jax", tmp_path / "no-cache" / "jax"
+    assert any(p.name.startswith("jit_closed_loop_grid") for p in cached.iterdir())
+    assert not uncached.exists() or not any(uncached.iterdir())
+    rec = records[0]
+    assert rec == records[1]
+    assert (rec["surface"], rec["controller"], rec["status"]) == ("wet_asphalt", "estimate",
+                                                                  "successful")
+    assert rec["bound_distance_m"] < rec["actuated_bound_distance_m"] < rec[
+        "stopping_distance_m"] < rec["locked_wheel"]["stopping_distance_m"]
+    assert rec["distance_over_bound"] == pytest.approx(
+        rec["stopping_distance_m"] / rec["bound_distance_m"], rel=1e-12)
+    assert rec["distance_over_bound"] <= 1.03
+    assert rec["theta_true"] > 0 and rec["theta_settling_time_s"] < 0.5
+    rc, _, err = _vehsim("brake", "--surface", "gravel", "--out", tmp_path / "x")
+    assert rc == 2 and "gravel" in err and "wet_asphalt" in err

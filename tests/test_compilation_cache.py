@@ -47,3 +47,24 @@ def test_default_cache_folder(monkeypatch, tmp_path):
     monkeypatch.delenv("VEHSIM_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert default_cache_dir() == tmp_path / "xdg" / "vehsim" / "jax"
+
+
+def test_command_line_cache_follows_the_flag_and_the_environment(monkeypatch):
+    import jax
+
+    from vehsim.compilation_cache import NO_CACHE_VARIABLE, command_line_cache
+
+    configured = jax.config.jax_compilation_cache_dir  # the suite's cache folder
+    try:
+        monkeypatch.delenv(NO_CACHE_VARIABLE, raising=False)
+        assert command_line_cache() == Path(configured).resolve()  # JAX's folder kept
+        assert jax.config.jax_enable_compilation_cache
+        monkeypatch.setenv(NO_CACHE_VARIABLE, "1")
+        assert command_line_cache() is None
+        assert not jax.config.jax_enable_compilation_cache
+        monkeypatch.setenv(NO_CACHE_VARIABLE, "0")
+        assert command_line_cache() is not None and jax.config.jax_enable_compilation_cache
+        assert command_line_cache(disabled=True) is None
+    finally:
+        jax.config.update("jax_enable_compilation_cache", True)
+        jax.config.update("jax_compilation_cache_dir", configured)

@@ -18,6 +18,10 @@ programs, the solvers among them, are compiled again in every process. Starting 
 programs are cached too; a failed check then shows as NaN rather than an exception (the
 ``result`` of a ``throw=False`` solve still names the failure). The measured difference for
 the second run of a notebook, both ways: docs/performance.md.
+
+The command line (`vehsim ...`) switches the cache on by itself (`command_line_cache`), in
+`default_cache_dir` or the folder JAX was already given (``JAX_COMPILATION_CACHE_DIR``);
+``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1`` turn it off.
 """
 
 from __future__ import annotations
@@ -55,7 +59,25 @@ def enable_compilation_cache(path: str | os.PathLike | None = None,
     """
     path = Path(default_cache_dir() if path is None else path).expanduser().resolve()
     path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+NO_CACHE_VARIABLE = "VEHSIM_NO_COMPILATION_CACHE"
+"""Environment variable that turns the command line's compilation cache off (1, true, yes)."""
+
+
+def command_line_cache(disabled: bool = False) -> Path | None:
+    """The command line's cache: off if `disabled` or ``$VEHSIM_NO_COMPILATION_CACHE`` is
+    1/true/yes (JAX's cache then switched off altogether, whatever else configured it),
+    else `enable_compilation_cache` in the folder JAX was given, or `default_cache_dir`.
+
+    **Returns:** the cache folder, or None when off.
+    """
+    if disabled or os.environ.get(NO_CACHE_VARIABLE, "").strip().lower() in ("1", "true", "yes"):
+        jax.config.update("jax_enable_compilation_cache", False)
+        return None
+    return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None)

@@ -4,6 +4,9 @@ One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`), ea
 ``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
+Compiled programs are kept in JAX's persistent compilation cache
+(`vehsim.compilation_cache.command_line_cache`), so that a second run starts in seconds,
+unless ``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1``.
 """
 
 from __future__ import annotations
@@ -18,11 +21,18 @@ COMMANDS = (reproduce, sweep, fit, optimise, brake)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..compilation_cache import NO_CACHE_VARIABLE, default_cache_dir
+
     parser = argparse.ArgumentParser(
         prog="vehsim", description="Differentiable vehicle simulation (after Tsiotras, 2004)."
     )
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines on stderr for long batched work")
+    parser.add_argument("--no-compilation-cache", action="store_true",
+                        help="compile every program afresh (the cache of compiled programs is "
+                             f"on by default, in {default_cache_dir()}: set VEHSIM_CACHE_DIR "
+                             f"to move it, {NO_CACHE_VARIABLE}=1 to turn it off, delete the "
+                             "folder to clear it)")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(sub)
@@ -32,10 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import jax
 
+    from ..compilation_cache import command_line_cache
     from ..progress import set_default
 
     jax.config.update("jax_enable_x64", True)
     args = build_parser().parse_args(argv)
+    command_line_cache(args.no_compilation_cache)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     library_default = set_default(not args.no_progress)
     try:
