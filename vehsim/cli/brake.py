@@ -19,7 +19,8 @@ def register(subparsers) -> None:
         "through the realistic hardware (actuator delay, rate limit and lag; tone wheel; "
         "speed noise) and write brake.json (stopping_distance_m, bound_distance_m, "
         "distance_over_bound, the same against the limit on this hardware "
-        "(actuated_bound_distance_m, distance_over_actuated_bound), the locked wheel beside them, the estimate of theta, status) "
+        "(actuated_bound_distance_m, distance_over_actuated_bound), the locked wheel "
+        "beside them, the estimate of theta, status) "
         "and brake.png (speed, wheel slip, friction used vs available, estimated theta, "
         "brake command, distance).")
     p.add_argument("--surface", default="dry_asphalt", help=f"one of: {', '.join(SURFACES)}")
