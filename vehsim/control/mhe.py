@@ -197,15 +197,21 @@ class MovingHorizonEstimator(eqx.Module):
 
     def estimate(self, car: QuarterCar, hw: BrakeHardware, signals: dict, ends) -> MHEResult:
         """Fit the windows ending at the sample indices `ends` (each at least `window`) of
-        a saved run's `signals`, all in one vmapped call."""
-        names = ("ts", "torque", "target", "omega_stamp", "omega_meas", "v_meas", "fresh")
-        ends = jnp.asarray(ends)
+        a saved run's `signals`, all in one vmapped, jitted call (compiled once per window,
+        run length and number of windows)."""
+        data = {n: jnp.asarray(signals[n]) for n in _WINDOW_SIGNALS}
+        return _estimate(self, car, hw, data, jnp.asarray(ends))
 
-        def one(end):
-            data = {n: jax.lax.dynamic_slice_in_dim(jnp.asarray(signals[n]),
-                                                    end - self.window, self.window + 1)
-                    for n in names}
-            return self.fit_window(car, hw, data)
 
-        theta, se, cost, result = jax.vmap(one)(ends)
-        return MHEResult(jnp.asarray(signals["ts"])[ends], theta, se, cost, result)
+_WINDOW_SIGNALS = ("ts", "torque", "target", "omega_stamp", "omega_meas", "v_meas", "fresh")
+
+
+@eqx.filter_jit
+def _estimate(mhe: MovingHorizonEstimator, car, hw, signals, ends) -> MHEResult:
+    def one(end):
+        data = {n: jax.lax.dynamic_slice_in_dim(signals[n], end - mhe.window, mhe.window + 1)
+                for n in _WINDOW_SIGNALS}
+        return mhe.fit_window(car, hw, data)
+
+    theta, se, cost, result = jax.vmap(one)(ends)
+    return MHEResult(signals["ts"][ends], theta, se, cost, result)
