@@ -26,13 +26,16 @@ TITLE = "Closing the loop: friction estimation, ABS and traction control (sectio
 QUICK_SURFACES = ("dry_asphalt", "wet_asphalt", "cobblestone")
 NOTES = (
     "The physical limit assumes the peak of the true surface's steady-state curve (eq. 19) "
-    "at every instant from the first, with no actuator delay or lag; the realistic hardware "
-    "alone costs about 2 % of it on dry asphalt (10 ms delay, 14 ms lag, the torque's rise). "
-    "Below 1 m/s the car counts as stopped; below 3 m/s every controller hands back to plain "
-    "braking. On the CDC 1999 set the curve rises to the locked wheel at 30 m/s, so locking "
-    "is the best braking there, and the bristle damping's transient at lock-up (sigma1 "
-    "4.95 s/m) even beats the steady-state limit by 1-3 %. A locked wheel sends no tone-wheel "
-    "edges, so no estimate can move while it stays locked.")
+    "at every instant from the first, with no actuator delay or lag; the limit on the "
+    "hardware (`actuated_limit`) adds the torque's rise under a full command (10 ms delay, "
+    "14 ms lag, the rate limit), which alone costs about 2 % on dry asphalt and 3.7 % when "
+    "the road turns to ice at 20 m (the car reaches the ice faster, and the ice multiplies "
+    "the difference). Below 1 m/s the car counts as stopped; below 3 m/s every controller "
+    "hands back to plain braking. On the CDC 1999 set the curve rises to the locked wheel at "
+    "30 m/s, so locking is the best braking there, and the bristle damping's transient at "
+    "lock-up (sigma1 4.95 s/m) even beats the steady-state limit by 1-3 %. A locked wheel "
+    "sends no tone-wheel edges, so no estimate can move while it stays locked: over a whole "
+    "braking on that set the estimate keeps the bias it had at lock-up.")
 ESTIMATION_WINDOW_S = 2.0
 """The estimators are judged over the first 2 s of a braking (or to the hand-back)."""
 CHANGES = (("dry_asphalt", "ice", 20.0), ("ice", "dry_asphalt", 100.0),
