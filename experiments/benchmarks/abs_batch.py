@@ -162,7 +162,7 @@ class NumpyBraking:
                        sigma=float(hw.speed_noise_std))
         self.ob = {k: float(getattr(observer, k)) for k in (
             "theta_min", "theta_max", "forgetting", "max_covariance", "noise_variance",
-            "max_step", "injection", "speed_injection")}
+            "max_step", "injection", "speed_injection", "change_drift", "change_threshold")}
         self.ob["P0"] = float(observer.initial_covariance)
         self.ctrl, self.name, self.noise = ctrl, ctrl_name, noise
         self.v0 = float(scenario.speed)
@@ -196,6 +196,10 @@ class NumpyBraking:
         der = (self.copy_predict(x + 1e-6 * d, t0, torque0, target, stamp) - mid) / 1e-6
         e = omega_m - mid[0] if fresh else 0.0
         P, phi = o["P"], der[0]
+        nis = e * e / (ob["noise_variance"] + phi * phi * P)
+        g = max(o["g"] + (nis - ob["change_drift"] if fresh else 0.0), 0.0)
+        if g > ob["change_threshold"]:  # a change of road: covariance reset
+            P, g = max(P, ob["P0"]), 0.0
         K = P * phi / (ob["noise_variance"] + phi * phi * P) if fresh else 0.0
         full = K * e
         step = min(max(full, -ob["max_step"]), ob["max_step"])
@@ -206,7 +210,7 @@ class NumpyBraking:
         omega = mid[1] + L * e if fresh else min(mid[1], omega_m)
         v = mid[3] + ob["speed_injection"] * (v_m - mid[3])
         s = np.array([(1 - L) * der[1], der[2], (1 - ob["speed_injection"]) * der[3]])
-        return dict(z=mid[2], omega=omega, v=v, log_theta=lt, P=P, s=s)
+        return dict(z=mid[2], omega=omega, v=v, log_theta=lt, P=P, s=s, g=g)
 
     def rule(self, st, slip, accel):
         c, T = self.ctrl, self.hw["T"]
@@ -300,7 +304,7 @@ class NumpyBraking:
         enc = dict(count=0.0, count_sample=0.0, edge=0.0, before=-hw["delta"] / y[2],
                    omega=y[2])
         o = dict(z=0.0, omega=y[2], v=y[1], log_theta=math.log(self.pm["theta"]),
-                 P=self.ob["P0"], s=np.zeros(3))
+                 P=self.ob["P0"], s=np.zeros(3), g=0.0)
         st = (0, 0.0, 0.0, hw["Tmax"]) if self.name == "rule" else 0.0
         buffer, target, torque = [0.0] * 9, 0.0, 0.0
         prev = (y[2], 0.0, 0.0)
