@@ -21,7 +21,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._carry import strong
 from .block_tridiagonal import block_factor, block_matvec, block_solve
@@ -71,7 +71,8 @@ class Residuals(eqx.Module):
 
 
 class NewtonStep(eqx.Module):
-    """A primal-dual Newton direction and the primal regularisation ``delta`` it took."""
+    """A primal-dual Newton direction, the primal regularisation ``delta`` it took and the
+    number of ``factorisations`` the inertia correction tried."""
 
     dy: Float[Array, "M+1 ny"]
     dlam: Float[Array, "M+1 nx"]
@@ -79,6 +80,7 @@ class NewtonStep(eqx.Module):
     ds: Float[Array, "M+1 ng"]
     dz: Float[Array, "M+1 ng"]
     delta: Float[Array, ""]
+    factorisations: Int[Array, ""]
 
 
 def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
@@ -187,8 +189,8 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_las
         return delta, sol, ok, n + 1
 
     init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0))
-    delta, sol, _, _ = jax.lax.while_loop(cond, body, init)
-    return delta, sol
+    delta, sol, _, n = jax.lax.while_loop(cond, body, init)
+    return delta, sol, n
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
@@ -197,11 +199,11 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     mk = lay.masks()
     ny, nx, mg = lay.ny, lay.nx, mk.g
     rhs, W0 = _condensed_system(lay, it, d, mu)
-    delta, sol = _regularised_solve(lay, W0, d, rhs, delta_last)
+    delta, sol, n_factor = _regularised_solve(lay, W0, d, rhs, delta_last)
     dy = sol[:, :ny] * mk.y
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
     ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + d.g - it.s) * mg
     dz = (mu / sg - it.z - Sigma * ds) * mg
     return NewtonStep(dy=dy, dlam=sol[:, ny : ny + nx] * mk.lam, dnu=sol[:, ny + nx :] * mk.eq,
-                      ds=ds, dz=dz, delta=delta)
+                      ds=ds, dz=dz, delta=delta, factorisations=n_factor)
