@@ -134,3 +134,33 @@ def test_riccati_solve_and_inertia_match_the_dense_matrix(definite):
         np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-6, atol=1e-9)
     else:
         assert not right_inertia
+
+
+TRACES = []
+
+
+class CountedRestToRest(RestToRest):
+    """`RestToRest` that records each trace of its dynamics (a compiled program reused
+    records nothing)."""
+
+    def transition(self, x, u, k):
+        TRACES.append(k)
+        return super().transition(x, u, k)
+
+
+def test_options_built_without_float64_reuse_the_compiled_solver():
+    # a default argument `IPOptions()` evaluated at import, before float64 was switched on,
+    # holds int32/float32 arrays: the solver must not compile a second program for it
+    M = 12
+    prob = CountedRestToRest(num_stages=M)
+    sol = interior_point(prob, *_guess(M), IPOptions())
+    traced = len(TRACES)
+    jax.config.update("jax_enable_x64", False)
+    try:
+        single = IPOptions()
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    assert single.mu0.dtype == jnp.float32 and traced > 0
+    again = interior_point(prob, *_guess(M), single)
+    assert len(TRACES) == traced
+    assert float(again.objective) == pytest.approx(float(sol.objective), rel=1e-9)

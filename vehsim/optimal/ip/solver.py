@@ -156,8 +156,17 @@ def interior_point(
 
     **Returns:** an `IPSolution`.
     """
-    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), options)
+    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), _canonical(options))
     return _raise_if_failed(sol) if throw else sol
+
+
+def _canonical(options: IPOptions) -> IPOptions:
+    """The options with their arrays in the current default dtypes: an `IPOptions` built
+    before float64 was switched on (a default argument, at import) then compiles the same
+    program as one built after."""
+    return eqx.tree_at(lambda o: (o.max_iter, o.mu0), options,
+                       (jnp.asarray(options.max_iter, dtype=int),
+                        jnp.asarray(options.mu0, dtype=float)))
 
 
 def _raise_if_failed(sol: IPSolution) -> IPSolution:
