@@ -125,3 +125,26 @@ def test_other_benchmark_problems_feasible_and_ipopts_optimum(road, objective):
     _, at_ours, _ = _against_ipopt(prim, road, objective,
                                    start=(prim.solution.xs, prim.solution.us))
     assert abs(ours - at_ours) <= 1e-6 * at_ours, (ours, at_ours)
+
+
+def test_re_integration_between_the_nodes(corner_min_time):
+    """`fine_nodes`: one substep reproduces the nodes; with 20, the state halfway through a
+    segment equals an independent tight integration from its knot (diffrax, 8th order); the
+    corridor is imposed at the nodes only, and the record reports both violations."""
+    import diffrax as dfx
+
+    prim = corner_min_time
+    prob, sol = prim.problem, prim.solution
+    np.testing.assert_allclose(np.asarray(prob.fine_nodes(sol.xs, sol.us, 1)),
+                               np.asarray(prim.nodes()), rtol=0, atol=1e-12)
+    fine = np.asarray(prob.fine_nodes(sol.xs, sol.us, 20))
+    assert fine.shape == (20 * M + 1, 10)
+    k = M // 2
+    ref = dfx.diffeqsolve(dfx.ODETerm(lambda t, y, u: prob._rhs(y, u)), dfx.Dopri8(), 0.0,
+                          0.5 / M, 1e-3 / M, sol.xs[k], args=sol.us[k],
+                          stepsize_controller=dfx.PIDController(rtol=1e-11, atol=1e-11))
+    np.testing.assert_allclose(fine[20 * k + 10], np.asarray(ref.ys[0]), rtol=1e-7, atol=1e-9)
+    v = prim.violations()
+    off = prob.road.distance_off_road(fine[:, 0], fine[:, 1])
+    assert v["corridor_between_nodes"] == pytest.approx(float(off.max()), abs=1e-15)
+    assert v["corridor_between_nodes"] >= v["corridor"]
