@@ -226,6 +226,60 @@ def violations(rd, xs):
     return float(np.max(off))
 
 
+IPOPT_ONCE = """
+import json, sys, time
+import numpy as np
+sys.path.insert(0, {here!r})
+from ocp_vs_ipopt import ipopt_solve
+from vehsim.optimal.roads import road
+data = np.load(sys.argv[1])
+ip = ipopt_solve(road("corner90"), "min-time", 0.52, {N}, data["xs"], data["us"])
+with open(sys.argv[2], "w") as f:
+    json.dump(dict(t_f=float(ip["xs"][-1, 9]), status=ip["status"], xs=ip["xs"].tolist()), f)
+"""
+
+
+def end_to_end(N: int) -> None:
+    """From process start to files written: ``vehsim optimise corner90`` with an empty
+    compilation cache (cold) and again with the one it filled (warm), and a process that
+    builds the same problem in CasADi, solves it with IPOPT from the same car guess (read
+    from a file: computing it is vehsim's work) and writes its JSON."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    here = str(Path(__file__).resolve().parent)
+    root = str(Path(here).parent.parent)
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["PYTHONPATH"] = root
+    with tempfile.TemporaryDirectory() as tmp:
+        env["VEHSIM_CACHE_DIR"] = str(Path(tmp) / "cache")
+        cmd = [sys.executable, "-m", "vehsim", "optimise", "corner90", "--segments", str(N),
+               "--quiet", "--out", str(Path(tmp) / "out")]
+        walls = []
+        for _ in range(2):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+        rec = json.loads((Path(tmp) / "out" / "corner90_min-time.json").read_text())
+        xs0, us0 = car_guess(rally_gravel_car(), road_by_name("corner90"), N, 1)
+        np.savez(Path(tmp) / "guess.npz", xs=np.asarray(xs0), us=np.asarray(us0))
+        script = IPOPT_ONCE.format(here=here, N=N)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", script, str(Path(tmp) / "guess.npz"),
+                        str(Path(tmp) / "ipopt.json")], env=env, check=True,
+                       capture_output=True)
+        ipopt_wall = time.perf_counter() - t0
+        ip = json.loads((Path(tmp) / "ipopt.json").read_text())
+    print(json.dumps(dict(
+        problem="corner90:min-time end to end", segments=N, end_to_end_cold_s=walls[0],
+        end_to_end_warm_s=walls[1], ipopt_end_to_end_s=ipopt_wall,
+        ratio_warm=ipopt_wall / walls[1], ratio_cold=ipopt_wall / walls[0],
+        vehsim_t_f=rec["t_f"], vehsim_status=rec["status"], ipopt_t_f=ip["t_f"],
+        ipopt_status=ip["status"], loadavg=os.getloadavg()[0],
+    )), flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--segments", type=int, default=150)
@@ -234,10 +288,16 @@ def main(argv=None):
                     default=["corner90:min-time", "corner90:max-exit", "uturn:min-time",
                              "sturn:min-time"])
     ap.add_argument("--batch", type=int, default=0, help="frictions in the batch benchmark")
+    ap.add_argument("--end-to-end", action="store_true",
+                    help="time `vehsim optimise corner90` (cold and warm cache) and IPOPT's "
+                         "whole process")
     args = ap.parse_args(argv)
     N = args.segments
     if args.batch:
         batch_benchmark(args.batch, N, args.method)
+        return
+    if args.end_to_end:
+        end_to_end(N)
         return
     car = rally_gravel_car()
     for problem in args.problems:
