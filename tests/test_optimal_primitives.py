@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from optimal_cache import M, corner90_min_time
 
+from vehsim import result_name
 from vehsim.optimal import roads
 from vehsim.optimal.guesses import car_guess
 from vehsim.optimal.ip import IPOptions
+from vehsim.optimal.primitive import solution_record
 from vehsim.optimal.primitives import (
     max_exit_primitive,
     min_time_primitive,
@@ -148,3 +150,26 @@ def test_re_integration_between_the_nodes(corner_min_time):
     off = prob.road.distance_off_road(fine[:, 0], fine[:, 1])
     assert v["corridor_between_nodes"] == pytest.approx(float(off.max()), abs=1e-15)
     assert v["corridor_between_nodes"] >= v["corridor"]
+
+
+def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min_time):
+    """``starts=3``: the default point-mass seed, the centreline at 5 m/s and a second seed,
+    solved in one vmapped call. The default seed's solve is the single-start primitive's
+    (same optimum to 1e-9); the primitive is the best converged start; the record lists
+    every start's objective and status."""
+    prim = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
+                              options=IPOptions(max_iter=300), starts=3)
+    starts = prim.starts
+    assert starts.xs.shape == (3, M + 1, 10)
+    objective = np.asarray(starts.objective)
+    assert objective[0] == pytest.approx(float(corner_min_time.solution.objective), rel=1e-9)
+    converged = np.asarray(starts.converged)
+    best = int(np.argmin(np.where(converged, objective, np.inf)))
+    np.testing.assert_array_equal(np.asarray(prim.solution.xs), np.asarray(starts.xs[best]))
+    assert prim.solution.converged and float(prim.solution.objective) <= objective[
+        converged].min()
+    rec = solution_record(prim)
+    assert [s["status"] for s in rec["starts"]] == result_name(starts.result)
+    assert [s["objective"] for s in rec["starts"]] == pytest.approx(list(objective), rel=1e-12)
+    with pytest.raises(ValueError, match="starts must be at least 1"):
+        min_time_primitive("corner90", num_stages=M, steps_per_stage=1, starts=0)

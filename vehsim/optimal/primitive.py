@@ -23,10 +23,12 @@ SUBSTEPS = 20
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
     ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] and ``result`` (`vehsim.RESULTS`) read
-    off the solution."""
+    off the solution; ``starts``: the solutions from every start of a multi-start solve
+    (batched along axis 0), or None."""
 
     problem: Any
     solution: IPSolution
+    starts: IPSolution | None = None
 
     @property
     def t_f(self):
@@ -113,6 +115,11 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
         rec["point_mass_exit_speed"] = float(bound.exit_speed)
         rec["point_mass_status"] = result_name(bound.result)
         rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
+    if prim.starts is not None:
+        rec["starts"] = [dict(objective=float(o), status=r, iterations=int(i))
+                         for o, r, i in zip(np.asarray(prim.starts.objective),
+                                            result_name(prim.starts.result),
+                                            np.asarray(prim.starts.iterations))]
     rec["t"] = np.asarray(prim.time())
     rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
     rec["inputs"] = {k: sig[k] for k in ("kappa_F", "kappa_R", "delta")}
