@@ -280,6 +280,50 @@ def end_to_end(N: int) -> None:
     )), flush=True)
 
 
+def multistart(problems, N: int, n: int = 8) -> None:
+    """Per problem: vehsim's ``starts=n`` (the guesses and every start in one call, after
+    compilation) against IPOPT solving from the same ``n`` guesses one after the other
+    (solver calls only); the best value of each."""
+    from vehsim.optimal.primitives import max_exit_primitive, min_time_primitive, multistart_guesses
+
+    car = rally_gravel_car()
+    for problem in problems:
+        name, objective = problem.split(":")
+        rd = road_by_name(name)
+        print(f"# multistart {name} {objective}", file=sys.stderr, flush=True)
+        f = min_time_primitive if objective == "min-time" else max_exit_primitive
+        opts = IPOptions(max_iter=500)
+
+        def call():
+            return f(rd, num_stages=N, steps_per_stage=1, options=opts, starts=n, throw=False)
+
+        prim = call()  # compile
+        wall, prim = _best_time(lambda: call(), 1)
+        xs0, us0 = multistart_guesses(car, rd, n, N, 1)
+        if objective == "max-exit":
+            xs0 = xs0.at[:, :, IDX_TF].set(np.minimum(xs0[:, :, IDX_TF], 0.98 * 4.0))
+        val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
+            lambda x: math.hypot(x[-1, 3], x[-1, 4]))
+        ip_values, ip_ok, ip_wall = [], [], 0.0
+        for i in range(n):
+            ip = ipopt_solve(rd, objective, 0.52, N, xs0[i], us0[i])
+            ip_wall += ip["wall"]
+            ip_values.append(float(val(ip["xs"])))
+            ip_ok.append(ip["ok"])
+        ours = [float(val(np.asarray(x))) if bool(c) else math.nan
+                for x, c in zip(prim.starts.xs, np.asarray(prim.starts.converged))]
+        best = min if objective == "min-time" else max
+        ip_best = best(v for v, ok in zip(ip_values, ip_ok) if ok)
+        ours_best = float(val(np.asarray(prim.solution.xs)))
+        print(json.dumps(dict(
+            problem=f"{problem} multistart", segments=N, starts=n, vehsim_best=ours_best,
+            ipopt_best=ip_best, rel_diff=(ours_best - ip_best) / abs(ip_best),
+            vehsim_wall_s=wall, ipopt_sequential_s=ip_wall, ratio=ip_wall / wall,
+            vehsim_values=ours, vehsim_statuses=result_name(prim.starts.result),
+            ipopt_values=ip_values, ipopt_ok=ip_ok, loadavg=os.getloadavg()[0],
+        )), flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--segments", type=int, default=150)
@@ -291,8 +335,13 @@ def main(argv=None):
     ap.add_argument("--end-to-end", action="store_true",
                     help="time `vehsim optimise corner90` (cold and warm cache) and IPOPT's "
                          "whole process")
+    ap.add_argument("--multistart", type=int, default=0,
+                    help="starts of the multi-start comparison (8 in the benchmark)")
     args = ap.parse_args(argv)
     N = args.segments
+    if args.multistart:
+        multistart(args.problems, N, args.multistart)
+        return
     if args.batch:
         batch_benchmark(args.batch, N, args.method)
         return
