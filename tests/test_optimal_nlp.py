@@ -8,7 +8,8 @@ import pytest
 
 from vehsim import RESULTS
 from vehsim.optimal.ip import AbstractStagewiseNLP, IPOptions, interior_point
-from vehsim.optimal.ip.block_tridiagonal import block_factor, block_matvec, block_solve
+from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
+from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve
 
 
 class RestToRest(AbstractStagewiseNLP):
@@ -92,28 +93,74 @@ def test_iteration_limit_reports_result_and_residuals(bang_bang):
         interior_point(prob, xs0, us0, IPOptions(max_iter=3))
 
 
-def test_block_tridiagonal_solve_matches_dense():
+def _random_kkt(rng, M, nx, nu, ne, definite):
+    """A random KKT matrix of the stage structure: W symmetric (positive definite with
+    graded eigenvalues if `definite`, else indefinite), defects exact (d_lambda = 0, the
+    padded last knot -1), boundary equalities at -1e-3 (eigenvalues far above rounding)."""
+    ny = nx + nu
+    W = rng.normal(size=(M + 1, ny, ny))
+    W = W @ W.transpose(0, 2, 1) if definite else W + W.transpose(0, 2, 1)
+    W = W + np.diag(np.logspace(-3, 4, ny)) if definite else W
+    A = rng.normal(size=(M + 1, nx, ny))
+    A[-1] = 0.0
+    dl = np.zeros((M + 1, nx))
+    dl[-1] = -1.0
+    return KKTMatrix(W=jnp.asarray(W), A=jnp.asarray(A), Je=jnp.asarray(rng.normal(size=(
+        M + 1, ne, ny))), dl=jnp.asarray(dl), de=jnp.full((M + 1, ne), -1e-3))
+
+
+@pytest.mark.parametrize("definite", [True, False])
+def test_riccati_solve_and_inertia_match_the_dense_matrix(definite):
+    # the dense matrix from the structured product (unit vectors), solved by LAPACK; the
+    # Riccati factor exists exactly when the matrix has one negative eigenvalue per
+    # multiplier row and none zero (Sylvester)
     nx, nu, ne, M = 3, 2, 2, 4
     nb = 2 * nx + nu + ne
-    rng = np.random.default_rng(0)
-    Kd = rng.normal(size=(M + 1, nb, nb))
-    Kd = Kd + Kd.transpose(0, 2, 1)
-    Kd[:, :nx, :nx] += np.diag(np.logspace(-6, 8, nx))  # graded pivots
+    rng = np.random.default_rng(1)
+    K = _random_kkt(rng, M, nx, nu, ne, definite)
     N = (M + 1) * nb
-    K = np.zeros((N, N))
-    for k in range(M + 1):
-        K[k * nb:(k + 1) * nb, k * nb:(k + 1) * nb] = Kd[k]
-        if k < M:
-            for i in range(nx):
-                r, c = (k + 1) * nb + i, k * nb + nx + nu + i
-                K[r, c] = K[c, r] = 1.0
-    rhs = rng.normal(size=(M + 1, nb))
-    W, V, neg, _ = block_factor(jnp.asarray(Kd), nx, nu)
-    sol = np.asarray(block_solve(W, V, jnp.asarray(rhs), nx, nu))
-    ref = np.linalg.solve(K, rhs.reshape(-1))
-    np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-7, atol=1e-9)
-    assert int(neg) == int(np.sum(np.linalg.eigvalsh(K) < 0))  # Sylvester inertia
-    np.testing.assert_allclose(
-        np.asarray(block_matvec(jnp.asarray(Kd), jnp.asarray(sol), nx, nu)).reshape(-1),
-        K @ sol.reshape(-1), rtol=1e-9, atol=1e-9,
-    )
+    dense = np.stack([np.asarray(K.matvec(jnp.asarray(e.reshape(M + 1, nb)))).reshape(-1)
+                      for e in np.eye(N)], axis=1)
+    np.testing.assert_allclose(dense, dense.T, atol=0)  # symmetric
+    eig = np.linalg.eigvalsh(dense)
+    right_inertia = np.sum(eig < 0) == (M + 1) * (nx + ne) and np.all(eig != 0)
+    F = riccati_factor(K)
+    assert bool(F.ok) == bool(right_inertia)
+    if definite:
+        assert right_inertia
+        rhs = rng.normal(size=(M + 1, nb))
+        sol = np.asarray(riccati_solve(F, K, jnp.asarray(rhs)))
+        ref = np.linalg.solve(dense, rhs.reshape(-1))
+        np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-6, atol=1e-9)
+    else:
+        assert not right_inertia
+
+
+TRACES = []
+
+
+class CountedRestToRest(RestToRest):
+    """`RestToRest` that records each trace of its dynamics (a compiled program reused
+    records nothing)."""
+
+    def transition(self, x, u, k):
+        TRACES.append(k)
+        return super().transition(x, u, k)
+
+
+def test_options_built_without_float64_reuse_the_compiled_solver():
+    # a default argument `IPOptions()` evaluated at import, before float64 was switched on,
+    # holds int32/float32 arrays: the solver must not compile a second program for it
+    M = 12
+    prob = CountedRestToRest(num_stages=M)
+    sol = interior_point(prob, *_guess(M), IPOptions())
+    traced = len(TRACES)
+    jax.config.update("jax_enable_x64", False)
+    try:
+        single = IPOptions()
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    assert single.mu0.dtype == jnp.float32 and traced > 0
+    again = interior_point(prob, *_guess(M), single)
+    assert len(TRACES) == traced
+    assert float(again.objective) == pytest.approx(float(sol.objective), rel=1e-9)

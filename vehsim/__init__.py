@@ -180,6 +180,7 @@ from .optimal.primitive import Primitive as Primitive
 from .optimal.primitives import (
     max_exit_primitive as max_exit_primitive,
     min_time_primitive as min_time_primitive,
+    multistart_guesses as multistart_guesses,
     point_mass_bound as point_mass_bound,
 )
 from .optimal.roads import Road as Road, road as road

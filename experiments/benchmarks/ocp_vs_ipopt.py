@@ -12,7 +12,9 @@ t_f is carried per interval with t_{f,k+1} = t_{f,k} (no dense column), exact He
 CasADi's AD, MUMPS with its default ordering; IPOPT's time is the solver call (after
 building the NLP: building counts as its compile time).
 
-Prints JSON lines; headline ``ratio`` = IPOPT wall time / vehsim wall time (same run).
+Prints JSON lines; headline ``ratio`` = IPOPT wall time / vehsim wall time (same run, the
+best of three solves each), with ``profile``: where one vehsim iteration's time goes
+(`iteration_profile`).
 
     PYTHONPATH=. python experiments/benchmarks/ocp_vs_ipopt.py --segments 150
 """
@@ -172,9 +174,154 @@ def ipopt_solve(rd, objective, D, N, xs0, us0, method="rk4", tf_max=4.0, rate_we
                 status=str(stats.get("return_status")))
 
 
+def _best_time(f, repeats=3):
+    """Smallest wall time of ``repeats`` calls of ``f`` (blocking), and its last result."""
+    best, out = math.inf, None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(f())
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def iteration_profile(prob, sol, per_iteration_s):
+    """Where one interior-point iteration's time goes, at the solution's point: stage
+    derivatives (Jacobians and Lagrangian Hessians), one KKT factorisation and solve (times
+    the mean factorisations per iteration of the inertia correction), one line-search trial
+    (a constraint evaluation; times the mean trials per iteration), and the rest (residuals,
+    steps, the loop) as the difference from the measured time per iteration [ms]."""
+    import equinox as eqx
+
+    from vehsim.optimal.ip.derivatives import stage_derivatives, stage_values
+    from vehsim.optimal.ip.kkt import Iterate, _condensed_system, checked_solve, kkt_matrix
+    from vehsim.optimal.ip.problem import stage_layout
+
+    lay = stage_layout(prob)
+    mg = lay.masks().g
+    ys = lay.join(sol.xs, sol.us)
+    deriv = eqx.filter_jit(lambda p, y, lam, n, z: stage_derivatives(p, lay, y, lam, n, z))
+    values = eqx.filter_jit(lambda p, y: stage_values(p, lay, y))
+    t_deriv, d = _best_time(lambda: deriv(prob, ys, sol.lam, sol.nu, sol.z), 20)
+    t_values, _ = _best_time(lambda: values(prob, ys), 20)
+    it = Iterate(ys=ys, s=jax.numpy.where(mg > 0, jax.numpy.maximum(d.g, 1e-6), 1.0), z=sol.z,
+                 lam=sol.lam, nu=sol.nu)
+    rhs, W0 = _condensed_system(lay, it, d, 1e-6)
+    K = kkt_matrix(lay, W0, d, 1e-8)
+    solve = jax.jit(lambda K, r: checked_solve(lay, K, r))
+    t_factor, _ = _best_time(lambda: solve(K, rhs), 20)
+    n = int(sol.iterations)
+    factorisations = float(np.mean(np.asarray(sol.log.factorisations)[:n]))
+    trials = float(np.mean(np.asarray(sol.log.trials)[:n]))
+    parts = {"derivatives_ms": 1e3 * t_deriv,
+             "kkt_ms": 1e3 * t_factor * factorisations,
+             "line_search_ms": 1e3 * t_values * trials}
+    return dict(parts, per_iteration_ms=1e3 * per_iteration_s,
+                other_ms=1e3 * per_iteration_s - sum(parts.values()),
+                factorisation_ms=1e3 * t_factor, factorisations_per_iteration=factorisations,
+                trial_ms=1e3 * t_values, trials_per_iteration=trials)
+
+
 def violations(rd, xs):
     off = rd.distance_off_road(xs[:, 0], xs[:, 1])
     return float(np.max(off))
+
+
+IPOPT_ONCE = """
+import json, sys, time
+import numpy as np
+sys.path.insert(0, {here!r})
+from ocp_vs_ipopt import ipopt_solve
+from vehsim.optimal.roads import road
+data = np.load(sys.argv[1])
+ip = ipopt_solve(road("corner90"), "min-time", 0.52, {N}, data["xs"], data["us"])
+with open(sys.argv[2], "w") as f:
+    json.dump(dict(t_f=float(ip["xs"][-1, 9]), status=ip["status"], xs=ip["xs"].tolist()), f)
+"""
+
+
+def end_to_end(N: int) -> None:
+    """From process start to files written: ``vehsim optimise corner90`` with an empty
+    compilation cache (cold) and again with the one it filled (warm), and a process that
+    builds the same problem in CasADi, solves it with IPOPT from the same car guess (read
+    from a file: computing it is vehsim's work) and writes its JSON."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    here = str(Path(__file__).resolve().parent)
+    root = str(Path(here).parent.parent)
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["PYTHONPATH"] = root
+    with tempfile.TemporaryDirectory() as tmp:
+        env["VEHSIM_CACHE_DIR"] = str(Path(tmp) / "cache")
+        cmd = [sys.executable, "-m", "vehsim", "optimise", "corner90", "--segments", str(N),
+               "--quiet", "--out", str(Path(tmp) / "out")]
+        walls = []
+        for _ in range(2):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+        rec = json.loads((Path(tmp) / "out" / "corner90_min-time.json").read_text())
+        xs0, us0 = car_guess(rally_gravel_car(), road_by_name("corner90"), N, 1)
+        np.savez(Path(tmp) / "guess.npz", xs=np.asarray(xs0), us=np.asarray(us0))
+        script = IPOPT_ONCE.format(here=here, N=N)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", script, str(Path(tmp) / "guess.npz"),
+                        str(Path(tmp) / "ipopt.json")], env=env, check=True,
+                       capture_output=True)
+        ipopt_wall = time.perf_counter() - t0
+        ip = json.loads((Path(tmp) / "ipopt.json").read_text())
+    print(json.dumps(dict(
+        problem="corner90:min-time end to end", segments=N, end_to_end_cold_s=walls[0],
+        end_to_end_warm_s=walls[1], ipopt_end_to_end_s=ipopt_wall,
+        ratio_warm=ipopt_wall / walls[1], ratio_cold=ipopt_wall / walls[0],
+        vehsim_t_f=rec["t_f"], vehsim_status=rec["status"], ipopt_t_f=ip["t_f"],
+        ipopt_status=ip["status"], loadavg=os.getloadavg()[0],
+    )), flush=True)
+
+
+def multistart(problems, N: int, n: int = 8) -> None:
+    """Per problem: vehsim's ``starts=n`` (the guesses and every start in one call, after
+    compilation) against IPOPT solving from the same ``n`` guesses one after the other
+    (solver calls only); the best value of each."""
+    from vehsim.optimal.primitives import max_exit_primitive, min_time_primitive, multistart_guesses
+
+    car = rally_gravel_car()
+    for problem in problems:
+        name, objective = problem.split(":")
+        rd = road_by_name(name)
+        print(f"# multistart {name} {objective}", file=sys.stderr, flush=True)
+        f = min_time_primitive if objective == "min-time" else max_exit_primitive
+        opts = IPOptions(max_iter=500)
+
+        def call():
+            return f(rd, num_stages=N, steps_per_stage=1, options=opts, starts=n, throw=False)
+
+        prim = call()  # compile
+        wall, prim = _best_time(lambda: call(), 1)
+        xs0, us0 = multistart_guesses(car, rd, n, N, 1)
+        if objective == "max-exit":
+            xs0 = xs0.at[:, :, IDX_TF].set(np.minimum(xs0[:, :, IDX_TF], 0.98 * 4.0))
+        val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
+            lambda x: math.hypot(x[-1, 3], x[-1, 4]))
+        ip_values, ip_ok, ip_wall = [], [], 0.0
+        for i in range(n):
+            ip = ipopt_solve(rd, objective, 0.52, N, xs0[i], us0[i])
+            ip_wall += ip["wall"]
+            ip_values.append(float(val(ip["xs"])))
+            ip_ok.append(ip["ok"])
+        ours = [float(val(np.asarray(x))) if bool(c) else math.nan
+                for x, c in zip(prim.starts.xs, np.asarray(prim.starts.converged))]
+        best = min if objective == "min-time" else max
+        ip_best = best(v for v, ok in zip(ip_values, ip_ok) if ok)
+        ours_best = float(val(np.asarray(prim.solution.xs)))
+        print(json.dumps(dict(
+            problem=f"{problem} multistart", segments=N, starts=n, vehsim_best=ours_best,
+            ipopt_best=ip_best, rel_diff=(ours_best - ip_best) / abs(ip_best),
+            vehsim_wall_s=wall, ipopt_sequential_s=ip_wall, ratio=ip_wall / wall,
+            vehsim_values=ours, vehsim_statuses=result_name(prim.starts.result),
+            ipopt_values=ip_values, ipopt_ok=ip_ok, loadavg=os.getloadavg()[0],
+        )), flush=True)
 
 
 def main(argv=None):
@@ -185,10 +332,21 @@ def main(argv=None):
                     default=["corner90:min-time", "corner90:max-exit", "uturn:min-time",
                              "sturn:min-time"])
     ap.add_argument("--batch", type=int, default=0, help="frictions in the batch benchmark")
+    ap.add_argument("--end-to-end", action="store_true",
+                    help="time `vehsim optimise corner90` (cold and warm cache) and IPOPT's "
+                         "whole process")
+    ap.add_argument("--multistart", type=int, default=0,
+                    help="starts of the multi-start comparison (8 in the benchmark)")
     args = ap.parse_args(argv)
     N = args.segments
+    if args.multistart:
+        multistart(args.problems, N, args.multistart)
+        return
     if args.batch:
         batch_benchmark(args.batch, N, args.method)
+        return
+    if args.end_to_end:
+        end_to_end(N)
         return
     car = rally_gravel_car()
     for problem in args.problems:
@@ -205,14 +363,15 @@ def main(argv=None):
         sol = interior_point(prob, xs0, us0, opts, throw=False)
         jax.block_until_ready(sol.xs)
         first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        sol = interior_point(prob, xs0, us0, opts, throw=False)
-        jax.block_until_ready(sol.xs)
-        ours = time.perf_counter() - t0
+        ours, sol = _best_time(lambda: interior_point(prob, xs0, us0, opts, throw=False))
         xs = np.asarray(sol.xs)
+        profile = iteration_profile(prob, sol, ours / max(int(sol.iterations), 1))
         t_build = time.perf_counter()
         ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method)
         ipopt_total = time.perf_counter() - t_build
+        for _ in range(2):  # the best of three solver calls, as for vehsim
+            again = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method)
+            ip["wall"] = min(ip["wall"], again["wall"])
         val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
             lambda x: math.hypot(x[-1, 3], x[-1, 4]))
         ours_v, ip_v = float(val(xs)), float(val(ip["xs"]))
@@ -225,7 +384,7 @@ def main(argv=None):
             ipopt_corridor_violation=violations(rd, ip["xs"]),
             vehsim_wall_s=ours, ipopt_wall_s=ip["wall"], ratio=ip["wall"] / ours,
             vehsim_compile_s=first - ours, ipopt_build_s=ipopt_total - ip["wall"],
-            loadavg=os.getloadavg()[0],
+            profile=profile, loadavg=os.getloadavg()[0],
         )), flush=True)
 
 

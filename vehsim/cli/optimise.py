@@ -20,6 +20,10 @@ def register(subparsers) -> None:
     p.add_argument("--segments", type=int, default=150,
                    help="shooting segments (one RK4 node each; the benchmark uses >= 150 nodes)")
     p.add_argument("--max-iter", type=int, default=500)
+    p.add_argument("--starts", type=int, default=1,
+                   help="starting guesses solved together in one batched call (point-mass "
+                        "seeds and centreline runs; the best is kept, every start's value "
+                        "and status in the JSON); 1: the default point-mass seed")
     p.add_argument("--out", default="results/optimise", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no per-iteration progress")
     p.set_defaults(func=_optimise)
@@ -40,17 +44,18 @@ def _optimise(args) -> int:
     if args.segments < 2:
         raise ValueError(f"--segments must be >= 2, got {args.segments}")
     car = rally_gravel_car(args.friction)
+    starts = {} if args.starts == 1 else {"starts": args.starts}
     opts = IPOptions(max_iter=args.max_iter, verbose=not args.quiet)
     print(f"vehsim optimise {args.road} --objective {args.objective}: compiling and solving "
           f"({args.segments} segments)...", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     if args.objective == "min-time":
         prim = min_time_primitive(args.road, car=car, num_stages=args.segments,
-                                  steps_per_stage=1, options=opts, throw=False)
+                                  steps_per_stage=1, options=opts, throw=False, **starts)
     else:
         prim = max_exit_primitive(args.road, car=car, tf_max=args.tf_max,
                                   num_stages=args.segments, steps_per_stage=1, options=opts,
-                                  throw=False)
+                                  throw=False, **starts)
     wall = time.perf_counter() - t0
     bound = point_mass_bound(args.road, args.objective, D=args.friction,
                              num_stages=args.segments, steps_per_stage=1, tf_max=args.tf_max,

@@ -16,13 +16,19 @@ from .ip import IPSolution
 from .shooting import DELTA_MAX, IDX_TF, ManeuverOCP
 
 
+SUBSTEPS = 20
+"""RK4 substeps per integration step of the re-integration between the nodes."""
+
+
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
     ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] and ``result`` (`vehsim.RESULTS`) read
-    off the solution."""
+    off the solution; ``starts``: the solutions from every start of a multi-start solve
+    (batched along axis 0), or None."""
 
     problem: Any
     solution: IPSolution
+    starts: IPSolution | None = None
 
     @property
     def t_f(self):
@@ -51,14 +57,19 @@ class Primitive(eqx.Module):
         sig = jax.vmap(self.problem.vehicle.signals)(n[:, :6], n[:, 6:9])
         return {k: np.asarray(v) for k, v in sig.items()}
 
-    def violations(self) -> dict:
+    def violations(self, substeps: int = SUBSTEPS) -> dict:
         """Constraint violations of the solution, measured exactly at every node: distance off
         the road (union of legs, not the smooth corridor) [m], boundary conditions (max abs,
-        m/rad/(m/s)), input bounds, axle-speed floor [m/s], shooting defects."""
+        m/rad/(m/s)), input bounds, axle-speed floor [m/s], shooting defects; and
+        ``corridor_between_nodes``: the distance off the road between the nodes, where the
+        constraints are not imposed, found by re-integrating every segment with `substeps`
+        RK4 steps per step (`fine_nodes`)."""
         prob, sol = self.problem, self.solution
         n = np.asarray(self.nodes())
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
+        fine = np.asarray(prob.fine_nodes(sol.xs, sol.us, substeps))
+        between = rd.distance_off_road(fine[:, 0], fine[:, 1])
         bc = max(float(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])))),
                  float(jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])))))
         box = [prob.road.boundary_inequality(rd.start, sol.xs[0]),
@@ -66,8 +77,8 @@ class Primitive(eqx.Module):
         bc = max(bc, float(max(jnp.max(jnp.maximum(-b, 0.0), initial=0.0) for b in box)))
         defects = np.asarray(sol.xs[1:]) - np.asarray(
             jax.vmap(prob.transition)(sol.xs[:-1], sol.us, jnp.arange(prob.num_stages)))
-        out = dict(corridor=float(np.max(off)), boundary=bc,
-                   defects=float(np.max(np.abs(defects))))
+        out = dict(corridor=float(np.max(off)), corridor_between_nodes=float(np.max(between)),
+                   boundary=bc, defects=float(np.max(np.abs(defects))))
         if isinstance(prob, ManeuverOCP):
             kF, kR, d = n[:, 6], n[:, 7], n[:, 8]
             inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
@@ -98,11 +109,17 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     v = prim.violations()
     rec["violations"] = v
     rec["max_corridor_violation"] = v["corridor"]
+    rec["max_corridor_violation_between_nodes"] = v["corridor_between_nodes"]
     if bound is not None:
         rec["point_mass_t_f"] = float(bound.t_f)
         rec["point_mass_exit_speed"] = float(bound.exit_speed)
         rec["point_mass_status"] = result_name(bound.result)
         rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
+    if prim.starts is not None:
+        rec["starts"] = [dict(objective=float(o), status=r, iterations=int(i))
+                         for o, r, i in zip(np.asarray(prim.starts.objective),
+                                            result_name(prim.starts.result),
+                                            np.asarray(prim.starts.iterations))]
     rec["t"] = np.asarray(prim.time())
     rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
     rec["inputs"] = {k: sig[k] for k in ("kappa_F", "kappa_R", "delta")}

@@ -14,11 +14,12 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
-from .guesses import car_guess, centreline_guess
+from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
 from .ip import IPOptions, IPSolution, interior_point
 from .primitive import Primitive
 from .roads import Road, road as road_by_name
@@ -27,6 +28,11 @@ from .shooting import IDX_TF, ManeuverOCP, PointMassOCP
 
 DEFAULT_STARTS = ((0.5, 0.6),)
 """(corridor margin [m], friction fraction) of the point-mass problems that seed the car."""
+MULTISTART_SEEDS = ((0.5, 0.6), (0.3, 0.8), (0.8, 0.5), (0.5, 0.4), (0.2, 0.6), (0.6, 0.7))
+"""Point-mass seeds of ``starts=N``, in order (the default first); after as many of them as
+N allows, every other start is the centreline at a constant speed (`CENTRELINE_SPEEDS`)."""
+CENTRELINE_SPEEDS = (5.0, 8.0, 3.5, 6.5, 10.0)
+"""Speeds [m/s] of the centreline starts of ``starts=N``, in order."""
 
 
 def rally_gravel_car(D=0.52) -> ReducedHalfCar:
@@ -70,12 +76,44 @@ def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float 
     return Primitive(problem=prob, solution=best)
 
 
+def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
+                       steps_per_stage: int = 1):
+    """``n`` starting guesses (knots (n, M+1, 10), controls (n, M, 3)) of different kinds:
+    point-mass optima (`MULTISTART_SEEDS`, solved in one batched call) and constant-speed
+    runs along the centreline (`CENTRELINE_SPEEDS`), alternating from the default seed."""
+    if n < 1:
+        raise ValueError(f"starts must be at least 1, got {n}")
+    n_seeds = min((n + 1) // 2, len(MULTISTART_SEEDS))
+    n_lines = n - n_seeds
+    if n_lines > len(CENTRELINE_SPEEDS):
+        raise ValueError(f"starts must be at most "
+                         f"{len(MULTISTART_SEEDS) + len(CENTRELINE_SPEEDS)}, got {n}")
+    margins, fractions = (jnp.asarray(c, float) for c in zip(*MULTISTART_SEEDS[:n_seeds]))
+    prob = PointMassOCP(road=road, friction=float(car.tire.D), num_stages=num_stages,
+                        steps_per_stage=steps_per_stage)
+    xs0, us0 = centreline_guess(road, num_stages, 4.0)
+
+    def seed(margin, fraction):
+        p = eqx.tree_at(lambda q: (q.margin, q.friction), prob, (margin, fraction * prob.friction))
+        return interior_point(p, xs0, us0, IPOptions(), throw=False)
+
+    pm = jax.vmap(seed)(margins, fractions)
+    seeds = [car_guess_from_point_mass(car, road, pm.xs[i], pm.us[i]) for i in range(n_seeds)]
+    lines = [car_guess_from_point_mass(car, road, *centreline_guess(road, num_stages, v))
+             for v in CENTRELINE_SPEEDS[:n_lines]]
+    order = [g for pair in zip(seeds, lines) for g in pair]
+    order += seeds[len(lines):] + lines[len(seeds):]
+    return jnp.stack([g[0] for g in order]), jnp.stack([g[1] for g in order])
+
+
 def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
                guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS) -> Primitive:
     rd = _road(road)
     prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
                        rate_weight=rate_weight)
+    if isinstance(starts, int) and guess is None:
+        return _solve_batched_starts(prob, car, rd, starts, options, throw)
     guesses = []
     if guess is None:
         for margin, frac in starts:
@@ -96,6 +134,22 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     return Primitive(problem=prob, solution=best)
 
 
+def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Primitive:
+    """Every start of `multistart_guesses` in one vmapped solve; the best converged one."""
+    xs0, us0 = multistart_guesses(car, rd, n, prob.num_stages, prob.steps_per_stage)
+    if prob.objective == "max-exit":
+        xs0 = xs0.at[:, :, IDX_TF].set(jnp.minimum(xs0[:, :, IDX_TF], 0.98 * prob.tf_max))
+    sols = jax.vmap(lambda x, u: interior_point(prob, x, u, options, throw=False))(xs0, us0)
+    converged = np.asarray(sols.converged)
+    if throw and not converged.any():
+        raise RuntimeError(f"interior point did not converge from any of the {n} starts: "
+                           f"{sols.message}")
+    value = np.where(converged, np.asarray(sols.objective), np.inf)
+    best = int(np.argmin(value)) if converged.any() else 0
+    pick = jax.tree_util.tree_map(lambda a: a[best], sols)
+    return Primitive(problem=prob, solution=pick, starts=sols)
+
+
 def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | None = None,
                        num_stages: int = 50, steps_per_stage: int = 3,
                        options: IPOptions = IPOptions(max_iter=500), guess=None,
@@ -105,8 +159,10 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
     **Arguments:** ``road`` (name or `Road`), ``car`` (default `rally_gravel_car()`),
     discretisation ``num_stages`` x ``steps_per_stage`` (nodes; the benchmark uses >= 150,
     docs/maneuvers.md), ``options``, an optional ``guess`` (xs, us), ``starts``: several
-    (margin, friction fraction) point-mass seeds, the best converged optimum is kept,
-    ``throw``.
+    (margin, friction fraction) point-mass seeds solved one after the other, or an int N:
+    N starts of different kinds (`multistart_guesses`) solved in one batched call, every
+    start's solution kept in the primitive's ``starts``; the best converged optimum is
+    returned either way. ``throw``.
 
     **Returns:** a `Primitive`.
     """

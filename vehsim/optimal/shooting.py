@@ -65,6 +65,16 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
         h = 1.0 / (self.num_stages * S)
         return _rk4_segment(self._rhs, x, u, h, S)
 
+    def fine_nodes(self, xs, us, substeps: int = 20):
+        """The states between the nodes: each segment re-integrated from its knot with
+        `substeps` RK4 steps per integration step (M S substeps + 1 states, uniform in
+        tau), where the constraints are not imposed. The last state of each segment
+        differs from the next knot by the discretisation error of the coarse steps."""
+        S = self.steps_per_stage * substeps
+        h = 1.0 / (self.num_stages * S)
+        _, fine = jax.vmap(lambda x, u: _rk4_segment(self._rhs, x, u, h, S))(xs[:-1], us)
+        return jnp.concatenate([fine.reshape(-1, xs.shape[1]), xs[-1:]], 0)
+
 
 _RK4_A = (0.0, 0.5, 0.5, 1.0)
 _RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)

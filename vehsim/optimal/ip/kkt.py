@@ -4,15 +4,18 @@ Inequalities get slacks, $g(y) - s = 0$, $s > 0$, and the barrier problem's prim
 equations $S z = \mu e$. Eliminating $(\Delta s, \Delta z)$ condenses them into the stage
 blocks: with $\Sigma = S^{-1} Z$ the primal block is $W = H + J_g^T \Sigma J_g$ and
 
-$$\begin{pmatrix} W + \delta I & -A^T & J_e^T \\ -A & -\delta_c I & 0 \\ J_e & 0 &
+$$\begin{pmatrix} W + \delta I & -A^T & J_e^T \\ -A & 0 & 0 \\ J_e & 0 &
 -\delta_c I \end{pmatrix}
 \begin{pmatrix} \Delta y \\ \Delta\lambda \\ \Delta\nu \end{pmatrix} = -
 \begin{pmatrix} \nabla_y \mathcal{L}_\mu \\ c \\ e \end{pmatrix}$$
 
-per stage, coupled to the next stage by the defects (`block_tridiagonal`); then
+per stage, coupled to the next stage by the defects (`block_tridiagonal`), and factored by
+the Riccati recursion (`riccati`); then
 $\Delta s = J_g \Delta y + g - s$ and $\Delta z = \mu S^{-1} e - z - \Sigma \Delta s$.
-The inertia correction is IPOPT's (Wächter and Biegler 2006): $\delta$ grows until the matrix
-has exactly one negative eigenvalue per multiplier row (padded rows included) and the solve is
+The defects need no dual regularisation (the recursion eliminates them exactly); the
+boundary equalities get $\delta_c$. The inertia correction is IPOPT's (Wächter and Biegler
+2006): $\delta$ grows until the matrix has exactly one negative eigenvalue per multiplier row
+(padded rows included; the recursion's Cholesky factors all exist) and the solve is
 accurate.
 """
 
@@ -21,18 +24,19 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._carry import strong
-from .block_tridiagonal import block_factor, block_matvec, block_solve
+from .block_tridiagonal import KKTMatrix
 from .derivatives import StageDerivatives
 from .problem import StageLayout
+from .riccati import riccati_factor, riccati_solve
 
 
 S_MAX = 100.0
 """Scaling threshold of the multipliers in the scaled KKT error (IPOPT's $s_{max}$)."""
 DELTA_C = 1e-9
-"""Regularisation of the constraint rows ($-\\delta_c I$)."""
+"""Regularisation of the boundary-equality rows ($-\\delta_c I$)."""
 DELTA_FIRST = 1e-4
 """First primal regularisation tried when none was needed before."""
 DELTA_MIN = 1e-20
@@ -71,7 +75,8 @@ class Residuals(eqx.Module):
 
 
 class NewtonStep(eqx.Module):
-    """A primal-dual Newton direction and the primal regularisation ``delta`` it took."""
+    """A primal-dual Newton direction, the primal regularisation ``delta`` it took and the
+    number of ``factorisations`` the inertia correction tried."""
 
     dy: Float[Array, "M+1 ny"]
     dlam: Float[Array, "M+1 nx"]
@@ -79,6 +84,7 @@ class NewtonStep(eqx.Module):
     ds: Float[Array, "M+1 ng"]
     dz: Float[Array, "M+1 ng"]
     delta: Float[Array, ""]
+    factorisations: Int[Array, ""]
 
 
 def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
@@ -136,35 +142,28 @@ def _condensed_system(lay: StageLayout, it: Iterate, d: StageDerivatives, mu):
     return rhs, W0
 
 
-def kkt_blocks(lay: StageLayout, W0, d: StageDerivatives, delta) -> Float[Array, "M+1 nb nb"]:
-    """Diagonal blocks of the KKT matrix with primal regularisation ``delta`` (the rows of
-    unused multipliers are $-1$ on the diagonal)."""
+def kkt_matrix(lay: StageLayout, W0, d: StageDerivatives, delta) -> KKTMatrix:
+    """The KKT matrix with primal regularisation ``delta``: the defects exactly (no dual
+    regularisation, their Jacobian has full row rank), the boundary equalities with
+    $-\\delta_c$, and $-1$ on the diagonal of unused multiplier rows."""
     mk = lay.masks()
-    um, A, Je = mk.y, d.A, d.Je
-    ze = jnp.zeros((lay.M + 1, lay.nx, lay.ne))
-    Wd = W0 + delta * jax.vmap(jnp.diag)(um)
-    dl = -jax.vmap(jnp.diag)(jnp.where(mk.lam > 0, DELTA_C, 1.0))
-    de = -jax.vmap(jnp.diag)(jnp.where(mk.eq > 0, DELTA_C, 1.0))
-    row1 = jnp.concatenate([Wd, -jnp.swapaxes(A, 1, 2), jnp.swapaxes(Je, 1, 2)], 2)
-    row2 = jnp.concatenate([-A, dl, ze], 2)
-    row3 = jnp.concatenate([Je, jnp.swapaxes(ze, 1, 2), de], 2)
-    return jnp.concatenate([row1, row2, row3], 1)
+    Wd = W0 + delta * jax.vmap(jnp.diag)(mk.y)
+    dl = jnp.where(mk.lam > 0, 0.0, -1.0)
+    de = jnp.where(mk.eq > 0, -DELTA_C, -1.0)
+    return KKTMatrix(W=Wd, A=d.A, Je=d.Je, dl=dl, de=de)
 
 
-def checked_solve(lay: StageLayout, Kd, rhs):
+def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
     """Solve with one step of iterative refinement; ``ok`` when the inertia is the expected
-    one (one negative eigenvalue per constraint row, none zero) and the componentwise
+    one (every Cholesky factor of the Riccati recursion exists) and the componentwise
     backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`."""
-    nx, nu = lay.nx, lay.nu
-    n_neg_expected = (lay.M + 1) * (nx + lay.ne)
-    Wv, Vv, neg, tiny = block_factor(Kd, nx, nu)
-    sol = block_solve(Wv, Vv, rhs, nx, nu)
-    res = rhs - block_matvec(Kd, sol, nx, nu)
-    sol = sol + block_solve(Wv, Vv, res, nx, nu)
-    res = rhs - block_matvec(Kd, sol, nx, nu)
-    scale = block_matvec(jnp.abs(Kd), jnp.abs(sol), nx, nu) + jnp.abs(rhs)
+    F = riccati_factor(K)
+    sol = riccati_solve(F, K, rhs)
+    sol = sol + riccati_solve(F, K, rhs - K.matvec(sol))
+    res = rhs - K.matvec(sol)
+    scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
     accurate = jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale)
-    ok = (neg == n_neg_expected) & (tiny == 0) & accurate & jnp.all(jnp.isfinite(sol))
+    ok = F.ok & accurate & jnp.all(jnp.isfinite(sol))
     return sol, ok
 
 
@@ -183,12 +182,12 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_las
     def body(carry):
         delta, _, _, n = carry
         delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, delta * growth))
-        sol, ok = checked_solve(lay, kkt_blocks(lay, W0, d, delta), rhs)
+        sol, ok = checked_solve(lay, kkt_matrix(lay, W0, d, delta), rhs)
         return delta, sol, ok, n + 1
 
     init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0))
-    delta, sol, _, _ = jax.lax.while_loop(cond, body, init)
-    return delta, sol
+    delta, sol, _, n = jax.lax.while_loop(cond, body, init)
+    return delta, sol, n
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
@@ -197,11 +196,11 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     mk = lay.masks()
     ny, nx, mg = lay.ny, lay.nx, mk.g
     rhs, W0 = _condensed_system(lay, it, d, mu)
-    delta, sol = _regularised_solve(lay, W0, d, rhs, delta_last)
+    delta, sol, n_factor = _regularised_solve(lay, W0, d, rhs, delta_last)
     dy = sol[:, :ny] * mk.y
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
     ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + d.g - it.s) * mg
     dz = (mu / sg - it.z - Sigma * ds) * mg
     return NewtonStep(dy=dy, dlam=sol[:, ny : ny + nx] * mk.lam, dnu=sol[:, ny + nx :] * mk.eq,
-                      ds=ds, dz=dz, delta=delta)
+                      ds=ds, dz=dz, delta=delta, factorisations=n_factor)

@@ -64,8 +64,9 @@ class IPOptions(eqx.Module):
 
 class IPLog(eqx.Module):
     """Per-iteration history (arrays of length ``log_size``; entries past the last iteration
-    are NaN): ``objective``, ``inf_pr``, ``inf_du``, barrier ``mu``, step ``alpha`` and the
-    primal ``regularisation`` $\\delta$."""
+    are NaN, or 0 for the counts): ``objective``, ``inf_pr``, ``inf_du``, barrier ``mu``,
+    step ``alpha``, the primal ``regularisation`` $\\delta$, the ``factorisations`` of the
+    KKT matrix (inertia correction) and the line-search ``trials``."""
 
     objective: Float[Array, " L"]
     inf_pr: Float[Array, " L"]
@@ -73,11 +74,15 @@ class IPLog(eqx.Module):
     mu: Float[Array, " L"]
     alpha: Float[Array, " L"]
     regularisation: Float[Array, " L"]
+    factorisations: Int[Array, " L"]
+    trials: Int[Array, " L"]
 
     @classmethod
     def empty(cls, size: int) -> IPLog:
         nan = jnp.full((size,), jnp.nan)
-        return cls(objective=nan, inf_pr=nan, inf_du=nan, mu=nan, alpha=nan, regularisation=nan)
+        zero = jnp.zeros((size,), int)
+        return cls(objective=nan, inf_pr=nan, inf_du=nan, mu=nan, alpha=nan, regularisation=nan,
+                   factorisations=zero, trials=zero)
 
     def record(self, i, **values) -> IPLog:
         """The log with entry ``i`` of each named history set."""
@@ -151,8 +156,17 @@ def interior_point(
 
     **Returns:** an `IPSolution`.
     """
-    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), options)
+    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), _canonical(options))
     return _raise_if_failed(sol) if throw else sol
+
+
+def _canonical(options: IPOptions) -> IPOptions:
+    """The options with their arrays in the current default dtypes: an `IPOptions` built
+    before float64 was switched on (a default argument, at import) then compiles the same
+    program as one built after."""
+    return eqx.tree_at(lambda o: (o.max_iter, o.mu0), options,
+                       (jnp.asarray(options.max_iter, dtype=int),
+                        jnp.asarray(options.mu0, dtype=float)))
 
 
 def _raise_if_failed(sol: IPSolution) -> IPSolution:
@@ -228,7 +242,8 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     )
     trial = _take_step(lay, it, step, alpha, alpha_dual, mu)
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
-                        inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta)
+                        inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta,
+                        factorisations=step.factorisations, trials=n_trials)
     if options.verbose:
         jax.debug.callback(_print_iteration, st.iteration, d.objective, res.inf_pr, res.inf_du,
                            mu, alpha, step.delta, n_trials)
