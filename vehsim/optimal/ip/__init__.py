@@ -3,9 +3,10 @@ r"""A primal-dual interior-point method for stage-structured (multiple-shooting)
 The problem (`AbstractStagewiseNLP`) has stage costs, transitions $x_{k+1} = F_k(x_k, u_k)$,
 path inequalities and boundary conditions at the first and last knots, each depending on one
 stage only. So first and second derivatives are taken per stage (`derivatives`), and the Newton
-(KKT) system is block tridiagonal: it is factorised by a block $LDL^T$ (Riccati-like)
-recursion in `lax.scan`, whose pivots' inertia (Sylvester) drives an IPOPT-style Hessian
-regularisation (`kkt`, `block_tridiagonal`). Inequalities get slacks and the primal-dual
+(KKT) system is block tridiagonal (`block_tridiagonal`): it is factored by a Riccati
+recursion in `lax.scan` (`riccati`), whose Cholesky factors of the control blocks exist
+exactly when the inertia is right (Sylvester), which drives an IPOPT-style Hessian
+regularisation (`kkt`). Inequalities get slacks and the primal-dual
 barrier equations, condensed into the stage blocks. Steps obey the fraction-to-boundary rule
 and a filter line search (Wächter and Biegler 2006, without restoration phase; `linesearch`);
 the barrier parameter follows the monotone Fiacco-McCormick rule (`solver`). A free final time
