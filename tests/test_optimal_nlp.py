@@ -164,3 +164,24 @@ def test_options_built_without_float64_reuse_the_compiled_solver():
     again = interior_point(prob, *_guess(M), single)
     assert len(TRACES) == traced
     assert float(again.objective) == pytest.approx(float(sol.objective), rel=1e-9)
+
+
+def test_second_order_correction_with_the_step_s_own_residuals_is_the_step():
+    # the correction reuses the step's factor with new constraint residuals: given the
+    # residuals the step was computed for, it must return the step itself
+    from vehsim.optimal.ip.derivatives import stage_derivatives
+    from vehsim.optimal.ip.kkt import newton_step, second_order_correction
+    from vehsim.optimal.ip.problem import stage_layout
+    from vehsim.optimal.ip.solver import _initial_state
+
+    M = 12
+    prob = RestToRest(num_stages=M)
+    lay = stage_layout(prob)
+    it = _initial_state(prob, lay, *_guess(M), IPOptions()).iterate
+    d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z)
+    step = newton_step(lay, it, d, 0.1, 0.0)
+    dy, ds, dlam, dnu = second_order_correction(lay, it, d, 0.1, step, d.c, d.e,
+                                                (d.g - it.s) * lay.masks().g)
+    for got, want in ((dy, step.dy), (ds, step.ds), (dlam, step.dlam), (dnu, step.dnu)):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-9, atol=1e-11)
+    assert float(jnp.max(jnp.abs(step.dy))) > 1e-3  # a real step

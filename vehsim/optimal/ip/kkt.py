@@ -30,7 +30,7 @@ from ._carry import strong
 from .block_tridiagonal import KKTMatrix
 from .derivatives import StageDerivatives
 from .problem import StageLayout
-from .riccati import riccati_factor, riccati_solve
+from .riccati import RiccatiFactor, riccati_factor, riccati_solve
 
 
 S_MAX = 100.0
@@ -75,8 +75,9 @@ class Residuals(eqx.Module):
 
 
 class NewtonStep(eqx.Module):
-    """A primal-dual Newton direction, the primal regularisation ``delta`` it took and the
-    number of ``factorisations`` the inertia correction tried."""
+    """A primal-dual Newton direction, the primal regularisation ``delta`` it took, the
+    number of ``factorisations`` the inertia correction tried, and the accepted ``matrix``
+    with its ``factor`` (for the second-order correction)."""
 
     dy: Float[Array, "M+1 ny"]
     dlam: Float[Array, "M+1 nx"]
@@ -85,6 +86,8 @@ class NewtonStep(eqx.Module):
     dz: Float[Array, "M+1 ng"]
     delta: Float[Array, ""]
     factorisations: Int[Array, ""]
+    factor: RiccatiFactor
+    matrix: KKTMatrix
 
 
 def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
@@ -121,9 +124,9 @@ def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Res
                      error_mu=jnp.maximum(base, compl_mu / s_c))
 
 
-def _condensed_system(lay: StageLayout, it: Iterate, d: StageDerivatives, mu):
-    """Right-hand side and primal blocks $W = H + J_g^T \\Sigma J_g$ of the condensed system
-    (rows and columns of unused controls set to the identity)."""
+def _condensed_rhs(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, c, e, gs):
+    """Right-hand side of the condensed system for the constraint residuals `c` (defects),
+    `e` (equalities) and `gs` ($g - s$)."""
     mk = lay.masks()
     nx, mg, um = lay.nx, mk.g, mk.y
     sg = jnp.where(mg > 0, it.s, 1.0)
@@ -134,9 +137,18 @@ def _condensed_system(lay: StageLayout, it: Iterate, d: StageDerivatives, mu):
         - jnp.einsum("kij,ki->kj", d.A, it.lam * mk.lam)
     )
     rhs_y = rhs_y.at[1:, :nx].add(-it.lam[:-1] * mk.lam[:-1])
-    rhs_y = rhs_y + jnp.einsum("kij,ki->kj", d.Jg, (mu / sg - Sigma * (d.g - it.s)) * mg)
+    rhs_y = rhs_y + jnp.einsum("kij,ki->kj", d.Jg, (mu / sg - Sigma * gs) * mg)
     rhs_y = rhs_y * um
-    rhs = jnp.concatenate([rhs_y, -d.c, -d.e], axis=1)
+    return jnp.concatenate([rhs_y, -c, -e], axis=1)
+
+
+def _condensed_system(lay: StageLayout, it: Iterate, d: StageDerivatives, mu):
+    """Right-hand side and primal blocks $W = H + J_g^T \\Sigma J_g$ of the condensed system
+    (rows and columns of unused controls set to the identity)."""
+    mk = lay.masks()
+    mg, um = mk.g, mk.y
+    Sigma = jnp.where(mg > 0, it.z / jnp.where(mg > 0, it.s, 1.0), 0.0)
+    rhs = _condensed_rhs(lay, it, d, mu, d.c, d.e, d.g - it.s)
     W0 = d.H + jnp.einsum("kij,ki,kil->kjl", d.Jg, Sigma, d.Jg)
     W0 = W0 * um[:, :, None] * um[:, None, :] + jax.vmap(jnp.diag)(1.0 - um)
     return rhs, W0
@@ -164,7 +176,7 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
     accurate = jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale)
     ok = F.ok & accurate & jnp.all(jnp.isfinite(sol))
-    return sol, ok
+    return sol, ok, F
 
 
 def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_last):
@@ -176,18 +188,20 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_las
     growth = jnp.where(delta_last == 0.0, DELTA_GROWTH_FIRST, DELTA_GROWTH)
 
     def cond(carry):
-        _, _, ok, n = carry
+        _, _, ok, n, _ = carry
         return (~ok) & (n < MAX_FACTORISATIONS)
 
     def body(carry):
-        delta, _, _, n = carry
+        delta, _, _, n, _ = carry
         delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, delta * growth))
-        sol, ok = checked_solve(lay, kkt_matrix(lay, W0, d, delta), rhs)
-        return delta, sol, ok, n + 1
+        sol, ok, F = checked_solve(lay, kkt_matrix(lay, W0, d, delta), rhs)
+        return delta, sol, ok, n + 1, F
 
-    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0))
-    delta, sol, _, n = jax.lax.while_loop(cond, body, init)
-    return delta, sol, n
+    shapes = jax.eval_shape(riccati_factor, kkt_matrix(lay, W0, d, 0.0))
+    F0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0)) + (F0,)
+    delta, sol, _, n, F = jax.lax.while_loop(cond, body, init)
+    return delta, sol, n, F
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
@@ -196,11 +210,28 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     mk = lay.masks()
     ny, nx, mg = lay.ny, lay.nx, mk.g
     rhs, W0 = _condensed_system(lay, it, d, mu)
-    delta, sol, n_factor = _regularised_solve(lay, W0, d, rhs, delta_last)
+    delta, sol, n_factor, F = _regularised_solve(lay, W0, d, rhs, delta_last)
     dy = sol[:, :ny] * mk.y
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
     ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + d.g - it.s) * mg
     dz = (mu / sg - it.z - Sigma * ds) * mg
     return NewtonStep(dy=dy, dlam=sol[:, ny : ny + nx] * mk.lam, dnu=sol[:, ny + nx :] * mk.eq,
-                      ds=ds, dz=dz, delta=delta, factorisations=n_factor)
+                      ds=ds, dz=dz, delta=delta, factorisations=n_factor, factor=F,
+                      matrix=kkt_matrix(lay, W0, d, delta))
+
+
+def second_order_correction(lay: StageLayout, it: Iterate, d: StageDerivatives, mu,
+                            step: NewtonStep, c, e, gs):
+    """The primal step and multipliers of the KKT system of `step` (its factor reused) with
+    the constraint residuals replaced by the corrected ones `c`, `e`, `gs` ($g - s$):
+    ``(dy, ds, dlam, dnu)`` (Wächter and Biegler 2006, the second-order correction)."""
+    mk = lay.masks()
+    ny, nx, mg = lay.ny, lay.nx, mk.g
+    rhs = _condensed_rhs(lay, it, d, mu, c, e, gs)
+    F, K = step.factor, step.matrix
+    sol = riccati_solve(F, K, rhs)
+    sol = sol + riccati_solve(F, K, rhs - K.matvec(sol))
+    dy = sol[:, :ny] * mk.y
+    ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + gs) * mg
+    return dy, ds, sol[:, ny : ny + nx] * mk.lam, sol[:, ny + nx :] * mk.eq

@@ -6,7 +6,9 @@ on the barrier objective and the $\ell_1$ constraint violation
 $$\varphi_\mu(y, s) = f(y) - \mu \sum \ln s,\qquad
 \theta(y, s) = \|c\|_1 + \|e\|_1 + \|g - s\|_1 .$$
 
-Backtracking from the largest step that keeps $s > 0$ (halving, at most `MAX_TRIALS`), a trial
+Backtracking from the largest step that keeps $s > 0$ (halving, at most `MAX_TRIALS`; when
+the full step is rejected for a larger constraint violation, its second-order correction is
+tried first, as in IPOPT, against the Maratos effect), a trial
 is accepted by the Armijo condition on $\varphi_\mu$ when the switching condition holds and
 $\theta \le \theta_{min}$ ("f-type"), otherwise when it improves $\theta$ or $\varphi_\mu$
 sufficiently and is not dominated by the filter (both with $\theta \le \theta_{max}$).
@@ -82,14 +84,6 @@ def constraint_violation(c, e, g, s, mask_g):
     return jnp.sum(jnp.abs(c)) + jnp.sum(jnp.abs(e)) + jnp.sum(jnp.abs((g - s) * mask_g))
 
 
-def barrier_merit(prob: AbstractStagewiseNLP, lay: StageLayout, ys, s, mu):
-    """Barrier objective $\\varphi_\\mu$ and constraint violation $\\theta$ at $(y, s)$."""
-    mg = lay.masks().g
-    f, c, e, g = stage_values(prob, lay, ys)
-    logs = jnp.where(mg > 0, jnp.log(jnp.where(mg > 0, s, 1.0)), 0.0)
-    return f - mu * jnp.sum(logs), constraint_violation(c, e, g, s, mg)
-
-
 def fraction_to_boundary(v, dv, mask, tau) -> Float[Array, ""]:
     """Largest $\\alpha \\le 1$ with $v + \\alpha\\,dv \\ge (1 - \\tau) v$ on the rows in use."""
     ratio = jnp.where((dv < 0) & (mask > 0), -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
@@ -97,17 +91,22 @@ def fraction_to_boundary(v, dv, mask, tau) -> Float[Array, ""]:
 
 
 def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate,
-                       step: NewtonStep, grad_f, mu, filt: Filter, alpha_max):
-    """Backtrack from ``alpha_max`` along ``step``.
+                       step: NewtonStep, grad_f, mu, filt: Filter, alpha_max, correction,
+                       tau):
+    """Backtrack from ``alpha_max`` along ``step``; when the full trial is rejected for a
+    larger constraint violation, first try its second-order correction: the step of
+    ``correction(c, e, g - s)`` (the same KKT matrix with the trial's constraint residuals
+    added to $\alpha$ times the current ones), cut by the fraction to the boundary (``tau``).
 
-    **Returns:** the step length, the number of trials, and the updated filter."""
+    **Returns:** the step length, the number of trials, the updated filter and the primal
+    direction taken with its multiplier steps ``(dy, ds, dlam, dnu)``."""
     mg = lay.masks().g
     sg = jnp.where(mg > 0, it.s, 1.0)
-    phi0, theta0 = barrier_merit(prob, lay, it.ys, it.s, mu)
+    f0, c0, e0, g0 = stage_values(prob, lay, it.ys)
+    phi0, theta0 = _merit(f0, c0, e0, g0, it.s, mg, mu)
     dphi = jnp.sum(grad_f * step.dy) - mu * jnp.sum(jnp.where(mg > 0, step.ds / sg, 0.0))
 
-    def acceptable(alpha):
-        phi, theta = barrier_merit(prob, lay, it.ys + alpha * step.dy, it.s + alpha * step.ds, mu)
+    def acceptable(alpha, phi, theta):
         switching = (dphi < 0) & (
             alpha * (-dphi) ** S_PHI > DELTA_SWITCH * jnp.maximum(theta0, 0.0) ** S_THETA
         )
@@ -118,17 +117,50 @@ def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate
         ok = jnp.where(f_type, armijo & (theta <= filt.theta_max), ok_h)
         return ok & jnp.isfinite(phi) & jnp.isfinite(theta), f_type
 
+    def at(dy, ds, alpha):
+        s = it.s + alpha * ds
+        f, c, e, g = stage_values(prob, lay, it.ys + alpha * dy)
+        return _merit(f, c, e, g, s, mg, mu), (c, e, g - s)
+
+    # the full trial, and its second-order correction if it raised the violation
+    (phi1, theta1), (c1, e1, gs1) = at(step.dy, step.ds, alpha_max)
+    ok1, f1 = acceptable(alpha_max, phi1, theta1)
+    try_soc = (~ok1) & (theta1 >= theta0)
+
+    def soc(_):
+        dy, ds, dlam, dnu = correction(alpha_max * c0 + c1, alpha_max * e0 + e1,
+                                       (alpha_max * (g0 - it.s) + gs1) * mg)
+        a = fraction_to_boundary(it.s, ds, mg, tau)
+        (phi, theta), _ = at(dy, ds, a)
+        ok, f_type = acceptable(alpha_max, phi, theta)
+        return ok, f_type, a, (dy, ds, dlam, dnu)
+
+    def no_soc(_):
+        return jnp.asarray(False), jnp.asarray(False), alpha_max, (
+            step.dy, step.ds, step.dlam, step.dnu)
+
+    ok_soc, f_soc, alpha_soc, soc_dir = jax.lax.cond(try_soc, soc, no_soc, None)
+
     def cond(carry):
         _, n, accepted, _ = carry
         return (~accepted) & (n < MAX_TRIALS)
 
     def body(carry):
         alpha, n, _, _ = carry
-        alpha = jnp.where(n == 0, alpha, 0.5 * alpha)
-        ok, f_type = acceptable(alpha)
+        alpha = 0.5 * alpha
+        (phi, theta), _ = at(step.dy, step.ds, alpha)
+        ok, f_type = acceptable(alpha, phi, theta)
         return alpha, n + 1, ok, f_type
 
-    init = strong((alpha_max, 0, False, False))
-    alpha, n, accepted, f_type = jax.lax.while_loop(cond, body, init)
+    first = strong((alpha_max, 1, ok1 | ok_soc, jnp.where(ok1, f1, f_soc)))
+    alpha, n, accepted, f_type = jax.lax.while_loop(cond, body, first)
     filt = filt.augmented_where(~f_type & accepted, theta0, phi0).cleared_where(~accepted)
-    return alpha, n, filt
+    use_soc = ok_soc & ~ok1
+    direction = jax.tree_util.tree_map(lambda a, b: jnp.where(use_soc, a, b), soc_dir,
+                                       (step.dy, step.ds, step.dlam, step.dnu))
+    return jnp.where(use_soc, alpha_soc, alpha), n + try_soc, filt, direction
+
+
+def _merit(f, c, e, g, s, mg, mu):
+    logs = jnp.where(mg > 0, jnp.log(jnp.where(mg > 0, s, 1.0)), 0.0)
+    return f - mu * jnp.sum(logs), constraint_violation(c, e, g, s, mg)

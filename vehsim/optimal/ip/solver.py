@@ -9,7 +9,8 @@ One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
    $\mu \leftarrow \max(\text{tol}/10, \min(0.2\mu, \mu^{1.5}))$;
 3. the Newton step of the condensed, inertia-corrected KKT system (`newton_step`);
 4. fraction to the boundary ($\tau = \max(0.99, 1 - \mu)$) for the slacks (primal step) and
-   the multipliers $z$ (dual step), then the filter line search on the primal step;
+   the multipliers $z$ (dual step), then the filter line search on the primal step (with a
+   second-order correction of a full step that raised the constraint violation);
 5. the step, with $z$ kept within a factor $\kappa_\Sigma$ of $\mu S^{-1}$.
 
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
@@ -30,7 +31,14 @@ from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_values
-from .kkt import Iterate, NewtonStep, Residuals, kkt_residuals, newton_step
+from .kkt import (
+    Iterate,
+    NewtonStep,
+    Residuals,
+    kkt_residuals,
+    newton_step,
+    second_order_correction,
+)
 from .linesearch import Filter, constraint_violation, filter_line_search, fraction_to_boundary
 from .problem import AbstractStagewiseNLP, StageLayout, stage_layout
 
@@ -237,10 +245,13 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     mg = lay.masks().g
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
     alpha_dual = fraction_to_boundary(jnp.where(mg > 0, it.z, 1.0), step.dz, mg, tau)
-    alpha, n_trials, filt = filter_line_search(
-        prob, lay, it, step, d.grad_f, mu, st.filter.cleared_where(mu_changed), alpha_max
+    alpha, n_trials, filt, direction = filter_line_search(
+        prob, lay, it, step, d.grad_f, mu, st.filter.cleared_where(mu_changed), alpha_max,
+        lambda c, e, gs: second_order_correction(lay, it, d, mu, step, c, e, gs), tau
     )
-    trial = _take_step(lay, it, step, alpha, alpha_dual, mu)
+    dy, ds, dlam, dnu = direction
+    taken = eqx.tree_at(lambda n: (n.dy, n.ds, n.dlam, n.dnu), step, (dy, ds, dlam, dnu))
+    trial = _take_step(lay, it, taken, alpha, alpha_dual, mu)
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
                         inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta,
                         factorisations=step.factorisations, trials=n_trials)
