@@ -49,11 +49,11 @@ def reproduce(ctx) -> None:
     starts = ((0.5, 0.6),) if ctx.quick else ((0.5, 0.6), (0.3, 0.8), (0.8, 0.45))
     ctx.text(
         f"Direct multiple shooting ({segments} segments, one RK4 node each, t = tau t_f), "
-        "solved by vehsim's structured interior-point method (block-tridiagonal KKT by a "
-        "Riccati-like block LDL^T, filter line search). Vehicle rally-gravel, friction-ellipse "
-        "Magic Formula (D = 0.52), quasi-static load transfer; corridor and axle-speed floor "
-        "enforced at every node. " + ("Quick mode: corner90 min-time only, coarse grid."
-                                      if ctx.quick else "")
+        "solved by vehsim's structured interior-point method (block-tridiagonal KKT factored "
+        "by a Riccati recursion, filter line search with second-order correction). Vehicle "
+        "rally-gravel, friction-ellipse Magic Formula (D = 0.52), quasi-static load "
+        "transfer; corridor and axle-speed floor enforced at every node. "
+        + ("Quick mode: corner90 min-time only, coarse grid." if ctx.quick else "")
     )
     rows = ["| problem | status | t_f [s] | exit speed [m/s] | point-mass bound | ratio | "
             "corridor viol. [m] | BC viol. | iterations | solve [s] |",
