@@ -165,13 +165,28 @@ def kkt_matrix(lay: StageLayout, W0, d: StageDerivatives, delta) -> KKTMatrix:
     return KKTMatrix(W=Wd, A=d.A, Je=d.Je, dl=dl, de=de)
 
 
+def _refined_solve(F: RiccatiFactor, K: KKTMatrix, rhs):
+    """$K^{-1}$ ``rhs`` by the factor ``F``, with one step of iterative refinement."""
+    sol = riccati_solve(F, K, rhs)
+    return sol + riccati_solve(F, K, rhs - K.matvec(sol))
+
+
+def _split_step(lay: StageLayout, d: StageDerivatives, sol, g, s):
+    """``(dy, ds, dlam, dnu)`` of a KKT solution, $\\Delta s = J_g\\Delta y + g - s$ with
+    the inequality residual $g - s$ it was solved for."""
+    mk = lay.masks()
+    ny, nx = lay.ny, lay.nx
+    dy = sol[:, :ny] * mk.y
+    ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + g - s) * mk.g
+    return dy, ds, sol[:, ny : ny + nx] * mk.lam, sol[:, ny + nx :] * mk.eq
+
+
 def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
     """Solve with one step of iterative refinement; ``ok`` when the inertia is the expected
     one (every Cholesky factor of the Riccati recursion exists) and the componentwise
     backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`."""
     F = riccati_factor(K)
-    sol = riccati_solve(F, K, rhs)
-    sol = sol + riccati_solve(F, K, rhs - K.matvec(sol))
+    sol = _refined_solve(F, K, rhs)
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
     accurate = jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale)
@@ -188,37 +203,36 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_las
     growth = jnp.where(delta_last == 0.0, DELTA_GROWTH_FIRST, DELTA_GROWTH)
 
     def cond(carry):
-        _, _, ok, n, _ = carry
+        _, _, ok, n, _, _ = carry
         return (~ok) & (n < MAX_FACTORISATIONS)
 
     def body(carry):
-        delta, _, _, n, _ = carry
+        delta, _, _, n, _, _ = carry
         delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, delta * growth))
-        sol, ok, F = checked_solve(lay, kkt_matrix(lay, W0, d, delta), rhs)
-        return delta, sol, ok, n + 1, F
+        K = kkt_matrix(lay, W0, d, delta)
+        sol, ok, F = checked_solve(lay, K, rhs)
+        return delta, sol, ok, n + 1, F, K
 
-    shapes = jax.eval_shape(riccati_factor, kkt_matrix(lay, W0, d, 0.0))
+    K0 = kkt_matrix(lay, W0, d, 0.0)
+    shapes = jax.eval_shape(riccati_factor, K0)
     F0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
-    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0)) + (F0,)
-    delta, sol, _, n, F = jax.lax.while_loop(cond, body, init)
-    return delta, sol, n, F
+    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0)) + (F0, K0)
+    delta, sol, _, n, F, K = jax.lax.while_loop(cond, body, init)
+    return delta, sol, n, F, K
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
     """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
     regularisation that gives the right inertia (``delta_last``: the previous one)."""
-    mk = lay.masks()
-    ny, nx, mg = lay.ny, lay.nx, mk.g
+    mg = lay.masks().g
     rhs, W0 = _condensed_system(lay, it, d, mu)
-    delta, sol, n_factor, F = _regularised_solve(lay, W0, d, rhs, delta_last)
-    dy = sol[:, :ny] * mk.y
+    delta, sol, n_factor, F, K = _regularised_solve(lay, W0, d, rhs, delta_last)
+    dy, ds, dlam, dnu = _split_step(lay, d, sol, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
-    ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + d.g - it.s) * mg
     dz = (mu / sg - it.z - Sigma * ds) * mg
-    return NewtonStep(dy=dy, dlam=sol[:, ny : ny + nx] * mk.lam, dnu=sol[:, ny + nx :] * mk.eq,
-                      ds=ds, dz=dz, delta=delta, factorisations=n_factor, factor=F,
-                      matrix=kkt_matrix(lay, W0, d, delta))
+    return NewtonStep(dy=dy, dlam=dlam, dnu=dnu, ds=ds, dz=dz, delta=delta,
+                      factorisations=n_factor, factor=F, matrix=K)
 
 
 def second_order_correction(lay: StageLayout, it: Iterate, d: StageDerivatives, mu,
@@ -226,12 +240,5 @@ def second_order_correction(lay: StageLayout, it: Iterate, d: StageDerivatives, 
     """The primal step and multipliers of the KKT system of `step` (its factor reused) with
     the constraint residuals replaced by the corrected ones `c`, `e`, `gs` ($g - s$):
     ``(dy, ds, dlam, dnu)`` (Wächter and Biegler 2006, the second-order correction)."""
-    mk = lay.masks()
-    ny, nx, mg = lay.ny, lay.nx, mk.g
     rhs = _condensed_rhs(lay, it, d, mu, c, e, gs)
-    F, K = step.factor, step.matrix
-    sol = riccati_solve(F, K, rhs)
-    sol = sol + riccati_solve(F, K, rhs - K.matvec(sol))
-    dy = sol[:, :ny] * mk.y
-    ds = (jnp.einsum("kij,kj->ki", d.Jg, dy) + gs) * mg
-    return dy, ds, sol[:, ny : ny + nx] * mk.lam, sol[:, ny + nx :] * mk.eq
+    return _split_step(lay, d, _refined_solve(step.factor, step.matrix, rhs), gs, 0.0)
