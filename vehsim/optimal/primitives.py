@@ -48,6 +48,12 @@ def _road(road: str | Road) -> Road:
     return road_by_name(road) if isinstance(road, str) else road
 
 
+def _within_budget(xs0, tf_max):
+    """Guess knots with t_f at most 98 % of the max-exit time budget (knots on the last
+    axis; any leading batch axes)."""
+    return xs0.at[..., IDX_TF].set(jnp.minimum(xs0[..., IDX_TF], 0.98 * tf_max))
+
+
 def _better(sol: IPSolution, best: IPSolution | None) -> bool:
     """A converged solution beats a failed one, then the lower objective wins."""
     return best is None or (
@@ -120,7 +126,7 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
             xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage, margin=margin,
                                  friction_fraction=frac)
             if objective == "max-exit":
-                xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+                xs0 = _within_budget(xs0, tf_max)
             guesses.append((xs0, us0))
     else:
         guesses.append(guess)
@@ -138,7 +144,7 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     """Every start of `multistart_guesses` in one vmapped solve; the best converged one."""
     xs0, us0 = multistart_guesses(car, rd, n, prob.num_stages, prob.steps_per_stage)
     if prob.objective == "max-exit":
-        xs0 = xs0.at[:, :, IDX_TF].set(jnp.minimum(xs0[:, :, IDX_TF], 0.98 * prob.tf_max))
+        xs0 = _within_budget(xs0, prob.tf_max)
     sols = jax.vmap(lambda x, u: interior_point(prob, x, u, options, throw=False))(xs0, us0)
     converged = np.asarray(sols.converged)
     if throw and not converged.any():
@@ -205,7 +211,7 @@ def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *
                         num_stages=num_stages, steps_per_stage=steps_per_stage)
     xs0, us0 = car_guess(car0, rd, num_stages, steps_per_stage)
     if objective == "max-exit":
-        xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+        xs0 = _within_budget(xs0, tf_max)
     if mode == "vmap":
         def one(D):
             prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
