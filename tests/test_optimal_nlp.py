@@ -185,3 +185,48 @@ def test_second_order_correction_with_the_step_s_own_residuals_is_the_step():
     for got, want in ((dy, step.dy), (ds, step.ds), (dlam, step.dlam), (dnu, step.dnu)):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-9, atol=1e-11)
     assert float(jnp.max(jnp.abs(step.dy))) > 1e-3  # a real step
+
+
+def test_least_squares_multipliers_at_the_optimum_are_its_multipliers(bang_bang):
+    # at a KKT point the Lagrangian gradient vanishes for the solution's multipliers, so the
+    # least-squares estimate (the first pass of a least-squares start) must return them
+    from vehsim.optimal.ip.derivatives import stage_derivatives
+    from vehsim.optimal.ip.kkt import Iterate, newton_step
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, sol = bang_bang
+    lay = stage_layout(prob)
+    ys = lay.join(sol.xs, sol.us)
+    it = Iterate(ys=ys, s=jnp.ones_like(sol.z), z=sol.z, lam=jnp.zeros_like(sol.lam),
+                 nu=jnp.zeros_like(sol.nu))
+    d = stage_derivatives(prob, lay, ys, it.lam, it.nu, it.z)
+    step = newton_step(lay, it, d, 0.1, 0.0, least_squares=True)
+    mk = lay.masks()
+    assert float(jnp.max(jnp.abs(sol.lam))) > 0.1  # nontrivial multipliers
+    np.testing.assert_allclose(np.asarray(step.dlam), np.asarray(sol.lam * mk.lam), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(step.dnu), np.asarray(sol.nu * mk.eq), atol=1e-6)
+    # the primal part is the least-squares residual: zero at a KKT point
+    assert float(jnp.max(jnp.abs(step.dy))) < 1e-6
+
+
+def test_zero_and_least_squares_starts_reach_the_same_optimum(bang_bang):
+    prob, sol = bang_bang
+    xs0, us0 = _guess(prob.num_stages)
+    for opts in (IPOptions(multiplier_init="zero"), IPOptions(bound_multiplier_init="constant")):
+        other = interior_point(prob, xs0, us0, opts)
+        assert float(other.xs[-1, 4]) == pytest.approx(float(sol.xs[-1, 4]), abs=1e-7)
+    with pytest.raises(ValueError, match="IPOptions.multiplier_init must be one of"):
+        IPOptions(multiplier_init="ones")
+
+
+def test_barrier_decreases_several_times_while_the_iterate_allows():
+    # IPOPT's fast monotone decrease: mu <- min(0.2 mu, mu^1.5) while E_mu(mu) <= 10 mu
+    from vehsim.optimal.ip.solver import _barrier_update
+
+    mu, changed = _barrier_update(lambda m: jnp.asarray(0.05), jnp.asarray(0.1), 1e-8)
+    # 0.05 <= 1.0 -> 0.02; 0.05 <= 0.2 -> 0.02**1.5 = 2.83e-3; 0.05 > 2.83e-2: stop
+    assert float(mu) == pytest.approx(0.02**1.5, rel=1e-12) and bool(changed)
+    mu, changed = _barrier_update(lambda m: jnp.asarray(0.0), jnp.asarray(0.1), 1e-8)
+    assert float(mu) == pytest.approx(1e-9) and bool(changed)  # down to tol / 10
+    mu, changed = _barrier_update(lambda m: jnp.asarray(2.0), jnp.asarray(0.1), 1e-8)
+    assert float(mu) == 0.1 and not bool(changed)

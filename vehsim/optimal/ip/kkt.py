@@ -46,6 +46,8 @@ DELTA_GROWTH_FIRST = 100.0
 """Growth factor of the regularisation while no regularisation was needed before."""
 DELTA_GROWTH = 8.0
 MAX_FACTORISATIONS = 40
+MULTIPLIER_INIT_MAX = 1e3
+"""Largest accepted least-squares initial multiplier (IPOPT's ``constr_mult_init_max``)."""
 BACKWARD_ERROR_TOL = 1e-10
 """Largest accepted componentwise backward error of the solve (Oettli-Prager)."""
 
@@ -62,16 +64,27 @@ class Iterate(eqx.Module):
 
 
 class Residuals(eqx.Module):
-    """Optimality measures of an iterate: ``inf_pr`` max constraint violation, ``inf_du`` max
+    r"""Optimality measures of an iterate: ``inf_pr`` max constraint violation, ``inf_du`` max
     Lagrangian-gradient entry, ``compl`` max complementarity $|s z|$, ``error`` the scaled KKT
-    error (convergence test) and ``error_mu`` the same for the barrier problem (barrier
-    update)."""
+    error (convergence test), ``error_mu`` the same for the barrier problem (barrier
+    update), and its parts that do not depend on $\mu$: ``optimality``
+    $\max(\text{inf\_du}/s_d, \text{inf\_pr})$ and the complementarity scale ``s_c``."""
 
     inf_pr: Float[Array, ""]
     inf_du: Float[Array, ""]
     compl: Float[Array, ""]
     error: Float[Array, ""]
     error_mu: Float[Array, ""]
+    optimality: Float[Array, ""]
+    s_c: Float[Array, ""]
+
+
+def barrier_error(lay: StageLayout, it: Iterate, res: Residuals, mu) -> Float[Array, ""]:
+    r"""The scaled KKT error $E_\mu$ of the barrier problem for another ``mu`` at the same
+    iterate (the complementarity part alone depends on $\mu$)."""
+    mg = lay.masks().g
+    compl_mu = jnp.max(jnp.abs((it.s * it.z - mu) * mg), initial=0.0)
+    return jnp.maximum(res.optimality, compl_mu / res.s_c)
 
 
 class NewtonStep(eqx.Module):
@@ -121,7 +134,7 @@ def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Res
     base = jnp.maximum(inf_du / s_d, inf_pr)
     return Residuals(inf_pr=inf_pr, inf_du=inf_du, compl=compl0,
                      error=jnp.maximum(base, compl0 / s_c),
-                     error_mu=jnp.maximum(base, compl_mu / s_c))
+                     error_mu=jnp.maximum(base, compl_mu / s_c), optimality=base, s_c=s_c)
 
 
 def _condensed_rhs(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, c, e, gs):
@@ -165,6 +178,24 @@ def kkt_matrix(lay: StageLayout, W0, d: StageDerivatives, delta) -> KKTMatrix:
     return KKTMatrix(W=Wd, A=d.A, Je=d.Je, dl=dl, de=de)
 
 
+def _least_squares_system(lay: StageLayout, d: StageDerivatives, z):
+    r"""Right-hand side and primal blocks ($W = I$) of the KKT system whose multiplier part
+    is IPOPT's least-squares estimate: the $(\lambda, \nu)$ that minimise the Lagrangian
+    gradient $\|\nabla f + J_e^T\nu - A^T\lambda + E^T\lambda_{-} - J_g^T z\|$ for the
+    inequality multipliers ``z`` (Wächter and Biegler 2006, sec. 3.6)."""
+    mk = lay.masks()
+    ry = -(d.grad_f - jnp.einsum("kij,ki->kj", d.Jg, z * mk.g)) * mk.y
+    rhs = jnp.concatenate([ry, jnp.zeros((lay.M + 1, lay.nx + lay.ne))], axis=1)
+    return rhs, jnp.broadcast_to(jnp.eye(lay.ny), d.H.shape)
+
+
+def capped_multipliers(lam, nu):
+    """Least-squares multipliers, or zero where an entry exceeds `MULTIPLIER_INIT_MAX` (an
+    unreliable estimate)."""
+    use = jnp.maximum(jnp.max(jnp.abs(lam)), jnp.max(jnp.abs(nu))) <= MULTIPLIER_INIT_MAX
+    return jnp.where(use, lam, 0.0), jnp.where(use, nu, 0.0)
+
+
 def _refined_solve(F: RiccatiFactor, K: KKTMatrix, rhs):
     """$K^{-1}$ ``rhs`` by the factor ``F``, with one step of iterative refinement."""
     sol = riccati_solve(F, K, rhs)
@@ -181,15 +212,28 @@ def _split_step(lay: StageLayout, d: StageDerivatives, sol, g, s):
     return dy, ds, sol[:, ny : ny + nx] * mk.lam, sol[:, ny + nx :] * mk.eq
 
 
-def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
-    """Solve with one step of iterative refinement; ``ok`` when the inertia is the expected
-    one (every Cholesky factor of the Riccati recursion exists) and the componentwise
-    backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`."""
-    F = riccati_factor(K)
-    sol = _refined_solve(F, K, rhs)
+def _backward_error_ok(K: KKTMatrix, sol, rhs):
+    """Whether the componentwise backward error (Oettli-Prager) of ``sol`` is below
+    `BACKWARD_ERROR_TOL`; also the residual."""
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
-    accurate = jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale)
+    return jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale), res
+
+
+def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
+    """Factor and solve; ``ok`` when the inertia is the expected one (every Cholesky factor
+    of the Riccati recursion exists) and the componentwise backward error (Oettli-Prager) is
+    below `BACKWARD_ERROR_TOL`, after one step of iterative refinement where the first
+    solve misses it. A factor of the wrong inertia is not used for a solve."""
+    F = riccati_factor(K)
+
+    def solve(_):
+        sol = riccati_solve(F, K, rhs)
+        accurate, res = _backward_error_ok(K, sol, rhs)
+        return jax.lax.cond(accurate, lambda: sol, lambda: sol + riccati_solve(F, K, res))
+
+    sol = jax.lax.cond(F.ok, solve, lambda _: jnp.zeros_like(rhs), None)
+    accurate, _ = _backward_error_ok(K, sol, rhs)
     ok = F.ok & accurate & jnp.all(jnp.isfinite(sol))
     return sol, ok, F
 
@@ -221,11 +265,20 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_las
     return delta, sol, n, F, K
 
 
-def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last) -> NewtonStep:
+def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last,
+                least_squares=False) -> NewtonStep:
     """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
-    regularisation that gives the right inertia (``delta_last``: the previous one)."""
+    regularisation that gives the right inertia (``delta_last``: the previous one).
+
+    Where ``least_squares`` (a traced flag), the same factorisation solves the system of
+    `_least_squares_system` instead: ``dlam``, ``dnu`` are then the least-squares
+    multipliers themselves (one compiled solver for both)."""
     mg = lay.masks().g
     rhs, W0 = _condensed_system(lay, it, d, mu)
+    rhs_ls, W_ls = _least_squares_system(lay, d, it.z)
+    rhs = jnp.where(least_squares, rhs_ls, rhs)
+    W0 = jnp.where(least_squares, W_ls, W0)
+    delta_last = jnp.where(least_squares, 0.0, delta_last)
     delta, sol, n_factor, F, K = _regularised_solve(lay, W0, d, rhs, delta_last)
     dy, ds, dlam, dnu = _split_step(lay, d, sol, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
