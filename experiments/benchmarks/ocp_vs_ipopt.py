@@ -17,6 +17,9 @@ best of three solves each), with ``profile``: where one vehsim iteration's time 
 (`iteration_profile`).
 
     PYTHONPATH=. python experiments/benchmarks/ocp_vs_ipopt.py --segments 150
+
+``--sweep 30,50,100,150,200``: solution quality over many instances (vehsim's primitive and
+IPOPT from the same guess), with a summary line.
 """
 
 from __future__ import annotations
@@ -324,6 +327,48 @@ def multistart(problems, N: int, n: int = 8) -> None:
         )), flush=True)
 
 
+def sweep(problems, sizes) -> None:
+    """Solution quality over many instances: per problem and number of segments, vehsim's
+    primitive (default options, the default point-mass seed) and IPOPT from the same guess;
+    values, iterations and vehsim's relative shortfall (> 0: IPOPT's optimum is better),
+    then one summary line."""
+    from vehsim.optimal.primitives import max_exit_primitive, min_time_primitive
+
+    car = rally_gravel_car()
+    rows = []
+    for N in sizes:
+        for problem in problems:
+            name, objective = problem.split(":")
+            rd = road_by_name(name)
+            f = min_time_primitive if objective == "min-time" else max_exit_primitive
+            prim = f(rd, num_stages=N, steps_per_stage=1, options=IPOptions(max_iter=500),
+                     throw=False)
+            xs0, us0 = car_guess(car, rd, N, 1)
+            if objective == "max-exit":
+                xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * 4.0))
+            ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0)
+            val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
+                lambda x: -math.hypot(x[-1, 3], x[-1, 4]))
+            ours, theirs = float(val(np.asarray(prim.solution.xs))), float(val(ip["xs"]))
+            row = dict(problem=problem, segments=N, vehsim_value=abs(ours),
+                       ipopt_value=abs(theirs), shortfall=(ours - theirs) / abs(theirs),
+                       vehsim_status=result_name(prim.solution.result),
+                       vehsim_iterations=int(prim.solution.iterations),
+                       ipopt_status=ip["status"], ipopt_iterations=ip["iterations"])
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        jax.clear_caches()
+    short = [r["shortfall"] for r in rows]
+    print(json.dumps(dict(
+        problem="sweep summary", instances=len(rows),
+        vehsim_worse_by_more_than_0_05_percent=sum(x > 5e-4 for x in short),
+        vehsim_better_by_more_than_0_05_percent=sum(x < -5e-4 for x in short),
+        largest_shortfall=max(short),
+        vehsim_iterations=sum(r["vehsim_iterations"] for r in rows),
+        ipopt_iterations=sum(r["ipopt_iterations"] for r in rows),
+    )), flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--segments", type=int, default=150)
@@ -337,8 +382,14 @@ def main(argv=None):
                          "whole process")
     ap.add_argument("--multistart", type=int, default=0,
                     help="starts of the multi-start comparison (8 in the benchmark)")
+    ap.add_argument("--sweep", default="",
+                    help="comma-separated segment counts of the solution-quality sweep "
+                         "(e.g. 30,50,100,150,200)")
     args = ap.parse_args(argv)
     N = args.segments
+    if args.sweep:
+        sweep(args.problems, [int(n) for n in args.sweep.split(",")])
+        return
     if args.multistart:
         multistart(args.problems, N, args.multistart)
         return
