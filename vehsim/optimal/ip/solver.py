@@ -3,9 +3,9 @@ r"""The interior-point loop: options, solution, state, and `interior_point`.
 The start: slacks $s = \max(g, 10^{-2})$, $z = \mu_0 / s$ (on the central path), and the
 defect and equality multipliers $(\lambda, \nu)$ that minimise the first Lagrangian gradient
 (IPOPT's least-squares estimate, from the KKT system with $W = I$: one pass of the same
-factorisation before the first iteration). Over the maneuver benchmark's 20 instances
-(four problems, 30-200 segments) this start reaches an optimum at least as good as IPOPT's
-from the same guess on every one, in fewer iterations than zero multipliers.
+factorisation before the first iteration; ``multiplier_init`` and
+``bound_multiplier_init`` of `IPOptions` select the alternatives, docs/performance.md
+compares them).
 
 One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
 
@@ -71,9 +71,8 @@ class IPOptions(eqx.Module):
     weighted); ``mu0``: initial barrier (small for warm starts); ``multiplier_init``:
     'least-squares' (the defect and equality multipliers that minimise the first Lagrangian
     gradient, IPOPT's default) or 'zero'; ``bound_multiplier_init``: 'constant' ($z = 1$,
-    IPOPT's default for a cold start) or 'mu-based' ($z = \\mu_0 / s$, on the central path:
-    for warm starts with a small ``mu0``); ``verbose``: print one line per iteration to
-    stderr."""
+    IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
+    ``verbose``: print one line per iteration to stderr."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
