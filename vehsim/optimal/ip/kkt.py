@@ -66,15 +66,14 @@ class Iterate(eqx.Module):
 class Residuals(eqx.Module):
     r"""Optimality measures of an iterate: ``inf_pr`` max constraint violation, ``inf_du`` max
     Lagrangian-gradient entry, ``compl`` max complementarity $|s z|$, ``error`` the scaled KKT
-    error (convergence test), ``error_mu`` the same for the barrier problem (barrier
-    update), and its parts that do not depend on $\mu$: ``optimality``
+    error (convergence test), and its parts that do not depend on the complementarity (the
+    barrier problem's error follows from them, `barrier_error`): ``optimality``
     $\max(\text{inf\_du}/s_d, \text{inf\_pr})$ and the complementarity scale ``s_c``."""
 
     inf_pr: Float[Array, ""]
     inf_du: Float[Array, ""]
     compl: Float[Array, ""]
     error: Float[Array, ""]
-    error_mu: Float[Array, ""]
     optimality: Float[Array, ""]
     s_c: Float[Array, ""]
 
@@ -103,9 +102,10 @@ class NewtonStep(eqx.Module):
     matrix: KKTMatrix
 
 
-def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Residuals:
-    """Residuals and the scaled KKT errors $E_0$, $E_\\mu$ (IPOPT's, Wächter and Biegler
-    2006): dual infeasibility scaled by $s_d$, complementarity by $s_c$."""
+def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives) -> Residuals:
+    """Residuals and the scaled KKT error $E_0$ (IPOPT's, Wächter and Biegler 2006): dual
+    infeasibility scaled by $s_d$, complementarity by $s_c$ (`barrier_error` gives
+    $E_\\mu$ from them)."""
     mk = lay.masks()
     M, nx, ne = lay.M, lay.nx, lay.ne
     lam, nu, z, s = it.lam, it.nu, it.z, it.s
@@ -124,7 +124,6 @@ def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Res
         jnp.max(jnp.abs((d.g - s) * mk.g), initial=0.0),
     )
     compl0 = jnp.max(jnp.abs((s * z) * mk.g), initial=0.0)
-    compl_mu = jnp.max(jnp.abs((s * z - mu) * mk.g), initial=0.0)
     n_mult = (M + 1) * (nx + ne) + jnp.sum(mk.g)
     s_d = jnp.maximum(
         S_MAX,
@@ -133,8 +132,7 @@ def kkt_residuals(lay: StageLayout, it: Iterate, d: StageDerivatives, mu) -> Res
     s_c = jnp.maximum(S_MAX, jnp.sum(jnp.abs(z * mk.g)) / jnp.maximum(jnp.sum(mk.g), 1.0)) / S_MAX
     base = jnp.maximum(inf_du / s_d, inf_pr)
     return Residuals(inf_pr=inf_pr, inf_du=inf_du, compl=compl0,
-                     error=jnp.maximum(base, compl0 / s_c),
-                     error_mu=jnp.maximum(base, compl_mu / s_c), optimality=base, s_c=s_c)
+                     error=jnp.maximum(base, compl0 / s_c), optimality=base, s_c=s_c)
 
 
 def _condensed_rhs(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, c, e, gs):

@@ -253,7 +253,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions) -> IPSt
         iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
         multipliers_ready=jnp.asarray(options.multiplier_init == "zero"),
         objective=jnp.asarray(jnp.nan),
-        residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf, error_mu=inf,
+        residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),
         log=IPLog.empty(options.log_size),
     )
@@ -267,7 +267,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     it = st.iterate
     setup = ~st.multipliers_ready
     d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
-    res = kkt_residuals(lay, it, d, st.mu)
+    res = kkt_residuals(lay, it, d)
     converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol) & ~setup
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
