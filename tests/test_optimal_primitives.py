@@ -154,7 +154,7 @@ def test_re_integration_between_the_nodes(corner_min_time):
 
 def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min_time):
     """``starts=3``: the default point-mass seed, the centreline at 5 m/s and a second seed,
-    solved in one vmapped call. The default seed's solve is the single-start primitive's
+    solved in one compiled call. The default seed's solve is the single-start primitive's
     (same optimum to 1e-9); the primitive is the best converged start; the record lists
     every start's objective and status."""
     prim = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,

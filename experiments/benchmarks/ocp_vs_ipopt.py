@@ -18,6 +18,11 @@ best of three solves each), with ``profile``: where one vehsim iteration's time 
 
     PYTHONPATH=. python experiments/benchmarks/ocp_vs_ipopt.py --segments 150
 
+``--multistart 8``: the best of 8 starts in one call against IPOPT's 8 sequential solves;
+the starts are split over the devices JAX sees (on a CPU, one host device per core with
+``XLA_FLAGS=--xla_force_host_platform_device_count=2`` before the command; the row records
+``devices``).
+
 ``--sweep 30,50,100,150,200``: solution quality over many instances (vehsim's primitive and
 IPOPT from the same guess), with a summary line.
 """
@@ -323,7 +328,8 @@ def multistart(problems, N: int, n: int = 8) -> None:
             ipopt_best=ip_best, rel_diff=(ours_best - ip_best) / abs(ip_best),
             vehsim_wall_s=wall, ipopt_sequential_s=ip_wall, ratio=ip_wall / wall,
             vehsim_values=ours, vehsim_statuses=result_name(prim.starts.result),
-            ipopt_values=ip_values, ipopt_ok=ip_ok, loadavg=os.getloadavg()[0],
+            ipopt_values=ip_values, ipopt_ok=ip_ok, devices=len(jax.devices()),
+            device=jax.devices()[0].device_kind, loadavg=os.getloadavg()[0],
         )), flush=True)
 
 

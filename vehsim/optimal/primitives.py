@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
@@ -140,12 +141,33 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     return Primitive(problem=prob, solution=best)
 
 
+@eqx.filter_jit
+def _solve_starts(prob, xs0, us0, options: IPOptions, batch_size: int | None) -> IPSolution:
+    """The starts (leading axis) split over every device; each device solves its slice in
+    vmapped chunks of ``batch_size`` (None: all at once)."""
+    solve = sharded_vmap(lambda p, x, u, o: interior_point(p, x, u, o, throw=False),
+                         in_axes=(None, 0, 0, None), batch_size=batch_size)
+    return solve(prob, xs0, us0, options)
+
+
+def starts_batch_size() -> int | None:
+    """Starts solved together on one device: 1 on a CPU (each start stops at its own
+    convergence; a vmapped batch steps every start until the slowest one has converged,
+    several times the work when one start is slow), all of them on an accelerator."""
+    return 1 if jax.default_backend() == "cpu" else None
+
+
 def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Primitive:
-    """Every start of `multistart_guesses` in one vmapped solve; the best converged one."""
+    """Every start of `multistart_guesses` in one compiled call, split over the devices
+    (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts); the best
+    converged one."""
     xs0, us0 = multistart_guesses(car, rd, n, prob.num_stages, prob.steps_per_stage)
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
-    sols = jax.vmap(lambda x, u: interior_point(prob, x, u, options, throw=False))(xs0, us0)
+    xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
+    sols = _solve_starts(prob, xs0, us0, options, starts_batch_size())
+    sols = jax.tree.map(lambda a: a[:n], sols)
     converged = np.asarray(sols.converged)
     if throw and not converged.any():
         raise RuntimeError(f"interior point did not converge from any of the {n} starts: "
@@ -166,8 +188,9 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
     discretisation ``num_stages`` x ``steps_per_stage`` (nodes; the benchmark uses >= 150,
     docs/maneuvers.md), ``options``, an optional ``guess`` (xs, us), ``starts``: several
     (margin, friction fraction) point-mass seeds solved one after the other, or an int N:
-    N starts of different kinds (`multistart_guesses`) solved in one batched call, every
-    start's solution kept in the primitive's ``starts``; the best converged optimum is
+    N starts of different kinds (`multistart_guesses`) solved in one compiled call split
+    over the devices (one after another on each CPU device, vmapped on an accelerator),
+    every start's solution kept in the primitive's ``starts``; the best converged optimum is
     returned either way. ``throw``.
 
     **Returns:** a `Primitive`.
