@@ -45,7 +45,7 @@ class Primitive(eqx.Module):
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
-        return self.problem.nodes(self.solution.xs, self.solution.us)
+        return _nodes(self.problem, self.solution)
 
     def time(self):
         n = self.nodes()
@@ -53,9 +53,7 @@ class Primitive(eqx.Module):
 
     def signals(self) -> dict:
         """Named signals at every node (car problems): pose, speeds, sideslip, slips, forces."""
-        n = self.nodes()
-        sig = jax.vmap(self.problem.vehicle.signals)(n[:, :6], n[:, 6:9])
-        return {k: np.asarray(v) for k, v in sig.items()}
+        return {k: np.asarray(v) for k, v in _node_signals(self.problem, self.solution).items()}
 
     def violations(self, substeps: int = SUBSTEPS) -> dict:
         """Constraint violations of the solution, measured exactly at every node: distance off
@@ -64,21 +62,14 @@ class Primitive(eqx.Module):
         ``corridor_between_nodes``: the distance off the road between the nodes, where the
         constraints are not imposed, found by re-integrating every segment with `substeps`
         RK4 steps per step (`fine_nodes`)."""
-        prob, sol = self.problem, self.solution
-        n = np.asarray(self.nodes())
+        prob = self.problem
+        n, fine, bc, defects = (np.asarray(a) for a in _violation_arrays(
+            prob, self.solution, substeps))
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
-        fine = np.asarray(prob.fine_nodes(sol.xs, sol.us, substeps))
         between = rd.distance_off_road(fine[:, 0], fine[:, 1])
-        bc = max(float(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])))),
-                 float(jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])))))
-        box = [prob.road.boundary_inequality(rd.start, sol.xs[0]),
-               prob.road.boundary_inequality(rd.end, sol.xs[-1])]
-        bc = max(bc, float(max(jnp.max(jnp.maximum(-b, 0.0), initial=0.0) for b in box)))
-        defects = np.asarray(sol.xs[1:]) - np.asarray(
-            jax.vmap(prob.transition)(sol.xs[:-1], sol.us, jnp.arange(prob.num_stages)))
         out = dict(corridor=float(np.max(off)), corridor_between_nodes=float(np.max(between)),
-                   boundary=bc, defects=float(np.max(np.abs(defects))))
+                   boundary=float(bc), defects=float(defects))
         if isinstance(prob, ManeuverOCP):
             kF, kR, d = n[:, 6], n[:, 7], n[:, 8]
             inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
@@ -90,6 +81,33 @@ class Primitive(eqx.Module):
             if prob.objective == "max-exit":
                 out["time_budget"] = float(max(0.0, float(self.t_f - prob.tf_max)))
         return out
+
+
+@eqx.filter_jit
+def _nodes(prob, sol: IPSolution):
+    return prob.nodes(sol.xs, sol.us)
+
+
+@eqx.filter_jit
+def _node_signals(prob, sol: IPSolution) -> dict:
+    n = prob.nodes(sol.xs, sol.us)
+    return jax.vmap(prob.vehicle.signals)(n[:, :6], n[:, 6:9])
+
+
+@eqx.filter_jit
+def _violation_arrays(prob, sol: IPSolution, substeps: int):
+    """Nodes, the re-integrated states between them, the largest boundary-condition
+    violation and the largest shooting defect (one compiled program)."""
+    rd = prob.road
+    bc = jnp.maximum(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])), initial=0.0),
+                     jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])), initial=0.0))
+    for b in (rd.boundary_inequality(rd.start, sol.xs[0]),
+              rd.boundary_inequality(rd.end, sol.xs[-1])):
+        bc = jnp.maximum(bc, jnp.max(jnp.maximum(-b, 0.0), initial=0.0))
+    defects = sol.xs[1:] - jax.vmap(prob.transition)(sol.xs[:-1], sol.us,
+                                                      jnp.arange(prob.num_stages))
+    return (prob.nodes(sol.xs, sol.us), prob.fine_nodes(sol.xs, sol.us, substeps), bc,
+            jnp.max(jnp.abs(defects)))
 
 
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
