@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 
 from vehsim import RESULTS
-from vehsim.optimal.ip import AbstractStagewiseNLP, IPOptions, interior_point
+from vehsim.optimal.ip import (
+    AbstractStagewiseNLP,
+    IPOptions,
+    compile_interior_point,
+    interior_point,
+)
 from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
 from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve
 
@@ -80,6 +85,22 @@ def test_batch_by_vmap_and_result(bang_bang):
     sols = jax.vmap(solve)(amax)
     assert np.all(np.asarray(sols.converged))
     np.testing.assert_allclose(sols.xs[:, -1, 4], 2 * np.sqrt(10.0 / amax), atol=1e-6)
+
+
+def test_ahead_of_time_compiled_solver_is_the_same_program(bang_bang):
+    """`compile_interior_point` (compiled from zeros of the right shapes) returns the solution
+    of `interior_point` bit for bit, solves other parameter values with the same program
+    (t_f = 2 sqrt(L / amax)) and raises like it on failure."""
+    prob, sol = bang_bang
+    M = prob.num_stages
+    solve = compile_interior_point(prob, jnp.zeros((M + 1, 5)), jnp.zeros((M, 2)))
+    again = solve(prob, *_guess(M))
+    np.testing.assert_array_equal(np.asarray(again.xs), np.asarray(sol.xs))
+    assert int(again.iterations) == int(sol.iterations)
+    slower = solve(eqx.tree_at(lambda q: q.amax, prob, jnp.asarray(2.5)), *_guess(M))
+    assert float(slower.xs[-1, 4]) == pytest.approx(2 * np.sqrt(10.0 / 2.5), abs=1e-6)
+    with pytest.raises(RuntimeError, match="inf_pr="):
+        solve(prob, *_guess(M), IPOptions(max_iter=3))
 
 
 def test_iteration_limit_reports_result_and_residuals(bang_bang):

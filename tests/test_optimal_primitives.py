@@ -3,6 +3,7 @@
 import math
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -154,12 +155,14 @@ def test_re_integration_between_the_nodes(corner_min_time):
 
 def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min_time):
     """``starts=3``: the default point-mass seed, the centreline at 5 m/s and a second seed,
-    solved in one compiled call. The default seed's solve is the single-start primitive's
+    solved in one compiled call split over the session's two host devices (padded to 4
+    starts, each device solving its starts one after another). The default seed's solve is the single-start primitive's
     (same optimum to 1e-9); the primitive is the best converged start; the record lists
     every start's objective and status."""
     prim = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
                               options=IPOptions(max_iter=300), starts=3)
     starts = prim.starts
+    assert jax.device_count() == 2  # tests/conftest.py
     assert starts.xs.shape == (3, M + 1, 10)
     objective = np.asarray(starts.objective)
     assert objective[0] == pytest.approx(float(corner_min_time.solution.objective), rel=1e-9)

@@ -23,7 +23,9 @@ def register(subparsers) -> None:
     p.add_argument("--starts", type=int, default=1,
                    help="starting guesses solved together in one batched call (point-mass "
                         "seeds and centreline runs; the best is kept, every start's value "
-                        "and status in the JSON); 1: the default point-mass seed")
+                        "and status in the JSON), split over JAX's devices (on a CPU, "
+                        "JAX_NUM_CPU_DEVICES=2 before the command gives two cores two "
+                        "devices); 1: the default point-mass seed")
     p.add_argument("--out", default="results/optimise", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no per-iteration progress")
     p.set_defaults(func=_optimise)

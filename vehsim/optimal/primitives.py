@@ -11,6 +11,8 @@ seeds can be tried, and the best converged optimum is kept.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -21,10 +23,11 @@ from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
 from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
-from .ip import IPOptions, IPSolution, interior_point
+from .ip import IPOptions, IPSolution, compile_interior_point, interior_point
+from .ip.solver import canonical_options
 from .primitive import Primitive
 from .roads import Road, road as road_by_name
-from .shooting import IDX_TF, ManeuverOCP, PointMassOCP
+from .shooting import IDX_TF, NU, NX, ManeuverOCP, PointMassOCP
 
 
 DEFAULT_STARTS = ((0.5, 0.6),)
@@ -121,23 +124,27 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
                        rate_weight=rate_weight)
     if isinstance(starts, int) and guess is None:
         return _solve_batched_starts(prob, car, rd, starts, options, throw)
-    guesses = []
-    if guess is None:
-        for margin, frac in starts:
-            xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage, margin=margin,
-                                 friction_fraction=frac)
-            if objective == "max-exit":
-                xs0 = _within_budget(xs0, tf_max)
-            guesses.append((xs0, us0))
-    else:
-        guesses.append(guess)
+    with ThreadPoolExecutor(1) as pool:  # compile the car's solve while the seeds are solved
+        pending = pool.submit(compile_interior_point, prob, jnp.zeros((num_stages + 1, NX)),
+                              jnp.zeros((num_stages, NU)), options)
+        guesses = []
+        if guess is None:
+            for margin, frac in starts:
+                xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage, margin=margin,
+                                     friction_fraction=frac)
+                if objective == "max-exit":
+                    xs0 = _within_budget(xs0, tf_max)
+                guesses.append((xs0, us0))
+        else:
+            guesses.append(guess)
+        solve = pending.result()
     best = None
     for xs0, us0 in guesses:
-        sol = interior_point(prob, xs0, us0, options, throw=False)
+        sol = solve(prob, xs0, us0, options, throw=False)
         if _better(sol, best):
             best = sol
     if throw and not bool(best.converged):
-        interior_point(prob, *guesses[-1], options, throw=True)  # raises with residuals
+        solve(prob, *guesses[-1], options, throw=True)  # raises with residuals
     return Primitive(problem=prob, solution=best)
 
 
@@ -162,11 +169,18 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
     ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts); the best
     converged one."""
-    xs0, us0 = multistart_guesses(car, rd, n, prob.num_stages, prob.steps_per_stage)
+    options = canonical_options(options)  # the arrays' dtypes of the compiled program
+    M, n_pad = prob.num_stages, -(-n // len(jax.devices())) * len(jax.devices())
+    with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
+        pending = pool.submit(lambda: _solve_starts.lower(
+            prob, jnp.zeros((n_pad, M + 1, NX)), jnp.zeros((n_pad, M, NU)), options,
+            starts_batch_size()).compile())
+        xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
+        solve = pending.result()
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
     xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
-    sols = _solve_starts(prob, xs0, us0, options, starts_batch_size())
+    sols = solve(prob, xs0, us0, options, starts_batch_size())
     sols = jax.tree.map(lambda a: a[:n], sols)
     converged = np.asarray(sols.converged)
     if throw and not converged.any():

@@ -22,5 +22,6 @@ from .solver import (
     IPLog as IPLog,
     IPOptions as IPOptions,
     IPSolution as IPSolution,
+    compile_interior_point as compile_interior_point,
     interior_point as interior_point,
 )

@@ -188,11 +188,36 @@ def interior_point(
 
     **Returns:** an `IPSolution`.
     """
-    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), _canonical(options))
+    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
     return _raise_if_failed(sol) if throw else sol
 
 
-def _canonical(options: IPOptions) -> IPOptions:
+def compile_interior_point(
+    prob: AbstractStagewiseNLP,
+    xs0: Float[Array, "M+1 nx"],
+    us0: Float[Array, "M nu"],
+    options: IPOptions = IPOptions(),
+):
+    """`interior_point` compiled ahead of time for problems, guesses and options shaped as
+    these (their values do not matter).
+
+    **Returns:** ``solve(prob, xs0, us0, options, *, throw=True)``, the same program as
+    `interior_point`. XLA releases Python's lock while it compiles, so the compilation can
+    run in a thread while the caller builds the starting guess (as `min_time_primitive`
+    does: the point-mass seed is compiled and solved meanwhile).
+    """
+    compiled = _solve.lower(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
+                            canonical_options(options)).compile()
+
+    def solve(prob, xs0, us0, options=options, *, throw=True) -> IPSolution:
+        sol = compiled(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
+                       canonical_options(options))
+        return _raise_if_failed(sol) if throw else sol
+
+    return solve
+
+
+def canonical_options(options: IPOptions) -> IPOptions:
     """The options with their arrays in the current default dtypes: an `IPOptions` built
     before float64 was switched on (a default argument, at import) then compiles the same
     program as one built after."""
