@@ -251,3 +251,45 @@ def test_barrier_decreases_several_times_while_the_iterate_allows():
     assert float(mu) == pytest.approx(1e-9) and bool(changed)  # down to tol / 10
     mu, changed = _barrier_update(lambda m: jnp.asarray(2.0), jnp.asarray(0.1), 1e-8)
     assert float(mu) == 0.1 and not bool(changed)
+
+
+def test_stage_hessians_are_the_blocks_of_the_whole_lagrangian_hessian():
+    """Every function of the maneuver NLP depends on one stage, so the Hessian of the whole
+    Lagrangian $f + \\lambda \\cdot c + \\nu \\cdot e - z \\cdot g$ (jax.hessian of the
+    assembled problem, a dense peer) is block diagonal with the stage blocks of
+    `stage_derivatives` (both of its Hessian modes), at a random point and random multipliers, two RK4 steps per stage
+    (nodes inside the segment)."""
+    from vehsim.optimal.ip.derivatives import stage_derivatives, stage_values
+    from vehsim.optimal.ip.problem import stage_layout
+    from vehsim.optimal.primitives import rally_gravel_car
+    from vehsim.optimal.roads import road
+    from vehsim.optimal.shooting import ManeuverOCP
+
+    M = 2
+    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=M,
+                       steps_per_stage=2)
+    lay = stage_layout(prob)
+    mk = lay.masks()
+    k1, k2, k3, k4 = jax.random.split(jax.random.PRNGKey(7), 4)
+    base = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, 0.08, 0.1, 3.5, 0.5, -0.2, 0.3])
+    ys = (base[None] + 0.1 * jax.random.normal(k1, (M + 1, lay.ny))) * mk.y
+    lam = jax.random.normal(k2, (M + 1, lay.nx)) * mk.lam
+    nu = jax.random.normal(k3, (M + 1, lay.ne)) * mk.eq
+    z = jnp.abs(jax.random.normal(k4, (M + 1, lay.ng))) * mk.g
+
+    def lagrangian(y):
+        f, c, e, g = stage_values(prob, lay, y)
+        return f + jnp.sum(lam * c) + jnp.sum(nu * e) - jnp.sum(z * g * mk.g)
+
+    dense = np.asarray(jax.jit(jax.hessian(lagrangian))(ys))  # (M+1, ny, M+1, ny)
+    used = np.asarray(mk.y).astype(bool)
+    mask = used[:, :, None, None] & used[None, None, :, :]
+    scale = np.max(np.abs(dense))
+    assert scale > 1.0  # curvature present
+    for hessian in ("forward-over-reverse", "forward-over-forward"):
+        d = eqx.filter_jit(stage_derivatives)(prob, lay, ys, lam, nu, z, hessian)
+        blocks = np.zeros_like(dense)
+        for k in range(M + 1):
+            blocks[k, :, k, :] = np.asarray(d.H[k])
+        np.testing.assert_allclose(np.where(mask, blocks, 0.0), np.where(mask, dense, 0.0),
+                                   rtol=0, atol=1e-8 * scale, err_msg=hessian)
