@@ -157,7 +157,7 @@ def _solve_starts(prob, xs0, us0, options: IPOptions, batch_size: int | None) ->
     return solve(prob, xs0, us0, options)
 
 
-def starts_batch_size() -> int | None:
+def _starts_batch_size() -> int | None:
     """Starts solved together on one device: 1 on a CPU (each start stops at its own
     convergence; a vmapped batch steps every start until the slowest one has converged,
     several times the work when one start is slow), all of them on an accelerator."""
@@ -174,13 +174,13 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
         pending = pool.submit(lambda: _solve_starts.lower(
             prob, jnp.zeros((n_pad, M + 1, NX)), jnp.zeros((n_pad, M, NU)), options,
-            starts_batch_size()).compile())
+            _starts_batch_size()).compile())
         xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
         solve = pending.result()
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
     xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
-    sols = solve(prob, xs0, us0, options, starts_batch_size())
+    sols = solve(prob, xs0, us0, options, _starts_batch_size())
     sols = jax.tree.map(lambda a: a[:n], sols)
     converged = np.asarray(sols.converged)
     if throw and not converged.any():
