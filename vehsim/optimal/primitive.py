@@ -53,7 +53,7 @@ class Primitive(eqx.Module):
 
     def signals(self) -> dict:
         """Named signals at every node (car problems): pose, speeds, sideslip, slips, forces."""
-        return {k: np.asarray(v) for k, v in _node_signals(self.problem, self.solution).items()}
+        return _node_signals(self.problem.vehicle, self.nodes())
 
     def violations(self, substeps: int = SUBSTEPS) -> dict:
         """Constraint violations of the solution, measured exactly at every node: distance off
@@ -75,7 +75,7 @@ class Primitive(eqx.Module):
             inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
                                   np.abs(d) - float(DELTA_MAX)])
             out["inputs"] = float(max(np.max(inp), 0.0))
-            sig = self.signals()
+            sig = _node_signals(prob.vehicle, n)  # the nodes computed above
             out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
                                                                sig["Vx_R"].min())))
             if prob.objective == "max-exit":
@@ -89,9 +89,13 @@ def _nodes(prob, sol: IPSolution):
 
 
 @eqx.filter_jit
-def _node_signals(prob, sol: IPSolution) -> dict:
-    n = prob.nodes(sol.xs, sol.us)
-    return jax.vmap(prob.vehicle.signals)(n[:, :6], n[:, 6:9])
+def _signals(vehicle, nodes) -> dict:
+    return jax.vmap(vehicle.signals)(nodes[:, :6], nodes[:, 6:9])
+
+
+def _node_signals(vehicle, nodes) -> dict:
+    """Named signals of `vehicle` at the car's nodes (states, then the inputs)."""
+    return {k: np.asarray(v) for k, v in _signals(vehicle, jnp.asarray(nodes)).items()}
 
 
 @eqx.filter_jit
