@@ -103,6 +103,25 @@ def test_ahead_of_time_compiled_solver_is_the_same_program(bang_bang):
         solve(prob, *_guess(M), IPOptions(max_iter=3))
 
 
+def test_verbose_prints_the_iteration_log_and_compiles_the_quiet_program(bang_bang, capsys,
+                                                                        caplog):
+    """``verbose`` prints one line per logged iteration (the last is the returned iterate's
+    residuals) and is not part of the compiled program: the verbose solve is the quiet one,
+    bit for bit, with no second compilation."""
+    prob, sol = bang_bang
+    xs0, us0 = _guess(prob.num_stages)
+    with jax.log_compiles():
+        loud = interior_point(prob, xs0, us0, IPOptions(verbose=True))
+    assert "_solve" not in caplog.text  # jax.log_compiles names every program it compiles
+    err = capsys.readouterr().err
+    np.testing.assert_array_equal(np.asarray(loud.xs), np.asarray(sol.xs))
+    lines = [ln for ln in err.splitlines() if ln.startswith("  ip ")]
+    assert len(lines) == int(sol.iterations) + 1
+    assert [int(ln.split()[1]) for ln in lines] == list(range(int(sol.iterations) + 1))
+    assert f"inf_pr {float(sol.inf_pr):.2e}" in lines[-1]
+    assert f"obj {float(sol.objective): .8e}" in lines[-1]
+
+
 def test_iteration_limit_reports_result_and_residuals(bang_bang):
     prob, _ = bang_bang
     xs0, us0 = _guess(prob.num_stages)

@@ -11,6 +11,7 @@ seeds can be tried, and the best converged optimum is kept.
 
 from __future__ import annotations
 
+import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
@@ -24,7 +25,7 @@ from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
 from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
 from .ip import IPOptions, IPSolution, compile_interior_point, interior_point
-from .ip.solver import canonical_options
+from .ip.solver import canonical_options, print_iteration_log
 from .primitive import Primitive
 from .roads import Road, road as road_by_name
 from .shooting import IDX_TF, NU, NX, ManeuverOCP, PointMassOCP
@@ -169,7 +170,7 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
     ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts); the best
     converged one."""
-    options = canonical_options(options)  # the arrays' dtypes of the compiled program
+    verbose, options = options.verbose, canonical_options(options)  # the compiled program's
     M, n_pad = prob.num_stages, -(-n // len(jax.devices())) * len(jax.devices())
     with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
         pending = pool.submit(lambda: _solve_starts.lower(
@@ -182,6 +183,10 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
     sols = solve(prob, xs0, us0, options, _starts_batch_size())
     sols = jax.tree.map(lambda a: a[:n], sols)
+    if verbose:
+        for k in range(n):
+            print(f"start {k}:", file=sys.stderr)
+            print_iteration_log(jax.tree.map(lambda a: a[k], sols))
     converged = np.asarray(sols.converged)
     if throw and not converged.any():
         raise RuntimeError(f"interior point did not converge from any of the {n} starts: "

@@ -24,4 +24,5 @@ from .solver import (
     IPSolution as IPSolution,
     compile_interior_point as compile_interior_point,
     interior_point as interior_point,
+    print_iteration_log as print_iteration_log,
 )

@@ -27,11 +27,13 @@ together.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..._checks import is_concrete
@@ -72,7 +74,9 @@ class IPOptions(eqx.Module):
     'least-squares' (the defect and equality multipliers that minimise the first Lagrangian
     gradient, IPOPT's default) or 'zero'; ``bound_multiplier_init``: 'constant' ($z = 1$,
     IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
-    ``verbose``: print one line per iteration to stderr."""
+    ``verbose``: print the iteration log to stderr when the solve returns
+    (`print_iteration_log`; not part of the compiled program, so the quiet and the verbose
+    solve are one program, and it can be written to the persistent compilation cache)."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -189,6 +193,7 @@ def interior_point(
     **Returns:** an `IPSolution`.
     """
     sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    _report(sol, options)
     return _raise_if_failed(sol) if throw else sol
 
 
@@ -212,18 +217,45 @@ def compile_interior_point(
     def solve(prob, xs0, us0, options=options, *, throw=True) -> IPSolution:
         sol = compiled(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
                        canonical_options(options))
+        _report(sol, options)
         return _raise_if_failed(sol) if throw else sol
 
     return solve
 
 
 def canonical_options(options: IPOptions) -> IPOptions:
-    """The options with their arrays in the current default dtypes: an `IPOptions` built
-    before float64 was switched on (a default argument, at import) then compiles the same
-    program as one built after."""
-    return eqx.tree_at(lambda o: (o.max_iter, o.mu0), options,
-                       (jnp.asarray(options.max_iter, dtype=int),
-                        jnp.asarray(options.mu0, dtype=float)))
+    """The options as the compiled program takes them: arrays in the current default dtypes
+    (an `IPOptions` built before float64 was switched on, a default argument at import, then
+    compiles the same program as one built after) and ``verbose`` off (the log is printed
+    on the host when the solve returns)."""
+    return dataclasses.replace(options, max_iter=jnp.asarray(options.max_iter, dtype=int),
+                               mu0=jnp.asarray(options.mu0, dtype=float), verbose=False)
+
+
+def print_iteration_log(sol: IPSolution, file=None) -> None:
+    """One line per iteration of a finished solve, from its log: objective, ``inf_pr``,
+    ``inf_du``, barrier ``mu``, step ``alpha``, regularisation ``reg`` and line-search
+    trials ``ls`` (the last line is the iterate returned). ``file``: default stderr."""
+    log = jax.tree.map(np.asarray, sol.log)
+    n = min(int(sol.iterations) + 1, log.mu.shape[0])
+    for i in range(n):
+        if np.isnan(log.mu[i]):
+            break
+        print(f"  ip {i:4d}  obj {log.objective[i]: .8e}  inf_pr {log.inf_pr[i]:.2e}  "
+              f"inf_du {log.inf_du[i]:.2e}  mu {log.mu[i]:.1e}  alpha {log.alpha[i]:.2e}  "
+              f"reg {log.regularisation[i]:.1e}  ls {int(log.trials[i])}",
+              file=sys.stderr if file is None else file, flush=True)
+
+
+def _report(sol: IPSolution, options: IPOptions) -> None:
+    """`print_iteration_log` if ``options.verbose``: at once for a concrete solution, through
+    a host callback when traced (inside the caller's `jit` or `vmap`)."""
+    if not options.verbose:
+        return
+    if is_concrete(sol.iterations):
+        print_iteration_log(sol)
+    else:
+        jax.debug.callback(lambda s: print_iteration_log(s), sol)
 
 
 def _raise_if_failed(sol: IPSolution) -> IPSolution:
@@ -315,11 +347,6 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
                         inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta,
                         factorisations=step.factorisations, trials=n_trials)
-    if options.verbose:
-        jax.lax.cond(setup, lambda *a: None,
-                     lambda *a: jax.debug.callback(_print_iteration, *a),
-                     st.iteration, d.objective, res.inf_pr, res.inf_du, mu, alpha, step.delta,
-                     n_trials)
     finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
     # keep the iterate whose residuals are reported when the loop ends on this pass
     hold = converged | ~finite | (st.iteration == options.max_iter - 1) & ~setup
@@ -358,13 +385,3 @@ def _take_step(lay: StageLayout, it: Iterate, step: NewtonStep, alpha, alpha_dua
     z = jnp.where(mg > 0, jnp.clip(z, mu / (KAPPA_SIGMA * s), KAPPA_SIGMA * mu / s), 0.0)
     return Iterate(ys=it.ys + alpha * step.dy, s=s, z=z, lam=it.lam + alpha * step.dlam,
                    nu=it.nu + alpha * step.dnu)
-
-
-def _print_iteration(it, f, inf_pr, inf_du, mu, alpha, delta, n_trials):
-    print(
-        f"  ip {int(it):4d}  obj {float(f): .8e}  inf_pr {float(inf_pr):.2e}  "
-        f"inf_du {float(inf_du):.2e}  mu {float(mu):.1e}  alpha {float(alpha):.2e}  "
-        f"reg {float(delta):.1e}  ls {int(n_trials)}",
-        file=sys.stderr,
-        flush=True,
-    )
