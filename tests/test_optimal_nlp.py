@@ -15,6 +15,7 @@ from vehsim.optimal.ip import (
 )
 from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
 from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve
+from vehsim.optimal.ip.solver import _solve, canonical_options
 
 
 class RestToRest(AbstractStagewiseNLP):
@@ -120,6 +121,48 @@ def test_verbose_prints_the_iteration_log_and_compiles_the_quiet_program(bang_ba
     assert [int(ln.split()[1]) for ln in lines] == list(range(int(sol.iterations) + 1))
     assert f"inf_pr {float(sol.inf_pr):.2e}" in lines[-1]
     assert f"obj {float(sol.objective): .8e}" in lines[-1]
+
+
+def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_path,
+                                                              monkeypatch):
+    """With the persistent cache on, `interior_point` exports its program (one file in the
+    cache's exported folder) and computes the jit path's solution bit for bit; a process
+    with nothing in memory loads the file (nothing is exported again); a static option that
+    changes the program is another file; a traced call (vmap) keeps the jit path; an
+    unreadable file is exported again."""
+    import vehsim.compilation_cache as cc
+
+    prob, _ = bang_bang
+    xs0, us0 = _guess(prob.num_stages)
+    monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
+    monkeypatch.setattr(cc, "_programs", {})
+    jitted = _solve(prob, xs0, us0, canonical_options(IPOptions()))
+    first = interior_point(prob, xs0, us0)
+    (path,) = tmp_path.glob("interior_point-*.bin")
+    np.testing.assert_array_equal(np.asarray(first.xs), np.asarray(jitted.xs))
+
+    def no_export(*args, **kwargs):
+        raise AssertionError("exported again")
+
+    monkeypatch.setattr(cc, "_programs", {})  # as in a new process
+    with monkeypatch.context() as m:
+        m.setattr(jax.export, "export", no_export)
+        again = interior_point(prob, xs0, us0, IPOptions(max_iter=200))  # same program
+    assert len(cc._programs) == 1
+    np.testing.assert_array_equal(np.asarray(again.xs), np.asarray(first.xs))
+
+    jax.vmap(lambda a: interior_point(eqx.tree_at(lambda q: q.amax, prob, a), xs0, us0,
+                                      throw=False).xs)(jnp.array([5.0, 6.0]))
+    assert len(list(tmp_path.glob("*.bin"))) == 1
+    tighter = interior_point(prob, xs0, us0, IPOptions(tol=1e-10))
+    assert len(list(tmp_path.glob("*.bin"))) == 2
+    assert float(tighter.xs[-1, 4]) == pytest.approx(float(first.xs[-1, 4]), abs=1e-6)
+
+    path.write_bytes(b"not a program")
+    monkeypatch.setattr(cc, "_programs", {})
+    mended = interior_point(prob, xs0, us0)
+    np.testing.assert_array_equal(np.asarray(mended.xs), np.asarray(first.xs))
+    assert path.stat().st_size > 1000
 
 
 def test_iteration_limit_reports_result_and_residuals(bang_bang):

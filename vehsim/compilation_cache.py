@@ -22,14 +22,28 @@ the second run of a notebook, both ways: docs/performance.md.
 The command line (`vehsim ...`) switches the cache on by itself (`command_line_cache`), in
 `default_cache_dir` or the folder JAX was already given (``JAX_COMPILATION_CACHE_DIR``);
 ``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1`` turn it off.
+
+JAX's cache saves the compilation, not the tracing and lowering before it, which for the
+interior-point solve of a maneuver takes longer than loading the compiled program. While the
+cache is on, the solver's program is also kept as an exported program (`jax.export`, in the
+``exported`` subfolder; `exported_program`): a later process loads it and goes straight to
+the (cached) compilation.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
 
+import equinox as eqx
 import jax
+import numpy as np
+
+from ._io import write_atomic
 
 
 def default_cache_dir() -> Path:
@@ -81,3 +95,105 @@ def command_line_cache(disabled: bool = False) -> Path | None:
         jax.config.update("jax_enable_compilation_cache", False)
         return None
     return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None)
+
+
+EXPORTED_FOLDER = "exported"
+"""Subfolder of the compilation cache holding `exported_program`'s serialized programs."""
+
+_TRACING_FLAGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
+                  "jax_numpy_dtype_promotion")
+"""JAX settings that change what a function traces to (part of an exported program's key)."""
+
+_programs: dict[str, Callable] = {}
+_programs_lock = threading.Lock()
+
+
+def exported_program(name: str, fn: Callable, args: tuple, out_tree) -> Callable | None:
+    r"""``fn`` compiled for arguments structured as ``args`` (their array values do not
+    matter), through a program exported to the compilation cache, or None when JAX's
+    persistent cache is off or the arguments cannot key a program on disk (tracers, or
+    static parts whose ``repr`` loses information).
+
+    The program is found by a hash of ``name``, the arguments' tree structure with its
+    static fields, their shapes and dtypes, the backend, the JAX settings that change the
+    traced program (float64, matmul precision, promotion rules), ``EQX_ON_ERROR``, the
+    versions of JAX, jaxlib and equinox, and the source of vehsim itself (a changed model or
+    solver is a new program). A missing program is exported (`jax.export`: traced and lowered
+    once, written atomically to ``<cache>/exported/``); a present one is deserialized,
+    skipping the tracing and lowering, and JAX's cache then provides the compilation.
+
+    **Arguments:** ``name`` of the program in the file names; ``fn`` (pure, arrays in and a
+    pytree of arrays out); ``args``; ``out_tree``: the tree structure of ``fn``'s output
+    (the exported program returns its leaves).
+
+    **Returns:** ``call(*args)`` with ``args`` of the same structure, or None.
+    """
+    folder = _exported_folder()
+    if folder is None:
+        return None
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, treedef = jax.tree.flatten(dynamic)
+    if not all(isinstance(x, jax.Array | np.ndarray) and not isinstance(x, jax.core.Tracer)
+               for x in leaves):
+        return None
+    material = "\n".join([
+        name, _source_fingerprint(), str(treedef), repr(jax.tree.leaves(static)),
+        repr([(x.shape, str(x.dtype)) for x in leaves]), jax.default_backend(),
+        *(str(getattr(jax.config, flag)) for flag in _TRACING_FLAGS),
+        os.environ.get("EQX_ON_ERROR", ""),
+    ])
+    if "..." in material or " at 0x" in material:  # a lossy repr cannot key a program
+        return None
+    key = hashlib.sha256(material.encode()).hexdigest()[:32]
+    with _programs_lock:
+        if key in _programs:
+            return _programs[key]
+    path = folder / f"{name}-{key}.bin"
+    exported = _load_exported(path)
+    if exported is None:
+        def flat(*flat_leaves):
+            out = fn(*eqx.combine(jax.tree.unflatten(treedef, flat_leaves), static))
+            if jax.tree.structure(out) != out_tree:
+                raise TypeError(f"{name}: the output's structure is not out_tree")
+            return jax.tree.leaves(out)
+
+        avals = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+        exported = jax.export.export(jax.jit(flat))(*avals)
+        write_atomic(path, bytes(exported.serialize()))
+    compiled = jax.jit(exported.call).lower(*leaves).compile()
+
+    def call(*call_args):
+        flat_leaves = jax.tree.leaves(eqx.filter(call_args, eqx.is_array))
+        return jax.tree.unflatten(out_tree, compiled(*flat_leaves))
+
+    with _programs_lock:
+        _programs[key] = call
+    return call
+
+
+def _exported_folder() -> Path | None:
+    if not (jax.config.jax_enable_compilation_cache and jax.config.jax_compilation_cache_dir):
+        return None
+    return Path(jax.config.jax_compilation_cache_dir) / EXPORTED_FOLDER
+
+
+def _load_exported(path: Path):
+    """The exported program at ``path``; None when absent or unreadable (a partial or foreign
+    file is exported again)."""
+    try:
+        return jax.export.deserialize(bytearray(path.read_bytes()))
+    except Exception:  # absent, truncated or from another serialization version
+        return None
+
+
+@functools.cache
+def _source_fingerprint() -> str:
+    """Hash of the library versions and every source file of vehsim."""
+    import jaxlib
+
+    h = hashlib.sha256(f"{jax.__version__} {jaxlib.__version__} {eqx.__version__}".encode())
+    root = Path(__file__).resolve().parent
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()

@@ -28,6 +28,7 @@ together.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 
 import equinox as eqx
@@ -39,6 +40,7 @@ from jaxtyping import Array, Float, Int
 from ..._checks import is_concrete
 from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
+from ...compilation_cache import exported_program
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_values
 from .kkt import (
@@ -192,7 +194,9 @@ def interior_point(
 
     **Returns:** an `IPSolution`.
     """
-    sol = _solve(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    args = (prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    exported = exported_program("interior_point", _solve, args, _solution_tree())
+    sol = _solve(*args) if exported is None else exported(*args)
     _report(sol, options)
     return _raise_if_failed(sol) if throw else sol
 
@@ -211,8 +215,9 @@ def compile_interior_point(
     run in a thread while the caller builds the starting guess (as `min_time_primitive`
     does: the point-mass seed is compiled and solved meanwhile).
     """
-    compiled = _solve.lower(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
-                            canonical_options(options)).compile()
+    args = (prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    compiled = (exported_program("interior_point", _solve, args, _solution_tree())
+                or _solve.lower(*args).compile())
 
     def solve(prob, xs0, us0, options=options, *, throw=True) -> IPSolution:
         sol = compiled(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
@@ -230,6 +235,16 @@ def canonical_options(options: IPOptions) -> IPOptions:
     on the host when the solve returns)."""
     return dataclasses.replace(options, max_iter=jnp.asarray(options.max_iter, dtype=int),
                                mu0=jnp.asarray(options.mu0, dtype=float), verbose=False)
+
+
+@functools.cache
+def _solution_tree():
+    """The tree structure of every `IPSolution` (its leaves are arrays whatever the sizes)."""
+    empty = IPLog.empty(1)
+    return jax.tree.structure(IPSolution(
+        xs=empty.mu, us=empty.mu, lam=empty.mu, nu=empty.mu, z=empty.mu,
+        result=RESULTS.successful, iterations=empty.trials, objective=empty.mu,
+        inf_pr=empty.mu, inf_du=empty.mu, compl=empty.mu, log=empty))
 
 
 def print_iteration_log(sol: IPSolution, file=None) -> None:
