@@ -1,6 +1,6 @@
 """`python -m vehsim`: the command line (`vehsim.cli`)."""
 
-from .cli import main
+from .cli import run
 
 
-raise SystemExit(main())
+run()

@@ -87,14 +87,18 @@ NO_CACHE_VARIABLE = "VEHSIM_NO_COMPILATION_CACHE"
 def command_line_cache(disabled: bool = False) -> Path | None:
     """The command line's cache: off if `disabled` or ``$VEHSIM_NO_COMPILATION_CACHE`` is
     1/true/yes (JAX's cache then switched off altogether, whatever else configured it),
-    else `enable_compilation_cache` in the folder JAX was given, or `default_cache_dir`.
+    else `enable_compilation_cache` in the folder JAX was given, or `default_cache_dir`,
+    for every program however quickly it compiled: a command's dozens of small programs
+    (array operations outside the solvers, the solution record's) load from the cache in
+    less time than they compile.
 
     **Returns:** the cache folder, or None when off.
     """
     if disabled or os.environ.get(NO_CACHE_VARIABLE, "").strip().lower() in ("1", "true", "yes"):
         jax.config.update("jax_enable_compilation_cache", False)
         return None
-    return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None)
+    return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None,
+                                    min_compile_time=0.0)
 
 
 EXPORTED_FOLDER = "exported"
@@ -108,7 +112,14 @@ _programs: dict[str, Callable] = {}
 _programs_lock = threading.Lock()
 
 
-def exported_program(name: str, fn: Callable, args: tuple, out_tree) -> Callable | None:
+def exported_call(name: str, fn: Callable, args: tuple, out_tree=None):
+    """``fn(*args)``, through `exported_program` when it gives one, else ``fn`` itself (a
+    jitted function: JAX's own tracing and cache)."""
+    program = exported_program(name, fn, args, out_tree)
+    return fn(*args) if program is None else program(*args)
+
+
+def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Callable | None:
     r"""``fn`` compiled for arguments structured as ``args`` (their array values do not
     matter), through a program exported to the compilation cache, or None when JAX's
     persistent cache is off or the arguments cannot key a program on disk (tracers, or
@@ -124,7 +135,8 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree) -> Callable
 
     **Arguments:** ``name`` of the program in the file names; ``fn`` (pure, arrays in and a
     pytree of arrays out); ``args``; ``out_tree``: the tree structure of ``fn``'s output
-    (the exported program returns its leaves).
+    when it holds other nodes than tuples, lists and dicts (the exported program then
+    returns its leaves).
 
     **Returns:** ``call(*args)`` with ``args`` of the same structure, or None.
     """
@@ -153,6 +165,8 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree) -> Callable
     if exported is None:
         def flat(*flat_leaves):
             out = fn(*eqx.combine(jax.tree.unflatten(treedef, flat_leaves), static))
+            if out_tree is None:
+                return out
             if jax.tree.structure(out) != out_tree:
                 raise TypeError(f"{name}: the output's structure is not out_tree")
             return jax.tree.leaves(out)
@@ -164,7 +178,8 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree) -> Callable
 
     def call(*call_args):
         flat_leaves = jax.tree.leaves(eqx.filter(call_args, eqx.is_array))
-        return jax.tree.unflatten(out_tree, compiled(*flat_leaves))
+        out = compiled(*flat_leaves)
+        return out if out_tree is None else jax.tree.unflatten(out_tree, out)
 
     with _programs_lock:
         _programs[key] = call

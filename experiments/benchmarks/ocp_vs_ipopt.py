@@ -36,12 +36,15 @@ import os
 import sys
 import time
 
-import casadi as ca
 import jax
 import numpy as np
 
 
 jax.config.update("jax_enable_x64", True)
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # also when loaded by path
+import _casadi_maneuver as _casadi  # noqa: E402
+from _casadi_maneuver import LIMIT_NAMES, road_data  # noqa: E402
 
 from vehsim import result_name  # noqa: E402
 from vehsim.optimal.guesses import car_guess  # noqa: E402
@@ -59,127 +62,14 @@ from vehsim.optimal.shooting import (  # noqa: E402
 )
 
 
-def _smooth_max(a, b, eps=SMOOTHING):
-    t = (a - b) / eps
-    t2 = t * t
-    p = ca.if_else(ca.fabs(t) < 1.0, t2 * (15.0 / 8.0 - t2 * (5.0 / 4.0 - t2 * 3.0 / 8.0)),
-                   ca.fabs(t))
-    return 0.5 * (a + b) + 0.5 * eps * p
+LIMITS = dict(SMOOTHING=SMOOTHING, SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN,
+              KAPPA_MAX=KAPPA_MAX, DELTA_MAX=DELTA_MAX, TF_MIN=TF_MIN)
+assert set(LIMITS) == set(LIMIT_NAMES)
 
 
-def _corridor(rd, x, y):
-    xmin, xmax, ymin, ymax = rd.outer
-    cons = []
-    if xmin is not None:
-        cons.append(x - xmin)
-    if xmax is not None:
-        cons.append(xmax - x)
-    if ymin is not None:
-        cons.append(y - ymin)
-    if ymax is not None:
-        cons.append(ymax - y)
-    for planes in rd.corners:
-        vals = [nx * x + ny * y - b for nx, ny, b in planes]
-        m = vals[0]
-        for v in vals[1:]:
-            m = _smooth_max(m, v)
-        cons.append(m)
-    return cons
-
-
-def casadi_model(D):
-    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
-    docs/maneuvers.md)."""
-    m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
-    B, C = 7.0, 1.6
-    X = ca.SX.sym("X", 10)
-    v = ca.SX.sym("v", 3)
-    psi, vx, vy, r, kF, kR, d, tf = X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9]
-    VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
-    VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
-    VRx, VRy = vx, vy - lR * r
-
-    def mu(kappa, Vx, Vy):
-        sx = -kappa / (1 + kappa)
-        sy = (Vy / Vx) / (1 + kappa)
-        s = ca.sqrt(sx * sx + sy * sy + 1e-18)
-        g_ = D * ca.sin(C * ca.atan(B * s)) / s
-        return -sx * g_, -sy * g_
-
-    muFx, muFy = mu(kF, VFx, VFy)
-    muRx, muRy = mu(kR, VRx, VRy)
-    muFb = muFx * ca.cos(d) - muFy * ca.sin(d)
-    FzF = m * g * (lR - h * muRx) / (lF + lR + h * (muFb - muRx))
-    FzR = m * g - FzF
-    fFx, fFy, fRx, fRy = muFx * FzF, muFy * FzF, muRx * FzR, muRy * FzR
-    Fbx = fFx * ca.cos(d) - fFy * ca.sin(d) + fRx
-    Fby = fFx * ca.sin(d) + fFy * ca.cos(d) + fRy
-    Mz = (fFy * ca.cos(d) + fFx * ca.sin(d)) * lF - fRy * lR
-    rates = ca.vertcat(vx * ca.cos(psi) - vy * ca.sin(psi), vx * ca.sin(psi) + vy * ca.cos(psi),
-                       r, Fbx / m + r * vy, Fby / m - r * vx, Mz / Iz)
-    dX = ca.vertcat(tf * rates, v, 0)
-    return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [ca.vertcat(VFx, VRx)])
-
-
-def ipopt_solve(rd, objective, D, N, xs0, us0, method="rk4", tf_max=4.0, rate_weight=1e-5,
-                warm=None):
-    f, axles = casadi_model(D)
-    opti = ca.Opti()
-    X = opti.variable(10, N + 1)
-    V = opti.variable(3, N)
-    h = 1.0 / N
-    for k in range(N):
-        xk, vk = X[:, k], V[:, k]
-        if method == "rk4":
-            k1 = f(xk, vk)
-            k2 = f(xk + 0.5 * h * k1, vk)
-            k3 = f(xk + 0.5 * h * k2, vk)
-            k4 = f(xk + h * k3, vk)
-            opti.subject_to(X[:, k + 1] == xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4))
-        else:
-            opti.subject_to(X[:, k + 1] == xk + h / 2 * (f(xk, vk) + f(X[:, k + 1], vk)))
-    for k in range(N + 1):
-        xk = X[:, k]
-        for c in _corridor(rd, xk[0], xk[1]):
-            opti.subject_to(c >= 0)
-        opti.subject_to(axles(xk) >= SPEED_FLOOR)
-        opti.subject_to(opti.bounded(KAPPA_MIN, xk[6], KAPPA_MAX))
-        opti.subject_to(opti.bounded(KAPPA_MIN, xk[7], KAPPA_MAX))
-        opti.subject_to(opti.bounded(-DELTA_MAX, xk[8], DELTA_MAX))
-        opti.subject_to(xk[9] >= TF_MIN)
-    names = {"x": 0, "y": 1, "psi": 2, "yaw_rate": 5}
-    for bset, xk in ((rd.start, X[:, 0]), (rd.end, X[:, N])):
-        for n, val in bset.fixed:
-            opti.subject_to(xk[names[n]] == val)
-        for n, (lo, hi) in bset.box:
-            opti.subject_to(opti.bounded(lo, xk[names[n]], hi))
-        psi, vx, vy = xk[2], xk[3], xk[4]
-        lat = (vx * ca.sin(psi) + vy * ca.cos(psi) if bset.zero_velocity == "y"
-               else vx * ca.cos(psi) - vy * ca.sin(psi))
-        opti.subject_to(lat == 0)
-    reg = rate_weight * ca.sumsqr(V) / N
-    if objective == "min-time":
-        opti.minimize(X[9, N] + reg)
-    else:
-        opti.subject_to(X[9, N] <= tf_max)
-        opti.minimize(-ca.sqrt(X[3, N] ** 2 + X[4, N] ** 2) + reg)
-    opti.set_initial(X, np.asarray(xs0).T)
-    opti.set_initial(V, np.asarray(us0).T)
-    opti.solver("ipopt", {"print_time": False},
-                {"print_level": 0, "tol": 1e-8, "max_iter": 3000, "linear_solver": "mumps",
-                 "sb": "yes"})
-    t0 = time.perf_counter()
-    try:
-        sol = opti.solve()
-        ok = True
-    except RuntimeError:
-        sol = opti.debug
-        ok = False
-    wall = time.perf_counter() - t0
-    xs = np.asarray(sol.value(X)).T
-    stats = opti.stats()
-    return dict(ok=ok, wall=wall, xs=xs, iterations=int(stats.get("iter_count", -1)),
-                status=str(stats.get("return_status")))
+def ipopt_solve(rd, objective, D, N, xs0, us0, **kwargs):
+    """`_casadi_maneuver.ipopt_solve` on vehsim's road ``rd`` with vehsim's bounds."""
+    return _casadi.ipopt_solve(road_data(rd), LIMITS, objective, D, N, xs0, us0, **kwargs)
 
 
 def _best_time(f, repeats=3):
@@ -235,23 +125,28 @@ def violations(rd, xs):
 
 
 IPOPT_ONCE = """
-import json, sys, time
+import json, sys
 import numpy as np
 sys.path.insert(0, {here!r})
-from ocp_vs_ipopt import ipopt_solve
-from vehsim.optimal.roads import road
-data = np.load(sys.argv[1])
-ip = ipopt_solve(road("corner90"), "min-time", 0.52, {N}, data["xs"], data["us"])
-with open(sys.argv[2], "w") as f:
+from _casadi_maneuver import ipopt_solve
+problem = json.load(open(sys.argv[1]))
+data = np.load(sys.argv[2])
+ip = ipopt_solve(problem["road"], problem["limits"], "min-time", 0.52, {N}, data["xs"],
+                 data["us"])
+with open(sys.argv[3], "w") as f:
     json.dump(dict(t_f=float(ip["xs"][-1, 9]), status=ip["status"], xs=ip["xs"].tolist()), f)
+assert "jax" not in sys.modules
 """
 
 
-def end_to_end(N: int) -> None:
-    """From process start to files written: ``vehsim optimise corner90`` with an empty
-    compilation cache (cold) and again with the one it filled (warm), and a process that
-    builds the same problem in CasADi, solves it with IPOPT from the same car guess (read
-    from a file: computing it is vehsim's work) and writes its JSON."""
+def end_to_end(N: int, repeats: int = 3) -> None:
+    """From process start to files written: ``vehsim optimise corner90`` (the default
+    command, progress lines included) with an empty compilation cache (cold) and then
+    ``repeats`` times with the cache it filled (warm; the median is the headline), and a
+    process that builds the same problem in CasADi, solves it with IPOPT from the same car
+    guess and writes its JSON (median of ``repeats`` processes). The IPOPT process imports
+    CasADi and NumPy only (`_casadi_maneuver`): the road, bounds and guess come from files,
+    computing them being vehsim's work."""
     import subprocess
     import tempfile
     from pathlib import Path
@@ -260,29 +155,33 @@ def end_to_end(N: int) -> None:
     root = str(Path(here).parent.parent)
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["PYTHONPATH"] = root
+
+    def wall(cmd):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, env=env, check=True, capture_output=True)
+        return time.perf_counter() - t0
+
     with tempfile.TemporaryDirectory() as tmp:
         env["VEHSIM_CACHE_DIR"] = str(Path(tmp) / "cache")
         cmd = [sys.executable, "-m", "vehsim", "optimise", "corner90", "--segments", str(N),
-               "--quiet", "--out", str(Path(tmp) / "out")]
-        walls = []
-        for _ in range(2):
-            t0 = time.perf_counter()
-            subprocess.run(cmd, env=env, check=True, capture_output=True)
-            walls.append(time.perf_counter() - t0)
+               "--out", str(Path(tmp) / "out")]
+        cold = wall(cmd)
+        warm = [wall(cmd) for _ in range(repeats)]
         rec = json.loads((Path(tmp) / "out" / "corner90_min-time.json").read_text())
         xs0, us0 = car_guess(rally_gravel_car(), road_by_name("corner90"), N, 1)
         np.savez(Path(tmp) / "guess.npz", xs=np.asarray(xs0), us=np.asarray(us0))
+        (Path(tmp) / "problem.json").write_text(json.dumps(dict(
+            road=road_data(road_by_name("corner90")), limits=LIMITS)))
         script = IPOPT_ONCE.format(here=here, N=N)
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", script, str(Path(tmp) / "guess.npz"),
-                        str(Path(tmp) / "ipopt.json")], env=env, check=True,
-                       capture_output=True)
-        ipopt_wall = time.perf_counter() - t0
+        ipopt = [wall([sys.executable, "-c", script, str(Path(tmp) / "problem.json"),
+                       str(Path(tmp) / "guess.npz"), str(Path(tmp) / "ipopt.json")])
+                 for _ in range(repeats)]
         ip = json.loads((Path(tmp) / "ipopt.json").read_text())
+    warm_s, ipopt_s = float(np.median(warm)), float(np.median(ipopt))
     print(json.dumps(dict(
-        problem="corner90:min-time end to end", segments=N, end_to_end_cold_s=walls[0],
-        end_to_end_warm_s=walls[1], ipopt_end_to_end_s=ipopt_wall,
-        ratio_warm=ipopt_wall / walls[1], ratio_cold=ipopt_wall / walls[0],
+        problem="corner90:min-time end to end", segments=N, end_to_end_cold_s=cold,
+        end_to_end_warm_s=warm_s, end_to_end_warm_runs_s=warm, ipopt_end_to_end_s=ipopt_s,
+        ipopt_end_to_end_runs_s=ipopt, ratio_warm=ipopt_s / warm_s, ratio_cold=ipopt_s / cold,
         vehsim_t_f=rec["t_f"], vehsim_status=rec["status"], ipopt_t_f=ip["t_f"],
         ipopt_status=ip["status"], loadavg=os.getloadavg()[0],
     )), flush=True)

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._results import result_name, result_record
+from ..compilation_cache import exported_call
 from .ip import IPSolution
 from .shooting import DELTA_MAX, IDX_TF, ManeuverOCP
 
@@ -45,7 +46,7 @@ class Primitive(eqx.Module):
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
-        return _nodes(self.problem, self.solution)
+        return exported_call("nodes", _nodes, (self.problem, self.solution))
 
     def time(self):
         n = self.nodes()
@@ -63,8 +64,8 @@ class Primitive(eqx.Module):
         constraints are not imposed, found by re-integrating every segment with `substeps`
         RK4 steps per step (`fine_nodes`)."""
         prob = self.problem
-        n, fine, bc, defects = (np.asarray(a) for a in _violation_arrays(
-            prob, self.solution, substeps))
+        n, fine, bc, defects = (np.asarray(a) for a in exported_call(
+            "violations", _violation_arrays, (prob, self.solution, substeps)))
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
         between = rd.distance_off_road(fine[:, 0], fine[:, 1])
@@ -95,7 +96,8 @@ def _signals(vehicle, nodes) -> dict:
 
 def _node_signals(vehicle, nodes) -> dict:
     """Named signals of `vehicle` at the car's nodes (states, then the inputs)."""
-    return {k: np.asarray(v) for k, v in _signals(vehicle, jnp.asarray(nodes)).items()}
+    signals = exported_call("signals", _signals, (vehicle, jnp.asarray(nodes)))
+    return {k: np.asarray(v) for k, v in signals.items()}
 
 
 @eqx.filter_jit

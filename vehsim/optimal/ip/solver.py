@@ -40,7 +40,7 @@ from jaxtyping import Array, Float, Int
 from ..._checks import is_concrete
 from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
-from ...compilation_cache import exported_program
+from ...compilation_cache import exported_call, exported_program
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_values
 from .kkt import (
@@ -195,8 +195,7 @@ def interior_point(
     **Returns:** an `IPSolution`.
     """
     args = (prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
-    exported = exported_program("interior_point", _solve, args, _solution_tree())
-    sol = _solve(*args) if exported is None else exported(*args)
+    sol = exported_call("interior_point", _solve, args, _solution_tree())
     _report(sol, options)
     return _raise_if_failed(sol) if throw else sol
 

@@ -1,0 +1,160 @@
+"""The maneuver problem of ocp_vs_ipopt in CasADi, solved by IPOPT: the reduced half-car,
+the corridor with the same smooth inner corners, the bounds and the boundary conditions.
+
+This module imports neither JAX nor vehsim, so that a process timing CasADi + IPOPT from
+start to finish (``ocp_vs_ipopt.py --end-to-end``) pays only for what a CasADi user's script
+would: the road (`road_data`) and the bounds (`LIMIT_NAMES`) arrive as plain data.
+"""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+
+
+LIMIT_NAMES = ("SMOOTHING", "SPEED_FLOOR", "KAPPA_MIN", "KAPPA_MAX", "DELTA_MAX", "TF_MIN")
+"""The bounds of the maneuver problem (vehsim.optimal.roads/shooting), in ``limits``."""
+
+
+def road_data(rd) -> dict:
+    """A road (vehsim's `Road`, or anything with the same attributes) as plain JSON data."""
+    ends = {k: dict(fixed=[list(f) for f in b.fixed], box=[[n, list(lh)] for n, lh in b.box],
+                    zero_velocity=b.zero_velocity)
+            for k, b in (("start", rd.start), ("end", rd.end))}
+    return dict(outer=list(rd.outer), corners=[[list(p) for p in c] for c in rd.corners], **ends)
+
+
+def _road(data: dict):
+    end = {k: SimpleNamespace(fixed=[tuple(f) for f in data[k]["fixed"]],
+                              box=[(n, tuple(lh)) for n, lh in data[k]["box"]],
+                              zero_velocity=data[k]["zero_velocity"]) for k in ("start", "end")}
+    return SimpleNamespace(outer=tuple(data["outer"]), corners=data["corners"], **end)
+
+
+def _smooth_max(a, b, eps):
+    t = (a - b) / eps
+    t2 = t * t
+    p = ca.if_else(ca.fabs(t) < 1.0, t2 * (15.0 / 8.0 - t2 * (5.0 / 4.0 - t2 * 3.0 / 8.0)),
+                   ca.fabs(t))
+    return 0.5 * (a + b) + 0.5 * eps * p
+
+
+def _corridor(rd, x, y, eps):
+    xmin, xmax, ymin, ymax = rd.outer
+    cons = []
+    if xmin is not None:
+        cons.append(x - xmin)
+    if xmax is not None:
+        cons.append(xmax - x)
+    if ymin is not None:
+        cons.append(y - ymin)
+    if ymax is not None:
+        cons.append(ymax - y)
+    for planes in rd.corners:
+        vals = [nx * x + ny * y - b for nx, ny, b in planes]
+        m = vals[0]
+        for v in vals[1:]:
+            m = _smooth_max(m, v, eps)
+        cons.append(m)
+    return cons
+
+
+def casadi_model(D):
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
+    docs/maneuvers.md)."""
+    m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
+    B, C = 7.0, 1.6
+    X = ca.SX.sym("X", 10)
+    v = ca.SX.sym("v", 3)
+    psi, vx, vy, r, kF, kR, d, tf = X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9]
+    VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
+    VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
+    VRx, VRy = vx, vy - lR * r
+
+    def mu(kappa, Vx, Vy):
+        sx = -kappa / (1 + kappa)
+        sy = (Vy / Vx) / (1 + kappa)
+        s = ca.sqrt(sx * sx + sy * sy + 1e-18)
+        g_ = D * ca.sin(C * ca.atan(B * s)) / s
+        return -sx * g_, -sy * g_
+
+    muFx, muFy = mu(kF, VFx, VFy)
+    muRx, muRy = mu(kR, VRx, VRy)
+    muFb = muFx * ca.cos(d) - muFy * ca.sin(d)
+    FzF = m * g * (lR - h * muRx) / (lF + lR + h * (muFb - muRx))
+    FzR = m * g - FzF
+    fFx, fFy, fRx, fRy = muFx * FzF, muFy * FzF, muRx * FzR, muRy * FzR
+    Fbx = fFx * ca.cos(d) - fFy * ca.sin(d) + fRx
+    Fby = fFx * ca.sin(d) + fFy * ca.cos(d) + fRy
+    Mz = (fFy * ca.cos(d) + fFx * ca.sin(d)) * lF - fRy * lR
+    rates = ca.vertcat(vx * ca.cos(psi) - vy * ca.sin(psi), vx * ca.sin(psi) + vy * ca.cos(psi),
+                       r, Fbx / m + r * vy, Fby / m - r * vx, Mz / Iz)
+    dX = ca.vertcat(tf * rates, v, 0)
+    return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [ca.vertcat(VFx, VRx)])
+
+
+def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4", tf_max=4.0,
+                rate_weight=1e-5, warm=None):
+    """Build the problem on ``road`` (`road_data`) with ``limits`` (`LIMIT_NAMES`) and solve it
+    from (``xs0``, ``us0``); the solver call is timed (``wall``)."""
+    rd, lim = _road(road), SimpleNamespace(**limits)
+    f, axles = casadi_model(D)
+    opti = ca.Opti()
+    X = opti.variable(10, N + 1)
+    V = opti.variable(3, N)
+    h = 1.0 / N
+    for k in range(N):
+        xk, vk = X[:, k], V[:, k]
+        if method == "rk4":
+            k1 = f(xk, vk)
+            k2 = f(xk + 0.5 * h * k1, vk)
+            k3 = f(xk + 0.5 * h * k2, vk)
+            k4 = f(xk + h * k3, vk)
+            opti.subject_to(X[:, k + 1] == xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4))
+        else:
+            opti.subject_to(X[:, k + 1] == xk + h / 2 * (f(xk, vk) + f(X[:, k + 1], vk)))
+    for k in range(N + 1):
+        xk = X[:, k]
+        for c in _corridor(rd, xk[0], xk[1], lim.SMOOTHING):
+            opti.subject_to(c >= 0)
+        opti.subject_to(axles(xk) >= lim.SPEED_FLOOR)
+        opti.subject_to(opti.bounded(lim.KAPPA_MIN, xk[6], lim.KAPPA_MAX))
+        opti.subject_to(opti.bounded(lim.KAPPA_MIN, xk[7], lim.KAPPA_MAX))
+        opti.subject_to(opti.bounded(-lim.DELTA_MAX, xk[8], lim.DELTA_MAX))
+        opti.subject_to(xk[9] >= lim.TF_MIN)
+    names = {"x": 0, "y": 1, "psi": 2, "yaw_rate": 5}
+    for bset, xk in ((rd.start, X[:, 0]), (rd.end, X[:, N])):
+        for n, val in bset.fixed:
+            opti.subject_to(xk[names[n]] == val)
+        for n, (lo, hi) in bset.box:
+            opti.subject_to(opti.bounded(lo, xk[names[n]], hi))
+        psi, vx, vy = xk[2], xk[3], xk[4]
+        lat = (vx * ca.sin(psi) + vy * ca.cos(psi) if bset.zero_velocity == "y"
+               else vx * ca.cos(psi) - vy * ca.sin(psi))
+        opti.subject_to(lat == 0)
+    reg = rate_weight * ca.sumsqr(V) / N
+    if objective == "min-time":
+        opti.minimize(X[9, N] + reg)
+    else:
+        opti.subject_to(X[9, N] <= tf_max)
+        opti.minimize(-ca.sqrt(X[3, N] ** 2 + X[4, N] ** 2) + reg)
+    opti.set_initial(X, np.asarray(xs0).T)
+    opti.set_initial(V, np.asarray(us0).T)
+    opti.solver("ipopt", {"print_time": False},
+                {"print_level": 0, "tol": 1e-8, "max_iter": 3000, "linear_solver": "mumps",
+                 "sb": "yes"})
+    t0 = time.perf_counter()
+    try:
+        sol = opti.solve()
+        ok = True
+    except RuntimeError:
+        sol = opti.debug
+        ok = False
+    wall = time.perf_counter() - t0
+    xs = np.asarray(sol.value(X)).T
+    stats = opti.stats()
+    return dict(ok=ok, wall=wall, xs=xs, iterations=int(stats.get("iter_count", -1)),
+                status=str(stats.get("return_status")))
