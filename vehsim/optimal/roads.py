@@ -34,11 +34,16 @@ def smooth_max(a, b, eps: float = SMOOTHING):
     $p \le |t|$, so the result is $\le \max(a, b)$ (by at most $0.0706\,\epsilon$), with equality
     for $|a - b| \ge \epsilon$.
     """
+    return _smooth_max(a, b, eps, jnp)
+
+
+def _smooth_max(a, b, eps, xp):
+    """`smooth_max` with the array functions of ``xp`` (jax.numpy, or numpy for checks)."""
     t = (a - b) / eps
-    inside = jnp.abs(t) < 1.0
-    ti = jnp.where(inside, t, 0.0)
+    inside = xp.abs(t) < 1.0
+    ti = xp.where(inside, t, 0.0)
     t2 = ti * ti
-    p = jnp.where(inside, t2 * (15.0 / 8.0 - t2 * (5.0 / 4.0 - t2 * 3.0 / 8.0)), jnp.abs(t))
+    p = xp.where(inside, t2 * (15.0 / 8.0 - t2 * (5.0 / 4.0 - t2 * 3.0 / 8.0)), xp.abs(t))
     return 0.5 * (a + b) + 0.5 * eps * p
 
 
@@ -116,6 +121,9 @@ class Road(eqx.Module):
 
         Walls given as ``None`` in ``outer`` are open ends (the start and end lines, which the
         boundary conditions fix; a wall there would duplicate them degenerately)."""
+        return self._corridor(x, y, jnp)
+
+    def _corridor(self, x, y, xp):
         xmin, xmax, ymin, ymax = self.outer
         cons = []
         for wall, val in ((xmin, x - (xmin or 0.0)), (xmax, (xmax or 0.0) - x),
@@ -126,9 +134,9 @@ class Road(eqx.Module):
             vals = [nx_ * x + ny_ * y - b for nx_, ny_, b in planes]
             m = vals[0]
             for v in vals[1:]:
-                m = smooth_max(m, v)
+                m = _smooth_max(m, v, SMOOTHING, xp)
             cons.append(m)
-        return jnp.stack(cons)
+        return xp.stack(cons)
 
     def on_road(self, x, y, tol: float = 1e-9) -> bool:
         """Exact membership of the union of legs (for validation and checks)."""
@@ -175,7 +183,7 @@ class Road(eqx.Module):
                         f"Road {self.name!r}: {label} point ({x}, {y}) is off its leg {leg} "
                         "(boundary set outside the corridor: infeasible)"
                     )
-                c = np.asarray(self.corridor(jnp.asarray(x, float), jnp.asarray(y, float)))
+                c = self._corridor(float(x), float(y), np)
                 if np.any(c < -1e-9):
                     raise ValueError(
                         f"Road {self.name!r}: {label} point ({x}, {y}) violates the corridor "

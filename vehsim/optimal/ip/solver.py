@@ -239,11 +239,12 @@ def canonical_options(options: IPOptions) -> IPOptions:
 @functools.cache
 def _solution_tree():
     """The tree structure of every `IPSolution` (its leaves are arrays whatever the sizes)."""
-    empty = IPLog.empty(1)
+    a = np.zeros(1)
+    log = IPLog(objective=a, inf_pr=a, inf_du=a, mu=a, alpha=a, regularisation=a,
+                factorisations=a, trials=a)
     return jax.tree.structure(IPSolution(
-        xs=empty.mu, us=empty.mu, lam=empty.mu, nu=empty.mu, z=empty.mu,
-        result=RESULTS.successful, iterations=empty.trials, objective=empty.mu,
-        inf_pr=empty.mu, inf_du=empty.mu, compl=empty.mu, log=empty))
+        xs=a, us=a, lam=a, nu=a, z=a, result=RESULTS.successful, iterations=a, objective=a,
+        inf_pr=a, inf_du=a, compl=a, log=log))
 
 
 def print_iteration_log(sol: IPSolution, file=None) -> None:
