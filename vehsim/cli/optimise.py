@@ -27,7 +27,8 @@ def register(subparsers) -> None:
                         "JAX_NUM_CPU_DEVICES=2 before the command gives two cores two "
                         "devices); 1: the default point-mass seed")
     p.add_argument("--out", default="results/optimise", help="output folder")
-    p.add_argument("--quiet", action="store_true", help="no per-iteration progress")
+    p.add_argument("--quiet", action="store_true",
+                   help="no iteration log (printed when the solve returns)")
     p.set_defaults(func=_optimise)
 
 
