@@ -68,3 +68,31 @@ def test_command_line_cache_follows_the_flag_and_the_environment(monkeypatch):
     finally:
         jax.config.update("jax_enable_compilation_cache", True)
         jax.config.update("jax_compilation_cache_dir", configured)
+
+
+def test_a_program_with_a_host_callback_is_not_exported(monkeypatch, tmp_path):
+    """`exported_call` of a function JAX cannot export (a host callback) computes it through
+    JAX's own tracing, writes nothing and remembers not to try again; an exportable one is
+    written once and returns the same values."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import vehsim.compilation_cache as cc
+
+    monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
+    monkeypatch.setattr(cc, "_programs", {})
+    seen = []
+
+    @jax.jit
+    def noisy(x):
+        jax.debug.callback(lambda v: seen.append(float(v)), x.sum())
+        return 2.0 * x
+
+    assert np.allclose(cc.exported_call("noisy", noisy, (jnp.arange(3.0),)), [0.0, 2.0, 4.0])
+    assert seen == [3.0] and not list(tmp_path.iterdir())
+    assert list(cc._programs.values()) == [None]
+    quiet = jax.jit(lambda x: {"y": jnp.sin(x)})
+    out = cc.exported_call("quiet", quiet, (jnp.arange(3.0),))
+    np.testing.assert_array_equal(np.asarray(out["y"]), np.sin(np.arange(3.0)))
+    assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["quiet"]

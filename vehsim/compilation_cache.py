@@ -138,7 +138,9 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
     when it holds other nodes than tuples, lists and dicts (the exported program then
     returns its leaves).
 
-    **Returns:** ``call(*args)`` with ``args`` of the same structure, or None.
+    **Returns:** ``call(*args)`` with ``args`` of the same structure (arrays placed elsewhere
+    are moved to the program's device), or None (also when ``fn`` cannot be exported, e.g.
+    it contains a host callback).
     """
     folder = _exported_folder()
     if folder is None:
@@ -172,12 +174,23 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
             return jax.tree.leaves(out)
 
         avals = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
-        exported = jax.export.export(jax.jit(flat))(*avals)
-        write_atomic(path, bytes(exported.serialize()))
+        try:
+            exported = jax.export.export(jax.jit(flat))(*avals)
+            data = bytes(exported.serialize())
+        except Exception:  # not exportable (a host callback, say): JAX's tracing serves
+            with _programs_lock:
+                _programs[key] = None
+            return None
+        write_atomic(path, data)
     compiled = jax.jit(exported.call).lower(*leaves).compile()
+    shardings = compiled.input_shardings[0]
 
     def call(*call_args):
-        flat_leaves = jax.tree.leaves(eqx.filter(call_args, eqx.is_array))
+        flat_leaves = [
+            x if not isinstance(x, jax.Array) or x.sharding.is_equivalent_to(s, x.ndim)
+            else jax.device_put(x, s)  # e.g. one member of a batch split over devices
+            for x, s in zip(jax.tree.leaves(eqx.filter(call_args, eqx.is_array)), shardings)
+        ]
         out = compiled(*flat_leaves)
         return out if out_tree is None else jax.tree.unflatten(out_tree, out)
 
