@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from vehsim import cli
-from vehsim.control.bound import actuated_limit, physical_limit
+from vehsim.control.bound import actuated_limit, physical_limit, traction_limit
 from vehsim.control.burckhardt import fit_errors
 from vehsim.control.hardware import BrakeHardware, ideal_hardware, realistic_hardware
 from vehsim.control.loop import STOP_SPEED
 from vehsim.control.observer import FrictionObserver
-from vehsim.control.peak import peak_braking
+from vehsim.control.peak import peak_braking, peak_driving
 from vehsim.control.plant import BrakingScenario, SurfaceChange, braking_quarter_car
 from vehsim.control.scenarios import braking_scenario
 from vehsim.control.surfaces import SURFACES, surface
@@ -111,6 +111,19 @@ def test_physical_limit_is_the_quadrature_of_the_peak_and_follows_a_change():
     assert float(at_start) == pytest.approx(float(alone), rel=1e-9)
     never = physical_limit(BrakingScenario(car, 20.0, SurfaceChange(ice, distance=1e4)))[0]
     assert float(never) == pytest.approx(uniform, rel=1e-12)
+
+
+def test_traction_limit_is_the_speed_the_driving_peak_reaches_in_the_time():
+    """The time to accelerate from the scenario's speed to `traction_limit` at the driving
+    peak, by an independent trapezoidal quadrature of m / (mu* F_n), is the duration."""
+    car = braking_quarter_car(surface("snow").tire())
+    v_end = float(traction_limit(BrakingScenario(car, 5.0), 2.0))
+    v = np.linspace(5.0, v_end, 4001)
+    mu = np.asarray(jax.jit(jax.vmap(lambda u: peak_driving(car.tire, u)[1]))(jnp.asarray(v)))
+    integrand = car.mass / (mu * car.Fn_static)
+    assert v_end > 5.0
+    assert float(np.sum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(v))) == pytest.approx(
+        2.0, rel=1e-6)
 
 
 def test_every_named_surface_builds_and_belongs_to_its_family():

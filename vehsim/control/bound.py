@@ -44,19 +44,23 @@ ONSET = 0.25
 _ONSET_SUBSTEPS = 4
 
 
-def _integrals(tire, car, v_lo, v_hi, cap=jnp.inf):
-    """$(x, t)$ of the point mass braking from `v_hi` to `v_lo` on `tire` (friction
-    coefficient at most `cap`)."""
+def _speed_quadrature(v_lo, v_hi):
+    """Nodes (speeds) and weights of the composite Gauss-Legendre rule on [`v_lo`, `v_hi`]
+    (`_PANELS` panels)."""
     edges = jnp.linspace(0.0, 1.0, _PANELS + 1)
     a, b = edges[:-1, None], edges[1:, None]
     u = (0.5 * (b - a) * jnp.asarray(_NODES)[None] + 0.5 * (a + b)).ravel()
     w = (0.5 * (b - a) * jnp.asarray(_WEIGHTS)[None]).ravel()
-    speeds = v_lo + (v_hi - v_lo) * u
+    return v_lo + (v_hi - v_lo) * u, (v_hi - v_lo) * w
+
+
+def _integrals(tire, car, v_lo, v_hi, cap=jnp.inf):
+    """$(x, t)$ of the point mass braking from `v_hi` to `v_lo` on `tire` (friction
+    coefficient at most `cap`)."""
+    speeds, w = _speed_quadrature(v_lo, v_hi)
     mu = jax.vmap(lambda v: peak_braking(tire, v, car.radius)[1])(speeds)
-    mu = jnp.minimum(mu, cap)
-    dtdv = car.mass / (mu * car.Fn_static)
-    scale = v_hi - v_lo
-    return scale * jnp.sum(w * dtdv * speeds), scale * jnp.sum(w * dtdv)
+    dtdv = car.mass / (jnp.minimum(mu, cap) * car.Fn_static)
+    return jnp.sum(w * dtdv * speeds), jnp.sum(w * dtdv)
 
 
 def _two_surfaces(scenario: BrakingScenario, v0, v_stop, distance, time, cap=jnp.inf):
@@ -151,13 +155,9 @@ def actuated_limit(scenario: BrakingScenario, hardware: BrakeHardware,
 
 def _driving_time(tire, car, v_lo, v_hi):
     """Time for the point mass to accelerate from `v_lo` to `v_hi` at the driving peak."""
-    edges = jnp.linspace(0.0, 1.0, _PANELS + 1)
-    a, b = edges[:-1, None], edges[1:, None]
-    u = (0.5 * (b - a) * jnp.asarray(_NODES)[None] + 0.5 * (a + b)).ravel()
-    w = (0.5 * (b - a) * jnp.asarray(_WEIGHTS)[None]).ravel()
-    speeds = v_lo + (v_hi - v_lo) * u
+    speeds, w = _speed_quadrature(v_lo, v_hi)
     mu = jax.vmap(lambda v: peak_driving(tire, v)[1])(speeds)
-    return (v_hi - v_lo) * jnp.sum(w * car.mass / (mu * car.Fn_static))
+    return jnp.sum(w * car.mass / (mu * car.Fn_static))
 
 
 @eqx.filter_jit
