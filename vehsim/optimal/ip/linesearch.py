@@ -91,18 +91,20 @@ def fraction_to_boundary(v, dv, mask, tau) -> Float[Array, ""]:
 
 
 def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate,
-                       step: NewtonStep, grad_f, mu, filt: Filter, alpha_max, correction,
-                       tau):
+                       step: NewtonStep, values, grad_f, mu, filt: Filter, alpha_max,
+                       correction, tau):
     """Backtrack from ``alpha_max`` along ``step``; when the full trial is rejected for a
     larger constraint violation, first try its second-order correction: the step of
     ``correction(c, e, g - s)`` (the same KKT matrix with the trial's constraint residuals
     added to $\alpha$ times the current ones), cut by the fraction to the boundary (``tau``).
+    ``values``: the objective, defects, equalities and inequalities at the iterate (those of
+    its `StageDerivatives`).
 
     **Returns:** the step length, the number of trials, the updated filter and the primal
     direction taken with its multiplier steps ``(dy, ds, dlam, dnu)``."""
     mg = lay.masks().g
     sg = jnp.where(mg > 0, it.s, 1.0)
-    f0, c0, e0, g0 = stage_values(prob, lay, it.ys)
+    f0, c0, e0, g0 = values
     phi0, theta0 = _merit(f0, c0, e0, g0, it.s, mg, mu)
     dphi = jnp.sum(grad_f * step.dy) - mu * jnp.sum(jnp.where(mg > 0, step.ds / sg, 0.0))
 

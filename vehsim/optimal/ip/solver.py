@@ -350,7 +350,8 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
     alpha_dual = fraction_to_boundary(jnp.where(mg > 0, it.z, 1.0), step.dz, mg, tau)
     alpha, n_trials, filt, direction = filter_line_search(
-        prob, lay, it, step, d.grad_f, mu, st.filter.cleared_where(mu_changed), alpha_max,
+        prob, lay, it, step, (d.objective, d.c, d.e, d.g), d.grad_f, mu,
+        st.filter.cleared_where(mu_changed), alpha_max,
         lambda c, e, gs: second_order_correction(lay, it, d, mu, step, c, e, gs), tau
     )
     dy, ds, dlam, dnu = direction
