@@ -125,11 +125,12 @@ def test_verbose_prints_the_iteration_log_and_compiles_the_quiet_program(bang_ba
 
 def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_path,
                                                               monkeypatch):
-    """With the persistent cache on, `interior_point` exports its program (one file in the
-    cache's exported folder) and computes the jit path's solution bit for bit; a process
-    with nothing in memory loads the file (nothing is exported again); a static option that
-    changes the program is another file; a traced call (vmap) keeps the jit path; an
-    unreadable file is exported again."""
+    """With the persistent cache on, `interior_point` keeps JAX's tracing for a problem class
+    from outside vehsim (its static fields might not print in full); for a trusted class it
+    exports its program (one file in the cache's exported folder) and computes the jit
+    path's solution bit for bit; a process with nothing in memory loads the file (nothing is
+    exported again); a static option that changes the program is another file; a traced
+    call (vmap) keeps the jit path; an unreadable file is exported again."""
     import vehsim.compilation_cache as cc
 
     prob, _ = bang_bang
@@ -137,6 +138,10 @@ def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_pat
     monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
     monkeypatch.setattr(cc, "_programs", {})
     jitted = _solve(prob, xs0, us0, canonical_options(IPOptions()))
+    interior_point(prob, xs0, us0)  # a problem class from outside vehsim: JAX's tracing
+    assert not list(tmp_path.iterdir())
+    module = type(prob).__module__.split(".")[0]
+    monkeypatch.setattr(cc, "FAITHFUL_MODULES", (*cc.FAITHFUL_MODULES, module))
     first = interior_point(prob, xs0, us0)
     (path,) = tmp_path.glob("interior_point-*.bin")
     np.testing.assert_array_equal(np.asarray(first.xs), np.asarray(jitted.xs))

@@ -25,9 +25,9 @@ The command line (`vehsim ...`) switches the cache on by itself (`command_line_c
 
 JAX's cache saves the compilation, not the tracing and lowering before it, which for the
 interior-point solve of a maneuver takes longer than loading the compiled program. While the
-cache is on, the solver's program is also kept as an exported program (`jax.export`, in the
-``exported`` subfolder; `exported_program`): a later process loads it and goes straight to
-the (cached) compilation.
+cache is on, the programs of the solver and the solution record are also kept as exported
+programs (`jax.export`, in the ``exported`` subfolder; `exported_program`): a later process
+loads them and goes straight to the (cached) compilation.
 """
 
 from __future__ import annotations
@@ -122,8 +122,8 @@ def exported_call(name: str, fn: Callable, args: tuple, out_tree=None):
 def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Callable | None:
     r"""``fn`` compiled for arguments structured as ``args`` (their array values do not
     matter), through a program exported to the compilation cache, or None when JAX's
-    persistent cache is off or the arguments cannot key a program on disk (tracers, or
-    static parts whose ``repr`` loses information).
+    persistent cache is off or the arguments cannot key a program on disk (tracers, static
+    parts whose ``repr`` loses information, or classes from outside `FAITHFUL_MODULES`).
 
     The program is found by a hash of ``name``, the arguments' tree structure with its
     static fields, their shapes and dtypes, the backend, the JAX settings that change the
@@ -156,8 +156,8 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
         *(str(getattr(jax.config, flag)) for flag in _TRACING_FLAGS),
         os.environ.get("EQX_ON_ERROR", ""),
     ])
-    if "..." in material or " at 0x" in material:  # a lossy repr cannot key a program
-        return None
+    if "..." in material or " at 0x" in material or not _faithful(treedef):
+        return None  # a lossy repr cannot key a program
     key = hashlib.sha256(material.encode()).hexdigest()[:32]
     with _programs_lock:
         if key in _programs:
@@ -197,6 +197,19 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
     with _programs_lock:
         _programs[key] = call
     return call
+
+
+FAITHFUL_MODULES = ("vehsim", "equinox", "jax", "builtins")
+"""Packages whose pytree node types print their static fields in full (the key of an
+exported program is made of those prints): another package's classes, a user's problem
+among them, keep JAX's own tracing."""
+
+
+def _faithful(treedef) -> bool:
+    node = treedef.node_data()
+    if node is not None and node[0].__module__.split(".")[0] not in FAITHFUL_MODULES:
+        return False
+    return all(_faithful(child) for child in treedef.children())
 
 
 def _exported_folder() -> Path | None:
