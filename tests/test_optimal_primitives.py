@@ -156,9 +156,10 @@ def test_re_integration_between_the_nodes(corner_min_time):
 def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min_time):
     """``starts=3``: the default point-mass seed, the centreline at 5 m/s and a second seed,
     solved in one compiled call split over the session's two host devices (padded to 4
-    starts, each device solving its starts one after another). The default seed's solve is the single-start primitive's
-    (same optimum to 1e-9); the primitive is the best converged start; the record lists
-    every start's objective and status."""
+    starts, each device solving its starts one after another). The default seed's solve is
+    the single-start primitive's (same optimum to 1e-9); the primitive is the best converged
+    start; the record (with the point-mass bound, computed on one device) lists every
+    start's objective and status."""
     prim = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
                               options=IPOptions(max_iter=300), starts=3)
     starts = prim.starts
@@ -171,7 +172,10 @@ def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min
     np.testing.assert_array_equal(np.asarray(prim.solution.xs), np.asarray(starts.xs[best]))
     assert prim.solution.converged and float(prim.solution.objective) <= objective[
         converged].min()
-    rec = solution_record(prim)
+    # with the bound: the batch came back from two devices, the bound from one
+    bound = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
+    rec = solution_record(prim, bound)
+    assert rec["t_f_over_bound"] == pytest.approx(float(prim.t_f) / float(bound.t_f), rel=1e-14)
     assert [s["status"] for s in rec["starts"]] == result_name(starts.result)
     assert [s["objective"] for s in rec["starts"]] == pytest.approx(list(objective), rel=1e-12)
     with pytest.raises(ValueError, match="starts must be at least 1"):

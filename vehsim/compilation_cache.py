@@ -126,7 +126,8 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
     parts whose ``repr`` loses information, or classes from outside `FAITHFUL_MODULES`).
 
     The program is found by a hash of ``name``, the arguments' tree structure with its
-    static fields, their shapes and dtypes, the backend, the JAX settings that change the
+    static fields, their shapes and dtypes, the backend and its device count, the JAX
+    settings that change the
     traced program (float64, matmul precision, promotion rules), ``EQX_ON_ERROR``, the
     versions of JAX, jaxlib and equinox, and the source of vehsim itself (a changed model or
     solver is a new program). A missing program is exported (`jax.export`: traced and lowered
@@ -153,6 +154,7 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
     material = "\n".join([
         name, _source_fingerprint(), str(treedef), repr(jax.tree.leaves(static)),
         repr([(x.shape, str(x.dtype)) for x in leaves]), jax.default_backend(),
+        str(len(jax.devices())),
         *(str(getattr(jax.config, flag)) for flag in _TRACING_FLAGS),
         os.environ.get("EQX_ON_ERROR", ""),
     ])
@@ -182,7 +184,13 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
                 _programs[key] = None
             return None
         write_atomic(path, data)
-    compiled = jax.jit(exported.call).lower(*leaves).compile()
+    if exported.nr_devices > 1:  # split over devices (multi-start): the same devices
+        mesh = jax.sharding.Mesh(np.array(jax.devices()[:exported.nr_devices]), ("devices",))
+        replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+        call_exported = jax.jit(exported.call, in_shardings=replicated)
+    else:
+        call_exported = jax.jit(exported.call)
+    compiled = call_exported.lower(*leaves).compile()
     shardings = compiled.input_shardings[0]
 
     def call(*call_args):

@@ -19,13 +19,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation_cache import exported_program
 from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
 from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
 from .ip import IPOptions, IPSolution, compile_interior_point, interior_point
-from .ip.solver import canonical_options, print_iteration_log
+from .ip.solver import _solution_tree, canonical_options, print_iteration_log
 from .primitive import Primitive
 from .roads import Road, road as road_by_name
 from .shooting import IDX_TF, NU, NX, ManeuverOCP, PointMassOCP
@@ -165,6 +166,20 @@ def _starts_batch_size() -> int | None:
     return 1 if jax.default_backend() == "cpu" else None
 
 
+def _compile_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
+    """`_solve_starts` for ``n_pad`` starts compiled ahead of time (through its exported
+    program when the compilation cache is on): ``solve(prob, xs0, us0, options)``."""
+    batch = _starts_batch_size()
+    args = (prob, jnp.zeros((n_pad, prob.num_stages + 1, NX)),
+            jnp.zeros((n_pad, prob.num_stages, NU)), options)
+    exported = exported_program(f"interior_point_starts_batch{batch}",
+                                lambda *a: _solve_starts(*a, batch), args, _solution_tree())
+    if exported is not None:
+        return exported
+    compiled = _solve_starts.lower(*args, batch).compile()
+    return lambda *a: compiled(*a, batch)
+
+
 def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Primitive:
     """Every start of `multistart_guesses` in one compiled call, split over the devices
     (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
@@ -173,16 +188,15 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     verbose, options = options.verbose, canonical_options(options)  # the compiled program's
     M, n_pad = prob.num_stages, -(-n // len(jax.devices())) * len(jax.devices())
     with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
-        pending = pool.submit(lambda: _solve_starts.lower(
-            prob, jnp.zeros((n_pad, M + 1, NX)), jnp.zeros((n_pad, M, NU)), options,
-            _starts_batch_size()).compile())
+        pending = pool.submit(_compile_starts, prob, n_pad, options)
         xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
         solve = pending.result()
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
     xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
-    sols = solve(prob, xs0, us0, options, _starts_batch_size())
-    sols = jax.tree.map(lambda a: a[:n], sols)
+    sols = solve(prob, xs0, us0, options)
+    # on one device, as the arrays the caller combines them with (the bound, the record)
+    sols = jax.device_put(jax.tree.map(lambda a: a[:n], sols), jax.devices()[0])
     if verbose:
         for k in range(n):
             print(f"start {k}:", file=sys.stderr)
