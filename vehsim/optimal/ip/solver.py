@@ -270,7 +270,7 @@ def _report(sol: IPSolution, options: IPOptions) -> None:
     if is_concrete(sol.iterations):
         print_iteration_log(sol)
     else:
-        jax.debug.callback(lambda s: print_iteration_log(s), sol)
+        jax.debug.callback(print_iteration_log, sol)
 
 
 def _raise_if_failed(sol: IPSolution) -> IPSolution:
