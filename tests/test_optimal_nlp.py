@@ -360,3 +360,32 @@ def test_stage_hessians_are_the_blocks_of_the_whole_lagrangian_hessian():
             blocks[k, :, k, :] = np.asarray(d.H[k])
         np.testing.assert_allclose(np.where(mask, blocks, 0.0), np.where(mask, dense, 0.0),
                                    rtol=0, atol=1e-8 * scale, err_msg=hessian)
+
+
+def test_one_rk4_step_without_the_loop_is_the_looped_step():
+    """A segment of one RK4 step skips the loop over steps: its end state and Jacobian equal
+    the first step of a looped two-step segment (to rounding)."""
+    from vehsim.optimal.primitives import rally_gravel_car
+    from vehsim.optimal.roads import road
+    from vehsim.optimal.shooting import ManeuverOCP, _rk4_segment
+
+    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=4)
+    x = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, -0.08, 0.1, 3.5])
+    u = jnp.array([0.5, -0.2, 0.3])
+    h = 0.05
+
+    def one(x):
+        end, starts = _rk4_segment(prob._rhs, x, u, h, 1)
+        return end, starts
+
+    def first_of_two(x):
+        _, starts = _rk4_segment(prob._rhs, x, u, h, 2)
+        return starts[1]
+
+    end, starts = one(x)
+    assert starts.shape == (1, 10) and np.array_equal(np.asarray(starts[0]), np.asarray(x))
+    np.testing.assert_allclose(np.asarray(end), np.asarray(first_of_two(x)), rtol=1e-14,
+                               atol=1e-14)
+    assert not np.allclose(np.asarray(end), np.asarray(x))  # the step moves the state
+    np.testing.assert_allclose(np.asarray(jax.jacfwd(lambda y: one(y)[0])(x)),
+                               np.asarray(jax.jacfwd(first_of_two)(x)), rtol=1e-12, atol=1e-12)

@@ -85,7 +85,9 @@ def _rk4_segment(rhs, x, u, h, S):
 
     Both the steps and the four stages of a step are `lax.scan` loops, so the right-hand
     side is traced (and its second derivatives compiled) once, not 4 S times: compile time
-    is dominated by the Hessian of this function."""
+    is dominated by the Hessian of this function. One step (``S = 1``) is taken without the
+    outer loop: a loop of one iteration still costs its tracing (each derivative of a scan
+    is traced to a fixed point), its compilation and its run time."""
     a = jnp.asarray(_RK4_A)
     b = jnp.asarray(_RK4_B)
 
@@ -99,6 +101,9 @@ def _rk4_segment(rhs, x, u, h, S):
         (_, acc), _ = jax.lax.scan(stage, (jnp.zeros_like(x), jnp.zeros_like(x)), (a, b))
         return x + h * acc, x
 
+    if S == 1:
+        end, start = step(x, None)
+        return end, start[None]
     return jax.lax.scan(step, x, None, length=S)
 
 
