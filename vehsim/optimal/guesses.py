@@ -9,7 +9,7 @@ slips that realise the tangential acceleration on the tire's curve (inverted Mag
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from ..vehicle.reduced import ReducedHalfCar
@@ -36,7 +36,7 @@ def centreline_guess(road: Road, num_stages: int, speed: float = 5.0):
     h = tf[0] / num_stages
     us = np.diff(xs[:, 2:4], axis=0) / h
     us = np.concatenate([us[1:], us[-1:]], 0) * 0.5 + us * 0.5
-    return jnp.asarray(xs), jnp.asarray(us)
+    return jax.device_put(xs), jax.device_put(us)  # jnp.asarray would run a copy program
 
 
 def car_guess_from_point_mass(car: ReducedHalfCar, road: Road, pm_xs, pm_us):
@@ -67,7 +67,7 @@ def car_guess_from_point_mass(car: ReducedHalfCar, road: Road, pm_xs, pm_us):
     xs = np.stack([pm_xs[:, 0], pm_xs[:, 1], psi, V, 0 * V, r, kappa, kappa, delta,
                    np.full_like(V, tf)], 1)
     us = np.diff(xs[:, 6:9], axis=0) * M
-    return jnp.asarray(xs), jnp.asarray(us)
+    return jax.device_put(xs), jax.device_put(us)  # jnp.asarray would run a copy program
 
 
 def car_guess(car: ReducedHalfCar, road: Road, num_stages: int, steps_per_stage: int = 1,

@@ -80,7 +80,8 @@ class Primitive(eqx.Module):
             out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
                                                                sig["Vx_R"].min())))
             if prob.objective == "max-exit":
-                out["time_budget"] = float(max(0.0, float(self.t_f - prob.tf_max)))
+                t_f, _ = _final_time_and_speed(self.solution)
+                out["time_budget"] = max(0.0, t_f - float(prob.tf_max))
         return out
 
 
@@ -96,7 +97,8 @@ def _signals(vehicle, nodes) -> dict:
 
 def _node_signals(vehicle, nodes) -> dict:
     """Named signals of `vehicle` at the car's nodes (states, then the inputs)."""
-    signals = exported_call("signals", _signals, (vehicle, jnp.asarray(nodes)))
+    nodes = nodes if isinstance(nodes, jax.Array) else np.asarray(nodes, float)
+    signals = exported_call("signals", _signals, (vehicle, nodes))
     return {k: np.asarray(v) for k, v in signals.items()}
 
 
@@ -122,31 +124,39 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     the ratio to it, states and inputs at every node."""
     sol = prim.solution
     sig = prim.signals()
+    # read off host copies: each eager operation on a device array is a program of its own
+    t_f, exit_speed = _final_time_and_speed(sol)
     rec = dict(
         road=prim.problem.road.name, objective=prim.problem.objective,
-        t_f=float(prim.t_f), exit_speed=float(prim.exit_speed), **result_record(sol.result),
+        t_f=t_f, exit_speed=exit_speed, **result_record(sol.result),
         iterations=int(sol.iterations),
         residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
                        compl=float(sol.compl)),
-        segments=prim.problem.num_stages, nodes=int(prim.nodes().shape[0]),
+        segments=prim.problem.num_stages, nodes=len(sig["x"]),
     )
     v = prim.violations()
     rec["violations"] = v
     rec["max_corridor_violation"] = v["corridor"]
     rec["max_corridor_violation_between_nodes"] = v["corridor_between_nodes"]
     if bound is not None:
-        rec["point_mass_t_f"] = float(bound.t_f)
-        rec["point_mass_exit_speed"] = float(bound.exit_speed)
+        rec["point_mass_t_f"], rec["point_mass_exit_speed"] = _final_time_and_speed(
+            bound.solution)
         rec["point_mass_status"] = result_name(bound.result)
-        rec["t_f_over_bound"] = float(prim.t_f / bound.t_f)
+        rec["t_f_over_bound"] = t_f / rec["point_mass_t_f"]
     if prim.starts is not None:
         rec["starts"] = [dict(objective=float(o), status=r, iterations=int(i))
                          for o, r, i in zip(np.asarray(prim.starts.objective),
                                             result_name(prim.starts.result),
                                             np.asarray(prim.starts.iterations))]
-    rec["t"] = np.asarray(prim.time())
+    rec["t"] = np.linspace(0.0, 1.0, rec["nodes"]) * t_f
     rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate")}
     rec["inputs"] = {k: sig[k] for k in ("kappa_F", "kappa_R", "delta")}
     rec["signals"] = {k: sig[k] for k in ("speed", "sideslip", "Fz_F", "Fz_R", "Fx_F", "Fx_R",
                                           "Fy_F", "Fy_R", "Vx_F", "Vx_R")}
     return rec
+
+
+def _final_time_and_speed(sol: IPSolution) -> tuple[float, float]:
+    """t_f and the exit speed of a solution, from a host copy of its last knot."""
+    x = np.asarray(sol.xs)[-1]
+    return float(x[IDX_TF]), float(np.hypot(x[3], x[4]))

@@ -194,7 +194,7 @@ def interior_point(
 
     **Returns:** an `IPSolution`.
     """
-    args = (prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    args = (prob, _floats(xs0), _floats(us0), canonical_options(options))
     sol = exported_call("interior_point", _solve, args, _solution_tree())
     _report(sol, options)
     return _raise_if_failed(sol) if throw else sol
@@ -214,13 +214,12 @@ def compile_interior_point(
     run in a thread while the caller builds the starting guess (as `min_time_primitive`
     does: the point-mass seed is compiled and solved meanwhile).
     """
-    args = (prob, jnp.asarray(xs0, float), jnp.asarray(us0, float), canonical_options(options))
+    args = (prob, _floats(xs0), _floats(us0), canonical_options(options))
     compiled = (exported_program("interior_point", _solve, args, _solution_tree())
                 or _solve.lower(*args).compile())
 
     def solve(prob, xs0, us0, options=options, *, throw=True) -> IPSolution:
-        sol = compiled(prob, jnp.asarray(xs0, float), jnp.asarray(us0, float),
-                       canonical_options(options))
+        sol = compiled(prob, _floats(xs0), _floats(us0), canonical_options(options))
         _report(sol, options)
         return _raise_if_failed(sol) if throw else sol
 
@@ -234,6 +233,16 @@ def canonical_options(options: IPOptions) -> IPOptions:
     on the host when the solve returns)."""
     return dataclasses.replace(options, max_iter=jnp.asarray(options.max_iter, dtype=int),
                                mu0=jnp.asarray(options.mu0, dtype=float), verbose=False)
+
+
+def _floats(x) -> Array:
+    """``x`` as an array of the default float dtype, without running a program where none
+    is needed (``jnp.asarray`` compiles one to copy even a NumPy array): a JAX array of
+    that dtype as it is, host data by `jax.device_put`."""
+    dtype = jnp.result_type(float)
+    if isinstance(x, jax.core.Tracer) or (isinstance(x, jax.Array) and x.dtype != dtype):
+        return jnp.asarray(x, dtype)
+    return x if isinstance(x, jax.Array) else jax.device_put(np.asarray(x, dtype))
 
 
 @functools.cache
