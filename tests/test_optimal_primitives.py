@@ -18,6 +18,7 @@ from vehsim.optimal.primitives import (
     max_exit_primitive,
     min_time_primitive,
     point_mass_bound,
+    primitive_options,
     rally_gravel_car,
 )
 from vehsim.optimal.shooting import DELTA_MAX, IDX_TF
@@ -118,7 +119,8 @@ def test_other_benchmark_problems_feasible_and_ipopts_optimum(road, objective):
     the centreline guess by more than 1e-3 (the problems have several local optima, and the
     primitive starts from the point-mass solution instead)."""
     f = min_time_primitive if objective == "min-time" else max_exit_primitive
-    prim = f(road, num_stages=M, steps_per_stage=1, options=IPOptions(max_iter=400))
+    prim = f(road, num_stages=M, steps_per_stage=1,
+             options=primitive_options(objective, max_iter=400))  # max-exit: mu0 0.01
     _check_solution(prim)
     if objective == "max-exit":
         assert float(prim.t_f) <= 4.0 + 1e-6
@@ -180,3 +182,5 @@ def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min
     assert [s["objective"] for s in rec["starts"]] == pytest.approx(list(objective), rel=1e-12)
     with pytest.raises(ValueError, match="starts must be at least 1"):
         min_time_primitive("corner90", num_stages=M, steps_per_stage=1, starts=0)
+    with pytest.raises(ValueError, match="objective must be 'min-time' or 'max-exit'"):
+        primitive_options("fastest")

@@ -182,6 +182,7 @@ from .optimal.primitives import (
     min_time_primitive as min_time_primitive,
     multistart_guesses as multistart_guesses,
     point_mass_bound as point_mass_bound,
+    primitive_options as primitive_options,
 )
 from .optimal.roads import Road as Road, road as road
 

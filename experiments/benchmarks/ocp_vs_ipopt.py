@@ -24,7 +24,8 @@ the starts are split over the devices JAX sees (on a CPU, one host device per co
 ``devices``).
 
 ``--sweep 30,50,100,150,200``: solution quality over many instances (vehsim's primitive and
-IPOPT from the same guess), with a summary line.
+IPOPT from the same guess), with a summary line; ``--problems corner90:max-exit:3.8`` sets
+another time budget, ``--mu0`` another initial barrier.
 """
 
 from __future__ import annotations
@@ -48,8 +49,8 @@ from _casadi_maneuver import LIMIT_NAMES, road_data  # noqa: E402
 
 from vehsim import result_name  # noqa: E402
 from vehsim.optimal.guesses import car_guess  # noqa: E402
-from vehsim.optimal.ip import IPOptions, interior_point  # noqa: E402
-from vehsim.optimal.primitives import rally_gravel_car  # noqa: E402
+from vehsim.optimal.ip import interior_point  # noqa: E402
+from vehsim.optimal.primitives import primitive_options, rally_gravel_car  # noqa: E402
 from vehsim.optimal.roads import SMOOTHING, road as road_by_name  # noqa: E402
 from vehsim.optimal.shooting import (  # noqa: E402
     DELTA_MAX,
@@ -199,7 +200,7 @@ def multistart(problems, N: int, n: int = 8) -> None:
         rd = road_by_name(name)
         print(f"# multistart {name} {objective}", file=sys.stderr, flush=True)
         f = min_time_primitive if objective == "min-time" else max_exit_primitive
-        opts = IPOptions(max_iter=500)
+        opts = primitive_options(objective)
 
         def call():
             return f(rd, num_stages=N, steps_per_stage=1, options=opts, starts=n, throw=False)
@@ -232,31 +233,38 @@ def multistart(problems, N: int, n: int = 8) -> None:
         )), flush=True)
 
 
-def sweep(problems, sizes) -> None:
-    """Solution quality over many instances: per problem and number of segments, vehsim's
-    primitive (default options, the default point-mass seed) and IPOPT from the same guess;
-    values, iterations and vehsim's relative shortfall (> 0: IPOPT's optimum is better),
-    then one summary line."""
+def sweep(problems, sizes, mu0=None) -> None:
+    """Solution quality over many instances: per problem (``road:objective``, or
+    ``road:max-exit:tf_max`` for another time budget than 4 s) and number of segments,
+    vehsim's primitive (the primitives' options, ``mu0`` replaced when given; the default
+    point-mass seed) and IPOPT from the same guess; values, iterations, statuses and
+    vehsim's relative shortfall (> 0: IPOPT's optimum is better), then one summary line."""
     from vehsim.optimal.primitives import max_exit_primitive, min_time_primitive
 
     car = rally_gravel_car()
     rows = []
     for N in sizes:
         for problem in problems:
-            name, objective = problem.split(":")
+            name, objective, *budget = problem.split(":")
+            tf_max = float(budget[0]) if budget else 4.0
             rd = road_by_name(name)
-            f = min_time_primitive if objective == "min-time" else max_exit_primitive
-            prim = f(rd, num_stages=N, steps_per_stage=1, options=IPOptions(max_iter=500),
-                     throw=False)
+            opts = primitive_options(objective, **({} if mu0 is None else {"mu0": mu0}))
+            if objective == "min-time":
+                prim = min_time_primitive(rd, num_stages=N, steps_per_stage=1, options=opts,
+                                          throw=False)
+            else:
+                prim = max_exit_primitive(rd, num_stages=N, steps_per_stage=1, options=opts,
+                                          tf_max=tf_max, throw=False)
             xs0, us0 = car_guess(car, rd, N, 1)
             if objective == "max-exit":
-                xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * 4.0))
-            ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0)
+                xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
+            ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0, tf_max=tf_max)
             val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
                 lambda x: -math.hypot(x[-1, 3], x[-1, 4]))
             ours, theirs = float(val(np.asarray(prim.solution.xs))), float(val(ip["xs"]))
-            row = dict(problem=problem, segments=N, vehsim_value=abs(ours),
-                       ipopt_value=abs(theirs), shortfall=(ours - theirs) / abs(theirs),
+            row = dict(problem=problem, segments=N, mu0=float(opts.mu0),
+                       vehsim_value=abs(ours), ipopt_value=abs(theirs),
+                       shortfall=(ours - theirs) / abs(theirs),
                        vehsim_status=result_name(prim.solution.result),
                        vehsim_iterations=int(prim.solution.iterations),
                        ipopt_status=ip["status"], ipopt_iterations=ip["iterations"])
@@ -269,6 +277,7 @@ def sweep(problems, sizes) -> None:
         vehsim_worse_by_more_than_0_05_percent=sum(x > 5e-4 for x in short),
         vehsim_better_by_more_than_0_05_percent=sum(x < -5e-4 for x in short),
         largest_shortfall=max(short),
+        vehsim_not_converged=sum(r["vehsim_status"] != "successful" for r in rows),
         vehsim_iterations=sum(r["vehsim_iterations"] for r in rows),
         ipopt_iterations=sum(r["ipopt_iterations"] for r in rows),
     )), flush=True)
@@ -290,10 +299,12 @@ def main(argv=None):
     ap.add_argument("--sweep", default="",
                     help="comma-separated segment counts of the solution-quality sweep "
                          "(e.g. 30,50,100,150,200)")
+    ap.add_argument("--mu0", type=float, default=None,
+                    help="initial barrier of the sweep's solves (default: the primitives')")
     args = ap.parse_args(argv)
     N = args.segments
     if args.sweep:
-        sweep(args.problems, [int(n) for n in args.sweep.split(",")])
+        sweep(args.problems, [int(n) for n in args.sweep.split(",")], args.mu0)
         return
     if args.multistart:
         multistart(args.problems, N, args.multistart)
@@ -314,7 +325,7 @@ def main(argv=None):
             xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * 4.0))
         prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, num_stages=N,
                            steps_per_stage=1)
-        opts = IPOptions(max_iter=500)
+        opts = primitive_options(objective)  # the primitives' settings (max-exit: mu0 0.01)
         t0 = time.perf_counter()
         sol = interior_point(prob, xs0, us0, opts, throw=False)
         jax.block_until_ready(sol.xs)

@@ -34,12 +34,12 @@ def register(subparsers) -> None:
 
 def _optimise(args) -> int:
     from .._io import save_figure, write_json
-    from ..optimal.ip import IPOptions
     from ..optimal.primitive import solution_record
     from ..optimal.primitives import (
         max_exit_primitive,
         min_time_primitive,
         point_mass_bound,
+        primitive_options,
         rally_gravel_car,
     )
     from ..plot import primitive_figure
@@ -48,7 +48,7 @@ def _optimise(args) -> int:
         raise ValueError(f"--segments must be >= 2, got {args.segments}")
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
-    opts = IPOptions(max_iter=args.max_iter, verbose=not args.quiet)
+    opts = primitive_options(args.objective, max_iter=args.max_iter, verbose=not args.quiet)
     print(f"vehsim optimise {args.road} --objective {args.objective}: compiling and solving "
           f"({args.segments} segments)...", file=sys.stderr, flush=True)
     t0 = time.perf_counter()

@@ -39,6 +39,19 @@ MULTISTART_SEEDS = ((0.5, 0.6), (0.3, 0.8), (0.8, 0.5), (0.5, 0.4), (0.2, 0.6), 
 N allows, every other start is the centreline at a constant speed (`CENTRELINE_SPEEDS`)."""
 CENTRELINE_SPEEDS = (5.0, 8.0, 3.5, 6.5, 10.0)
 """Speeds [m/s] of the centreline starts of ``starts=N``, in order."""
+MAX_EXIT_MU0 = 0.01
+"""Initial barrier $\\mu_0$ of the max-exit solves (min-time keeps `IPOptions`' 0.1): on
+max-exit instances (corridors, time budgets and sizes compared in docs/performance.md) the
+smaller start converges in fewer iterations and more reliably."""
+
+
+def primitive_options(objective: str = "min-time", **changes) -> IPOptions:
+    """The interior-point settings of the primitives: ``max_iter=500``, and for max-exit
+    the initial barrier `MAX_EXIT_MU0`; keyword ``changes`` override any field."""
+    if objective not in ("min-time", "max-exit"):
+        raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
+    settings = dict(max_iter=500, **({"mu0": MAX_EXIT_MU0} if objective == "max-exit" else {}))
+    return IPOptions(**{**settings, **changes})
 
 
 def rally_gravel_car(D=0.52) -> ReducedHalfCar:
@@ -127,8 +140,8 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     if isinstance(starts, int) and guess is None:
         return _solve_batched_starts(prob, car, rd, starts, options, throw)
     with ThreadPoolExecutor(1) as pool:  # compile the car's solve while the seeds are solved
-        pending = pool.submit(compile_interior_point, prob, jnp.zeros((num_stages + 1, NX)),
-                              jnp.zeros((num_stages, NU)), options)
+        pending = pool.submit(compile_interior_point, prob, np.zeros((num_stages + 1, NX)),
+                              np.zeros((num_stages, NU)), options)  # shapes only
         guesses = []
         if guess is None:
             for margin, frac in starts:
@@ -170,8 +183,9 @@ def _compile_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
     """`_solve_starts` for ``n_pad`` starts compiled ahead of time (through its exported
     program when the compilation cache is on): ``solve(prob, xs0, us0, options)``."""
     batch = _starts_batch_size()
-    args = (prob, jnp.zeros((n_pad, prob.num_stages + 1, NX)),
-            jnp.zeros((n_pad, prob.num_stages, NU)), options)
+    dtype = jnp.result_type(float)
+    args = (prob, np.zeros((n_pad, prob.num_stages + 1, NX), dtype),
+            np.zeros((n_pad, prob.num_stages, NU), dtype), options)
     exported = exported_program(f"interior_point_starts_batch{batch}",
                                 lambda *a: _solve_starts(*a, batch), args, _solution_tree())
     if exported is not None:
@@ -213,7 +227,7 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
 
 def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | None = None,
                        num_stages: int = 50, steps_per_stage: int = 3,
-                       options: IPOptions = IPOptions(max_iter=500), guess=None,
+                       options: IPOptions = primitive_options("min-time"), guess=None,
                        starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Minimum-time maneuver through ``road`` (Table 4 boundary conditions, free t_f).
 
@@ -235,10 +249,12 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
 
 def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
                        car: ReducedHalfCar | None = None, num_stages: int = 50,
-                       steps_per_stage: int = 3, options: IPOptions = IPOptions(max_iter=500),
-                       guess=None, starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
+                       steps_per_stage: int = 3,
+                       options: IPOptions = primitive_options("max-exit"), guess=None,
+                       starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Maximum exit speed through ``road`` with t_f <= ``tf_max`` (4.0 s on corner90 in the
-    benchmark, docs/maneuvers.md); arguments as `min_time_primitive`."""
+    benchmark, docs/maneuvers.md); arguments as `min_time_primitive` (the default
+    ``options``: `primitive_options`, which starts at the smaller barrier `MAX_EXIT_MU0`)."""
     car = rally_gravel_car() if car is None else car
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
                       throw, guess, starts=starts)
@@ -247,18 +263,20 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
 def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *,
                      mode: str = "continuation", num_stages: int = 50,
                      steps_per_stage: int = 1, tf_max: float = 4.0,
-                     options: IPOptions = IPOptions(max_iter=500)):
+                     options: IPOptions | None = None):
     """The same maneuver over a batch of road frictions D (the tire's peak coefficient).
 
     ``mode='vmap'``: one vmapped solve (every member iterates until the slowest converges;
     suited to accelerators). ``mode='continuation'``: sequential solves, each warm-started
     (``mu0 = 1e-4``) from its neighbour's converged solution (sort the frictions).
-    Never raises on a member's failure: check ``result`` (per member).
+    ``options``: default `primitive_options` of the objective. Never raises on a member's
+    failure: check ``result`` (per member).
 
     **Returns:** a `Primitive` whose problem and solution are batched along axis 0 (vmap), or
     a list of `Primitive` (continuation).
     """
     rd = _road(road)
+    options = primitive_options(objective) if options is None else options
     frictions = jnp.asarray(frictions, float)
     if mode not in ("vmap", "continuation"):
         raise ValueError(f"batch_primitives mode must be 'vmap' or 'continuation', got {mode!r}")

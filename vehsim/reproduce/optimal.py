@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 
-from ..optimal.ip import IPOptions
 from ..plot import primitive_figure, replay_figure
 
 
@@ -66,10 +65,15 @@ def reproduce(ctx) -> None:
 def _problem(ctx, road: str, objective: str, panel: str, segments: int, starts) -> str:
     """Solve one benchmark problem, draw its Fig. 20 panel, record it; returns its table row."""
     from ..optimal.primitive import solution_record
-    from ..optimal.primitives import max_exit_primitive, min_time_primitive, point_mass_bound
+    from ..optimal.primitives import (
+        max_exit_primitive,
+        min_time_primitive,
+        point_mass_bound,
+        primitive_options,
+    )
 
     ctx.log(f"{road} {objective} ({segments} segments)")
-    opts = IPOptions(max_iter=500)
+    opts = primitive_options(objective)
     t0 = time.perf_counter()
     if objective == "min-time":
         prim = min_time_primitive(road, num_stages=segments, steps_per_stage=1,
