@@ -54,6 +54,16 @@ def test_corner90_min_time_feasible_and_above_point_mass_bound(corner_min_time):
     # the point mass with |a| <= D g bounds every min-time result from below (how far above
     # it the optimum lies is checked against IPOPT's optimum below)
     assert float(bound.t_f) < float(prim.t_f)
+    # read off each problem's own states: the point mass (x, y, vx, vy, t_f), the car
+    # (x, y, psi, vx, vy, r, kappa_F, kappa_R, delta, t_f)
+    pm, car = np.asarray(bound.solution.xs[-1]), np.asarray(prim.solution.xs[-1])
+    assert float(bound.t_f) == pm[4] and float(bound.exit_speed) == pytest.approx(
+        math.hypot(pm[2], pm[3]), rel=1e-14)
+    assert float(prim.t_f) == car[9] and float(prim.exit_speed) == pytest.approx(
+        math.hypot(car[3], car[4]), rel=1e-14)
+    rec = solution_record(prim, bound)
+    assert rec["point_mass_exit_speed"] == pytest.approx(math.hypot(pm[2], pm[3]), rel=1e-14)
+    assert rec["t_f_over_bound"] == pytest.approx(car[9] / pm[4], rel=1e-14)
     # boundary conditions of Table 4 (literal heading)
     x0, xT = np.asarray(prim.solution.xs[0]), np.asarray(prim.solution.xs[-1])
     assert abs(x0[0] + 5.0) < 1e-6 and 8.0 <= x0[1] <= 10.0

@@ -14,7 +14,7 @@ import numpy as np
 from .._results import result_name, result_record
 from ..compilation_cache import exported_call
 from .ip import IPSolution
-from .shooting import DELTA_MAX, IDX_TF, ManeuverOCP
+from .shooting import DELTA_MAX, ManeuverOCP
 
 
 SUBSTEPS = 20
@@ -23,8 +23,9 @@ SUBSTEPS = 20
 
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
-    ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] and ``result`` (`vehsim.RESULTS`) read
-    off the solution; ``starts``: the solutions from every start of a multi-start solve
+    ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] (read off the last knot by the problem's
+    ``final_time`` and ``speed``: the car's and the point mass's states differ) and
+    ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a multi-start solve
     (batched along axis 0), or None."""
 
     problem: Any
@@ -33,12 +34,11 @@ class Primitive(eqx.Module):
 
     @property
     def t_f(self):
-        return self.solution.xs[-1, IDX_TF]
+        return self.problem.final_time(self.solution.xs[..., -1, :])
 
     @property
     def exit_speed(self):
-        x = self.solution.xs[-1]
-        return jnp.hypot(x[3], x[4])
+        return self.problem.speed(self.solution.xs[..., -1, :])
 
     @property
     def result(self):
@@ -80,7 +80,7 @@ class Primitive(eqx.Module):
             out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
                                                                sig["Vx_R"].min())))
             if prob.objective == "max-exit":
-                t_f, _ = _final_time_and_speed(self.solution)
+                t_f, _ = _final_time_and_speed(prob, self.solution)
                 out["time_budget"] = max(0.0, t_f - float(prob.tf_max))
         return out
 
@@ -125,7 +125,7 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     sol = prim.solution
     sig = prim.signals()
     # read off host copies: each eager operation on a device array is a program of its own
-    t_f, exit_speed = _final_time_and_speed(sol)
+    t_f, exit_speed = _final_time_and_speed(prim.problem, sol)
     rec = dict(
         road=prim.problem.road.name, objective=prim.problem.objective,
         t_f=t_f, exit_speed=exit_speed, **result_record(sol.result),
@@ -140,7 +140,7 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     rec["max_corridor_violation_between_nodes"] = v["corridor_between_nodes"]
     if bound is not None:
         rec["point_mass_t_f"], rec["point_mass_exit_speed"] = _final_time_and_speed(
-            bound.solution)
+            bound.problem, bound.solution)
         rec["point_mass_status"] = result_name(bound.result)
         rec["t_f_over_bound"] = t_f / rec["point_mass_t_f"]
     if prim.starts is not None:
@@ -156,7 +156,8 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     return rec
 
 
-def _final_time_and_speed(sol: IPSolution) -> tuple[float, float]:
-    """t_f and the exit speed of a solution, from a host copy of its last knot."""
+def _final_time_and_speed(prob, sol: IPSolution) -> tuple[float, float]:
+    """t_f and the exit speed of a solution of ``prob``, from a host copy of its last
+    knot."""
     x = np.asarray(sol.xs)[-1]
-    return float(x[IDX_TF]), float(np.hypot(x[3], x[4]))
+    return float(prob.final_time(x)), float(prob.speed(x))

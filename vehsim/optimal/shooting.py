@@ -48,6 +48,15 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
     def _rhs(self, X: Array, u: Array) -> Array:
         """dX/dtau of the knot state under control ``u``."""
 
+    @abc.abstractmethod
+    def final_time(self, x):
+        """t_f [s] carried by the knot state(s) ``x`` (last axis: the state; a NumPy array
+        stays one)."""
+
+    @abc.abstractmethod
+    def speed(self, x):
+        """Speed [m/s] at the knot state(s) ``x`` (last axis: the state)."""
+
     def transition_and_path(self, x, u, k):
         """One integration gives both the next knot and the node constraints."""
         x_next, nodes = self._segment(x, u, k)
@@ -164,6 +173,12 @@ class ManeuverOCP(AbstractManeuverOCP):
             return x[IDX_TF]
         return -jnp.sqrt(x[3] ** 2 + x[4] ** 2)
 
+    def final_time(self, x):
+        return x[..., IDX_TF]
+
+    def speed(self, x):
+        return (x[..., 3] ** 2 + x[..., 4] ** 2) ** 0.5
+
     def initial_equality(self, x):
         return self.road.boundary_equality(self.road.start, x)
 
@@ -222,6 +237,12 @@ class PointMassOCP(AbstractManeuverOCP):
         if self.objective == "min-time":
             return x[4]
         return -jnp.sqrt(x[2] ** 2 + x[3] ** 2)
+
+    def final_time(self, x):
+        return x[..., 4]
+
+    def speed(self, x):
+        return (x[..., 2] ** 2 + x[..., 3] ** 2) ** 0.5
 
     def _bc(self, bset, x):
         fixed = dict(bset.fixed)
