@@ -200,7 +200,7 @@ def multistart(problems, N: int, n: int = 8) -> None:
         rd = road_by_name(name)
         print(f"# multistart {name} {objective}", file=sys.stderr, flush=True)
         f = min_time_primitive if objective == "min-time" else max_exit_primitive
-        opts = primitive_options(objective)
+        opts = primitive_options(objective, n)  # a multi-start's: mu0 0.1
 
         def call():
             return f(rd, num_stages=N, steps_per_stage=1, options=opts, starts=n, throw=False)

@@ -48,7 +48,8 @@ def _optimise(args) -> int:
         raise ValueError(f"--segments must be >= 2, got {args.segments}")
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
-    opts = primitive_options(args.objective, max_iter=args.max_iter, verbose=not args.quiet)
+    opts = primitive_options(args.objective, args.starts, max_iter=args.max_iter,
+                             verbose=not args.quiet)
     print(f"vehsim optimise {args.road} --objective {args.objective}: compiling and solving "
           f"({args.segments} segments)...", file=sys.stderr, flush=True)
     t0 = time.perf_counter()

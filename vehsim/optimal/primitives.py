@@ -40,17 +40,23 @@ N allows, every other start is the centreline at a constant speed (`CENTRELINE_S
 CENTRELINE_SPEEDS = (5.0, 8.0, 3.5, 6.5, 10.0)
 """Speeds [m/s] of the centreline starts of ``starts=N``, in order."""
 MAX_EXIT_MU0 = 0.01
-"""Initial barrier $\\mu_0$ of the max-exit solves (min-time keeps `IPOptions`' 0.1): on
-max-exit instances (corridors, time budgets and sizes compared in docs/performance.md) the
-smaller start converges in fewer iterations and more reliably."""
+"""Initial barrier $\\mu_0$ of max-exit solves from point-mass seeds (min-time keeps
+`IPOptions`' 0.1): from a seed near the optimum the smaller start converges in fewer
+iterations and more reliably; from the centreline runs of a multi-start it takes longer,
+so ``starts=N`` keeps 0.1 (both measured in docs/performance.md)."""
 
 
-def primitive_options(objective: str = "min-time", **changes) -> IPOptions:
+def primitive_options(objective: str = "min-time", starts=None, **changes) -> IPOptions:
     """The interior-point settings of the primitives: ``max_iter=500``, and for max-exit
-    the initial barrier `MAX_EXIT_MU0`; keyword ``changes`` override any field."""
+    from point-mass seeds (``starts`` a sequence of seeds, None or 1) the initial barrier
+    `MAX_EXIT_MU0`; an int ``starts`` > 1 (a multi-start with centreline runs) keeps
+    ``mu0 = 0.1``. Keyword ``changes`` override any field."""
     if objective not in ("min-time", "max-exit"):
         raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
-    settings = dict(max_iter=500, **({"mu0": MAX_EXIT_MU0} if objective == "max-exit" else {}))
+    multistart = isinstance(starts, int) and starts > 1
+    settings = dict(max_iter=500)
+    if objective == "max-exit" and not multistart:
+        settings["mu0"] = MAX_EXIT_MU0
     return IPOptions(**{**settings, **changes})
 
 
@@ -227,13 +233,14 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
 
 def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | None = None,
                        num_stages: int = 50, steps_per_stage: int = 3,
-                       options: IPOptions = primitive_options("min-time"), guess=None,
+                       options: IPOptions | None = None, guess=None,
                        starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Minimum-time maneuver through ``road`` (Table 4 boundary conditions, free t_f).
 
     **Arguments:** ``road`` (name or `Road`), ``car`` (default `rally_gravel_car()`),
     discretisation ``num_stages`` x ``steps_per_stage`` (nodes; the benchmark uses >= 150,
-    docs/maneuvers.md), ``options``, an optional ``guess`` (xs, us), ``starts``: several
+    docs/maneuvers.md), ``options`` (default `primitive_options` of the objective and
+    ``starts``), an optional ``guess`` (xs, us), ``starts``: several
     (margin, friction fraction) point-mass seeds solved one after the other, or an int N:
     N starts of different kinds (`multistart_guesses`) solved in one compiled call split
     over the devices (one after another on each CPU device, vmapped on an accelerator),
@@ -243,19 +250,21 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
     **Returns:** a `Primitive`.
     """
     car = rally_gravel_car() if car is None else car
+    options = primitive_options("min-time", starts) if options is None else options
     return _solve_car(road, "min-time", car, num_stages, steps_per_stage, 4.0, options, throw,
                       guess, starts=starts)
 
 
 def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
                        car: ReducedHalfCar | None = None, num_stages: int = 50,
-                       steps_per_stage: int = 3,
-                       options: IPOptions = primitive_options("max-exit"), guess=None,
-                       starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
+                       steps_per_stage: int = 3, options: IPOptions | None = None,
+                       guess=None, starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
     """Maximum exit speed through ``road`` with t_f <= ``tf_max`` (4.0 s on corner90 in the
     benchmark, docs/maneuvers.md); arguments as `min_time_primitive` (the default
-    ``options``: `primitive_options`, which starts at the smaller barrier `MAX_EXIT_MU0`)."""
+    ``options``, `primitive_options`, start from point-mass seeds at the smaller barrier
+    `MAX_EXIT_MU0`)."""
     car = rally_gravel_car() if car is None else car
+    options = primitive_options("max-exit", starts) if options is None else options
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
                       throw, guess, starts=starts)
 

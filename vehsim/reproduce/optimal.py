@@ -73,7 +73,7 @@ def _problem(ctx, road: str, objective: str, panel: str, segments: int, starts) 
     )
 
     ctx.log(f"{road} {objective} ({segments} segments)")
-    opts = primitive_options(objective)
+    opts = primitive_options(objective, starts)
     t0 = time.perf_counter()
     if objective == "min-time":
         prim = min_time_primitive(road, num_stages=segments, steps_per_stage=1,
