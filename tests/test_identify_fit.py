@@ -321,7 +321,11 @@ def test_closed_loop_fit_on_distributed_truth_matches_the_force(brakings):
     quartic load, load lag, sensor noise, lags and quantisation) from the brake's onset
     to just before the lock (0.10-0.34 s, 61 samples at 250 Hz, the shapes of the lumped
     test above: one compiled solver). The lumped quarter car driven by the logged torque
-    and load matches the measured force to 3 % of its peak RMS (the open-loop criterion)."""
+    and load matches the measured force to 3 % of its peak RMS (the open-loop criterion).
+    The window barely determines six parameters: depending on the rounding of the
+    machine, the fit converges or walks along a flat valley of the loss (kappa0 far from
+    its true value, same force) and reports the data as not identifiable, with the
+    Jacobian's condition number; it must end in one of the two, and match the force."""
     d = jax.tree.map(lambda x: x[50:172:2] if getattr(x, "ndim", 0) == 1 else x,
                      brakings["braking_1"])
     assert len(d) == 61 and float(jnp.min(d.omega * d.r - d.v)) < -5.0  # past the peak
@@ -329,5 +333,25 @@ def test_closed_loop_fit_on_distributed_truth_matches_the_force(brakings):
     start = with_values(TRUTH, {n: truth[n] * (1.2 if i % 2 else 0.8)
                                 for i, n in enumerate(DEFAULT_FREE)})
     res = fit_closed_loop(d, start, solver=dfx.Tsit5(), rtol=1e-8, tol=1e-6, throw=False)
-    assert res.converged, res.message
+    assert res.converged or (res.result == RESULTS.not_identifiable
+                             and res.condition_number > 1e8), res.message
     assert res.errors["braking_1"]["rms_error_rel_peak"] < 0.03, res.errors
+
+
+def test_standard_errors_from_the_singular_values_of_the_jacobian():
+    """Standard errors equal $\\sqrt{\\operatorname{diag}(s^2 (J^\\top J)^{-1})}$ on a random
+    Jacobian, and follow a column scaled by 1e9 exactly (its error divided by 1e9, the
+    others unchanged), where $J^\\top J$ has condition number about 1e18 and its inverse
+    loses every digit."""
+    from vehsim.identify.diagnostics import standard_errors
+
+    rng = np.random.default_rng(3)
+    J, r = rng.normal(size=(50, 3)), rng.normal(size=50)
+    names = ["a", "b", "c"]
+    ref = np.sqrt(np.diag(np.sum(r**2) / 47 * np.linalg.inv(J.T @ J)))
+    se = standard_errors(J, r, names, 10.0)
+    np.testing.assert_allclose([se[n] for n in names], ref, rtol=1e-12)
+    scaled = standard_errors(J * np.array([1.0, 1e9, 1.0]), r, names, 1e9)
+    np.testing.assert_allclose([scaled[n] for n in names], ref / np.array([1.0, 1e9, 1.0]),
+                               rtol=1e-6)
+    assert all(np.isnan(v) for v in standard_errors(J, r, names, np.inf).values())

@@ -80,12 +80,20 @@ def physical_jacobian(J_u, theta_all, names: Sequence[str]) -> np.ndarray:
 
 
 def standard_errors(J, r, names: Sequence[str], condition_number: float) -> dict[str, float]:
-    r"""$\sqrt{\operatorname{diag}(s^2(J^\top J)^{-1})}$, NaN where not determined."""
+    r"""$\sqrt{\operatorname{diag}(s^2(J^\top J)^{-1})}$, NaN where not determined.
+
+    From the singular values of $J$ ($(J^\top J)^{-1} = V \Sigma^{-2} V^\top$), not by
+    inverting $J^\top J$, whose condition number is the square of $J$'s: a column scaled
+    far above the others (a parameter the data barely move) makes it singular in float64
+    while $J$ still determines every parameter."""
     N, p = J.shape
     if not (np.isfinite(condition_number) and N > p):
         return {n: math.nan for n in names}
-    cov = float(np.sum(r**2) / (N - p)) * np.linalg.inv(J.T @ J)
-    return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
+    _, sv, vt = np.linalg.svd(J, full_matrices=False)
+    if not sv[-1] > 0:
+        return {n: math.nan for n in names}
+    var = float(np.sum(r**2) / (N - p)) * np.sum((vt / sv[:, None]) ** 2, axis=0)
+    return {n: float(math.sqrt(var[i])) for i, n in enumerate(names)}
 
 
 def at_lower_bound(grad_u, theta_all, names: Sequence[str], std_errors) -> np.ndarray:
