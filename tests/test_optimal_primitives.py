@@ -15,6 +15,7 @@ from vehsim.optimal.guesses import car_guess
 from vehsim.optimal.ip import IPOptions
 from vehsim.optimal.primitive import solution_record
 from vehsim.optimal.primitives import (
+    MAX_EXIT_MU0,
     max_exit_primitive,
     min_time_primitive,
     point_mass_bound,
@@ -194,3 +195,8 @@ def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min
         min_time_primitive("corner90", num_stages=M, steps_per_stage=1, starts=0)
     with pytest.raises(ValueError, match="objective must be 'min-time' or 'max-exit'"):
         primitive_options("fastest")
+    # max-exit from point-mass seeds starts at the small barrier, a multi-start at IPOPT's
+    assert float(primitive_options("max-exit").mu0) == MAX_EXIT_MU0 < 0.1
+    assert float(primitive_options("max-exit", ((0.5, 0.6), (0.3, 0.8))).mu0) == MAX_EXIT_MU0
+    assert float(primitive_options("max-exit", 8).mu0) == 0.1
+    assert float(primitive_options("min-time").mu0) == 0.1
