@@ -25,8 +25,8 @@ class Primitive(eqx.Module):
     """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
     ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] (read off the last knot by the problem's
     ``final_time`` and ``speed``: the car's and the point mass's states differ) and
-    ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a multi-start solve
-    (batched along axis 0), or None."""
+    ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a
+    multi-start solve (batched along axis 0), or None."""
 
     problem: Any
     solution: IPSolution
