@@ -178,6 +178,7 @@ from .optimal.ip import (
 )
 from .optimal.primitive import Primitive as Primitive
 from .optimal.primitives import (
+    MAX_EXIT_MU0 as MAX_EXIT_MU0,
     max_exit_primitive as max_exit_primitive,
     min_time_primitive as min_time_primitive,
     multistart_guesses as multistart_guesses,
