@@ -74,12 +74,16 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     naming the option."""
     from optimal_cache import M, corner90_min_time
 
+    from vehsim.optimal.primitives import point_mass_bound
+
     rc, _, err = _vehsim("optimise", "corner90", "--segments", M, "--quiet", "--out", tmp_path)
     assert rc == 0, err
     rec = json.loads((tmp_path / "corner90_min-time.json").read_text())
     assert (rec["road"], rec["objective"], rec["status"]) == ("corner90", "min-time",
                                                               "successful")
     np.testing.assert_allclose(rec["t_f"], float(corner90_min_time().t_f), rtol=1e-9)
+    bound = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
+    np.testing.assert_allclose(rec["point_mass_t_f"], float(bound.t_f), rtol=1e-9)
     assert rec["point_mass_t_f"] < rec["t_f"] and rec["max_corridor_violation"] <= 1e-3
     assert set(rec["violations"]) >= {"corridor", "boundary", "defects"}
     assert len(rec["t"]) == len(rec["states"]["x"]) == len(rec["inputs"]["delta"]) == M + 1

@@ -20,7 +20,7 @@ API = ROOT / "docs" / "api"
 def public_names() -> list[str]:
     """The names `vehsim/__init__.py` exports (its ``from ... import x as x`` lines)."""
     tree = ast.parse((ROOT / "vehsim" / "__init__.py").read_text())
-    names = [a.asname or a.name for node in tree.body if isinstance(node, ast.ImportFrom)
+    names = [a.asname or a.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
              for a in node.names]
     return [n for n in names if not n.startswith("_")]
 

@@ -109,3 +109,56 @@ def test_no_import_cycle_between_packages():
 def test_the_public_api_does_not_pull_in_the_upper_layers():
     deps = {_unit(_existing(d)) for d in GRAPH["vehsim"]}
     assert not deps & set(UPPER)
+
+
+LAZY_PROBE = """
+import json, sys
+import vehsim
+after_import = sorted(sys.modules)
+from vehsim.cli import build_parser
+build_parser()
+after_parser = sorted(sys.modules)
+import vehsim.simulate, vehsim.sweep
+from vehsim.cli.brake import CONTROLLER_NAMES
+from vehsim.control.scenarios import CONTROLLERS
+try:
+    vehsim.no_such_name
+    missing = None
+except AttributeError as e:
+    missing = str(e)
+print(json.dumps(dict(
+    after_import=after_import, after_parser=after_parser,
+    sweep=[vehsim.sweep.__module__, type(vehsim.sweep).__name__],
+    simulate=[vehsim.simulate.__module__, type(vehsim.simulate).__name__],
+    half_car=vehsim.HalfCar.__module__, params=type(vehsim.params).__name__,
+    resolved=sum(getattr(vehsim, n) is not None for n in vehsim.__all__),
+    all=len(vehsim.__all__), in_dir=set(vehsim.__all__) <= set(dir(vehsim)),
+    controllers=[list(CONTROLLER_NAMES), list(CONTROLLERS)], missing=missing)))
+"""
+
+
+def test_public_names_are_bound_on_first_use():
+    """`import vehsim` loads no model, and building the command line loads none of the
+    controllers, robots or solvers (a command imports what it runs); each public name
+    imports its module when first asked for, `vehsim.sweep` and `vehsim.simulate` stay the
+    functions after their modules are imported, an unknown name raises AttributeError, and
+    the brake command's controller names are the controllers' keys."""
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", LAZY_PROBE], capture_output=True, text=True,
+                         cwd=ROOT.parent, check=True).stdout
+    probe = json.loads(out)
+    loaded = {m for m in probe["after_import"] if m.startswith("vehsim.")}
+    assert loaded == {"vehsim._xla_cpu"}
+    assert "diffrax" not in probe["after_import"] and "equinox" not in probe["after_import"]
+    heavy = ("vehsim.control.controllers", "vehsim.robot", "vehsim.optimal.ip.solver",
+             "vehsim.tire.moments", "vehsim.identify.fit")
+    assert not [m for m in probe["after_parser"] if m.startswith(heavy)]
+    assert probe["sweep"] == ["vehsim.sweep", "function"]
+    assert probe["simulate"] == ["vehsim.simulate", "function"]
+    assert probe["half_car"] == "vehsim.vehicle.half_car" and probe["params"] == "module"
+    assert probe["resolved"] == probe["all"] > 150 and probe["in_dir"]
+    assert "no_such_name" in probe["missing"]
+    assert probe["controllers"][0] == probe["controllers"][1]

@@ -19,6 +19,7 @@ from vehsim.optimal.primitives import (
     max_exit_primitive,
     min_time_primitive,
     point_mass_bound,
+    primitive_and_bound,
     primitive_options,
     rally_gravel_car,
 )
@@ -98,6 +99,21 @@ def _against_ipopt(prim, road, objective, tf_max=4.0, start=None):
     value = ((lambda x: x[-1, IDX_TF]) if objective == "min-time"
              else (lambda x: math.hypot(x[-1, 3], x[-1, 4])))
     return float(value(np.asarray(prim.solution.xs))), float(value(ip["xs"])), ip["xs"]
+
+
+def test_primitive_and_bound_are_the_primitive_and_the_bound(corner_min_time):
+    """`primitive_and_bound` solves the bound while the car's program loads: the same
+    programs from the same starts, so the same numbers to the last bit; a wrong objective
+    is named."""
+    prim, bound = primitive_and_bound("corner90", num_stages=M, steps_per_stage=1,
+                                      options=IPOptions(max_iter=300))
+    np.testing.assert_array_equal(np.asarray(prim.solution.xs),
+                                  np.asarray(corner_min_time.solution.xs))
+    alone = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
+    np.testing.assert_array_equal(np.asarray(bound.solution.xs), np.asarray(alone.solution.xs))
+    assert float(bound.t_f) < float(prim.t_f)
+    with pytest.raises(ValueError, match="objective.*'fastest'"):
+        primitive_and_bound("corner90", "fastest", num_stages=M)
 
 
 def test_corner90_min_time_is_ipopts_optimum(corner_min_time):

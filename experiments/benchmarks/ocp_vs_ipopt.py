@@ -154,7 +154,10 @@ def end_to_end(N: int, repeats: int = 3) -> None:
 
     here = str(Path(__file__).resolve().parent)
     root = str(Path(here).parent.parent)
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    # Python caches compiled bytecode next to the sources unless told not to; a sandbox that
+    # tells it not to would recompile every imported module of both processes on every run
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("JAX_COMPILATION_CACHE_DIR", "PYTHONDONTWRITEBYTECODE")}
     env["PYTHONPATH"] = root
 
     def wall(cmd):

@@ -138,13 +138,16 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
 
 
 def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
-               guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS) -> Primitive:
+               guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS,
+               meanwhile=None) -> Primitive:
+    """The car's primitive; ``meanwhile()`` (if given) runs on the calling thread once the
+    starting guesses are made, while the car's program is still compiling or loading."""
     rd = _road(road)
     prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
                        rate_weight=rate_weight)
     if isinstance(starts, int) and guess is None:
-        return _solve_batched_starts(prob, car, rd, starts, options, throw)
+        return _solve_batched_starts(prob, car, rd, starts, options, throw, meanwhile)
     with ThreadPoolExecutor(1) as pool:  # compile the car's solve while the seeds are solved
         pending = pool.submit(compile_interior_point, prob, np.zeros((num_stages + 1, NX)),
                               np.zeros((num_stages, NU)), options)  # shapes only
@@ -158,6 +161,8 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
                 guesses.append((xs0, us0))
         else:
             guesses.append(guess)
+        if meanwhile is not None:
+            meanwhile()
         solve = pending.result()
     best = None
     for xs0, us0 in guesses:
@@ -200,7 +205,8 @@ def _compile_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
     return lambda *a: compiled(*a, batch)
 
 
-def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Primitive:
+def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw,
+                          meanwhile=None) -> Primitive:
     """Every start of `multistart_guesses` in one compiled call, split over the devices
     (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
     ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts); the best
@@ -210,6 +216,8 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw) -> Prim
     with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
         pending = pool.submit(_compile_starts, prob, n_pad, options)
         xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
+        if meanwhile is not None:
+            meanwhile()
         solve = pending.result()
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
@@ -267,6 +275,37 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
     options = primitive_options("max-exit", starts) if options is None else options
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
                       throw, guess, starts=starts)
+
+
+def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
+                        car: ReducedHalfCar | None = None, tf_max: float = 4.0,
+                        num_stages: int = 50, steps_per_stage: int = 3,
+                        options: IPOptions | None = None, starts=DEFAULT_STARTS,
+                        throw: bool = True) -> tuple[Primitive, Primitive]:
+    """A primitive and its physical bound, what `solution_record` compares: the car's
+    `min_time_primitive` or `max_exit_primitive` (arguments as there) and the
+    `point_mass_bound` of the same road, objective, friction, discretisation and budget. The
+    bound is solved while the car's program compiles or loads (its point-mass program is
+    the seeds' and is ready by then), so it costs no extra wall time where that takes
+    longer (a first run: seconds; a run from the compilation cache: a few tenths).
+    ``throw`` applies to the car's primitive; the bound never raises (check its result).
+
+    **Returns:** ``(primitive, bound)``.
+    """
+    if objective not in ("min-time", "max-exit"):
+        raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
+    car = rally_gravel_car() if car is None else car
+    options = primitive_options(objective, starts) if options is None else options
+    bound = []
+
+    def solve_bound():
+        bound.append(point_mass_bound(road, objective, D=float(car.tire.D),
+                                      num_stages=num_stages, steps_per_stage=steps_per_stage,
+                                      tf_max=tf_max, throw=False))
+
+    prim = _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options,
+                      throw, starts=starts, meanwhile=solve_bound)
+    return prim, bound[0]
 
 
 def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *,

@@ -65,25 +65,14 @@ def reproduce(ctx) -> None:
 def _problem(ctx, road: str, objective: str, panel: str, segments: int, starts) -> str:
     """Solve one benchmark problem, draw its Fig. 20 panel, record it; returns its table row."""
     from ..optimal.primitive import solution_record
-    from ..optimal.primitives import (
-        max_exit_primitive,
-        min_time_primitive,
-        point_mass_bound,
-        primitive_options,
-    )
+    from ..optimal.primitives import primitive_and_bound, primitive_options
 
     ctx.log(f"{road} {objective} ({segments} segments)")
     opts = primitive_options(objective, starts)
     t0 = time.perf_counter()
-    if objective == "min-time":
-        prim = min_time_primitive(road, num_stages=segments, steps_per_stage=1,
-                                  options=opts, starts=starts, throw=False)
-    else:
-        prim = max_exit_primitive(road, num_stages=segments, steps_per_stage=1,
-                                  options=opts, starts=starts, throw=False)
+    prim, bound = primitive_and_bound(road, objective, num_stages=segments, steps_per_stage=1,
+                                      options=opts, starts=starts, throw=False)
     wall = time.perf_counter() - t0
-    bound = point_mass_bound(road, objective, num_stages=segments, steps_per_stage=1,
-                             throw=False)
     rec = solution_record(prim, bound)
     tech = techniques(prim.signals(), np.asarray(prim.time()))
     key = f"{road}_{objective}"
