@@ -134,7 +134,7 @@ _BOOT = ("import json, sys; import jax; jax.distributed.initialize(**json.loads(
 
 def join_distributed(args: argparse.Namespace) -> None:
     """Join a multi-process run (`jax.distributed.initialize`). JAX's runtime must start
-    before the first array exists, and importing vehsim creates arrays (parameter presets,
+    before the first array exists, and vehsim's modules create arrays when imported (presets,
     default options): so, unless it is already started, the command restarts its process
     (same process id, same arguments) with the runtime started first."""
     import jax
