@@ -13,7 +13,7 @@ from vehsim import result_name
 from vehsim.optimal import roads
 from vehsim.optimal.guesses import car_guess
 from vehsim.optimal.ip import IPOptions
-from vehsim.optimal.primitive import solution_record
+from vehsim.optimal.primitive import load_record_programs, solution_record
 from vehsim.optimal.primitives import (
     MAX_EXIT_MU0,
     max_exit_primitive,
@@ -114,6 +114,26 @@ def test_primitive_and_bound_are_the_primitive_and_the_bound(corner_min_time):
     assert float(bound.t_f) < float(prim.t_f)
     with pytest.raises(ValueError, match="objective.*'fastest'"):
         primitive_and_bound("corner90", "fastest", num_stages=M)
+
+
+def test_record_programs_loaded_from_a_guess_are_the_solution_s(corner_min_time):
+    """`load_record_programs` with a starting guess prepares the very programs the record of
+    the solution runs: after it, the record needs no other program (the tests run with the
+    cache of compiled programs on, tests/conftest.py)."""
+    from vehsim import compilation_cache
+
+    prob = corner_min_time.problem
+    xs0, us0 = car_guess(prob.vehicle, prob.road, M, 1)
+    held = dict(compilation_cache._programs)
+    compilation_cache._programs.clear()  # this process's programs: loaded again from disk
+    try:
+        load_record_programs(prob, xs0, us0)
+        loaded = set(compilation_cache._programs)
+        rec = solution_record(corner_min_time)
+        assert set(compilation_cache._programs) == loaded and len(loaded) == 3
+    finally:
+        compilation_cache._programs.update(held)
+    assert rec["t_f"] == float(corner_min_time.t_f)
 
 
 def test_corner90_min_time_is_ipopts_optimum(corner_min_time):

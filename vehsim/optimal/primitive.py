@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._results import result_name, result_record
-from ..compilation_cache import exported_call
+from ..compilation_cache import exported_call, exported_program
 from .ip import IPSolution
 from .shooting import DELTA_MAX, ManeuverOCP
 
@@ -46,7 +46,8 @@ class Primitive(eqx.Module):
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
-        return exported_call("nodes", _nodes, (self.problem, self.solution))
+        return exported_call("nodes", _nodes,
+                             (self.problem, self.solution.xs, self.solution.us))
 
     def time(self):
         n = self.nodes()
@@ -65,7 +66,8 @@ class Primitive(eqx.Module):
         RK4 steps per step (`fine_nodes`)."""
         prob = self.problem
         n, fine, bc, defects = (np.asarray(a) for a in exported_call(
-            "violations", _violation_arrays, (prob, self.solution, substeps)))
+            "violations", _violation_arrays,
+            (prob, self.solution.xs, self.solution.us, substeps)))
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
         between = rd.distance_off_road(fine[:, 0], fine[:, 1])
@@ -86,8 +88,8 @@ class Primitive(eqx.Module):
 
 
 @eqx.filter_jit
-def _nodes(prob, sol: IPSolution):
-    return prob.nodes(sol.xs, sol.us)
+def _nodes(prob, xs, us):
+    return prob.nodes(xs, us)
 
 
 @eqx.filter_jit
@@ -103,19 +105,32 @@ def _node_signals(vehicle, nodes) -> dict:
 
 
 @eqx.filter_jit
-def _violation_arrays(prob, sol: IPSolution, substeps: int):
+def _violation_arrays(prob, xs, us, substeps: int):
     """Nodes, the re-integrated states between them, the largest boundary-condition
-    violation and the largest shooting defect (one compiled program)."""
+    violation and the largest shooting defect of the knots ``xs`` and inputs ``us`` (one
+    compiled program)."""
     rd = prob.road
-    bc = jnp.maximum(jnp.max(jnp.abs(prob.initial_equality(sol.xs[0])), initial=0.0),
-                     jnp.max(jnp.abs(prob.terminal_equality(sol.xs[-1])), initial=0.0))
-    for b in (rd.boundary_inequality(rd.start, sol.xs[0]),
-              rd.boundary_inequality(rd.end, sol.xs[-1])):
+    bc = jnp.maximum(jnp.max(jnp.abs(prob.initial_equality(xs[0])), initial=0.0),
+                     jnp.max(jnp.abs(prob.terminal_equality(xs[-1])), initial=0.0))
+    for b in (rd.boundary_inequality(rd.start, xs[0]), rd.boundary_inequality(rd.end, xs[-1])):
         bc = jnp.maximum(bc, jnp.max(jnp.maximum(-b, 0.0), initial=0.0))
-    defects = sol.xs[1:] - jax.vmap(prob.transition)(sol.xs[:-1], sol.us,
-                                                      jnp.arange(prob.num_stages))
-    return (prob.nodes(sol.xs, sol.us), prob.fine_nodes(sol.xs, sol.us, substeps), bc,
+    defects = xs[1:] - jax.vmap(prob.transition)(xs[:-1], us, jnp.arange(prob.num_stages))
+    return (prob.nodes(xs, us), prob.fine_nodes(xs, us, substeps), bc,
             jnp.max(jnp.abs(defects)))
+
+
+def load_record_programs(prob: ManeuverOCP, xs, us, substeps: int = SUBSTEPS) -> None:
+    """Compile, or load from the compilation cache, the programs that `solution_record`
+    runs for a car problem shaped as ``prob`` with knots and inputs shaped as ``xs``,
+    ``us`` (their values do not matter: a starting guess will do), so that a caller can do
+    it while it waits for something else. Nothing happens when the cache is off (the
+    programs then compile when first run)."""
+    nodes = np.zeros((prob.num_stages * prob.steps_per_stage + 1, np.shape(xs)[-1]),
+                     np.asarray(xs).dtype)
+    for name, fn, args in (("nodes", _nodes, (prob, xs, us)),
+                           ("violations", _violation_arrays, (prob, xs, us, substeps)),
+                           ("signals", _signals, (prob.vehicle, nodes))):
+        exported_program(name, fn, args)
 
 
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:

@@ -27,7 +27,7 @@ from ..vehicle.reduced import ReducedHalfCar
 from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
 from .ip import IPOptions, IPSolution, compile_interior_point, interior_point
 from .ip.solver import _solution_tree, canonical_options, print_iteration_log
-from .primitive import Primitive
+from .primitive import Primitive, load_record_programs
 from .roads import Road, road as road_by_name
 from .shooting import IDX_TF, NU, NX, ManeuverOCP, PointMassOCP
 
@@ -140,8 +140,9 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
 def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
                guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS,
                meanwhile=None) -> Primitive:
-    """The car's primitive; ``meanwhile()`` (if given) runs on the calling thread once the
-    starting guesses are made, while the car's program is still compiling or loading."""
+    """The car's primitive; ``meanwhile(prob, xs0, us0)`` (if given) runs on the calling
+    thread with the problem and the first starting guess once the guesses are made, while
+    the car's program is still compiling or loading."""
     rd = _road(road)
     prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
@@ -162,7 +163,7 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
         else:
             guesses.append(guess)
         if meanwhile is not None:
-            meanwhile()
+            meanwhile(prob, *guesses[0])
         solve = pending.result()
     best = None
     for xs0, us0 in guesses:
@@ -217,7 +218,7 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw,
         pending = pool.submit(_compile_starts, prob, n_pad, options)
         xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
         if meanwhile is not None:
-            meanwhile()
+            meanwhile(prob, xs0[0], us0[0])
         solve = pending.result()
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
@@ -285,9 +286,10 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     """A primitive and its physical bound, what `solution_record` compares: the car's
     `min_time_primitive` or `max_exit_primitive` (arguments as there) and the
     `point_mass_bound` of the same road, objective, friction, discretisation and budget. The
-    bound is solved while the car's program compiles or loads (its point-mass program is
-    the seeds' and is ready by then), so it costs no extra wall time where that takes
-    longer (a first run: seconds; a run from the compilation cache: a few tenths).
+    bound is solved, and the record's programs are compiled or loaded
+    (`load_record_programs`), while the car's program compiles or loads (the bound's
+    point-mass program is the seeds' and is ready by then): no extra wall time where that
+    takes longer (a first run: seconds; a run from the compilation cache: a few tenths).
     ``throw`` applies to the car's primitive; the bound never raises (check its result).
 
     **Returns:** ``(primitive, bound)``.
@@ -298,13 +300,14 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     options = primitive_options(objective, starts) if options is None else options
     bound = []
 
-    def solve_bound():
+    def meanwhile(prob, xs0, us0):
         bound.append(point_mass_bound(road, objective, D=float(car.tire.D),
                                       num_stages=num_stages, steps_per_stage=steps_per_stage,
                                       tf_max=tf_max, throw=False))
+        load_record_programs(prob, xs0, us0)
 
     prim = _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options,
-                      throw, starts=starts, meanwhile=solve_bound)
+                      throw, starts=starts, meanwhile=meanwhile)
     return prim, bound[0]
 
 
