@@ -140,12 +140,14 @@ assert "jax" not in sys.modules
 """
 
 
-def end_to_end(N: int, repeats: int = 3) -> None:
+def end_to_end(N: int, repeats: int = 5) -> None:
     """From process start to files written: ``vehsim optimise corner90`` (the default
     command, progress lines included) with an empty compilation cache (cold) and then
     ``repeats`` times with the cache it filled (warm; the median is the headline), and a
     process that builds the same problem in CasADi, solves it with IPOPT from the same car
-    guess and writes its JSON (median of ``repeats`` processes). The IPOPT process imports
+    guess and writes its JSON (median of ``repeats`` processes). The warm runs and the IPOPT
+    processes alternate, so that a machine whose speed drifts during the run (a shared
+    virtual machine) slows both alike. The IPOPT process imports
     CasADi and NumPy only (`_casadi_maneuver`): the road, bounds and guess come from files,
     computing them being vehsim's work."""
     import subprocess
@@ -170,22 +172,25 @@ def end_to_end(N: int, repeats: int = 3) -> None:
         cmd = [sys.executable, "-m", "vehsim", "optimise", "corner90", "--segments", str(N),
                "--out", str(Path(tmp) / "out")]
         cold = wall(cmd)
-        warm = [wall(cmd) for _ in range(repeats)]
-        rec = json.loads((Path(tmp) / "out" / "corner90_min-time.json").read_text())
         xs0, us0 = car_guess(rally_gravel_car(), road_by_name("corner90"), N, 1)
         np.savez(Path(tmp) / "guess.npz", xs=np.asarray(xs0), us=np.asarray(us0))
         (Path(tmp) / "problem.json").write_text(json.dumps(dict(
             road=road_data(road_by_name("corner90")), limits=LIMITS)))
         script = IPOPT_ONCE.format(here=here, N=N)
-        ipopt = [wall([sys.executable, "-c", script, str(Path(tmp) / "problem.json"),
-                       str(Path(tmp) / "guess.npz"), str(Path(tmp) / "ipopt.json")])
-                 for _ in range(repeats)]
+        ipopt_cmd = [sys.executable, "-c", script, str(Path(tmp) / "problem.json"),
+                     str(Path(tmp) / "guess.npz"), str(Path(tmp) / "ipopt.json")]
+        warm, ipopt = [], []
+        for _ in range(repeats):
+            warm.append(wall(cmd))
+            ipopt.append(wall(ipopt_cmd))
+        rec = json.loads((Path(tmp) / "out" / "corner90_min-time.json").read_text())
         ip = json.loads((Path(tmp) / "ipopt.json").read_text())
     warm_s, ipopt_s = float(np.median(warm)), float(np.median(ipopt))
     print(json.dumps(dict(
         problem="corner90:min-time end to end", segments=N, end_to_end_cold_s=cold,
         end_to_end_warm_s=warm_s, end_to_end_warm_runs_s=warm, ipopt_end_to_end_s=ipopt_s,
-        ipopt_end_to_end_runs_s=ipopt, ratio_warm=ipopt_s / warm_s, ratio_cold=ipopt_s / cold,
+        ipopt_end_to_end_runs_s=ipopt, ratio_warm=ipopt_s / warm_s,
+        ratio_warm_pairs=[i / w for i, w in zip(ipopt, warm)], ratio_cold=ipopt_s / cold,
         vehsim_t_f=rec["t_f"], vehsim_status=rec["status"], ipopt_t_f=ip["t_f"],
         ipopt_status=ip["status"], loadavg=os.getloadavg()[0],
     )), flush=True)
