@@ -1,5 +1,7 @@
 """Reduced half-car (eqs. 61-63) with the benchmark maneuvers' quasi-static load transfer (docs/maneuvers.md)."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -106,3 +108,28 @@ def test_linear_tire_and_invalid_tire():
 
     with pytest.raises(ValueError, match="static"):
         ReducedHalfCar(rally_gravel(), _Dyn(c_kappa=1.0, c_alpha=1.0))
+
+
+def test_load_proportional_tires_give_the_load_transfer_iteration_s_model():
+    """Load-proportional tires are evaluated once per axle, at unit load: the loads, forces,
+    rates and the rates' Jacobian equal those of the general path (the tire at the static
+    loads, the 2x2 load transfer, the tire again at the solved loads) to rounding."""
+    for tire in (rally_gravel_tire(), LinearTire(c_kappa=10.0, c_alpha=8.0)):
+        class General(type(tire)):
+            load_proportional = False
+
+        fast = ReducedHalfCar(rally_gravel(), tire)
+        general = ReducedHalfCar(rally_gravel(), General(**{f.name: getattr(tire, f.name)
+                                                             for f in dataclasses.fields(tire)}))
+        assert fast.tire.load_proportional and not general.tire.load_proportional
+        for u in [CONTROLS, jnp.array([-0.5, -0.3, -0.1]), jnp.array([0.6, 0.9, 0.5])]:
+            np.testing.assert_allclose(fast.normal_loads(STATE, u),
+                                       general.normal_loads(STATE, u), rtol=1e-13)
+            for a, b in zip(fast.tire_forces(STATE, u), general.tire_forces(STATE, u)):
+                np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-9)
+            np.testing.assert_allclose(fast.f(STATE, u), general.f(STATE, u), rtol=1e-13,
+                                       atol=1e-12)
+            for argnum in (0, 1):
+                np.testing.assert_allclose(jax.jacfwd(fast.f, argnum)(STATE, u),
+                                           jax.jacfwd(general.f, argnum)(STATE, u),
+                                           rtol=1e-11, atol=1e-9)

@@ -14,13 +14,20 @@ state of shape ``(0,)`` so vehicle models treat both alike.
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 from jaxtyping import Array, Float, PyTree
 
 
 class AbstractTire(eqx.Module):
-    """Combined-slip tire model used by `vehsim` vehicle models."""
+    """Combined-slip tire model used by `vehsim` vehicle models.
+
+    ``load_proportional``: the forces are $F_z$ times a function of the kinematics alone
+    (friction coefficients that do not depend on the load), so a vehicle model may evaluate
+    the tire once at unit load and scale it by the load it solves for."""
+
+    load_proportional: ClassVar[bool] = False
 
     @abc.abstractmethod
     def init_state(self) -> PyTree:

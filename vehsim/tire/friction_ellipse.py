@@ -12,6 +12,8 @@ opposes the slip velocity $(V_x - \omega r, V_y)$ with magnitude $\mu(s)F_z$ and
 $s = |\text{slip velocity}|/(\omega r)$. The tire is static (state shape ``(0,)``).
 """
 
+from typing import ClassVar
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -50,6 +52,8 @@ class FrictionEllipseTire(AbstractTire):
     - as a slip-input law `mu(kappa, tan_alpha)` for the reduced half-car (eqs. 61-63),
       with $\kappa \in (-1, \infty)$ the control input and `tan_alpha` $= V_y/V_x$.
     """
+
+    load_proportional: ClassVar[bool] = True
 
     B: Float[Array, "..."] = array_field()
     C: Float[Array, "..."] = array_field()

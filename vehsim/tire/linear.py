@@ -7,6 +7,8 @@ cornering stiffness $C_\alpha = c_\alpha F_z$. Useful for closed forms (underste
 At $V_x = 0$ the forces are zero (the slips are defined as 0 there, with finite gradients).
 """
 
+from typing import ClassVar
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -22,6 +24,8 @@ class LinearTire(AbstractTire):
     **Fields:** `c_kappa` [-] longitudinal and `c_alpha` [1/rad] cornering stiffness per
     unit normal load.
     """
+
+    load_proportional: ClassVar[bool] = True
 
     c_kappa: Float[Array, "..."] = array_field()
     c_alpha: Float[Array, "..."] = array_field()

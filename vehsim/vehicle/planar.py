@@ -80,16 +80,22 @@ def quasi_static_loads(
 
     **Returns:** $(F_{zF}, F_{zR})$ [N].
     """
-    mg = params.m * params.g
     FzF, FzR = params.static_loads()
-    floor = 1e-3 * mg
+    floor = 1e-3 * params.m * params.g
     for _ in range(iterations):
         FzF_eval = jnp.maximum(FzF, floor)
         FzR_eval = jnp.maximum(FzR, floor)
-        muF = body_fx_F(FzF_eval) / FzF_eval
-        muR = body_fx_R(FzR_eval) / FzR_eval
-        FzF = mg * (params.lR - params.h * muR) / (
-            params.wheelbase + params.h * (muF - muR)
-        )
-        FzR = mg - FzF
+        FzF, FzR = load_transfer(params, body_fx_F(FzF_eval) / FzF_eval,
+                                 body_fx_R(FzR_eval) / FzR_eval)
     return FzF, FzR
+
+
+def load_transfer(params: HalfCarParams, muF_bx, muR_bx):
+    r"""$(F_{zF}, F_{zR})$ [N] of `quasi_static_loads` for given body-x forces per unit load
+    $\mu_{F,bx}$, $\mu_{R,bx}$ (the exact loads where the tires' forces are proportional
+    to the load)."""
+    mg = params.m * params.g
+    FzF = mg * (params.lR - params.h * muR_bx) / (
+        params.wheelbase + params.h * (muF_bx - muR_bx)
+    )
+    return FzF, mg - FzF

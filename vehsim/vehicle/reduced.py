@@ -23,7 +23,13 @@ from jaxtyping import Array, Float
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
 from .params import HalfCarParams
-from .planar import axle_velocities, front_body_x, planar_rates, quasi_static_loads
+from .planar import (
+    axle_velocities,
+    front_body_x,
+    load_transfer,
+    planar_rates,
+    quasi_static_loads,
+)
 
 
 class ReducedHalfCar(AbstractVehicle):
@@ -42,8 +48,10 @@ class ReducedHalfCar(AbstractVehicle):
       unless `tire_R` is given, the rear; e.g. `FrictionEllipseTire` (the maneuvers' tire) or
       `LinearTire`.
     - `tire_R`: the rear tire if it differs (static too).
-    - `load_iterations`: fixed-point iterations of the load transfer; 1 is exact for tires
-      whose forces are proportional to the load (see `quasi_static_loads`).
+    - `load_iterations`: fixed-point iterations of the load transfer (`quasi_static_loads`)
+      for tires whose forces are not proportional to the load; with load-proportional tires
+      (`AbstractTire.load_proportional`) each tire is evaluated once, at unit load, and the
+      loads are exact (`load_transfer`).
     """
 
     params: HalfCarParams
@@ -87,6 +95,14 @@ class ReducedHalfCar(AbstractVehicle):
         omF, omR = (1.0 + kF) * VFx / r, (1.0 + kR) * VRx / r
         tire_F, tire_R = self.tires
         s0 = jnp.zeros((0,))
+        if tire_F.load_proportional and tire_R.load_proportional:
+            # each tire once, at unit load: the loads are then exact (`load_transfer`), and
+            # the second derivatives of the optimal-control solver cost half as much
+            unit_F = tire_F.forces(s0, VFx, VFy, omF, r, 1.0)
+            unit_R = tire_R.forces(s0, VRx, VRy, omR, r, 1.0)
+            FzF, FzR = load_transfer(self.params, front_body_x(unit_F[0], unit_F[1], delta),
+                                     unit_R[0])
+            return unit_F * FzF, unit_R * FzR, FzF, FzR
 
         def front(Fz):
             return tire_F.forces(s0, VFx, VFy, omF, r, Fz)
