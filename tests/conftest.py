@@ -24,11 +24,14 @@ if "--xla_backend_optimization_level" not in _flags:
     os.environ["XLA_FLAGS"] = f"{_flags} --xla_backend_optimization_level=0".strip()
 
 # jaxlib 0.10's concurrent CPU scheduler can deadlock on two cores (vehsim/_xla_cpu.py): vehsim
-# switches it off when imported, but a test may start JAX before it imports vehsim
-if "--xla_cpu_enable_concurrency_optimized_scheduler" not in os.environ["XLA_FLAGS"]:
-    from importlib.metadata import version as _version
-    if _version("jaxlib").startswith("0.10."):
-        os.environ["XLA_FLAGS"] += " --xla_cpu_enable_concurrency_optimized_scheduler=false"
+# switches it off when imported, but a test may start JAX before it imports vehsim. And the
+# command line's code generator (`prefer_fast_compilation`) for every process of the run, so
+# that the command-line runs load what the tests compiled (the flags key the cache)
+from vehsim._xla_cpu import guard_cpu_scheduler, prefer_fast_compilation  # noqa: E402
+
+
+guard_cpu_scheduler()
+prefer_fast_compilation()
 
 if not os.environ.get("VEHSIM_TEST_JAX_CACHE"):  # the first process of the run (not a worker)
     os.environ["VEHSIM_TEST_JAX_CACHE"] = tempfile.mkdtemp(prefix="vehsim-test-jax-cache-")

@@ -8,7 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from vehsim._xla_cpu import FLAG, _affected, guard_cpu_scheduler
+from vehsim._xla_cpu import (
+    FLAG,
+    FUSION_EMITTERS_FLAG,
+    _affected,
+    guard_cpu_scheduler,
+    prefer_fast_compilation,
+)
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,6 +43,22 @@ def test_guard_adds_the_flag_for_the_affected_jaxlib_only_and_keeps_the_users_ch
         assert env["XLA_FLAGS"] == f"--xla_backend_optimization_level=0 {FLAG}=false"
     mine = {"XLA_FLAGS": f"{FLAG}=true"}
     assert not guard_cpu_scheduler(mine) and mine["XLA_FLAGS"] == f"{FLAG}=true"
+
+
+def test_the_command_line_s_code_generator_flag_follows_the_same_rules():
+    """`prefer_fast_compilation` adds the fusion-emitters flag (off) for jaxlib 0.10 only,
+    after what the user has, and keeps a user's own setting; the test run has it, so that
+    the command-line runs and the tests share their compiled programs."""
+    env = {"XLA_FLAGS": "--xla_backend_optimization_level=0"}
+    added = prefer_fast_compilation(env)
+    assert added == _affected(version("jaxlib"))
+    if added:
+        assert env["XLA_FLAGS"] == (f"--xla_backend_optimization_level=0 "
+                                    f"{FUSION_EMITTERS_FLAG}=false")
+        assert f"{FUSION_EMITTERS_FLAG}=false" in os.environ["XLA_FLAGS"]
+    mine = {"XLA_FLAGS": f"{FUSION_EMITTERS_FLAG}=true"}
+    assert not prefer_fast_compilation(mine)
+    assert mine["XLA_FLAGS"] == f"{FUSION_EMITTERS_FLAG}=true"
 
 
 @pytest.mark.skipif(not _affected(version("jaxlib")), reason="only jaxlib 0.10 deadlocks")

@@ -11,6 +11,9 @@ distributed 2D tire's steady state (one solve per axis) is such a program.
 its CPU backend (it has no effect once the backend runs, and none on GPUs). A user who
 sets ``--xla_cpu_enable_concurrency_optimized_scheduler`` in ``XLA_FLAGS`` keeps their
 choice. Other jaxlib versions are left alone: XLA refuses flags it does not know.
+
+`prefer_fast_compilation` (the command line's choice, same rules) switches off the CPU
+fusion emitters, which compile slower than the older code generator.
 """
 
 import os
@@ -29,6 +32,24 @@ def _affected(version: str) -> bool:
 
 def guard_cpu_scheduler(environ=os.environ) -> bool:
     """Add ``FLAG=false`` to ``XLA_FLAGS`` for the affected jaxlib; True if it was added."""
+    return _switch_off(FLAG, environ)
+
+
+FUSION_EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters"
+
+
+def prefer_fast_compilation(environ=os.environ) -> bool:
+    """Switch XLA's CPU fusion emitters off (``FUSION_EMITTERS_FLAG=false`` in ``XLA_FLAGS``,
+    jaxlib 0.10 only, a user's own setting kept); True if the flag was added.
+
+    The command line does this before JAX starts: a command compiles the optimal-control
+    solver once per machine and then runs it for a fraction of a second, and the older
+    emitters compile it about a quarter faster for code a few per cent slower
+    (docs/performance.md). The library itself keeps XLA's default."""
+    return _switch_off(FUSION_EMITTERS_FLAG, environ)
+
+
+def _switch_off(flag: str, environ) -> bool:
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -36,7 +57,7 @@ def guard_cpu_scheduler(environ=os.environ) -> bool:
     except PackageNotFoundError:
         return False
     flags = environ.get("XLA_FLAGS", "")
-    if not affected or FLAG in flags:
+    if not affected or flag in flags:
         return False
-    environ["XLA_FLAGS"] = f"{flags} {FLAG}=false".strip()
+    environ["XLA_FLAGS"] = f"{flags} {flag}=false".strip()
     return True
