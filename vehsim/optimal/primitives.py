@@ -46,13 +46,17 @@ iterations and more reliably; from the centreline runs of a multi-start it takes
 so ``starts=N`` keeps 0.1 (both measured in docs/performance.md)."""
 
 
+def _check_objective(objective: str) -> None:
+    if objective not in ("min-time", "max-exit"):
+        raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
+
+
 def primitive_options(objective: str = "min-time", starts=None, **changes) -> IPOptions:
     """The interior-point settings of the primitives: ``max_iter=500``, and for max-exit
     from point-mass seeds (``starts`` a sequence of seeds, None or 1) the initial barrier
     `MAX_EXIT_MU0`; an int ``starts`` > 1 (a multi-start with centreline runs) keeps
     ``mu0 = 0.1``. Keyword ``changes`` override any field."""
-    if objective not in ("min-time", "max-exit"):
-        raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
+    _check_objective(objective)
     multistart = isinstance(starts, int) and starts > 1
     settings = dict(max_iter=500)
     if objective == "max-exit" and not multistart:
@@ -294,8 +298,7 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
 
     **Returns:** ``(primitive, bound)``.
     """
-    if objective not in ("min-time", "max-exit"):
-        raise ValueError(f"objective must be 'min-time' or 'max-exit', got {objective!r}")
+    _check_objective(objective)
     car = rally_gravel_car() if car is None else car
     options = primitive_options(objective, starts) if options is None else options
     bound = []
