@@ -17,7 +17,7 @@ import pytest
 from vehsim import HalfCar, rally_gravel, rally_gravel_tire, result_name, simulate
 from vehsim.cli import main
 from vehsim.sharding import pad_members, sharded_vmap
-from vehsim.sweep import _sweep_run, sweep, sweep_grid
+from vehsim._sweep import _sweep_run, sweep, sweep_grid
 from vehsim.vehicle.maneuvers import half_car_scenario, step_steer
 
 

@@ -1,342 +1,295 @@
 """vehsim: a differentiable vehicle simulator in JAX (after Tsiotras, 2004).
 
 The public API is flat: everything a user needs is importable from ``vehsim``, each object
-under the one name it has in its own module. The names are bound on first use (PEP 562): the
-import statements below are what type checkers, editors and the documentation read, and at run
-time ``vehsim.X`` imports X's module when X is first asked for, so that a command that needs
-the optimal-control solver does not wait for the braking, robot and moment models to load.
+under the one name it has in its own (private or sub-package) module, re-exported here as
+diffrax, equinox and optimistix do.
+
+Importing vehsim applies one process-wide setting, before JAX starts its CPU backend: on
+jaxlib 0.10 only, XLA's concurrency-optimised CPU scheduler is switched off in
+``XLA_FLAGS`` (`configure_xla_cpu`, which says why and how to opt out).
 """
 
-import ast as _ast
-import sys as _sys
-import types as _types
-import typing as _typing
-from pathlib import Path as _Path
+from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
 
-from . import _xla_cpu
+from ._xla_cpu import configure_xla_cpu as configure_xla_cpu
 
 
-_xla_cpu.guard_cpu_scheduler()  # before JAX starts its CPU backend (vehsim/_xla_cpu.py)
+configure_xla_cpu()  # before JAX starts its CPU backend; see its docstring for the scope
 
-if _typing.TYPE_CHECKING:
-    from . import params as params
-    from ._results import (
-        RESULTS as RESULTS,
-        is_successful as is_successful,
-        result_message as result_message,
-        result_name as result_name,
-        result_record as result_record,
-    )
-    from .identify.base import AbstractBrakingModel as AbstractBrakingModel
+from . import params as params
+from ._results import (
+    RESULTS as RESULTS,
+    is_successful as is_successful,
+    result_message as result_message,
+    result_name as result_name,
+    result_record as result_record,
+)
+from .identify.base import AbstractBrakingModel as AbstractBrakingModel
 
-    # braking data, quarter car, identification (report section 2.2)
-    from .identify.braking import (
-        BrakingData as BrakingData,
-        load_braking as load_braking,
-        save_braking as save_braking,
-        shipped_brakings as shipped_brakings,
-    )
-    from .identify.closed_loop import (
-        ClosedLoopBraking as ClosedLoopBraking,
-        predict_closed_loop as predict_closed_loop,
-    )
-    from .identify.fit import (
-        FitError as FitError,
-        FitResult as FitResult,
-        fit_closed_loop as fit_closed_loop,
-        fit_open_loop as fit_open_loop,
-    )
-    from .identify.open_loop import (
-        OpenLoopBraking as OpenLoopBraking,
-        predict_open_loop as predict_open_loop,
-    )
-    from .params import PRESETS as PRESETS, preset as preset
-    from .robot.controllers import (
-        AbstractChainedController as AbstractChainedController,
-        AbstractController as AbstractController,
-        BoundedController as BoundedController,
-        DiscontinuousController as DiscontinuousController,
-        MCloskeyMurray93Controller as MCloskeyMurray93Controller,
-        MCloskeyMurray97Controller as MCloskeyMurray97Controller,
-        PolarController as PolarController,
-        PometController as PometController,
-        TeelMurrayWalshController as TeelMurrayWalshController,
-        TwoStageController as TwoStageController,
-        default_controllers as default_controllers,
-    )
-    from .robot.khepera import (
-        KheperaPlant as KheperaPlant,
-        RobotRun as RobotRun,
-        ideal_plant as ideal_plant,
-        realistic_plant as realistic_plant,
-        simulate_robot as simulate_robot,
-        simulate_robot_grid as simulate_robot_grid,
-    )
-    from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
-    from .robot.scoring import RunStats as RunStats, score_run as score_run
-    from .robot.table2 import (
-        Table2Scores as Table2Scores,
-        headline_findings as headline_findings,
-        table2_agreement as table2_agreement,
-    )
-    from .robot.unicycle import (
-        AbstractSystem as AbstractSystem,
-        SystemI as SystemI,
-        SystemII as SystemII,
-    )
-    from .tire.distributed import DistributedLuGre as DistributedLuGre
+# braking data, quarter car, identification (report section 2.2)
+from .identify.braking import (
+    BrakingData as BrakingData,
+    load_braking as load_braking,
+    save_braking as save_braking,
+    shipped_brakings as shipped_brakings,
+)
+from .identify.closed_loop import (
+    ClosedLoopBraking as ClosedLoopBraking,
+    predict_closed_loop as predict_closed_loop,
+)
+from .identify.fit import (
+    FitError as FitError,
+    FitResult as FitResult,
+    fit_closed_loop as fit_closed_loop,
+    fit_open_loop as fit_open_loop,
+)
+from .identify.open_loop import (
+    OpenLoopBraking as OpenLoopBraking,
+    predict_open_loop as predict_open_loop,
+)
+from .params import PRESETS as PRESETS, preset as preset
+from .robot.controllers import (
+    AbstractChainedController as AbstractChainedController,
+    AbstractController as AbstractController,
+    BoundedController as BoundedController,
+    DiscontinuousController as DiscontinuousController,
+    MCloskeyMurray93Controller as MCloskeyMurray93Controller,
+    MCloskeyMurray97Controller as MCloskeyMurray97Controller,
+    PolarController as PolarController,
+    PometController as PometController,
+    TeelMurrayWalshController as TeelMurrayWalshController,
+    TwoStageController as TwoStageController,
+    default_controllers as default_controllers,
+)
+from .robot.khepera import (
+    KheperaPlant as KheperaPlant,
+    RobotRun as RobotRun,
+    ideal_plant as ideal_plant,
+    realistic_plant as realistic_plant,
+    simulate_robot as simulate_robot,
+    simulate_robot_grid as simulate_robot_grid,
+)
+from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
+from .robot.scoring import RunStats as RunStats, score_run as score_run
+from .robot.table2 import (
+    Table2Scores as Table2Scores,
+    headline_findings as headline_findings,
+    table2_agreement as table2_agreement,
+)
+from .robot.unicycle import (
+    AbstractSystem as AbstractSystem,
+    SystemI as SystemI,
+    SystemII as SystemII,
+)
+from .tire.distributed import DistributedLuGre as DistributedLuGre
 
-    # Combined-slip LuGre, method of moments and Magic Formula (report 2.3-2.4)
-    from .tire.distributed2d import (
-        DistributedLuGre2D as DistributedLuGre2D,
-        steady_state_forces as steady_state_forces,
-        steady_state_mu_2d as steady_state_mu_2d,
-    )
-    from .tire.load import (
-        AbstractLoadDistribution as AbstractLoadDistribution,
-        AbstractPolynomialLoad as AbstractPolynomialLoad,
-        PolynomialLoad as PolynomialLoad,
-        QuarticLoad as QuarticLoad,
-        TabulatedLoad as TabulatedLoad,
-        TrapezoidalLoad as TrapezoidalLoad,
-        UniformLoad as UniformLoad,
-    )
-    from .tire.lugre import (
-        AbstractLongitudinalTire as AbstractLongitudinalTire,
-        LuGreParams as LuGreParams,
-        LumpedLuGre as LumpedLuGre,
-        PointLuGre as PointLuGre,
-        decay_rate as decay_rate,
-        relative_velocity as relative_velocity,
-        stribeck as stribeck,
-    )
-    from .tire.lugre2d import (
-        LuGre2DParams as LuGre2DParams,
-        PointLuGre2D as PointLuGre2D,
-        slip_angle as slip_angle,
-    )
-    from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
-    from .tire.lumped2d import LumpedLuGre2D as LumpedLuGre2D
-    from .tire.magic_formula import (
-        MagicFormula1987 as MagicFormula1987,
-        MagicFormula1987Params as MagicFormula1987Params,
-    )
-    from .tire.moments import (
-        MomentLuGre2D as MomentLuGre2D,
-        TransitHistory as TransitHistory,
-        moments_step_response as moments_step_response,
-        simulate_moments as simulate_moments,
-    )
-    from .tire.relaxed_magic_formula import (
-        MagicFormulaParams as MagicFormulaParams,
-        RelaxedMagicFormula as RelaxedMagicFormula,
-    )
-    from .tire.steady_state import (
-        braking_mu_uniform as braking_mu_uniform,
-        driving_mu_uniform as driving_mu_uniform,
-        steady_state_mu as steady_state_mu,
-        z_ss as z_ss,
-    )
-    from .tire.transient import (
-        Tire2DSolution as Tire2DSolution,
-        TireSolution as TireSolution,
-        simulate_tire as simulate_tire,
-        simulate_tire_2d as simulate_tire_2d,
-    )
-    from .vehicle.normal_load import (
-        AbstractNormalLoad as AbstractNormalLoad,
-        ConstantLoad as ConstantLoad,
-        LoadRelaxation as LoadRelaxation,
-        PrescribedLoad as PrescribedLoad,
-    )
-    from .vehicle.quarter_car import (
-        QuarterCar as QuarterCar,
-        simulate_quarter_car as simulate_quarter_car,
-    )
-
-
-    # isort: split
-    # vehicles, simulation, sweeps (report section 2.5)
-    from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
-    from .simulate import Trajectory as Trajectory, simulate as simulate
-    from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
-    from .sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
-    from .tire.friction_ellipse import (
-        FrictionEllipseTire as FrictionEllipseTire,
-        rally_gravel_tire as rally_gravel_tire,
-    )
-    from .tire.isotropic_lumped import IsotropicLumpedLuGre as IsotropicLumpedLuGre
-    from .tire.linear import LinearTire as LinearTire
-    from .vehicle.base import AbstractVehicle as AbstractVehicle
-    from .vehicle.half_car import HalfCar as HalfCar
-    from .vehicle.maneuvers import (
-        brake_in_turn as brake_in_turn,
-        half_car_scenario as half_car_scenario,
-        step_steer as step_steer,
-    )
-    from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rally_gravel
-    from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
+# Combined-slip LuGre, method of moments and Magic Formula (report 2.3-2.4)
+from .tire.distributed2d import (
+    DistributedLuGre2D as DistributedLuGre2D,
+    steady_state_forces as steady_state_forces,
+    steady_state_mu_2d as steady_state_mu_2d,
+)
+from .tire.load import (
+    AbstractLoadDistribution as AbstractLoadDistribution,
+    AbstractPolynomialLoad as AbstractPolynomialLoad,
+    PolynomialLoad as PolynomialLoad,
+    QuarticLoad as QuarticLoad,
+    TabulatedLoad as TabulatedLoad,
+    TrapezoidalLoad as TrapezoidalLoad,
+    UniformLoad as UniformLoad,
+)
+from .tire.lugre import (
+    AbstractLongitudinalTire as AbstractLongitudinalTire,
+    LuGreParams as LuGreParams,
+    LumpedLuGre as LumpedLuGre,
+    PointLuGre as PointLuGre,
+    decay_rate as decay_rate,
+    relative_velocity as relative_velocity,
+    stribeck as stribeck,
+)
+from .tire.lugre2d import (
+    LuGre2DParams as LuGre2DParams,
+    PointLuGre2D as PointLuGre2D,
+    slip_angle as slip_angle,
+)
+from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
+from .tire.lumped2d import LumpedLuGre2D as LumpedLuGre2D
+from .tire.magic_formula import (
+    MagicFormula1987 as MagicFormula1987,
+    MagicFormula1987Params as MagicFormula1987Params,
+)
+from .tire.moments import (
+    MomentLuGre2D as MomentLuGre2D,
+    TransitHistory as TransitHistory,
+    moments_step_response as moments_step_response,
+    simulate_moments as simulate_moments,
+)
+from .tire.relaxed_magic_formula import (
+    MagicFormulaParams as MagicFormulaParams,
+    RelaxedMagicFormula as RelaxedMagicFormula,
+)
+from .tire.steady_state import (
+    braking_mu_uniform as braking_mu_uniform,
+    driving_mu_uniform as driving_mu_uniform,
+    steady_state_mu as steady_state_mu,
+    z_ss as z_ss,
+)
+from .tire.transient import (
+    Tire2DSolution as Tire2DSolution,
+    TireSolution as TireSolution,
+    simulate_tire as simulate_tire,
+    simulate_tire_2d as simulate_tire_2d,
+)
+from .vehicle.normal_load import (
+    AbstractNormalLoad as AbstractNormalLoad,
+    ConstantLoad as ConstantLoad,
+    LoadRelaxation as LoadRelaxation,
+    PrescribedLoad as PrescribedLoad,
+)
+from .vehicle.quarter_car import (
+    QuarterCar as QuarterCar,
+    simulate_quarter_car as simulate_quarter_car,
+)
 
 
-    # isort: split
-    # optimal driving primitives (report section 2.5, Table 4, Fig. 20)
-    from .optimal.ip import (
-        AbstractStagewiseNLP as AbstractStagewiseNLP,
-        IPOptions as IPOptions,
-        IPSolution as IPSolution,
-        interior_point as interior_point,
-    )
-    from .optimal.primitive import Primitive as Primitive
-    from .optimal.primitives import (
-        MAX_EXIT_MU0 as MAX_EXIT_MU0,
-        max_exit_primitive as max_exit_primitive,
-        min_time_primitive as min_time_primitive,
-        multistart_guesses as multistart_guesses,
-        point_mass_bound as point_mass_bound,
-        primitive_and_bound as primitive_and_bound,
-        primitive_options as primitive_options,
-    )
-    from .optimal.roads import Road as Road, road as road
+# isort: split
+# vehicles, simulation, sweeps (report section 2.5)
+from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
+from ._simulate import Trajectory as Trajectory, simulate as simulate
+from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
+from ._sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
+from .tire.friction_ellipse import (
+    FrictionEllipseTire as FrictionEllipseTire,
+    rally_gravel_tire as rally_gravel_tire,
+)
+from .tire.isotropic_lumped import IsotropicLumpedLuGre as IsotropicLumpedLuGre
+from .tire.linear import LinearTire as LinearTire
+from .vehicle.base import AbstractVehicle as AbstractVehicle
+from .vehicle.half_car import HalfCar as HalfCar
+from .vehicle.maneuvers import (
+    brake_in_turn as brake_in_turn,
+    half_car_scenario as half_car_scenario,
+    step_steer as step_steer,
+)
+from .vehicle.params import HalfCarParams as HalfCarParams, rally_gravel as rally_gravel
+from .vehicle.reduced import ReducedHalfCar as ReducedHalfCar
 
 
-    # isort: split
-    # replay of primitives on the full half-car
-    from .optimal.replay import (
-        Replay as Replay,
-        TrackingGains as TrackingGains,
-        matched_lugre_tire as matched_lugre_tire,
-        replay_open_loop as replay_open_loop,
-        replay_tracking as replay_tracking,
-    )
+# isort: split
+# optimal driving primitives (report section 2.5, Table 4, Fig. 20)
+from .optimal.ip import (
+    AbstractStagewiseNLP as AbstractStagewiseNLP,
+    IPOptions as IPOptions,
+    IPSolution as IPSolution,
+    interior_point as interior_point,
+)
+from .optimal.primitive import Primitive as Primitive
+from .optimal.primitives import (
+    MAX_EXIT_MU0 as MAX_EXIT_MU0,
+    max_exit_primitive as max_exit_primitive,
+    min_time_primitive as min_time_primitive,
+    multistart_guesses as multistart_guesses,
+    point_mass_bound as point_mass_bound,
+    primitive_and_bound as primitive_and_bound,
+    primitive_options as primitive_options,
+)
+from .optimal.roads import Road as Road, road as road
 
 
-    # isort: split
-    # labelled results (xarray, netCDF), sweeps across processes, the compilation cache
-    from .compilation_cache import enable_compilation_cache as enable_compilation_cache
-    from .labelled import (
-        primitives_to_xarray as primitives_to_xarray,
-        robot_grid_to_xarray as robot_grid_to_xarray,
-        sweep_to_xarray as sweep_to_xarray,
-        write_netcdf as write_netcdf,
-    )
-    from .sharding import gather_members as gather_members
+# isort: split
+# replay of primitives on the full half-car
+from .optimal.replay import (
+    Replay as Replay,
+    TrackingGains as TrackingGains,
+    matched_lugre_tire as matched_lugre_tire,
+    replay_open_loop as replay_open_loop,
+    replay_tracking as replay_tracking,
+)
 
 
-    # isort: split
-    # closing the loop: road surfaces, braking hardware, friction estimation, ABS and
-    # traction control on the lumped LuGre tire (report section 2.2)
-    from .control.bound import (
-        actuated_limit as actuated_limit,
-        physical_limit as physical_limit,
-        traction_limit as traction_limit,
-    )
-    from .control.burckhardt import (
-        burckhardt_mu as burckhardt_mu,
-        fit_burckhardt_family as fit_burckhardt_family,
-    )
-    from .control.controllers import (
-        AbstractBrakeController as AbstractBrakeController,
-        AbstractSlipTracking as AbstractSlipTracking,
-        LockedWheel as LockedWheel,
-        PeakSlipTracking as PeakSlipTracking,
-        RuleBasedABS as RuleBasedABS,
-        SlipTracking as SlipTracking,
-    )
-    from .control.experiment import braking_experiment as braking_experiment
-    from .control.half_car_abs import (
-        TurnScenario as TurnScenario,
-        simulate_turn as simulate_turn,
-        turn_scenario as turn_scenario,
-    )
-    from .control.hardware import (
-        BrakeHardware as BrakeHardware,
-        ideal_hardware as ideal_hardware,
-        realistic_hardware as realistic_hardware,
-    )
-    from .control.loop import (
-        BrakingRun as BrakingRun,
-        closed_loop_grid as closed_loop_grid,
-        simulate_braking as simulate_braking,
-        simulate_braking_grid as simulate_braking_grid,
-    )
-    from .control.metrics import (
-        braking_record as braking_record,
-        estimate_record as estimate_record,
-    )
-    from .control.mhe import (
-        MHEResult as MHEResult,
-        MovingHorizonEstimator as MovingHorizonEstimator,
-    )
-    from .control.observer import FrictionObserver as FrictionObserver
-    from .control.peak import (
-        peak_braking as peak_braking,
-        peak_driving as peak_driving,
-    )
-    from .control.plant import (
-        BrakingScenario as BrakingScenario,
-        SurfaceChange as SurfaceChange,
-        braking_quarter_car as braking_quarter_car,
-    )
-    from .control.scenarios import braking_scenario as braking_scenario
-    from .control.surfaces import (
-        SURFACES as SURFACES,
-        Surface as Surface,
-        surface as surface,
-    )
-    from .control.tire import UniformLumpedLuGre as UniformLumpedLuGre
-    from .control.traction import (
-        FullThrottle as FullThrottle,
-        TractionControl as TractionControl,
-        traction_scenario as traction_scenario,
-    )
-    from .control.tuning import tune_gains as tune_gains
+# isort: split
+# labelled results (xarray, netCDF), sweeps across processes, the compilation cache
+from .compilation_cache import enable_compilation_cache as enable_compilation_cache
+from .labelled import (
+    primitives_to_xarray as primitives_to_xarray,
+    robot_grid_to_xarray as robot_grid_to_xarray,
+    sweep_to_xarray as sweep_to_xarray,
+    write_netcdf as write_netcdf,
+)
+from .sharding import gather_members as gather_members
 
 
-def _exported_names() -> dict[str, tuple[str, str]]:
-    """``{public name: (module, attribute)}`` from the ``from ... import x as x`` lines of the
-    ``TYPE_CHECKING`` block above (one list for the run time and the static tools)."""
-    tree = _ast.parse(_Path(__file__).read_text(encoding="utf-8"))
-    block = next(node for node in tree.body if isinstance(node, _ast.If)
-                 and getattr(node.test, "attr", None) == "TYPE_CHECKING")
-    return {alias.asname or alias.name: ("." * node.level + (node.module or ""), alias.name)
-            for node in block.body if isinstance(node, _ast.ImportFrom)
-            for alias in node.names}
+# isort: split
+# closing the loop: road surfaces, braking hardware, friction estimation, ABS and
+# traction control on the lumped LuGre tire (report section 2.2)
+from .control.bound import (
+    actuated_limit as actuated_limit,
+    physical_limit as physical_limit,
+    traction_limit as traction_limit,
+)
+from .control.burckhardt import (
+    burckhardt_mu as burckhardt_mu,
+    fit_burckhardt_family as fit_burckhardt_family,
+)
+from .control.controllers import (
+    AbstractBrakeController as AbstractBrakeController,
+    AbstractSlipTracking as AbstractSlipTracking,
+    LockedWheel as LockedWheel,
+    PeakSlipTracking as PeakSlipTracking,
+    RuleBasedABS as RuleBasedABS,
+    SlipTracking as SlipTracking,
+)
+from .control.experiment import braking_experiment as braking_experiment
+from .control.half_car_abs import (
+    TurnScenario as TurnScenario,
+    simulate_turn as simulate_turn,
+    turn_scenario as turn_scenario,
+)
+from .control.hardware import (
+    BrakeHardware as BrakeHardware,
+    ideal_hardware as ideal_hardware,
+    realistic_hardware as realistic_hardware,
+)
+from .control.loop import (
+    BrakingRun as BrakingRun,
+    closed_loop_grid as closed_loop_grid,
+    simulate_braking as simulate_braking,
+    simulate_braking_grid as simulate_braking_grid,
+)
+from .control.metrics import (
+    braking_record as braking_record,
+    estimate_record as estimate_record,
+)
+from .control.mhe import (
+    MHEResult as MHEResult,
+    MovingHorizonEstimator as MovingHorizonEstimator,
+)
+from .control.observer import FrictionObserver as FrictionObserver
+from .control.peak import (
+    peak_braking as peak_braking,
+    peak_driving as peak_driving,
+)
+from .control.plant import (
+    BrakingScenario as BrakingScenario,
+    SurfaceChange as SurfaceChange,
+    braking_quarter_car as braking_quarter_car,
+)
+from .control.scenarios import braking_scenario as braking_scenario
+from .control.surfaces import (
+    SURFACES as SURFACES,
+    Surface as Surface,
+    surface as surface,
+)
+from .control.tire import UniformLumpedLuGre as UniformLumpedLuGre
+from .control.traction import (
+    FullThrottle as FullThrottle,
+    TractionControl as TractionControl,
+    traction_scenario as traction_scenario,
+)
+from .control.tuning import tune_gains as tune_gains
 
 
-_EXPORTS = _exported_names()
-__all__ = sorted(_EXPORTS)
-__version__ = "0.1.0"
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'vehsim' has no attribute {name!r}")
-    import importlib
-
-    module, attribute = _EXPORTS[name]
-    if module == ".":
-        value = importlib.import_module(f".{attribute}", __name__)
-    else:
-        value = getattr(importlib.import_module(module, __name__), attribute)
-    globals()[name] = value  # later lookups skip __getattr__
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
-
-
-class _Package(_types.ModuleType):
-    """The package's module type: importing a submodule binds it to the package's attribute of
-    the same name, which for `simulate` and `sweep` is the function the API exports, not its
-    module; that binding is skipped, so ``vehsim.sweep`` is the function whatever was imported
-    first."""
-
-    def __setattr__(self, name: str, value) -> None:
-        if isinstance(value, _types.ModuleType) and _EXPORTS.get(name, (".", ""))[0] != ".":
-            return
-        super().__setattr__(name, value)
-
-
-_sys.modules[__name__].__class__ = _Package
-
+try:
+    __version__ = _version("vehsim")
+except _PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "0+unknown"

@@ -7,10 +7,11 @@ on a machine with few cores: each call runs on a worker of the intra-op thread p
 waits for work it queued on the same pool (two cores: two workers, both waiting). The
 distributed 2D tire's steady state (one solve per axis) is such a program.
 
-`guard_cpu_scheduler` switches that scheduler off through ``XLA_FLAGS`` before JAX starts
-its CPU backend (it has no effect once the backend runs, and none on GPUs). A user who
-sets ``--xla_cpu_enable_concurrency_optimized_scheduler`` in ``XLA_FLAGS`` keeps their
-choice. Other jaxlib versions are left alone: XLA refuses flags it does not know.
+`configure_xla_cpu` (what `import vehsim` calls) switches that scheduler off through
+``XLA_FLAGS`` before JAX starts its CPU backend (it has no effect once the backend runs, and
+none on GPUs). A user who sets ``--xla_cpu_enable_concurrency_optimized_scheduler`` in
+``XLA_FLAGS`` keeps their choice, and ``VEHSIM_KEEP_XLA_FLAGS=1`` opts out altogether.
+Other jaxlib versions are left alone: XLA refuses flags it does not know.
 
 `prefer_fast_compilation` (the command line's choice, same rules) switches off the CPU
 fusion emitters, which compile slower than the older code generator.
@@ -28,6 +29,35 @@ def _affected(version: str) -> bool:
     except ValueError:
         return False
     return (major, minor) == (0, 10)
+
+
+OPT_OUT_VARIABLE = "VEHSIM_KEEP_XLA_FLAGS"
+"""Environment variable (1, true, yes) that stops `import vehsim` from touching ``XLA_FLAGS``."""
+
+
+def configure_xla_cpu(environ=os.environ) -> tuple[str, ...]:
+    """The one process-wide setting vehsim makes: on jaxlib 0.10, XLA's concurrency-optimised
+    CPU scheduler is switched off (``--xla_cpu_enable_concurrency_optimized_scheduler=false``
+    appended to ``XLA_FLAGS``), because it can deadlock a program with two independent
+    batched LAPACK calls on a machine with few cores.
+
+    `import vehsim` calls it once. Its scope:
+
+    - only jaxlib 0.10.x (XLA refuses flags it does not know; other versions are untouched);
+    - only the CPU backend, and only if JAX has not started that backend yet (XLA reads
+      ``XLA_FLAGS`` once per process): import vehsim, or call this, before your first JAX
+      computation;
+    - a user's own setting of that flag in ``XLA_FLAGS`` is kept;
+    - ``VEHSIM_KEEP_XLA_FLAGS=1`` in the environment switches it off altogether (then call
+      this function yourself, with that variable unset, where you want the guard).
+
+    It prints nothing and warns nothing.
+
+    **Returns:** the flags it added (empty when none).
+    """
+    if environ.get(OPT_OUT_VARIABLE, "").strip().lower() in ("1", "true", "yes"):
+        return ()
+    return (f"{FLAG}=false",) if guard_cpu_scheduler(environ) else ()
 
 
 def guard_cpu_scheduler(environ=os.environ) -> bool:

@@ -92,7 +92,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from .._results import result_name
     from ..params import preset
     from ..sharding import num_members
-    from ..sweep import sweep, sweep_grid
+    from .._sweep import sweep, sweep_grid
     from ..vehicle.maneuvers import half_car_scenario
 
     axes = parse_axes(args.axes)

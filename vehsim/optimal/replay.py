@@ -37,7 +37,7 @@ from jaxtyping import Array, Float
 
 from .._fields import array_field
 from .._math import wrap_angle
-from ..simulate import Trajectory, simulate
+from .._simulate import Trajectory, simulate
 from ..tire.base import AbstractTire
 from ..tire.isotropic_lumped import IsotropicLumpedLuGre
 from ..tire.lugre import LuGreParams

@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..simulate import simulate
+from .._simulate import simulate
 from ..tire.friction_ellipse import rally_gravel_tire
 from ..vehicle.half_car import HalfCar
 from ..vehicle.maneuvers import brake_in_turn, step_steer

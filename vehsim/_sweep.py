@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, PyTree
 from ._results import RESULTS
 from .progress import progress_bar, resolve
 from .sharding import gather_members, num_members, pad_members, put_members, sharded_vmap
-from .simulate import Trajectory, simulate
+from ._simulate import Trajectory, simulate
 
 
 class SweepResult(eqx.Module):
