@@ -81,6 +81,10 @@ from .robot.unicycle import (
     SystemI as SystemI,
     SystemII as SystemII,
 )
+from .tire.burckhardt import (
+    burckhardt_mu as burckhardt_mu,
+    fit_burckhardt_family as fit_burckhardt_family,
+)
 from .tire.distributed import DistributedLuGre as DistributedLuGre
 
 # Combined-slip LuGre, method of moments and Magic Formula (report 2.3-2.4)
@@ -140,6 +144,7 @@ from .tire.transient import (
     simulate_tire as simulate_tire,
     simulate_tire_2d as simulate_tire_2d,
 )
+from .tire.uniform_lumped import UniformLumpedLuGre as UniformLumpedLuGre
 from .vehicle.normal_load import (
     AbstractNormalLoad as AbstractNormalLoad,
     ConstantLoad as ConstantLoad,
@@ -227,10 +232,6 @@ from .control.bound import (
     physical_limit as physical_limit,
     traction_limit as traction_limit,
 )
-from .control.burckhardt import (
-    burckhardt_mu as burckhardt_mu,
-    fit_burckhardt_family as fit_burckhardt_family,
-)
 from .control.controllers import (
     AbstractBrakeController as AbstractBrakeController,
     AbstractSlipTracking as AbstractSlipTracking,
@@ -280,7 +281,6 @@ from .control.surfaces import (
     Surface as Surface,
     surface as surface,
 )
-from .control.tire import UniformLumpedLuGre as UniformLumpedLuGre
 from .control.traction import (
     FullThrottle as FullThrottle,
     TractionControl as TractionControl,
