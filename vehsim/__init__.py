@@ -47,7 +47,7 @@ from .identify.open_loop import (
     OpenLoopBraking as OpenLoopBraking,
     predict_open_loop as predict_open_loop,
 )
-from .params import PRESETS as PRESETS, preset as preset
+from .params import PRESET_KINDS as PRESET_KINDS, PRESETS as PRESETS, preset as preset
 from .robot.controllers import (
     AbstractChainedController as AbstractChainedController,
     AbstractController as AbstractController,

@@ -34,8 +34,8 @@ from __future__ import annotations
 import dataclasses
 
 from .._checks import check_range
-from ..params import cdc1999
 from ..tire.lugre import LuGreParams
+from ..tire.params import cdc1999
 from ..tire.uniform_lumped import UniformLumpedLuGre
 
 
