@@ -71,11 +71,7 @@ from .robot.khepera import (
 )
 from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
 from .robot.scoring import RunStats as RunStats, score_run as score_run
-from .robot.table2 import (
-    Table2Scores as Table2Scores,
-    headline_findings as headline_findings,
-    table2_agreement as table2_agreement,
-)
+from .robot.table2 import Table2Scores as Table2Scores
 from .robot.unicycle import (
     AbstractSystem as AbstractSystem,
     SystemI as SystemI,
