@@ -11,7 +11,6 @@ import pytest
 
 from vehsim import cli
 from vehsim.control.bound import actuated_limit, physical_limit, traction_limit
-from vehsim.control.burckhardt import fit_errors
 from vehsim.control.hardware import BrakeHardware, ideal_hardware, realistic_hardware
 from vehsim.control.loop import STOP_SPEED
 from vehsim.control.observer import FrictionObserver
@@ -19,8 +18,9 @@ from vehsim.control.peak import peak_braking, peak_driving
 from vehsim.control.plant import BrakingScenario, SurfaceChange, braking_quarter_car
 from vehsim.control.scenarios import braking_scenario
 from vehsim.control.surfaces import SURFACES, surface
-from vehsim.control.tire import UniformLumpedLuGre, decay
+from vehsim.tire.burckhardt import fit_errors
 from vehsim.tire.steady_state import braking_mu_uniform, driving_mu_uniform
+from vehsim.tire.uniform_lumped import UniformLumpedLuGre, decay
 
 
 def test_unknown_surface_name_is_refused(capsys):

@@ -4,15 +4,15 @@ import dataclasses
 
 import numpy as np
 
-from vehsim.robot.scoring import LETTERS
-from vehsim.robot.table2 import (
+from vehsim.reproduce.robot import (
     HEADLINE_FINDINGS,
     SYSTEMS,
-    Table2Scores,
     headline_findings,
     report_letters,
     table2_agreement,
 )
+from vehsim.robot.scoring import LETTERS
+from vehsim.robot.table2 import Table2Scores
 
 
 SEEDS = 3

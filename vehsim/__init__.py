@@ -47,7 +47,7 @@ from .identify.open_loop import (
     OpenLoopBraking as OpenLoopBraking,
     predict_open_loop as predict_open_loop,
 )
-from .params import PRESETS as PRESETS, preset as preset
+from .params import PRESET_KINDS as PRESET_KINDS, PRESETS as PRESETS, preset as preset
 from .robot.controllers import (
     AbstractChainedController as AbstractChainedController,
     AbstractController as AbstractController,
@@ -71,15 +71,15 @@ from .robot.khepera import (
 )
 from .robot.missions import ROBOT_MISSIONS as ROBOT_MISSIONS, Mission as Mission
 from .robot.scoring import RunStats as RunStats, score_run as score_run
-from .robot.table2 import (
-    Table2Scores as Table2Scores,
-    headline_findings as headline_findings,
-    table2_agreement as table2_agreement,
-)
+from .robot.table2 import Table2Scores as Table2Scores
 from .robot.unicycle import (
     AbstractSystem as AbstractSystem,
     SystemI as SystemI,
     SystemII as SystemII,
+)
+from .tire.burckhardt import (
+    burckhardt_mu as burckhardt_mu,
+    fit_burckhardt_family as fit_burckhardt_family,
 )
 from .tire.distributed import DistributedLuGre as DistributedLuGre
 
@@ -140,6 +140,7 @@ from .tire.transient import (
     simulate_tire as simulate_tire,
     simulate_tire_2d as simulate_tire_2d,
 )
+from .tire.uniform_lumped import UniformLumpedLuGre as UniformLumpedLuGre
 from .vehicle.normal_load import (
     AbstractNormalLoad as AbstractNormalLoad,
     ConstantLoad as ConstantLoad,
@@ -227,10 +228,6 @@ from .control.bound import (
     physical_limit as physical_limit,
     traction_limit as traction_limit,
 )
-from .control.burckhardt import (
-    burckhardt_mu as burckhardt_mu,
-    fit_burckhardt_family as fit_burckhardt_family,
-)
 from .control.controllers import (
     AbstractBrakeController as AbstractBrakeController,
     AbstractSlipTracking as AbstractSlipTracking,
@@ -280,7 +277,6 @@ from .control.surfaces import (
     Surface as Surface,
     surface as surface,
 )
-from .control.tire import UniformLumpedLuGre as UniformLumpedLuGre
 from .control.traction import (
     FullThrottle as FullThrottle,
     TractionControl as TractionControl,

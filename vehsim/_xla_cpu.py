@@ -74,7 +74,7 @@ def prefer_fast_compilation(environ=os.environ) -> bool:
 
     The command line does this before JAX starts: a command compiles the optimal-control
     solver once per machine and then runs it for a fraction of a second, and the older
-    emitters compile it about a quarter faster for code a few per cent slower
+    emitters compile it noticeably faster for code only a little slower
     (docs/performance.md). The library itself keeps XLA's default."""
     return _switch_off(FUSION_EMITTERS_FLAG, environ)
 

@@ -10,8 +10,8 @@ otherwise (log files of batch jobs). Without an open bar the callbacks do nothin
 The callbacks are compiled in only where progress is asked for: the batched functions
 (`vehsim.sweep`, `vehsim.simulate_robot_grid`, the fits) take ``progress=None``, which
 means the default set by `set_default`: off in the library, on in the command line
-(``vehsim --no-progress ...`` turns it off). One callback per chunk of work costs a few
-microseconds against milliseconds or seconds of work (docs/performance.md).
+(``vehsim --no-progress ...`` turns it off). One callback per chunk of work costs little
+against the chunk's work (docs/performance.md).
 
 For a single `vehsim.simulate`, or your own ``jax.vmap(simulate)``, diffrax's progress
 meters work under `vmap` (they follow the slowest member):

@@ -64,8 +64,8 @@ def run() -> None:
     """The ``vehsim`` program: `main` with XLA's faster-compiling CPU code generator
     (`vehsim._xla_cpu.prefer_fast_compilation`, set before JAX starts), then exit with its
     status, skipping the interpreter's last garbage collections over the hundreds of
-    thousands of objects that tracing left (`gc.freeze`): they took 0.3-0.5 s of a
-    three-second command, and every file is written and closed by then."""
+    thousands of objects that tracing left (`gc.freeze`): a noticeable part of a short
+    command (docs/performance.md), and every file is written and closed by then."""
     from .._xla_cpu import prefer_fast_compilation
 
     prefer_fast_compilation()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate")
 """The keys of `vehsim.control.scenarios.CONTROLLERS`, spelled out here so that building the
-command line does not import the controllers (a third of a second for every command)."""
+command line does not import the controllers (which would slow down every command)."""
 
 
 def register(subparsers) -> None:

@@ -36,9 +36,9 @@ from .._checks import check_nonnegative, check_positive, check_range
 from .._fields import array_field
 from .._math import safe_div
 from ..tire.lugre import LuGreParams
+from ..tire.uniform_lumped import UniformLumpedLuGre
 from ..vehicle.quarter_car import QuarterCar
 from .peak import peak_braking
-from .tire import UniformLumpedLuGre
 
 
 class Measurement(eqx.Module):

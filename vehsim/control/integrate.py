@@ -6,7 +6,7 @@ $10^5$ 1/s for one sliding on ice. The linearly implicit steps take their Jacobi
 start of each step, so a wheel that locks within a few milliseconds must not outrun it:
 `SUBSTEPS` = 8 steps per 5 ms sample (0.625 ms) hold a wheel locked on ice by an instant
 full brake torque, where 4 steps blow up (and an adaptive `diffrax.diffeqsolve` per sample,
-robust too, costs 2-5 times as much in a batch, whose members wait for the slowest).
+robust too, costs several times as much in a batch, whose members wait for the slowest).
 Within the sample, `hermite` interpolates a state from its values and rates at both ends
 (the tone wheel's edges, the observer's time stamps).
 """

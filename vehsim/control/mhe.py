@@ -46,11 +46,11 @@ from .._checks import check_positive
 from .._fields import array_field
 from .._results import RESULTS
 from ..tire.lugre import LuGreParams
+from ..tire.uniform_lumped import UniformLumpedLuGre, decay
 from ..vehicle.quarter_car import QuarterCar, QuarterCarState
 from .hardware import BrakeHardware
 from .integrate import SUBSTEPS, hermite, integrate_sample
 from .observer import _copy_rates
-from .tire import UniformLumpedLuGre, decay
 
 
 FREE_NAMES = ("theta", "mu_s", "mu_c")

@@ -50,10 +50,10 @@ from jaxtyping import Array, Float
 from .._checks import check_positive, check_range, is_concrete
 from .._fields import array_field
 from ..tire.lugre import LuGreParams
+from ..tire.uniform_lumped import UniformLumpedLuGre
 from ..vehicle.quarter_car import QuarterCar, QuarterCarState
 from .hardware import BrakeHardware, brake_torque
 from .integrate import hermite, integrate_sample
-from .tire import UniformLumpedLuGre
 
 
 class ObserverState(eqx.Module):

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from ..tire.lugre import AbstractLongitudinalTire, LumpedLuGre
 from ..tire.magic_formula import magic_formula
 from ..tire.relaxed_magic_formula import RelaxedMagicFormula
-from .tire import UniformLumpedLuGre
+from ..tire.uniform_lumped import UniformLumpedLuGre
 
 
 _GRID = 64

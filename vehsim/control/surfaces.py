@@ -11,7 +11,7 @@ friction level scales as $g/\theta$; larger $\theta$ is more slippery):
   wheel, so there the best braking is a locked wheel; its peak leaves $s = -1$ only at
   lower speeds (about -0.8 at 10 m/s for $\theta$ = 1).
 - ``dry_asphalt``, ``wet_asphalt``, ``cobblestone``, ``snow``, ``ice``: the LuGre family
-  fitted to Burckhardt's curves (`vehsim.control.burckhardt`): $\sigma_0$ = 301.5 1/m
+  fitted to Burckhardt's curves (`vehsim.tire.burckhardt`): $\sigma_0$ = 301.5 1/m
   (cobblestone 72.00), $v_s$ = 17.95 m/s, $\alpha$ = 1.853, $\mu_s$ = 1, $\mu_c$ = 0.5689,
   $\sigma_1$ = 0.7 s/m, $\sigma_2$ = 0, $L$ = 0.25 m, and $\theta$ per road: dry asphalt
   0.8093, wet asphalt 1.211, cobblestone 0.8662, snow 5.283, ice 18.59.
@@ -34,9 +34,9 @@ from __future__ import annotations
 import dataclasses
 
 from .._checks import check_range
-from ..params import cdc1999
 from ..tire.lugre import LuGreParams
-from .tire import UniformLumpedLuGre
+from ..tire.params import cdc1999
+from ..tire.uniform_lumped import UniformLumpedLuGre
 
 
 _BURCKHARDT_TIRE = dict(sigma0=301.52818508, sigma1=0.7, sigma2=0.0, mu_c=0.56888825,
@@ -88,7 +88,7 @@ def _burckhardt(name: str) -> Surface:
         tire["sigma0"] = _COBBLESTONE_SIGMA0
     return Surface(name, LuGreParams(theta=_BURCKHARDT_THETA[name], **tire), (0.3, 40.0),
                    _BURCKHARDT_THETA["dry_asphalt"],
-                   "LuGre fit to Burckhardt's curve (vehsim.control.burckhardt)",
+                   "LuGre fit to Burckhardt's curve (vehsim.tire.burckhardt)",
                    _BURCKHARDT_FIT[name])
 
 

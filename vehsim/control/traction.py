@@ -24,12 +24,12 @@ from jaxtyping import Array, Float
 
 from .._checks import check_nonnegative, check_positive
 from .._fields import array_field
+from ..tire.uniform_lumped import UniformLumpedLuGre
 from .controllers import AbstractBrakeController
 from .peak import peak_driving
 from .plant import BrakingScenario, braking_quarter_car
 from .scenarios import observer_for
 from .surfaces import surface
-from .tire import UniformLumpedLuGre
 
 
 class FullThrottle(AbstractBrakeController):

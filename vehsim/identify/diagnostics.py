@@ -65,7 +65,7 @@ class Diagnostics:
 def singular_values(A) -> np.ndarray:
     r"""Singular values of a tall `A`, descending: from the eigenvalues of the small
     $A^\top A$ when they resolve the smallest one (condition number below ~1e6), else from
-    a QR of `A` (a tall LAPACK call, slower beside XLA's threads)."""
+    a QR of `A` (a tall LAPACK call, the slower way)."""
     ev = np.linalg.eigvalsh(A.T @ A)[::-1]
     if ev[-1] > 1e-12 * ev[0]:
         return np.sqrt(ev)
@@ -120,8 +120,8 @@ def predicted_reduction(J, r) -> float:
         return 0.0
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         return math.inf
-    # the normal equations (p x p): the test needs few digits, and a tall LAPACK call can
-    # wake BLAS threads that compete with XLA's
+    # the normal equations (p x p): the test needs few digits, and they are cheaper than a
+    # tall LAPACK call
     step = np.linalg.lstsq(J.T @ J, -(J.T @ r), rcond=None)[0]
     return float(np.sum(r**2) - np.sum((r + J @ step) ** 2)) / max(float(np.sum(r**2)), 1e-300)
 

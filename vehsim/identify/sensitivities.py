@@ -84,7 +84,7 @@ def tangent_weight(log_slope, a, b, z):
 
 def solve_columns(a, b, y0, adjoint):
     """`linear_solve` of the columns of `b` (steps, k) sharing the decay `a` (steps,), at most
-    8 columns per solve (wider saved trajectories are much slower on XLA CPU)."""
+    8 columns per solve (wider solves save their trajectories much more slowly)."""
     chunks = -(-b.shape[1] // 8)
     return jnp.concatenate([linear_solve(a, bi, yi, adjoint) for bi, yi in zip(
         jnp.array_split(b, chunks, axis=1), jnp.array_split(y0, chunks))], axis=1)
@@ -97,8 +97,8 @@ def state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
     \varphi(a)\,\dot a_j w(\bar z)$: the numbers of `linear_solve` followed by
     `solve_columns`, in one pass.
 
-    At most 5 tangents: a larger loop body no longer compiles into one kernel on XLA CPU,
-    and every step gets much slower than two separate solves.
+    At most 5 tangents: beyond that, a step of the augmented solve costs more than the
+    steps of two separate solves (docs/performance.md).
     """
     num = a.shape[0]
     phi, ratio = phi_and_log_slope(a)

@@ -191,8 +191,8 @@ def _magic_formula(ctx):
     import equinox as eqx
 
     from ..control.peak import peak_braking
-    from ..control.tire import UniformLumpedLuGre
     from ..tire.relaxed_magic_formula import MagicFormulaParams, RelaxedMagicFormula
+    from ..tire.uniform_lumped import UniformLumpedLuGre
 
     mf = RelaxedMagicFormula(MagicFormulaParams(D=1.0))
     sc, ob = braking_scenario("dry_asphalt", 30.0, tire=mf)

@@ -404,7 +404,7 @@ def homogeneous_norm_newton(x: Chained, steps: int = 6):
         return r - f / df
 
     r = r0_safe
-    for i in range(steps):  # unrolled (a few steps): one fused kernel, no loop overhead
+    for i in range(steps):  # unrolled (a few steps): no loop
         r = body(i, r)
     return jnp.where(zero, 0.0, r)
 

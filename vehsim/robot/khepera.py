@@ -179,7 +179,7 @@ def _initial_state(pose0, t_final) -> _PlantState:
 def _disturbances(plant: KheperaPlant, key, k, dtype):
     """Random inputs of sample k of the run with key `key`: five standard normal numbers
     drawn from `fold_in(key, k)`, scaled to the pose noise (3) and the wheel slips (2), each
-    zero when switched off (one draw: the random-number hash dominates the compile time)."""
+    zero when switched off (one draw: each draw adds a random-number hash to compile)."""
     draw = jax.random.normal(jax.random.fold_in(key, k), (5,), dtype)
     sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading,
                        plant.slip_std, plant.slip_std])
@@ -209,7 +209,7 @@ def _move(plant: KheperaPlant, substeps: int, pose, wheels, travel, applied, sli
     lag = jnp.where(plant.motor_dynamics, -jnp.expm1(-h / plant.motor_time_constant), 1.0)
     ground = jnp.where(plant.mismatch, plant.wheel_scale, 1.0) * (1.0 - slip)
     base = plant.wheel_base * jnp.where(plant.mismatch, plant.wheel_base_scale, 1.0)
-    for _ in range(substeps):  # unrolled: a few sub-steps, fused into one kernel
+    for _ in range(substeps):  # unrolled: a few sub-steps, no loop
         wheels = wheels + lag * (applied - wheels)
         vv, ww = body_velocity(wheels * ground, base)
         pose = unicycle_step(pose, vv, ww, h)
@@ -359,8 +359,8 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     `jax.shard_map`; poses padded to a multiple of the device count, padding dropped), as
     `vehsim.sweep` does. Default: no sharding (the default device). On a CPU host, forcing
     host devices (`XLA_FLAGS=--xla_force_host_platform_device_count=2`) and passing
-    `jax.devices()` runs one shard per core, usually faster than XLA's intra-op threading
-    (results equal to rounding: operations fuse differently; docs/performance.md).
+    `jax.devices()` runs one shard per core, usually faster than one device's threads
+    (results equal to rounding; docs/performance.md).
 
     `progress`: show the control samples simulated on stderr, per block of samples
     (`vehsim.progress`; default off, on in the command line).

@@ -34,8 +34,8 @@ def decay_integrals(x, n: int, exp_neg_x=None):
     $I_j = 1/(j+1)!$). From $x = 2$ on, $I_j = P(j+1, x)/x^{j+1}$ with the regularised
     incomplete gamma function $P(j+1, x) = 1 - e^{-x}\sum_{i\le j}x^i/i!$, which loses at most
     ~2 digits to cancellation for $j \le 6$ (5 for $j = 10$). Each branch sees only arguments in
-    its own range (double `where`); elementwise only, so that XLA fuses it (rather than
-    `gammainc`)."""
+    its own range (double `where`); elementwise only, much cheaper than
+    `jax.scipy.special.gammainc`."""
     x = jnp.asarray(x, dtype=float)
     small = x < 2.0
     xs = jnp.where(small, x, 0.0)[..., None]

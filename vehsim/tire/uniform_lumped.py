@@ -19,8 +19,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .._math import safe_abs
-from ..tire.lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity, stribeck
-from ..tire.steady_state import braking_mu_uniform, driving_mu_uniform
+from .lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity, stribeck
+from .steady_state import braking_mu_uniform, driving_mu_uniform
 
 
 def psi(x):

@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ..tire.lugre import LuGreParams
-from ..tire.steady_state import braking_mu_uniform
+from .lugre import LuGreParams
+from .steady_state import braking_mu_uniform
 
 
 BURCKHARDT = {
