@@ -98,21 +98,21 @@ class FitResult:
                 f"{self.rms_force_residual_N:.4g} N")
 
     def _reason(self) -> str:
-        tests = (f"gradient cosine {self.gradient_cosine:.2g}, predicted relative loss "
-                 f"reduction {self.predicted_reduction:.2g}")
+        cosine, reduction = self.gradient_cosine, self.predicted_reduction
         if self.converged:
             bound = ", ".join(f"{n} = {self.values[n]:.3g} +/- {self.std_errors[n]:.2g}"
                               for n in self.at_bound)
-            return f"converged ({tests})" + (
+            return (f"converged (gradient cosine {cosine:.2g}, predicted relative loss "
+                    f"reduction {reduction:.2g})") + (
                 f"; at the lower bound 0 (within 2 standard errors): {bound}" if bound else "")
         if bool(self.result == RESULTS.nonfinite):
             return "the fit produced non-finite values"
         if bool(self.result == RESULTS.not_identifiable):
             return (f"parameters not identifiable from these data (Jacobian condition number "
                     f"{self.condition_number:.3g}; is there slip excitation?)")
-        return (f"Levenberg-Marquardt did not converge in {self.num_steps} steps: "
-                f"{result_message(self.result)} ({tests}; stationary below {GTOL:g}, "
-                f"{FTOL:g})")
+        return (f"Levenberg-Marquardt stopped after {self.num_steps} steps: "
+                f"{result_message(self.result)} (gradient cosine {cosine:.2g} > {GTOL:g}, "
+                f"predicted relative loss reduction {reduction:.2g} > {FTOL:g})")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary with the equations' parameter names; the outcome as
