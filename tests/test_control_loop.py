@@ -120,15 +120,29 @@ def test_moving_horizon_estimate_recovers_theta_on_noise_free_lumped_data():
     assert float(cost) < 1e-6
 
 
-def test_moving_horizon_estimate_refuses_a_window_without_braking():
-    mhe, fit = _mhe()
-    n, T, v = mhe.window + 1, 0.005, 20.0
+def _rolling_window(n, v=20.0, T=0.005):
+    """A window of free rolling at `v` [m/s]: no braking, no slip."""
     ts = jnp.asarray(T * np.arange(n))  # strongly typed, as a run's signals: no recompile
-    data = dict(ts=ts, torque=jnp.zeros(n), target=jnp.zeros(n), omega_stamp=ts,
+    return dict(ts=ts, torque=jnp.zeros(n), target=jnp.zeros(n), omega_stamp=ts,
                 omega_meas=jnp.asarray(np.full(n, v / 0.3)), v_meas=jnp.asarray(np.full(n, v)),
                 fresh=jnp.ones(n, bool))
-    result = fit(_scenarios()[1][0].car, realistic_hardware(), data)[3]
+
+
+def test_moving_horizon_estimate_refuses_a_window_without_braking():
+    mhe, fit = _mhe()
+    result = fit(_scenarios()[1][0].car, realistic_hardware(), _rolling_window(mhe.window + 1))[3]
     assert result == RESULTS.not_identifiable
+
+
+def test_moving_horizon_estimate_reports_the_solver_failure_it_met():
+    # a non-finite speed at the window's start makes every start's initial guess non-finite:
+    # Levenberg-Marquardt stops with `nonfinite`, which the window returns (not "ran out of
+    # steps", nor "not identifiable" from a Jacobian of NaNs)
+    mhe, fit = _mhe()
+    data = _rolling_window(mhe.window + 1)
+    data["v_meas"] = data["v_meas"].at[0].set(jnp.nan)
+    result = fit(_scenarios()[1][0].car, realistic_hardware(), data)[3]
+    assert result == RESULTS.nonfinite
 
 
 def test_stopping_distance_gradient_matches_finite_differences():

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from helpers import tree_allclose
 
+from vehsim import RESULTS
 from vehsim.robot.controllers import (
     AbstractController,
     BoundedController,
@@ -50,6 +51,11 @@ def test_ideal_plant_is_exact_arc():
     expected = [0.1 / 0.8 * np.sin(0.8 * t), 0.1 / 0.8 * (1 - np.cos(0.8 * t)), 0.8 * t]
     np.testing.assert_allclose(run.final_pose, expected, atol=1e-13)
     np.testing.assert_allclose(run.measured, run.pose, atol=0)
+
+
+def test_a_run_reports_its_result():
+    assert _run(0.1, 0.8).result == RESULTS.successful
+    assert _run(jnp.nan, 0.8).result == RESULTS.nonfinite  # a command that leaves the numbers
 
 
 def test_motor_lags_differ_per_wheel():

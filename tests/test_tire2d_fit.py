@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim import RESULTS
 from vehsim.params import bakker1987, lugre2d_bakker1987, lugre2d_bakker1987_mz
 from vehsim.tire.distributed2d import DistributedLuGre2D, slip_velocities
 from vehsim.tire.load import UniformLoad
@@ -107,6 +108,7 @@ def test_short_fit_reports_what_an_independent_check_measures():
                                load_weights=(0.0, 0.104, 1.0, 0.0, 0.0),
                                patch_exponent=exponent, max_steps=12, throw=False)
     assert int(fit.num_steps) > 0
+    assert isinstance(fit.result, RESULTS)  # the one result enumeration, not optimistix's
     cost, cost_before = 0.0, 0.0
     for i, Fz in enumerate(loads):
         measured = independent_errors(fit.params_at(Fz), fit.load, Fz, kappa, alpha)

@@ -10,8 +10,6 @@ message (`result_record`).
 
 from __future__ import annotations
 
-import functools
-
 import diffrax as dfx
 import numpy as np
 
@@ -30,20 +28,15 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
     )
 
 
-# Every case by name: the names of the parent enumerations (those present in the installed
-# versions) and ours. Enumerations expose their items by attribute, not as a list.
-_PARENT_NAMES = (
-    "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim",
-    "nonfinite_input", "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite",
-    "dt_min_reached", "event_occurred", "max_steps_rejected", "internal_error",
-)
-_OWN_NAMES = ("ip_max_iterations", "not_identifiable")
+def result_names(enumeration=RESULTS) -> tuple[str, ...]:
+    """The names of the cases of `enumeration` (default `RESULTS`: those of the installed
+    lineax, optimistix and diffrax first, then vehsim's), in the order of their values.
 
-
-@functools.cache
-def result_names() -> tuple[str, ...]:
-    """The names of the cases of `RESULTS` (those of the installed diffrax included)."""
-    return tuple(n for n in _PARENT_NAMES + _OWN_NAMES if hasattr(RESULTS, n))
+    Read from the enumeration, so that a case a parent gains appears here: equinox's
+    metaclass takes the cases out of the class namespace and keeps them in the class's
+    name-to-item table (``_name_to_item``, typed on `equinox.Enumeration`; what its
+    ``len`` and attribute lookup read), inherited cases first."""
+    return tuple(enumeration._name_to_item)
 
 
 def _message_of(name: str) -> str:
@@ -82,6 +75,14 @@ def result_record(result) -> dict:
     fields result files carry."""
     name = result_name(result)
     return {"status": name, "message": result_message_of_name(name)}
+
+
+def result_of_record(record) -> RESULTS:
+    """The `RESULTS` item whose `result_record` is `record` (read from its ``status``)."""
+    name = record["status"]
+    if name not in result_names():
+        raise ValueError(f"status {name!r} is not a case of vehsim.RESULTS")
+    return getattr(RESULTS, name)
 
 
 def is_successful(result):

@@ -213,8 +213,9 @@ def robot_grid_to_xarray(run, controllers: Sequence, systems: Sequence,
     - `attrs`: global attributes.
 
     **Returns:** a `Dataset` over (``controller``, ``system``, runs) with the Table 2
-    ``score`` (letters E, G, S, C, O, U of `vehsim.robot.scoring`), ``status``
-    (``successful``, or ``nonfinite`` where the run left the numbers), the
+    ``score`` (letters E, G, S, C, O, U of `vehsim.robot.scoring`), ``status`` (the
+    `vehsim.RESULTS` case of each run: ``successful``, or ``nonfinite`` where the run left
+    the numbers), the
     ``convergence_time``, the final pose (``final_x``, ``final_y``, ``final_gamma``) and
     the peak commands; with saved trajectories also ``x``, ``y``, ``gamma`` over ``t``.
     """
@@ -254,7 +255,7 @@ def _run_fields(run) -> dict[str, np.ndarray]:
     codes = np.asarray(jax.jit(jax.vmap(score_run))(flat))
     fields = {
         "score": np.asarray(letters(codes), dtype=str),
-        "status": np.where(np.asarray(stats.finite), "successful", "nonfinite"),
+        "status": np.asarray(result_name(run.result), dtype=str),
         "convergence_time": np.asarray(stats.convergence_time()),
         "peak_v": np.asarray(stats.peak_command[..., 0]),
         "peak_omega": np.asarray(stats.peak_command[..., 1]),

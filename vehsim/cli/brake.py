@@ -77,4 +77,7 @@ def _brake(args) -> int:
           f"hardware {record['actuated_bound_distance_m']:.2f} m: "
           f"{record['distance_over_actuated_bound']:.4f}",
           file=sys.stderr)
-    return 0 if record["status"] == "successful" else 1
+    from .._results import result_of_record
+    from ._status import exit_status
+
+    return exit_status("brake", result_of_record(record))

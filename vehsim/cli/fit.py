@@ -64,8 +64,7 @@ def _fit(args) -> int:
     print(f"wrote {folder / 'fit.json'} and {folder / 'fit.png'}", file=sys.stderr)
     for n in best.free:
         print(f"  {n:7s} = {best.values[n]:.6g} +/- {best.std_errors[n]:.2g}", file=sys.stderr)
-    if not all(f.converged for f in out["fits"].values()):
-        print("vehsim fit: warning: some fits did not converge (see 'status' and 'message' "
-              "in fit.json)", file=sys.stderr)
-        return 1
-    return 0
+    from ._status import exit_status
+
+    return max(exit_status(f"fit: {label}", f.result, f.message)
+               for label, f in out["fits"].items())

@@ -74,4 +74,6 @@ def _optimise(args) -> int:
           f"{rec['max_corridor_violation']:.2e} m, "
           f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
           file=sys.stderr)
-    return 0 if rec["status"] == "successful" else 1
+    from ._status import exit_status
+
+    return exit_status("optimise", prim.solution.result)

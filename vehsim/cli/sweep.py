@@ -89,11 +89,12 @@ def _sweep(args: argparse.Namespace) -> int:
     import jax
     import jax.numpy as jnp
 
-    from .._results import result_name
+    from .._results import is_successful
+    from .._sweep import sweep, sweep_grid
     from ..params import preset
     from ..sharding import num_members
-    from .._sweep import sweep, sweep_grid
     from ..vehicle.maneuvers import half_car_scenario
+    from ._status import exit_status
 
     axes = parse_axes(args.axes)
     if args.distributed or args.coordinator:
@@ -112,9 +113,9 @@ def _sweep(args: argparse.Namespace) -> int:
     batch_size = default_batch_size(n) if args.batch_size is None else args.batch_size or None
     res = sweep(scenario, members, ts, batch_size=batch_size)
     wall = time.perf_counter() - t0
-    n_ok = result_name(res.result).count("successful")
+    n_ok = int(jnp.sum(is_successful(res.result)))
     if jax.process_index() != 0:  # every process has the gathered result; process 0 writes
-        return 0 if n_ok == n else 1
+        return exit_status("sweep", res.result)
     stats = jax.vmap(summary)(res.trajectories)
     info = {"maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
             "speed": args.speed, "duration": args.duration}
@@ -125,7 +126,7 @@ def _sweep(args: argparse.Namespace) -> int:
         path = _write_json(args.out, res, stats, info | {"axes": axes}, wall, args.signals)
     print(f"vehsim sweep: {n_ok}/{n} ok in {wall:.1f} s (compile included); wrote {path}",
           file=sys.stderr)
-    return 0 if n_ok == n else 1
+    return exit_status("sweep", res.result)
 
 
 _BOOT = ("import json, sys; import jax; jax.distributed.initialize(**json.loads(sys.argv[1])); "
@@ -161,14 +162,17 @@ def default_batch_size(n: int) -> int:
 
 def _write_json(out, res, stats, info, wall, signals) -> Path:
     """The sweep as JSON: one record per member (parameters, status, summary outputs)."""
+    import numpy as np
+
     from .._io import write_json
-    from .._results import result_message_of_name, result_name
+    from .._results import is_successful, result_message_of_name, result_name
 
     members, statuses = res.members, result_name(res.result)
+    ok = np.asarray(is_successful(res.result))
     rows = [
         {
             **{k: float(v[i]) for k, v in members.items()},
-            "ok": statuses[i] == "successful",
+            "ok": bool(ok[i]),
             "status": statuses[i],
             "message": result_message_of_name(statuses[i]),
             **{k: v[i] for k, v in stats.items()},

@@ -19,7 +19,9 @@ differentiated through its implicit steps.
 
 A window counts as solved when Levenberg-Marquardt stops or when MINPACK's gradient test
 holds (largest cosine between the residuals and a Jacobian column below 1e-6): on noise-free
-data the optimum has zero residual, where the solver's own test stalls.
+data the optimum has zero residual, where the solver's own test stalls. A window whose
+solve fails otherwise than by running out of steps (e.g. `RESULTS.nonfinite` on a
+non-finite measurement) returns the solver's result.
 
 **Standard errors** are Gauss-Newton's, $\operatorname{se}(\log\theta) = \sqrt{s^2[(J^\top
 J)^{-1}]_{\theta\theta}}$ with $s^2$ the residuals' mean square; $\operatorname{se}(\theta)
@@ -44,7 +46,8 @@ from jaxtyping import Array, Float
 
 from .._checks import check_positive
 from .._fields import array_field
-from .._results import RESULTS
+from .._optimality import max_gradient_cosine
+from .._results import RESULTS, is_successful
 from ..tire.lugre import LuGreParams
 from ..tire.uniform_lumped import UniformLumpedLuGre, decay
 from ..vehicle.quarter_car import QuarterCar, QuarterCarState
@@ -169,14 +172,13 @@ class MovingHorizonEstimator(eqx.Module):
                                      optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), u0,
                                      max_steps=self.max_steps, throw=False)
             r = residuals(sol.value)
-            return sol.value, jnp.sum(r * r), RESULTS.promote(sol.result)._value
+            return sol.value, jnp.sum(r * r), RESULTS.promote(sol.result)
 
         thetas = jnp.geomspace(self.theta_min, self.theta_max, self.starts)
         values, costs, results = jax.vmap(solve)(thetas)
         best = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
         u = values[best]
-        lm_result = RESULTS.where(results[best] == 0, RESULTS.successful,
-                                  RESULTS.nonlinear_max_steps_reached)
+        lm_result = jax.tree.map(lambda x: x[best], results)
         r, J = self._residuals_and_jacobian(u, car, hw, data)
         s2 = jnp.sum(r * r) / jnp.maximum(r.shape[0] - u.shape[0], 1)
         # information on log(theta) left after the other unknowns: the Schur complement
@@ -188,11 +190,12 @@ class MovingHorizonEstimator(eqx.Module):
         theta_se = theta * jnp.sqrt(s2) * log_se_prior
         identifiable = jnp.isfinite(log_se_prior) & (log_se_prior <= self.max_log_se)
         # MINPACK's gtol test: Levenberg-Marquardt's own test stalls on noise-free data
-        norms = jnp.linalg.norm(J, axis=0) * jnp.linalg.norm(r)
-        cosine = jnp.max(jnp.abs(J.T @ r) / jnp.where(norms > 0, norms, 1.0))
-        stationary = (cosine <= _GTOL) | (jnp.mean(r * r) <= 1e-12)
+        stationary = (max_gradient_cosine(J, r) <= _GTOL) | (jnp.mean(r * r) <= 1e-12)
         solved = RESULTS.where(stationary, RESULTS.successful, lm_result)
-        result = RESULTS.where(identifiable, solved, RESULTS.not_identifiable)
+        # identifiability judges a solve that succeeded or ran out of steps; another failure
+        # (non-finite values, a linear solve) stands: its point says nothing
+        judged = is_successful(solved) | (solved == RESULTS.nonlinear_max_steps_reached)
+        result = RESULTS.where(identifiable | ~judged, solved, RESULTS.not_identifiable)
         return theta, theta_se, jnp.sum(r * r) / r.shape[0], result
 
     def estimate(self, car: QuarterCar, hw: BrakeHardware, signals: dict, ends) -> MHEResult:

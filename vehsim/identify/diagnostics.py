@@ -27,11 +27,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._results import RESULTS
+from .._optimality import max_gradient_cosine
+from .._results import RESULTS, is_successful
 from .parameters import PARAMETER_NAMES, dtheta_du
 
 
 MAX_CONDITION_NUMBER = 1e9
+GTOL = 1e-6  # the largest gradient cosine of a stationary point (MINPACK's gtol)
+FTOL = 1e-6  # the largest predicted relative loss reduction of one (MINPACK's ftol)
 
 
 def force_errors(F_pred, F_meas) -> dict[str, float]:
@@ -105,14 +108,6 @@ def at_lower_bound(grad_u, theta_all, names: Sequence[str], std_errors) -> np.nd
     return (grad_u > 0) & np.isfinite(se) & (size < 2.0 * se)
 
 
-def max_gradient_cosine(J, r) -> float:
-    """MINPACK's gtol test: the largest cosine between the residual vector and a Jacobian
-    column (0 without columns)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cosine = np.abs(J.T @ r) / (np.linalg.norm(J, axis=0) * np.linalg.norm(r))
-    return float(np.max(np.append(np.nan_to_num(cosine, nan=0.0), 0.0)))
-
-
 def predicted_reduction(J, r) -> float:
     """MINPACK's ftol test: the loss reduction the Gauss-Newton model predicts for its full
     (undamped) step, relative to the loss."""
@@ -144,28 +139,25 @@ def diagnose(J_u, r, prior_residual, theta_all, names: Sequence[str],
     return Diagnostics(
         std_errors=std, singular_values=sv, condition_number=cond,
         at_bound=tuple(n for n, b in zip(names, bound) if b),
-        max_cosine=max_gradient_cosine(Ju[:, ~bound], ru),
+        max_cosine=float(max_gradient_cosine(Ju[:, ~bound], ru)),
         predicted_reduction=predicted_reduction(Ju[:, ~bound], ru),
     )
 
 
-def outcome(diag: Diagnostics, loss: float, theta, solver_converged: bool, max_steps: int,
-            gtol: float, ftol: float) -> tuple[RESULTS, str]:
-    """The fit's `RESULTS` item and the reason in words."""
-    stationary = diag.max_cosine <= gtol or diag.predicted_reduction <= ftol
+def stationary(diag: Diagnostics, gtol: float = GTOL, ftol: float = FTOL) -> bool:
+    """MINPACK's tests certify the optimum: gradient cosine <= `gtol` or predicted relative
+    loss reduction <= `ftol`."""
+    return diag.max_cosine <= gtol or diag.predicted_reduction <= ftol
+
+
+def outcome(diag: Diagnostics, loss: float, theta, solver_result: RESULTS) -> RESULTS:
+    """The fit's `RESULTS` item: `nonfinite`, `not_identifiable`, else `successful` where
+    the solver converged or the optimum is `stationary`, else the solver's own result."""
     if not (np.isfinite(loss) and np.all(np.isfinite(theta))):
-        return RESULTS.nonfinite, "the fit produced non-finite values"
+        return RESULTS.nonfinite
     if (not np.isfinite(diag.condition_number) or diag.condition_number > MAX_CONDITION_NUMBER
             or diag.singular_values[0] == 0.0):
-        return RESULTS.not_identifiable, (
-            f"parameters not identifiable from these data (Jacobian condition number "
-            f"{diag.condition_number:.3g}; is there slip excitation?)")
-    if not (solver_converged or stationary):
-        return RESULTS.nonlinear_max_steps_reached, (
-            f"Levenberg-Marquardt did not converge in {max_steps} steps (gradient cosine "
-            f"{diag.max_cosine:.2g} > {gtol:g}, predicted relative loss reduction "
-            f"{diag.predicted_reduction:.2g} > {ftol:g})")
-    if solver_converged:
-        return RESULTS.successful, "converged"
-    return RESULTS.successful, (
-        f"converged (predicted relative loss reduction {diag.predicted_reduction:.2g})")
+        return RESULTS.not_identifiable
+    if bool(is_successful(solver_result)) or stationary(diag):
+        return RESULTS.successful
+    return solver_result

@@ -20,14 +20,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float, Int
 
-from .._results import RESULTS, result_name, result_record
+from .._results import RESULTS, is_successful, result_message, result_name, result_record
 from ..progress import progress_bar, resolve
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel, peak_scales
 from .braking import BrakingData
 from .closed_loop import ClosedLoopBraking
-from .diagnostics import Diagnostics, diagnose, force_errors, outcome
+from .diagnostics import FTOL, GTOL, Diagnostics, diagnose, force_errors, outcome
 from .levenberg_marquardt import solve_batch
 from .open_loop import OpenLoopBraking
 from .parameters import (
@@ -59,9 +60,12 @@ class FitResult:
 
     `model` holds the best parameters; `values` every quantity by name; `std_errors` those
     of the free ones (Gauss-Newton); `result` is a `vehsim.RESULTS` item (`successful`,
-    `nonlinear_max_steps_reached`, `not_identifiable`, `nonfinite`) and `message` says why,
-    with the residual; `at_bound` names parameters the data drive to 0 (within 2 standard
-    errors); `errors` the force errors per training braking; `starts` every start's loss.
+    `not_identifiable`, `nonfinite`, or the solver's own failure, e.g.
+    `nonlinear_max_steps_reached`), judged by the `condition_number` of the Jacobian and
+    MINPACK's `gradient_cosine` and `predicted_reduction` (`vehsim.identify.diagnostics`);
+    `message` says why in words, with the residual; `at_bound` names parameters the data
+    drive to 0 (within 2 standard errors); `errors` the force errors per training braking;
+    `starts` every start's loss and outcome.
     """
 
     model: LumpedLuGre
@@ -72,9 +76,10 @@ class FitResult:
     loss: float
     rms_force_residual_N: float
     result: RESULTS
-    message: str
     num_steps: int
     condition_number: float
+    gradient_cosine: float
+    predicted_reduction: float
     errors: dict[str, dict[str, float]]
     starts: dict[str, Any]
     wall_time_s: float
@@ -83,17 +88,38 @@ class FitResult:
     @property
     def converged(self) -> bool:
         """Whether `result` is `RESULTS.successful`."""
-        return bool(np.asarray(self.result == RESULTS.successful))
+        return bool(is_successful(self.result))
+
+    @property
+    def message(self) -> str:
+        """Why `result`, in words: the numbers it was judged by, then the loss and the RMS
+        force residual."""
+        return (f"{self._reason()}; loss {self.loss:.6g}, RMS force residual "
+                f"{self.rms_force_residual_N:.4g} N")
+
+    def _reason(self) -> str:
+        cosine, reduction = self.gradient_cosine, self.predicted_reduction
+        if self.converged:
+            bound = ", ".join(f"{n} = {self.values[n]:.3g} +/- {self.std_errors[n]:.2g}"
+                              for n in self.at_bound)
+            return (f"converged (gradient cosine {cosine:.2g}, predicted relative loss "
+                    f"reduction {reduction:.2g})") + (
+                f"; at the lower bound 0 (within 2 standard errors): {bound}" if bound else "")
+        if bool(self.result == RESULTS.nonfinite):
+            return "the fit produced non-finite values"
+        if bool(self.result == RESULTS.not_identifiable):
+            return (f"parameters not identifiable from these data (Jacobian condition number "
+                    f"{self.condition_number:.3g}; is there slip excitation?)")
+        return (f"Levenberg-Marquardt stopped after {self.num_steps} steps: "
+                f"{result_message(self.result)} (gradient cosine {cosine:.2g} > {GTOL:g}, "
+                f"predicted relative loss reduction {reduction:.2g} > {FTOL:g})")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary with the equations' parameter names."""
-        record = result_record(self.result)
+        """JSON-ready summary with the equations' parameter names; the outcome as
+        `vehsim.result_record` (``status``, ``message``)."""
         return {
             "mode": self.mode,
-            "status": record["status"],
-            "status_message": record["message"],
-            "converged": self.converged,
-            "message": self.message,
+            **result_record(self.result),
             "parameters": self.values,
             "free": list(self.free),
             "std_errors": self.std_errors,
@@ -104,6 +130,8 @@ class FitResult:
             "rms_force_residual_N": self.rms_force_residual_N,
             "num_steps": self.num_steps,
             "condition_number": self.condition_number,
+            "gradient_cosine": self.gradient_cosine,
+            "predicted_reduction": self.predicted_reduction,
             "train_errors": self.errors,
             "multistart": self.starts,
             "wall_time_s": self.wall_time_s,
@@ -210,14 +238,13 @@ class _Problem(NamedTuple):
 
 
 def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, spread, key, tol,
-         max_steps, throw, verbose, prior_weight, progress=None, gtol=1e-6,
-         ftol=1e-6) -> FitResult:
+         max_steps, throw, verbose, prior_weight, progress=None) -> FitResult:
     t_start = time.perf_counter()
     problem = _prepare(data, init, free, fixed, n_starts)
     core = _solve(problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
                   verbose, t_start, resolve(progress))
     diag = _diagnose(problem, core, prior_weight)
-    result = _assemble(problem, braking, core, diag, max_steps, gtol, ftol, t_start)
+    result = _assemble(problem, braking, core, diag, t_start)
     _log(verbose, f"{result_name(result.result)}: {result.message} "
          f"({result.wall_time_s:.1f}s)")
     if throw and not result.converged:
@@ -256,8 +283,9 @@ def _prepare(data, init, free, fixed, n_starts) -> _Problem:
 
 
 def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
-           verbose, t_start, progress=False) -> dict[str, Any]:
-    """Every start solved in one compiled call (`_fit_core`); the outputs in NumPy."""
+           verbose, t_start, progress=False) -> _FitCore:
+    """Every start solved in one compiled call (`_fit_core`); the outputs but the model in
+    NumPy."""
     _log(verbose, f"{braking.name}: {len(problem.names)} parameters {list(problem.names)}, "
          f"{n_starts} start(s), {sum(len(d) for d in problem.data)} samples in "
          f"{len(problem.data)} braking(s); solving (the first call compiles)...")
@@ -270,18 +298,45 @@ def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, pr
                          np.asarray(float(prior_weight)), np.asarray(key),
                          np.asarray(float(spread)), n_starts, braking, problem.scales, tol,
                          max_steps, slots, progress)
-        core = {k: v if k == "model" else np.asarray(v) for k, v in core.items()}
-    losses, finite = core["losses"], np.isfinite(core["losses"])
+        core = eqx.tree_at(lambda c: c.model, jax.tree.map(np.asarray, core), core.model)
+    losses, finite = core.losses, np.isfinite(core.losses)
     _log(verbose, f"solved {n_starts} start(s) in {time.perf_counter() - t_start:.1f}s: "
-         f"{int(core['ok'].sum())} converged, best loss "
+         f"{int(np.sum(is_successful(core.results)))} converged, best loss "
          f"{np.nanmin(np.where(finite, losses, np.nan)):.4g}"
          if finite.any() else "no start gave a finite loss")
     return core
 
 
+class _FitCore(eqx.Module):
+    """What `_fit_core` computes: every start (axis S) over the quantities of
+    `PARAMETER_NAMES` (axis P), and the best start's data residuals (axis N)."""
+
+    u_fixed: Float[Array, " P"]  # the initial guess with the fixed values, unconstrained
+    initial: Float[Array, "S P"]  # the starts' values
+    us: Float[Array, "S P"]  # the solutions, unconstrained
+    values: Float[Array, "S P"]  # ... and their values
+    losses: Float[Array, " S"]
+    results: RESULTS  # Levenberg-Marquardt's outcome per start (batched)
+    steps: Int[Array, " S"]
+    best: Int[Array, ""]  # `best_start`
+    model: LumpedLuGre  # the best start's
+    theta: Float[Array, " P"]  # the best start's values
+    r: Float[Array, " N"]  # the best start's data residuals (the prior's rows left out)
+    J_u: Float[Array, "N P"]  # their Jacobian in u, the solver's last
+
+
+def best_start(losses, results: RESULTS):
+    """Index of the least finite loss among the starts whose solve succeeded, else among
+    all the starts with a finite loss (0 where none has one)."""
+    finite = jnp.isfinite(losses)
+    succeeded = finite & is_successful(results)
+    among = jnp.where(jnp.any(succeeded), succeeded, finite)
+    return jnp.argmin(jnp.where(among, losses, jnp.inf))
+
+
 @eqx.filter_jit
 def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, braking, scales, tol,
-              max_steps, slots, progress=False):
+              max_steps, slots, progress=False) -> _FitCore:
     """Everything of a fit that runs in JAX, in one compiled call (eager dispatches of the
     small pre- and post-fit steps cost more than a Levenberg-Marquardt step): the starts,
     the batched solve, the best start, and its data residuals and Jacobian (the solver's
@@ -290,68 +345,63 @@ def _fit_core(model, data, mask, prior_weight, key, spread, n_starts, braking, s
     u_fixed = to_unconstrained(model, PARAMETER_NAMES, keep)
     noise = jax.random.normal(jax.random.PRNGKey(key), (n_starts - 1, len(PARAMETER_NAMES)))
     u0s = jnp.concatenate([u_fixed[None], u_fixed[None] + spread * noise * mask[None, :]])
-    us, losses, ok, steps, rs, Js = solve_batch(u0s, u_fixed, mask, prior_weight, model, data,
-                                                braking, scales, tol, max_steps, slots,
-                                                progress)
-    # the best start: the least finite loss among the converged ones, else among all
-    rank = jnp.where(jnp.isfinite(losses), losses, jnp.inf) + jnp.where(ok, 0.0, 1e300)
-    best = jnp.argmin(rank)
+    us, losses, results, steps, rs, Js = solve_batch(
+        u0s, u_fixed, mask, prior_weight, model, data, braking, scales, tol, max_steps, slots,
+        progress)
+    best = best_start(losses, results)
     values = values_batch(model, us, keep)
     n_data = rs.shape[1] - len(PARAMETER_NAMES)  # the prior's rows are last
-    return dict(u_fixed=u_fixed, us=us, losses=losses, ok=ok, steps=steps, best=best,
-                model=from_unconstrained(us[best], model, PARAMETER_NAMES, keep),
-                theta=values[best], r=rs[best, :n_data], J_u=Js[best, :n_data], values=values,
-                initial=values_batch(model, u0s, keep))
+    return _FitCore(u_fixed=u_fixed, initial=values_batch(model, u0s, keep), us=us,
+                    values=values, losses=losses, results=results, steps=steps, best=best,
+                    model=from_unconstrained(us[best], model, PARAMETER_NAMES, keep),
+                    theta=values[best], r=rs[best, :n_data], J_u=Js[best, :n_data])
 
 
-def _diagnose(problem: _Problem, core, prior_weight) -> Diagnostics:
+def _diagnose(problem: _Problem, core: _FitCore, prior_weight) -> Diagnostics:
     """`diagnose` the best start: its data residuals and Jacobian in the free u, and the
     prior's residuals."""
-    best, cols = int(core["best"]), [PARAMETER_NAMES.index(n) for n in problem.names]
-    prior = float(prior_weight) * (core["us"][best] - core["u_fixed"])[cols]
-    return diagnose(core["J_u"][:, cols], core["r"], prior, core["theta"], problem.names,
+    best, cols = int(core.best), [PARAMETER_NAMES.index(n) for n in problem.names]
+    prior = float(prior_weight) * (core.us[best] - core.u_fixed)[cols]
+    return diagnose(core.J_u[:, cols], core.r, prior, core.theta, problem.names,
                     prior_weight)
 
 
-def _assemble(problem: _Problem, braking, core, diag: Diagnostics, max_steps, gtol, ftol,
+def _assemble(problem: _Problem, braking, core: _FitCore, diag: Diagnostics,
               t_start) -> FitResult:
-    """The `FitResult` of the best start: outcome, message, errors, the starts' summary."""
-    best, names, r = int(core["best"]), problem.names, core["r"]
-    theta_all = core["theta"]
-    values = dict(zip(PARAMETER_NAMES, theta_all.tolist()))
+    """The `FitResult` of the best start: outcome, errors, the starts' summary."""
+    best, names, r = int(core.best), problem.names, core.r
+    values = dict(zip(PARAMETER_NAMES, core.theta.tolist()))
     loss = float(0.5 * np.sum(r**2))  # data term only (without the prior)
-    forces = braking.fitted_forces(core["model"], problem.anon, r, problem.scales)
+    forces = braking.fitted_forces(core.model, problem.anon, r, problem.scales)
     rms_F = float(np.sqrt(np.mean(np.concatenate(
         [(F - np.asarray(d.F_x)) ** 2 for F, d in zip(forces, problem.data)]))))
-    theta = theta_all[[PARAMETER_NAMES.index(n) for n in names]]
-    result, reason = outcome(diag, loss, theta, bool(core["ok"][best]), max_steps, gtol, ftol)
-    if diag.at_bound and bool(result == RESULTS.successful):
-        reason += "; at the lower bound 0 (within 2 standard errors): " + ", ".join(
-            f"{n} = {values[n]:.3g} +/- {diag.std_errors[n]:.2g}" for n in diag.at_bound)
+    theta = core.theta[[PARAMETER_NAMES.index(n) for n in names]]
+    solver_result = jax.tree.map(lambda x: x[best], core.results)
     return FitResult(
-        model=core["model"], mode=braking.name, free=names, values=values,
-        std_errors=diag.std_errors, loss=loss, rms_force_residual_N=rms_F, result=result,
-        message=f"{reason}; loss {loss:.6g}, RMS force residual {rms_F:.4g} N",
-        num_steps=int(core["steps"][best]), condition_number=diag.condition_number,
+        model=core.model, mode=braking.name, free=names, values=values,
+        std_errors=diag.std_errors, loss=loss, rms_force_residual_N=rms_F,
+        result=outcome(diag, loss, theta, solver_result), num_steps=int(core.steps[best]),
+        condition_number=diag.condition_number, gradient_cosine=diag.max_cosine,
+        predicted_reduction=diag.predicted_reduction,
         errors={d.name: force_errors(F, d.F_x) for F, d in zip(forces, problem.data)},
         starts=_starts_summary(core, names), wall_time_s=time.perf_counter() - t_start,
         at_bound=diag.at_bound,
     )
 
 
-def _starts_summary(core, names) -> dict[str, Any]:
-    """Every start's loss, convergence and steps, and the spread of the free values over
-    the starts that reached (within 1e-6 relative) the best loss."""
-    losses, best = core["losses"], int(core["best"])
+def _starts_summary(core: _FitCore, names) -> dict[str, Any]:
+    """Every start's loss, outcome (`vehsim.RESULTS` case) and steps, and the spread of the
+    free values over the starts that reached (within 1e-6 relative) the best loss."""
+    losses, best = core.losses, int(core.best)
     n_starts = len(losses)
-    rows = [dict(zip(PARAMETER_NAMES, row)) for row in core["values"].tolist()]
+    rows = [dict(zip(PARAMETER_NAMES, row)) for row in core.values.tolist()]
     near = [i for i in range(n_starts) if np.isfinite(losses[i])
             and losses[i] <= losses[best] * (1 + 1e-6) + 1e-300]
     return {
         "n_starts": n_starts,
         "losses": [float(x) if np.isfinite(x) else None for x in losses],
-        "converged": [bool(x) for x in core["ok"]],
-        "num_steps": [int(x) for x in core["steps"]],
+        "status": result_name(core.results),
+        "num_steps": [int(x) for x in core.steps],
         "best": best,
         "n_at_best": len(near),
         "spread_at_best": {
@@ -359,7 +409,7 @@ def _starts_summary(core, names) -> dict[str, Any]:
                 "max": float(max(rows[i][n] for i in near))} if near else None
             for n in names},
         "initial": [{n: v for n, v in dict(zip(PARAMETER_NAMES, row)).items() if n in names}
-                    for row in core["initial"].tolist()],
+                    for row in core.initial.tolist()],
     }
 
 

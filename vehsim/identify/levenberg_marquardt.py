@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from .._results import RESULTS
 from ..progress import reach
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel
@@ -104,9 +105,9 @@ def solve_batch(u0s, u_fixed, mask, prior_weight, model, data, braking, scales, 
     prior $w(u - u_0)$ on the free entries ($w$ = `prior_weight`, $u_0$ = `u_fixed`, which
     also holds the fixed entries).
 
-    **Returns:** per start, the solution $u$, its loss $\tfrac12\|r\|^2$, whether the solver
-    converged, its number of steps, and the residuals and Jacobian (in $u$) at the solution,
-    from the solver's state (no further solve).
+    **Returns:** per start, the solution $u$, its loss $\tfrac12\|r\|^2$, the solver's
+    outcome (a `vehsim.RESULTS` item, batched), its number of steps, and the residuals and
+    Jacobian (in $u$) at the solution, from the solver's state (no further solve).
     """
     data_residual = residual_with_jacobian(braking, mask, model, data, scales, slots)
 
@@ -122,7 +123,7 @@ def solve_batch(u0s, u_fixed, mask, prior_weight, model, data, braking, scales, 
         sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
         r = sol.state.f_info.residual  # at the last accepted point, `sol.value`
         return jnp.where(mask, sol.value, u_fixed), 0.5 * jnp.sum(r**2), \
-            sol.result == optx.RESULTS.successful, sol.stats["num_steps"], r, \
+            RESULTS.promote(sol.result), sol.stats["num_steps"], r, \
             sol.state.f_info.jac.as_matrix()
 
     if u0s.shape[0] == 1:  # no batch: a smaller program to compile (closed loop)

@@ -41,6 +41,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
+from .._results import RESULTS, as_result
 from .distributed2d import steady_state_forces
 from .load import AbstractLoadDistribution, PolynomialLoad, UniformLoad
 from .lugre2d import LuGre2DParams
@@ -69,8 +70,8 @@ class MatchResult(eqx.Module):
     `reference_load`), the normal-load shape `load` (its Bernstein `load_weights` when it
     was fitted, else None), the exponent `patch_exponent` $p$ of
     $L = L_0(F_z/F_{z,0})^p$, the `loads` fitted, the errors relative to each curve's peak
-    `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$), the optimistix
-    `result` and `num_steps`."""
+    `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$), Levenberg-Marquardt's
+    `result` (a `vehsim.RESULTS` item) and `num_steps`."""
 
     params: LuGre2DParams
     load: AbstractLoadDistribution
@@ -80,7 +81,7 @@ class MatchResult(eqx.Module):
     loads: Float[Array, " n"]
     rms_error: Float[Array, "n 3"]
     max_error: Float[Array, "n 3"]
-    result: optx.RESULTS
+    result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
 
     def params_at(self, Fz) -> LuGre2DParams:
