@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 from vehsim._results import RESULTS
-from vehsim.control.controllers import BUILD, DUMP, REBUILD, PeakSlipTracking, RuleBasedABS
-from vehsim.control.hardware import realistic_hardware
+from vehsim.control.controllers.braking import BUILD, DUMP, REBUILD, PeakSlipTracking, RuleBasedABS
+from vehsim.control.estimation.mhe import MovingHorizonEstimator
+from vehsim.control.experiments.metrics import braking_record
+from vehsim.control.experiments.scenarios import braking_scenario
 from vehsim.control.loop import closed_loop_grid, stack
-from vehsim.control.metrics import braking_record
-from vehsim.control.mhe import MovingHorizonEstimator
-from vehsim.control.scenarios import braking_scenario
-from vehsim.control.surfaces import surface
+from vehsim.control.plant.hardware import realistic_hardware
+from vehsim.control.road.surfaces import surface
 
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -157,8 +157,8 @@ def test_stopping_distance_gradient_matches_finite_differences():
 
 OBSERVER_STEP = """
 import jax, jax.numpy as jnp, equinox as eqx
-from vehsim.control.hardware import ideal_hardware
-from vehsim.control.scenarios import braking_scenario
+from vehsim.control.plant.hardware import ideal_hardware
+from vehsim.control.experiments.scenarios import braking_scenario
 scenario, observer = braking_scenario("snow", 30.0)  # the dry-asphalt prior: far off
 v, omega = jnp.asarray(28.0), jnp.asarray(28.0 / 0.3 * 0.95)
 state = observer.init(omega, v)

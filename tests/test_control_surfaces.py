@@ -10,14 +10,18 @@ import numpy as np
 import pytest
 
 from vehsim import cli
-from vehsim.control.bound import actuated_limit, physical_limit, traction_limit
-from vehsim.control.hardware import BrakeHardware, ideal_hardware, realistic_hardware
+from vehsim.control.estimation.observer import FrictionObserver
+from vehsim.control.experiments.scenarios import braking_scenario
 from vehsim.control.loop import STOP_SPEED
-from vehsim.control.observer import FrictionObserver
-from vehsim.control.peak import peak_braking, peak_driving
-from vehsim.control.plant import BrakingScenario, SurfaceChange, braking_quarter_car
-from vehsim.control.scenarios import braking_scenario
-from vehsim.control.surfaces import SURFACES, surface
+from vehsim.control.plant.hardware import (
+    BrakeHardware,
+    ideal_hardware,
+    realistic_hardware,
+)
+from vehsim.control.plant.quarter_car import BrakingScenario, SurfaceChange, braking_quarter_car
+from vehsim.control.road.bound import actuated_limit, physical_limit, traction_limit
+from vehsim.control.road.peak import peak_braking, peak_driving
+from vehsim.control.road.surfaces import SURFACES, surface
 from vehsim.tire.burckhardt import fit_errors
 from vehsim.tire.steady_state import braking_mu_uniform, driving_mu_uniform
 from vehsim.tire.uniform_lumped import UniformLumpedLuGre, decay

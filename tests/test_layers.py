@@ -120,7 +120,7 @@ build_parser()
 after_parser = sorted(sys.modules)
 import vehsim.simulate, vehsim.sweep
 from vehsim.cli.brake import CONTROLLER_NAMES
-from vehsim.control.scenarios import CONTROLLERS
+from vehsim.control.experiments.scenarios import CONTROLLERS
 try:
     vehsim.no_such_name
     missing = None
@@ -153,7 +153,7 @@ def test_public_names_are_bound_on_first_use():
     loaded = {m for m in probe["after_import"] if m.startswith("vehsim.")}
     assert loaded == {"vehsim._xla_cpu"}
     assert "diffrax" not in probe["after_import"] and "equinox" not in probe["after_import"]
-    heavy = ("vehsim.control.controllers", "vehsim.robot", "vehsim.optimal.ip.solver",
+    heavy = ("vehsim.control.controllers.braking", "vehsim.robot", "vehsim.optimal.ip.solver",
              "vehsim.tire.moments", "vehsim.identify.fit")
     assert not [m for m in probe["after_parser"] if m.startswith(heavy)]
     assert probe["sweep"] == ["vehsim.sweep", "function"]

@@ -155,10 +155,10 @@ from .vehicle.quarter_car import (
 
 # isort: split
 # vehicles, simulation, sweeps (report section 2.5)
-from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
 from ._simulate import Trajectory as Trajectory, simulate as simulate
-from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
 from ._sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
+from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
+from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
 from .tire.friction_ellipse import (
     FrictionEllipseTire as FrictionEllipseTire,
     rally_gravel_tire as rally_gravel_tire,
@@ -223,12 +223,7 @@ from .sharding import gather_members as gather_members
 # isort: split
 # closing the loop: road surfaces, braking hardware, friction estimation, ABS and
 # traction control on the lumped LuGre tire (report section 2.2)
-from .control.bound import (
-    actuated_limit as actuated_limit,
-    physical_limit as physical_limit,
-    traction_limit as traction_limit,
-)
-from .control.controllers import (
+from .control.controllers.braking import (
     AbstractBrakeController as AbstractBrakeController,
     AbstractSlipTracking as AbstractSlipTracking,
     LockedWheel as LockedWheel,
@@ -236,53 +231,58 @@ from .control.controllers import (
     RuleBasedABS as RuleBasedABS,
     SlipTracking as SlipTracking,
 )
-from .control.experiment import braking_experiment as braking_experiment
-from .control.half_car_abs import (
+from .control.controllers.traction import (
+    FullThrottle as FullThrottle,
+    TractionControl as TractionControl,
+    traction_scenario as traction_scenario,
+)
+from .control.estimation.mhe import (
+    MHEResult as MHEResult,
+    MovingHorizonEstimator as MovingHorizonEstimator,
+)
+from .control.estimation.observer import FrictionObserver as FrictionObserver
+from .control.experiments.experiment import braking_experiment as braking_experiment
+from .control.experiments.half_car_abs import (
     TurnScenario as TurnScenario,
     simulate_turn as simulate_turn,
     turn_scenario as turn_scenario,
 )
-from .control.hardware import (
-    BrakeHardware as BrakeHardware,
-    ideal_hardware as ideal_hardware,
-    realistic_hardware as realistic_hardware,
+from .control.experiments.metrics import (
+    braking_record as braking_record,
+    estimate_record as estimate_record,
 )
+from .control.experiments.scenarios import braking_scenario as braking_scenario
+from .control.experiments.tuning import tune_gains as tune_gains
 from .control.loop import (
     BrakingRun as BrakingRun,
     closed_loop_grid as closed_loop_grid,
     simulate_braking as simulate_braking,
     simulate_braking_grid as simulate_braking_grid,
 )
-from .control.metrics import (
-    braking_record as braking_record,
-    estimate_record as estimate_record,
+from .control.plant.hardware import (
+    BrakeHardware as BrakeHardware,
+    ideal_hardware as ideal_hardware,
+    realistic_hardware as realistic_hardware,
 )
-from .control.mhe import (
-    MHEResult as MHEResult,
-    MovingHorizonEstimator as MovingHorizonEstimator,
-)
-from .control.observer import FrictionObserver as FrictionObserver
-from .control.peak import (
-    peak_braking as peak_braking,
-    peak_driving as peak_driving,
-)
-from .control.plant import (
+from .control.plant.quarter_car import (
     BrakingScenario as BrakingScenario,
     SurfaceChange as SurfaceChange,
     braking_quarter_car as braking_quarter_car,
 )
-from .control.scenarios import braking_scenario as braking_scenario
-from .control.surfaces import (
+from .control.road.bound import (
+    actuated_limit as actuated_limit,
+    physical_limit as physical_limit,
+    traction_limit as traction_limit,
+)
+from .control.road.peak import (
+    peak_braking as peak_braking,
+    peak_driving as peak_driving,
+)
+from .control.road.surfaces import (
     SURFACES as SURFACES,
     Surface as Surface,
     surface as surface,
 )
-from .control.traction import (
-    FullThrottle as FullThrottle,
-    TractionControl as TractionControl,
-    traction_scenario as traction_scenario,
-)
-from .control.tuning import tune_gains as tune_gains
 
 
 try:

@@ -10,9 +10,9 @@ beside their models, each with its source in its docstring:
 - ``tire``: the benchmark maneuvers' tire (`vehsim.tire.friction_ellipse`) and the LuGre tire
   matched to it for the replays (`vehsim.optimal.replay`);
 - ``vehicle_params``: the benchmark maneuvers' half-car (`vehsim.vehicle.params`);
-- ``surface``: the named road surfaces of the braking studies (`vehsim.control.surfaces`);
+- ``surface``: the named road surfaces of the braking studies (`vehsim.control.road.surfaces`);
 - ``brake_hardware``: the braking hardware with every effect on or off
-  (`vehsim.control.hardware`);
+  (`vehsim.control.plant.hardware`);
 - ``robot_plant``: the Khepera plant with every effect on or off (`vehsim.robot.khepera`);
 - ``robot_mission``: the missions of report Table 2 (`vehsim.robot.missions`).
 """
@@ -23,8 +23,8 @@ import functools
 from collections.abc import Callable
 from typing import Any
 
-from .control.hardware import ideal_hardware, realistic_hardware
-from .control.surfaces import SURFACES, surface
+from .control.plant.hardware import ideal_hardware, realistic_hardware
+from .control.road.surfaces import SURFACES, surface
 from .optimal.replay import matched_lugre_tire
 from .robot.khepera import ideal_plant, realistic_plant
 from .robot.missions import EASY, LONG_DISTANCE, NORMAL, SINGULAR

@@ -181,7 +181,7 @@ def braking_figure(runs: dict, title: str = ""):
 
 def turn_figure(runs: dict, title: str = ""):
     """The half car braking in a turn: paths, yaw rates and sideslip angles; `runs` maps a
-    label to the signals of `vehsim.control.half_car_abs.simulate_turn`."""
+    label to the signals of `vehsim.control.experiments.half_car_abs.simulate_turn`."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))

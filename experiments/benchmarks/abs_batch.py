@@ -41,9 +41,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from vehsim.control.hardware import realistic_hardware  # noqa: E402
+from vehsim.control.experiments.scenarios import (  # noqa: E402
+    CONTROLLERS,
+    braking_scenario,
+    controller,
+)
 from vehsim.control.loop import simulate_braking_grid, stack  # noqa: E402
-from vehsim.control.scenarios import CONTROLLERS, braking_scenario, controller  # noqa: E402
+from vehsim.control.plant.hardware import realistic_hardware  # noqa: E402
 
 
 SURFACES = ("dry_asphalt", "wet_asphalt", "cobblestone", "snow", "ice", "cdc1999_1",

@@ -10,12 +10,12 @@ from pathlib import Path
 
 
 CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate")
-"""The keys of `vehsim.control.scenarios.CONTROLLERS`, spelled out here so that building the
+"""The keys of `vehsim.control.experiments.scenarios.CONTROLLERS`, spelled out here so that building the
 command line does not import the controllers (which would slow down every command)."""
 
 
 def register(subparsers) -> None:
-    from ..control.surfaces import SURFACES
+    from ..control.road.surfaces import SURFACES
 
     p = subparsers.add_parser(
         "brake", help="closed-loop braking: ABS, slip tracking, friction estimation",
@@ -51,8 +51,8 @@ def _brake(args) -> int:
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
-    from ..control.experiment import braking_experiment
-    from ..control.hardware import ideal_hardware, realistic_hardware
+    from ..control.experiments.experiment import braking_experiment
+    from ..control.plant.hardware import ideal_hardware, realistic_hardware
     from ..plot import braking_figure
 
     if args.change_to is not None and math.isinf(args.change_distance) \

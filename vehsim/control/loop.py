@@ -1,9 +1,9 @@
 r"""The closed braking loop at the controller's rate, one `lax.scan` over samples.
 
-Per sample $k$ at $t_k = kT$: measure (`vehsim.control.sensors`), update the observer with
+Per sample $k$ at $t_k = kT$: measure (`vehsim.control.plant.sensors`), update the observer with
 the mean brake torque of the last sample, let the controller command a torque (the full
-torque below `handback_speed`), pass it through the actuator (`vehsim.control.hardware`) and
-integrate the plant to $t_{k+1}$ (`vehsim.control.plant`). The stopping distance and time
+torque below `handback_speed`), pass it through the actuator (`vehsim.control.plant.hardware`) and
+integrate the plant to $t_{k+1}$ (`vehsim.control.plant.quarter_car`). The stopping distance and time
 are recorded when the speed first falls below `stop_speed` (linear interpolation within
 the sample), so a batch need not keep trajectories.
 """
@@ -18,18 +18,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._results import RESULTS, as_result
-from .controllers import AbstractBrakeController, measurement
-from .hardware import (
+from .controllers.braking import AbstractBrakeController, measurement
+from .estimation.observer import FrictionObserver, ObserverState
+from .plant.hardware import (
     ActuatorState,
     BrakeHardware,
     actuator_target,
     brake_torque,
     realistic_hardware,
 )
-from .integrate import SUBSTEPS
-from .observer import FrictionObserver, ObserverState
-from .plant import BrakingScenario, advance, initial_plant_state, unpack
-from .sensors import EncoderState, vehicle_speed, wheel_speed
+from .plant.integrate import SUBSTEPS
+from .plant.quarter_car import BrakingScenario, advance, initial_plant_state, unpack
+from .plant.sensors import EncoderState, vehicle_speed, wheel_speed
 
 
 STOP_SPEED = 1.0

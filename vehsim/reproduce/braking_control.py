@@ -13,12 +13,12 @@ import jax
 import numpy as np
 
 from .._results import RESULTS
-from ..control.experiment import braking_experiment
-from ..control.hardware import ideal_hardware, realistic_hardware
+from ..control.experiments.experiment import braking_experiment
+from ..control.experiments.metrics import braking_record, estimate_record
+from ..control.experiments.scenarios import CONTROLLERS, braking_scenario, controller, true_theta
 from ..control.loop import HANDBACK_SPEED, simulate_braking_grid, stack
-from ..control.metrics import braking_record, estimate_record
-from ..control.scenarios import CONTROLLERS, braking_scenario, controller, true_theta
-from ..control.surfaces import SURFACES, surface
+from ..control.plant.hardware import ideal_hardware, realistic_hardware
+from ..control.road.surfaces import SURFACES, surface
 from ..plot import braking_figure, turn_figure
 
 
@@ -131,7 +131,7 @@ def reproduce(ctx) -> None:
 
 
 def _mhe_record(scenario, observer, signals, hw, t_end):
-    from ..control.mhe import MovingHorizonEstimator
+    from ..control.estimation.mhe import MovingHorizonEstimator
 
     srf = surface(_surface_of(scenario))
     mhe = MovingHorizonEstimator(observer.model, *srf.theta_range)
@@ -190,7 +190,7 @@ def _estimators(ctx):
 def _magic_formula(ctx):
     import equinox as eqx
 
-    from ..control.peak import peak_braking
+    from ..control.road.peak import peak_braking
     from ..tire.relaxed_magic_formula import MagicFormulaParams, RelaxedMagicFormula
     from ..tire.uniform_lumped import UniformLumpedLuGre
 
@@ -221,8 +221,8 @@ def _magic_formula(ctx):
 
 
 def _traction(ctx):
-    from ..control.bound import traction_limit
-    from ..control.traction import FullThrottle, TractionControl, traction_scenario
+    from ..control.controllers.traction import FullThrottle, TractionControl, traction_scenario
+    from ..control.road.bound import traction_limit
 
     pairs = [traction_scenario(s, 2.0) for s in SURFACES]
     scs = stack([p[0] for p in pairs])
@@ -246,8 +246,8 @@ def _turn(ctx):
     import equinox as eqx
     import jax.numpy as jnp
 
-    from ..control.controllers import LockedWheel, RuleBasedABS
-    from ..control.half_car_abs import rear_abs, simulate_turn, turn_scenario
+    from ..control.controllers.braking import LockedWheel, RuleBasedABS
+    from ..control.experiments.half_car_abs import rear_abs, simulate_turn, turn_scenario
 
     sc = turn_scenario("dry_asphalt", 25.0, 0.03)
     cases = {"ABS on both axles": (RuleBasedABS(), rear_abs(), 0.4),
@@ -278,7 +278,7 @@ HELD_OUT = (("snow", 30.0), ("ice", 30.0), ("cdc1999_0.6", 30.0), ("wet_asphalt"
 
 
 def _batch(cases, seeds=1):
-    from ..control.bound import physical_limit
+    from ..control.road.bound import physical_limit
 
     pairs = [braking_scenario(s, v) for s, v in cases for _ in range(seeds)]
     scs, obs = stack([p[0] for p in pairs]), stack([p[1] for p in pairs])
@@ -287,7 +287,7 @@ def _batch(cases, seeds=1):
 
 
 def _tuning(ctx):
-    from ..control.tuning import tune_gains
+    from ..control.experiments.tuning import tune_gains
 
     train = [(s, v) for s in TUNING_SURFACES for v in TUNING_SPEEDS]
     scs, obs, keys, bounds = _batch(train, seeds=2)

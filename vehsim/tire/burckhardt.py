@@ -13,7 +13,7 @@ transients) and $\sigma_2 = 0$. (The CDC set's $\sigma_2$ = 0.0018 s/m fits Burc
 as ice has, so that a locked wheel would out-brake any ABS on ice.) Cobblestone, whose
 peak lies at 40 % slip where the others peak below 20 %, gets its own $\sigma_0$: no
 $\theta$ moves the peak that far. The fitted values are the presets of
-`vehsim.control.surfaces`.
+`vehsim.control.road.surfaces`.
 """
 
 from __future__ import annotations

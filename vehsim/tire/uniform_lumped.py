@@ -9,7 +9,7 @@ i.e. $\kappa_0 = 1/\psi(k) - k$ in eq. 25: 2 at small slip, 1 for a locked wheel
 the report gives). The mean of eq. 15 over a uniform patch is $\bar z_{ss} = v_rL\psi(k)/|\omega
 r|$, so the steady state of this model is eq. 19 in braking and eq. 18 in driving exactly, and
 the peak of its force-slip curve is the peak of eq. 19: the controllers' target and the
-physical limit of `vehsim.control.bound` use the same curve the plant delivers. For a locked
+physical limit of `vehsim.control.road.bound` use the same curve the plant delivers. For a locked
 wheel ($\omega = 0$) the decay is the point model's, $\theta\sigma_0|v_r|/g$ (report remark
 after eq. 16).
 """

@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .bound import actuated_limit, physical_limit
-from .hardware import BrakeHardware
-from .loop import BrakingRun
-from .peak import peak_braking
-from .plant import BrakingScenario
+from ..loop import BrakingRun
+from ..plant.hardware import BrakeHardware
+from ..plant.quarter_car import BrakingScenario
+from ..road.bound import actuated_limit, physical_limit
+from ..road.peak import peak_braking
 
 
 def braking_record(run: BrakingRun, scenario: BrakingScenario,

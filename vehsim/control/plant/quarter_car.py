@@ -1,13 +1,13 @@
 r"""The braked quarter car between two control samples, and a surface change along the road.
 
 The plant is `vehsim.QuarterCar` (constant load by default) with the brake torque of the
-actuator (`vehsim.control.hardware`), plus the distance travelled $x$ and the wheel angle
+actuator (`vehsim.control.plant.hardware`), plus the distance travelled $x$ and the wheel angle
 $\varphi$ (for the tone wheel), one flat state
 $$y = (x,\ v,\ \omega,\ F_n,\ \bar z,\ \varphi),\qquad \dot x = v,\quad \dot\varphi = \omega.$$
 Between samples it is integrated by `vehsim.ROS34PW2`, linearly implicit in the stiff block
 $(v, \omega, \bar z)$ (the bristle decay reaches $10^5$ 1/s on a sliding wheel on ice; the
 tire damping through the wheel inertia, $r^2\sigma_1F_n/J$, $10^3$ 1/s), with step-size
-control (`vehsim.control.integrate`). A `SurfaceChange` is crossed over
+control (`vehsim.control.plant.integrate`). A `SurfaceChange` is crossed over
 the contact patch: the tire's parameters are blended by the fraction $w$ of the patch on
 the new surface, $w = (x - x_c)/L_c$ clipped to [0, 1] for a change at distance $x_c$
 ($(t - t_c)v/L_c$ for one at time $t_c$), $L_c$ the transition length (the patch length,
@@ -27,10 +27,10 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_positive
-from .._fields import array_field
-from ..tire.lugre import AbstractLongitudinalTire
-from ..vehicle.quarter_car import QuarterCar
+from ..._checks import check_positive
+from ..._fields import array_field
+from ...tire.lugre import AbstractLongitudinalTire
+from ...vehicle.quarter_car import QuarterCar
 from .hardware import BrakeHardware, brake_torque
 from .integrate import integrate_sample
 from .sensors import EncoderState, count_edges

@@ -2,7 +2,7 @@ r"""Braking controllers, sampled at the hardware's rate, commanding a brake torq
 
 Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel
 slip $\hat s = r\hat\omega/\hat v - 1$ and the wheel's peripheral acceleration
-$r\Delta\hat\omega/T$) and the observer's $\hat\theta$ (`vehsim.control.observer`).
+$r\Delta\hat\omega/T$) and the observer's $\hat\theta$ (`vehsim.control.estimation.observer`).
 Below `handback_speed` (3 m/s by default) every controller hands back to plain braking (the
 full torque): there slip measurement is poor and a locked wheel costs little distance.
 
@@ -32,13 +32,13 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_nonnegative, check_positive, check_range
-from .._fields import array_field
-from .._math import safe_div
-from ..tire.lugre import LuGreParams
-from ..tire.uniform_lumped import UniformLumpedLuGre
-from ..vehicle.quarter_car import QuarterCar
-from .peak import peak_braking
+from ..._checks import check_nonnegative, check_positive, check_range
+from ..._fields import array_field
+from ..._math import safe_div
+from ...tire.lugre import LuGreParams
+from ...tire.uniform_lumped import UniformLumpedLuGre
+from ...vehicle.quarter_car import QuarterCar
+from ..road.peak import peak_braking
 
 
 class Measurement(eqx.Module):

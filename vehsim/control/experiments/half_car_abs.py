@@ -23,16 +23,16 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._fields import array_field
-from ..tire.isotropic_lumped import IsotropicLumpedLuGre
-from ..vehicle.half_car import HalfCar
-from ..vehicle.maneuvers import smooth_step
-from ..vehicle.params import rally_gravel
-from ..vehicle.planar import axle_velocities
-from .controllers import AbstractBrakeController, RuleBasedABS, measurement
-from .hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
-from .integrate import integrate_sample
-from .surfaces import surface
+from ..._fields import array_field
+from ...tire.isotropic_lumped import IsotropicLumpedLuGre
+from ...vehicle.half_car import HalfCar
+from ...vehicle.maneuvers import smooth_step
+from ...vehicle.params import rally_gravel
+from ...vehicle.planar import axle_velocities
+from ..controllers.braking import AbstractBrakeController, RuleBasedABS, measurement
+from ..plant.hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
+from ..plant.integrate import integrate_sample
+from ..road.surfaces import surface
 
 
 OMEGA_EPS = 1.0

@@ -17,8 +17,8 @@ import diffrax as dfx
 import jax
 import jax.numpy as jnp
 
-from .._results import RESULTS
-from ..solvers import ROS34PW2
+from ..._results import RESULTS
+from ...solvers import ROS34PW2
 
 
 SUBSTEPS = 8

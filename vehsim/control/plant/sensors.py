@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._math import safe_div
+from ..._math import safe_div
 from .hardware import BrakeHardware
 from .integrate import hermite
 

@@ -12,7 +12,7 @@ Per control sample (period $T$, zero-order hold):
    $T_b(t_k + t) = T_d + (T_b(t_k) - T_d)e^{-t/\tau}$.
 
 The sensors: the wheel speed from a tone wheel of `encoder_pulses` teeth by edge timing
-(`vehsim.control.sensors`), the vehicle speed with white noise of `speed_noise_std`.
+(`vehsim.control.plant.sensors`), the vehicle speed with white noise of `speed_noise_std`.
 
 **Values.** A 200 Hz loop, as production ABS units run (5-10 ms cycles); the hydraulic
 actuator of Savaresi and Tanelli (*Active Braking Control Systems Design for Vehicles*,
@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_nonnegative, check_positive, check_range, is_concrete
-from .._fields import array_field, bool_field
+from ..._checks import check_nonnegative, check_positive, check_range, is_concrete
+from ..._fields import array_field, bool_field
 
 
 MAX_DELAY = 8

@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from .._checks import check_range
-from ..tire.lugre import LuGreParams
-from ..tire.params import cdc1999
-from ..tire.uniform_lumped import UniformLumpedLuGre
+from ..._checks import check_range
+from ...tire.lugre import LuGreParams
+from ...tire.params import cdc1999
+from ...tire.uniform_lumped import UniformLumpedLuGre
 
 
 _BURCKHARDT_TIRE = dict(sigma0=301.52818508, sigma1=0.7, sigma2=0.0, mu_c=0.56888825,

@@ -44,15 +44,15 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_positive
-from .._fields import array_field
-from .._optimality import max_gradient_cosine
-from .._results import RESULTS, is_successful
-from ..tire.lugre import LuGreParams
-from ..tire.uniform_lumped import UniformLumpedLuGre, decay
-from ..vehicle.quarter_car import QuarterCar, QuarterCarState
-from .hardware import BrakeHardware
-from .integrate import SUBSTEPS, hermite, integrate_sample
+from ..._checks import check_positive
+from ..._fields import array_field
+from ..._optimality import max_gradient_cosine
+from ..._results import RESULTS, is_successful
+from ...tire.lugre import LuGreParams
+from ...tire.uniform_lumped import UniformLumpedLuGre, decay
+from ...vehicle.quarter_car import QuarterCar, QuarterCarState
+from ..plant.hardware import BrakeHardware
+from ..plant.integrate import SUBSTEPS, hermite, integrate_sample
 from .observer import _copy_rates
 
 

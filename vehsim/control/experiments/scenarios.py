@@ -13,17 +13,17 @@ import math
 
 import jax.numpy as jnp
 
-from ..tire.lugre import AbstractLongitudinalTire
-from .controllers import (
+from ...tire.lugre import AbstractLongitudinalTire
+from ..controllers.braking import (
     AbstractBrakeController,
     LockedWheel,
     PeakSlipTracking,
     RuleBasedABS,
     SlipTracking,
 )
-from .observer import FrictionObserver
-from .plant import BrakingScenario, SurfaceChange, braking_quarter_car
-from .surfaces import Surface, surface
+from ..estimation.observer import FrictionObserver
+from ..plant.quarter_car import BrakingScenario, SurfaceChange, braking_quarter_car
+from ..road.surfaces import Surface, surface
 
 
 CONTROLLERS = {"locked": LockedWheel, "rule": RuleBasedABS, "fixed": SlipTracking,

@@ -22,11 +22,11 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .controllers import AbstractSlipTracking
-from .hardware import BrakeHardware
-from .loop import closed_loop
-from .observer import FrictionObserver
-from .plant import BrakingScenario
+from ..controllers.braking import AbstractSlipTracking
+from ..estimation.observer import FrictionObserver
+from ..loop import closed_loop
+from ..plant.hardware import BrakeHardware
+from ..plant.quarter_car import BrakingScenario
 
 
 TUNING_HANDBACK = 0.5

@@ -22,14 +22,14 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_nonnegative, check_positive
-from .._fields import array_field
-from ..tire.uniform_lumped import UniformLumpedLuGre
-from .controllers import AbstractBrakeController
-from .peak import peak_driving
-from .plant import BrakingScenario, braking_quarter_car
-from .scenarios import observer_for
-from .surfaces import surface
+from ..._checks import check_nonnegative, check_positive
+from ..._fields import array_field
+from ...tire.uniform_lumped import UniformLumpedLuGre
+from ..experiments.scenarios import observer_for
+from ..plant.quarter_car import BrakingScenario, braking_quarter_car
+from ..road.peak import peak_driving
+from ..road.surfaces import surface
+from .braking import AbstractBrakeController
 
 
 class FullThrottle(AbstractBrakeController):

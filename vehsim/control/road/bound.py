@@ -29,11 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._constants import GRAVITY
-from .hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
-from .loop import STOP_SPEED
+from ..._constants import GRAVITY
+from ..loop import STOP_SPEED
+from ..plant.hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
+from ..plant.quarter_car import BrakingScenario
 from .peak import peak_braking, peak_driving
-from .plant import BrakingScenario
 
 
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(12)

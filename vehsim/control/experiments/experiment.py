@@ -14,11 +14,11 @@ import jax
 import numpy as np
 from jaxtyping import PRNGKeyArray
 
-from .._results import result_record
-from .bound import physical_limit
-from .controllers import LockedWheel
-from .hardware import BrakeHardware, realistic_hardware
-from .loop import HANDBACK_SPEED, simulate_braking_grid, stack
+from ..._results import result_record
+from ..controllers.braking import LockedWheel
+from ..loop import HANDBACK_SPEED, simulate_braking_grid, stack
+from ..plant.hardware import BrakeHardware, realistic_hardware
+from ..road.bound import physical_limit
 from .metrics import available_friction, braking_record, estimate_record
 from .scenarios import braking_scenario, controller, true_theta
 

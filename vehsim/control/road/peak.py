@@ -19,10 +19,10 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ..tire.lugre import AbstractLongitudinalTire, LumpedLuGre
-from ..tire.magic_formula import magic_formula
-from ..tire.relaxed_magic_formula import RelaxedMagicFormula
-from ..tire.uniform_lumped import UniformLumpedLuGre
+from ...tire.lugre import AbstractLongitudinalTire, LumpedLuGre
+from ...tire.magic_formula import magic_formula
+from ...tire.relaxed_magic_formula import RelaxedMagicFormula
+from ...tire.uniform_lumped import UniformLumpedLuGre
 
 
 _GRID = 64

@@ -11,7 +11,7 @@ $\theta$ is adapted from the wheel-speed innovation. Per sample $k$ (period $T$)
    actuator model gives for the commands (the plant's integrator, so that the copy is exact
    when $\hat\theta = \theta$), giving $\hat\omega_k^-$, $\hat z_k$, and the copy's wheel
    speed $\hat\omega^-(t_m)$ at the time $t_m$ the measurement stands for (the midpoint of
-   the last tone-wheel edge interval, `vehsim.control.sensors`; linear between sub-steps);
+   the last tone-wheel edge interval, `vehsim.control.plant.sensors`; linear between sub-steps);
 2. *adapt* $\vartheta = \log\hat\theta$ by recursive least squares on the innovation
    $e = \omega_m - \hat\omega^-(t_m)$ with the regressor $\phi = \partial\hat\omega^-(t_m)/
    \partial\vartheta$ (carried through the copy by sensitivity states; the directional
@@ -47,13 +47,13 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_positive, check_range, is_concrete
-from .._fields import array_field
-from ..tire.lugre import LuGreParams
-from ..tire.uniform_lumped import UniformLumpedLuGre
-from ..vehicle.quarter_car import QuarterCar, QuarterCarState
-from .hardware import BrakeHardware, brake_torque
-from .integrate import hermite, integrate_sample
+from ..._checks import check_positive, check_range, is_concrete
+from ..._fields import array_field
+from ...tire.lugre import LuGreParams
+from ...tire.uniform_lumped import UniformLumpedLuGre
+from ...vehicle.quarter_car import QuarterCar, QuarterCarState
+from ..plant.hardware import BrakeHardware, brake_torque
+from ..plant.integrate import hermite, integrate_sample
 
 
 class ObserverState(eqx.Module):

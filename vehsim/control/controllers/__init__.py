@@ -1,0 +1,1 @@
+"""Brake (ABS) and traction controllers, sampled at the hardware's rate."""
