@@ -42,7 +42,7 @@ CHANGES = (("dry_asphalt", "ice", 20.0), ("ice", "dry_asphalt", 100.0),
            ("wet_asphalt", "snow", 20.0), ("snow", "dry_asphalt", 50.0))
 
 
-def grid_records(cases, hw, duration, key=0):
+def grid_records(cases, hardware, duration, key=0):
     """Every controller on every case ``(surface, change_to, change_distance)`` from 30 m/s:
     ``{(case, controller): record}`` with the estimate's settling (before a change, from
     the onset; after it, from the change), and the saved runs."""
@@ -50,13 +50,13 @@ def grid_records(cases, hw, duration, key=0):
     keys = jax.random.split(jax.random.PRNGKey(key), len(cases))
     runs = simulate_braking_grid(stack([p[0] for p in pairs]),
                                  [controller(c) for c in CONTROLLERS],
-                                 stack([p[1] for p in pairs]), keys, hw, duration=duration,
+                                 stack([p[1] for p in pairs]), keys, hardware, duration=duration,
                                  save=True)
     records = {}
     for j, case in enumerate(cases):
         for i, name in enumerate(CONTROLLERS):
             run = jax.tree_util.tree_map(lambda a: a[i, j], runs)
-            records[case, name] = braking_record(run, pairs[j][0], hw) | _estimates(
+            records[case, name] = braking_record(run, pairs[j][0], hardware) | _estimates(
                 run, pairs[j][0], case)
     return records, runs
 
@@ -100,14 +100,14 @@ def _distance_table(ctx, records, cases, label):
 
 
 def reproduce(ctx) -> None:
-    hw = realistic_hardware()
+    hardware = realistic_hardware()
     surfaces = SURFACES if not ctx.quick else QUICK_SURFACES
     cases = [(s, None, np.inf) for s in surfaces]
     duration = 100.0 if not ctx.quick else 6.0
     ctx.log(f"{len(cases)} surfaces x {len(CONTROLLERS)} controllers from 30 m/s")
-    records, _ = grid_records(cases, hw, duration)
+    records, _ = grid_records(cases, hardware, duration)
     _distance_table(ctx, records, cases, "realistic")
-    record, signals = braking_experiment("wet_asphalt", "estimate", 30.0, hardware=hw)
+    record, signals = braking_experiment("wet_asphalt", "estimate", 30.0, hardware=hardware)
     ctx.figure(braking_figure(signals, "wet asphalt from 30 m/s"), "braking_wet_asphalt",
                "Estimate-based ABS and a locked wheel on wet asphalt from 30 m/s")
     ctx.text(NOTES)
@@ -118,7 +118,7 @@ def reproduce(ctx) -> None:
                  "the gain tuning.")
         return
     changes = [tuple(c) for c in CHANGES]
-    records, _ = grid_records(changes, hw, 100.0)
+    records, _ = grid_records(changes, hardware, 100.0)
     _distance_table(ctx, records, changes, "realistic")
     for label, other in (("ideal", ideal_hardware()),):
         records, _ = grid_records(cases + changes, other, 100.0)
@@ -130,14 +130,14 @@ def reproduce(ctx) -> None:
         part(ctx)
 
 
-def _mhe_record(scenario, observer, signals, hw, t_end):
+def _mhe_record(scenario, observer, signals, hardware, t_end):
     from ..control.estimation.mhe import MovingHorizonEstimator
 
     srf = surface(_surface_of(scenario))
     mhe = MovingHorizonEstimator(observer.model, *srf.theta_range)
     # the same windows for every run (one compiled program), those past t_end dropped
-    ends = np.arange(mhe.window, int(ESTIMATION_WINDOW_S / float(hw.sample_time)), 4)
-    res = mhe.estimate(scenario.car, hw, signals, ends)
+    ends = np.arange(mhe.window, int(ESTIMATION_WINDOW_S / float(hardware.sample_time)), 4)
+    res = mhe.estimate(scenario.car, hardware, signals, ends)
     ok = np.asarray((res.result == RESULTS.successful) & (res.ts <= t_end))
     ts, th = np.asarray(res.ts)[ok], np.asarray(res.theta)[ok]
     truth = np.full(ts.shape, float(srf.params.theta))
@@ -159,13 +159,13 @@ def _surface_of(scenario):
 def _estimators(ctx):
     lines = ["| surface | sensors | controller | observer: settles (s), bias | "
              "MHE: settles (s), bias, windows identified, median se |", "|---|---|---|---|---|"]
-    for label, hw in (("noise-free", realistic_hardware(noise=False)),
+    for label, hardware in (("noise-free", realistic_hardware(noise=False)),
                       ("default noise", realistic_hardware())):
         for name in ("estimate", "fixed"):
             pairs = [braking_scenario(s, 30.0) for s in SURFACES]
             runs = simulate_braking_grid(
                 stack([p[0] for p in pairs]), [controller(name)], stack([p[1] for p in pairs]),
-                jax.random.split(jax.random.PRNGKey(1), len(pairs)), hw, duration=3.0,
+                jax.random.split(jax.random.PRNGKey(1), len(pairs)), hardware, duration=3.0,
                 save=True)
             for j, (sc, ob) in enumerate(pairs):
                 s = {k: np.asarray(v[0, j]) for k, v in runs.signals.items()}
@@ -174,7 +174,7 @@ def _estimators(ctx):
                 t_end = min(float(s["ts"][below[0]]) if below.size else 3.0,
                             ESTIMATION_WINDOW_S)
                 rec = estimate_record(s["ts"], s["theta_hat"], truth, 0.0, t_end)
-                rec |= _mhe_record(sc, ob, s, hw, t_end)
+                rec |= _mhe_record(sc, ob, s, hardware, t_end)
                 ctx.record(f"braking_control.estimation.{label}.{name}.{SURFACES[j]}", rec)
                 lines.append(
                     f"| {SURFACES[j]} | {label} | {name} | {rec['theta_settling_time_s']:.3f}, "

@@ -108,18 +108,18 @@ class MovingHorizonEstimator(eqx.Module):
         return eqx.tree_at(lambda p: [getattr(p, n) for n in values], self.model,
                            list(values.values()))
 
-    def _simulate(self, u, car: QuarterCar, hw: BrakeHardware, data):
+    def _simulate(self, u, car: QuarterCar, hardware: BrakeHardware, data):
         """Wheel speeds at the stamps and vehicle speeds at the samples 1..N of a window."""
         k = len(self.free)
         z_scale = self.model.mu_s / (self.model.theta * self.model.sigma0)
         car = eqx.tree_at(lambda c: c.tire, car, UniformLumpedLuGre(self._params(u)))
         y0, unravel = ravel_pytree(QuarterCarState(u[k + 2], u[k + 1], car.Fn_static,
                                                    z_scale * u[k]))
-        T = hw.sample_time
+        T = hardware.sample_time
 
         def sample(y, d):
             t0, torque0, target, stamp = d
-            args = (car, unravel, hw, torque0, target, t0)
+            args = (car, unravel, hardware, torque0, target, t0)
             y1, _ = integrate_sample(_copy_rates, y, args, t0, T, ((0, 1, 3),), SUBSTEPS)
             r0, r1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
             omega = hermite(jnp.clip((stamp - t0) / T, 0.0, 1.0), T, y[1], y1[1], r0[1],
@@ -130,8 +130,8 @@ class MovingHorizonEstimator(eqx.Module):
               data["omega_stamp"][1:])
         return jax.lax.scan(sample, y0, xs)[1]
 
-    def _residuals(self, u, car, hw, data):
-        omega, v = self._simulate(u, car, hw, data)
+    def _residuals(self, u, car, hardware, data):
+        omega, v = self._simulate(u, car, hardware, data)
         r_omega = jnp.where(data["fresh"][1:], (omega - data["omega_meas"][1:])
                             / self.wheel_noise, 0.0)
         return jnp.concatenate([r_omega, (v - data["v_meas"][1:]) / self.speed_noise])
@@ -146,24 +146,24 @@ class MovingHorizonEstimator(eqx.Module):
         logs = [jnp.log(getattr(p, n)) for n in self.free]
         return jnp.stack(logs + [z_ss / z_scale, omega, v])
 
-    def _residuals_and_jacobian(self, u, car, hw, data):
+    def _residuals_and_jacobian(self, u, car, hardware, data):
         """The residuals and their forward-difference Jacobian, one vmapped simulation."""
         h = _DIFFERENCE_STEP * jnp.maximum(jnp.abs(u), 1.0)
         points = jnp.concatenate([u[None], u[None] + jnp.diag(h)])
-        rs = jax.vmap(lambda v: self._residuals(v, car, hw, data))(points)
+        rs = jax.vmap(lambda v: self._residuals(v, car, hardware, data))(points)
         return rs[0], ((rs[1:] - rs[0][None]) / h[:, None]).T
 
-    def fit_window(self, car: QuarterCar, hw: BrakeHardware, data):
+    def fit_window(self, car: QuarterCar, hardware: BrakeHardware, data):
         """``(theta, theta_se, cost, result)`` of one window (`data`: the run's signals
         over the window's N + 1 samples)."""
 
         @jax.custom_jvp
         def residuals(u):
-            return self._residuals(u, car, hw, data)
+            return self._residuals(u, car, hardware, data)
 
         @residuals.defjvp
         def _(primals, tangents):
-            r, J = self._residuals_and_jacobian(primals[0], car, hw, data)
+            r, J = self._residuals_and_jacobian(primals[0], car, hardware, data)
             return r, J @ tangents[0]
 
         def solve(theta):
@@ -179,7 +179,7 @@ class MovingHorizonEstimator(eqx.Module):
         best = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
         u = values[best]
         lm_result = jax.tree.map(lambda x: x[best], results)
-        r, J = self._residuals_and_jacobian(u, car, hw, data)
+        r, J = self._residuals_and_jacobian(u, car, hardware, data)
         s2 = jnp.sum(r * r) / jnp.maximum(r.shape[0] - u.shape[0], 1)
         # information on log(theta) left after the other unknowns: the Schur complement
         J_t, J_n = J[:, 0], J[:, 1:]
@@ -198,23 +198,23 @@ class MovingHorizonEstimator(eqx.Module):
         result = RESULTS.where(identifiable | ~judged, solved, RESULTS.not_identifiable)
         return theta, theta_se, jnp.sum(r * r) / r.shape[0], result
 
-    def estimate(self, car: QuarterCar, hw: BrakeHardware, signals: dict, ends) -> MHEResult:
+    def estimate(self, car: QuarterCar, hardware: BrakeHardware, signals: dict, ends) -> MHEResult:
         """Fit the windows ending at the sample indices `ends` (each at least `window`) of
         a saved run's `signals`, all in one vmapped, jitted call (compiled once per window,
         run length and number of windows)."""
         data = {n: jnp.asarray(signals[n]) for n in _WINDOW_SIGNALS}
-        return _estimate(self, car, hw, data, jnp.asarray(ends))
+        return _estimate(self, car, hardware, data, jnp.asarray(ends))
 
 
 _WINDOW_SIGNALS = ("ts", "torque", "target", "omega_stamp", "omega_meas", "v_meas", "fresh")
 
 
 @eqx.filter_jit
-def _estimate(mhe: MovingHorizonEstimator, car, hw, signals, ends) -> MHEResult:
+def _estimate(mhe: MovingHorizonEstimator, car, hardware, signals, ends) -> MHEResult:
     def one(end):
         data = {n: jax.lax.dynamic_slice_in_dim(signals[n], end - mhe.window, mhe.window + 1)
                 for n in _WINDOW_SIGNALS}
-        return mhe.fit_window(car, hw, data)
+        return mhe.fit_window(car, hardware, data)
 
     theta, se, cost, result = jax.vmap(one)(ends)
     return MHEResult(signals["ts"][ends], theta, se, cost, result)

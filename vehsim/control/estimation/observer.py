@@ -76,9 +76,9 @@ class ObserverState(eqx.Module):
 
 
 def _copy_rates(t, y, args):
-    car, unravel, hw, torque0, target, t0 = args
+    car, unravel, hardware, torque0, target, t0 = args
     qs = unravel(y)
-    return ravel_pytree(car.dynamics(t, qs, brake_torque(hw, torque0, target, t - t0)))[0]
+    return ravel_pytree(car.dynamics(t, qs, brake_torque(hardware, torque0, target, t - t0)))[0]
 
 
 class FrictionObserver(eqx.Module):
@@ -128,7 +128,7 @@ class FrictionObserver(eqx.Module):
                              jnp.log(self.model.theta), self.initial_covariance, jnp.zeros(3), z,
                              z)
 
-    def _predict(self, car: QuarterCar, hw: BrakeHardware, substeps, v, omega, z, log_theta,
+    def _predict(self, car: QuarterCar, hardware: BrakeHardware, substeps, v, omega, z, log_theta,
                  torque0, target, t0, stamp):
         """Step 1: ``(omega(stamp), omega_k^-, z_k, v_k^-)`` of the copy at $\\hat\\theta =
         e^\\vartheta$ (the stamp clipped to the sample)."""
@@ -136,8 +136,8 @@ class FrictionObserver(eqx.Module):
                                               jnp.exp(log_theta)))
         car = eqx.tree_at(lambda c: c.tire, car, tire)
         y, unravel = ravel_pytree(QuarterCarState(v, omega, car.Fn_static, z))
-        args = (car, unravel, hw, torque0, target, t0)
-        T = hw.sample_time
+        args = (car, unravel, hardware, torque0, target, t0)
+        T = hardware.sample_time
         y1, _ = integrate_sample(_copy_rates, y, args, t0, T, ((0, 1, 3),), substeps)
         rate0, rate1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
         tau = jnp.clip((stamp - t0) / T, 0.0, 1.0)
@@ -145,7 +145,7 @@ class FrictionObserver(eqx.Module):
         qs = unravel(y1)
         return at_stamp, qs.omega, qs.tire, qs.v
 
-    def update(self, state: ObserverState, car: QuarterCar, hw: BrakeHardware, substeps: int,
+    def update(self, state: ObserverState, car: QuarterCar, hardware: BrakeHardware, substeps: int,
                v, omega, stamp, fresh, torque0, target, t0):
         """One sample: the copy advanced over the last sample from `t0` (brake torque from
         `torque0` lagging towards `target`), compared with the measured wheel speed `omega`
@@ -155,7 +155,7 @@ class FrictionObserver(eqx.Module):
         d = jnp.concatenate([state.sensitivity, jnp.ones(1)])
 
         def predict(x):
-            return jnp.stack(self._predict(car, hw, substeps, x[2], x[0], x[1], x[3], torque0,
+            return jnp.stack(self._predict(car, hardware, substeps, x[2], x[0], x[1], x[3], torque0,
                                            target, t0, stamp))
 
         (omega_m, omega_pred, z, v_pred), (d_omega, d_end, dz, dv) = jax.jvp(predict, (x,),
