@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from vehsim import HalfCar, rally_gravel, rally_gravel_tire, result_name, simulate
+from vehsim._sweep import _sweep_run, sweep, sweep_grid
 from vehsim.cli import main
 from vehsim.sharding import pad_members, sharded_vmap
-from vehsim._sweep import _sweep_run, sweep, sweep_grid
 from vehsim.vehicle.maneuvers import half_car_scenario, step_steer
 
 

@@ -25,9 +25,9 @@ import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
 from ._results import RESULTS
+from ._simulate import Trajectory, simulate
 from .progress import progress_bar, resolve
 from .sharding import gather_members, num_members, pad_members, put_members, sharded_vmap
-from ._simulate import Trajectory, simulate
 
 
 class SweepResult(eqx.Module):

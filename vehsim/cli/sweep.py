@@ -90,9 +90,9 @@ def _sweep(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from .._results import result_name
+    from .._sweep import sweep, sweep_grid
     from ..params import preset
     from ..sharding import num_members
-    from .._sweep import sweep, sweep_grid
     from ..vehicle.maneuvers import half_car_scenario
 
     axes = parse_axes(args.axes)
