@@ -23,23 +23,26 @@ _flags = os.environ.get("XLA_FLAGS", "")
 if "--xla_backend_optimization_level" not in _flags:
     os.environ["XLA_FLAGS"] = f"{_flags} --xla_backend_optimization_level=0".strip()
 
-# jaxlib 0.10's concurrent CPU scheduler can deadlock on two cores (vehsim/_xla_cpu.py): vehsim
-# switches it off when imported, but a test may start JAX before it imports vehsim. And the
-# command line's code generator (`prefer_fast_compilation`) for every process of the run, so
-# that the command-line runs load what the tests compiled (the flags key the cache)
+if not os.environ.get("VEHSIM_TEST_JAX_CACHE"):  # the first process of the run (not a worker)
+    os.environ["VEHSIM_TEST_JAX_CACHE"] = tempfile.mkdtemp(prefix="vehsim-test-jax-cache-")
+    atexit.register(shutil.rmtree, os.environ["VEHSIM_TEST_JAX_CACHE"], ignore_errors=True)
+# this process and its children (workers, kernels, command-line runs) read these when JAX
+# starts, so that they compile exactly what this process compiles and share the cache; set
+# before vehsim (and so JAX) is imported. VEHSIM_CACHE_DIR too: a command-line run whose
+# JAX_COMPILATION_CACHE_DIR a test removed still never writes to the user's own cache
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["VEHSIM_TEST_JAX_CACHE"]
+os.environ["VEHSIM_CACHE_DIR"] = os.environ["VEHSIM_TEST_JAX_CACHE"]
+os.environ["JAX_NUM_CPU_DEVICES"] = "2"
+
+# importing vehsim guards against jaxlib 0.10's CPU-scheduler deadlock (vehsim/_xla_cpu.py)
+# and starts no JAX backend. The command line's code generator (`prefer_fast_compilation`)
+# for every process of the run, so that the command-line runs load what the tests compiled
+# (the flags key the cache)
 from vehsim._xla_cpu import guard_cpu_scheduler, prefer_fast_compilation  # noqa: E402
 
 
 guard_cpu_scheduler()
 prefer_fast_compilation()
-
-if not os.environ.get("VEHSIM_TEST_JAX_CACHE"):  # the first process of the run (not a worker)
-    os.environ["VEHSIM_TEST_JAX_CACHE"] = tempfile.mkdtemp(prefix="vehsim-test-jax-cache-")
-    atexit.register(shutil.rmtree, os.environ["VEHSIM_TEST_JAX_CACHE"], ignore_errors=True)
-# the child processes (workers, kernels, command-line runs) read these when JAX starts, so
-# that they compile exactly what this process compiles and share the cache
-os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["VEHSIM_TEST_JAX_CACHE"]
-os.environ["JAX_NUM_CPU_DEVICES"] = "2"
 
 import jax  # noqa: E402
 

@@ -1,11 +1,14 @@
-"""`vehsim.enable_compilation_cache`: a program compiled once is loaded from the cache folder
-by the next compilation (in a fresh process, so the test process's settings are untouched)."""
+"""The compilation layer (`vehsim._compilation`): `vehsim.enable_compilation_cache` makes a
+program compiled once load from the cache folder in the next compilation (in a fresh
+process, so the test process's settings are untouched); the command line switches it on, in
+the folder it is given, never the user's own under the tests; exported programs."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
-from vehsim.compilation_cache import default_cache_dir
+from vehsim._compilation import default_cache_dir
 
 
 ROOT = Path(__file__).parent.parent
@@ -49,10 +52,26 @@ def test_default_cache_folder(monkeypatch, tmp_path):
     assert default_cache_dir() == tmp_path / "xdg" / "vehsim" / "jax"
 
 
+def test_a_command_under_the_tests_leaves_the_home_cache_alone(tmp_path):
+    """A command-line run in the tests' environment (tests/conftest.py), even one that lost
+    ``JAX_COMPILATION_CACHE_DIR``, writes its compiled programs to the run's cache folder,
+    never under the user's home: with HOME a fresh folder, nothing appears in it."""
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("JAX_COMPILATION_CACHE_DIR", "XDG_CACHE_HOME")}
+    env |= {"HOME": str(home), "PYTHONPATH": str(ROOT), "MPLCONFIGDIR": str(tmp_path / "mpl")}
+    out = subprocess.run([sys.executable, "-m", "vehsim", "brake", "--surface", "tarmac"],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 2 and "unknown surface 'tarmac'" in out.stderr, out.stderr
+    assert not list(home.rglob("*"))
+    assert Path(os.environ["VEHSIM_CACHE_DIR"]).is_dir()  # where it went
+
+
 def test_command_line_cache_follows_the_flag_and_the_environment(monkeypatch):
     import jax
 
-    from vehsim.compilation_cache import NO_CACHE_VARIABLE, command_line_cache
+    from vehsim._compilation import NO_CACHE_VARIABLE, command_line_cache
 
     configured = jax.config.jax_compilation_cache_dir  # the suite's cache folder
     try:
@@ -78,7 +97,7 @@ def test_a_program_with_a_host_callback_is_not_exported(monkeypatch, tmp_path):
     import jax.numpy as jnp
     import numpy as np
 
-    import vehsim.compilation_cache as cc
+    import vehsim._compilation as cc
 
     monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
     monkeypatch.setattr(cc, "_programs", {})

@@ -111,14 +111,53 @@ def test_the_public_api_does_not_pull_in_the_upper_layers():
     assert not deps & set(UPPER)
 
 
-LAZY_PROBE = """
-import json, sys
+CORE = ("tire", "vehicle", "optimal", "control", "identify", "robot", "solvers")
+"""The numerical core: functions of arrays and modules."""
+
+
+def _external_imports(path: Path) -> set[str]:
+    """Top-level names of the packages outside vehsim that `path` imports."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.add(node.module.split(".")[0])
+    return out - {"vehsim"}
+
+
+def test_the_core_never_touches_the_compilation_layer_threads_or_drawing():
+    """No core module imports the compilation layer (`vehsim._compilation`: persistent
+    cache, exported programs, work overlapped with compilation), threads, the command
+    line's argparse or matplotlib."""
+    bad = []
+    for path in ROOT.rglob("*.py"):
+        mod = _module_name(path)
+        if _unit(mod) not in CORE:
+            continue
+        bad += [f"{mod} -> {d}" for d in GRAPH[mod] if _existing(d) == "vehsim._compilation"]
+        bad += [f"{mod} -> {d}" for d in _external_imports(path)
+                if d in ("threading", "concurrent", "argparse", "matplotlib")]
+    assert not bad, "\n".join(bad)
+
+
+IMPORT_PROBE = """
+import importlib.metadata, json, sys
 import vehsim
 after_import = sorted(sys.modules)
+from jax._src import xla_bridge
+backend_started = bool(xla_bridge._backends)
+import jax
+jax.config.update("jax_num_cpu_devices", 2)  # refused once JAX's backend has started
 from vehsim.cli import build_parser
 build_parser()
 after_parser = sorted(sys.modules)
-import vehsim.simulate, vehsim.sweep
+try:
+    import vehsim.sweep
+    submodule = "imported"
+except ImportError:
+    submodule = "ImportError"
+from vehsim import sweep, simulate
 from vehsim.cli.brake import CONTROLLER_NAMES
 from vehsim.control.experiments.scenarios import CONTROLLERS
 try:
@@ -126,39 +165,74 @@ try:
     missing = None
 except AttributeError as e:
     missing = str(e)
+names = json.loads(sys.argv[1])
 print(json.dumps(dict(
-    after_import=after_import, after_parser=after_parser,
-    sweep=[vehsim.sweep.__module__, type(vehsim.sweep).__name__],
-    simulate=[vehsim.simulate.__module__, type(vehsim.simulate).__name__],
+    after_import=after_import, after_parser=after_parser, backend_started=backend_started,
+    devices=len(jax.devices()), submodule=submodule,
+    sweep=[sweep.__module__, type(sweep).__name__, sweep is vehsim.sweep],
+    simulate=[simulate.__module__, type(simulate).__name__],
     half_car=vehsim.HalfCar.__module__, params=type(vehsim.params).__name__,
-    resolved=sum(getattr(vehsim, n) is not None for n in vehsim.__all__),
-    all=len(vehsim.__all__), in_dir=set(vehsim.__all__) <= set(dir(vehsim)),
+    unresolved=[n for n in names if getattr(vehsim, n, None) is None],
+    version=[vehsim.__version__, importlib.metadata.version("vehsim")],
     controllers=[list(CONTROLLER_NAMES), list(CONTROLLERS)], missing=missing)))
 """
 
 
-def test_public_names_are_bound_on_first_use():
-    """`import vehsim` loads no model, and building the command line loads none of the
-    controllers, robots or solvers (a command imports what it runs); each public name
-    imports its module when first asked for, `vehsim.sweep` and `vehsim.simulate` stay the
-    functions after their modules are imported, an unknown name raises AttributeError, and
-    the brake command's controller names are the controllers' keys."""
+def _public_names() -> list[str]:
+    """The names `vehsim/__init__.py` re-exports (``from ._x import f as f``)."""
+    tree = ast.parse((ROOT / "__init__.py").read_text())
+    return [a.asname or a.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+            for a in node.names if not (a.asname or a.name).startswith("_")]
+
+
+def test_import_vehsim_binds_every_public_name_and_starts_no_backend():
+    """`import vehsim` binds every public name eagerly (a plain package: its private
+    implementation modules re-exported), starts no JAX backend (so the user can still
+    configure JAX: devices, float64) and imports neither matplotlib, scipy nor xarray; the
+    command line's parser adds none of them. `vehsim.sweep` and `vehsim.simulate` are the
+    functions (their modules are private: ``import vehsim.sweep`` fails), an unknown name
+    raises AttributeError, ``__version__`` is the installed metadata's, and the brake
+    command's controller names are the controllers' keys."""
     import json
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-c", LAZY_PROBE], capture_output=True, text=True,
-                         cwd=ROOT.parent, check=True).stdout
+    names = _public_names()
+    out = subprocess.run([sys.executable, "-c", IMPORT_PROBE, json.dumps(names)],
+                         capture_output=True, text=True, cwd=ROOT.parent, check=True).stdout
     probe = json.loads(out)
-    loaded = {m for m in probe["after_import"] if m.startswith("vehsim.")}
-    assert loaded == {"vehsim._xla_cpu"}
-    assert "diffrax" not in probe["after_import"] and "equinox" not in probe["after_import"]
-    heavy = ("vehsim.control.controllers.braking", "vehsim.robot", "vehsim.optimal.ip.solver",
-             "vehsim.tire.moments", "vehsim.identify.fit")
-    assert not [m for m in probe["after_parser"] if m.startswith(heavy)]
-    assert probe["sweep"] == ["vehsim.sweep", "function"]
-    assert probe["simulate"] == ["vehsim.simulate", "function"]
+    assert not probe["backend_started"] and probe["devices"] == 2
+    for stage in ("after_import", "after_parser"):
+        assert not [m for m in probe[stage] if m.split(".")[0] in ("matplotlib", "scipy",
+                                                                   "xarray")], stage
+    assert "vehsim.optimal.ip.solver" in probe["after_import"]  # eager
+    assert probe["submodule"] == "ImportError"
+    assert probe["sweep"] == ["vehsim._sweep", "function", True]
+    assert probe["simulate"] == ["vehsim._simulate", "function"]
     assert probe["half_car"] == "vehsim.vehicle.half_car" and probe["params"] == "module"
-    assert probe["resolved"] == probe["all"] > 150 and probe["in_dir"]
+    assert len(names) > 150 and probe["unresolved"] == []
+    assert probe["version"][0] == probe["version"][1]
     assert "no_such_name" in probe["missing"]
     assert probe["controllers"][0] == probe["controllers"][1]
+
+
+def test_vehsim_imports_from_a_zip_archive(tmp_path):
+    """A plain package imports from anywhere Python's importers look, a zip archive among
+    them (the package reads no source file of its own when imported)."""
+    import subprocess
+    import sys
+    import zipfile
+
+    archive = tmp_path / "vehsim.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for path in ROOT.rglob("*"):
+            if path.is_file() and "__pycache__" not in path.parts:
+                z.write(path, path.relative_to(ROOT.parent).as_posix())
+    probe = ("import vehsim; print(vehsim.__file__); "
+             "print(vehsim.simulate.__module__, vehsim.rally_gravel().m > 0)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         cwd=tmp_path, env={"PYTHONPATH": str(archive), "PATH": ""},
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    where, what = out.stdout.splitlines()
+    assert where.startswith(str(archive)) and what == "vehsim._simulate True"

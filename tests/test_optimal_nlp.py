@@ -125,24 +125,30 @@ def test_verbose_prints_the_iteration_log_and_compiles_the_quiet_program(bang_ba
 
 def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_path,
                                                               monkeypatch):
-    """With the persistent cache on, `interior_point` keeps JAX's tracing for a problem class
-    from outside vehsim (its static fields might not print in full); for a trusted class it
-    exports its program (one file in the cache's exported folder) and computes the jit
-    path's solution bit for bit; a process with nothing in memory loads the file (nothing is
-    exported again); a static option that changes the program is another file; a traced
-    call (vmap) keeps the jit path; an unreadable file is exported again."""
-    import vehsim.compilation_cache as cc
+    """The solver itself never writes: with the persistent cache on, `interior_point` leaves
+    the exported folder empty. The compilation layer's `exported_interior_point` keeps JAX's
+    tracing for a problem class from outside vehsim (its static fields might not print in
+    full); for a trusted class it exports its program (one file in the cache's exported
+    folder) and computes the jit path's solution bit for bit; a process with nothing in
+    memory loads the file (nothing is exported again); a static option that changes the
+    program is another file; a traced call (vmap) keeps the jit path; an unreadable file is
+    exported again."""
+    import vehsim._compilation as cc
 
     prob, _ = bang_bang
     xs0, us0 = _guess(prob.num_stages)
     monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
     monkeypatch.setattr(cc, "_programs", {})
     jitted = _solve(prob, xs0, us0, canonical_options(IPOptions()))
-    interior_point(prob, xs0, us0)  # a problem class from outside vehsim: JAX's tracing
-    assert not list(tmp_path.iterdir())
     module = type(prob).__module__.split(".")[0]
+    with monkeypatch.context() as m:
+        m.setattr(cc, "FAITHFUL_MODULES", (*cc.FAITHFUL_MODULES, module))
+        interior_point(prob, xs0, us0)  # the core: a jitted function, nothing written
+    assert not list(tmp_path.iterdir()) and not cc._programs
+    cc.exported_interior_point(prob, xs0, us0)  # a problem class from outside vehsim
+    assert not list(tmp_path.iterdir())
     monkeypatch.setattr(cc, "FAITHFUL_MODULES", (*cc.FAITHFUL_MODULES, module))
-    first = interior_point(prob, xs0, us0)
+    first = cc.exported_interior_point(prob, xs0, us0)
     (path,) = tmp_path.glob("interior_point-*.bin")
     np.testing.assert_array_equal(np.asarray(first.xs), np.asarray(jitted.xs))
 
@@ -152,22 +158,24 @@ def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_pat
     monkeypatch.setattr(cc, "_programs", {})  # as in a new process
     with monkeypatch.context() as m:
         m.setattr(jax.export, "export", no_export)
-        again = interior_point(prob, xs0, us0, IPOptions(max_iter=200))  # same program
+        again = cc.exported_interior_point(prob, xs0, us0, IPOptions(max_iter=200))  # same
     assert len(cc._programs) == 1 and None not in cc._programs.values()
     np.testing.assert_array_equal(np.asarray(again.xs), np.asarray(first.xs))
 
-    jax.vmap(lambda a: interior_point(eqx.tree_at(lambda q: q.amax, prob, a), xs0, us0,
-                                      throw=False).xs)(jnp.array([5.0, 6.0]))
+    jax.vmap(lambda a: cc.exported_interior_point(eqx.tree_at(lambda q: q.amax, prob, a), xs0,
+                                                  us0, throw=False).xs)(jnp.array([5.0, 6.0]))
     assert len(list(tmp_path.glob("*.bin"))) == 1
-    tighter = interior_point(prob, xs0, us0, IPOptions(tol=1e-10))
+    tighter = cc.exported_interior_point(prob, xs0, us0, IPOptions(tol=1e-10))
     assert len(list(tmp_path.glob("*.bin"))) == 2
     assert float(tighter.xs[-1, 4]) == pytest.approx(float(first.xs[-1, 4]), abs=1e-6)
 
     path.write_bytes(b"not a program")
     monkeypatch.setattr(cc, "_programs", {})
-    mended = interior_point(prob, xs0, us0)
+    mended = cc.exported_interior_point(prob, xs0, us0)
     np.testing.assert_array_equal(np.asarray(mended.xs), np.asarray(first.xs))
     assert path.stat().st_size > 1000
+    with pytest.raises(RuntimeError, match="inf_pr="):  # raises as `interior_point` does
+        cc.exported_interior_point(prob, xs0, us0, IPOptions(max_iter=3))
 
 
 def test_iteration_limit_reports_result_and_residuals(bang_bang):

@@ -13,7 +13,7 @@ from vehsim import result_name
 from vehsim.optimal import roads
 from vehsim.optimal.guesses import car_guess
 from vehsim.optimal.ip import IPOptions
-from vehsim.optimal.primitive import load_record_programs, solution_record
+from vehsim.optimal.primitive import solution_record
 from vehsim.optimal.primitives import (
     MAX_EXIT_MU0,
     max_exit_primitive,
@@ -102,37 +102,62 @@ def _against_ipopt(prim, road, objective, tf_max=4.0, start=None):
 
 
 def test_primitive_and_bound_are_the_primitive_and_the_bound(corner_min_time):
-    """`primitive_and_bound` solves the bound while the car's program loads: the same
-    programs from the same starts, so the same numbers to the last bit; a wrong objective
-    is named."""
-    prim, bound = primitive_and_bound("corner90", num_stages=M, steps_per_stage=1,
-                                      options=IPOptions(max_iter=300))
+    """`primitive_and_bound`, and the compilation layer's arrangement of it (the car's
+    program compiled on a thread while the bound is solved): the same programs from the
+    same starts, so the same numbers to the last bit; a wrong objective is named."""
+    from vehsim import _compilation
+
+    alone = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
+    for solve in (primitive_and_bound, _compilation.primitive_and_bound):
+        prim, bound = solve("corner90", num_stages=M, steps_per_stage=1,
+                            options=IPOptions(max_iter=300))
+        np.testing.assert_array_equal(np.asarray(prim.solution.xs),
+                                      np.asarray(corner_min_time.solution.xs))
+        np.testing.assert_array_equal(np.asarray(bound.solution.xs),
+                                      np.asarray(alone.solution.xs))
+        assert float(bound.t_f) < float(prim.t_f)
+        with pytest.raises(ValueError, match="objective.*'fastest'"):
+            solve("corner90", "fastest", num_stages=M)
+
+
+def test_every_solve_goes_through_the_solver_given(corner_min_time):
+    """``solver=`` replaces the interior-point solve of the seeds and the car (and of the
+    bound): a wrapper sees every problem, and the numbers are `interior_point`'s."""
+    from vehsim.optimal.ip import interior_point
+
+    seen = []
+
+    def solver(prob, *args, **kwargs):
+        seen.append(type(prob).__name__)
+        return interior_point(prob, *args, **kwargs)
+
+    prim = min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
+                              options=IPOptions(max_iter=300), solver=solver)
+    assert seen == ["PointMassOCP", "ManeuverOCP"]
     np.testing.assert_array_equal(np.asarray(prim.solution.xs),
                                   np.asarray(corner_min_time.solution.xs))
-    alone = point_mass_bound("corner90", num_stages=M, steps_per_stage=1)
-    np.testing.assert_array_equal(np.asarray(bound.solution.xs), np.asarray(alone.solution.xs))
-    assert float(bound.t_f) < float(prim.t_f)
-    with pytest.raises(ValueError, match="objective.*'fastest'"):
-        primitive_and_bound("corner90", "fastest", num_stages=M)
+    point_mass_bound("corner90", num_stages=M, steps_per_stage=1, solver=solver)
+    assert seen[2:] == ["PointMassOCP", "PointMassOCP"]  # two centreline starts
 
 
-def test_record_programs_loaded_from_a_guess_are_the_solution_s(corner_min_time):
-    """`load_record_programs` with a starting guess prepares the very programs the record of
-    the solution runs: after it, the record needs no other program (the tests run with the
-    cache of compiled programs on, tests/conftest.py)."""
-    from vehsim import compilation_cache
+def test_record_programs_prepared_from_a_guess_are_the_solution_s(corner_min_time, caplog):
+    """`prepare_record_programs` with a starting guess traces and compiles the very programs
+    that the record of the solution and its figure run: after it, the record compiles
+    nothing (jax.log_compiles names every program it compiles)."""
+    from vehsim._compilation import prepare_record_programs
+    from vehsim.plot import primitive_figure
 
     prob = corner_min_time.problem
     xs0, us0 = car_guess(prob.vehicle, prob.road, M, 1)
-    held = dict(compilation_cache._programs)
-    compilation_cache._programs.clear()  # this process's programs: loaded again from disk
-    try:
-        load_record_programs(prob, xs0, us0)
-        loaded = set(compilation_cache._programs)
+    jax.clear_caches()  # this process's programs forgotten
+    prepare_record_programs(prob, xs0, us0)
+    caplog.clear()
+    with jax.log_compiles():
         rec = solution_record(corner_min_time)
-        assert set(compilation_cache._programs) == loaded and len(loaded) == 3
-    finally:
-        compilation_cache._programs.update(held)
+        primitive_figure(corner_min_time)
+    compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+    assert not [m for m in compiled if any(p in m for p in ("_nodes", "_violation_arrays",
+                                                            "_signals"))], compiled
     assert rec["t_f"] == float(corner_min_time.t_f)
 
 

@@ -11,7 +11,9 @@ import pytest
 from vehsim._xla_cpu import (
     FLAG,
     FUSION_EMITTERS_FLAG,
+    OPT_OUT_VARIABLE,
     _affected,
+    configure_xla_cpu,
     guard_cpu_scheduler,
     prefer_fast_compilation,
 )
@@ -43,6 +45,33 @@ def test_guard_adds_the_flag_for_the_affected_jaxlib_only_and_keeps_the_users_ch
         assert env["XLA_FLAGS"] == f"--xla_backend_optimization_level=0 {FLAG}=false"
     mine = {"XLA_FLAGS": f"{FLAG}=true"}
     assert not guard_cpu_scheduler(mine) and mine["XLA_FLAGS"] == f"{FLAG}=true"
+
+
+def test_configure_xla_cpu_returns_what_it_added_keeps_the_user_s_setting_and_opts_out():
+    """`configure_xla_cpu` (what `import vehsim` calls, `vehsim.configure_xla_cpu`): on
+    jaxlib 0.10 it appends the scheduler flag (off) to the user's flags and returns it; a
+    user's own setting of the flag is kept (nothing added), and ``VEHSIM_KEEP_XLA_FLAGS=1``
+    leaves ``XLA_FLAGS`` alone; it warns nothing."""
+    import warnings
+
+    import vehsim
+
+    assert vehsim.configure_xla_cpu is configure_xla_cpu
+    affected = _affected(version("jaxlib"))
+    env = {"XLA_FLAGS": "--xla_backend_optimization_level=0"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        added = configure_xla_cpu(env)
+    assert added == ((f"{FLAG}=false",) if affected else ())
+    assert env["XLA_FLAGS"] == " ".join(["--xla_backend_optimization_level=0", *added])
+    assert configure_xla_cpu(env) == () and env["XLA_FLAGS"].count(FLAG) == int(affected)
+    mine = {"XLA_FLAGS": f"{FLAG}=true"}
+    assert configure_xla_cpu(mine) == () and mine["XLA_FLAGS"] == f"{FLAG}=true"
+    for value in ("1", "true", "YES"):
+        kept = {OPT_OUT_VARIABLE: value}
+        assert configure_xla_cpu(kept) == () and "XLA_FLAGS" not in kept
+    if affected:
+        assert configure_xla_cpu({OPT_OUT_VARIABLE: "0"}) == (f"{FLAG}=false",)
 
 
 def test_the_command_line_s_code_generator_flag_follows_the_same_rules():

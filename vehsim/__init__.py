@@ -6,7 +6,9 @@ diffrax, equinox and optimistix do.
 
 Importing vehsim applies one process-wide setting, before JAX starts its CPU backend: on
 jaxlib 0.10 only, XLA's concurrency-optimised CPU scheduler is switched off in
-``XLA_FLAGS`` (`configure_xla_cpu`, which says why and how to opt out).
+``XLA_FLAGS`` (`configure_xla_cpu`, which says why and how to opt out). Importing vehsim
+starts no JAX backend and makes no arrays: configure JAX (devices, float64) after it as you
+like, before the first computation.
 """
 
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
@@ -210,7 +212,7 @@ from .optimal.replay import (
 
 # isort: split
 # labelled results (xarray, netCDF), sweeps across processes, the compilation cache
-from .compilation_cache import enable_compilation_cache as enable_compilation_cache
+from ._compilation import enable_compilation_cache as enable_compilation_cache
 from .labelled import (
     primitives_to_xarray as primitives_to_xarray,
     robot_grid_to_xarray as robot_grid_to_xarray,

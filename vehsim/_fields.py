@@ -7,7 +7,9 @@ floating-point parameter is converted to a strongly typed array of the default f
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 def float_array(x):
@@ -27,6 +29,18 @@ def int_array(x):
 def bool_array(x):
     """``x`` as a boolean array."""
     return jnp.asarray(x, dtype=bool)
+
+
+def host_float_array(x):
+    """``x`` as a NumPy float64 array, a JAX array (or tracer) kept as it is: for presets
+    built when their module is imported, which must neither start JAX's backend nor fix
+    the float width before the user chose it (JAX converts the array when it is used)."""
+    return x if isinstance(x, jax.Array) else np.asarray(x, dtype=np.float64)
+
+
+def host_array_field(**kwargs):
+    """A floating-point field holding host data (`host_float_array` converter)."""
+    return eqx.field(converter=host_float_array, **kwargs)
 
 
 def array_field(**kwargs):

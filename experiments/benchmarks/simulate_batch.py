@@ -30,7 +30,7 @@ Sharding: before JAX starts the script forces one host device per core
 (``XLA_FLAGS=--xla_force_host_platform_device_count=os.cpu_count()``, unless XLA_FLAGS is
 set) and times every solver twice on the full batch: one vmapped program on the default
 device (``devices: 1``), and the same split over all devices as `vehsim.sweep` runs it
-(`vehsim.sweep.sharded_vmap`: `jax.shard_map` over a one-dimensional mesh, one shard per
+(`vehsim.sharding.sharded_vmap`: `jax.shard_map` over a one-dimensional mesh, one shard per
 core), each device running its slice in vmapped chunks of `--batch-size` members (64) one
 after another, so a chunk's adaptive loop stops at *its* slowest member rather than the
 slowest of the batch (the vmapped loop steps every member until the last one is done) and
@@ -88,7 +88,7 @@ from vehsim import (  # noqa: E402
 )
 from vehsim.params import cdc1999  # noqa: E402
 from vehsim.progress import progress_bar  # noqa: E402
-from vehsim.sweep import pad_members, sharded_vmap  # noqa: E402
+from vehsim.sharding import pad_members, sharded_vmap  # noqa: E402
 from vehsim.vehicle.maneuvers import brake_in_turn  # noqa: E402
 
 

@@ -5,8 +5,9 @@ One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`), ea
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
 Compiled programs are kept in JAX's persistent compilation cache
-(`vehsim.compilation_cache.command_line_cache`), so that a second run starts in seconds,
-unless ``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1``.
+(`vehsim._compilation.command_line_cache`, the layer above the solvers that also keeps
+their exported programs), so that a second run starts in seconds, unless
+``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ COMMANDS = (reproduce, sweep, fit, optimise, brake)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..compilation_cache import NO_CACHE_VARIABLE, default_cache_dir
+    from .._compilation import NO_CACHE_VARIABLE, default_cache_dir
 
     parser = argparse.ArgumentParser(
         prog="vehsim", description="Differentiable vehicle simulation (after Tsiotras, 2004)."
@@ -43,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import jax
 
-    from ..compilation_cache import command_line_cache
+    from .._compilation import command_line_cache
     from ..progress import set_default
 
     jax.config.update("jax_enable_x64", True)

@@ -37,9 +37,10 @@ def register(subparsers) -> None:
 def _optimise(args) -> int:
     import jax
 
+    from .._compilation import primitive_and_bound
     from .._io import save_figure, write_json
     from ..optimal.primitive import solution_record
-    from ..optimal.primitives import primitive_and_bound, primitive_options, rally_gravel_car
+    from ..optimal.primitives import primitive_options, rally_gravel_car
     from ..plot import primitive_figure
 
     if args.segments < 2:

@@ -1,6 +1,10 @@
 """A solved maneuver (`Primitive`): the problem and its interior-point solution, with the
 quantities read off it (final time, exit speed, signals at every node, constraint
-violations), and its JSON record (`solution_record`)."""
+violations), and its JSON record (`solution_record`).
+
+Three jitted programs compute everything read off a car's solution: the nodes (`_nodes`),
+the constraint arrays (`_violation_arrays`) and the named signals (`_signals`); each takes
+the problem (or vehicle) and arrays only, so it is traced once per problem structure."""
 
 from __future__ import annotations
 
@@ -12,7 +16,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._results import result_name, result_record
-from ..compilation_cache import exported_call, exported_program
 from .ip import IPSolution
 from .shooting import DELTA_MAX, ManeuverOCP
 
@@ -46,8 +49,7 @@ class Primitive(eqx.Module):
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
-        return exported_call("nodes", _nodes,
-                             (self.problem, self.solution.xs, self.solution.us))
+        return _nodes(self.problem, self.solution.xs, self.solution.us)
 
     def time(self):
         n = self.nodes()
@@ -65,9 +67,8 @@ class Primitive(eqx.Module):
         constraints are not imposed, found by re-integrating every segment with `substeps`
         RK4 steps per step (`fine_nodes`)."""
         prob = self.problem
-        n, fine, bc, defects = (np.asarray(a) for a in exported_call(
-            "violations", _violation_arrays,
-            (prob, self.solution.xs, self.solution.us, substeps)))
+        n, fine, bc, defects = (np.asarray(a) for a in _violation_arrays(
+            prob, self.solution.xs, self.solution.us, substeps))
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
         between = rd.distance_off_road(fine[:, 0], fine[:, 1])
@@ -100,7 +101,7 @@ def _signals(vehicle, nodes) -> dict:
 def _node_signals(vehicle, nodes) -> dict:
     """Named signals of `vehicle` at the car's nodes (states, then the inputs)."""
     nodes = nodes if isinstance(nodes, jax.Array) else np.asarray(nodes, float)
-    signals = exported_call("signals", _signals, (vehicle, nodes))
+    signals = _signals(vehicle, nodes)
     return {k: np.asarray(v) for k, v in signals.items()}
 
 
@@ -117,20 +118,6 @@ def _violation_arrays(prob, xs, us, substeps: int):
     defects = xs[1:] - jax.vmap(prob.transition)(xs[:-1], us, jnp.arange(prob.num_stages))
     return (prob.nodes(xs, us), prob.fine_nodes(xs, us, substeps), bc,
             jnp.max(jnp.abs(defects)))
-
-
-def load_record_programs(prob: ManeuverOCP, xs, us, substeps: int = SUBSTEPS) -> None:
-    """Compile, or load from the compilation cache, the programs that `solution_record`
-    runs for a car problem shaped as ``prob`` with knots and inputs shaped as ``xs``,
-    ``us`` (their values do not matter: a starting guess will do), so that a caller can do
-    it while it waits for something else. Nothing happens when the cache is off (the
-    programs then compile when first run)."""
-    nodes = np.zeros((prob.num_stages * prob.steps_per_stage + 1, np.shape(xs)[-1]),
-                     np.asarray(xs).dtype)
-    for name, fn, args in (("nodes", _nodes, (prob, xs, us)),
-                           ("violations", _violation_arrays, (prob, xs, us, substeps)),
-                           ("signals", _signals, (prob.vehicle, nodes))):
-        exported_program(name, fn, args)
 
 
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:

@@ -7,29 +7,32 @@ Pipeline: a constant-speed guess along the road's centreline -> the point-mass p
 (`vehsim.optimal.guesses`) -> the car problem, all solved by the structured interior-point
 method (`vehsim.optimal.ip`). The problems have several local optima: several point-mass
 seeds can be tried, and the best converged optimum is kept.
+
+Every interior-point solve goes through ``solver`` (default `interior_point`; any function
+with its signature): the functions here are plain compositions of jitted programs, and how a
+program is compiled, cached or overlapped with other work is the caller's choice.
 """
 
 from __future__ import annotations
 
 import sys
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..compilation_cache import exported_program
 from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
 from ..vehicle.reduced import ReducedHalfCar
 from .guesses import car_guess, car_guess_from_point_mass, centreline_guess
-from .ip import IPOptions, IPSolution, compile_interior_point, interior_point
-from .ip.solver import _solution_tree, canonical_options, print_iteration_log
-from .primitive import Primitive, load_record_programs
+from .ip import IPOptions, IPSolution, interior_point
+from .ip.solver import canonical_options, print_iteration_log
+from .primitive import Primitive
 from .roads import Road, road as road_by_name
-from .shooting import IDX_TF, NU, NX, ManeuverOCP, PointMassOCP
+from .shooting import IDX_TF, ManeuverOCP, PointMassOCP
 
 
 DEFAULT_STARTS = ((0.5, 0.6),)
@@ -93,21 +96,24 @@ def _better(sol: IPSolution, best: IPSolution | None) -> bool:
 
 def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float = 0.52,
                      num_stages: int = 50, steps_per_stage: int = 3, tf_max: float = 4.0,
-                     options: IPOptions = IPOptions(), throw: bool = True) -> Primitive:
+                     options: IPOptions | None = None, throw: bool = True,
+                     solver: Callable = interior_point) -> Primitive:
     """The physical bound of the benchmark (docs/maneuvers.md): a point mass with
     $|a| \\le D g$, a lower bound on t_f (an upper bound on the exit speed). Two
-    centreline starts (4 and 7 m/s), the best converged optimum kept."""
+    centreline starts (4 and 7 m/s), the best converged optimum kept; ``options`` default
+    ``IPOptions()``; ``solver``: the interior-point solve (`interior_point`)."""
+    options = IPOptions() if options is None else options
     rd = _road(road)
     prob = PointMassOCP(road=rd, friction=D, objective=objective, tf_max=tf_max,
                         num_stages=num_stages, steps_per_stage=steps_per_stage)
     best = None
     for speed in (4.0, 7.0):
         xs0, us0 = centreline_guess(rd, num_stages, speed)
-        sol = interior_point(prob, xs0, us0, options, throw=False)
+        sol = solver(prob, xs0, us0, options, throw=False)
         if _better(sol, best):
             best = sol
     if throw and not bool(best.converged):
-        interior_point(prob, xs0, us0, options, throw=True)  # raises with residuals
+        solver(prob, xs0, us0, options, throw=True)  # raises with residuals
     return Primitive(problem=prob, solution=best)
 
 
@@ -141,93 +147,93 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
     return jnp.stack([g[0] for g in order]), jnp.stack([g[1] for g in order])
 
 
-def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
-               guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS,
-               meanwhile=None) -> Primitive:
-    """The car's primitive; ``meanwhile(prob, xs0, us0)`` (if given) runs on the calling
-    thread with the problem and the first starting guess once the guesses are made, while
-    the car's program is still compiling or loading."""
-    rd = _road(road)
-    prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, tf_max=tf_max,
+def car_problem(road: str | Road, objective: str, car: ReducedHalfCar, num_stages: int,
+                steps_per_stage: int, tf_max: float, rate_weight: float = 1e-5) -> ManeuverOCP:
+    """The car's maneuver problem that `min_time_primitive` and `max_exit_primitive` solve."""
+    return ManeuverOCP(vehicle=car, road=_road(road), objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
                        rate_weight=rate_weight)
-    if isinstance(starts, int) and guess is None:
-        return _solve_batched_starts(prob, car, rd, starts, options, throw, meanwhile)
-    with ThreadPoolExecutor(1) as pool:  # compile the car's solve while the seeds are solved
-        pending = pool.submit(compile_interior_point, prob, np.zeros((num_stages + 1, NX)),
-                              np.zeros((num_stages, NU)), options)  # shapes only
-        guesses = []
-        if guess is None:
-            for margin, frac in starts:
-                xs0, us0 = car_guess(car, rd, num_stages, steps_per_stage, margin=margin,
-                                     friction_fraction=frac)
-                if objective == "max-exit":
-                    xs0 = _within_budget(xs0, tf_max)
-                guesses.append((xs0, us0))
-        else:
-            guesses.append(guess)
-        if meanwhile is not None:
-            meanwhile(prob, *guesses[0])
-        solve = pending.result()
+
+
+def car_guesses(prob: ManeuverOCP, starts=DEFAULT_STARTS, guess=None,
+                solver: Callable = interior_point) -> list:
+    """The starting guesses ``[(xs0, us0), ...]`` of `prob` from the point-mass seeds
+    ``starts`` (`car_guess`, each seed solved by ``solver``; within 98 % of the time budget
+    for max-exit), or ``[guess]``."""
+    if guess is not None:
+        return [guess]
+    guesses = []
+    for margin, frac in starts:
+        xs0, us0 = car_guess(prob.vehicle, prob.road, prob.num_stages, prob.steps_per_stage,
+                             margin=margin, friction_fraction=frac, solver=solver)
+        if prob.objective == "max-exit":
+            xs0 = _within_budget(xs0, prob.tf_max)
+        guesses.append((xs0, us0))
+    return guesses
+
+
+def best_of_guesses(prob: ManeuverOCP, guesses, options: IPOptions, solver: Callable,
+                    throw: bool) -> Primitive:
+    """`prob` solved by ``solver`` from each guess in turn, the best solution kept
+    (`_better`); ``throw``: raise with the last guess's residuals if none converged."""
     best = None
     for xs0, us0 in guesses:
-        sol = solve(prob, xs0, us0, options, throw=False)
+        sol = solver(prob, xs0, us0, options, throw=False)
         if _better(sol, best):
             best = sol
     if throw and not bool(best.converged):
-        solve(prob, *guesses[-1], options, throw=True)  # raises with residuals
+        solver(prob, *guesses[-1], options, throw=True)  # raises with residuals
     return Primitive(problem=prob, solution=best)
 
 
+def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
+               guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS,
+               solver: Callable = interior_point) -> Primitive:
+    """The car's primitive: from point-mass seeds solved one after the other, or (an int
+    ``starts``) from every start of `multistart_guesses` in one batched call."""
+    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max, rate_weight)
+    if isinstance(starts, int) and guess is None:
+        xs0, us0 = batched_starts(prob, starts)
+        sols = solve_starts(prob, xs0, us0, canonical_options(options), starts_batch_size())
+        return best_start(prob, sols, starts, options.verbose, throw)
+    return best_of_guesses(prob, car_guesses(prob, starts, guess, solver), options, solver,
+                           throw)
+
+
 @eqx.filter_jit
-def _solve_starts(prob, xs0, us0, options: IPOptions, batch_size: int | None) -> IPSolution:
+def solve_starts(prob, xs0, us0, options: IPOptions, batch_size: int | None) -> IPSolution:
     """The starts (leading axis) split over every device; each device solves its slice in
-    vmapped chunks of ``batch_size`` (None: all at once)."""
+    vmapped chunks of ``batch_size`` (None: all at once). ``options`` as `canonical_options`
+    gives them (one program for the quiet and the verbose solve)."""
     solve = sharded_vmap(lambda p, x, u, o: interior_point(p, x, u, o, throw=False),
                          in_axes=(None, 0, 0, None), batch_size=batch_size)
     return solve(prob, xs0, us0, options)
 
 
-def _starts_batch_size() -> int | None:
+def starts_batch_size() -> int | None:
     """Starts solved together on one device: 1 on a CPU (each start stops at its own
     convergence; a vmapped batch steps every start until the slowest one has converged,
     several times the work when one start is slow), all of them on an accelerator."""
     return 1 if jax.default_backend() == "cpu" else None
 
 
-def _compile_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
-    """`_solve_starts` for ``n_pad`` starts compiled ahead of time (through its exported
-    program when the compilation cache is on): ``solve(prob, xs0, us0, options)``."""
-    batch = _starts_batch_size()
-    dtype = jnp.result_type(float)
-    args = (prob, np.zeros((n_pad, prob.num_stages + 1, NX), dtype),
-            np.zeros((n_pad, prob.num_stages, NU), dtype), options)
-    exported = exported_program(f"interior_point_starts_batch{batch}",
-                                lambda *a: _solve_starts(*a, batch), args, _solution_tree())
-    if exported is not None:
-        return exported
-    compiled = _solve_starts.lower(*args, batch).compile()
-    return lambda *a: compiled(*a, batch)
-
-
-def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw,
-                          meanwhile=None) -> Primitive:
-    """Every start of `multistart_guesses` in one compiled call, split over the devices
-    (`vehsim.sharding.sharded_vmap`; on a CPU force one host device per core with
-    ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts); the best
-    converged one."""
-    verbose, options = options.verbose, canonical_options(options)  # the compiled program's
-    M, n_pad = prob.num_stages, -(-n // len(jax.devices())) * len(jax.devices())
-    with ThreadPoolExecutor(1) as pool:  # compile the starts' solve while the seeds are solved
-        pending = pool.submit(_compile_starts, prob, n_pad, options)
-        xs0, us0 = multistart_guesses(car, rd, n, M, prob.steps_per_stage)
-        if meanwhile is not None:
-            meanwhile(prob, xs0[0], us0[0])
-        solve = pending.result()
+def batched_starts(prob: ManeuverOCP, n: int):
+    """The ``n`` guesses of `multistart_guesses` for `prob` (within 98 % of the time budget
+    for max-exit), padded to a multiple of the device count (`vehsim.sharding.pad_members`;
+    on a CPU force one host device per core with
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts)."""
+    xs0, us0 = multistart_guesses(prob.vehicle, prob.road, n, prob.num_stages,
+                                  prob.steps_per_stage)
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
-    xs0, us0 = pad_members((xs0, us0), len(jax.devices()))
-    sols = solve(prob, xs0, us0, options)
+    return pad_members((xs0, us0), len(jax.devices()))
+
+
+def best_start(prob: ManeuverOCP, sols: IPSolution, n: int, verbose: bool,
+               throw: bool) -> Primitive:
+    """The best converged of the first ``n`` solutions ``sols`` (batched along axis 0, as
+    `solve_starts` returns them), every start kept in the primitive's ``starts``;
+    ``verbose``: print each start's iteration log."""
     # on one device, as the arrays the caller combines them with (the bound, the record)
     sols = jax.device_put(jax.tree.map(lambda a: a[:n], sols), jax.devices()[0])
     if verbose:
@@ -247,7 +253,8 @@ def _solve_batched_starts(prob: ManeuverOCP, car, rd, n, options, throw,
 def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | None = None,
                        num_stages: int = 50, steps_per_stage: int = 3,
                        options: IPOptions | None = None, guess=None,
-                       starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
+                       starts=DEFAULT_STARTS, throw: bool = True,
+                       solver: Callable = interior_point) -> Primitive:
     """Minimum-time maneuver through ``road`` (Table 4 boundary conditions, free t_f).
 
     **Arguments:** ``road`` (name or `Road`), ``car`` (default `rally_gravel_car()`),
@@ -258,20 +265,23 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
     N starts of different kinds (`multistart_guesses`) solved in one compiled call split
     over the devices (one after another on each CPU device, vmapped on an accelerator),
     every start's solution kept in the primitive's ``starts``; the best converged optimum is
-    returned either way. ``throw``.
+    returned either way. ``throw``. ``solver``: the interior-point solve of the seeds and
+    the car (`interior_point`, or a function with its signature); an int ``starts`` solves
+    the car's starts in one batched program of its own.
 
     **Returns:** a `Primitive`.
     """
     car = rally_gravel_car() if car is None else car
     options = primitive_options("min-time", starts) if options is None else options
     return _solve_car(road, "min-time", car, num_stages, steps_per_stage, 4.0, options, throw,
-                      guess, starts=starts)
+                      guess, starts=starts, solver=solver)
 
 
 def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
                        car: ReducedHalfCar | None = None, num_stages: int = 50,
                        steps_per_stage: int = 3, options: IPOptions | None = None,
-                       guess=None, starts=DEFAULT_STARTS, throw: bool = True) -> Primitive:
+                       guess=None, starts=DEFAULT_STARTS, throw: bool = True,
+                       solver: Callable = interior_point) -> Primitive:
     """Maximum exit speed through ``road`` with t_f <= ``tf_max`` (4.0 s on corner90 in the
     benchmark, docs/maneuvers.md); arguments as `min_time_primitive` (the default
     ``options``, `primitive_options`, start from point-mass seeds at the smaller barrier
@@ -279,21 +289,18 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
     car = rally_gravel_car() if car is None else car
     options = primitive_options("max-exit", starts) if options is None else options
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
-                      throw, guess, starts=starts)
+                      throw, guess, starts=starts, solver=solver)
 
 
 def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
                         car: ReducedHalfCar | None = None, tf_max: float = 4.0,
                         num_stages: int = 50, steps_per_stage: int = 3,
                         options: IPOptions | None = None, starts=DEFAULT_STARTS,
-                        throw: bool = True) -> tuple[Primitive, Primitive]:
+                        throw: bool = True,
+                        solver: Callable = interior_point) -> tuple[Primitive, Primitive]:
     """A primitive and its physical bound, what `solution_record` compares: the car's
     `min_time_primitive` or `max_exit_primitive` (arguments as there) and the
-    `point_mass_bound` of the same road, objective, friction, discretisation and budget. The
-    bound is solved, and the record's programs are compiled or loaded
-    (`load_record_programs`), while the car's program compiles or loads (the bound's
-    point-mass program is the seeds' and is ready by then): no extra wall time where that
-    takes longer (a first run: seconds; a run from the compilation cache: a few tenths).
+    `point_mass_bound` of the same road, objective, friction, discretisation and budget.
     ``throw`` applies to the car's primitive; the bound never raises (check its result).
 
     **Returns:** ``(primitive, bound)``.
@@ -301,17 +308,12 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     _check_objective(objective)
     car = rally_gravel_car() if car is None else car
     options = primitive_options(objective, starts) if options is None else options
-    bound = []
-
-    def meanwhile(prob, xs0, us0):
-        bound.append(point_mass_bound(road, objective, D=float(car.tire.D),
-                                      num_stages=num_stages, steps_per_stage=steps_per_stage,
-                                      tf_max=tf_max, throw=False))
-        load_record_programs(prob, xs0, us0)
-
     prim = _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options,
-                      throw, starts=starts, meanwhile=meanwhile)
-    return prim, bound[0]
+                      throw, starts=starts, solver=solver)
+    bound = point_mass_bound(road, objective, D=float(car.tire.D), num_stages=num_stages,
+                             steps_per_stage=steps_per_stage, tf_max=tf_max, throw=False,
+                             solver=solver)
+    return prim, bound
 
 
 def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *,

@@ -280,8 +280,9 @@ def replay_open_loop(primitive, vehicle: HalfCar | None = None,
 
 
 def replay_tracking(primitive, vehicle: HalfCar | None = None,
-                    tire: AbstractTire | None = None, *, gains: TrackingGains = TrackingGains(),
+                    tire: AbstractTire | None = None, *, gains: TrackingGains | None = None,
                     suspension: bool = True, num_saves: int = 401) -> Replay:
-    r"""As `replay_open_loop`, with the path-tracking feedback of `TrackingGains` around the
-    primitive's feedforward (torques and steering)."""
+    r"""As `replay_open_loop`, with the path-tracking feedback of `TrackingGains` (default
+    ``TrackingGains()``) around the primitive's feedforward (torques and steering)."""
+    gains = TrackingGains() if gains is None else gains
     return _replay(primitive, vehicle, tire, suspension, gains, num_saves)

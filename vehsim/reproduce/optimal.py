@@ -64,8 +64,9 @@ def reproduce(ctx) -> None:
 
 def _problem(ctx, road: str, objective: str, panel: str, segments: int, starts) -> str:
     """Solve one benchmark problem, draw its Fig. 20 panel, record it; returns its table row."""
+    from .._compilation import primitive_and_bound
     from ..optimal.primitive import solution_record
-    from ..optimal.primitives import primitive_and_bound, primitive_options
+    from ..optimal.primitives import primitive_options
 
     ctx.log(f"{road} {objective} ({segments} segments)")
     opts = primitive_options(objective, starts)

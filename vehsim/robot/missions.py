@@ -22,15 +22,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._fields import array_field
+from .._fields import host_array_field
 
 
 class Mission(eqx.Module):
     """An initial pose `pose0` [m, m, rad] and its Monte-Carlo `spread` (std per component)."""
 
     name: str = eqx.field(static=True)
-    pose0: Float[Array, 3] = array_field()
-    spread: Float[Array, 3] = array_field()
+    pose0: Float[Array, 3] = host_array_field()  # presets are built at import
+    spread: Float[Array, 3] = host_array_field()
 
     def initial_poses(self, key: PRNGKeyArray, n: int) -> Float[Array, "n 3"]:
         """`n` initial poses: the nominal one, then `n - 1` perturbed ones."""

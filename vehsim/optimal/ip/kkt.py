@@ -24,7 +24,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from ._carry import strong
 from .block_tridiagonal import KKTMatrix
@@ -97,6 +97,19 @@ class NewtonStep(eqx.Module):
     ds: Float[Array, "M+1 ng"]
     dz: Float[Array, "M+1 ng"]
     delta: Float[Array, ""]
+    factorisations: Int[Array, ""]
+    factor: RiccatiFactor
+    matrix: KKTMatrix
+
+
+class InertiaCorrection(eqx.Module):
+    """Loop state of the inertia correction (`_regularised_solve`): the regularisation
+    ``delta`` tried last, the KKT ``solution`` it gave, whether that was accepted (``ok``),
+    the number of ``factorisations`` so far, and the last ``factor`` and ``matrix``."""
+
+    delta: Float[Array, ""]
+    solution: Float[Array, "M+1 nb"]
+    ok: Bool[Array, ""]
     factorisations: Int[Array, ""]
     factor: RiccatiFactor
     matrix: KKTMatrix
@@ -236,31 +249,34 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
     return sol, ok, F
 
 
-def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs, delta_last):
+def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
+                       delta_last) -> InertiaCorrection:
     """Inertia correction: $\\delta = 0$ first, then `DELTA_FIRST` (or the last $\\delta$ over
-    `DELTA_DECREASE`), growing until `checked_solve` accepts (at most `MAX_FACTORISATIONS`)."""
+    `DELTA_DECREASE`), growing until `checked_solve` accepts (at most `MAX_FACTORISATIONS`);
+    the final loop state."""
     d_first = jnp.where(
         delta_last == 0.0, DELTA_FIRST, jnp.maximum(DELTA_MIN, delta_last / DELTA_DECREASE)
     )
     growth = jnp.where(delta_last == 0.0, DELTA_GROWTH_FIRST, DELTA_GROWTH)
 
-    def cond(carry):
-        _, _, ok, n, _, _ = carry
-        return (~ok) & (n < MAX_FACTORISATIONS)
+    def cond(st: InertiaCorrection):
+        return (~st.ok) & (st.factorisations < MAX_FACTORISATIONS)
 
-    def body(carry):
-        delta, _, _, n, _, _ = carry
-        delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, delta * growth))
+    def body(st: InertiaCorrection) -> InertiaCorrection:
+        n = st.factorisations
+        delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, st.delta * growth))
         K = kkt_matrix(lay, W0, d, delta)
         sol, ok, F = checked_solve(lay, K, rhs)
-        return delta, sol, ok, n + 1, F, K
+        return InertiaCorrection(delta=delta, solution=sol, ok=ok, factorisations=n + 1,
+                                 factor=F, matrix=K)
 
     K0 = kkt_matrix(lay, W0, d, 0.0)
     shapes = jax.eval_shape(riccati_factor, K0)
     F0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
-    init = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0)) + (F0, K0)
-    delta, sol, _, n, F, K = jax.lax.while_loop(cond, body, init)
-    return delta, sol, n, F, K
+    delta0, sol0, ok0, n0 = strong((0.0, jnp.zeros((lay.M + 1, lay.nb)), False, 0))
+    init = InertiaCorrection(delta=delta0, solution=sol0, ok=ok0, factorisations=n0,
+                             factor=F0, matrix=K0)
+    return jax.lax.while_loop(cond, body, init)
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last,
@@ -277,13 +293,14 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     rhs = jnp.where(least_squares, rhs_ls, rhs)
     W0 = jnp.where(least_squares, W_ls, W0)
     delta_last = jnp.where(least_squares, 0.0, delta_last)
-    delta, sol, n_factor, F, K = _regularised_solve(lay, W0, d, rhs, delta_last)
-    dy, ds, dlam, dnu = _split_step(lay, d, sol, d.g, it.s)
+    corrected = _regularised_solve(lay, W0, d, rhs, delta_last)
+    dy, ds, dlam, dnu = _split_step(lay, d, corrected.solution, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)
     dz = (mu / sg - it.z - Sigma * ds) * mg
-    return NewtonStep(dy=dy, dlam=dlam, dnu=dnu, ds=ds, dz=dz, delta=delta,
-                      factorisations=n_factor, factor=F, matrix=K)
+    return NewtonStep(dy=dy, dlam=dlam, dnu=dnu, ds=ds, dz=dz, delta=corrected.delta,
+                      factorisations=corrected.factorisations, factor=corrected.factor,
+                      matrix=corrected.matrix)
 
 
 def second_order_correction(lay: StageLayout, it: Iterate, d: StageDerivatives, mu,

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import sys
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -40,7 +41,6 @@ from jaxtyping import Array, Float, Int
 from ..._checks import is_concrete
 from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
-from ...compilation_cache import exported_call, exported_program
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_values
 from .kkt import (
@@ -78,7 +78,7 @@ class IPOptions(eqx.Module):
     IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
     ``verbose``: print the iteration log to stderr when the solve returns
     (`print_iteration_log`; not part of the compiled program, so the quiet and the verbose
-    solve are one program, and it can be written to the persistent compilation cache)."""
+    solve are one program)."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -182,48 +182,59 @@ def interior_point(
     prob: AbstractStagewiseNLP,
     xs0: Float[Array, "M+1 nx"],
     us0: Float[Array, "M nu"],
-    options: IPOptions = IPOptions(),
+    options: IPOptions | None = None,
     *,
     throw: bool = True,
 ) -> IPSolution:
     """Solve ``prob`` from the guess (``xs0``, ``us0``) by the structured interior-point method.
 
     **Arguments:** ``prob`` (an `AbstractStagewiseNLP`), the initial knots (M+1, nx) and
-    controls (M, nu), ``options`` (`IPOptions`), ``throw``: raise unless the solve converged
-    (``False`` for batches: check ``result``).
+    controls (M, nu), ``options`` (`IPOptions`; default ``IPOptions()``), ``throw``: raise
+    unless the solve converged (``False`` for batches: check ``result``).
 
     **Returns:** an `IPSolution`.
     """
-    args = (prob, _floats(xs0), _floats(us0), canonical_options(options))
-    sol = exported_call("interior_point", _solve, args, _solution_tree())
-    _report(sol, options)
-    return _raise_if_failed(sol) if throw else sol
+    return solver_of(_solve)(prob, xs0, us0, options, throw=throw)
 
 
 def compile_interior_point(
     prob: AbstractStagewiseNLP,
     xs0: Float[Array, "M+1 nx"],
     us0: Float[Array, "M nu"],
-    options: IPOptions = IPOptions(),
+    options: IPOptions | None = None,
 ):
-    """`interior_point` compiled ahead of time for problems, guesses and options shaped as
-    these (their values do not matter).
+    """`interior_point` compiled ahead of time (``jax.jit(...).lower(...).compile()``) for
+    problems, guesses and options shaped as these (their values do not matter).
 
     **Returns:** ``solve(prob, xs0, us0, options, *, throw=True)``, the same program as
-    `interior_point`. XLA releases Python's lock while it compiles, so the compilation can
-    run in a thread while the caller builds the starting guess (as `min_time_primitive`
-    does: the point-mass seed is compiled and solved meanwhile).
+    `interior_point`; it refuses arguments of another structure. XLA releases Python's lock
+    while it compiles, so a caller may compile on a thread while it builds the starting
+    guess.
     """
-    args = (prob, _floats(xs0), _floats(us0), canonical_options(options))
-    compiled = (exported_program("interior_point", _solve, args, _solution_tree())
-                or _solve.lower(*args).compile())
+    options = IPOptions() if options is None else options
+    return solver_of(_solve.lower(*solve_arguments(prob, xs0, us0, options)).compile(),
+                     options)
 
-    def solve(prob, xs0, us0, options=options, *, throw=True) -> IPSolution:
-        sol = compiled(prob, _floats(xs0), _floats(us0), canonical_options(options))
+
+def solver_of(program: Callable, default_options: IPOptions | None = None):
+    """``solve(prob, xs0, us0, options=default_options, *, throw=True)`` around ``program``,
+    a function with `_solve`'s arguments and result (`_solve` itself, its compiled form, or
+    an equivalent loaded program): the arguments made canonical (`solve_arguments`), the
+    iteration log printed if ``options.verbose``, and the error raised if ``throw``."""
+
+    def solve(prob, xs0, us0, options=default_options, *, throw=True) -> IPSolution:
+        options = IPOptions() if options is None else options
+        sol = program(*solve_arguments(prob, xs0, us0, options))
         _report(sol, options)
         return _raise_if_failed(sol) if throw else sol
 
     return solve
+
+
+def solve_arguments(prob, xs0, us0, options: IPOptions) -> tuple:
+    """The arguments of the compiled program `_solve`: the problem, the guess as arrays of
+    the default float dtype and `canonical_options`."""
+    return prob, _floats(xs0), _floats(us0), canonical_options(options)
 
 
 def canonical_options(options: IPOptions) -> IPOptions:
@@ -246,8 +257,9 @@ def _floats(x) -> Array:
 
 
 @functools.cache
-def _solution_tree():
-    """The tree structure of every `IPSolution` (its leaves are arrays whatever the sizes)."""
+def solution_tree():
+    """The tree structure of every `IPSolution` (its leaves are arrays whatever the sizes):
+    the output structure of `_solve` for a caller that flattens it."""
     a = np.zeros(1)
     log = IPLog(objective=a, inf_pr=a, inf_du=a, mu=a, alpha=a, regularisation=a,
                 factorisations=a, trials=a)

@@ -1,4 +1,7 @@
-r"""JAX's persistent compilation cache, switched on in one line for notebooks and scripts.
+r"""The compilation layer: JAX's persistent compilation cache, exported programs, and the
+command line's arrangement of its work around compilation. The solvers and models never
+import it: they are jitted functions of arrays and modules; this layer decides, from above,
+where their compiled programs are kept and what runs while they compile.
 
 Most of the first run of a vehsim notebook or script is XLA compiling the solvers (the
 suite is compile-bound: docs/performance.md). With the cache on, compiled programs are
@@ -20,14 +23,19 @@ programs are cached too; a failed check then shows as NaN rather than an excepti
 the second run of a notebook, both ways: docs/performance.md.
 
 The command line (`vehsim ...`) switches the cache on by itself (`command_line_cache`), in
-`default_cache_dir` or the folder JAX was already given (``JAX_COMPILATION_CACHE_DIR``);
-``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1`` turn it off.
+the folder JAX was given (``JAX_COMPILATION_CACHE_DIR``) or `default_cache_dir`;
+``--no-compilation-cache`` or ``VEHSIM_NO_COMPILATION_CACHE=1`` turn it off. Nothing else in
+vehsim writes to disk for compilation: without a call to `enable_compilation_cache` or a
+command, no folder is chosen.
 
 JAX's cache saves the compilation, not the tracing and lowering before it, which for the
 interior-point solve of a maneuver takes longer than loading the compiled program. While the
-cache is on, the programs of the solver and the solution record are also kept as exported
-programs (`jax.export`, in the ``exported`` subfolder; `exported_program`): a later process
-loads them and goes straight to the (cached) compilation.
+cache is on, the command line also keeps the programs of its solver as exported programs
+(`jax.export`, in the ``exported`` subfolder; `exported_program`): a later process loads
+them and goes straight to the (cached) compilation. `primitive_and_bound` is the optimal
+primitive as the command line runs it: the car's program compiles or loads on a thread
+while the starting guesses, the point-mass bound and the record's programs are made on the
+other.
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ import hashlib
 import os
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import equinox as eqx
@@ -44,11 +53,31 @@ import jax
 import numpy as np
 
 from ._io import write_atomic
+from .optimal.ip import IPOptions, IPSolution
+from .optimal.ip.solver import _solve, canonical_options, solution_tree, solve_arguments, solver_of
+from .optimal.primitive import SUBSTEPS, Primitive, _nodes, _signals, _violation_arrays
+from .optimal.primitives import (
+    DEFAULT_STARTS,
+    _check_objective,
+    batched_starts,
+    best_of_guesses,
+    best_start,
+    car_guesses,
+    car_problem,
+    point_mass_bound,
+    primitive_options,
+    rally_gravel_car,
+    solve_starts,
+    starts_batch_size,
+)
+from .optimal.roads import Road
+from .optimal.shooting import NU, NX, ManeuverOCP
 
 
 def default_cache_dir() -> Path:
-    """``$VEHSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/vehsim/jax``, else
-    ``~/.cache/vehsim/jax``."""
+    """The folder `enable_compilation_cache` and the command line use when given none:
+    ``$VEHSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/vehsim/jax``, else ``~/.cache/vehsim/jax``
+    (only computed here; nothing is created until the cache is switched on)."""
     if os.environ.get("VEHSIM_CACHE_DIR"):
         return Path(os.environ["VEHSIM_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
@@ -246,3 +275,94 @@ def _source_fingerprint() -> str:
         h.update(str(f.relative_to(root)).encode())
         h.update(f.read_bytes())
     return h.hexdigest()
+
+
+def exported_interior_point(prob, xs0, us0, options: IPOptions | None = None, *,
+                            throw: bool = True) -> IPSolution:
+    """`vehsim.interior_point` through its exported program (`exported_program`) where the
+    persistent cache is on and the arguments are concrete, else `interior_point` itself:
+    the same program, the same solution bit for bit."""
+    program = lambda *a: exported_call("interior_point", _solve, a, solution_tree())
+    return solver_of(program)(prob, xs0, us0, options, throw=throw)
+
+
+def compiled_interior_point(prob, xs0, us0, options: IPOptions | None = None):
+    """`vehsim.optimal.ip.compile_interior_point` through its exported program where the
+    persistent cache is on (loaded, or exported and written): ``solve(prob, xs0, us0,
+    options, *, throw=True)`` for arguments shaped as these."""
+    options = IPOptions() if options is None else options
+    args = solve_arguments(prob, xs0, us0, options)
+    compiled = (exported_program("interior_point", _solve, args, solution_tree())
+                or _solve.lower(*args).compile())
+    return solver_of(compiled, options)
+
+
+def compiled_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
+    """`vehsim.optimal.primitives.solve_starts` for ``n_pad`` starts, compiled ahead of time
+    (through its exported program when the cache is on): ``solve(prob, xs0, us0,
+    options)`` with ``options`` as `canonical_options` gives them."""
+    batch = starts_batch_size()
+    dtype = jax.numpy.result_type(float)
+    args = (prob, np.zeros((n_pad, prob.num_stages + 1, NX), dtype),
+            np.zeros((n_pad, prob.num_stages, NU), dtype), options)
+    exported = exported_program(f"interior_point_starts_batch{batch}",
+                                lambda *a: solve_starts(*a, batch), args, solution_tree())
+    if exported is not None:
+        return exported
+    compiled = solve_starts.lower(*args, batch).compile()
+    return lambda *a: compiled(*a, batch)
+
+
+def prepare_record_programs(prob: ManeuverOCP, xs, us, substeps: int = SUBSTEPS) -> None:
+    """Trace and compile (or load from JAX's cache) the three programs that the record and
+    the figure of a car primitive run (`vehsim.optimal.primitive`), by running them once on
+    knots and inputs shaped as its solution's (a starting guess will do: the values do not
+    matter), so that a caller can do it while it waits for something else."""
+    nodes = _nodes(prob, xs, us)
+    _violation_arrays(prob, xs, us, substeps)
+    _signals(prob.vehicle, nodes)
+    _signals(prob.vehicle, np.asarray(nodes))  # the record also reads host copies
+
+
+def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
+                        car=None, tf_max: float = 4.0, num_stages: int = 50,
+                        steps_per_stage: int = 3, options: IPOptions | None = None,
+                        starts=DEFAULT_STARTS, throw: bool = True) -> tuple[Primitive, Primitive]:
+    """`vehsim.primitive_and_bound` (same arguments, same programs, same numbers) arranged
+    for the time to the first answer: the car's program compiles, or loads
+    (`compiled_interior_point`, `compiled_starts`), on a thread while this one makes the
+    starting guesses, solves the point-mass bound (its program is the seeds', ready by then)
+    and prepares the record's programs (`prepare_record_programs`); every point-mass solve
+    goes through its exported program (`exported_interior_point`). XLA releases Python's
+    lock while it compiles or loads, so no extra wall time where that takes longer (a first
+    run: seconds; a run from the compilation cache: a few tenths).
+
+    **Returns:** ``(primitive, bound)``.
+    """
+    _check_objective(objective)
+    car = rally_gravel_car() if car is None else car
+    options = primitive_options(objective, starts) if options is None else options
+    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max)
+    batched = isinstance(starts, int)
+    with ThreadPoolExecutor(1) as pool:
+        if batched:
+            canonical, n_dev = canonical_options(options), len(jax.devices())
+            pending = pool.submit(compiled_starts, prob, -(-starts // n_dev) * n_dev, canonical)
+            xs0, us0 = batched_starts(prob, starts)
+            first = (xs0[0], us0[0])
+        else:
+            pending = pool.submit(compiled_interior_point, prob,
+                                  np.zeros((num_stages + 1, NX)), np.zeros((num_stages, NU)),
+                                  options)  # shapes only
+            guesses = car_guesses(prob, starts, solver=exported_interior_point)
+            first = guesses[0]
+        bound = point_mass_bound(road, objective, D=float(car.tire.D), num_stages=num_stages,
+                                 steps_per_stage=steps_per_stage, tf_max=tf_max, throw=False,
+                                 solver=exported_interior_point)
+        prepare_record_programs(prob, *first)
+        solve = pending.result()
+    if batched:
+        prim = best_start(prob, solve(prob, xs0, us0, canonical), starts, options.verbose, throw)
+    else:
+        prim = best_of_guesses(prob, guesses, options, solve, throw)
+    return prim, bound
