@@ -122,7 +122,8 @@ from .tire.moments import (
     MomentLuGre2D as MomentLuGre2D,
     TransitHistory as TransitHistory,
     moments_step_response as moments_step_response,
-    simulate_moments as simulate_moments,
+    simulate_moments_delay as simulate_moments_delay,
+    simulate_moments_history as simulate_moments_history,
 )
 from .tire.relaxed_magic_formula import (
     MagicFormulaParams as MagicFormulaParams,
@@ -134,12 +135,7 @@ from .tire.steady_state import (
     steady_state_mu as steady_state_mu,
     z_ss as z_ss,
 )
-from .tire.transient import (
-    Tire2DSolution as Tire2DSolution,
-    TireSolution as TireSolution,
-    simulate_tire as simulate_tire,
-    simulate_tire_2d as simulate_tire_2d,
-)
+from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 from .vehicle.normal_load import (
     AbstractNormalLoad as AbstractNormalLoad,
     ConstantLoad as ConstantLoad,
@@ -148,6 +144,7 @@ from .vehicle.normal_load import (
 )
 from .vehicle.quarter_car import (
     QuarterCar as QuarterCar,
+    QuarterCarSolution as QuarterCarSolution,
     simulate_quarter_car as simulate_quarter_car,
 )
 
@@ -156,6 +153,7 @@ from .vehicle.quarter_car import (
 # vehicles, simulation, sweeps (report section 2.5)
 from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
 from ._simulate import Trajectory as Trajectory, simulate as simulate
+from ._solution import AbstractSolution as AbstractSolution
 from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
 from ._sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
 from .tire.friction_ellipse import (
