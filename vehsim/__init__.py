@@ -239,6 +239,7 @@ from .control.controllers import (
 )
 from .control.experiment import braking_experiment as braking_experiment
 from .control.half_car_abs import (
+    TurnRun as TurnRun,
     TurnScenario as TurnScenario,
     simulate_turn as simulate_turn,
     turn_scenario as turn_scenario,
