@@ -59,7 +59,7 @@ def _fake_sweep(members, ts, failed=()):
                       RESULTS.max_steps_reached, RESULTS.successful)
     traj = Trajectory(ts=jnp.tile(ts, (n, 1)), states=jnp.zeros((n, T, 12)),
                       controls=jnp.zeros((n, T, 3)), signals=signals, result=result,
-                      num_steps=jnp.arange(n) + 10)
+                      stats={"num_steps": jnp.arange(n) + 10})
     return SweepResult(members=members, trajectories=traj, result=result, num_devices=2)
 
 
@@ -160,7 +160,7 @@ def test_batched_primitives_split_over_the_friction():
     D = jnp.array([0.4, 0.52])
     prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=4,
                        steps_per_stage=1)
-    probs = eqx.tree_at(lambda p: p.vehicle.tire.D, prob, D)  # as batch_primitives batches
+    probs = eqx.tree_at(lambda p: p.vehicle.tire.D, prob, D)  # as vmap_primitives batches
     xs = jnp.zeros((2, 5, NX)).at[:, :, 3].set(8.0).at[:, :, IDX_TF].set(jnp.array([[3.0],
                                                                                      [4.0]]))
     sol = IPSolution(xs=xs, us=jnp.zeros((2, 4, NU)), lam=jnp.zeros((2, 5, NX)),

@@ -25,9 +25,10 @@ from vehsim.tire.moments import (
     decay_integrals,
     moments_step_response,
     piecewise_coefficients,
-    simulate_moments,
+    simulate_moments_delay,
+    simulate_moments_history,
 )
-from vehsim.tire.transient import simulate_tire_2d
+from vehsim.tire.transient import simulate_tire
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -61,9 +62,11 @@ def _run(model, alpha_deg, kappa, ramp, rtol, exact=False):
     # The online moment right-hand side has kinks where the travelled distance passes a piece
     # edge (cases 1 -> 2 of the boundary closure): a tight tolerance keeps the step control
     # honest.
-    simulate = simulate_moments if exact else simulate_tire_2d
-    return simulate(model, TS, *_inputs(alpha_deg, kappa, ramp), R, FZ, solver=dfx.Tsit5(),
-                    rtol=rtol, atol=1e-2 * rtol).forces
+    vx, vy, om = _inputs(alpha_deg, kappa, ramp)
+    options = dict(solver=dfx.Tsit5(), rtol=rtol, atol=1e-2 * rtol)
+    if exact:
+        return simulate_moments_delay(model, TS, vx, vy, om, R, FZ, **options).forces
+    return simulate_tire(model, TS, vx, om, R, vy=vy, Fz=FZ, **options).forces
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +103,7 @@ def test_moments_match_fine_grid_pde_along_transient(transients, name):
 @pytest.mark.parametrize("name", list(LOADS))
 def test_exact_moments_match_pde_along_slip_ramp(transients, name):
     """Slip angle ramped over one transit time (10 ms), so the inputs change while tread
-    crosses the patch: with the history closure (`simulate_moments`) the moments still
+    crosses the patch: with the delay-state closure (`simulate_moments_delay`) the moments still
     reproduce the PDE's F_x, F_y, M_z to 1e-3 of each signal's peak at every save time."""
     _, out = transients
     _, pde, exact, _ = out[name, 15.0, 0.01]
@@ -276,7 +279,7 @@ def test_exact_moments_gradient_matches_fd():
         kappa, s0y = x[0], x[1]
         q = eqx.tree_at(lambda t: t.sigma0, p, p.sigma0.at[1].multiply(s0y))
         model = MomentLuGre2D(q, TrapezoidalLoad(0.25))
-        sol = simulate_moments(model, ts, *_inputs(6.0, kappa, 0.008), R, FZ, rtol=1e-11,
+        sol = simulate_moments_delay(model, ts, *_inputs(6.0, kappa, 0.008), R, FZ, rtol=1e-11,
                                atol=1e-13)
         return sol.forces[-1, 1] / FZ + sol.forces[-1, 2] / FZ
 
@@ -285,7 +288,7 @@ def test_exact_moments_gradient_matches_fd():
 
 
 def test_delay_and_history_closures_agree():
-    """The two exact closures of `simulate_moments` (entry times as ODE states, and the dense
+    """The two exact closures (`simulate_moments_delay`: entry times as ODE states, and the dense
     input history searched by Newton) are different computations of the same edge values:
     along a slip-angle ramp from a uniformly deflected patch (old tread leaving, which makes
     the edge values jump at the first passage) they give the same F_x, F_y, M_z."""
@@ -295,18 +298,20 @@ def test_delay_and_history_closures_agree():
     z0 = jnp.array([2e-3, -1e-3])
 
     @eqx.filter_jit
-    def run(closure, z0):
-        return simulate_moments(model, ts, *_inputs(8.0, 0.03, 0.008), R, FZ, z0,
-                                closure=closure, rtol=1e-9, atol=1e-11).forces
+    def run(simulate, z0):
+        return simulate(model, ts, *_inputs(8.0, 0.03, 0.008), R, FZ, z0, rtol=1e-9,
+                        atol=1e-11).forces
 
-    delay, history = np.asarray(run("delay", z0)), np.asarray(run("history", z0))
+    delay = np.asarray(run(simulate_moments_delay, z0))
+    history = np.asarray(run(simulate_moments_history, z0))
     peak = np.max(np.abs(history), axis=0)
     np.testing.assert_allclose(delay, history, rtol=0, atol=1e-6 * np.max(peak))
     # the initial deflection matters: the undeflected start differs by a lot
-    undeflected = np.asarray(run("delay", jnp.zeros(2)))
+    undeflected = np.asarray(run(simulate_moments_delay, jnp.zeros(2)))
     assert np.all(np.max(np.abs(undeflected - delay), axis=0) > 0.05 * peak)
-    with pytest.raises(ValueError, match="closure"):
-        simulate_moments(model, ts, 20.0, 0.0, 60.0, R, FZ, closure="frozen")
+    with pytest.raises(TypeError, match="simulate_moments_history needs a MomentLuGre2D"):
+        simulate_moments_history(DistributedLuGre2D(p, TrapezoidalLoad(0.25), n=4), ts, 20.0,
+                                 0.0, 60.0, R, FZ)
 
 
 def test_delay_closure_with_input_kink_at_loose_tolerance(transients):
@@ -315,8 +320,9 @@ def test_delay_closure_with_input_kink_at_loose_tolerance(transients):
     amplifies edge errors ~1000x) reproduces the PDE to 1e-3 at rtol 1e-5."""
     p, out = transients
     _, pde, _, _ = out["quartic", 15.0, 0.01]
-    forces = simulate_moments(MomentLuGre2D(p, LOADS["quartic"]), TS, *_inputs(15.0, -0.1, 0.01),
-                              R, FZ, kinks=0.01, rtol=1e-5, atol=1e-7).forces
+    forces = simulate_moments_delay(MomentLuGre2D(p, LOADS["quartic"]), TS,
+                                    *_inputs(15.0, -0.1, 0.01), R, FZ, kinks=0.01, rtol=1e-5,
+                                    atol=1e-7).forces
     err = np.max(np.abs(np.asarray(forces) - pde), axis=0) / np.max(np.abs(pde), axis=0)
     assert np.all(err < 1e-3), err
 
@@ -391,7 +397,7 @@ def test_step_response_is_the_steady_state_after_one_transit(name):
 
 def test_step_response_from_deflected_patch_matches_delay_closure():
     """From a uniform initial deflection (old tread leaves over the first transit) the exact
-    solution equals `simulate_moments` (delay closure, rtol 1e-11) to 1e-7 of the peaks, in
+    solution equals `simulate_moments_delay` (rtol 1e-11) to 1e-7 of the peaks, in
     the forces and in the moments themselves (the `state`, computed on the full tables while
     the forces take the load-contracted ones)."""
     p = lugre2d_bakker1987()
@@ -399,8 +405,8 @@ def test_step_response_from_deflected_patch_matches_delay_closure():
     vx, vy, om = _step(6.0, 0.03)
     z0 = jnp.array([2e-3, -1e-3])
     exact_sol = eqx.filter_jit(moments_step_response)(model, TS, vx, vy, om, R, FZ, z0)
-    ode_sol = eqx.filter_jit(simulate_moments)(model, TS, vx, vy, om, R, FZ, z0,
-                                               rtol=1e-11, atol=1e-13)
+    ode_sol = eqx.filter_jit(simulate_moments_delay)(model, TS, vx, vy, om, R, FZ, z0,
+                                                     rtol=1e-11, atol=1e-13)
     exact, ode = np.asarray(exact_sol.forces), np.asarray(ode_sol.forces)
     peak = np.max(np.abs(ode), axis=0)
     np.testing.assert_array_less(np.max(np.abs(exact - ode), axis=0), 1e-7 * peak)

@@ -124,7 +124,8 @@ from .tire.moments import (
     MomentLuGre2D as MomentLuGre2D,
     TransitHistory as TransitHistory,
     moments_step_response as moments_step_response,
-    simulate_moments as simulate_moments,
+    simulate_moments_delay as simulate_moments_delay,
+    simulate_moments_history as simulate_moments_history,
 )
 from .tire.relaxed_magic_formula import (
     MagicFormulaParams as MagicFormulaParams,
@@ -136,12 +137,7 @@ from .tire.steady_state import (
     steady_state_mu as steady_state_mu,
     z_ss as z_ss,
 )
-from .tire.transient import (
-    Tire2DSolution as Tire2DSolution,
-    TireSolution as TireSolution,
-    simulate_tire as simulate_tire,
-    simulate_tire_2d as simulate_tire_2d,
-)
+from .tire.transient import TireSolution as TireSolution, simulate_tire as simulate_tire
 from .tire.uniform_lumped import UniformLumpedLuGre as UniformLumpedLuGre
 from .vehicle.normal_load import (
     AbstractNormalLoad as AbstractNormalLoad,
@@ -151,6 +147,7 @@ from .vehicle.normal_load import (
 )
 from .vehicle.quarter_car import (
     QuarterCar as QuarterCar,
+    QuarterCarSolution as QuarterCarSolution,
     simulate_quarter_car as simulate_quarter_car,
 )
 
@@ -158,6 +155,7 @@ from .vehicle.quarter_car import (
 # isort: split
 # vehicles, simulation, sweeps (report section 2.5)
 from ._simulate import Trajectory as Trajectory, simulate as simulate
+from ._solution import AbstractSolution as AbstractSolution
 from ._sweep import SweepResult as SweepResult, sweep as sweep, sweep_grid as sweep_grid
 from .sharding import pad_members as pad_members, sharded_vmap as sharded_vmap
 from .solvers import ROS34PW2 as ROS34PW2, ExponentialIntegrator as ExponentialIntegrator
@@ -245,6 +243,7 @@ from .control.estimation.mhe import (
 from .control.estimation.observer import FrictionObserver as FrictionObserver
 from .control.experiments.experiment import braking_experiment as braking_experiment
 from .control.experiments.half_car_abs import (
+    TurnRun as TurnRun,
     TurnScenario as TurnScenario,
     simulate_turn as simulate_turn,
     turn_scenario as turn_scenario,

@@ -12,19 +12,22 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._integrate import ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from ._results import RESULTS, as_result
 from ._signals import as_controls
+from ._solution import AbstractSolution
 from .vehicle.base import AbstractVehicle
 
 
-class Trajectory(eqx.Module):
+class Trajectory(AbstractSolution):
     """Result of `simulate`: states, controls and named signals at the save times.
 
     `signals` maps names (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``,
     ``sideslip``, ``ax``, ``ay``, ``kappa_F``, ``alpha_F``, ``Fx_F``, ``Fy_F``, ``Fz_F``, ...,
     see the vehicle's ``signals``) to arrays over `ts`; ``traj["Fz_F"]`` is a shortcut.
-    `result` is a `vehsim.RESULTS` (``throw=False`` leaves failures for the caller);
-    `solution` holds the dense interpolant when `simulate(..., dense=True)`.
+    `result` is a `vehsim.RESULTS` (``throw=False`` leaves failures for the caller), `stats`
+    the solver's step counts; `solution` holds the dense interpolant when
+    `simulate(..., dense=True)`.
     """
 
     ts: Float[Array, " T"]
@@ -32,16 +35,8 @@ class Trajectory(eqx.Module):
     controls: Float[Array, "T m"]
     signals: dict
     result: RESULTS = eqx.field(converter=as_result)
-    num_steps: Array
+    stats: dict
     solution: dfx.Solution | None = None
-
-    def __getitem__(self, name: str):
-        return self.signals[name]
-
-    @property
-    def ok(self):
-        """True where the solve succeeded."""
-        return self.result == RESULTS.successful
 
     def evaluate(self, t):
         """State at time ``t`` from the dense interpolant (needs ``dense=True``)."""
@@ -57,12 +52,12 @@ def simulate(
     state0: Float[Array, " n"],
     *,
     solver: dfx.AbstractSolver | None = None,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
+    rtol: float = RTOL,
+    atol: float = ATOL,
     dt0: float | None = None,
     jump_ts=None,
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
-    max_steps: int = 16_384,
+    max_steps: int = MAX_STEPS,
     adjoint: dfx.AbstractAdjoint | None = None,
     dense: bool = False,
     throw: bool = True,
@@ -83,7 +78,8 @@ def simulate(
       ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
       steps; the cheaper choice at loose and moderate accuracy).
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
-      finite `max_steps` keeps reverse-mode differentiation available.
+      finite `max_steps` keeps reverse-mode differentiation available (defaults: those
+      of every vehsim solve, `vehsim._integrate`).
     - `jump_ts`: times where the inputs have kinks (the controller steps onto them);
       sampled inputs add `ts` themselves.
     - `stepsize_controller`: replaces the default ``PIDController(rtol, atol, jump_ts)``.
@@ -103,30 +99,18 @@ def simulate(
     def vector_field(t, y, args):
         return vehicle.f(y, u_fn(t, y))
 
-    if stepsize_controller is None:
-        jumps = [jnp.atleast_1d(jnp.asarray(j, dtype=float)) for j in (jump_ts,) if j is not None]
-        if sampled:
-            jumps.append(ts)
-        stepsize_controller = dfx.PIDController(
-            rtol=rtol, atol=atol, jump_ts=jnp.sort(jnp.concatenate(jumps)) if jumps else None
-        )
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field),
-        dfx.Tsit5() if solver is None else solver,
-        t0=ts[0],
-        t1=ts[-1],
-        dt0=dt0,
-        y0=state0,
-        saveat=dfx.SaveAt(ts=ts, dense=dense),
-        stepsize_controller=stepsize_controller,
-        max_steps=max_steps,
-        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        throw=throw,
-        progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
+    jumps = [jnp.atleast_1d(jnp.asarray(j, dtype=float)) for j in (jump_ts,) if j is not None]
+    if sampled:
+        jumps.append(ts)
+    sol = integrate(
+        vector_field, ts, state0, solver=solver, dt0=dt0, rtol=rtol, atol=atol,
+        jump_ts=jnp.sort(jnp.concatenate(jumps)) if jumps else None,
+        stepsize_controller=stepsize_controller, max_steps=max_steps, adjoint=adjoint,
+        saveat=dfx.SaveAt(ts=ts, dense=dense), throw=throw, progress_meter=progress_meter,
     )
     controls = jax.vmap(u_fn)(ts, sol.ys)
     signals = jax.vmap(vehicle.signals)(sol.ys, controls)
     return Trajectory(
         ts=ts, states=sol.ys, controls=controls, signals=signals, result=sol.result,
-        num_steps=sol.stats["num_steps"], solution=sol if dense else None,
+        stats=solve_stats(sol), solution=sol if dense else None,
     )

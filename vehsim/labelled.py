@@ -267,7 +267,7 @@ def _run_fields(run) -> dict[str, np.ndarray]:
 
 def _primitive_members(prims) -> list:
     """A batch of primitives as a list: a `Primitive` batched over the tire friction `D`
-    (``batch_primitives(mode="vmap")``) is split into its members."""
+    (`vmap_primitives`) is split into its members."""
     if isinstance(prims, Sequence):
         return list(prims)
     D = np.asarray(prims.problem.vehicle.tire.D)
@@ -293,8 +293,8 @@ def primitives_to_xarray(prims, attrs: Mapping | None = None):
 
     **Arguments:**
 
-    - `prims`: what `vehsim.optimal.primitives.batch_primitives` returns (a list of
-      `Primitive`, or one `Primitive` batched over the friction).
+    - `prims`: what `vehsim.optimal.primitives.continuation_primitives` (a list of
+      `Primitive`) or `vmap_primitives` (one `Primitive` batched over the friction) returns.
     - `attrs`: global attributes.
 
     **Returns:** a `Dataset` over the friction ``D`` (the tire's peak coefficient) with

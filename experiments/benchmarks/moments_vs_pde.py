@@ -10,8 +10,8 @@ relative accuracy in all of F_x, F_y, M_z (each relative to its peak), with the 
 Tsit5 (rtol 1e-5; stability-limited by the transport, ~350 steps at n = 16 whatever the
 tolerance) and the implicit Kvaerno5 (rtol 1e-5; ~45 steps but dearer ones). Moments
 (Legendre basis): the loosest of rtol 1e-4, 1e-5, 1e-6, 1e-8 that reaches 1e-3, for each
-closure that applies: the online one (`simulate_tire_2d` on `MomentLuGre2D`, exact only
-for steps) and the exact delay-state closure (`simulate_moments`, told the ramp's end as
+closure that applies: the online one (`simulate_tire` on `MomentLuGre2D`, exact only
+for steps) and the exact delay-state closure (`simulate_moments_delay`, told the ramp's end as
 an input kink, `kinks`, so that steps land on it and on its arrival at the piece edges); the
 fastest is quoted (`moments_closure`). For the steps also the exact solution of the moment
 system (`moments_step_response`, closure `exact_step`: no time stepping, no tolerance).
@@ -183,9 +183,9 @@ from vehsim.tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad  # noqa: 
 from vehsim.tire.moments import (  # noqa: E402
     MomentLuGre2D,
     moments_step_response,
-    simulate_moments,
+    simulate_moments_delay,
 )
-from vehsim.tire.transient import simulate_tire_2d  # noqa: E402
+from vehsim.tire.transient import simulate_tire  # noqa: E402
 
 
 R, FZ, V = 0.3, 4000.0, 20.0
@@ -207,7 +207,13 @@ def inputs(alpha_deg, kappa, ramp_s=0.0):
             lambda t: V * jnp.cos(ang(t)) * (1 + kappa) / R)
 
 
-def make_runner(u, solver, rtol, ts, simulate=simulate_tire_2d, batch=None, **kwargs):
+def simulate_online(model, ts, vx, vy, omega, r, Fz, **kwargs):
+    """The online closure, `simulate_tire` on a `MomentLuGre2D`, with the arguments in the
+    order of the moment functions."""
+    return simulate_tire(model, ts, vx, omega, r, vy=vy, Fz=Fz, **kwargs)
+
+
+def make_runner(u, solver, rtol, ts, simulate=simulate_online, batch=None, **kwargs):
     """A jitted call of `simulate` on the arrays of a model (partitioned once: an
     `eqx.filter_jit` call re-partitions the model every time, ~80 us of dispatch per call
     on this machine). `batch`: slip angles [rad] for one vmapped call, `u` then a function
@@ -277,10 +283,10 @@ def main(quick=False, steps_only=False):
                 log(f"alpha={alpha_deg} kappa={kappa} ramp={ramp_s} load={name}")
                 ref = timed(make_runner(u, dfx.Tsit5(), 1e-9, ts),
                             DistributedLuGre2D(p, load, n=128), 0)[0]
-                closures = [("delay", simulate_moments)]
+                closures = [("delay", simulate_moments_delay)]
                 if ramp_s == 0.0:
                     closures[:0] = [("exact_step", moments_step_response),
-                                    ("online", simulate_tire_2d)]
+                                    ("online", simulate_online)]
                 best, tried = None, {}
                 for closure, simulate in closures:
                     rtols = (None,) if closure == "exact_step" else MOMENT_RTOLS
@@ -360,7 +366,7 @@ def main_batch(quick=False, steps_only=False):
                         DistributedLuGre2D(p, load, n=128), 0)[0]
             best = None
             kw = dict(kinks=ramp_s) if ramp_s else {}
-            ladder = [("delay", simulate_moments, r) for r in MOMENT_RTOLS]
+            ladder = [("delay", simulate_moments_delay, r) for r in MOMENT_RTOLS]
             if ramp_s == 0.0:
                 ladder.insert(0, ("exact_step", moments_step_response, None))
             for closure, simulate, mom_rtol in ladder:

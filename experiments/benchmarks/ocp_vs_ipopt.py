@@ -368,19 +368,19 @@ def batch_benchmark(n: int, N: int, method: str) -> None:
     """corner90 min-time over ``n`` frictions D in [0.40, 0.64]: vehsim's warm-started
     continuation and vmapped batch against ``n`` sequential IPOPT solves (each warm-started
     from the previous solution, the fair counterpart of the continuation)."""
-    from vehsim.optimal.primitives import batch_primitives
+    from vehsim.optimal.primitives import continuation_primitives, vmap_primitives
 
     rd = road_by_name("corner90")
     Ds = np.linspace(0.40, 0.64, n)
     car = rally_gravel_car(float(Ds[0]))
     xs0, us0 = car_guess(car, rd, N, 1)
-    for mode in ("continuation", "vmap"):
+    for mode, batch in (("continuation", continuation_primitives), ("vmap", vmap_primitives)):
         t0 = time.perf_counter()
-        out = batch_primitives(rd, Ds, mode=mode, num_stages=N)
+        out = batch(rd, Ds, num_stages=N)
         jax.block_until_ready(out if mode == "vmap" else [p.solution.xs for p in out])
         first = time.perf_counter() - t0
         t0 = time.perf_counter()
-        out = batch_primitives(rd, Ds, mode=mode, num_stages=N)
+        out = batch(rd, Ds, num_stages=N)
         jax.block_until_ready(out if mode == "vmap" else [p.solution.xs for p in out])
         wall = time.perf_counter() - t0
         if mode == "vmap":

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._results import RESULTS, as_result
+from .._solution import AbstractSolution
 from .controllers.braking import AbstractBrakeController, measurement
 from .estimation.observer import FrictionObserver, ObserverState
 from .plant.hardware import (
@@ -38,12 +39,13 @@ HANDBACK_SPEED = 3.0
 """Measured speed [m/s] below which the controllers hand back to plain braking."""
 
 
-class BrakingRun(eqx.Module):
+class BrakingRun(AbstractSolution):
     """One closed-loop braking: `stopping_distance` [m] and `stopping_time` [s] (inf if the
     speed stayed above `STOP_SPEED`), the `final_speed` and `final_distance` at the end of
     the run, `result` (a `vehsim.RESULTS` item:
-    the first sample whose solve failed, e.g. `max_steps_reached`), and, if saved, samples at
-    the control rate: `ts`, the
+    the first sample whose solve failed, e.g. `max_steps_reached`), `stats` (``num_steps``:
+    the plant's integration steps, samples times substeps), and, if saved (else `None`), the
+    sample times `ts` and `signals` at the control rate: ``ts``, the
     distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
     $= F_x/F_n$, the brake `torque` at the sample and the `target` it lags towards over the
     sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
@@ -57,9 +59,8 @@ class BrakingRun(eqx.Module):
     final_distance: Float[Array, ""]
     result: RESULTS
     signals: dict | None
-
-    def __getitem__(self, name):
-        return self.signals[name]
+    ts: Float[Array, " T"] | None
+    stats: dict
 
 
 class LoopState(eqx.Module):
@@ -162,12 +163,13 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
     step = ft.partial(_sample, scenario, controller, observer, hw, key, substeps, save,
                       jnp.asarray(handback_speed, dtype=float))
     (st, _), out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
-    return _run(scenario, st, out)
+    return _run(scenario, st, out, n_steps * substeps)
 
 
-def _run(scenario, st: LoopState, out) -> BrakingRun:
+def _run(scenario, st: LoopState, out, num_steps: int) -> BrakingRun:
     x, qs, _ = unpack(scenario, st.y)
-    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out)
+    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out,
+                      None if out is None else out["ts"], {"num_steps": jnp.asarray(num_steps)})
 
 
 @eqx.filter_jit
@@ -238,7 +240,7 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
     (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
     if save:  # scan stacks time first
         out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
-    run = jax.vmap(_run)(scenarios, st, out)
+    run = jax.vmap(ft.partial(_run, num_steps=n_steps * substeps))(scenarios, st, out)
     return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
 
 

@@ -4,7 +4,7 @@ grid.
 With $v$, $\omega$ linear between samples, eq. 22 is linear in $\bar z$:
 $\dot{\bar z} = v_r - a\bar z$, $a = \theta\sigma_0|v_r|/g(v_r) + \kappa|\omega r|$,
 $\kappa = \kappa_0/L$ (up to $\sim10^4$ 1/s when the wheel locks: stiff). It is solved by
-`diffrax.diffeqsolve` with `ExponentialIntegrator`, the exponential midpoint rule: $v_r$
+`vehsim`'s one solve helper (`diffrax.diffeqsolve`) with `ExponentialIntegrator`, the exponential midpoint rule: $v_r$
 and $a$ frozen at the midpoint of each substep $h$ and integrated exactly,
 $\bar z^+ = e^{-ah}\bar z + h\,\varphi(ah)\,v_r$, $\varphi(x) = (1-e^{-x})/x$: second
 order, unconditionally stable, and exact in the quasi-static limit.
@@ -15,6 +15,7 @@ from __future__ import annotations
 import diffrax as dfx
 import jax.numpy as jnp
 
+from .._integrate import integrate
 from .._math import safe_abs, safe_div
 from ..solvers.exponential import ExponentialIntegrator
 from ..tire.lugre import LumpedLuGre, decay_rate
@@ -59,9 +60,12 @@ def linear_solve(a, b, y0, adjoint):
         m = jnp.clip(jnp.floor(s).astype(int), 0, num - 1)
         return b[m] - a[m] * y
 
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field), ExponentialIntegrator(), 0.0, float(num), 1.0, y0,
-        saveat=dfx.SaveAt(steps=True), adjoint=adjoint, max_steps=num,
+    # stiff and linear in y: unit steps of the exponential integrator (exact per step), every
+    # step saved, the buffer exactly as long as the steps
+    sol = integrate(
+        vector_field, None, y0, solver=ExponentialIntegrator(), t0=0.0, t1=float(num),
+        dt0=1.0, stepsize_controller=dfx.ConstantStepSize(), saveat=dfx.SaveAt(steps=True),
+        max_steps=num, adjoint=adjoint,
     )
     return sol.ys
 

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._fields import float_array
+from .._integrate import integrate
 from .._math import one_minus_exp_over, safe_abs
 from ..solvers.exponential import StepMapSolver, StepMapTerm
 from ..tire.lugre import LumpedLuGre
@@ -109,10 +110,12 @@ def state_and_tangent_solve(a, b, da, z0, dz0, adjoint):
         w = tangent_weight(ratio[m], a[m], b[m], y[0])
         return decay[m] * y + jnp.concatenate([phi_b[m][None], w * phi_da[m]])
 
-    sol = dfx.diffeqsolve(
-        StepMapTerm(step_map), StepMapSolver(), 0.0, float(num), 1.0,
-        jnp.concatenate([z0[None], dz0]), saveat=dfx.SaveAt(steps=True), adjoint=adjoint,
-        max_steps=num,
+    # the exact step map in unit steps (forward-mode sensitivities share the solve), every
+    # step saved, the buffer exactly as long as the steps
+    sol = integrate(
+        StepMapTerm(step_map), None, jnp.concatenate([z0[None], dz0]), solver=StepMapSolver(),
+        t0=0.0, t1=float(num), dt0=1.0, stepsize_controller=dfx.ConstantStepSize(),
+        saveat=dfx.SaveAt(steps=True), max_steps=num, adjoint=adjoint,
     )
     return sol.ys
 

@@ -316,43 +316,60 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     return prim, bound
 
 
-def batch_primitives(road: str | Road, frictions, objective: str = "min-time", *,
-                     mode: str = "continuation", num_stages: int = 50,
-                     steps_per_stage: int = 1, tf_max: float = 4.0,
-                     options: IPOptions | None = None):
-    """The same maneuver over a batch of road frictions D (the tire's peak coefficient).
-
-    ``mode='vmap'``: one vmapped solve (every member iterates until the slowest converges;
-    suited to accelerators). ``mode='continuation'``: sequential solves, each warm-started
-    (``mu0 = 1e-4``) from its neighbour's converged solution (sort the frictions).
-    ``options``: default `primitive_options` of the objective. Never raises on a member's
-    failure: check ``result`` (per member).
-
-    **Returns:** a `Primitive` whose problem and solution are batched along axis 0 (vmap), or
-    a list of `Primitive` (continuation).
-    """
+def _friction_batch(road, frictions, objective, num_stages, steps_per_stage, tf_max,
+                    options):
+    """The problem at the first friction, its guess, the options and the frictions."""
     rd = _road(road)
     options = primitive_options(objective) if options is None else options
     frictions = jnp.asarray(frictions, float)
-    if mode not in ("vmap", "continuation"):
-        raise ValueError(f"batch_primitives mode must be 'vmap' or 'continuation', got {mode!r}")
     car0 = rally_gravel_car(float(frictions[0]))
     prob0 = ManeuverOCP(vehicle=car0, road=rd, objective=objective, tf_max=tf_max,
                         num_stages=num_stages, steps_per_stage=steps_per_stage)
     xs0, us0 = car_guess(car0, rd, num_stages, steps_per_stage)
     if objective == "max-exit":
         xs0 = _within_budget(xs0, tf_max)
-    if mode == "vmap":
-        def one(D):
-            prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
-            return interior_point(prob, xs0, us0, options, throw=False)
+    return prob0, xs0, us0, options, frictions
 
-        sols = jax.vmap(one)(frictions)
-        probs = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, frictions)
-        return Primitive(problem=probs, solution=sols)
+
+def vmap_primitives(road: str | Road, frictions, objective: str = "min-time", *,
+                    num_stages: int = 50, steps_per_stage: int = 1, tf_max: float = 4.0,
+                    options: IPOptions | None = None) -> Primitive:
+    """The same maneuver over a batch of road frictions D (the tire's peak coefficient), in
+    one vmapped solve: every member iterates until the slowest converges (suited to
+    accelerators). ``options``: default `primitive_options` of the objective. Never raises
+    on a member's failure: check ``result`` (per member).
+
+    **Returns:** a `Primitive` whose problem and solution are batched along axis 0.
+    """
+    prob0, xs0, us0, options, frictions = _friction_batch(
+        road, frictions, objective, num_stages, steps_per_stage, tf_max, options)
+
+    def one(D):
+        prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
+        return interior_point(prob, xs0, us0, options, throw=False)
+
+    sols = jax.vmap(one)(frictions)
+    probs = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, frictions)
+    return Primitive(problem=probs, solution=sols)
+
+
+def continuation_primitives(road: str | Road, frictions, objective: str = "min-time", *,
+                            num_stages: int = 50, steps_per_stage: int = 1,
+                            tf_max: float = 4.0, options: IPOptions | None = None,
+                            warm_mu0: float = 1e-4) -> list[Primitive]:
+    """The same maneuver over a batch of road frictions D (the tire's peak coefficient), by
+    continuation: sequential solves, each warm-started from its neighbour's converged
+    solution with the barrier parameter `warm_mu0` (sort the frictions). ``options``:
+    default `primitive_options` of the objective (the first solve's). Never raises on a
+    member's failure: check ``result`` (per member).
+
+    **Returns:** a list of `Primitive`, one per friction.
+    """
+    prob0, xs0, us0, options, frictions = _friction_batch(
+        road, frictions, objective, num_stages, steps_per_stage, tf_max, options)
     out = []
     guess = (xs0, us0)
-    warm = eqx.tree_at(lambda o: o.mu0, options, 1e-4)
+    warm = eqx.tree_at(lambda o: o.mu0, options, warm_mu0)
     for i, D in enumerate(frictions):
         prob = eqx.tree_at(lambda p: p.vehicle.tire.D, prob0, D)
         sol = interior_point(prob, *guess, options if i == 0 else warm, throw=False)

@@ -200,7 +200,7 @@ def _run(vehicle: HalfCar, reduced: ReducedHalfCar, sched: _Schedule, state6_0, 
     traj = simulate(vehicle, ts, tracking, y0, rtol=1e-8,
                     atol=1e-8, jump_ts=sched.jump_ts(), max_steps=200_000, throw=False)
     ref_traj = Trajectory(ts=ref.ts, states=ref.states, controls=ref.controls,
-                          signals=ref.signals, result=ref.result, num_steps=ref.num_steps)
+                          signals=ref.signals, result=ref.result, stats=ref.stats)
     return traj, ref_traj
 
 

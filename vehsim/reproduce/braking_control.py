@@ -259,7 +259,8 @@ def _turn(ctx):
         q = eqx.tree_at(lambda q: q.rear_share, sc, jnp.asarray(share))
         if label == "no braking":
             q = eqx.tree_at(lambda q: q.brake_time, q, jnp.asarray(1e3))
-        s = {k: np.asarray(v) for k, v in simulate_turn(q, front, rear).items()}
+        run = simulate_turn(q, front, rear)
+        s = {k: np.asarray(v) for k, v in ({"ts": run.ts} | run.signals).items()}
         runs[label] = s
         moving = s["speed"] > 1.0
         rec = {"max_abs_yaw_rate": float(np.max(np.abs(s["yaw_rate"][moving]))),

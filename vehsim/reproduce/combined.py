@@ -22,7 +22,7 @@ from ..tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
 from ..tire.lugre2d_fit import QUANTITIES, default_slip_grid, match_errors
 from ..tire.magic_formula import combined_forces, lateral_coefficients
 from ..tire.moments import MomentLuGre2D, moments_step_response
-from ..tire.transient import simulate_tire_2d
+from ..tire.transient import simulate_tire
 
 
 TITLE = "Combined longitudinal/lateral LuGre, Magic Formula and exact aggregate dynamics (2.3-2.4)"
@@ -285,8 +285,8 @@ def wheel_inputs(alpha, kappa, rise_time):
 def _wheel_solve(models, ts, alphas, rise_time):
     def one(model, a):
         vx, vy, om = wheel_inputs(a, FIG17_KAPPA, rise_time)
-        return simulate_tire_2d(model, ts, vx, vy, om, R, FZ, solver=dfx.Tsit5(), rtol=1e-7,
-                                atol=1e-9).forces
+        return simulate_tire(model, ts, vx, om, R, vy=vy, Fz=FZ, solver=dfx.Tsit5(), rtol=1e-7,
+                             atol=1e-9).forces
 
     return jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(None, 0))(models, alphas)
 
@@ -334,8 +334,8 @@ def _label_force_panels(ax) -> None:
 
 @eqx.filter_jit
 def _pde_forces(model, ts, vx, vy, omega):
-    return simulate_tire_2d(model, ts, vx, vy, omega, R, FZ, solver=dfx.Tsit5(),
-                            rtol=1e-10, atol=1e-12).forces
+    return simulate_tire(model, ts, vx, omega, R, vy=vy, Fz=FZ, solver=dfx.Tsit5(),
+                         rtol=1e-10, atol=1e-12).forces
 
 
 @eqx.filter_jit

@@ -26,8 +26,10 @@ from jaxtyping import Array, Float, PyTree
 from .._checks import check_positive
 from .._constants import GRAVITY
 from .._fields import array_field
+from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from .._results import RESULTS, as_result
 from .._signals import as_signal
+from .._solution import AbstractSolution
 from ..tire.lugre import AbstractLongitudinalTire
 from .normal_load import AbstractNormalLoad, ConstantLoad
 
@@ -106,8 +108,10 @@ class QuarterCar(eqx.Module):
         )
 
 
-class QuarterCarSolution(eqx.Module):
-    """Result of `simulate_quarter_car` at the save times (`Fn` is the acting load)."""
+class QuarterCarSolution(AbstractSolution):
+    """Result of `simulate_quarter_car` at the save times: speed `v`, wheel speed `omega`,
+    the acting load `Fn`, the force `Fx`, the `brake_torque` (also ``sol["v"]``, ...) and
+    the tire's friction state `tire`."""
 
     ts: Float[Array, " T"]
     v: Float[Array, " T"]
@@ -117,7 +121,12 @@ class QuarterCarSolution(eqx.Module):
     brake_torque: Float[Array, " T"]
     tire: PyTree
     result: RESULTS = eqx.field(converter=as_result)
-    num_steps: Array
+    stats: dict
+
+    @property
+    def signals(self) -> dict:
+        return dict(v=self.v, omega=self.omega, Fn=self.Fn, Fx=self.Fx,
+                    brake_torque=self.brake_torque)
 
 
 def simulate_quarter_car(
@@ -128,10 +137,10 @@ def simulate_quarter_car(
     state0: QuarterCarState | None = None,
     *,
     solver: dfx.AbstractSolver | None = None,
-    rtol: float = 1e-7,
-    atol: float = 1e-9,
+    rtol: float = RTOL,
+    atol: float = DEFLECTION_ATOL,
     dt0: float | None = None,
-    max_steps: int = 200_000,
+    max_steps: int = MAX_STEPS,
     adjoint: dfx.AbstractAdjoint | None = None,
     throw: bool = True,
 ) -> QuarterCarSolution:
@@ -144,7 +153,9 @@ def simulate_quarter_car(
     - `brake_torque`: $T_b$ [N m]: constant, samples on `ts` (linear between), or callable.
     - `v0`: initial speed [m/s] (ignored if `state0` is given).
     - `solver`: default `Kvaerno5` (implicit: the friction state is stiff at large slip).
-    - `dt0`: `None` for adaptive steps (`rtol`, `atol`), or a fixed step [s].
+    - `dt0`: `None` for adaptive steps (`rtol`, `atol`; default `DEFLECTION_ATOL`: the
+      state holds the tire's deflections), or a fixed step [s].
+    - `max_steps`: the step budget (as every vehsim solve, `vehsim._integrate`).
     - `adjoint`: e.g. `diffrax.ForwardMode()` for Jacobians in least squares.
     - `throw`: raise if the solve fails; otherwise check `result`.
 
@@ -161,24 +172,15 @@ def simulate_quarter_car(
         # fixed steps (dt0 given): the implicit solver's Newton iterations need tolerances
         solver = dfx.Kvaerno5() if dt0 is None else dfx.Kvaerno5(
             root_finder=dfx.VeryChord(rtol=rtol, atol=atol, norm=optx.max_norm))
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(vector_field),
-        solver,
-        t0=ts[0],
-        t1=ts[-1],
-        dt0=dt0,
-        y0=y0,
-        saveat=dfx.SaveAt(ts=ts),
-        stepsize_controller=dfx.PIDController(rtol=rtol, atol=atol) if dt0 is None
-        else dfx.ConstantStepSize(),
-        max_steps=max_steps,
-        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        throw=throw,
+    sol = integrate(
+        vector_field, ts, y0, solver=solver, dt0=dt0, rtol=rtol, atol=atol,
+        stepsize_controller=None if dt0 is None else dfx.ConstantStepSize(),
+        max_steps=max_steps, adjoint=adjoint, throw=throw,
     )
     ys = sol.ys
     Fx = jax.vmap(car.force)(ts, ys)
     Fn = jax.vmap(car.normal_load)(ts, ys)
     return QuarterCarSolution(
         ts=ts, v=ys.v, omega=ys.omega, Fn=Fn, Fx=Fx, brake_torque=jax.vmap(Tb_fn)(ts),
-        tire=ys.tire, result=sol.result, num_steps=sol.stats["num_steps"],
+        tire=ys.tire, result=sol.result, stats=solve_stats(sol),
     )

@@ -24,6 +24,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ..._fields import array_field
+from ..._results import RESULTS
+from ..._solution import AbstractSolution
 from ...tire.isotropic_lumped import IsotropicLumpedLuGre
 from ...vehicle.half_car import HalfCar
 from ...vehicle.maneuvers import smooth_step
@@ -31,7 +33,7 @@ from ...vehicle.params import rally_gravel
 from ...vehicle.planar import axle_velocities
 from ..controllers.braking import AbstractBrakeController, RuleBasedABS, measurement
 from ..plant.hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
-from ..plant.integrate import integrate_sample
+from ..plant.integrate import SUBSTEPS, integrate_sample
 from ..road.surfaces import surface
 
 
@@ -65,6 +67,32 @@ def rear_abs() -> RuleBasedABS:
     return RuleBasedABS(slip_threshold=0.04, lock_slip=0.1)
 
 
+class TurnState(eqx.Module):
+    """What the turn carries from sample to sample: the car's state `y`, the axles'
+    actuators (batched over the two axles), the axle controllers' states, the wheel speeds
+    at the last sample `omega_prev` and the first unsuccessful `result` of a sample's
+    integration."""
+
+    y: Array
+    actuator: ActuatorState
+    controllers: tuple
+    omega_prev: Array
+    result: RESULTS
+
+
+class TurnRun(AbstractSolution):
+    """Result of `simulate_turn`: at the control rate `ts` [s], `signals` holds the car's
+    named signals (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``,
+    ``sideslip``, ...), the axle brake ``torque`` (T, 2), the true ``slip`` (T, 2) and the
+    controllers' ``phase`` (T, 2); `result` is the first sample whose integration failed
+    (`RESULTS.nonfinite`), `stats` the integration steps."""
+
+    ts: Float[Array, " T"]
+    signals: dict
+    result: RESULTS
+    stats: dict
+
+
 def _controls(sc: TurnScenario, hw, y, t, t0, torque0, target):
     brake = brake_torque(hw, torque0, target, t - t0)
     omega = y[6:8]
@@ -78,31 +106,33 @@ def _rates(t, y, args):
     return sc.car.f(y, _controls(sc, hw, y, t, t0, torque0, target))
 
 
-def _sample(sc, controllers, hw, key, carry, k):
-    y, act, ctrl, omega_prev = carry
+def _sample(sc, controllers, hw, key, st: TurnState, k):
     T = hw.sample_time
     t = k * T
     p = sc.car.params
     delta = sc.delta * smooth_step(t, 0.0, 0.2)
-    VFx, _, VRx, _ = axle_velocities(p, y[3], y[4], y[5], delta)
+    VFx, _, VRx, _ = axle_velocities(p, st.y[3], st.y[4], st.y[5], delta)
     noise = hw.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (2,))
     v_m = jnp.stack([VFx, VRx]) + jnp.where(hw.noise, noise, 0.0)
-    omega = y[6:8]
+    omega = st.y[6:8]
     cmds, phases, new_ctrl = [], [], []
     for i, controller in enumerate(controllers):
-        m = measurement(omega[i], v_m[i], omega_prev[i], p.r, T)
-        c, cmd, phase = controller.command(ctrl[i], m, None, None, None, T, hw.max_torque)
+        m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T)
+        c, cmd, phase = controller.command(st.controllers[i], m, None, None, None, T,
+                                           hw.max_torque)
         new_ctrl.append(c)
         cap = hw.max_torque * (1.0 if i == 0 else sc.rear_share)
         cmds.append(jnp.where(t >= sc.brake_time, jnp.minimum(cmd, cap), 0.0))
         phases.append(phase)
-    act, target = jax.vmap(lambda a, c: actuator_target(hw, a, k, c))(act, jnp.stack(cmds))
+    act, target = jax.vmap(lambda a, c: actuator_target(hw, a, k, c))(st.actuator,
+                                                                      jnp.stack(cmds))
     args = (sc, hw, t, act.torque, target)
-    y1, _ = integrate_sample(_rates, y, args, t, T, sc.car.stiff_blocks)
-    out = dict(ts=t, state=y, torque=act.torque, phase=jnp.stack(phases),
+    y1, result = integrate_sample(_rates, st.y, args, t, T, sc.car.stiff_blocks)
+    out = dict(ts=t, state=st.y, torque=act.torque, phase=jnp.stack(phases),
                slip=p.r * omega / jnp.stack([VFx, VRx]) - 1.0)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
-    return (y1, act, tuple(new_ctrl), omega), out
+    result = RESULTS.where(st.result == RESULTS.successful, result, st.result)
+    return TurnState(y1, act, tuple(new_ctrl), omega, result), out
 
 
 @eqx.filter_jit
@@ -110,27 +140,31 @@ def _simulate(sc, controllers, hw, key, n_steps):
     y0 = sc.car.init_state(vx=sc.speed)
     act0 = jax.vmap(lambda _: ActuatorState.init())(jnp.arange(2))
     ctrl0 = tuple(c.init(hw.max_torque) for c in controllers)
-    step = lambda carry, k: _sample(sc, controllers, hw, key, carry, k)  # noqa: E731
-    carry0 = (y0, act0, ctrl0, y0[6:8])
-    return jax.lax.scan(step, carry0, jnp.arange(n_steps))[1]
+    step = lambda st, k: _sample(sc, controllers, hw, key, st, k)  # noqa: E731
+    st0 = TurnState(y0, act0, ctrl0, y0[6:8], RESULTS.successful)
+    st, out = jax.lax.scan(step, st0, jnp.arange(n_steps))
+    return st.result, out
 
 
 def simulate_turn(sc: TurnScenario, front: AbstractBrakeController,
                   rear: AbstractBrakeController, hardware: BrakeHardware | None = None,
-                  key: PRNGKeyArray | None = None, duration: float = 4.0) -> dict:
+                  key: PRNGKeyArray | None = None, duration: float = 4.0) -> TurnRun:
     """Brake in a turn with the `front` and `rear` axle controllers.
 
-    **Returns:** the signals at the control rate: ``ts``, the car's named signals
+    **Returns:** a `TurnRun`: the signals at the control rate, the car's named signals
     (``x``, ``y``, ``psi``, ``vx``, ``vy``, ``yaw_rate``, ``speed``, ``sideslip``, ...),
-    the axle brake ``torque`` (T, 2), ``slip`` (T, 2) and controller ``phase`` (T, 2).
+    the axle brake ``torque`` (T, 2), ``slip`` (T, 2) and controller ``phase`` (T, 2), and
+    the integration's `result`.
     """
     hw = BrakeHardware(max_torque=4000.0) if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
     n_steps = int(round(duration / float(hw.sample_time)))
-    out = _simulate(sc, (front, rear), hw, key, n_steps)
-    delta = sc.delta * smooth_step(out["ts"], 0.0, 0.2)
+    result, out = _simulate(sc, (front, rear), hw, key, n_steps)
+    ts = out.pop("ts")
+    delta = sc.delta * smooth_step(ts, 0.0, 0.2)
     controls = jnp.stack([jnp.zeros_like(delta), jnp.zeros_like(delta), delta], axis=1)
-    named = jax.vmap(sc.car.signals)(out["state"], controls)
+    named = jax.vmap(sc.car.signals)(out.pop("state"), controls)
     for name in ("T_F", "T_R"):
         named.pop(name)
-    return {k: v for k, v in out.items() if k != "state"} | named
+    return TurnRun(ts=ts, signals=out | named, result=result,
+                   stats={"num_steps": jnp.asarray(n_steps * SUBSTEPS)})

@@ -52,8 +52,8 @@ delay equation), so no finite state closes it for arbitrary inputs. But the edge
 are functionals of the *input history alone* (the coefficients $v_r$, $C_0$, $c$ do not
 depend on $z$), which gives these closures of eqs. 41-42:
 
-- **Exact, delay states** (`simulate_moments(closure="delay")`, the default, for inputs
-  known in advance: the transients of Fig. 17, a recorded manoeuvre). The entry time obeys
+- **Exact, delay states** (`simulate_moments_delay`, for inputs known in advance: the
+  transients of Fig. 17, a recorded manoeuvre). The entry time obeys
   $\dot t_e = c(t)/c(t_e)$ (from $s(t) - s(t_e) = e$), and the inputs can be evaluated at
   $t_e$, so $t_e$, $D_e = \int_{t_e}^tC_0$ ($\dot D_e = C_0(t) - \dot t_eC_0(t_e)$) and
   $z_e$ with its exact edge equation are ODE states beside the moments, switched on at the
@@ -61,8 +61,8 @@ depend on $z$), which gives these closures of eqs. 41-42:
   $c/L$). The moment system then reproduces the PDE for any rolling input history up to
   solver tolerance. Needs $c(t_e) > 0$: tread that entered while the wheel was locked
   needs the history closure.
-- **Exact, history** (`closure="history"`): a first solve integrates five history states
-  (tread travelled, $\int C_0$, and the point model from rest) with dense output, and
+- **Exact, history** (`simulate_moments_history`): a first solve integrates five history
+  states (tread travelled, $\int C_0$, and the point model from rest) with dense output, and
   `TransitHistory` returns the exact $z_i(t, e)$ at every edge from them and the entry
   time found by safeguarded Newton (locked phases included). Each right-hand side then
   searches the dense output, which makes it the slower of the two.
@@ -95,8 +95,9 @@ so that it falls exactly between steps) removes it. The online closure cannot la
 switch (it depends on the state), and needs tight tolerances.
 
 **Files.** `basis` (load pieces, basis tables, the coupling matrix), `model`
-(`MomentLuGre2D`, the online closure), `closures` (`simulate_moments`: the delay and history
-closures, `TransitHistory`, `passage_times`), `step_response` (`moments_step_response`).
+(`MomentLuGre2D`, the online closure), `closures` (`simulate_moments_delay` and
+`simulate_moments_history`: the delay and history closures, `TransitHistory`,
+`passage_times`), `step_response` (`moments_step_response`).
 Accuracy and cost are measured in `docs/performance.md`.
 """
 
@@ -108,10 +109,11 @@ from .basis import (
     piecewise_coefficients as piecewise_coefficients,
 )
 from .closures import (
-    CLOSURES as CLOSURES,
+    HISTORY_MAX_STEPS as HISTORY_MAX_STEPS,
     TransitHistory as TransitHistory,
     passage_times as passage_times,
-    simulate_moments as simulate_moments,
+    simulate_moments_delay as simulate_moments_delay,
+    simulate_moments_history as simulate_moments_history,
 )
 from .model import MomentLuGre2D as MomentLuGre2D
 from .step_response import (

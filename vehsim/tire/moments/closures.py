@@ -1,18 +1,16 @@
-r"""Exact closures of the moment system for inputs known in advance (`simulate_moments`).
+r"""Exact closures of the moment system for inputs known in advance.
 
 The edge values $z_i(t, e_j)$ are functionals of the input history alone
 (`vehsim.tire.moments`, "The boundary terms"). Two exact ways to evaluate them:
 
-- **delay** (`_simulate_delay`): the entry time $t_e$ of the tread now at each edge, the
-  decay $D_e = \int_{t_e}^tC_0$ and $z_e$ are ODE states beside the moments, switched on at
-  the first passages $t_p$ (`passage_times`), where the solve is split into segments;
-- **history** (`_simulate_history`): a first solve of $(s, E_x, E_y, w_x, w_y)$ with dense
-  output (`TransitHistory`), searched for $t_e$ at every right-hand side.
+- **delay** (`simulate_moments_delay`): the entry time $t_e$ of the tread now at each edge,
+  the decay $D_e = \int_{t_e}^tC_0$ and $z_e$ are ODE states beside the moments, switched
+  on at the first passages $t_p$ (`passage_times`), where the solve is split into segments;
+- **history** (`simulate_moments_history`): a first solve of $(s, E_x, E_y, w_x, w_y)$ with
+  dense output (`TransitHistory`), searched for $t_e$ at every right-hand side.
 """
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import diffrax as dfx
 import equinox as eqx
@@ -22,13 +20,16 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
-from ..._signals import as_signal
+from ..._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
+from ..._results import RESULTS
 from ..lugre2d import decay_rates, relative_velocity_2d
-from ..transient import Tire2DSolution
+from ..transient import TireSolution, input_signals, inputs_at
 from .model import MomentLuGre2D
 
 
-CLOSURES = ("delay", "history")
+HISTORY_MAX_STEPS = 4096
+"""Default step budget of the history solve of `simulate_moments_history`: its dense output
+is stored and searched at every edge lookup, so the buffer costs time in proportion."""
 
 
 # --------------------------------------------------------------------------------------
@@ -151,17 +152,8 @@ def passage_times(c_of_t, t0, t1, distances, L, nodes: int = 32):
 
 
 # --------------------------------------------------------------------------------------
-# simulate_moments
+# Shared by the two closures
 # --------------------------------------------------------------------------------------
-
-
-class _Solve(NamedTuple):
-    """How one diffrax solve is run."""
-
-    solver: dfx.AbstractSolver
-    controller: dfx.AbstractStepSizeController
-    max_steps: int
-    throw: bool
 
 
 def _slip(signals, r, t):
@@ -176,71 +168,12 @@ def _forces(model, fz_s, t, m, m_dot, v_r):
     return fz_s(t) * model.mu_from_moments(m, m_dot, v_r) * scale
 
 
-def simulate_moments(
-    model: MomentLuGre2D,
-    ts,
-    vx,
-    vy,
-    omega,
-    r,
-    Fz,
-    z0=None,
-    *,
-    closure: str = "delay",
-    kinks=None,
-    solver=None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 100_000,
-    history_max_steps: int = 4096,
-    history_solver=None,
-    history_rtol: float | None = None,
-    history_atol: float | None = None,
-    throw: bool = True,
-):
-    r"""Exact method of moments for inputs known in advance (eqs. 39-48, no closure error).
-
-    `MomentLuGre2D` as an `AbstractTire` closes the edge values with inputs frozen over a
-    transit, exact only for piecewise-constant inputs. When the inputs are given as functions
-    of time (as in Fig. 17, or a recorded manoeuvre) the edge values are functionals of the
-    input history, and the moment ODE of eqs. 41-42 uses the exact $z_i(t, e_j)$ at every
-    piece edge: with `closure="delay"` (default) from the entry times $t_e$ carried as ODE
-    states beside the moments, one solve, its steps landed on the first passage of tread over
-    each edge; with `closure="history"` from a first solve of five history states with dense
-    output (`TransitHistory`), which also handles tread that entered while the wheel was
-    locked ($c(t_e) = 0$, where the delay states fail). The result equals the distributed PDE
-    (eqs. 31-34) up to solver tolerance for any such input history and any
-    piecewise-polynomial load.
-
-    **Arguments:** as `simulate_tire_2d` (`vx`, `vy`, `omega`, `Fz` constants, samples on
-    `ts` or callables of `t`; `r` [m]), plus `z0` (2,), the uniform initial deflection [m]
-    (default 0). `kinks` (delay closure): times where the inputs have a kink or a jump (the
-    end of a ramp); steps are landed on them and on their arrival at every edge, where they
-    kink the edge values. `solver` defaults to `Tsit5`. History closure only: `history_solver`,
-    `history_rtol`, `history_atol` (default: those of the moment solve) and
-    `history_max_steps`, which bounds the history solve. Its dense output is stored and every
-    edge lookup searches it, so a buffer far larger than needed costs time; a history needing
-    more steps fails loudly (`throw=True`): raise it for long runs.
-
-    **Returns:** a `Tire2DSolution` whose `state` is the moments `(T, 2, P, K)`.
-    """
+def _prepare(name, model, ts, vx, vy, omega, Fz, z0):
     if not isinstance(model, MomentLuGre2D):
-        raise TypeError(f"simulate_moments needs a MomentLuGre2D, got {type(model).__name__}")
-    if closure not in CLOSURES:
-        raise ValueError(f"simulate_moments closure must be one of {CLOSURES}, got {closure!r}")
+        raise TypeError(f"{name} needs a MomentLuGre2D, got {type(model).__name__}")
     ts = jnp.asarray(ts, dtype=float)
-    signals = tuple(as_signal(ts, x) for x in (vx, vy, omega, Fz))
     z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
-    solver = dfx.Tsit5() if solver is None else solver
-    solve = _Solve(solver, dfx.PIDController(rtol=rtol, atol=atol), max_steps, throw)
-    if closure == "delay":
-        return _simulate_delay(model, ts, signals, r, z0, solve, kinks)
-    history_solve = _Solve(
-        solver if history_solver is None else history_solver,
-        dfx.PIDController(rtol=rtol if history_rtol is None else history_rtol,
-                          atol=atol if history_atol is None else history_atol),
-        history_max_steps, throw)
-    return _simulate_history(model, ts, signals, r, z0, solve, history_solve)
+    return ts, input_signals(ts, vx, vy, omega, Fz), z0
 
 
 # --------------------------------------------------------------------------------------
@@ -315,13 +248,51 @@ def _landing_taus(clock, speed, t1, edges, L, kinks):
     return jnp.sort(jnp.concatenate([jumps, kink_taus]))
 
 
-def _simulate_delay(model, ts, signals, r, z0, solve: _Solve, kinks=None):
-    r"""`simulate_moments` with the delay-state closure (module docstring).
+def simulate_moments_delay(
+    model: MomentLuGre2D,
+    ts,
+    vx,
+    vy,
+    omega,
+    r,
+    Fz,
+    z0=None,
+    *,
+    kinks=None,
+    solver: dfx.AbstractSolver | None = None,
+    rtol: float = RTOL,
+    atol: float = DEFLECTION_ATOL,
+    max_steps: int = MAX_STEPS,
+    throw: bool = True,
+) -> TireSolution:
+    r"""Exact method of moments for inputs known in advance (eqs. 39-48, no closure error):
+    the edge values from delay states.
+
+    `MomentLuGre2D` as an `AbstractTire` closes the edge values with inputs frozen over a
+    transit, exact only for piecewise-constant inputs. When the inputs are given as functions
+    of time (as in Fig. 17, or a recorded manoeuvre) the edge values are functionals of the
+    input history, and the moment ODE of eqs. 41-42 uses the exact $z_i(t, e_j)$ at every
+    piece edge, here from the entry times $t_e$ carried as ODE states beside the moments: one
+    solve, its steps landed on the first passage of tread over each edge. It needs
+    $c(t_e) > 0$: for tread that entered while the wheel was locked use
+    `simulate_moments_history`. The result equals the distributed PDE (eqs. 31-34) up to
+    solver tolerance for any such input history and any piecewise-polynomial load.
 
     The edge equations switch on at the passage times $t_p$ (sorted, as the edges are): the
     solve runs on a `_SegmentClock` with a fixed set of edges reached in each segment, so
     the switch falls between steps and its gradient (through $t_p$, e.g. in the wheel speed)
-    comes from the segment bounds."""
+    comes from the segment bounds.
+
+    **Arguments:** as `simulate_tire` for a combined-slip tire (`vx`, `vy`, `omega`, `Fz`
+    constants, samples on `ts` or callables of `t`; `r` [m]), plus `z0` (2,), the uniform
+    initial deflection [m] (default 0); `kinks`: times where the inputs have a kink or a
+    jump (the end of a ramp), where steps are landed, and on their arrival at every edge,
+    where they kink the edge values. `solver` defaults to `Tsit5`; `rtol`, `atol`,
+    `max_steps` as in `simulate_tire`.
+
+    **Returns:** a `TireSolution` whose `state` is the moments `(T, 2, P, K)`.
+    """
+    ts, signals, z0 = _prepare("simulate_moments_delay", model, ts, vx, vy, omega, Fz, z0)
     P, L, edges = model.pieces, model.params.L, model.edges[1:]
     t0, t1 = ts[0], ts[-1]
 
@@ -349,16 +320,15 @@ def _simulate_delay(model, ts, signals, r, z0, solve: _Solve, kinks=None):
         return _forces(model, signals[3], t, m, m_dot, v_r), m
 
     y0 = jnp.concatenate([model.init_state(z0)[0].ravel(), jnp.zeros(4 * P), jnp.full(P, t0)])
-    jumps = _landing_taus(clock, speed, t1, edges, L, kinks)
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(field), solve.solver, t0=0.0, t1=float(P + 1), dt0=None, y0=y0,
-        saveat=dfx.SaveAt(ts=clock.to_tau(ts), fn=save),
-        stepsize_controller=dfx.ClipStepSizeController(solve.controller, jump_ts=jumps),
-        max_steps=solve.max_steps, throw=solve.throw,
+    # the solve runs in the segment clock tau in [0, P + 1], saving at the clock times of ts
+    sol = integrate(
+        field, None, y0, solver=solver, t0=0.0, t1=float(P + 1), rtol=rtol, atol=atol,
+        jump_ts=_landing_taus(clock, speed, t1, edges, L, kinks), max_steps=max_steps,
+        saveat=dfx.SaveAt(ts=clock.to_tau(ts), fn=save), throw=throw,
     )
     forces, moments = sol.ys
-    return Tire2DSolution(ts=ts, state=moments, forces=forces, result=sol.result,
-                          num_steps=sol.stats["num_steps"])
+    return TireSolution(ts=ts, state=moments, forces=forces, inputs=inputs_at(ts, signals),
+                        result=sol.result, stats=solve_stats(sol))
 
 
 # --------------------------------------------------------------------------------------
@@ -366,7 +336,7 @@ def _simulate_delay(model, ts, signals, r, z0, solve: _Solve, kinks=None):
 # --------------------------------------------------------------------------------------
 
 
-def _solve_history(model, ts, slip, solve: _Solve):
+def _solve_history(model, ts, slip, **options):
     r"""Dense solution of $(s, E_x, E_y, w_x, w_y)$ from rest (`TransitHistory`)."""
     L = model.params.L
 
@@ -375,11 +345,7 @@ def _solve_history(model, ts, slip, solve: _Solve):
         C0 = decay_rates(model.params, v_r)
         return jnp.concatenate([(c / L)[None], C0, v_r - C0 * h[3:5]])
 
-    return dfx.diffeqsolve(
-        dfx.ODETerm(history_field), solve.solver, t0=ts[0], t1=ts[-1], dt0=None,
-        y0=jnp.zeros(5), saveat=dfx.SaveAt(dense=True), stepsize_controller=solve.controller,
-        max_steps=solve.max_steps, throw=solve.throw,
-    )
+    return integrate(history_field, ts, jnp.zeros(5), saveat=dfx.SaveAt(dense=True), **options)
 
 
 def _first_passages(history, ts, edges):
@@ -390,17 +356,57 @@ def _first_passages(history, ts, edges):
     return lax.stop_gradient(jnp.where(edges <= s_end, passage, ts[-1]))
 
 
-def _simulate_history(model, ts, signals, r, z0, solve: _Solve, history_solve: _Solve):
-    """`simulate_moments` with the history closure (module docstring)."""
+def simulate_moments_history(
+    model: MomentLuGre2D,
+    ts,
+    vx,
+    vy,
+    omega,
+    r,
+    Fz,
+    z0=None,
+    *,
+    solver: dfx.AbstractSolver | None = None,
+    rtol: float = RTOL,
+    atol: float = DEFLECTION_ATOL,
+    max_steps: int = MAX_STEPS,
+    history_solver: dfx.AbstractSolver | None = None,
+    history_rtol: float | None = None,
+    history_atol: float | None = None,
+    history_max_steps: int = HISTORY_MAX_STEPS,
+    throw: bool = True,
+) -> TireSolution:
+    r"""Exact method of moments for inputs known in advance (eqs. 39-48, no closure error):
+    the edge values from the input history.
+
+    As `simulate_moments_delay`, with the exact $z_i(t, e_j)$ from a first solve of five
+    history states with dense output (`TransitHistory`), searched by safeguarded Newton for
+    the entry times at every right-hand side: it also handles tread that entered while the
+    wheel was locked ($c(t_e) = 0$, where the delay states fail), and is the slower of the
+    two.
+
+    **Arguments:** as `simulate_moments_delay` (without `kinks`: the first passages are found
+    in the history), plus the history solve's `history_solver`, `history_rtol`,
+    `history_atol` (default: those of the moment solve) and `history_max_steps` (default
+    `HISTORY_MAX_STEPS`), which bounds it. Its dense output is stored and every edge lookup
+    searches it, so a buffer far larger than needed costs time; a history needing more
+    steps fails loudly (`throw=True`): raise it for long runs.
+
+    **Returns:** a `TireSolution` whose `state` is the moments `(T, 2, P, K)`; its `result`
+    is the history solve's where that failed, and its `stats` count the steps of both.
+    """
+    ts, signals, z0 = _prepare("simulate_moments_history", model, ts, vx, vy, omega, Fz, z0)
     edges = model.edges[1:]
 
     def slip(t):
         return _slip(signals, r, t)
 
-    hist = _solve_history(model, ts, slip, history_solve)
+    hist = _solve_history(
+        model, ts, slip, solver=solver if history_solver is None else history_solver,
+        rtol=rtol if history_rtol is None else history_rtol,
+        atol=atol if history_atol is None else history_atol, max_steps=history_max_steps,
+        throw=throw)
     history = TransitHistory(hist, z0)
-    controller = dfx.ClipStepSizeController(solve.controller,
-                                            step_ts=_first_passages(history, ts, edges))
 
     def rates(t, m):
         v_r, c = slip(t)
@@ -408,10 +414,10 @@ def _simulate_history(model, ts, signals, r, z0, solve: _Solve, history_solve: _
         zedge = jnp.concatenate([jnp.zeros((2, 1)), z_e], axis=1)
         return model.moment_rates(m, zedge, v_r, c), v_r
 
-    sol = dfx.diffeqsolve(
-        dfx.ODETerm(lambda t, m, args: rates(t, m)[0]), solve.solver, t0=ts[0], t1=ts[-1],
-        dt0=None, y0=model.init_state(z0)[0], saveat=dfx.SaveAt(ts=ts),
-        stepsize_controller=controller, max_steps=solve.max_steps, throw=solve.throw,
+    sol = integrate(
+        lambda t, m, args: rates(t, m)[0], ts, model.init_state(z0)[0], solver=solver,
+        rtol=rtol, atol=atol, step_ts=_first_passages(history, ts, edges),
+        max_steps=max_steps, throw=throw,
     )
 
     def force_at(t, m):
@@ -419,6 +425,7 @@ def _simulate_history(model, ts, signals, r, z0, solve: _Solve, history_solve: _
         return _forces(model, signals[3], t, m, m_dot, v_r)
 
     forces = jax.vmap(force_at)(ts, sol.ys)
-    result = dfx.RESULTS.where(hist.result == dfx.RESULTS.successful, sol.result, hist.result)
-    return Tire2DSolution(ts=ts, state=sol.ys, forces=forces, result=result,
-                          num_steps=hist.stats["num_steps"] + sol.stats["num_steps"])
+    result = RESULTS.where(hist.result == RESULTS.successful, sol.result, hist.result)
+    stats = jax.tree.map(lambda a, b: a + b, solve_stats(hist), solve_stats(sol))
+    return TireSolution(ts=ts, state=sol.ys, forces=forces, inputs=inputs_at(ts, signals),
+                        result=result, stats=stats)

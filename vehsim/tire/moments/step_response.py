@@ -11,15 +11,14 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import diffrax as dfx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ..._signals import as_signal
+from ..._results import RESULTS
 from ..lugre2d import decay_rates, relative_velocity_2d
-from ..transient import Tire2DSolution
+from ..transient import TireSolution, input_signals, inputs_at
 from .basis import powers
 from .model import MomentLuGre2D
 
@@ -214,7 +213,7 @@ def _check_step_inputs(model, vx, vy, omega):
             raise TypeError(
                 f"moments_step_response: {name} must be a scalar (inputs constant after the "
                 f"step), got {'a callable' if callable(x) else f'shape {jnp.shape(x)}'}; for "
-                "input histories use simulate_moments")
+                "input histories use simulate_moments_delay")
 
 
 def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=None):
@@ -241,20 +240,22 @@ def moments_step_response(model: MomentLuGre2D, ts, vx, vy, omega, r, Fz, z0=Non
     the step response of the distributed PDE (eqs. 31-34) to rounding: from the last passage
     on ($t \ge L/|\omega r|$) it is the closed-form steady state exactly. Differentiable in
     everything (zero slip and a locked wheel, $\omega = 0$, included). For input histories
-    use `simulate_moments`.
+    use `simulate_moments_delay`.
 
-    **Arguments:** as `simulate_moments`, except that `vx`, `vy`, `omega` [m/s, rad/s] are
+    **Arguments:** as `simulate_moments_delay`, except that `vx`, `vy`, `omega` [m/s, rad/s] are
     constants (`Fz` may still be a signal: it scales the forces); `z0` (2,) [m], default 0.
 
-    **Returns:** a `Tire2DSolution` whose `state` is the moments `(T, 2, P, K)` and whose
-    `num_steps` is 0 (no steps are taken).
+    **Returns:** a `TireSolution` whose `state` is the moments `(T, 2, P, K)` and whose
+    `stats["num_steps"]` is 0 (no steps are taken).
     """
     _check_step_inputs(model, vx, vy, omega)
     ts = jnp.asarray(ts, dtype=float)
-    fz_s = as_signal(ts, Fz)
+    signals = input_signals(ts, vx, vy, omega, Fz)
+    fz_s = signals[3]
     z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
     step = _step(model, ts, vx, vy, omega, r, z0)
     scale = jnp.stack([jnp.ones(()), jnp.ones(()), model.params.L])
     forces = jax.vmap(fz_s)(ts)[:, None] * _step_mu(model, step).T * scale[None, :]
-    return Tire2DSolution(ts=ts, state=_step_moments(model, step), forces=forces,
-                          result=dfx.RESULTS.successful, num_steps=jnp.zeros((), dtype=int))
+    return TireSolution(ts=ts, state=_step_moments(model, step), forces=forces,
+                        inputs=inputs_at(ts, signals), result=RESULTS.successful,
+                        stats={"num_steps": jnp.zeros((), dtype=int)})

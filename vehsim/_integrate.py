@@ -1,0 +1,128 @@
+r"""`integrate`: the one diffrax solve behind every simulation in vehsim.
+
+`simulate`, `simulate_tire`, `simulate_quarter_car`, the exact moment closures and the
+friction state of the braking fits all integrate $\dot y = f(t, y)$ through `integrate`,
+with one set of defaults:
+
+- **solver** `Tsit5` (explicit Runge-Kutta of order 5(4), adaptive);
+- **step-size control** ``PIDController(rtol=RTOL, atol=ATOL)``, `RTOL` = `ATOL` = 1e-8,
+  clipped to land steps on `jump_ts` (kinks and jumps of the inputs) and `step_ts`;
+- **step budget** `MAX_STEPS` = 100 000: finite, so that reverse-mode differentiation is
+  available (`RecursiveCheckpointAdjoint` keeps $O(\sqrt{\text{max\_steps}})$
+  checkpoints); only dense or per-step saving allocates buffers of that length;
+- **adjoint** `RecursiveCheckpointAdjoint` (any AD mode; `diffrax.ForwardMode()` for
+  forward-mode Jacobians, as least squares wants them);
+- **saving** at the time grid `ts`, the solve running from ``ts[0]`` to ``ts[-1]``;
+- **failure**: the solution's `result` is a `vehsim.RESULTS` item; ``throw=True`` raises
+  with its message (``result.error_if``, also under `jit`), ``throw=False`` leaves it for
+  the caller (what batched runs do).
+
+A caller that needs another solver or tolerance passes it at its call site and says why:
+an implicit solver where the friction state is stiff, `DEFLECTION_ATOL` where the states
+are bristle deflections, fixed unit steps of an exact step map.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import diffrax as dfx
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PyTree
+
+from ._results import RESULTS, as_result
+
+
+RTOL = 1e-8
+"""Default relative tolerance of every adaptive solve."""
+
+ATOL = 1e-8
+"""Default absolute tolerance of every adaptive solve."""
+
+DEFLECTION_ATOL = 1e-10
+r"""Absolute tolerance of solves whose states are bristle deflections (of order
+$10^{-5}$-$10^{-3}$ m) or their moments: it keeps their error near `RTOL` relative, where
+`ATOL` would dominate it."""
+
+MAX_STEPS = 100_000
+"""Default step budget of every solve."""
+
+
+def integrate(
+    vector_field: Callable | dfx.AbstractTerm,
+    ts: Float[Array, " T"] | None,
+    y0: PyTree,
+    *,
+    args=None,
+    solver: dfx.AbstractSolver | None = None,
+    t0=None,
+    t1=None,
+    dt0=None,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    jump_ts=None,
+    step_ts=None,
+    stepsize_controller: dfx.AbstractStepSizeController | None = None,
+    max_steps: int = MAX_STEPS,
+    adjoint: dfx.AbstractAdjoint | None = None,
+    saveat: dfx.SaveAt | None = None,
+    throw: bool = True,
+    progress_meter: dfx.AbstractProgressMeter | None = None,
+) -> dfx.Solution:
+    r"""Integrate $\dot y = f(t, y, \text{args})$ with the module's defaults.
+
+    **Arguments:**
+
+    - `vector_field`: ``f(t, y, args)``, or a diffrax term (e.g. a step map).
+    - `ts`: increasing save times; the solve runs from ``ts[0]`` to ``ts[-1]`` and saves
+      there. May be `None` when `t0`, `t1` and `saveat` are given.
+    - `y0`: initial state (any PyTree).
+    - `args`: passed to `vector_field`.
+    - `solver`: a diffrax solver (default `Tsit5`).
+    - `t0`, `t1`: override the interval (e.g. a solve in another clock than `ts`).
+    - `dt0`: initial step (adaptive control) or the step (``ConstantStepSize``).
+    - `rtol`, `atol`, `jump_ts`, `step_ts`: the default step-size controller,
+      ``PIDController(rtol, atol)`` clipped to `jump_ts` (discontinuities: the solver
+      restarts there) and `step_ts` (steps land there).
+    - `stepsize_controller`: replaces that controller.
+    - `max_steps`: the step budget.
+    - `adjoint`: a diffrax adjoint (default `RecursiveCheckpointAdjoint`).
+    - `saveat`: replaces ``SaveAt(ts=ts)`` (dense output, every step, a save function).
+    - `throw`: raise if the solve fails; with ``throw=False`` check ``.result``.
+    - `progress_meter`: a diffrax progress meter (default none).
+
+    **Returns:** the diffrax `Solution`, its `result` a `vehsim.RESULTS` item.
+    """
+    if stepsize_controller is None:
+        stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol)
+        if jump_ts is not None or step_ts is not None:
+            stepsize_controller = dfx.ClipStepSizeController(
+                stepsize_controller, step_ts=step_ts, jump_ts=jump_ts)
+    sol = dfx.diffeqsolve(
+        vector_field if isinstance(vector_field, dfx.AbstractTerm) else dfx.ODETerm(vector_field),
+        dfx.Tsit5() if solver is None else solver,
+        t0=ts[0] if t0 is None else t0,
+        t1=ts[-1] if t1 is None else t1,
+        dt0=dt0,
+        y0=y0,
+        args=args,
+        saveat=dfx.SaveAt(ts=ts) if saveat is None else saveat,
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
+        adjoint=dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        throw=False,
+        progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
+    )
+    result = as_result(sol.result)
+    sol = eqx.tree_at(lambda s: s.result, sol, result)
+    if throw:
+        sol = result.error_if(sol, result != RESULTS.successful)
+    return sol
+
+
+def solve_stats(sol: dfx.Solution) -> dict[str, Array]:
+    """The step counts of a diffrax solve: ``num_steps``, ``num_accepted_steps`` and
+    ``num_rejected_steps`` (arrays, so that they batch under `jax.vmap`)."""
+    return {k: jnp.asarray(sol.stats[k])
+            for k in ("num_steps", "num_accepted_steps", "num_rejected_steps")}
