@@ -33,7 +33,12 @@ is an array field, so tires of different versions batch together.
 **Choices where the published forms differ** (each agrees with the others to rounding on
 the files we read when the scaling factors are 1):
 
-- $\alpha^* = \tan\alpha\,\mathrm{sgn}V_{cx}$, $\gamma^* = \sin\gamma$ (4.E3, 4.E4), as the book.
+- $\alpha^* = \tan\alpha$, $\gamma^* = \sin\gamma$ (4.E3, 4.E4, as the book, for
+  $V_{cx} > 0$). Running backwards uses the same characteristics: we drop the
+  $\mathrm{sgn}V_{cx}$ factors of 4.E3, 4.E42, 4.E47 (and MFeval's sign flips of
+  $F_{x0}$, $F_{y0}$), which would make the forces jump at standstill; with
+  $\kappa = -V_{sx}/|V_{cx}|$ and $\tan\alpha = V_{sy}/|V_{cx}|$ the forces still oppose
+  the slip. $M_y$ keeps its $\mathrm{sgn}V_x$ (it vanishes at rest).
 - Camber signs in the trail: $B_t \propto 1 + q_{Bz4}\gamma + q_{Bz5}|\gamma|$ (paper A58; the
   book's 4.E40 uses a $q_{Bz6}$ the files lack) and $D_t \propto 1 + q_{Dz3}\gamma +
   q_{Dz4}\gamma^2$ (paper A60; the book's 4.E43 has $|\gamma|$).
@@ -83,6 +88,7 @@ from .._checks import check_positive, check_range
 from .._fields import array_field
 from .._math import safe_abs, safe_pow_abs, safe_sqrt
 from .base import AbstractTire
+from .lugre import AbstractLongitudinalTire
 
 
 _C = Float[Array, "*batch"]
@@ -339,7 +345,9 @@ class MFOutput(eqx.Module):
     - `Fx0`, `Fy0`, `Mz0`: the pure-slip ones;
     - `mux`, `muy`: peak friction coefficients (4.E13, 4.E23);
     - `Kxk` [N], `Kya` [N/rad]: slip and cornering stiffnesses (4.E15, 4.E25);
-    - `t` [m]: pneumatic trail (4.E73), `Mzr` [N m]: residual moment (4.E75).
+    - `t` [m]: pneumatic trail (4.E73), `Mzr` [N m]: residual moment (4.E75);
+    - `Gxa`, `Gyk`: combined-slip weighting functions (4.E51, 4.E59), `SVyk` [N]: the
+      $\kappa$-induced side force (4.E66).
     """
 
     Fx: Array
@@ -356,6 +364,9 @@ class MFOutput(eqx.Module):
     Kya: Array
     t: Array
     Mzr: Array
+    Gxa: Array
+    Gyk: Array
+    SVyk: Array
 
 
 def _sgn1(x):
@@ -386,7 +397,7 @@ def _clamp_e(E, limits):
     return jnp.minimum(E, 1.0) if limits else E
 
 
-def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, sgn_vx, limits):
+def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits):
     """(Fy0, muy, Kya per unit load, By, Cy, SHy, SVy per unit load) at camber `gy`
     (4.E19-4.E30; MF 5.2 shifts where `version` < 6)."""
     is52 = P.version < 6.0
@@ -411,7 +422,7 @@ def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, sgn_vx, limits):
                                              - (P.PEY3 + P.PEY4 * gy) * _sgn1(ay)) * P.LEY,
                   limits)  # 4.E24
     by = kyn / (cy * muy + EPS * _sgn1(muy))  # 4.E26, per unit load
-    fy0 = (_mf(by, cy, muy * Fz, ey, ay) + svy_n * Fz) * sgn_vx  # 4.E19, 4.E22
+    fy0 = _mf(by, cy, muy * Fz, ey, ay) + svy_n * Fz  # 4.E19, 4.E22
     return fy0, muy, kyn, by, cy, shy, svy_n
 
 
@@ -472,7 +483,7 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     fz0p = P.LFZO * P.FNOMIN  # 4.E1
     dfz = (Fz - fz0p) / fz0p  # 4.E2a
     dpi = (p - P.NOMPRES) / P.NOMPRES  # 4.E2b
-    alpha_s = jnp.tan(alpha) * sgn_vx  # 4.E3
+    alpha_s = jnp.tan(alpha)  # 4.E3
     gamma_s = jnp.sin(gamma)  # 4.E4
     gx, gy, gz = gamma_s * P.LGAX, gamma_s * P.LGAY, gamma_s * P.LGAZ
     R0 = P.UNLOADED_RADIUS
@@ -489,13 +500,11 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     kx = kappa + shx
     ex = _clamp_e((P.PEX1 + P.PEX2 * dfz + P.PEX3 * dfz**2) * (1.0 - P.PEX4 * jnp.sign(kx))
                   * P.LEX, limits)
-    fx0 = (_mf(bx, cx, mux * Fz, ex, kx) + svx) * sgn_vx
+    fx0 = _mf(bx, cx, mux * Fz, ex, kx) + svx  # 4.E9
 
     # pure lateral slip, 4.E19-4.E30
-    fy0, muy, kyn, by, cy, shy, svy_n = _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w,
-                                                      sgn_vx, limits)
-    fy0_g0, *_ = _lateral_pure(P, Fz, dfz, dpi, alpha_s, jnp.zeros_like(gy), w, sgn_vx,
-                               limits)
+    fy0, muy, kyn, by, cy, shy, svy_n = _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits)
+    fy0_g0, *_ = _lateral_pure(P, Fz, dfz, dpi, alpha_s, jnp.zeros_like(gy), w, limits)
     kyn_guarded = kyn + EPS * _sgn1(kyn)
 
     # aligning moment, 4.E31-4.E47 (trail camber signs: paper A58, A60)
@@ -514,7 +523,7 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     dr = (Fz * R0 * ((P.QDZ6 + P.QDZ7 * dfz) * P.LRES
                      + ((P.QDZ8 + P.QDZ9 * dfz) * (1.0 + P.PPZ2 * dpi)
                         + (P.QDZ10 + P.QDZ11 * dfz) * safe_abs(gz)) * gz * P.LKZC)
-          * P.LMUY * sgn_vx)  # 4.E47
+          * P.LMUY)  # 4.E47
     br = P.QBZ9 * P.LKY / P.LMUY + P.QBZ10 * by * cy  # 4.E45
     cos_a = jnp.cos(alpha)
 
@@ -566,7 +575,8 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     my = jnp.where(is52, my_52, my_61) * sgn_vx * w
 
     return MFOutput(Fx=fx, Fy=fy, Mz=mz, Mx=mx, My=my, Fx0=fx0, Fy0=fy0, Mz0=mz0, mux=mux,
-                    muy=muy, Kxk=kxn * Fz, Kya=kyn * Fz, t=t, Mzr=mzr)
+                    muy=muy, Kxk=kxn * Fz, Kya=kyn * Fz, t=t, Mzr=mzr, Gxa=gxa, Gyk=gyk,
+                    SVyk=svyk)
 
 
 def mf_forces(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, *,
@@ -686,6 +696,44 @@ class RelaxedMFTire(AbstractTire):
         out = mf_evaluate(self.params, state[0], jnp.arctan(state[1]), Fz, self.camber,
                           self.pressure, vx, limits=self.limits, _reduce_slips=False)
         return jnp.stack([out.Fx, out.Fy, out.Mz])
+
+
+class MFLongitudinalTire(AbstractLongitudinalTire):
+    r"""The Magic Formula's $F_x$ as an `AbstractLongitudinalTire` (quarter car, braking
+    loop): the relaxed slip ratio $\kappa'$ of `RelaxedMFTire` at zero slip angle, and
+    $\mu = F_x(\kappa')/F_z$ at the load `Fz` the tire carries (the Magic Formula is not
+    load-proportional, so $\mu$ is that of this load; default ``FNOMIN``).
+
+    $$\sigma_\kappa\dot\kappa' = (\omega r - v) - \max(|v|, V_{XLOW})\,\kappa'.$$
+
+    **Fields:** `params` (`MFParams`), `Fz` [N], `camber` [rad], `pressure` [Pa],
+    `sigma_min` [m], `limits`, as `RelaxedMFTire`.
+    """
+
+    params: MFParams
+    Fz: Float[Array, ""] | None = None
+    camber: Float[Array, ""] = array_field(default=0.0)
+    pressure: Float[Array, ""] | None = None
+    sigma_min: Float[Array, ""] = array_field(default=0.01)
+    limits: bool = eqx.field(static=True, default=True)
+
+    def _load(self):
+        return self.params.FNOMIN if self.Fz is None else jnp.asarray(self.Fz, dtype=float)
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def dynamics(self, state, v, omega, r):
+        p = self.params
+        sk, _ = mf_relaxation_lengths(p, self._load(), self.camber, self.pressure)
+        den = jnp.maximum(safe_abs(v), p.VXLOW)
+        return ((omega * r - v) - den * state) / jnp.maximum(sk, self.sigma_min)
+
+    def mu(self, state, v, omega, r):
+        Fz = self._load()
+        out = mf_evaluate(self.params, state, 0.0, Fz, self.camber, self.pressure, v,
+                          limits=self.limits, _reduce_slips=False)
+        return out.Fx / Fz
 
 
 def mf_summary(params: MFParams, Fz=None, p=None) -> dict:
