@@ -339,7 +339,7 @@ FIELD_NAMES = ("FNOMIN", "UNLOADED_RADIUS", "NOMPRES", "INFLPRES", "LONGVL", "VX
 
 
 class MFOutput(eqx.Module):
-    """Everything `mf_evaluate` computes, each an array of the operating points' shape.
+    r"""Everything `mf_evaluate` computes, each an array of the operating points' shape.
 
     - `Fx`, `Fy`, `Mz`, `Mx`, `My`: combined-slip forces [N] and moments [N m];
     - `Fx0`, `Fy0`, `Mz0`: the pure-slip ones;

@@ -528,7 +528,8 @@ def validate(tir: TirFile) -> None:
         v = float(e.value)
         ok = (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
         if not ok or not math.isfinite(v):
-            lb, ub = "(" if lo_open else "[", ")" if hi_open else "]"
+            lb = "(" if lo_open or lo == -math.inf else "["
+            ub = ")" if hi_open or hi == math.inf else "]"
             raise TirError(tir.source, e.line, e.key,
                            f"{e.value} is outside its stated range {lb}{lo:g}, {hi:g}{ub} "
                            f"({why})")
