@@ -53,10 +53,11 @@ the files we read when the scaling factors are 1):
 - Friction scaling: $\lambda'_\mu = \lambda^*_\mu = \lambda_\mu$ (4.E7 with
   $\lambda_{\mu V} = 0$, 4.E8 with $A_\mu = 1$, as TNO's solver; the book suggests 10).
 - The clamp $E \le 1$ (4.E14, 4.E24, 4.E44, 4.E56, 4.E64) is applied with the limits.
-- Singularities: the book guards $B = K/(CD + \varepsilon)$ (4.E6a); we divide the slip
-  stiffnesses and peaks per unit load first, so that $B$ and the shifts are smooth down to
-  $F_z = 0$ (an unloaded wheel keeps finite gradients). The results differ from the
-  guarded form by a relative $\varepsilon/K \approx 10^{-10}$.
+- Singularities: the book guards $B = K/(CD + \varepsilon)$ and the divisions by
+  $K_{y\alpha}$ with small numbers $\varepsilon$ (4.E6a). We divide per unit load instead
+  ($K/F_z$ by $CD/F_z$, in closed form down to $F_z = 0$) and take 0 where a divisor is
+  exactly 0 (double ``where``): the published value wherever it is defined, and finite
+  values and gradients at zero load, zero friction and zero stiffness.
 
 **Low speed** (`vx` given; MF-Tyre's VXLOW handling as MFeval reads it): below
 $V_{XLOW}$ the slips fall linearly to 0 with $|V_x|/V_{XLOW}$ (the slip angle with
@@ -86,13 +87,12 @@ from jaxtyping import Array, Float
 
 from .._checks import check_positive, check_range
 from .._fields import array_field
-from .._math import safe_abs, safe_pow_abs, safe_sqrt
+from .._math import safe_abs, safe_div, safe_pow_abs, safe_sqrt
 from .base import AbstractTire
 from .lugre import AbstractLongitudinalTire
 
 
 _C = Float[Array, "*batch"]
-EPS = 1e-6  # the small number of 4.E6a, per unit load here (module docstring)
 VERSIONS = (5.2, 6.1, 6.2)
 
 
@@ -370,7 +370,7 @@ class MFOutput(eqx.Module):
 
 
 def _sgn1(x):
-    """sgn(x) with sgn(0) = 1 (the sign that guards a division, 4.E6a)."""
+    """sgn(x) with sgn(0) = 1 (MFeval's reading of sgn(alpha_y) in 4.E24)."""
     return jnp.where(x < 0, -1.0, 1.0)
 
 
@@ -407,10 +407,9 @@ def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits):
     # Kya / Fz (4.E25): PKY1 Fz0' sin(PKY4 atan(u)) / Fz = PKY1 sin(PKY4 atan u) / (u c)
     kyn = (P.PKY1 * (1.0 + P.PPY1 * dpi) * (1.0 - P.PKY3 * safe_abs(gy))
            * _sin_n_atan_over(u, P.PKY4) / c * P.LKY)
-    kyn_guarded = kyn + EPS * _sgn1(kyn)
     svyg_n = (P.PVY3 + P.PVY4 * dfz) * gy * P.LKYC * lmuy_p  # S_Vyg / Fz (4.E28)
     kyg0_n = (P.PKY6 + P.PKY7 * dfz) * (1.0 + P.PPY5 * dpi) * P.LKYC  # K_yg0 / Fz (4.E30)
-    shy_61 = (P.PHY1 + P.PHY2 * dfz) * P.LHY + (kyg0_n * gy - svyg_n) / kyn_guarded  # 4.E27
+    shy_61 = (P.PHY1 + P.PHY2 * dfz) * P.LHY + safe_div(kyg0_n * gy - svyg_n, kyn)  # 4.E27
     shy_52 = (P.PHY1 + P.PHY2 * dfz) * P.LHY + P.PHY3 * gy * P.LKYC
     shy = jnp.where(is52, shy_52, shy_61) * w
     svy_n = ((P.PVY1 + P.PVY2 * dfz) * P.LVY * lmuy_p + svyg_n) * w  # 4.E29 / Fz
@@ -421,7 +420,7 @@ def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits):
     ey = _clamp_e((P.PEY1 + P.PEY2 * dfz) * (1.0 + P.PEY5 * gy**2
                                              - (P.PEY3 + P.PEY4 * gy) * _sgn1(ay)) * P.LEY,
                   limits)  # 4.E24
-    by = kyn / (cy * muy + EPS * _sgn1(muy))  # 4.E26, per unit load
+    by = safe_div(kyn, cy * muy)  # 4.E26, per unit load
     fy0 = _mf(by, cy, muy * Fz, ey, ay) + svy_n * Fz  # 4.E19, 4.E22
     return fy0, muy, kyn, by, cy, shy, svy_n
 
@@ -494,7 +493,7 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
            * (1.0 - P.PDX3 * gx**2) * P.LMUX)
     kxn = ((P.PKX1 + P.PKX2 * dfz) * jnp.exp(P.PKX3 * dfz)
            * (1.0 + P.PPX1 * dpi + P.PPX2 * dpi**2) * P.LKX)  # K_xk / Fz
-    bx = kxn / (cx * mux + EPS * _sgn1(mux))  # 4.E16, per unit load
+    bx = safe_div(kxn, cx * mux)  # 4.E16, per unit load
     shx = (P.PHX1 + P.PHX2 * dfz) * P.LHX * w
     svx = Fz * (P.PVX1 + P.PVX2 * dfz) * P.LVX * P.LMUX * w
     kx = kappa + shx
@@ -505,11 +504,10 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     # pure lateral slip, 4.E19-4.E30
     fy0, muy, kyn, by, cy, shy, svy_n = _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits)
     fy0_g0, *_ = _lateral_pure(P, Fz, dfz, dpi, alpha_s, jnp.zeros_like(gy), w, limits)
-    kyn_guarded = kyn + EPS * _sgn1(kyn)
 
     # aligning moment, 4.E31-4.E47 (trail camber signs: paper A58, A60)
     sht = P.QHZ1 + P.QHZ2 * dfz + (P.QHZ3 + P.QHZ4 * dfz) * gz  # 4.E35
-    shf = shy + svy_n / kyn_guarded  # 4.E38
+    shf = shy + safe_div(svy_n, kyn)  # 4.E38
     ar = alpha_s + shf  # 4.E37
     at = alpha_s + sht  # 4.E34
     dt = ((P.QDZ1 + P.QDZ2 * dfz) * (1.0 - P.PPZ1 * dpi) * (1.0 + P.QDZ3 * gz + P.QDZ4 * gz**2)
@@ -548,7 +546,7 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     fy = gyk * fy0 + svyk  # 4.E58
 
     # combined aligning moment, 4.E71-4.E78
-    kk = (kxn / kyn_guarded) ** 2 * kappa**2
+    kk = safe_div(kxn, kyn) ** 2 * kappa**2
     at_eq = safe_sqrt(at**2 + kk)  # 4.E77 (t is even in it)
     ar_eq = safe_sqrt(ar**2 + kk)  # 4.E78 (M_zr is even in it)
     t, mzr = trail(at_eq), residual(ar_eq)
