@@ -408,6 +408,20 @@ def test_input_gradients_match_finite_differences_forward_and_reverse(where):
     np.testing.assert_allclose(fwd, rev, rtol=1e-10, atol=1e-10)
 
 
+def test_gradients_are_finite_where_the_equivalent_trail_slip_vanishes():
+    """At kappa = 0 and tan(alpha) = -S_Ht the trail's equivalent slip sqrt(alpha_t^2 +
+    (K_x/K_y)^2 kappa^2) (4.E77) is exactly 0: the square root needs its double where."""
+    P = params_of(SAMPLE, **SCALED)
+    Fz, p = 4200.0, 2.0e5
+    dfz = (Fz - float(P.LFZO * P.FNOMIN)) / float(P.LFZO * P.FNOMIN)
+    alpha = -math.atan(float(P.QHZ1) + float(P.QHZ2) * dfz)  # alpha_t = 0 at zero camber
+    x0 = jnp.asarray([0.0, alpha, 0.0, Fz, p])
+    f = jax.jit(lambda x: _combined(P, x))
+    rev = np.asarray(jax.jit(jax.grad(f))(x0))
+    assert np.all(np.isfinite(rev))
+    np.testing.assert_allclose(rev, fd_grad(f, x0, eps=1e-7), rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("where", ["generic", "zero slip"])
 def test_coefficient_gradients_match_finite_differences(where):
     """d(F_x + 0.7 F_y + 3 M_z + M_x + M_y) / d(every finite coefficient), reverse mode,
