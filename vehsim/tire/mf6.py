@@ -86,7 +86,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_positive, check_range
-from .._fields import array_field
+from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_pow_abs, safe_sqrt
 from .base import AbstractTire
 from .lugre import AbstractLongitudinalTire
@@ -369,6 +369,11 @@ class MFOutput(eqx.Module):
     SVyk: Array
 
 
+def _optional_array(x):
+    """None, or `x` as a float array (so a new value never recompiles)."""
+    return None if x is None else float_array(x)
+
+
 def _sgn1(x):
     """sgn(x) with sgn(0) = 1 (MFeval's reading of sgn(alpha_y) in 4.E24)."""
     return jnp.where(x < 0, -1.0, 1.0)
@@ -641,7 +646,7 @@ class MFTire(AbstractTire):
 
     params: MFParams
     camber: Float[Array, ""] = array_field(default=0.0)
-    pressure: Float[Array, ""] | None = None
+    pressure: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     limits: bool = eqx.field(static=True, default=True)
 
     def init_state(self):
@@ -674,7 +679,7 @@ class RelaxedMFTire(AbstractTire):
 
     params: MFParams
     camber: Float[Array, ""] = array_field(default=0.0)
-    pressure: Float[Array, ""] | None = None
+    pressure: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     sigma_min: Float[Array, ""] = array_field(default=0.01)
     limits: bool = eqx.field(static=True, default=True)
     load_proportional: ClassVar[bool] = False
@@ -709,9 +714,9 @@ class MFLongitudinalTire(AbstractLongitudinalTire):
     """
 
     params: MFParams
-    Fz: Float[Array, ""] | None = None
+    Fz: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     camber: Float[Array, ""] = array_field(default=0.0)
-    pressure: Float[Array, ""] | None = None
+    pressure: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     sigma_min: Float[Array, ""] = array_field(default=0.01)
     limits: bool = eqx.field(static=True, default=True)
 
