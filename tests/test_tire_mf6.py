@@ -115,7 +115,7 @@ def test_agrees_with_commonroad_pac2002_once_its_departures_are_neutralised(vers
 def test_commonroad_departures_are_real():
     """Without the neutralisations the two differ (so the test above tests something):
     CommonRoad's cornering stiffness PKY1*Fz is 1/sin(2 atan(1/PKY2)) times the file's at
-    nominal load (1.05 for the sample's PKY2 = 1.3856; 1.8 for a file with PKY2 near 5)."""
+    nominal load (1.05 for the sample's PKY2 = 1.3856; 1.8 for PKY2 = 3.378)."""
     P = params_of(SAMPLE, FITTYP=52)
     cr = pytest.importorskip("vehiclemodels.utils.tire_model")
     p = types.SimpleNamespace(p_cy1=float(P.PCY1), p_dy1=float(P.PDY1), p_dy3=0.0,
