@@ -286,6 +286,32 @@ from .control.road.surfaces import (
 )
 
 
+# isort: split
+# tyre property files (.tir) and the Magic Formula 5.2 / 6.1 / 6.2
+from .tire.mf6 import (
+    MFLongitudinalTire as MFLongitudinalTire,
+    MFOutput as MFOutput,
+    MFParams as MFParams,
+    MFTire as MFTire,
+    RelaxedMFTire as RelaxedMFTire,
+    mf_evaluate as mf_evaluate,
+    mf_forces as mf_forces,
+    mf_relaxation_lengths as mf_relaxation_lengths,
+    mf_summary as mf_summary,
+)
+from .tire.tir import (
+    TirEntry as TirEntry,
+    TirError as TirError,
+    TirFile as TirFile,
+    TirSection as TirSection,
+    format_tir as format_tir,
+    parse_tir as parse_tir,
+    read_tir as read_tir,
+    shipped_tires as shipped_tires,
+    write_tir as write_tir,
+)
+
+
 try:
     __version__ = _version("vehsim")
 except _PackageNotFoundError:  # run from a source tree that was never installed
