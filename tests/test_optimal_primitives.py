@@ -140,25 +140,36 @@ def test_every_solve_goes_through_the_solver_given(corner_min_time):
     assert seen[2:] == ["PointMassOCP", "PointMassOCP"]  # two centreline starts
 
 
-def test_record_programs_prepared_from_a_guess_are_the_solution_s(corner_min_time, caplog):
-    """`prepare_record_programs` with a starting guess traces and compiles the very programs
-    that the record of the solution and its figure run: after it, the record compiles
-    nothing (jax.log_compiles names every program it compiles)."""
-    from vehsim._compilation import prepare_record_programs
+def test_record_programs_prepared_from_a_guess_are_the_solution_s(corner_min_time):
+    """`prepare_record_programs` with a starting guess prepares the very programs the record of
+    the solution and its figure run through the compilation layer's exported programs
+    (``runner=exported_call``, as its `primitive_and_bound` returns them): after it, they
+    need no other program (the tests run with the cache of compiled programs on,
+    tests/conftest.py), and the record is the plain primitive's."""
+    import dataclasses
+
+    from vehsim import _compilation
     from vehsim.plot import primitive_figure
 
     prob = corner_min_time.problem
     xs0, us0 = car_guess(prob.vehicle, prob.road, M, 1)
-    jax.clear_caches()  # this process's programs forgotten
-    prepare_record_programs(prob, xs0, us0)
-    caplog.clear()
-    with jax.log_compiles():
-        rec = solution_record(corner_min_time)
-        primitive_figure(corner_min_time)
-    compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
-    assert not [m for m in compiled if any(p in m for p in ("_nodes", "_violation_arrays",
-                                                            "_signals"))], compiled
-    assert rec["t_f"] == float(corner_min_time.t_f)
+    held = dict(_compilation._programs)
+    _compilation._programs.clear()  # this process's programs: loaded again from disk
+    try:
+        _compilation.prepare_record_programs(prob, xs0, us0)
+        loaded = set(_compilation._programs)
+        exported = dataclasses.replace(corner_min_time, runner=_compilation.exported_call)
+        rec = solution_record(exported)
+        primitive_figure(exported)
+        assert set(_compilation._programs) == loaded and len(loaded) == 3
+        assert None not in _compilation._programs.values()
+    finally:
+        _compilation._programs.clear()
+        _compilation._programs.update(held)
+    plain = solution_record(corner_min_time)
+    assert rec["t_f"] == plain["t_f"] == float(corner_min_time.t_f)
+    assert rec["violations"] == plain["violations"]
+    np.testing.assert_array_equal(rec["signals"]["Fy_F"], plain["signals"]["Fy_F"])
 
 
 def test_corner90_min_time_is_ipopts_optimum(corner_min_time):

@@ -40,6 +40,7 @@ other.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import os
@@ -314,14 +315,18 @@ def compiled_starts(prob: ManeuverOCP, n_pad: int, options: IPOptions):
 
 
 def prepare_record_programs(prob: ManeuverOCP, xs, us, substeps: int = SUBSTEPS) -> None:
-    """Trace and compile (or load from JAX's cache) the three programs that the record and
-    the figure of a car primitive run (`vehsim.optimal.primitive`), by running them once on
-    knots and inputs shaped as its solution's (a starting guess will do: the values do not
-    matter), so that a caller can do it while it waits for something else."""
-    nodes = _nodes(prob, xs, us)
-    _violation_arrays(prob, xs, us, substeps)
-    _signals(prob.vehicle, nodes)
-    _signals(prob.vehicle, np.asarray(nodes))  # the record also reads host copies
+    """Export or load (`exported_program`) the three programs that the record and the figure
+    of a car primitive run through `exported_call` (a `Primitive` with that ``runner``), for
+    a problem shaped as ``prob`` with knots and inputs shaped as ``xs``, ``us`` (their values
+    do not matter: a starting guess will do), so that a caller can do it while it waits for
+    something else. Nothing happens when the cache is off (the programs then compile when
+    first run)."""
+    nodes = np.zeros((prob.num_stages * prob.steps_per_stage + 1, np.shape(xs)[-1]),
+                     np.asarray(xs).dtype)
+    for name, fn, args in (("nodes", _nodes, (prob, xs, us)),
+                           ("violations", _violation_arrays, (prob, xs, us, substeps)),
+                           ("signals", _signals, (prob.vehicle, nodes))):
+        exported_program(name, fn, args)
 
 
 def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
@@ -333,9 +338,10 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     (`compiled_interior_point`, `compiled_starts`), on a thread while this one makes the
     starting guesses, solves the point-mass bound (its program is the seeds', ready by then)
     and prepares the record's programs (`prepare_record_programs`); every point-mass solve
-    goes through its exported program (`exported_interior_point`). XLA releases Python's
-    lock while it compiles or loads, so no extra wall time where that takes longer (a first
-    run: seconds; a run from the compilation cache: a few tenths).
+    goes through its exported program (`exported_interior_point`), and both primitives read
+    their nodes, signals and violations through theirs (``runner=exported_call``). XLA
+    releases Python's lock while it compiles or loads, so no extra wall time where that
+    takes longer (a first run: seconds; a run from the compilation cache: a few tenths).
 
     **Returns:** ``(primitive, bound)``.
     """
@@ -365,4 +371,5 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
         prim = best_start(prob, solve(prob, xs0, us0, canonical), starts, options.verbose, throw)
     else:
         prim = best_of_guesses(prob, guesses, options, solve, throw)
-    return prim, bound
+    return (dataclasses.replace(prim, runner=exported_call),
+            dataclasses.replace(bound, runner=exported_call))

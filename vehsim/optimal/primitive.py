@@ -4,10 +4,13 @@ violations), and its JSON record (`solution_record`).
 
 Three jitted programs compute everything read off a car's solution: the nodes (`_nodes`),
 the constraint arrays (`_violation_arrays`) and the named signals (`_signals`); each takes
-the problem (or vehicle) and arrays only, so it is traced once per problem structure."""
+the problem (or vehicle) and arrays only. A primitive runs them through its ``runner``
+(default `run_program`: a plain call), which a caller may replace, as the compilation layer
+does with its exported programs."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
@@ -24,16 +27,25 @@ SUBSTEPS = 20
 """RK4 substeps per integration step of the re-integration between the nodes."""
 
 
+def run_program(name: str, program: Callable, args: tuple):
+    """``program(*args)``: how a `Primitive` runs its read-off programs by default. ``name``
+    names the program for a runner that keeps it elsewhere (the compilation layer's
+    `vehsim._compilation.exported_call` has this signature)."""
+    return program(*args)
+
+
 class Primitive(eqx.Module):
     """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
     ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] (read off the last knot by the problem's
     ``final_time`` and ``speed``: the car's and the point mass's states differ) and
     ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a
-    multi-start solve (batched along axis 0), or None."""
+    multi-start solve (batched along axis 0), or None; ``runner``: how the nodes, signals and
+    violations are computed, ``runner(name, program, args)`` (default `run_program`)."""
 
     problem: Any
     solution: IPSolution
     starts: IPSolution | None = None
+    runner: Callable = eqx.field(static=True, default=run_program)
 
     @property
     def t_f(self):
@@ -49,7 +61,7 @@ class Primitive(eqx.Module):
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
-        return _nodes(self.problem, self.solution.xs, self.solution.us)
+        return self.runner("nodes", _nodes, (self.problem, self.solution.xs, self.solution.us))
 
     def time(self):
         n = self.nodes()
@@ -57,7 +69,7 @@ class Primitive(eqx.Module):
 
     def signals(self) -> dict:
         """Named signals at every node (car problems): pose, speeds, sideslip, slips, forces."""
-        return _node_signals(self.problem.vehicle, self.nodes())
+        return _node_signals(self.problem.vehicle, self.nodes(), self.runner)
 
     def violations(self, substeps: int = SUBSTEPS) -> dict:
         """Constraint violations of the solution, measured exactly at every node: distance off
@@ -67,8 +79,9 @@ class Primitive(eqx.Module):
         constraints are not imposed, found by re-integrating every segment with `substeps`
         RK4 steps per step (`fine_nodes`)."""
         prob = self.problem
-        n, fine, bc, defects = (np.asarray(a) for a in _violation_arrays(
-            prob, self.solution.xs, self.solution.us, substeps))
+        n, fine, bc, defects = (np.asarray(a) for a in self.runner(
+            "violations", _violation_arrays, (prob, self.solution.xs, self.solution.us,
+                                              substeps)))
         rd = prob.road
         off = rd.distance_off_road(n[:, 0], n[:, 1])
         between = rd.distance_off_road(fine[:, 0], fine[:, 1])
@@ -79,7 +92,7 @@ class Primitive(eqx.Module):
             inp = np.concatenate([-0.99 - kF, kF - 1.0, -0.99 - kR, kR - 1.0,
                                   np.abs(d) - float(DELTA_MAX)])
             out["inputs"] = float(max(np.max(inp), 0.0))
-            sig = _node_signals(prob.vehicle, n)  # the nodes computed above
+            sig = _node_signals(prob.vehicle, n, self.runner)  # the nodes computed above
             out["axle_speed_floor"] = float(max(0.0, 1.0 - min(sig["Vx_F"].min(),
                                                                sig["Vx_R"].min())))
             if prob.objective == "max-exit":
@@ -98,10 +111,10 @@ def _signals(vehicle, nodes) -> dict:
     return jax.vmap(vehicle.signals)(nodes[:, :6], nodes[:, 6:9])
 
 
-def _node_signals(vehicle, nodes) -> dict:
+def _node_signals(vehicle, nodes, runner: Callable = run_program) -> dict:
     """Named signals of `vehicle` at the car's nodes (states, then the inputs)."""
     nodes = nodes if isinstance(nodes, jax.Array) else np.asarray(nodes, float)
-    signals = _signals(vehicle, nodes)
+    signals = runner("signals", _signals, (vehicle, nodes))
     return {k: np.asarray(v) for k, v in signals.items()}
 
 
