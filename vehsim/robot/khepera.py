@@ -161,39 +161,71 @@ class RobotRun(eqx.Module):
     result: RESULTS
 
 
+class _Pose(eqx.Module):
+    """A pose (x, y, gamma) kept by component: batched, three arrays of runs, each computed
+    once per sample (a stacked pose is computed component by component, each recomputing
+    the sub-steps' shared terms; docs/performance.md)."""
+
+    x: Float[Array, ""]
+    y: Float[Array, ""]
+    gamma: Float[Array, ""]
+
+    @classmethod
+    def of(cls, pose: Float[Array, "*batch 3"]) -> _Pose:
+        return cls(pose[..., 0], pose[..., 1], pose[..., 2])
+
+    def stacked(self) -> Float[Array, "*batch 3"]:
+        return jnp.stack([self.x, self.y, self.gamma], axis=-1)
+
+
 class _PlantState(eqx.Module):
-    pose: Float[Array, 3]            # true pose
+    pose: _Pose                      # true pose
     wheels: Float[Array, 2]          # pulse rates of the wheels, in nominal m/s
     commands: Float[Array, "n 2"]    # delay line of wheel-speed commands
     travel: Float[Array, 2]          # nominal wheel travel (pulses / p, unquantised)
     odometry: Float[Array, 3]        # the robot's dead-reckoned pose
     readings: Float[Array, "n 3"]    # delay line of the pose the link reports
     stats: RunStats                  # of the true pose
-    odometry_stats: RunStats         # of the odometry
+    odometry_stats: RunStats         # of the odometry (its command statistics: `stats`')
 
 
 def _initial_state(pose0, t_final) -> _PlantState:
     dtype = pose0.dtype
-    return _PlantState(pose0, jnp.zeros(2, dtype), jnp.zeros((MAX_DELAY + 1, 2), dtype),
-                       jnp.zeros(2, dtype), pose0, jnp.tile(pose0, (MAX_DELAY + 1, 1)),
+    return _PlantState(_Pose.of(pose0), jnp.zeros(2, dtype),
+                       jnp.zeros((MAX_DELAY + 1, 2), dtype), jnp.zeros(2, dtype),
+                       pose0, jnp.tile(pose0, (MAX_DELAY + 1, 1)),
                        RunStats.init(t_final), RunStats.init(t_final))
 
 
 def _disturbances(plant: KheperaPlant, key, k, dtype):
-    """Random inputs of sample k of the run with key `key`: five standard normal numbers
-    drawn from `fold_in(key, k)`, scaled to the pose noise (3) and the wheel slips (2), each
-    zero when switched off (one draw: each draw adds a random-number hash to compile)."""
-    draw = jax.random.normal(jax.random.fold_in(key, k), (5,), dtype)
+    """Random inputs of sample k of the run with key `key`: standard normal numbers drawn
+    from `fold_in(key, k)`, scaled to the pose noise (3) and the wheel slips (2), zero
+    where switched off. One draw of five numbers, the pose noise first; with the slip off
+    only the first three are drawn (the same numbers: JAX's partitionable threefry draws
+    each element from its own counter), with both off none."""
     sigma = jnp.stack([plant.noise_position, plant.noise_position, plant.noise_heading,
                        plant.slip_std, plant.slip_std])
     on = jnp.stack([plant.noise, plant.noise, plant.noise, plant.slip, plant.slip])
-    return jnp.where(on, draw * sigma, 0.0)
+
+    def draw(n):
+        normal = jax.random.normal(jax.random.fold_in(key, k), (n,), dtype)
+        scaled = jnp.where(on[:n], normal * sigma[:n], 0.0)
+        return jnp.concatenate([scaled, jnp.zeros(5 - n, dtype)])
+
+    n_noise = 3 if jax.config.jax_threefry_partitionable else 5
+    which = jnp.where(plant.slip, 2, jnp.where(plant.noise, 1, 0))
+    return jax.lax.switch(which, [lambda: jnp.zeros(5, dtype), lambda: draw(n_noise),
+                                  lambda: draw(5)])
 
 
 def _measure(plant: KheperaPlant, state: _PlantState, k, disturbance):
-    """The pose the controller sees at sample k: the link's reading plus the noise."""
+    """The pose the controller sees at sample k: the link's reading plus the noise, and the
+    state with the pose sensed at sample k entered into the link's delay line."""
+    sensed = jnp.where(plant.encoders, state.odometry, state.pose.stacked())
+    readings = delay_line_write(state.readings, k, sensed)
     delay = jnp.where(plant.delay, plant.read_delay_samples, 0)
-    return delay_line_read(state.readings, k, delay) + disturbance[:3]
+    measured = delay_line_read(readings, k, delay) + disturbance[:3]
+    return eqx.tree_at(lambda s: s.readings, state, readings), measured
 
 
 def _wheel_command(plant: KheperaPlant, command):
@@ -228,26 +260,28 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, state: _PlantState,
     # (zero before the first command arrives)
     commands = delay_line_write(state.commands, k, _wheel_command(plant, command))
     applied = delay_line_read(commands, k, delay)
-    pose, wheels, travel = _move(plant, substeps, state.pose, state.wheels, state.travel,
-                                 applied, disturbance[3:])
+    pose, wheels, travel = _move(plant, substeps, state.pose.stacked(), state.wheels,
+                                 state.travel, applied, disturbance[3:])
     ppm = plant.pulses_per_meter
     d = (encoder_counts(travel, ppm, plant.encoders)
          - encoder_counts(state.travel, ppm, plant.encoders)) / ppm
     odometry = dead_reckon(state.odometry, d[0], d[1], plant.wheel_base)
-    sensed = jnp.where(plant.encoders, odometry, pose)
-    readings = delay_line_write(state.readings, k + 1, sensed)
     t = k * plant.sample_time
-    stats = state.stats.update(t, state.pose, command)
-    odometry_stats = state.odometry_stats.update(t, state.odometry, command)
-    out = (t, state.pose, measured, command) if save else None
-    return _PlantState(pose, wheels, commands, travel, odometry, readings, stats,
-                       odometry_stats), out
+    stats = state.stats.update(t, state.pose.stacked(), command)
+    # the odometry is scored under the same commands: their statistics are those of
+    # `stats`, computed once and carried there (`_as_run` puts them back)
+    odometry_stats = (state.odometry_stats.with_command_statistics(state.stats)
+                      .update(t, state.odometry, command)
+                      .with_command_statistics(state.odometry_stats))
+    out = (t, state.pose.stacked(), measured, command) if save else None
+    return _PlantState(_Pose.of(pose), wheels, commands, travel, odometry,
+                       state.readings, stats, odometry_stats), out
 
 
 def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, state, k):
     """One control sample of the closed loop (see the module docstring)."""
-    disturbance = _disturbances(plant, key, k, state.pose.dtype)
-    measured = _measure(plant, state, k, disturbance)
+    disturbance = _disturbances(plant, key, k, state.pose.x.dtype)
+    state, measured = _measure(plant, state, k, disturbance)
     v, omega = velocity_fn(k * plant.sample_time, measured)
     return _advance(plant, substeps, save, state, k, measured, jnp.stack([v, omega]),
                     disturbance)
@@ -265,12 +299,13 @@ def _result(finite) -> RESULTS:
 
 def _as_run(state: _PlantState, out, save) -> RobotRun:
     result = _result(state.stats.finite)
+    odometry_stats = state.odometry_stats.with_command_statistics(state.stats)
     if save:
         ts, pose, measured, command = out
-        return RobotRun(ts, pose, measured, command, state.pose, state.stats,
-                        state.odometry_stats, result)
-    return RobotRun(None, None, None, None, state.pose, state.stats, state.odometry_stats,
-                    result)
+        return RobotRun(ts, pose, measured, command, state.pose.stacked(), state.stats,
+                        odometry_stats, result)
+    return RobotRun(None, None, None, None, state.pose.stacked(), state.stats,
+                    odometry_stats, result)
 
 
 def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
@@ -334,7 +369,7 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, pro
     def step(carry, xs):
         k, disturbance = xs
         disturbance = jnp.tile(disturbance, (G, 1))
-        measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry, disturbance)
+        carry, measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry, disturbance)
         t = k * plant.sample_time
         commands = [jax.vmap(lambda m: jnp.stack(fn(t, m)))(measured[g * P:(g + 1) * P])
                     for g, fn in enumerate(fns)]

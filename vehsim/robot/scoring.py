@@ -121,6 +121,16 @@ class RunStats(eqx.Module):
             finite=finite, started=jnp.array(True),
         )
 
+    def with_command_statistics(self, other: RunStats) -> RunStats:
+        """These statistics with those of the commands alone (`previous_command`,
+        `previous_increment`, `reversals`, `peak_command`, `started`) taken from `other`:
+        two scorings of one run (its true pose and its odometry) share them."""
+        def fields(s):
+            return (s.previous_command, s.previous_increment, s.reversals, s.peak_command,
+                    s.started)
+
+        return eqx.tree_at(fields, self, fields(other))
+
     def convergence_time(self, position: bool = True, heading: bool = True):
         """Time after which the pose stays within tolerance (t_c)."""
         tp = self.t_out_position if position else jnp.zeros_like(self.t_out_position)
