@@ -187,5 +187,13 @@ def test_simulate_tire_takes_either_tire_family():
     assert abs(float(one.mu[-1])) > 0.1  # a real braking force
     with pytest.raises(ValueError, match="vy must be None"):
         vs.simulate_tire(vs.LumpedLuGre(lugre, 1.2), TS, v, omega, R, vy=0.0)
+    # sampled inputs land steps on their samples (the kinks of the interpolation), constants
+    # and callables do not
+    ts = jnp.linspace(0.0, 0.2, 201)
+    tire = vs.LumpedLuGre(lugre, 1.2)
+    sampled = vs.simulate_tire(tire, ts, jnp.full(201, 20.0), jnp.full(201, 60.0), R)
+    constant = vs.simulate_tire(tire, ts, 20.0, 60.0, R)
+    np.testing.assert_allclose(sampled.mu, constant.mu, rtol=1e-5)  # solver tolerance
+    assert int(sampled.num_steps) >= 200 > 2 * int(constant.num_steps)
     with pytest.raises(TypeError, match="needs a tire model"):
         vs.simulate_tire(vs.HalfCar(vs.rally_gravel(), vs.rally_gravel_tire()), TS, v, omega, R)
