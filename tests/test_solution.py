@@ -16,7 +16,7 @@ import pytest
 import vehsim as vs
 from vehsim import _integrate
 from vehsim._integrate import ATOL, DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate
-from vehsim.control.half_car_abs import rear_abs, simulate_turn, turn_scenario
+from vehsim.control.experiments.half_car_abs import rear_abs, simulate_turn, turn_scenario
 from vehsim.params import cdc1999, lugre2d_bakker1987
 from vehsim.tire.moments import (
     HISTORY_MAX_STEPS,
