@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._results import RESULTS, as_result
 from .controllers import AbstractBrakeController, measurement
 from .hardware import (
@@ -200,27 +201,32 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
 
 def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, handback, carry,
                k):
-    """One sample of every run: sense and move vmapped over all runs, each controller's
-    law vmapped over its own group only (a `lax.switch` on a batched index would evaluate
-    every law for every run)."""
+    """One sample of every run (`grid_sample`): sense and move vmapped over all runs, each
+    controller's law vmapped over its own group only."""
+    def sense(st):
+        st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
+            scenarios, observers, keys, st)
+        return st, (m, st.observer.theta, observers, scenarios), seen
+
+    def act(st, seen, commands):
+        cmd, phase = commands
+        st, out = jax.vmap(
+            lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
+            scenarios, st, cmd, phase)
+        return st, (out | seen if save else None)
+
+    laws = [ft.partial(_law, controller, hw) for controller in controllers]
     st, ctrls = carry
-    st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
-        scenarios, observers, keys, st)
-    M = keys.shape[0] // len(controllers)
-    cmds, phases, new_ctrls = [], [], []
-    for g, controller in enumerate(controllers):
-        part = slice(g * M, (g + 1) * M)
-        take = ft.partial(jax.tree_util.tree_map, lambda a: a[part])
-        ctrl, cmd, phase = jax.vmap(
-            lambda c, mm, th, ob, sc: controller.command(c, mm, th, ob.model, sc.car,
-                                                         hw.sample_time, hw.max_torque))(
-            ctrls[g], take(m), st.observer.theta[part], take(observers), take(scenarios))
-        new_ctrls.append(ctrl)
-        cmds.append(cmd)
-        phases.append(jnp.broadcast_to(phase, cmd.shape))
-    st, out = jax.vmap(lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
-        scenarios, st, jnp.concatenate(cmds), jnp.concatenate(phases))
-    return (st, tuple(new_ctrls)), (out | seen if save else None)
+    return grid_sample(sense, laws, act, st, ctrls)
+
+
+def _law(controller, hw, ctrl, inputs):
+    """A braking controller as a law of the controller grid: its state, and the (torque
+    command, phase) of the sample's measurement."""
+    m, theta, observer, scenario = inputs
+    ctrl, cmd, phase = controller.command(ctrl, m, theta, observer.model, scenario.car,
+                                          hw.sample_time, hw.max_torque)
+    return ctrl, (cmd, phase)
 
 
 def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
@@ -228,8 +234,7 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
                      save: bool = False, handback=HANDBACK_SPEED) -> BrakingRun:
     """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
     G = len(controllers)
-    tile = ft.partial(jax.tree_util.tree_map, lambda a: jnp.concatenate([a] * G))
-    scenarios, observers, keys = tile(scenarios), tile(observers), tile(keys)
+    scenarios, observers, keys = tile_groups((scenarios, observers, keys), G)
     st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
     M = keys.shape[0] // G
     ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
@@ -238,8 +243,7 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
     (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
     if save:  # scan stacks time first
         out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
-    run = jax.vmap(_run)(scenarios, st, out)
-    return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
+    return split_groups(jax.vmap(_run)(scenarios, st, out), G)
 
 
 _grid = eqx.filter_jit(closed_loop_grid)

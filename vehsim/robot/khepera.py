@@ -44,6 +44,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._fields import array_field, bool_field, int_field
 from ..progress import advance, progress_bar, resolve
 from ..sharding import pad_members, shard_members
@@ -341,27 +342,30 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, pro
     # One scan over time, in blocks of B samples. Per block: the random disturbances (noise,
     # slip) of the P initial poses for all B samples, drawn at once (each (controller,
     # system) group reuses the same P sequences, so they are drawn once, not G times). Per
-    # sample: measure all G x P runs, evaluate each group's law on its own P runs, then
-    # advance the shared plant on all runs (vmapped). A lax.switch on a batched controller
-    # index would make XLA evaluate every law for every run; grouping computes each law only
-    # where used.
-    fns = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
-    G, P = len(fns), poses.shape[0]
+    # sample (`grid_sample`): measure all G x P runs, evaluate each group's law on its own
+    # P runs, then advance the shared plant on all runs.
+    G = len(controllers) * len(systems)
     t_final = n_steps * plant.sample_time
-    all_poses = jnp.tile(poses, (G, 1))
-    carry0 = jax.vmap(lambda p: _initial_state(p, t_final))(all_poses)
+    carry0 = jax.vmap(lambda p: _initial_state(p, t_final))(tile_groups(poses, G))
     B = _block_size(n_steps)
 
     def step(carry, xs):
         k, disturbance = xs
-        disturbance = jnp.tile(disturbance, (G, 1))
-        carry, measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry, disturbance)
-        t = k * plant.sample_time
-        commands = [jax.vmap(lambda m: jnp.stack(fn(t, m)))(measured[g * P:(g + 1) * P])
-                    for g, fn in enumerate(fns)]
-        command = jnp.concatenate(commands)
-        return jax.vmap(lambda c, m, u, d: _advance(plant, substeps, save, c, k, m, u, d))(
-            carry, measured, command, disturbance)
+        disturbance = tile_groups(disturbance, G)
+        t = k * plant.sample_time  # the same for every run: each law takes it unbatched
+        laws = [ft.partial(_law, c, s, t) for c in controllers for s in systems]
+
+        def sense(carry):
+            carry, measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry,
+                                                                            disturbance)
+            return carry, measured, measured
+
+        def act(carry, measured, command):
+            return jax.vmap(lambda c, m, u, d: _advance(plant, substeps, save, c, k, m, u, d))(
+                carry, measured, command, disturbance)
+
+        (carry, _), out = grid_sample(sense, laws, act, carry, (None,) * G)
+        return carry, out
 
     def block(carry, ks):
         disturbance = jax.vmap(lambda k: jax.vmap(
@@ -373,8 +377,13 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, pro
     if save:  # scan stacks time first: (n / B, B, G P, ...) -> (G P, n, ...)
         out = jax.tree_util.tree_map(
             lambda a: jnp.swapaxes(a.reshape((n_steps,) + a.shape[2:]), 0, 1), out)
-    run = _as_run(carry, out, save)
-    return jax.tree_util.tree_map(lambda a: a.reshape((G, P) + a.shape[1:]), run)
+    return split_groups(_as_run(carry, out, save), G)
+
+
+def _law(controller, system, t, state, pose):
+    """A robot controller as a law of the controller grid: no state, (v, omega) of the
+    measured pose at time t."""
+    return state, jnp.stack(controller.velocity(t, pose, system))
 
 
 def simulate_robot_grid(controllers: Sequence[AbstractController],
