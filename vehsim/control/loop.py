@@ -63,18 +63,35 @@ class BrakingRun(eqx.Module):
         return self.signals[name]
 
 
+class PreviousSample(eqx.Module):
+    """What the observer and the controller need of the last sample: the measured wheel
+    speed `omega` [rad/s], and the brake `torque` [N m] the actuator applied at its start
+    and the `target` it lagged towards over it."""
+
+    omega: Float[Array, ""]
+    torque: Float[Array, ""]
+    target: Float[Array, ""]
+
+
+class StopRecord(eqx.Module):
+    """The `distance` [m] and `time` [s] at which the speed first fell below `STOP_SPEED`
+    (inf until then)."""
+
+    distance: Float[Array, ""]
+    time: Float[Array, ""]
+
+
 class LoopState(eqx.Module):
     """Everything a run carries from sample to sample except the controller's own state:
-    the plant state `y`, the encoder, the actuator, the observer, the last measured wheel
-    speed with the actuator's torque and target over the last sample (`previous`), the
-    stop record (distance, time) and the first unsuccessful result of a sample's solve."""
+    the plant state `y`, the encoder, the actuator, the observer, the `previous` sample, the
+    `stop` record and the first unsuccessful result of a sample's solve."""
 
     y: Array
     encoder: EncoderState
     actuator: ActuatorState
     observer: ObserverState
-    previous: tuple
-    stop: tuple
+    previous: PreviousSample
+    stop: StopRecord
     result: RESULTS
 
 
@@ -84,8 +101,8 @@ def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardwa
     inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
     z = jnp.zeros((), y0.dtype)
     return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
-                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf),
-                     RESULTS.successful)
+                     observer.init(qs.omega, qs.v), PreviousSample(qs.omega, z, z),
+                     StopRecord(inf, inf), RESULTS.successful)
 
 
 def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
@@ -95,17 +112,17 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
     qs = unpack(scenario, st.y)[1]
     omega_m, stamp, fresh, enc = wheel_speed(hw, st.encoder, t, qs.omega)
     v_m = vehicle_speed(hw, key, k, qs.v)
-    omega_prev, torque_prev, target_prev = st.previous
+    previous = st.previous
     obs = jax.lax.cond(
         k > 0, lambda o: observer.update(o, scenario.car, hw, substeps, v_m, omega_m, stamp,
-                                         fresh, torque_prev, target_prev, t - T),
+                                         fresh, previous.torque, previous.target, t - T),
         lambda o: o, st.observer)
-    m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
+    m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T)
     seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
                 theta_hat=obs.theta, innovation=obs.innovation,
                 theta_covariance=obs.covariance)
-    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
-                   st.result)
+    previous = eqx.tree_at(lambda p: p.omega, previous, omega_m)
+    st = LoopState(st.y, enc, st.actuator, obs, previous, st.stop, st.result)
     return st, m, seen
 
 
@@ -118,7 +135,7 @@ def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
     y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
     out = _signals(scenario, st.y, t, act.torque, cmd, phase) | {"target": target} if save \
         else None
-    previous = (st.previous[0], act.torque, target)
+    previous = PreviousSample(st.previous.omega, act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
     stop = _stop(st.stop, scenario, st.y, y1, t, T)
     result = RESULTS.where(st.result == RESULTS.successful, as_result(result), st.result)
@@ -143,14 +160,15 @@ def _sample(scenario, controller, observer, hw, key, substeps, save, handback, c
     return (st, ctrl), (out | seen if save else None)
 
 
-def _stop(stop, scenario, y0, y1, t, T):
-    """(distance, time) of the first crossing of `STOP_SPEED`, interpolated in the sample."""
+def _stop(stop: StopRecord, scenario, y0, y1, t, T) -> StopRecord:
+    """The stop record after the sample from `y0` to `y1`: its first crossing of
+    `STOP_SPEED`, interpolated linearly in the sample."""
     x0, q0, _ = unpack(scenario, y0)
     x1, q1, _ = unpack(scenario, y1)
-    crossing = (q0.v >= STOP_SPEED) & (q1.v < STOP_SPEED) & jnp.isinf(stop[0])
+    crossing = (q0.v >= STOP_SPEED) & (q1.v < STOP_SPEED) & jnp.isinf(stop.distance)
     w = jnp.clip((q0.v - STOP_SPEED) / jnp.where(crossing, q0.v - q1.v, 1.0), 0.0, 1.0)
-    return (jnp.where(crossing, x0 + w * (x1 - x0), stop[0]),
-            jnp.where(crossing, t + w * T, stop[1]))
+    return StopRecord(jnp.where(crossing, x0 + w * (x1 - x0), stop.distance),
+                      jnp.where(crossing, t + w * T, stop.time))
 
 
 def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
@@ -168,7 +186,7 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
 
 def _run(scenario, st: LoopState, out) -> BrakingRun:
     x, qs, _ = unpack(scenario, st.y)
-    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out)
+    return BrakingRun(st.stop.distance, st.stop.time, qs.v, x, st.result, out)
 
 
 @eqx.filter_jit
