@@ -129,8 +129,15 @@ def test_robot_grid_labels_controllers_systems_missions_and_seeds():
     stats = stats.__class__(**{**{k: getattr(stats, k) for k in stats.__dataclass_fields__},
                                "t_out_position": jnp.asarray(code / 10),
                                "finite": jnp.asarray(code != 7)})
+    # the status is each run's result, as the run reports it: run 7 non-finite, and run 5
+    # with another case (as a plant with an adaptive integrator could report), which no
+    # finiteness flag would give
+    def result(c):
+        return RESULTS.where(c == 7, RESULTS.nonfinite, RESULTS.where(
+            c == 5, RESULTS.max_steps_reached, RESULTS.successful))
+
     run = RobotRun(None, None, None, None, jnp.stack([code, -code, 0 * code], -1), stats,
-                   stats)
+                   stats, jax.vmap(jax.vmap(jax.vmap(result)))(jnp.asarray(code)))
     ds = robot_grid_to_xarray(run, ["c1", "c2"], ["I", "II"], missions=["E", "N", "S"])
     assert ds["final_x"].dims == ("controller", "system", "mission", "seed")
     # run 7 = controller 0, system 1, pose index 1 = mission E, seed 1

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from helpers import tree_allclose
 
+from vehsim import RESULTS
 from vehsim.robot.controllers import (
     AbstractController,
     BoundedController,
@@ -50,6 +51,11 @@ def test_ideal_plant_is_exact_arc():
     expected = [0.1 / 0.8 * np.sin(0.8 * t), 0.1 / 0.8 * (1 - np.cos(0.8 * t)), 0.8 * t]
     np.testing.assert_allclose(run.final_pose, expected, atol=1e-13)
     np.testing.assert_allclose(run.measured, run.pose, atol=0)
+
+
+def test_a_run_reports_its_result():
+    assert _run(0.1, 0.8).result == RESULTS.successful
+    assert _run(jnp.nan, 0.8).result == RESULTS.nonfinite  # a command that leaves the numbers
 
 
 def test_motor_lags_differ_per_wheel():
@@ -236,3 +242,16 @@ def test_grid_sharded_across_devices_equals_single_device():
     assert tree_allclose(sharded, single, rtol=0.0, atol=1e-12)
     # the runs really moved (a grid that did nothing would also agree)
     assert np.all(np.abs(np.asarray(single.final_pose - poses[None, None])).max(axis=-1) > 1e-3)
+
+
+def test_grid_reports_each_runs_result():
+    """In a grid, each run's own result: the runs of a law whose command is not a number
+    are non-finite, the others successful."""
+    controllers = (_Constant(0.1, 0.8), _Constant(jnp.nan, 0.8))
+    poses = jnp.array([[0.1, 0.0, 0.0], [0.0, -0.1, 1.0]])
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    grid = simulate_robot_grid(controllers, [SystemII()], poses, keys, t_final=0.5)
+    successful = np.asarray(grid.result == RESULTS.successful)
+    assert successful.shape == (2, 1, 2)
+    assert np.all(successful[0])
+    assert np.all(np.asarray(grid.result == RESULTS.nonfinite)[1])

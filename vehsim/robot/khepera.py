@@ -46,6 +46,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._fields import array_field, bool_field, int_field
+from .._results import RESULTS
 from ..progress import advance, progress_bar, resolve
 from ..sharding import pad_members, shard_members
 from .controllers import AbstractController
@@ -148,7 +149,8 @@ class RobotRun(eqx.Module):
     """One closed-loop run: samples at the control rate (`ts`, true `pose`, `measured` pose,
     `command` (v, omega)), the true `final_pose`, and the scoring statistics of the true
     pose (`stats`, what an observer of the robot sees) and of the robot's odometry
-    (`odometry_stats`, what the host logs: the pose of the report's Figs. 4-5)."""
+    (`odometry_stats`, what the host logs: the pose of the report's Figs. 4-5), and the
+    `result` (`RESULTS.successful`, or `RESULTS.nonfinite` where the run left the numbers)."""
 
     ts: Float[Array, " n"] | None
     pose: Float[Array, "n 3"] | None
@@ -157,6 +159,7 @@ class RobotRun(eqx.Module):
     final_pose: Float[Array, 3]
     stats: RunStats
     odometry_stats: RunStats
+    result: RESULTS
 
 
 class _Pose(eqx.Module):
@@ -285,14 +288,27 @@ def _step(velocity_fn, plant: KheperaPlant, substeps: int, save: bool, key, stat
                     disturbance)
 
 
+def _result(finite) -> RESULTS:
+    """`RESULTS.successful` where `finite`, else `RESULTS.nonfinite` (any batch shape)."""
+    def where(ok):
+        return RESULTS.where(ok, RESULTS.successful, RESULTS.nonfinite)
+
+    for _ in range(jnp.ndim(finite)):
+        where = jax.vmap(where)
+    return where(finite)
+
+
 def _as_run(state: _PlantState, out, save) -> RobotRun:
     odometry_stats = state.odometry_stats.with_command_statistics(state.stats)
+    final = state.pose.stacked()
+    # the statistics saw every sample's poses and commands but the final pose
+    result = _result(state.stats.finite & odometry_stats.finite
+                     & jnp.all(jnp.isfinite(final), axis=-1))
     if save:
         ts, pose, measured, command = out
-        return RobotRun(ts, pose, measured, command, state.pose.stacked(), state.stats,
-                        odometry_stats)
-    return RobotRun(None, None, None, None, state.pose.stacked(), state.stats,
-                    odometry_stats)
+        return RobotRun(ts, pose, measured, command, final, state.stats, odometry_stats,
+                        result)
+    return RobotRun(None, None, None, None, final, state.stats, odometry_stats, result)
 
 
 def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
