@@ -161,6 +161,17 @@ def test_sensor_noise_is_the_documented_draw():
                                rtol=1e-15, atol=0)
 
 
+def test_slip_leaves_the_noise_draws_as_they_are():
+    """With the slip off only the pose noise's three numbers are drawn; they are the first
+    three of the five drawn with the slip on, so switching the slip on changes no noise."""
+    key = jax.random.PRNGKey(4)
+    runs = [simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), key=key,
+                           t_final=T_FINAL, plant=ideal_plant(noise=True, slip=slip))
+            for slip in (False, True)]
+    np.testing.assert_array_equal(runs[0].measured, runs[1].measured)
+    assert np.all(np.asarray(runs[0].measured) != 0)
+
+
 def test_plant_validation():
     with pytest.raises(ValueError, match="delay_samples"):
         KheperaPlant(delay_samples=20)
