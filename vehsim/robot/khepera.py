@@ -269,10 +269,9 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, state: _PlantState,
     odometry = dead_reckon(state.odometry, d[0], d[1], plant.wheel_base)
     t = k * plant.sample_time
     stats = state.stats.update(t, state.pose.stacked(), command)
-    # the odometry is scored under the same commands: their statistics are those of
-    # `stats`, computed once and carried there (`_as_run` puts them back)
-    odometry_stats = (state.odometry_stats.with_command_statistics(state.stats)
-                      .update(t, state.odometry, command)
+    # the odometry is scored under the same commands, whose statistics are those of `stats`:
+    # its own are left as they were (not computed) and `_as_run` puts those of `stats` in
+    odometry_stats = (state.odometry_stats.update(t, state.odometry, command)
                       .with_command_statistics(state.odometry_stats))
     out = (t, state.pose.stacked(), measured, command) if save else None
     return _PlantState(_Pose.of(pose), wheels, commands, travel, odometry,
