@@ -266,3 +266,25 @@ def test_grid_reports_each_runs_result():
     assert successful.shape == (2, 1, 2)
     assert np.all(successful[0])
     assert np.all(np.asarray(grid.result == RESULTS.nonfinite)[1])
+
+
+def test_statistics_are_those_of_the_samples():
+    """The run's statistics are those `accumulate` makes of its saved samples (true pose and
+    commands); the odometry's, scored under the same commands, share their command
+    statistics (reversals, peak, last command and increment), not those of the pose."""
+    from vehsim.robot.controllers import default_controllers
+    from vehsim.robot.scoring import RunStats, accumulate
+
+    run = simulate_robot(default_controllers()[0], SystemI(), jnp.array([0.2, -0.1, 0.4]),
+                         plant=realistic_plant(noise=True), t_final=12.0)
+    stats = accumulate(run.ts, run.pose, run.command)
+    assert tree_allclose(run.stats, stats, rtol=0, atol=0)
+    for name in ("previous_command", "previous_increment", "reversals", "peak_command",
+                 "started"):
+        np.testing.assert_array_equal(getattr(run.odometry_stats, name), getattr(stats, name))
+    assert bool(stats.started) and float(jnp.min(stats.peak_command)) > 0
+    initial = RunStats.init(run.stats.t_final)
+    assert not tree_allclose(run.odometry_stats.with_command_statistics(initial),
+                             run.odometry_stats)
+    # and the pose's are the odometry's own (over the last 5 s it is not the true pose)
+    assert run.odometry_stats.window_position != stats.window_position
