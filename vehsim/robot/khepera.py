@@ -187,7 +187,7 @@ class _PlantState(eqx.Module):
     odometry: Float[Array, 3]        # the robot's dead-reckoned pose
     readings: Float[Array, "n 3"]    # delay line of the pose the link reports
     stats: RunStats                  # of the true pose
-    odometry_stats: RunStats         # of the odometry (its command statistics: `stats`')
+    odometry_stats: RunStats         # of the odometry's pose (its commands': in `stats`)
 
 
 def _initial_state(pose0, t_final) -> _PlantState:
