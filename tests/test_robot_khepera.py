@@ -161,6 +161,17 @@ def test_sensor_noise_is_the_documented_draw():
                                rtol=1e-15, atol=0)
 
 
+def test_slip_leaves_the_noise_draws_as_they_are():
+    """With the slip off only the pose noise's three numbers are drawn; they are the first
+    three of the five drawn with the slip on, so switching the slip on changes no noise."""
+    key = jax.random.PRNGKey(4)
+    runs = [simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), key=key,
+                           t_final=T_FINAL, plant=ideal_plant(noise=True, slip=slip))
+            for slip in (False, True)]
+    np.testing.assert_array_equal(runs[0].measured, runs[1].measured)
+    assert np.all(np.asarray(runs[0].measured) != 0)
+
+
 def test_plant_validation():
     with pytest.raises(ValueError, match="delay_samples"):
         KheperaPlant(delay_samples=20)
@@ -242,3 +253,38 @@ def test_grid_sharded_across_devices_equals_single_device():
     assert tree_allclose(sharded, single, rtol=0.0, atol=1e-12)
     # the runs really moved (a grid that did nothing would also agree)
     assert np.all(np.abs(np.asarray(single.final_pose - poses[None, None])).max(axis=-1) > 1e-3)
+
+
+def test_grid_reports_each_runs_result():
+    """In a grid, each run's own result: the runs of a law whose command is not a number
+    are non-finite, the others successful."""
+    controllers = (_Constant(0.1, 0.8), _Constant(jnp.nan, 0.8))
+    poses = jnp.array([[0.1, 0.0, 0.0], [0.0, -0.1, 1.0]])
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    grid = simulate_robot_grid(controllers, [SystemII()], poses, keys, t_final=0.5)
+    successful = np.asarray(grid.result == RESULTS.successful)
+    assert successful.shape == (2, 1, 2)
+    assert np.all(successful[0])
+    assert np.all(np.asarray(grid.result == RESULTS.nonfinite)[1])
+
+
+def test_statistics_are_those_of_the_samples():
+    """The run's statistics are those `accumulate` makes of its saved samples (true pose and
+    commands); the odometry's, scored under the same commands, share their command
+    statistics (reversals, peak, last command and increment), not those of the pose."""
+    from vehsim.robot.controllers import default_controllers
+    from vehsim.robot.scoring import RunStats, accumulate
+
+    run = simulate_robot(default_controllers()[0], SystemI(), jnp.array([0.2, -0.1, 0.4]),
+                         plant=realistic_plant(noise=True), t_final=12.0)
+    stats = accumulate(run.ts, run.pose, run.command)
+    assert tree_allclose(run.stats, stats, rtol=0, atol=0)
+    for name in ("previous_command", "previous_increment", "reversals", "peak_command",
+                 "started"):
+        np.testing.assert_array_equal(getattr(run.odometry_stats, name), getattr(stats, name))
+    assert bool(stats.started) and float(jnp.min(stats.peak_command)) > 0
+    initial = RunStats.init(run.stats.t_final)
+    assert not tree_allclose(run.odometry_stats.with_command_statistics(initial),
+                             run.odometry_stats)
+    # and the pose's are the odometry's own (over the last 5 s it is not the true pose)
+    assert run.odometry_stats.window_position != stats.window_position

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._results import RESULTS, as_result
 from .._solution import AbstractSolution
 from .controllers.braking import AbstractBrakeController, measurement
@@ -63,18 +64,35 @@ class BrakingRun(AbstractSolution):
     stats: dict
 
 
+class PreviousSample(eqx.Module):
+    """What the observer and the controller need of the last sample: the measured wheel
+    speed `omega` [rad/s], and the brake `torque` [N m] the actuator applied at its start
+    and the `target` it lagged towards over it."""
+
+    omega: Float[Array, ""]
+    torque: Float[Array, ""]
+    target: Float[Array, ""]
+
+
+class StopRecord(eqx.Module):
+    """The `distance` [m] and `time` [s] at which the speed first fell below `STOP_SPEED`
+    (inf until then)."""
+
+    distance: Float[Array, ""]
+    time: Float[Array, ""]
+
+
 class LoopState(eqx.Module):
     """Everything a run carries from sample to sample except the controller's own state:
-    the plant state `y`, the encoder, the actuator, the observer, the last measured wheel
-    speed with the actuator's torque and target over the last sample (`previous`), the
-    stop record (distance, time) and the first unsuccessful result of a sample's solve."""
+    the plant state `y`, the encoder, the actuator, the observer, the `previous` sample, the
+    `stop` record and the first unsuccessful result of a sample's solve."""
 
     y: Array
     encoder: EncoderState
     actuator: ActuatorState
     observer: ObserverState
-    previous: tuple
-    stop: tuple
+    previous: PreviousSample
+    stop: StopRecord
     result: RESULTS
 
 
@@ -84,8 +102,8 @@ def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardwa
     inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
     z = jnp.zeros((), y0.dtype)
     return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
-                     observer.init(qs.omega, qs.v), (qs.omega, z, z), (inf, inf),
-                     RESULTS.successful)
+                     observer.init(qs.omega, qs.v), PreviousSample(qs.omega, z, z),
+                     StopRecord(inf, inf), RESULTS.successful)
 
 
 def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
@@ -95,17 +113,17 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
     qs = unpack(scenario, st.y)[1]
     omega_m, stamp, fresh, enc = wheel_speed(hw, st.encoder, t, qs.omega)
     v_m = vehicle_speed(hw, key, k, qs.v)
-    omega_prev, torque_prev, target_prev = st.previous
+    previous = st.previous
     obs = jax.lax.cond(
         k > 0, lambda o: observer.update(o, scenario.car, hw, substeps, v_m, omega_m, stamp,
-                                         fresh, torque_prev, target_prev, t - T),
+                                         fresh, previous.torque, previous.target, t - T),
         lambda o: o, st.observer)
-    m = measurement(omega_m, obs.v, omega_prev, scenario.car.radius, T)
+    m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T)
     seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
                 theta_hat=obs.theta, innovation=obs.innovation,
                 theta_covariance=obs.covariance)
-    st = LoopState(st.y, enc, st.actuator, obs, (omega_m,) + st.previous[1:], st.stop,
-                   st.result)
+    previous = eqx.tree_at(lambda p: p.omega, previous, omega_m)
+    st = LoopState(st.y, enc, st.actuator, obs, previous, st.stop, st.result)
     return st, m, seen
 
 
@@ -118,7 +136,7 @@ def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
     y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
     out = _signals(scenario, st.y, t, act.torque, cmd, phase) | {"target": target} if save \
         else None
-    previous = (st.previous[0], act.torque, target)
+    previous = PreviousSample(st.previous.omega, act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
     stop = _stop(st.stop, scenario, st.y, y1, t, T)
     result = RESULTS.where(st.result == RESULTS.successful, as_result(result), st.result)
@@ -143,14 +161,15 @@ def _sample(scenario, controller, observer, hw, key, substeps, save, handback, c
     return (st, ctrl), (out | seen if save else None)
 
 
-def _stop(stop, scenario, y0, y1, t, T):
-    """(distance, time) of the first crossing of `STOP_SPEED`, interpolated in the sample."""
+def _stop(stop: StopRecord, scenario, y0, y1, t, T) -> StopRecord:
+    """The stop record after the sample from `y0` to `y1`: its first crossing of
+    `STOP_SPEED`, interpolated linearly in the sample."""
     x0, q0, _ = unpack(scenario, y0)
     x1, q1, _ = unpack(scenario, y1)
-    crossing = (q0.v >= STOP_SPEED) & (q1.v < STOP_SPEED) & jnp.isinf(stop[0])
+    crossing = (q0.v >= STOP_SPEED) & (q1.v < STOP_SPEED) & jnp.isinf(stop.distance)
     w = jnp.clip((q0.v - STOP_SPEED) / jnp.where(crossing, q0.v - q1.v, 1.0), 0.0, 1.0)
-    return (jnp.where(crossing, x0 + w * (x1 - x0), stop[0]),
-            jnp.where(crossing, t + w * T, stop[1]))
+    return StopRecord(jnp.where(crossing, x0 + w * (x1 - x0), stop.distance),
+                      jnp.where(crossing, t + w * T, stop.time))
 
 
 def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
@@ -168,7 +187,7 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
 
 def _run(scenario, st: LoopState, out, num_steps: int) -> BrakingRun:
     x, qs, _ = unpack(scenario, st.y)
-    return BrakingRun(st.stop[0], st.stop[1], qs.v, x, st.result, out,
+    return BrakingRun(st.stop.distance, st.stop.time, qs.v, x, st.result, out,
                       None if out is None else out["ts"], {"num_steps": jnp.asarray(num_steps)})
 
 
@@ -202,27 +221,32 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
 
 def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, handback, carry,
                k):
-    """One sample of every run: sense and move vmapped over all runs, each controller's
-    law vmapped over its own group only (a `lax.switch` on a batched index would evaluate
-    every law for every run)."""
+    """One sample of every run (`grid_sample`): sense and move vmapped over all runs, each
+    controller's law vmapped over its own group only."""
+    def sense(st):
+        st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
+            scenarios, observers, keys, st)
+        return st, (m, st.observer.theta, observers, scenarios), seen
+
+    def act(st, seen, commands):
+        cmd, phase = commands
+        st, out = jax.vmap(
+            lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
+            scenarios, st, cmd, phase)
+        return st, (out | seen if save else None)
+
+    laws = [ft.partial(_law, controller, hw) for controller in controllers]
     st, ctrls = carry
-    st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
-        scenarios, observers, keys, st)
-    M = keys.shape[0] // len(controllers)
-    cmds, phases, new_ctrls = [], [], []
-    for g, controller in enumerate(controllers):
-        part = slice(g * M, (g + 1) * M)
-        take = ft.partial(jax.tree_util.tree_map, lambda a: a[part])
-        ctrl, cmd, phase = jax.vmap(
-            lambda c, mm, th, ob, sc: controller.command(c, mm, th, ob.model, sc.car,
-                                                         hw.sample_time, hw.max_torque))(
-            ctrls[g], take(m), st.observer.theta[part], take(observers), take(scenarios))
-        new_ctrls.append(ctrl)
-        cmds.append(cmd)
-        phases.append(jnp.broadcast_to(phase, cmd.shape))
-    st, out = jax.vmap(lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
-        scenarios, st, jnp.concatenate(cmds), jnp.concatenate(phases))
-    return (st, tuple(new_ctrls)), (out | seen if save else None)
+    return grid_sample(sense, laws, act, st, ctrls)
+
+
+def _law(controller, hw, ctrl, inputs):
+    """A braking controller as a law of the controller grid: its state, and the (torque
+    command, phase) of the sample's measurement."""
+    m, theta, observer, scenario = inputs
+    ctrl, cmd, phase = controller.command(ctrl, m, theta, observer.model, scenario.car,
+                                          hw.sample_time, hw.max_torque)
+    return ctrl, (cmd, phase)
 
 
 def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
@@ -230,8 +254,7 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
                      save: bool = False, handback=HANDBACK_SPEED) -> BrakingRun:
     """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
     G = len(controllers)
-    tile = ft.partial(jax.tree_util.tree_map, lambda a: jnp.concatenate([a] * G))
-    scenarios, observers, keys = tile(scenarios), tile(observers), tile(keys)
+    scenarios, observers, keys = tile_groups((scenarios, observers, keys), G)
     st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
     M = keys.shape[0] // G
     ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
@@ -241,7 +264,7 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
     if save:  # scan stacks time first
         out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
     run = jax.vmap(ft.partial(_run, num_steps=n_steps * substeps))(scenarios, st, out)
-    return jax.tree_util.tree_map(lambda a: a.reshape((G, M) + a.shape[1:]), run)
+    return split_groups(run, G)
 
 
 _grid = eqx.filter_jit(closed_loop_grid)

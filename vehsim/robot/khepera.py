@@ -44,6 +44,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._fields import array_field, bool_field, int_field
 from .._results import RESULTS
 from ..progress import advance, progress_bar, resolve
@@ -186,7 +187,7 @@ class _PlantState(eqx.Module):
     odometry: Float[Array, 3]        # the robot's dead-reckoned pose
     readings: Float[Array, "n 3"]    # delay line of the pose the link reports
     stats: RunStats                  # of the true pose
-    odometry_stats: RunStats         # of the odometry (its command statistics: `stats`')
+    odometry_stats: RunStats         # of the odometry's pose (its commands': in `stats`)
 
 
 def _initial_state(pose0, t_final) -> _PlantState:
@@ -268,10 +269,9 @@ def _advance(plant: KheperaPlant, substeps: int, save: bool, state: _PlantState,
     odometry = dead_reckon(state.odometry, d[0], d[1], plant.wheel_base)
     t = k * plant.sample_time
     stats = state.stats.update(t, state.pose.stacked(), command)
-    # the odometry is scored under the same commands: their statistics are those of
-    # `stats`, computed once and carried there (`_as_run` puts them back)
-    odometry_stats = (state.odometry_stats.with_command_statistics(state.stats)
-                      .update(t, state.odometry, command)
+    # the odometry is scored under the same commands, whose statistics are those of `stats`:
+    # its own are left as they were (not computed) and `_as_run` puts those of `stats` in
+    odometry_stats = (state.odometry_stats.update(t, state.odometry, command)
                       .with_command_statistics(state.odometry_stats))
     out = (t, state.pose.stacked(), measured, command) if save else None
     return _PlantState(_Pose.of(pose), wheels, commands, travel, odometry,
@@ -298,14 +298,16 @@ def _result(finite) -> RESULTS:
 
 
 def _as_run(state: _PlantState, out, save) -> RobotRun:
-    result = _result(state.stats.finite)
     odometry_stats = state.odometry_stats.with_command_statistics(state.stats)
+    final = state.pose.stacked()
+    # the statistics saw every sample's poses and commands but the final pose
+    result = _result(state.stats.finite & odometry_stats.finite
+                     & jnp.all(jnp.isfinite(final), axis=-1))
     if save:
         ts, pose, measured, command = out
-        return RobotRun(ts, pose, measured, command, state.pose.stacked(), state.stats,
-                        odometry_stats, result)
-    return RobotRun(None, None, None, None, state.pose.stacked(), state.stats,
-                    odometry_stats, result)
+        return RobotRun(ts, pose, measured, command, final, state.stats, odometry_stats,
+                        result)
+    return RobotRun(None, None, None, None, final, state.stats, odometry_stats, result)
 
 
 def _closed_loop(velocity_fn, pose0, key, plant: KheperaPlant, n_steps: int, substeps: int,
@@ -355,27 +357,30 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, pro
     # One scan over time, in blocks of B samples. Per block: the random disturbances (noise,
     # slip) of the P initial poses for all B samples, drawn at once (each (controller,
     # system) group reuses the same P sequences, so they are drawn once, not G times). Per
-    # sample: measure all G x P runs, evaluate each group's law on its own P runs, then
-    # advance the shared plant on all runs (vmapped). A lax.switch on a batched controller
-    # index would make XLA evaluate every law for every run; grouping computes each law only
-    # where used.
-    fns = [ft.partial(_velocity, c, s) for c in controllers for s in systems]
-    G, P = len(fns), poses.shape[0]
+    # sample (`grid_sample`): measure all G x P runs, evaluate each group's law on its own
+    # P runs, then advance the shared plant on all runs.
+    G = len(controllers) * len(systems)
     t_final = n_steps * plant.sample_time
-    all_poses = jnp.tile(poses, (G, 1))
-    carry0 = jax.vmap(lambda p: _initial_state(p, t_final))(all_poses)
+    carry0 = jax.vmap(lambda p: _initial_state(p, t_final))(tile_groups(poses, G))
     B = _block_size(n_steps)
 
     def step(carry, xs):
         k, disturbance = xs
-        disturbance = jnp.tile(disturbance, (G, 1))
-        carry, measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry, disturbance)
-        t = k * plant.sample_time
-        commands = [jax.vmap(lambda m: jnp.stack(fn(t, m)))(measured[g * P:(g + 1) * P])
-                    for g, fn in enumerate(fns)]
-        command = jnp.concatenate(commands)
-        return jax.vmap(lambda c, m, u, d: _advance(plant, substeps, save, c, k, m, u, d))(
-            carry, measured, command, disturbance)
+        disturbance = tile_groups(disturbance, G)
+        t = k * plant.sample_time  # the same for every run: each law takes it unbatched
+        laws = [ft.partial(_law, c, s, t) for c in controllers for s in systems]
+
+        def sense(carry):
+            carry, measured = jax.vmap(lambda c, d: _measure(plant, c, k, d))(carry,
+                                                                            disturbance)
+            return carry, measured, measured
+
+        def act(carry, measured, command):
+            return jax.vmap(lambda c, m, u, d: _advance(plant, substeps, save, c, k, m, u, d))(
+                carry, measured, command, disturbance)
+
+        (carry, _), out = grid_sample(sense, laws, act, carry, (None,) * G)
+        return carry, out
 
     def block(carry, ks):
         disturbance = jax.vmap(lambda k: jax.vmap(
@@ -387,8 +392,13 @@ def _grid(controllers, systems, poses, keys, plant, n_steps, substeps, save, pro
     if save:  # scan stacks time first: (n / B, B, G P, ...) -> (G P, n, ...)
         out = jax.tree_util.tree_map(
             lambda a: jnp.swapaxes(a.reshape((n_steps,) + a.shape[2:]), 0, 1), out)
-    run = _as_run(carry, out, save)
-    return jax.tree_util.tree_map(lambda a: a.reshape((G, P) + a.shape[1:]), run)
+    return split_groups(_as_run(carry, out, save), G)
+
+
+def _law(controller, system, t, state, pose):
+    """A robot controller as a law of the controller grid: no state, (v, omega) of the
+    measured pose at time t."""
+    return state, jnp.stack(controller.velocity(t, pose, system))
 
 
 def simulate_robot_grid(controllers: Sequence[AbstractController],
