@@ -52,7 +52,7 @@ def _program():
     def runs(log_kp, hw):
         estimate = PeakSlipTracking(kp=jnp.exp(log_kp))
         return closed_loop_grid(scenarios, [RuleBasedABS(), estimate], observers, hw, keys,
-                                N_STEPS, save=True, handback=0.5)
+                                N_STEPS, save=True, handback_speed=0.5)
 
     return eqx.filter_jit(lambda g, hw: jax.jvp(lambda x: runs(x, hw), (g,), (jnp.ones(()),)))
 
@@ -202,7 +202,7 @@ def _after_change():
                                              jnp.asarray(jnp.inf))])
     runs = eqx.filter_jit(closed_loop_grid)(
         stack([scenario] * 2), [PeakSlipTracking()], observers, HARDWARE["noise-free"],
-        jax.random.split(jax.random.PRNGKey(0), 2), N_STEPS, save=True, handback=0.5)
+        jax.random.split(jax.random.PRNGKey(0), 2), N_STEPS, save=True, handback_speed=0.5)
     theta = float(surface("dry_asphalt").params.theta)
     return [jax.tree_util.tree_map(lambda a: np.asarray(a[0, i]), runs) for i in (0, 1)], theta
 

@@ -65,8 +65,8 @@ def test_robot_grid_progress_counts_samples_of_every_shard_and_keeps_results(cap
     poses = jnp.array([[-0.15, 0.03, 0.0], [0.1, 0.15, -1.0]])
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     args = ([BoundedController()], [SystemII()], poses, keys)
-    plain = simulate_robot_grid(*args, t_final=1.0)
-    shown = simulate_robot_grid(*args, t_final=1.0, devices=jax.devices(), progress=True)
+    plain = simulate_robot_grid(*args, duration=1.0)
+    shown = simulate_robot_grid(*args, duration=1.0, devices=jax.devices(), progress=True)
     np.testing.assert_allclose(shown.final_pose, plain.final_pose, rtol=1e-12, atol=1e-14)
     # 50 samples at 50 Hz on each of 2 shards, reported per block of 50 samples
     assert capsys.readouterr().err.splitlines()[-1].startswith(

@@ -93,7 +93,7 @@ def test_controller1_eq2_and_eta_decay_along_closed_loop():
 def test_controller1_leaves_bad_region_and_never_returns():
     """From the x3-axis (nu = 0, in D^b) the state enters D^g in finite time and stays."""
     c, system = DiscontinuousController(), SystemI()
-    run = simulate_robot(c, system, jnp.array([0.0, 0.1, 0.0]), plant=ideal_plant(), t_final=8.0,
+    run = simulate_robot(c, system, jnp.array([0.0, 0.1, 0.0]), plant=ideal_plant(), duration=8.0,
                    substeps=1)
     bad = np.asarray(jax.vmap(lambda p: c.in_bad_region(system.to_chained(p)))(run.pose))
     assert bad[0]
@@ -113,7 +113,7 @@ def test_controller2_inputs_bounded():
     assert np.max(np.abs(u)) <= bound + 1e-12
     assert np.max(np.abs(u)) > 0.75 * bound  # the bound is nearly attained, not loose
     system = SystemI()
-    run = simulate_robot(c, system, jnp.array([-0.6, 0.4, 0.0]), plant=ideal_plant(), t_final=10.0,
+    run = simulate_robot(c, system, jnp.array([-0.6, 0.4, 0.0]), plant=ideal_plant(), duration=10.0,
                    substeps=1)
     u_run = jax.vmap(lambda p: c(0.0, system.to_chained(p)))(run.pose)
     assert np.max(np.abs(u_run)) <= bound + 1e-12
@@ -211,7 +211,7 @@ def test_ideal_plant_convergence_in_documented_time():
     controllers = default_controllers()
     t_final = max(t for t in DOCUMENTED_TIME.values() if t is not None) + 2.0
     run = simulate_robot_grid(controllers, [SystemI()], GENERIC_POSE[None],
-                        jax.random.PRNGKey(0)[None], plant=ideal_plant(), t_final=t_final,
+                        jax.random.PRNGKey(0)[None], plant=ideal_plant(), duration=t_final,
                         substeps=1, save=True)  # no motor lag: one exact arc per sample
     for i, c in enumerate(controllers):
         t_doc = DOCUMENTED_TIME[type(c).__name__]
@@ -238,7 +238,7 @@ def test_time_varying_polynomial_rate(c):
     """Controllers 5 and 7 (smooth, so only polynomially convergent; documented time none),
     as their docstrings state: heading within 1 deg after 400 s, but the largest position
     error over [t/2, t] still above 1 mm at t = 1600 s, and it halves when t quadruples."""
-    run = simulate_robot(c, SystemI(), GENERIC_POSE, plant=ideal_plant(), t_final=1600.0,
+    run = simulate_robot(c, SystemI(), GENERIC_POSE, plant=ideal_plant(), duration=1600.0,
                    substeps=1, save=True)
     ts = np.asarray(run.ts)
     pos = np.hypot(run.pose[:, 0], run.pose[:, 1])
@@ -318,7 +318,7 @@ def test_gradient_through_closed_loop_matches_finite_differences():
 
     def final_x(a):
         c = MCloskeyMurray97Controller(a=a)
-        run = simulate_robot(c, SystemI(), GENERIC_POSE, plant=ideal_plant(), t_final=2.0,
+        run = simulate_robot(c, SystemI(), GENERIC_POSE, plant=ideal_plant(), duration=2.0,
                        substeps=1, save=False)
         return run.final_pose[0]
 

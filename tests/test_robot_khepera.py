@@ -42,7 +42,7 @@ B = 0.053
 def _run(v, omega, **effects):
     plant = ideal_plant(**effects)
     return simulate_robot(_Constant(v, omega), SystemII(), jnp.zeros(3), plant=plant,
-                    t_final=T_FINAL)
+                    duration=T_FINAL)
 
 
 def test_ideal_plant_is_exact_arc():
@@ -83,7 +83,7 @@ def test_read_delay_returns_the_pose_of_d_samples_ago():
     arrives the host holds the initial pose."""
     plant = ideal_plant(delay=True, delay_samples=0, read_delay_samples=3)
     pose0 = jnp.array([0.01, -0.02, 0.3])
-    run = simulate_robot(_Constant(0.1, 0.8), SystemII(), pose0, plant=plant, t_final=T_FINAL)
+    run = simulate_robot(_Constant(0.1, 0.8), SystemII(), pose0, plant=plant, duration=T_FINAL)
     np.testing.assert_array_equal(run.measured[3:], run.pose[:-3])
     np.testing.assert_array_equal(run.measured[:3], jnp.tile(pose0, (3, 1)))
 
@@ -136,7 +136,7 @@ def test_wheel_slip_moves_the_robot_and_not_the_odometry():
     key = jax.random.PRNGKey(7)
     plant = ideal_plant(encoders=True, slip=True, slip_std=0.05)
     run = simulate_robot(_Constant(0.1, 0.0), SystemII(), jnp.zeros(3), plant=plant,
-                         t_final=T_FINAL, key=key)
+                         duration=T_FINAL, key=key)
     s = 0.05 * jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(key, k), (5,))[3:])(
         jnp.arange(N))
     np.testing.assert_allclose(run.final_pose[2], np.sum(0.1 * 0.02 * (s[:, 0] - s[:, 1])) / B,
@@ -153,7 +153,7 @@ def test_sensor_noise_is_the_documented_draw():
     key = jax.random.PRNGKey(3)
     plant = ideal_plant(noise=True, noise_position=1e-3, noise_heading=0.01)
     run = simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), plant=plant,
-                         t_final=T_FINAL, key=key)
+                         duration=T_FINAL, key=key)
     draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(key, k), (5,))[:3])(
         jnp.arange(N))
     np.testing.assert_array_equal(run.pose, 0.0)
@@ -166,7 +166,7 @@ def test_slip_leaves_the_noise_draws_as_they_are():
     three of the five drawn with the slip on, so switching the slip on changes no noise."""
     key = jax.random.PRNGKey(4)
     runs = [simulate_robot(_Constant(0.0, 0.0), SystemII(), jnp.zeros(3), key=key,
-                           t_final=T_FINAL, plant=ideal_plant(noise=True, slip=slip))
+                           duration=T_FINAL, plant=ideal_plant(noise=True, slip=slip))
             for slip in (False, True)]
     np.testing.assert_array_equal(runs[0].measured, runs[1].measured)
     assert np.all(np.asarray(runs[0].measured) != 0)
@@ -221,12 +221,12 @@ def test_grid_equals_single_runs():
     poses = jnp.array([[-0.15, 0.03, 0.1], [0.1, 0.15, -1.0]])
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
     plant = realistic_plant(noise=True, slip=True)
-    grid = simulate_robot_grid(controllers, systems, poses, keys, plant=plant, t_final=2.3,
+    grid = simulate_robot_grid(controllers, systems, poses, keys, plant=plant, duration=2.3,
                                save=True)
     assert grid.pose.shape == (2, 1, 2, 115, 3)
     for c, s, p in [(0, 0, 0), (1, 0, 1)]:
         one = simulate_robot(controllers[c], systems[s], poses[p], key=keys[p], plant=plant,
-                             t_final=2.3)
+                             duration=2.3)
         np.testing.assert_allclose(grid.pose[c, s, p], one.pose, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.measured[c, s, p], one.measured, rtol=0, atol=1e-14)
         np.testing.assert_allclose(grid.command[c, s, p], one.command, rtol=0, atol=1e-12)
@@ -246,8 +246,8 @@ def test_grid_sharded_across_devices_equals_single_device():
     controllers = default_controllers()[:2]
     poses = jnp.array([[0.3, -0.2, 0.5], [-0.4, 0.1, -1.0], [0.05, 0.3, 2.0]])
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    single = simulate_robot_grid(controllers, [SystemI()], poses, keys, t_final=2.0)
-    sharded = simulate_robot_grid(controllers, [SystemI()], poses, keys, t_final=2.0,
+    single = simulate_robot_grid(controllers, [SystemI()], poses, keys, duration=2.0)
+    sharded = simulate_robot_grid(controllers, [SystemI()], poses, keys, duration=2.0,
                             devices=jax.devices())
     assert sharded.final_pose.shape == single.final_pose.shape == (2, 1, 3, 3)
     assert tree_allclose(sharded, single, rtol=0.0, atol=1e-12)
@@ -261,7 +261,7 @@ def test_grid_reports_each_runs_result():
     controllers = (_Constant(0.1, 0.8), _Constant(jnp.nan, 0.8))
     poses = jnp.array([[0.1, 0.0, 0.0], [0.0, -0.1, 1.0]])
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    grid = simulate_robot_grid(controllers, [SystemII()], poses, keys, t_final=0.5)
+    grid = simulate_robot_grid(controllers, [SystemII()], poses, keys, duration=0.5)
     successful = np.asarray(grid.result == RESULTS.successful)
     assert successful.shape == (2, 1, 2)
     assert np.all(successful[0])
@@ -276,7 +276,7 @@ def test_statistics_are_those_of_the_samples():
     from vehsim.robot.scoring import RunStats, accumulate
 
     run = simulate_robot(default_controllers()[0], SystemI(), jnp.array([0.2, -0.1, 0.4]),
-                         plant=realistic_plant(noise=True), t_final=12.0)
+                         plant=realistic_plant(noise=True), duration=12.0)
     stats = accumulate(run.ts, run.pose, run.command)
     assert tree_allclose(run.stats, stats, rtol=0, atol=0)
     for name in ("previous_command", "previous_increment", "reversals", "peak_command",

@@ -96,26 +96,26 @@ class LoopState(eqx.Module):
     result: RESULTS
 
 
-def _init(scenario: BrakingScenario, observer: FrictionObserver, hw: BrakeHardware):
+def _init(scenario: BrakingScenario, observer: FrictionObserver, hardware: BrakeHardware):
     y0 = initial_plant_state(scenario)
     qs = unpack(scenario, y0)[1]
     inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
     z = jnp.zeros((), y0.dtype)
-    return LoopState(y0, EncoderState.init(hw, qs.omega), ActuatorState.init(),
+    return LoopState(y0, EncoderState.init(hardware, qs.omega), ActuatorState.init(),
                      observer.init(qs.omega, qs.v), PreviousSample(qs.omega, z, z),
                      StopRecord(inf, inf), RESULTS.successful)
 
 
-def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
+def _sense(scenario, observer, hardware, substeps, key, st: LoopState, k):
     """Measure, update the observer: ``(state, Measurement, signals to save)``."""
-    T = hw.sample_time
+    T = hardware.sample_time
     t = k * T
     qs = unpack(scenario, st.y)[1]
-    omega_m, stamp, fresh, enc = wheel_speed(hw, st.encoder, t, qs.omega)
-    v_m = vehicle_speed(hw, key, k, qs.v)
+    omega_m, stamp, fresh, enc = wheel_speed(hardware, st.encoder, t, qs.omega)
+    v_m = vehicle_speed(hardware, key, k, qs.v)
     previous = st.previous
     obs = jax.lax.cond(
-        k > 0, lambda o: observer.update(o, scenario.car, hw, substeps, v_m, omega_m, stamp,
+        k > 0, lambda o: observer.update(o, scenario.car, hardware, substeps, v_m, omega_m, stamp,
                                          fresh, previous.torque, previous.target, t - T),
         lambda o: o, st.observer)
     m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T)
@@ -127,17 +127,17 @@ def _sense(scenario, observer, hw, substeps, key, st: LoopState, k):
     return st, m, seen
 
 
-def _move(scenario, hw, substeps, handback, save, st: LoopState, k, cmd, phase):
+def _move(scenario, hardware, substeps, handback, save, st: LoopState, k, cmd, phase):
     """Actuate and integrate the plant to the next sample: ``(state, signals to save)``."""
-    T = hw.sample_time
+    T = hardware.sample_time
     t = k * T
-    cmd = jnp.where(st.observer.v < handback, hw.max_torque, cmd)
-    act, target = actuator_target(hw, st.actuator, k, cmd)
-    y1, enc, result = advance(scenario, hw, st.y, st.encoder, t, act.torque, target, substeps)
+    cmd = jnp.where(st.observer.v < handback, hardware.max_torque, cmd)
+    act, target = actuator_target(hardware, st.actuator, k, cmd)
+    y1, enc, result = advance(scenario, hardware, st.y, st.encoder, t, act.torque, target, substeps)
     out = _signals(scenario, st.y, t, act.torque, cmd, phase) | {"target": target} if save \
         else None
     previous = PreviousSample(st.previous.omega, act.torque, target)
-    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
+    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hardware, act.torque, target, T))
     stop = _stop(st.stop, scenario, st.y, y1, t, T)
     result = RESULTS.where(st.result == RESULTS.successful, as_result(result), st.result)
     return LoopState(y1, enc, act, st.observer, previous, stop, result), out
@@ -152,12 +152,12 @@ def _signals(scenario, y, t, torque, cmd, phase):
                 command=cmd, phase=phase)
 
 
-def _sample(scenario, controller, observer, hw, key, substeps, save, handback, carry, k):
+def _sample(scenario, controller, observer, hardware, key, substeps, save, handback, carry, k):
     st, ctrl = carry
-    st, m, seen = _sense(scenario, observer, hw, substeps, key, st, k)
+    st, m, seen = _sense(scenario, observer, hardware, substeps, key, st, k)
     ctrl, cmd, phase = controller.command(ctrl, m, st.observer.theta, observer.model,
-                                          scenario.car, hw.sample_time, hw.max_torque)
-    st, out = _move(scenario, hw, substeps, handback, save, st, k, cmd, phase)
+                                          scenario.car, hardware.sample_time, hardware.max_torque)
+    st, out = _move(scenario, hardware, substeps, handback, save, st, k, cmd, phase)
     return (st, ctrl), (out | seen if save else None)
 
 
@@ -173,13 +173,13 @@ def _stop(stop: StopRecord, scenario, y0, y1, t, T) -> StopRecord:
 
 
 def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
-                observer: FrictionObserver, hw: BrakeHardware, key: PRNGKeyArray,
+                observer: FrictionObserver, hardware: BrakeHardware, key: PRNGKeyArray,
                 n_steps: int, substeps: int = SUBSTEPS, save: bool = True,
                 handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
     jit, vmap over scenarios, keys and array fields, grad with respect to any of them)."""
-    carry0 = (_init(scenario, observer, hw), controller.init(hw.max_torque))
-    step = ft.partial(_sample, scenario, controller, observer, hw, key, substeps, save,
+    carry0 = (_init(scenario, observer, hardware), controller.init(hardware.max_torque))
+    step = ft.partial(_sample, scenario, controller, observer, hardware, key, substeps, save,
                       jnp.asarray(handback_speed, dtype=float))
     (st, _), out = jax.lax.scan(step, carry0, jnp.arange(n_steps))
     return _run(scenario, st, out, n_steps * substeps)
@@ -192,8 +192,8 @@ def _run(scenario, st: LoopState, out, num_steps: int) -> BrakingRun:
 
 
 @eqx.filter_jit
-def _simulate(scenario, controller, observer, hw, key, n_steps, substeps, save, handback):
-    return closed_loop(scenario, controller, observer, hw, key, n_steps, substeps, save,
+def _simulate(scenario, controller, observer, hardware, key, n_steps, substeps, save, handback):
+    return closed_loop(scenario, controller, observer, hardware, key, n_steps, substeps, save,
                        handback)
 
 
@@ -212,54 +212,54 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
 
     **Returns:** a `BrakingRun`.
     """
-    hw = realistic_hardware() if hardware is None else hardware
+    hardware = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(duration / float(hw.sample_time)))
-    return _simulate(scenario, controller, observer, hw, key, n_steps, int(substeps),
+    n_steps = int(round(duration / float(hardware.sample_time)))
+    return _simulate(scenario, controller, observer, hardware, key, n_steps, int(substeps),
                      bool(save), jnp.asarray(handback_speed, dtype=float))
 
 
-def _grid_step(scenarios, controllers, observers, hw, keys, substeps, save, handback, carry,
+def _grid_step(scenarios, controllers, observers, hardware, keys, substeps, save, handback, carry,
                k):
     """One sample of every run (`grid_sample`): sense and move vmapped over all runs, each
     controller's law vmapped over its own group only."""
     def sense(st):
-        st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hw, substeps, key, s, k))(
+        st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hardware, substeps, key, s, k))(
             scenarios, observers, keys, st)
         return st, (m, st.observer.theta, observers, scenarios), seen
 
     def act(st, seen, commands):
         cmd, phase = commands
         st, out = jax.vmap(
-            lambda sc, s, c, p: _move(sc, hw, substeps, handback, save, s, k, c, p))(
+            lambda sc, s, c, p: _move(sc, hardware, substeps, handback, save, s, k, c, p))(
             scenarios, st, cmd, phase)
         return st, (out | seen if save else None)
 
-    laws = [ft.partial(_law, controller, hw) for controller in controllers]
+    laws = [ft.partial(_law, controller, hardware) for controller in controllers]
     st, ctrls = carry
     return grid_sample(sense, laws, act, st, ctrls)
 
 
-def _law(controller, hw, ctrl, inputs):
+def _law(controller, hardware, ctrl, inputs):
     """A braking controller as a law of the controller grid: its state, and the (torque
     command, phase) of the sample's measurement."""
     m, theta, observer, scenario = inputs
     ctrl, cmd, phase = controller.command(ctrl, m, theta, observer.model, scenario.car,
-                                          hw.sample_time, hw.max_torque)
+                                          hardware.sample_time, hardware.max_torque)
     return ctrl, (cmd, phase)
 
 
 def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
-                     hw: BrakeHardware, keys, n_steps: int, substeps: int = SUBSTEPS,
-                     save: bool = False, handback=HANDBACK_SPEED) -> BrakingRun:
+                     hardware: BrakeHardware, keys, n_steps: int, substeps: int = SUBSTEPS,
+                     save: bool = False, handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
     G = len(controllers)
     scenarios, observers, keys = tile_groups((scenarios, observers, keys), G)
-    st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hw))(scenarios, observers)
+    st0 = jax.vmap(lambda sc, ob: _init(sc, ob, hardware))(scenarios, observers)
     M = keys.shape[0] // G
-    ctrl0 = tuple(jax.vmap(lambda _: c.init(hw.max_torque))(jnp.arange(M)) for c in controllers)
-    step = ft.partial(_grid_step, scenarios, tuple(controllers), observers, hw, keys, substeps,
-                      save, jnp.asarray(handback, dtype=float))
+    ctrl0 = tuple(jax.vmap(lambda _: c.init(hardware.max_torque))(jnp.arange(M)) for c in controllers)
+    step = ft.partial(_grid_step, scenarios, tuple(controllers), observers, hardware, keys, substeps,
+                      save, jnp.asarray(handback_speed, dtype=float))
     (st, _), out = jax.lax.scan(step, (st0, ctrl0), jnp.arange(n_steps))
     if save:  # scan stacks time first
         out = jax.tree_util.tree_map(lambda a: jnp.swapaxes(a, 0, 1), out)
@@ -283,9 +283,9 @@ def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: Fr
 
     **Returns:** a `BrakingRun` whose fields have leading axes (C, M).
     """
-    hw = realistic_hardware() if hardware is None else hardware
-    n_steps = int(round(duration / float(hw.sample_time)))
-    return _grid(scenarios, tuple(controllers), observers, hw, keys, n_steps, int(substeps),
+    hardware = realistic_hardware() if hardware is None else hardware
+    n_steps = int(round(duration / float(hardware.sample_time)))
+    return _grid(scenarios, tuple(controllers), observers, hardware, keys, n_steps, int(substeps),
                  bool(save), jnp.asarray(handback_speed, dtype=float))
 
 

@@ -331,18 +331,18 @@ def _velocity(controller, system, t, pose):
 
 def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0,
              key: PRNGKeyArray | None = None, plant: KheperaPlant | None = None,
-             t_final: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
+             duration: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
     """Closed loop of one controller on the Khepera plant from `pose0` = (x, y, gamma).
 
     **Arguments:** `controller`, `system` (System I or II; ignored by controller 4), `pose0`
     [m, m, rad], `key` (sensor noise and wheel slip; default PRNGKey(0)), `plant` (default: realistic),
-    `t_final` [s] (rounded to whole samples), `substeps` per sample for the motor lag,
+    `duration` [s] (rounded to whole samples), `substeps` per sample for the motor lag,
     `save` (keep the sampled trajectory).
     **Returns:** a `RobotRun`.
     """
     plant = realistic_plant() if plant is None else plant
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(t_final / float(plant.sample_time)))
+    n_steps = int(round(duration / float(plant.sample_time)))
     return _simulate(controller, system, jnp.asarray(pose0, dtype=float), key, plant,
                      n_steps, int(substeps), bool(save))
 
@@ -403,14 +403,14 @@ def _law(controller, system, t, state, pose):
 
 def simulate_robot_grid(controllers: Sequence[AbstractController],
                         systems: Sequence[AbstractSystem], poses0, keys,
-                        plant: KheperaPlant | None = None, t_final: float = 40.0,
+                        plant: KheperaPlant | None = None, duration: float = 40.0,
                         substeps: int = 4, save: bool = False, devices=None,
                         progress: bool | None = None) -> RobotRun:
     r"""Every controller x system x initial pose (with its noise key), in one jitted call.
 
     **Arguments:** `controllers` (C of them), `systems` (S), `poses0` of shape (P, 3) and
     `keys` of shape (P, 2) (one key per initial pose for its noise and slip, e.g. missions x
-    seeds flattened), `plant`, `t_final`, `substeps`, `save` (keep trajectories: memory grows as
+    seeds flattened), `plant`, `duration`, `substeps`, `save` (keep trajectories: memory grows as
     C x S x P x samples, so only for small grids).
     **Returns:** a `RobotRun` whose fields have leading axes (C, S, P); score its `stats`
     with `vehsim.robot.scoring.score_run` under `jax.vmap`.
@@ -429,7 +429,7 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     poses0 = jnp.asarray(poses0, dtype=float)
     keys = jnp.asarray(keys)
     C, S = len(controllers), len(systems)
-    n_steps = int(round(t_final / float(plant.sample_time)))
+    n_steps = int(round(duration / float(plant.sample_time)))
     static = (tuple(controllers), tuple(systems))
     progress = resolve(progress)
     shards = 1 if devices is None else max(1, len(devices))

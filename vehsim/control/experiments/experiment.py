@@ -49,19 +49,19 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     ``locked_wheel``), and the saved signals of both runs by label, with the peak slip and
     friction of the true surface and the true theta at each sample.
     """
-    hw = realistic_hardware() if hardware is None else hardware
+    hardware = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
     scenario, observer = braking_scenario(surface, speed, change_to, change_distance,
                                           change_time)
     if duration is None:
         duration = min(1.5 * float(physical_limit(scenario)[1]) + 1.0, MAX_DURATION)
     runs = simulate_braking_grid(stack([scenario]), [controller(controller_name), LockedWheel()],
-                                 stack([observer]), key[None], hw, duration=duration,
+                                 stack([observer]), key[None], hardware, duration=duration,
                                  save=True)
     out = {}
     for i, label in enumerate((controller_name, "locked")):
         run = jax.tree_util.tree_map(lambda a: a[i, 0], runs)
-        out[label] = dict(braking_record(run, scenario, hw), **result_record(run.result))
+        out[label] = dict(braking_record(run, scenario, hardware), **result_record(run.result))
     signals = {label: _signals_of(runs, i, scenario)
                for i, label in enumerate((controller_name, "locked"))}
     s = signals[controller_name]

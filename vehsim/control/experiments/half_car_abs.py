@@ -93,8 +93,8 @@ class TurnRun(AbstractSolution):
     stats: dict
 
 
-def _controls(sc: TurnScenario, hw, y, t, t0, torque0, target):
-    brake = brake_torque(hw, torque0, target, t - t0)
+def _controls(sc: TurnScenario, hardware, y, t, t0, torque0, target):
+    brake = brake_torque(hardware, torque0, target, t - t0)
     omega = y[6:8]
     axle = -brake * jnp.tanh(omega / OMEGA_EPS)
     delta = sc.delta * smooth_step(t, 0.0, 0.2)
@@ -102,45 +102,45 @@ def _controls(sc: TurnScenario, hw, y, t, t0, torque0, target):
 
 
 def _rates(t, y, args):
-    sc, hw, t0, torque0, target = args
-    return sc.car.f(y, _controls(sc, hw, y, t, t0, torque0, target))
+    sc, hardware, t0, torque0, target = args
+    return sc.car.f(y, _controls(sc, hardware, y, t, t0, torque0, target))
 
 
-def _sample(sc, controllers, hw, key, st: TurnState, k):
-    T = hw.sample_time
+def _sample(sc, controllers, hardware, key, st: TurnState, k):
+    T = hardware.sample_time
     t = k * T
     p = sc.car.params
     delta = sc.delta * smooth_step(t, 0.0, 0.2)
     VFx, _, VRx, _ = axle_velocities(p, st.y[3], st.y[4], st.y[5], delta)
-    noise = hw.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (2,))
-    v_m = jnp.stack([VFx, VRx]) + jnp.where(hw.noise, noise, 0.0)
+    noise = hardware.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (2,))
+    v_m = jnp.stack([VFx, VRx]) + jnp.where(hardware.noise, noise, 0.0)
     omega = st.y[6:8]
     cmds, phases, new_ctrl = [], [], []
     for i, controller in enumerate(controllers):
         m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T)
         c, cmd, phase = controller.command(st.controllers[i], m, None, None, None, T,
-                                           hw.max_torque)
+                                           hardware.max_torque)
         new_ctrl.append(c)
-        cap = hw.max_torque * (1.0 if i == 0 else sc.rear_share)
+        cap = hardware.max_torque * (1.0 if i == 0 else sc.rear_share)
         cmds.append(jnp.where(t >= sc.brake_time, jnp.minimum(cmd, cap), 0.0))
         phases.append(phase)
-    act, target = jax.vmap(lambda a, c: actuator_target(hw, a, k, c))(st.actuator,
+    act, target = jax.vmap(lambda a, c: actuator_target(hardware, a, k, c))(st.actuator,
                                                                       jnp.stack(cmds))
-    args = (sc, hw, t, act.torque, target)
+    args = (sc, hardware, t, act.torque, target)
     y1, result = integrate_sample(_rates, st.y, args, t, T, sc.car.stiff_blocks)
     out = dict(ts=t, state=st.y, torque=act.torque, phase=jnp.stack(phases),
                slip=p.r * omega / jnp.stack([VFx, VRx]) - 1.0)
-    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
+    act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hardware, act.torque, target, T))
     result = RESULTS.where(st.result == RESULTS.successful, result, st.result)
     return TurnState(y1, act, tuple(new_ctrl), omega, result), out
 
 
 @eqx.filter_jit
-def _simulate(sc, controllers, hw, key, n_steps):
+def _simulate(sc, controllers, hardware, key, n_steps):
     y0 = sc.car.init_state(vx=sc.speed)
     act0 = jax.vmap(lambda _: ActuatorState.init())(jnp.arange(2))
-    ctrl0 = tuple(c.init(hw.max_torque) for c in controllers)
-    step = lambda st, k: _sample(sc, controllers, hw, key, st, k)  # noqa: E731
+    ctrl0 = tuple(c.init(hardware.max_torque) for c in controllers)
+    step = lambda st, k: _sample(sc, controllers, hardware, key, st, k)  # noqa: E731
     st0 = TurnState(y0, act0, ctrl0, y0[6:8], RESULTS.successful)
     st, out = jax.lax.scan(step, st0, jnp.arange(n_steps))
     return st.result, out
@@ -156,10 +156,10 @@ def simulate_turn(sc: TurnScenario, front: AbstractBrakeController,
     the axle brake ``torque`` (T, 2), ``slip`` (T, 2) and controller ``phase`` (T, 2), and
     the integration's `result`.
     """
-    hw = BrakeHardware(max_torque=4000.0) if hardware is None else hardware
+    hardware = BrakeHardware(max_torque=4000.0) if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(duration / float(hw.sample_time)))
-    result, out = _simulate(sc, (front, rear), hw, key, n_steps)
+    n_steps = int(round(duration / float(hardware.sample_time)))
+    result, out = _simulate(sc, (front, rear), hardware, key, n_steps)
     ts = out.pop("ts")
     delta = sc.delta * smooth_step(ts, 0.0, 0.2)
     controls = jnp.stack([jnp.zeros_like(delta), jnp.zeros_like(delta), delta], axis=1)

@@ -41,23 +41,23 @@ def with_gains(controller: AbstractSlipTracking, log_gains):
 
 def mean_distance_ratio(log_gains, controller: AbstractSlipTracking,
                         scenarios: BrakingScenario, observers: FrictionObserver, keys, bounds,
-                        hw: BrakeHardware, n_steps: int):
+                        hardware: BrakeHardware, n_steps: int):
     r"""$J(g)$ of the module docstring over the batch (`scenarios`, `observers`, `keys` and
     the limits `bounds` with a leading batch axis)."""
     c = with_gains(controller, log_gains)
 
     def one(sc, ob, key):
-        return closed_loop(sc, c, ob, hw, key, n_steps, save=False,
+        return closed_loop(sc, c, ob, hardware, key, n_steps, save=False,
                            handback_speed=TUNING_HANDBACK).stopping_distance
 
     return jnp.mean(jax.vmap(one)(scenarios, observers, keys) / bounds)
 
 
-def objective(controller, scenarios, observers, keys, bounds, hw, n_steps):
+def objective(controller, scenarios, observers, keys, bounds, hardware, n_steps):
     """$g \\mapsto J(g)$ with a forward-mode gradient (custom JVP), for optimistix."""
 
     def value(g):
-        return mean_distance_ratio(g, controller, scenarios, observers, keys, bounds, hw,
+        return mean_distance_ratio(g, controller, scenarios, observers, keys, bounds, hardware,
                                    n_steps)
 
     @jax.custom_jvp
@@ -84,8 +84,8 @@ _distance_ratio = eqx.filter_jit(mean_distance_ratio)
 
 
 @eqx.filter_jit
-def _bfgs(controller, scenarios, observers, keys, bounds, hw, n_steps, max_steps):
-    J = objective(controller, scenarios, observers, keys, bounds, hw, n_steps)
+def _bfgs(controller, scenarios, observers, keys, bounds, hardware, n_steps, max_steps):
+    J = objective(controller, scenarios, observers, keys, bounds, hardware, n_steps)
     g0 = jnp.log(jnp.stack([controller.kp, controller.ki]))
     sol = optx.minimise(lambda g, _: J(g), optx.BFGS(rtol=1e-4, atol=1e-4), g0,
                         max_steps=max_steps, throw=False)
@@ -93,7 +93,7 @@ def _bfgs(controller, scenarios, observers, keys, bounds, hw, n_steps, max_steps
 
 
 def tune_gains(controller: AbstractSlipTracking, scenarios, observers, keys, bounds,
-               hw: BrakeHardware, n_steps: int, max_steps: int = 12):
+               hardware: BrakeHardware, n_steps: int, max_steps: int = 12):
     r"""Minimise $J$ over $\log(K_p, K_i)$ from the controller's gains by BFGS.
 
     The search and the two evaluations of $J$ are separate compiled programs (one copy of
@@ -102,9 +102,9 @@ def tune_gains(controller: AbstractSlipTracking, scenarios, observers, keys, bou
     **Returns:** ``(tuned controller, J at the start, J at the end, number of steps,
     result)``.
     """
-    g, steps, result = _bfgs(controller, scenarios, observers, keys, bounds, hw, n_steps,
+    g, steps, result = _bfgs(controller, scenarios, observers, keys, bounds, hardware, n_steps,
                              max_steps)
     g0 = jnp.log(jnp.stack([controller.kp, controller.ki]))
-    j0, j1 = (_distance_ratio(x, controller, scenarios, observers, keys, bounds, hw, n_steps)
+    j0, j1 = (_distance_ratio(x, controller, scenarios, observers, keys, bounds, hardware, n_steps)
               for x in (g0, g))
     return with_gains(controller, g), j0, j1, steps, result

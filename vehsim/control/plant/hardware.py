@@ -103,29 +103,29 @@ class ActuatorState(eqx.Module):
         return ActuatorState(jnp.full(MAX_DELAY + 1, t), t, t)
 
 
-def actuator_target(hw: BrakeHardware, state: ActuatorState, k, command):
+def actuator_target(hardware: BrakeHardware, state: ActuatorState, k, command):
     """Steps 1-3 of the module docstring for the command issued at sample `k`: the new
     state (torque not yet advanced) and the target $T_d$ held over the sample."""
-    command = jnp.clip(command, -hw.max_torque, hw.max_torque)
+    command = jnp.clip(command, -hardware.max_torque, hardware.max_torque)
     n = MAX_DELAY + 1
     buffer = jax.lax.dynamic_update_index_in_dim(state.buffer, command, k % n, 0)
-    delayed = jax.lax.dynamic_index_in_dim(buffer, (k - hw.delay_samples()) % n, 0,
+    delayed = jax.lax.dynamic_index_in_dim(buffer, (k - hardware.delay_samples()) % n, 0,
                                            keepdims=False)
-    step = hw.torque_rate * hw.sample_time
+    step = hardware.torque_rate * hardware.sample_time
     limited = jnp.clip(delayed, state.target - step, state.target + step)
-    target = jnp.where(hw.rate_limit, limited, delayed)
+    target = jnp.where(hardware.rate_limit, limited, delayed)
     return ActuatorState(buffer, target, state.torque), target
 
 
-def brake_torque(hw: BrakeHardware, torque0, target, t):
+def brake_torque(hardware: BrakeHardware, torque0, target, t):
     r"""$T_b$ a time `t` after the sample: the exact lag response (step 4), or the target
     itself when the lag is off."""
-    decay = jnp.exp(-t / hw.time_constant)
-    return jnp.where(hw.lag, target + (torque0 - target) * decay, target)
+    decay = jnp.exp(-t / hardware.time_constant)
+    return jnp.where(hardware.lag, target + (torque0 - target) * decay, target)
 
 
-def mean_brake_torque(hw: BrakeHardware, torque0, target):
+def mean_brake_torque(hardware: BrakeHardware, torque0, target):
     r"""$\frac1T\int_0^T T_b\,dt$ over one sample (the exact mean of the lag response)."""
-    a = hw.sample_time / hw.time_constant
+    a = hardware.sample_time / hardware.time_constant
     frac = -jnp.expm1(-a) / a
-    return jnp.where(hw.lag, target + (torque0 - target) * frac, target)
+    return jnp.where(hardware.lag, target + (torque0 - target) * frac, target)

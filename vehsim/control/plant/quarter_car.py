@@ -124,14 +124,14 @@ def _stiff_block(scenario: BrakingScenario) -> tuple[int, ...]:
 
 
 def _vector_field(t, y, args):
-    scenario, hw, torque0, target, t_sample = args
+    scenario, hardware, torque0, target, t_sample = args
     x, qs, phi = unpack(scenario, y)
     car = eqx.tree_at(lambda c: c.tire, scenario.car, scenario.tire_at(t, x, qs.v))
-    rates = car.dynamics(t, qs, brake_torque(hw, torque0, target, t - t_sample))
+    rates = car.dynamics(t, qs, brake_torque(hardware, torque0, target, t - t_sample))
     return ravel_pytree((qs.v, rates, qs.omega))[0]
 
 
-def advance(scenario: BrakingScenario, hw: BrakeHardware, y, enc: EncoderState, t_sample,
+def advance(scenario: BrakingScenario, hardware: BrakeHardware, y, enc: EncoderState, t_sample,
             torque0, target, substeps: int):
     """Integrate the plant over one sample from `t_sample` under the brake torque that
     starts at `torque0` and lags towards `target`, counting tone-wheel edges.
@@ -139,11 +139,11 @@ def advance(scenario: BrakingScenario, hw: BrakeHardware, y, enc: EncoderState, 
     **Returns:** the state and the encoder state at the next sample, and the solve's
     result.
     """
-    args = (scenario, hw, torque0, target, t_sample)
-    y1, result = integrate_sample(_vector_field, y, args, t_sample, hw.sample_time,
+    args = (scenario, hardware, torque0, target, t_sample)
+    y1, result = integrate_sample(_vector_field, y, args, t_sample, hardware.sample_time,
                                   (_stiff_block(scenario),), substeps)
     w0, w1 = unpack(scenario, y)[1].omega, unpack(scenario, y1)[1].omega
-    enc1 = count_edges(hw, enc, t_sample, hw.sample_time, y[-1], y1[-1], w0, w1)
+    enc1 = count_edges(hardware, enc, t_sample, hardware.sample_time, y[-1], y1[-1], w0, w1)
     moving = unpack(scenario, y)[1].v > STANDSTILL
     return jnp.where(moving, y1, y), jax.tree_util.tree_map(
         lambda a, b: jnp.where(moving, a, b), enc1, enc), result

@@ -35,19 +35,19 @@ class EncoderState(eqx.Module):
     omega: Float[Array, ""]
 
     @staticmethod
-    def init(hw: BrakeHardware, omega0) -> EncoderState:
+    def init(hardware: BrakeHardware, omega0) -> EncoderState:
         """At an edge at t = 0, the wheel having turned steadily at `omega0` before."""
         z = jnp.zeros(())
         omega0 = jnp.asarray(omega0, dtype=float)
-        before = -safe_div(2.0 * jnp.pi / hw.encoder_pulses, omega0, fill=1.0)
+        before = -safe_div(2.0 * jnp.pi / hardware.encoder_pulses, omega0, fill=1.0)
         return EncoderState(z, z, z, before, omega0)
 
 
-def count_edges(hw: BrakeHardware, enc: EncoderState, t0, T, phi0, phi1, omega0, omega1
+def count_edges(hardware: BrakeHardware, enc: EncoderState, t0, T, phi0, phi1, omega0, omega1
                 ) -> EncoderState:
     """Edges passed during the sample from `t0` of length `T` in which the wheel angle went
     from `phi0` to `phi1` and its speed from `omega0` to `omega1`."""
-    delta = 2.0 * jnp.pi / hw.encoder_pulses
+    delta = 2.0 * jnp.pi / hardware.encoder_pulses
     n1 = jnp.floor(phi1 / delta)
 
     def time_of(n):
@@ -73,25 +73,25 @@ def hermite_rate(tau, T, p0, p1, d0, d1):
             + (6 * tau - 6 * t2) * p1 + (3 * t2 - 2 * tau) * T * d1) / T
 
 
-def wheel_speed(hw: BrakeHardware, enc: EncoderState, t, omega_true):
+def wheel_speed(hardware: BrakeHardware, enc: EncoderState, t, omega_true):
     """``(omega, stamp, fresh, state)``: the measured wheel speed at sample time `t`, the time
     it stands for, whether it is a measurement (an edge arrived since the last sample, or
     the encoder is switched off and the true speed at `t` is measured) rather than a bound,
     and the encoder state for the next sample."""
-    delta = 2.0 * jnp.pi / hw.encoder_pulses
+    delta = 2.0 * jnp.pi / hardware.encoder_pulses
     fresh = enc.count > enc.count_sample
     timed = safe_div(delta, enc.edge_time - enc.edge_time_before)
     bound = safe_div(delta, t - enc.edge_time, fill=enc.omega)
     omega = jnp.where(fresh, timed, jnp.minimum(enc.omega, bound))
     stamp = jnp.where(fresh, 0.5 * (enc.edge_time + enc.edge_time_before), t)
-    omega = jnp.where(hw.encoder, omega, omega_true)
-    stamp = jnp.where(hw.encoder, stamp, t)
+    omega = jnp.where(hardware.encoder, omega, omega_true)
+    stamp = jnp.where(hardware.encoder, stamp, t)
     new = EncoderState(enc.count, enc.count, enc.edge_time, enc.edge_time_before, omega)
-    return omega, stamp, fresh | ~hw.encoder, new
+    return omega, stamp, fresh | ~hardware.encoder, new
 
 
-def vehicle_speed(hw: BrakeHardware, key, k, v_true):
+def vehicle_speed(hardware: BrakeHardware, key, k, v_true):
     """The measured vehicle speed at sample `k`: truth plus the noise of run key `key`."""
-    noise = hw.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (),
+    noise = hardware.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (),
                                                    jnp.result_type(float))
-    return v_true + jnp.where(hw.noise, noise, 0.0)
+    return v_true + jnp.where(hardware.noise, noise, 0.0)

@@ -96,21 +96,21 @@ def physical_limit(scenario: BrakingScenario, stop_speed: float = STOP_SPEED):
     return _two_surfaces(scenario, v0, v_stop, scenario.change.distance, scenario.change.time)
 
 
-def _onset(scenario: BrakingScenario, hw: BrakeHardware, n_samples: int, v_stop):
+def _onset(scenario: BrakingScenario, hardware: BrakeHardware, n_samples: int, v_stop):
     """``(x, t, v)`` of the point mass after `n_samples` samples of the actuator's rise
     under a full command (time counted while the speed is above `v_stop`)."""
     car = scenario.car
-    T = hw.sample_time
+    T = hardware.sample_time
     h = T / _ONSET_SUBSTEPS
 
     def sample(carry, k):
         act, x, v, t_moving = carry
-        act, target = actuator_target(hw, act, k, hw.max_torque)
+        act, target = actuator_target(hardware, act, k, hardware.max_torque)
 
         def rates(tau, x, v):
             tire = scenario.tire_at(k * T + tau, x, v)
             mu = peak_braking(tire, jnp.maximum(v, v_stop), car.radius)[1]
-            torque = jnp.maximum(brake_torque(hw, act.torque, target, tau), 0.0)
+            torque = jnp.maximum(brake_torque(hardware, act.torque, target, tau), 0.0)
             force = jnp.minimum(mu * car.Fn_static, torque / car.radius)
             return v, jnp.where(v > v_stop, -force / car.mass, 0.0)
 
@@ -123,7 +123,7 @@ def _onset(scenario: BrakingScenario, hw: BrakeHardware, n_samples: int, v_stop)
             t_moving = t_moving + jnp.where(v > v_stop, h, 0.0)
             x = x + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
             v = v + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hw, act.torque, target, T))
+        act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hardware, act.torque, target, T))
         return (act, x, v, t_moving), None
 
     zero = jnp.zeros((), scenario.speed.dtype)
@@ -133,10 +133,10 @@ def _onset(scenario: BrakingScenario, hw: BrakeHardware, n_samples: int, v_stop)
 
 
 @eqx.filter_jit
-def _actuated(scenario, hw, n_samples, stop_speed):
+def _actuated(scenario, hardware, n_samples, stop_speed):
     v_stop = jnp.asarray(stop_speed, dtype=scenario.speed.dtype)
-    x1, t1, v1 = _onset(scenario, hw, n_samples, v_stop)
-    cap = hw.max_torque / (scenario.car.radius * scenario.car.Fn_static)
+    x1, t1, v1 = _onset(scenario, hardware, n_samples, v_stop)
+    cap = hardware.max_torque / (scenario.car.radius * scenario.car.Fn_static)
     change = scenario.change
     x2, t2 = _two_surfaces(scenario, jnp.maximum(v1, v_stop), v_stop, change.distance - x1,
                            change.time - t1, cap)
