@@ -28,6 +28,32 @@ def test_write_atomic_keeps_old_file_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
+def test_written_files_are_readable_by_others_under_the_umask(tmp_path):
+    """Files are created like any new file (0666 minus the umask), not mkstemp's 0600, and a
+    replaced file takes the same mode; the umask is the process's own."""
+    import os
+    import stat
+
+    mode = lambda p: stat.S_IMODE(os.stat(p).st_mode)  # noqa: E731
+    assert _io.FILE_MODE == 0o666 & ~_io._process_umask()
+    path = _io.write_json(tmp_path / "r.json", {"a": 1})
+    assert mode(path) == _io.FILE_MODE
+    if _io.FILE_MODE == 0o644:  # the usual umask 022
+        assert mode(path) & stat.S_IROTH
+    os.chmod(path, 0o600)
+    _io.write_atomic(path, b"x")
+    assert mode(path) == _io.FILE_MODE
+
+
+def test_cli_prints_its_version(capsys):
+    import vehsim
+
+    with pytest.raises(SystemExit) as e:
+        cli.build_parser().parse_args(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.strip() == f"vehsim {vehsim.__version__}"
+
+
 def test_cli_parses_reproduce_options():
     args = cli.build_parser().parse_args(["reproduce", "--full", "--out", "x", "--only", "combined"])
     assert (args.quick, args.out, args.only) == (False, "x", ["combined"])

@@ -17,6 +17,21 @@ import numpy as np
 T = TypeVar("T")
 
 
+def _process_umask() -> int:
+    """The process's file-creation mask (read by setting and restoring it, once, at import,
+    before any thread of vehsim's could create a file meanwhile)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _process_umask()
+FILE_MODE = 0o666 & ~_UMASK
+"""Permissions of the files vehsim writes: those of any new file (0644 under the usual
+umask 022), so that a colleague on a shared machine can read them. `tempfile.mkstemp`
+alone would leave 0600."""
+
+
 def _jsonable(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
@@ -38,13 +53,16 @@ def _jsonable(obj: Any) -> Any:
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary file name beside ``path`` (its folder created if needed); what is
-    written there replaces ``path`` by a rename when the block ends, and is removed if the
-    block raises."""
+    """Yield a temporary file name beside ``path`` (its folder created if needed, the file
+    created with the permissions `FILE_MODE` of any new file); what is written there
+    replaces ``path`` by a rename when the block ends, and is removed if the block raises."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
+    try:
+        os.fchmod(fd, FILE_MODE)
+    finally:
+        os.close(fd)
     try:
         yield tmp
         os.replace(tmp, path)

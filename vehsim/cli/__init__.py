@@ -23,11 +23,13 @@ COMMANDS = (reproduce, sweep, fit, optimise, brake)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
     from .._compilation import NO_CACHE_VARIABLE, default_cache_dir
 
     parser = argparse.ArgumentParser(
         prog="vehsim", description="Differentiable vehicle simulation (after Tsiotras, 2004)."
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines on stderr for long batched work")
     parser.add_argument("--no-compilation-cache", action="store_true",
