@@ -50,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     from ..progress import set_default
 
     jax.config.update("jax_enable_x64", True)
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # bad input (status 2, argparse's message), --help, --version
+        return int(e.code or 0)
     command_line_cache(args.no_compilation_cache)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     library_default = set_default(not args.no_progress)

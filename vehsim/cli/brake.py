@@ -14,8 +14,14 @@ CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate")
 command line does not import the controllers (which would slow down every command)."""
 
 
+MAX_SPEED = 100.0
+"""Largest initial speed [m/s] the command accepts (360 km/h)."""
+
+
 def register(subparsers) -> None:
+    from ..control.loop import STOP_SPEED
     from ..control.road.surfaces import SURFACES
+    from ._options import choice_of, integer, number
 
     p = subparsers.add_parser(
         "brake", help="closed-loop braking: ABS, slip tracking, friction estimation",
@@ -27,18 +33,28 @@ def register(subparsers) -> None:
         "beside them, the estimate of theta, status) "
         "and brake.png (speed, wheel slip, friction used vs available, estimated theta, "
         "brake command, distance).")
-    p.add_argument("--surface", default="dry_asphalt", help=f"one of: {', '.join(SURFACES)}")
+    surfaces = choice_of(SURFACES, "surface")
+    p.add_argument("--surface", default="dry_asphalt", type=surfaces,
+                   help=f"road surface: one of {', '.join(SURFACES)} (dry_asphalt)")
     p.add_argument("--controller", default="estimate",
+                   type=choice_of(CONTROLLER_NAMES, "controller"),
                    help=f"one of: {', '.join(CONTROLLER_NAMES)} (default: estimate)")
-    p.add_argument("--speed", type=float, default=30.0, help="initial speed [m/s] (30)")
-    p.add_argument("--change-to", default=None, help="a surface the road changes to")
-    p.add_argument("--change-distance", type=float, default=math.inf,
-                   help="distance [m] at which the surface changes")
-    p.add_argument("--change-time", type=float, default=math.inf,
-                   help="time [s] at which the surface changes")
+    p.add_argument("--speed", type=number(STOP_SPEED, MAX_SPEED, lower_open=True, unit="m/s"),
+                   default=30.0,
+                   help=f"initial speed [m/s], above the stop speed {STOP_SPEED:g} and at most "
+                        f"{MAX_SPEED:g} (30)")
+    p.add_argument("--change-to", default=None, type=surfaces,
+                   help="a surface the road changes to (needs --change-distance or "
+                        "--change-time)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--change-distance", type=number(0.0, unit="m", allow_inf=True),
+                       default=math.inf, help="distance [m] at which the surface changes")
+    where.add_argument("--change-time", type=number(0.0, unit="s", allow_inf=True),
+                       default=math.inf, help="time [s] at which the surface changes")
     p.add_argument("--ideal-hardware", action="store_true",
                    help="switch every hardware effect off (the 200 Hz sampling remains)")
-    p.add_argument("--seed", type=int, default=0, help="sensor noise seed (0)")
+    p.add_argument("--seed", type=integer(0, 2**32 - 1), default=0,
+                   help="sensor noise seed (0)")
     p.add_argument("--out", default="brake_results", help="output folder (brake_results/)")
     p.set_defaults(func=_brake)
 
@@ -58,6 +74,9 @@ def _brake(args) -> int:
     if args.change_to is not None and math.isinf(args.change_distance) \
             and math.isinf(args.change_time):
         raise ValueError("--change-to needs --change-distance or --change-time")
+    if args.change_to is None and not (math.isinf(args.change_distance)
+                                       and math.isinf(args.change_time)):
+        raise ValueError("--change-distance and --change-time need --change-to")
     hw = ideal_hardware() if args.ideal_hardware else realistic_hardware()
     print(f"vehsim brake: {args.controller} on {args.surface} from {args.speed:g} m/s",
           file=sys.stderr, flush=True)

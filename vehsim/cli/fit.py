@@ -8,6 +8,8 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from ._options import integer, number
+
     p = subparsers.add_parser(
         "fit",
         help="fit lumped LuGre parameters to braking data (CSV, see vehsim.identify.braking)",
@@ -20,9 +22,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="fit_results", help="output folder (default: fit_results/)")
     p.add_argument("--closed-loop", action="store_true",
                    help="fit the quarter car driven by the brake torque T_b (needs T_b, m, J)")
-    p.add_argument("--starts", type=int, default=4,
+    p.add_argument("--starts", type=integer(1, 1024), default=4,
                    help="multi-start: initial guesses solved in one vmapped call (default 4)")
-    p.add_argument("--radius", type=float, default=None,
+    p.add_argument("--radius", type=number(0.0, 5.0, lower_open=True, unit="m"), default=None,
                    help="wheel radius [m] if the data have no side file")
     p.add_argument("--only-fitted-kappa0", action="store_true",
                    help="skip the constant kappa0 = 1, 2 fits")

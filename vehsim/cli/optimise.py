@@ -11,18 +11,25 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from ._options import integer, number
+
     p = subparsers.add_parser(
         "optimise", help="optimal driving primitive (min-time / max-exit) on a benchmark road"
     )
-    p.add_argument("road", choices=["corner90", "uturn", "sturn"])
-    p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time")
-    p.add_argument("--tf-max", type=float, default=4.0,
+    p.add_argument("road", choices=["corner90", "uturn", "sturn"],
+                   help="benchmark road (docs/maneuvers.md): corner90, uturn or sturn")
+    p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time",
+                   help="min-time: reach the exit line soonest; max-exit: the largest exit "
+                        "speed within --tf-max (default: min-time)")
+    p.add_argument("--tf-max", type=number(0.0, 60.0, lower_open=True, unit="s"), default=4.0,
                    help="time budget of max-exit [s] (benchmark: 4.0, docs/maneuvers.md)")
-    p.add_argument("--friction", type=float, default=0.52, help="tire peak friction D")
-    p.add_argument("--segments", type=int, default=150,
+    p.add_argument("--friction", type=number(0.0, 2.0, lower_open=True), default=0.52,
+                   help="tire peak friction D, in (0, 2] (0.52)")
+    p.add_argument("--segments", type=integer(2, 20_000), default=150,
                    help="shooting segments (one RK4 node each; the benchmark uses >= 150 nodes)")
-    p.add_argument("--max-iter", type=int, default=500)
-    p.add_argument("--starts", type=int, default=1,
+    p.add_argument("--max-iter", type=integer(1, 100_000), default=500,
+                   help="interior-point iteration limit (500)")
+    p.add_argument("--starts", type=integer(1, 1024), default=1,
                    help="starting guesses solved together in one batched call (point-mass "
                         "seeds and centreline runs; the best is kept, every start's value "
                         "and status in the JSON), split over JAX's devices (on a CPU, "
@@ -43,8 +50,6 @@ def _optimise(args) -> int:
     from ..optimal.primitives import primitive_options, rally_gravel_car
     from ..plot import primitive_figure
 
-    if args.segments < 2:
-        raise ValueError(f"--segments must be >= 2, got {args.segments}")
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
     opts = primitive_options(args.objective, args.starts, max_iter=args.max_iter,

@@ -13,6 +13,8 @@ from typing import Any
 
 
 def register(subparsers) -> None:
+    from ._options import integer, number
+
     p = subparsers.add_parser(
         "sweep",
         help="simulate a grid of half-car scenarios (sharded over all devices), write JSON or netCDF",
@@ -23,16 +25,23 @@ def register(subparsers) -> None:
             "t_brake, drive_torque, ...). Every value is checked before the run."
         ),
     )
-    p.add_argument("--maneuver", choices=["step_steer", "brake_in_turn"], default="step_steer")
-    p.add_argument("--vehicle", default="rally_gravel", help="vehicle preset")
-    p.add_argument("--tire", default="rally_gravel_tire", help="tire preset")
+    p.add_argument("--maneuver", choices=["step_steer", "brake_in_turn"], default="step_steer",
+                   help="the maneuver (step_steer)")
+    p.add_argument("--vehicle", default="rally_gravel", type=preset_of_kind("vehicle_params"),
+                   help=f"vehicle preset: {', '.join(presets_of_kind('vehicle_params'))} "
+                        "(rally_gravel)")
+    p.add_argument("--tire", default="rally_gravel_tire", type=preset_of_kind("tire"),
+                   help=f"tire preset: {', '.join(presets_of_kind('tire'))} (rally_gravel_tire)")
     p.add_argument("--set", dest="axes", action="append", default=[], metavar="NAME=V1,V2",
                    help="a grid axis (repeatable)")
-    p.add_argument("--speed", type=float, default=20.0, help="initial speed [m/s]")
-    p.add_argument("--duration", type=float, default=5.0, help="simulated time [s]")
-    p.add_argument("--samples", type=int, default=101, help="saved time samples")
+    p.add_argument("--speed", type=number(0.0, 100.0, lower_open=True, unit="m/s"),
+                   default=20.0, help="initial speed [m/s], in (0, 100] (20)")
+    p.add_argument("--duration", type=number(0.0, 600.0, lower_open=True, unit="s"),
+                   default=5.0, help="simulated time [s], in (0, 600] (5)")
+    p.add_argument("--samples", type=integer(2, 100_000), default=101,
+                   help="saved time samples, at least 2 (101)")
     p.add_argument("--signals", action="store_true", help="also write every signal's history")
-    p.add_argument("--batch-size", type=int, default=None,
+    p.add_argument("--batch-size", type=integer(0), default=None,
                    help="members per vmapped chunk on each device (progress is counted per "
                         "chunk; default: a tenth of a device's share, at most 64; 0: the "
                         "whole share at once, better on a GPU)")
@@ -43,25 +52,49 @@ def register(subparsers) -> None:
                         "(SLURM, Open MPI, ...)")
     g.add_argument("--coordinator", metavar="HOST:PORT",
                    help="address of process 0's coordinator service (implies --distributed)")
-    g.add_argument("--num-processes", type=int, help="number of processes in the run")
-    g.add_argument("--process-id", type=int, help="this process's id, 0 to num-processes - 1")
+    g.add_argument("--num-processes", type=integer(1), help="number of processes in the run")
+    g.add_argument("--process-id", type=integer(0),
+                   help="this process's id, 0 to num-processes - 1")
     p.add_argument("--out", default="sweep.json",
-                   help="output file: JSON, or netCDF if it ends in .nc (needs vehsim[xarray])")
+                   help="output file: .json, or netCDF if it ends in .nc (needs vehsim[xarray])")
     p.set_defaults(func=_sweep)
 
 
 def parse_axes(items: list[str]) -> dict[str, list[float]]:
-    """``["m=1200,1450", "delta=0.1"]`` -> ``{"m": [1200.0, 1450.0], "delta": [0.1]}``."""
+    """``["m=1200,1450", "delta=0.1"]`` -> ``{"m": [1200.0, 1450.0], "delta": [0.1]}``;
+    an axis named twice, or a value that is not a finite number, is refused."""
+    import math
+
     axes = {}
     for item in items:
         name, sep, values = item.partition("=")
-        if not sep or not values:
+        name = name.strip()
+        if not sep or not values or not name:
             raise ValueError(f"--set expects NAME=V1,V2,..., got {item!r}")
+        if name in axes:
+            raise ValueError(f"--set {name}: the axis is given twice; list its values in one "
+                             f"flag, --set {name}=V1,V2,...")
         try:
-            axes[name.strip()] = [float(v) for v in values.split(",")]
+            axes[name] = [float(v) for v in values.split(",")]
         except ValueError:
             raise ValueError(f"--set {name}: values must be numbers, got {values!r}") from None
+        if not all(math.isfinite(v) for v in axes[name]):
+            raise ValueError(f"--set {name}: values must be finite numbers, got {values!r}")
     return axes
+
+
+def presets_of_kind(kind: str) -> list[str]:
+    """The names of the presets of `kind` (`vehsim.params.PRESET_KINDS`)."""
+    from ..params import PRESET_KINDS
+
+    return [name for name, k in PRESET_KINDS.items() if k == kind]
+
+
+def preset_of_kind(kind: str):
+    """An argparse type: the name of a preset of `kind`."""
+    from ._options import choice_of
+
+    return choice_of(presets_of_kind(kind), f"{kind.replace('_', ' ')} preset")
 
 
 def summary(traj) -> dict[str, Any]:
@@ -94,9 +127,11 @@ def _sweep(args: argparse.Namespace) -> int:
     from ..params import preset
     from ..sharding import num_members
     from ..vehicle.maneuvers import half_car_scenario
+    from ._options import output_file
     from ._status import exit_status
 
     axes = parse_axes(args.axes)
+    output_file("--out", args.out, {".json": "json", ".nc": "netcdf"})
     if args.distributed or args.coordinator:
         join_distributed(args)
     params, tire = preset(args.vehicle), preset(args.tire)

@@ -15,6 +15,8 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._checks import check_positive
+
 
 def smooth_step(t, t0, rise):
     r"""0 before $t_0$, 1 after $t_0 + $ `rise`, $3s^2 - 2s^3$ in between."""
@@ -96,6 +98,7 @@ def half_car_scenario(params, tire, maneuver: str, speed: float, axes: Sequence[
         kw = dict(defaults) | {k: member[k] for k in axes if k in build_args}
         car = HalfCar(p, t)
         v0 = member["speed"] if "speed" in member else speed
+        check_positive("half_car_scenario", "speed", v0)
         return car, build(**kw), car.init_state(vx=v0)
 
     return scenario

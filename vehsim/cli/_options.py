@@ -1,0 +1,91 @@
+"""The command line's one validation path: option types that check while parsing.
+
+Each factory returns an ``argparse`` ``type=`` callable. A value that does not parse or is
+out of its range raises `argparse.ArgumentTypeError`, which argparse reports as
+``vehsim CMD: error: argument --speed: must be a finite number in (0, 100] m/s, got 'nan'``
+with exit status 2: the option as the user typed it, its allowed range, before any
+compilation and before any file is written. Checks that involve several options (an output
+extension against a format, options that need each other) raise `ValueError` from the
+command before its first computation; `vehsim.cli.main` turns that into the same exit
+status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+
+def _interval(lower, upper, lower_open, upper_open, unit) -> str:
+    lo = "-inf" if lower is None else f"{lower:g}"
+    hi = "inf" if upper is None else f"{upper:g}"
+    text = f"{'(' if lower_open or lower is None else '['}{lo}, {hi}" \
+           f"{')' if upper_open or upper is None else ']'}"
+    return f"{text} {unit}".rstrip()
+
+
+def number(lower: float | None = None, upper: float | None = None, *, lower_open=False,
+           upper_open=False, unit: str = "", allow_inf: bool = False):
+    """A finite float in the interval (``inf`` too if `allow_inf`, for "never")."""
+    allowed = _interval(lower, upper, lower_open, upper_open, unit)
+    what = "a number (or inf)" if allow_inf else "a finite number"
+
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what} in {allowed}, got {text!r}") \
+                from None
+        infinite_ok = allow_inf and math.isinf(x) and x > 0
+        bad = math.isnan(x) or (math.isinf(x) and not infinite_ok) or (not infinite_ok and (
+            (lower is not None and (x < lower or (lower_open and x == lower)))
+            or (upper is not None and (x > upper or (upper_open and x == upper)))))
+        if bad:
+            raise argparse.ArgumentTypeError(f"must be {what} in {allowed}, got {text!r}")
+        return x
+
+    return parse
+
+
+def integer(lower: int | None = None, upper: int | None = None):
+    """An integer in ``[lower, upper]``."""
+    allowed = _interval(lower, upper, False, False, "")
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer in {allowed}, got {text!r}") \
+                from None
+        if (lower is not None and n < lower) or (upper is not None and n > upper):
+            raise argparse.ArgumentTypeError(f"must be an integer in {allowed}, got {text!r}")
+        return n
+
+    return parse
+
+
+def choice_of(names, what: str):
+    """One of `names` (a case-sensitive word), the message listing them."""
+    names = tuple(names)
+
+    def parse(text: str) -> str:
+        if text not in names:
+            raise argparse.ArgumentTypeError(
+                f"unknown {what} {text!r}; one of: {', '.join(names)}")
+        return text
+
+    return parse
+
+
+def output_file(option: str, path: str, suffixes: dict[str, str]) -> str:
+    """The format of an output file from its extension (`suffixes`: extension -> format),
+    refused (naming `option`) when the extension is none of them."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in suffixes:
+        raise ValueError(f"{option}: the file name must end in "
+                         f"{' or '.join(suffixes)} (the format follows it), got {path!r}")
+    return suffixes[suffix]
+
+
+__all__ = ["choice_of", "integer", "number", "output_file"]
