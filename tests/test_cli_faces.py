@@ -87,6 +87,8 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     assert rec["point_mass_t_f"] < rec["t_f"] and rec["max_corridor_violation"] <= 1e-3
     assert set(rec["violations"]) >= {"corridor", "boundary", "defects"}
     assert len(rec["t"]) == len(rec["states"]["x"]) == len(rec["inputs"]["delta"]) == M + 1
+    assert (rec["units"]["t_f"], rec["units"]["states.vx"],
+            rec["units"]["max_corridor_violation_between_nodes"]) == ("s", "m/s", "m")
     assert _is_png(tmp_path / "corner90_min-time.png")
     rc, _, err = _vehsim("optimise", "corner90", "--segments", 1, "--out", tmp_path / "x")
     assert rc == 2 and "--segments" in err
@@ -146,6 +148,7 @@ def test_brake_writes_the_braking_against_its_limits_and_caches_what_it_compiled
     assert not uncached.exists() or not any(uncached.iterdir())
     rec = records[0]
     assert rec == records[1]
+    assert (rec["units"]["stopping_distance_m"], rec["units"]["theta_estimate"]) == ("m", "1")
     assert (rec["surface"], rec["controller"], rec["status"]) == ("wet_asphalt", "estimate",
                                                                   "successful")
     assert rec["bound_distance_m"] < rec["actuated_bound_distance_m"] < rec[

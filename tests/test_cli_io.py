@@ -116,3 +116,46 @@ def test_a_failed_solve_ends_the_command_with_its_case_and_message(tmp_path, cap
             + result_message_of_name("max_steps_reached")) in err
     rows = json.loads(out.read_text())["members"]
     assert [(r["ok"], r["status"]) for r in rows] == [(False, "max_steps_reached")] * 2
+
+
+def test_units_block_names_every_numeric_field_and_load_result_reads_it_back(tmp_path):
+    import vehsim
+    from vehsim._result_files import units_block, with_units
+
+    record = {"stopping_distance_m": 41.0, "speed_m_s": 30.0, "distance_over_bound": 1.02,
+              "t_f": 3.6, "status": "successful", "ok": True,
+              "residuals": {"inf_pr": 1e-9}, "starts": [{"objective": 3.6, "iterations": 28}],
+              "states": {"x": [0.0, 1.0], "vx": [20.0, 21.0]}, "theta_true": 1.0,
+              "samples": [[1.0, None], [2.0, 3.0]]}
+    own = {"residuals.inf_pr": "1", "starts[].objective": "s", "theta_true": "1", "samples": "1"}
+    units = units_block(record, own)
+    assert units == {"stopping_distance_m": "m", "speed_m_s": "m/s", "distance_over_bound": "1",
+                     "t_f": "s", "residuals.inf_pr": "1", "starts[].objective": "s",
+                     "starts[].iterations": "1", "states.x": "m", "states.vx": "m/s",
+                     "theta_true": "1", "samples": "1"}
+    with pytest.raises(ValueError, match="'theta_true'"):  # a writer that forgot a unit
+        units_block(record, {k: v for k, v in own.items() if k != "theta_true"})
+    path = _io.write_json(tmp_path / "r.json", with_units(record, own))
+    back = vehsim.load_result(path)
+    assert back["units"] == units
+    np.testing.assert_array_equal(back["states"]["vx"], [20.0, 21.0])
+    assert isinstance(back["states"]["vx"], np.ndarray)
+    assert np.isnan(back["samples"][0, 1]) and back["samples"][1, 1] == 3.0
+    assert back["status"] == "successful" and back["starts"][0]["iterations"] == 28
+    with pytest.raises(ValueError, match=r"\.json, \.nc and \.csv"):
+        vehsim.load_result(tmp_path / "r.txt")
+    with pytest.raises(FileNotFoundError):
+        vehsim.load_result(tmp_path / "missing.json")
+
+
+def test_fit_points_out_a_kappa0_far_from_the_lumped_models_range():
+    import types
+
+    from vehsim.cli.fit import kappa0_note
+
+    fit = types.SimpleNamespace(free=("kappa0", "sigma0"), values={"kappa0": 0.11},
+                                std_errors={"kappa0": 0.2}, condition_number=3e4)
+    note = kappa0_note(fit)
+    assert "kappa0 = 0.11 +/- 0.2" in note and "poorly" in note and "3e+04" in note
+    assert kappa0_note(types.SimpleNamespace(**{**vars(fit), "values": {"kappa0": 1.4}})) is None
+    assert kappa0_note(types.SimpleNamespace(**{**vars(fit), "free": ("sigma0",)})) is None

@@ -75,7 +75,7 @@ def test_noise_free_lumped_data_recovers_every_parameter(brakings):
     # the 30 %-off start itself reached the optimum (not only a lucky random start); the
     # remaining loss is the weak prior's pull (prior_weight = 1e-4), orders below any noise
     losses = res.starts["losses"]
-    assert res.starts["status"][0] == "successful"
+    assert res.starts["solver_status"][0] == "successful"
     assert losses[0] <= min(losses) * (1 + 1e-3) + 1e-20
     assert res.loss < 1e-6
     # noise-free: standard errors are tiny compared with the values

@@ -211,6 +211,7 @@ from .optimal.replay import (
 # isort: split
 # labelled results (xarray, netCDF), sweeps across processes, the compilation cache
 from ._compilation import enable_compilation_cache as enable_compilation_cache
+from ._result_files import load_result as load_result
 from .labelled import (
     primitives_to_xarray as primitives_to_xarray,
     robot_grid_to_xarray as robot_grid_to_xarray,

@@ -14,6 +14,10 @@ CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate")
 command line does not import the controllers (which would slow down every command)."""
 
 
+UNITS = {"theta_true": "1", "theta_estimate": "1", "theta_bias": "1"}
+"""Units of brake.json's fields that their names do not carry (the road condition theta of
+the LuGre tire is dimensionless; the bias is relative)."""
+
 MAX_SPEED = 100.0
 """Largest initial speed [m/s] the command accepts (360 km/h)."""
 
@@ -67,6 +71,7 @@ def _brake(args) -> int:
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
+    from .._result_files import with_units
     from ..control.experiments.experiment import braking_experiment
     from ..control.plant.hardware import ideal_hardware, realistic_hardware
     from ..plot import braking_figure
@@ -84,7 +89,7 @@ def _brake(args) -> int:
         args.surface, args.controller, args.speed, args.change_to, args.change_distance,
         args.change_time, hw, jax.random.PRNGKey(args.seed))
     folder = Path(args.out)
-    write_json(folder / "brake.json", record)
+    write_json(folder / "brake.json", with_units(record, UNITS))
     change = f", to {args.change_to}" if args.change_to else ""
     fig = braking_figure(signals, title=f"{args.surface}{change} from {args.speed:g} m/s")
     save_figure(fig, folder / "brake.png")

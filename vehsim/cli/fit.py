@@ -31,6 +31,28 @@ def register(subparsers) -> None:
     p.set_defaults(func=_fit)
 
 
+KAPPA0_RANGE = (0.5, 3.0)
+"""The kappa0 the lumped model's derivation gives (eq. 25: the exact constant runs from 2 at
+small slip to 1 at a locked wheel for a uniform load, a little wider for others)."""
+
+
+def kappa0_note(fit) -> str | None:
+    """A sentence pointing out a fitted kappa0 far outside `KAPPA0_RANGE`, with the
+    diagnostics that explain it; None when kappa0 is fixed or inside."""
+    if "kappa0" not in fit.free:
+        return None
+    k, se = fit.values["kappa0"], fit.std_errors["kappa0"]
+    lo, hi = KAPPA0_RANGE
+    if lo <= k <= hi:
+        return None
+    return (f"kappa0 = {k:.3g} +/- {se:.2g} lies far from the {lo:g}-{hi:g} of the lumped "
+            f"model's derivation (eq. 25; the exact constant runs from 2 at small slip to 1 at "
+            f"a locked wheel). Jacobian condition number {fit.condition_number:.3g}: "
+            + ("the data determine kappa0 poorly (little slip excitation?); "
+               if se > 0.5 * abs(k) or fit.condition_number > 1e6 else "")
+            + "a tire that is not a lumped LuGre, or a wrong wheel radius, also moves it")
+
+
 def _fit(args) -> int:
     import matplotlib
 
@@ -38,6 +60,7 @@ def _fit(args) -> int:
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
+    from .._result_files import with_units
     from ..identify.braking import load_braking
     from ..plot import force_histories_figure
     from ..reproduce.identify import VARIANTS, identify
@@ -56,7 +79,7 @@ def _fit(args) -> int:
     summary = out["summary"]
     summary["files"] = {"train": [str(f) for f in args.data],
                         "validate": [str(f) for f in args.validate]}
-    write_json(folder / "fit.json", summary)
+    write_json(folder / "fit.json", with_units(summary, strict=False))
     fig = force_histories_figure(train + validate, out["predictions"], list(variants),
                                  title="measured vs predicted friction force (lumped LuGre)",
                                  held_out=[d.name for d in validate])
@@ -66,6 +89,9 @@ def _fit(args) -> int:
     print(f"wrote {folder / 'fit.json'} and {folder / 'fit.png'}", file=sys.stderr)
     for n in best.free:
         print(f"  {n:7s} = {best.values[n]:.6g} +/- {best.std_errors[n]:.2g}", file=sys.stderr)
+    note = kappa0_note(best)
+    if note:
+        print(f"  note: {note}", file=sys.stderr)
     from ._status import exit_status
 
     return max(exit_status(f"fit: {label}", f.result, f.message)

@@ -10,6 +10,20 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 
+UNITS = {
+    "residuals.inf_pr": "1", "residuals.inf_du": "1", "residuals.compl": "1",
+    "violations.corridor": "m", "violations.corridor_between_nodes": "m",
+    "violations.boundary": "m, rad or m/s (the largest)", "violations.defects": "1",
+    "violations.inputs": "1 or rad (the largest)", "violations.axle_speed_floor": "m/s",
+    "violations.time_budget": "s", "max_corridor_violation": "m",
+    "max_corridor_violation_between_nodes": "m", "point_mass_t_f": "s",
+    "point_mass_exit_speed": "m/s", "t_f_over_bound": "1", "starts[].objective":
+    "s (min-time) or -m/s (max-exit)",
+}
+"""Units of the optimise JSON's fields that `vehsim.labelled.UNITS` and their names do not
+give (the interior point's residuals are scaled, dimensionless)."""
+
+
 def register(subparsers) -> None:
     from ._options import integer, number
 
@@ -46,6 +60,7 @@ def _optimise(args) -> int:
 
     from .._compilation import primitive_and_bound
     from .._io import save_figure, write_json
+    from .._result_files import with_units
     from ..optimal.primitive import solution_record
     from ..optimal.primitives import primitive_options, rally_gravel_car
     from ..plot import primitive_figure
@@ -71,7 +86,7 @@ def _optimise(args) -> int:
     rec["wall_time_s"] = wall
     out = Path(args.out)
     stem = f"{args.road}_{args.objective}"
-    write_json(out / f"{stem}.json", rec)
+    write_json(out / f"{stem}.json", with_units(rec, UNITS))
     fig = primitive_figure(prim, title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
                             f"exit {rec['exit_speed']:.2f} m/s")
     save_figure(fig, out / f"{stem}.png")

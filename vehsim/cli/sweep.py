@@ -200,6 +200,7 @@ def _write_json(out, res, stats, info, wall, signals) -> Path:
     import numpy as np
 
     from .._io import write_json
+    from .._result_files import with_units
     from .._results import is_successful, result_message_of_name, result_name
 
     members, statuses = res.members, result_name(res.result)
@@ -220,4 +221,5 @@ def _write_json(out, res, stats, info, wall, signals) -> Path:
                 "members": rows}
     if signals:
         out_data["ts"] = res.trajectories.ts[0]
-    return write_json(out, out_data)
+    # the axes are any model field or maneuver argument: those vehsim knows get their units
+    return write_json(out, with_units(out_data, strict=False))

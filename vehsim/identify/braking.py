@@ -145,12 +145,12 @@ def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
     dt = np.diff(values["t"])
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0)) + 2
-        _fail(path, i, "t", f"time must increase strictly, got {values['t'][i - 1]!r} after "
-              f"{values['t'][i - 2]!r}")
+        _fail(path, i, "t", f"time must increase strictly, got {float(values['t'][i - 1]):g} after "
+              f"{float(values['t'][i - 2]):g}")
     for c in ("F_n", "T_b"):
         if c in values and np.any(values[c] < 0):
             i = int(np.argmax(values[c] < 0)) + 1
-            _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {values[c][i - 1]!r}")
+            _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {float(values[c][i - 1]):g}")
 
 
 def _read_wheel_data(path: Path, r: float | None) -> dict:
@@ -165,8 +165,9 @@ def _read_wheel_data(path: Path, r: float | None) -> dict:
     if r is not None:
         meta["r"] = r
     if "r" not in meta:
-        raise ValueError(f"{path}: wheel radius 'r' [m] missing: put it in {side.name} "
-                         "or pass r=")
+        raise ValueError(f"{path}: wheel radius 'r' [m] missing: put it in the side file "
+                         f"{side.name}, or give it (--radius on the command line, r= to "
+                         "load_braking)")
     scalars = {}
     for key in ("r", "m", "J"):
         if key in meta and meta[key] is not None:

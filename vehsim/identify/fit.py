@@ -65,7 +65,10 @@ class FitResult:
     MINPACK's `gradient_cosine` and `predicted_reduction` (`vehsim.identify.diagnostics`);
     `message` says why in words, with the residual; `at_bound` names parameters the data
     drive to 0 (within 2 standard errors); `errors` the force errors per training braking;
-    `starts` every start's loss and outcome.
+    `starts` every start's loss and Levenberg-Marquardt's own outcome
+    (``solver_status``), `solver_status` the best start's: a fit is `successful` where the
+    solver converged or, having stopped short, MINPACK's tests find its optimum stationary,
+    and `message` says which.
     """
 
     model: LumpedLuGre
@@ -84,6 +87,7 @@ class FitResult:
     starts: dict[str, Any]
     wall_time_s: float
     at_bound: tuple[str, ...] = ()
+    solver_status: str = "successful"
 
     @property
     def converged(self) -> bool:
@@ -102,7 +106,10 @@ class FitResult:
         if self.converged:
             bound = ", ".join(f"{n} = {self.values[n]:.3g} +/- {self.std_errors[n]:.2g}"
                               for n in self.at_bound)
-            return (f"converged (gradient cosine {cosine:.2g}, predicted relative loss "
+            how = "converged" if self.solver_status == "successful" else (
+                f"stationary by MINPACK's tests, although Levenberg-Marquardt stopped with "
+                f"{self.solver_status} after {self.num_steps} steps")
+            return (f"{how} (gradient cosine {cosine:.2g}, predicted relative loss "
                     f"reduction {reduction:.2g})") + (
                 f"; at the lower bound 0 (within 2 standard errors): {bound}" if bound else "")
         if bool(self.result == RESULTS.nonfinite):
@@ -300,9 +307,11 @@ def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, pr
                          max_steps, slots, progress)
         core = eqx.tree_at(lambda c: c.model, jax.tree.map(np.asarray, core), core.model)
     losses, finite = core.losses, np.isfinite(core.losses)
+    n_converged = int(np.sum(is_successful(core.results)))
     _log(verbose, f"solved {n_starts} start(s) in {time.perf_counter() - t_start:.1f}s: "
-         f"{int(np.sum(is_successful(core.results)))} converged, best loss "
-         f"{np.nanmin(np.where(finite, losses, np.nan)):.4g}"
+         f"Levenberg-Marquardt converged in {n_converged}, stopped short in "
+         f"{n_starts - n_converged} (each start's solver_status is in the result), best loss "
+         f"{np.nanmin(np.where(finite, losses, np.nan)):.4g}; the best start is judged next"
          if finite.any() else "no start gave a finite loss")
     return core
 
@@ -385,13 +394,14 @@ def _assemble(problem: _Problem, braking, core: _FitCore, diag: Diagnostics,
         predicted_reduction=diag.predicted_reduction,
         errors={d.name: force_errors(F, d.F_x) for F, d in zip(forces, problem.data)},
         starts=_starts_summary(core, names), wall_time_s=time.perf_counter() - t_start,
-        at_bound=diag.at_bound,
+        at_bound=diag.at_bound, solver_status=result_name(solver_result),
     )
 
 
 def _starts_summary(core: _FitCore, names) -> dict[str, Any]:
-    """Every start's loss, outcome (`vehsim.RESULTS` case) and steps, and the spread of the
-    free values over the starts that reached (within 1e-6 relative) the best loss."""
+    """Every start's loss, Levenberg-Marquardt's outcome (``solver_status``, a
+    `vehsim.RESULTS` case) and steps, and the spread of the free values over the starts that
+    reached (within 1e-6 relative) the best loss."""
     losses, best = core.losses, int(core.best)
     n_starts = len(losses)
     rows = [dict(zip(PARAMETER_NAMES, row)) for row in core.values.tolist()]
@@ -400,7 +410,7 @@ def _starts_summary(core: _FitCore, names) -> dict[str, Any]:
     return {
         "n_starts": n_starts,
         "losses": [float(x) if np.isfinite(x) else None for x in losses],
-        "status": result_name(core.results),
+        "solver_status": result_name(core.results),
         "num_steps": [int(x) for x in core.steps],
         "best": best,
         "n_at_best": len(near),
