@@ -159,3 +159,48 @@ def test_fit_points_out_a_kappa0_far_from_the_lumped_models_range():
     assert "kappa0 = 0.11 +/- 0.2" in note and "poorly" in note and "3e+04" in note
     assert kappa0_note(types.SimpleNamespace(**{**vars(fit), "values": {"kappa0": 1.4}})) is None
     assert kappa0_note(types.SimpleNamespace(**{**vars(fit), "free": ("sigma0",)})) is None
+
+
+def test_waiting_line_says_compiling_once_then_loading(tmp_path):
+    from vehsim.cli._status import waiting_line
+
+    first = waiting_line(tmp_path, "closed loop", "jit_closed_loop_grid", "30-60 s")
+    assert first.startswith("compiling closed loop (30-60 s, this once") and str(tmp_path) in first
+    (tmp_path / "jit_closed_loop_grid-abc").write_bytes(b"")
+    assert waiting_line(tmp_path, "closed loop", "jit_closed_loop_grid", "30-60 s").startswith(
+        "loading the compiled closed loop from the cache")
+    assert "cache is off" in waiting_line(None, "closed loop", "jit_closed_loop_grid", "30-60 s")
+
+
+def test_brake_figure_marks_the_change_and_clips_a_spiking_estimate():
+    import argparse
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vehsim.cli.brake import figure_title
+    from vehsim.plot import braking_figure
+
+    t = np.linspace(0.0, 3.0, 301)
+    truth = np.where(t < 1.0, 1.0, 5.0)
+    run = dict(ts=t, v=30 - 9 * t, slip=-0.1 + 0 * t, mu=0.8 + 0 * t, theta_hat=truth,
+               command=1e3 + 0 * t, torque=9e2 + 0 * t, x=30 * t, theta_true=truth)
+    locked = dict(run, theta_hat=np.where((t > 1.0) & (t < 1.2), 40.0, truth))
+    fig = braking_figure({"estimate": run, "locked": locked})
+    theta = fig.axes[3]
+    assert theta.get_yscale() == "linear" and theta.get_ylim() == (0.0, 7.5)
+    assert "clipped" in theta.get_ylabel()
+    marks = [ln for ln in fig.axes[0].lines if ln.get_linestyle() == "-."]
+    assert len(marks) == 2 and marks[0].get_xdata()[0] == pytest.approx(t[np.argmax(t >= 1.0)])
+    plt.close(fig)
+    fig = braking_figure({"estimate": run})
+    assert "clipped" not in fig.axes[3].get_ylabel()
+    plt.close(fig)
+    args = argparse.Namespace(controller="estimate", ideal_hardware=False, surface="dry_asphalt",
+                              change_to="ice", change_distance=20.0, change_time=math.inf,
+                              speed=30.0)
+    assert figure_title(args) == ("controller 'estimate' (beside a locked wheel), realistic "
+                                  "hardware: dry_asphalt, changing to ice at 20 m (dash-dot "
+                                  "line), from 30 m/s")

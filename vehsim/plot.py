@@ -140,10 +140,15 @@ def braking_figure(runs: dict, title: str = ""):
     speed), the estimated road condition against the truth, the brake command and torque,
     and the distance. `runs` maps a label to a dict of arrays: ``ts``, ``v``, ``slip``,
     ``mu``, ``theta_hat``, ``command``, ``torque``, ``x`` and, where known, ``peak_slip``,
-    ``peak_mu``, ``theta_true``; each is drawn while the car moves (above 0.5 m/s)."""
+    ``peak_mu``, ``theta_true``; each is drawn while the car moves (above 0.5 m/s). A surface
+    change (a jump of ``theta_true``) is marked in every panel by a vertical line in the
+    run's colour. The road condition is drawn on a linear scale clipped to 1.5 times the
+    largest true value (a locked wheel's estimate, which has no tone-wheel edges to learn
+    from, can spike far above it; the panel says when it is clipped)."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(3, 2, figsize=(11, 8.5), sharex=True)
+    theta_top, estimate_top = 0.0, 0.0
     for i, (label, s) in enumerate(runs.items()):
         c = f"C{i}"
         moving = np.asarray(s["v"]) > 0.5
@@ -159,17 +164,28 @@ def braking_figure(runs: dict, title: str = ""):
         if "peak_slip" in s:
             ax[0, 1].plot(t, s["peak_slip"], "k:", lw=0.8)
             ax[1, 0].plot(t, s["peak_mu"], "k:", lw=0.8)
-        if "theta_true" in s:
-            ax[1, 1].plot(t, s["theta_true"], "k--", lw=0.8)
+        if "theta_true" in s and s["theta_true"].size:
+            truth = s["theta_true"]
+            ax[1, 1].plot(t, truth, "k--", lw=0.8)
+            theta_top = max(theta_top, float(np.max(truth)))
+            for k in np.nonzero(np.diff(truth) != 0)[0]:
+                for a in ax.ravel():
+                    a.axvline(t[k + 1], color=c, lw=0.8, ls="-.", alpha=0.6)
+        if s["theta_hat"].size:
+            estimate_top = max(estimate_top, float(np.max(s["theta_hat"])))
+    theta_label = "road condition theta: estimate, truth (dashed)"
+    if theta_top > 0:
+        ax[1, 1].set_ylim(0.0, 1.5 * theta_top)
+        if estimate_top > 1.5 * theta_top:
+            theta_label += "; clipped at 1.5x the truth"
     labels = [("speed [m/s]", "wheel slip s (dotted: peak of eq. 19)"),
-              ("|F_x|/F_n: used, available (dotted)", "road condition theta: estimate, truth"),
+              ("|F_x|/F_n: used, available (dotted)", theta_label),
               ("brake torque [N m] (dotted: command)", "distance [m]")]
     for row, (left, right) in enumerate(labels):
         ax[row, 0].set_ylabel(left, fontsize=8)
         ax[row, 1].set_ylabel(right, fontsize=8)
         for a in ax[row]:
             a.grid(alpha=0.3)
-    ax[1, 1].set_yscale("log")
     ax[2, 0].set_xlabel("t [s]")
     ax[2, 1].set_xlabel("t [s]")
     ax[0, 0].legend(fontsize=8)

@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # bad input (status 2, argparse's message), --help, --version
         return int(e.code or 0)
-    command_line_cache(args.no_compilation_cache)
+    args.cache_dir = command_line_cache(args.no_compilation_cache)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     library_default = set_default(not args.no_progress)
     try:

@@ -25,3 +25,20 @@ def exit_status(command: str, result, message: str | None = None) -> int:
         text = message if message is not None and ok.ndim == 0 else result_message_of_name(name)
         print(f"vehsim {command}: {name}{count}: {text}", file=sys.stderr)
     return 1
+
+
+def waiting_line(cache_dir, what: str, program_prefix: str, first_time: str) -> str:
+    """What a command says before its first compiled call: compiling `what` (`first_time`
+    the first time, cached in `cache_dir` for the next run) when no program named
+    `program_prefix`* is in the cache yet, else loading it from there; compiling afresh when
+    the cache is off (`cache_dir` None)."""
+    from pathlib import Path
+
+    if cache_dir is None:
+        return f"compiling {what} ({first_time}; the compilation cache is off)"
+    folder = Path(cache_dir)
+    if folder.is_dir() and any(folder.glob(f"{program_prefix}*")):
+        return (f"loading the compiled {what} from the cache in {folder} (a size not run "
+                f"before compiles anew)")
+    return (f"compiling {what} ({first_time}, this once: the next run loads it from the cache "
+            f"in {folder})")

@@ -63,6 +63,18 @@ def register(subparsers) -> None:
     p.set_defaults(func=_brake)
 
 
+def figure_title(args) -> str:
+    """The brake figure's title: controller, hardware, road (and its change), speed."""
+    where = ""
+    if args.change_to:
+        where = (f" at {args.change_distance:g} m" if math.isfinite(args.change_distance)
+                 else f" at {args.change_time:g} s")
+        where = f", changing to {args.change_to}{where} (dash-dot line)"
+    hardware = "ideal" if args.ideal_hardware else "realistic"
+    return (f"controller {args.controller!r} (beside a locked wheel), {hardware} hardware: "
+            f"{args.surface}{where}, from {args.speed:g} m/s")
+
+
 def _brake(args) -> int:
     import jax
     import matplotlib
@@ -75,6 +87,7 @@ def _brake(args) -> int:
     from ..control.experiments.experiment import braking_experiment
     from ..control.plant.hardware import ideal_hardware, realistic_hardware
     from ..plot import braking_figure
+    from ._status import waiting_line
 
     if args.change_to is not None and math.isinf(args.change_distance) \
             and math.isinf(args.change_time):
@@ -83,15 +96,16 @@ def _brake(args) -> int:
                                        and math.isinf(args.change_time)):
         raise ValueError("--change-distance and --change-time need --change-to")
     hw = ideal_hardware() if args.ideal_hardware else realistic_hardware()
-    print(f"vehsim brake: {args.controller} on {args.surface} from {args.speed:g} m/s",
+    print(f"vehsim brake: {args.controller} on {args.surface} from {args.speed:g} m/s; "
+          + waiting_line(getattr(args, "cache_dir", None), "closed loop and its limits",
+                         "jit_closed_loop_grid", "30-60 s on 2 cores"),
           file=sys.stderr, flush=True)
     record, signals = braking_experiment(
         args.surface, args.controller, args.speed, args.change_to, args.change_distance,
         args.change_time, hw, jax.random.PRNGKey(args.seed))
     folder = Path(args.out)
     write_json(folder / "brake.json", with_units(record, UNITS))
-    change = f", to {args.change_to}" if args.change_to else ""
-    fig = braking_figure(signals, title=f"{args.surface}{change} from {args.speed:g} m/s")
+    fig = braking_figure(signals, title=figure_title(args))
     save_figure(fig, folder / "brake.png")
     plt.close(fig)
     print(f"wrote {folder / 'brake.json'} and {folder / 'brake.png'}", file=sys.stderr)

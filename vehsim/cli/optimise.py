@@ -64,13 +64,16 @@ def _optimise(args) -> int:
     from ..optimal.primitive import solution_record
     from ..optimal.primitives import primitive_options, rally_gravel_car
     from ..plot import primitive_figure
+    from ._status import waiting_line
 
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
     opts = primitive_options(args.objective, args.starts, max_iter=args.max_iter,
                              verbose=not args.quiet)
-    print(f"vehsim optimise {args.road} --objective {args.objective}: compiling and solving "
-          f"({args.segments} segments)...", file=sys.stderr, flush=True)
+    print(f"vehsim optimise {args.road} --objective {args.objective}, {args.segments} segments: "
+          + waiting_line(getattr(args, "cache_dir", None), "interior-point solver",
+                         "exported/interior_point", "about a minute on 2 cores")
+          + "; then solving (the iteration log follows the solve)", file=sys.stderr, flush=True)
     # the plotting library is imported on another thread while the solver runs (its compiled
     # loop does not hold the interpreter's lock)
     with ThreadPoolExecutor(1) as pool:

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._results import result_name
 from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
 from ..vehicle.params import rally_gravel
@@ -237,9 +238,13 @@ def best_start(prob: ManeuverOCP, sols: IPSolution, n: int, verbose: bool,
     # on one device, as the arrays the caller combines them with (the bound, the record)
     sols = jax.device_put(jax.tree.map(lambda a: a[:n], sols), jax.devices()[0])
     if verbose:
+        names = result_name(sols.result)
         for k in range(n):
-            print(f"start {k}:", file=sys.stderr)
-            print_iteration_log(jax.tree.map(lambda a: a[k], sols))
+            sol = jax.tree.map(lambda a: a[k], sols)
+            print(f"start {k}: {names[k]}, objective {float(sol.objective):.8g} after "
+                  f"{int(sol.iterations)} iterations (inf_pr {float(sol.inf_pr):.1e}, inf_du "
+                  f"{float(sol.inf_du):.1e})", file=sys.stderr)
+            print_iteration_log(sol)
     converged = np.asarray(sols.converged)
     if throw and not converged.any():
         raise RuntimeError(f"interior point did not converge from any of the {n} starts: "
