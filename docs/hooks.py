@@ -47,7 +47,6 @@ CONTROL_SPACE = re.compile(r"(?<!\\)((?:\\\\)*)\\\s+")  # a backslash then a spa
 # over-accents latex2mathml writes as a plain <mover>: dot, ddot, bar, tilde, check, vec, breve,
 # acute, grave; MathML Core places them as accents (close to the base) only with accent="true"
 ACCENTS = set("\u02d9\u00a8\u00af\u007e\u02dc\u02c7\u2192\u02d8\u00b4\u0060\u005e")
-UNSUPPORTED = (("linebreak", "a line break (\\\\) outside an environment"),)
 
 
 def tex_to_mathml(tex: str, display: bool) -> str:
@@ -61,7 +60,7 @@ def tex_to_mathml(tex: str, display: bool) -> str:
         text = convert(tex, display="block" if display else "inline")
     except Exception as e:  # latex2mathml's own errors have no common base
         raise ValueError(f"{type(e).__name__} {e}".strip()) from None
-    try:  # it unescapes its own output, so a `<` in \text{} gives broken XML
+    try:  # it unescapes its own output: a `<` in \text{}, an `&` outside an environment
         math = ET.fromstring(text)
     except ET.ParseError as e:
         raise ValueError(f"malformed MathML ({e})") from None
@@ -71,11 +70,10 @@ def tex_to_mathml(tex: str, display: bool) -> str:
         # an unknown command is passed through as its name, e.g. <mi>\foo</mi>
         if el.text and el.text.startswith("\\"):
             raise ValueError(f"unknown command {el.text}")
-        if el.tag == "mi" and el.text == "&":
-            raise ValueError("an alignment & outside an environment")
-        for attr, reason in UNSUPPORTED:
-            if attr in el.attrib:
-                raise ValueError(reason)
+        if el.tag == "mo" and not (el.text or el.attrib or len(el)):  # \left. has attributes
+            raise ValueError("an empty operator (a name lost on the way)")
+        if "linebreak" in el.attrib:  # not in MathML Core
+            raise ValueError("a line break (\\\\) outside an environment")
         if el.tag == "mover" and "accent" not in el.attrib and len(el) == 2:
             over = el[1]
             if over.tag == "mo" and over.text in ACCENTS:

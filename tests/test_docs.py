@@ -3,7 +3,9 @@ reference, and `mkdocs build --strict` succeeds (a broken reference, link or anc
 rendering every notebook with the outputs stored in it, without executing it."""
 
 import ast
+import html
 import importlib
+import importlib.util
 import os
 import re
 import subprocess
@@ -66,18 +68,26 @@ def test_every_public_name_has_a_docstring_and_a_page():
     assert len(public_names()) > 100  # the parse found the export list
 
 
-def test_docs_build_strict_renders_every_page_and_notebook(tmp_path):
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The site built once with `mkdocs build --strict`: (its folder, the build's stderr)."""
     pytest.importorskip("mkdocs")
     pytest.importorskip("mkdocstrings")
-    nbformat = pytest.importorskip("nbformat")
-    site = tmp_path / "site"
+    pytest.importorskip("latex2mathml")
+    site = tmp_path_factory.mktemp("docs") / "site"
     out = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "docs" /
                                                                          "mkdocs.yml"),
          "-d", str(site)], capture_output=True, text=True, timeout=600,
         env=dict(os.environ, NO_MKDOCS_2_WARNING="1"))
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "Converting notebook (execute=False)" in out.stderr  # rendered, never executed
+    return site, out.stderr
+
+
+def test_docs_build_strict_renders_every_page_and_notebook(site):
+    nbformat = pytest.importorskip("nbformat")
+    site, stderr = site
+    assert "Converting notebook (execute=False)" in stderr  # rendered, never executed
     pages = sorted(p.relative_to(site).parent.as_posix() for p in site.rglob("index.html"))
     assert {"api/tires", "report-map", "sweeps", "maneuvers", "performance"} <= set(pages)
     # each API object has its anchor, so a cross-reference to it resolves
@@ -92,3 +102,73 @@ def test_docs_build_strict_renders_every_page_and_notebook(tmp_path):
                       if c.cell_type == "code" for o in c.outputs)
         assert page.count("<img") >= figures, nb_path.name
     print(f"{len(pages)} pages")
+
+
+def math_texts(page: str) -> set[str]:
+    """The text of every MathML formula of a page, tags removed: `α=atan2(−vy,vx)`."""
+    return {html.unescape(re.sub(r"<[^>]*>", "", m))
+            for m in re.findall(r"<math\b[^>]*>(.*?)</math>", page, re.S)}
+
+
+def test_docs_site_works_offline_with_the_maths_as_mathml(site):
+    """The built site fetches nothing from the network (no script, stylesheet or image from a
+    URL; fonts are off in mkdocs.yml), and its maths, from a page, a docstring and a notebook, is
+    MathML that browsers render without JavaScript; no formula is left as TeX."""
+    site, stderr = site
+    remote = re.compile(r"^(https?:)?//", re.I)
+    for path in site.rglob("*.html"):
+        page = path.read_text()
+        for tag, attr, url in re.findall(r"<(script|link|img)\b[^>]*?\b(src|href)=\"([^\"]*)\"",
+                                         page):
+            assert not remote.match(url), f"{path.relative_to(site)}: <{tag} {attr}={url!r}>"
+        assert "mathjax" not in page.lower() or path.parent.parent.name == "notebooks", path
+        # arithmatex's TeX is gone: every span/div of it holds a <math> element
+        assert not re.search(r'class="arithmatex">\s*\\[(\[]', page), path
+    report_map = (site / "report-map" / "index.html").read_text()  # a Markdown page
+    assert "s=x3−x1x2/2" in math_texts(report_map)
+    tires = (site / "api" / "tires" / "index.html").read_text()  # a docstring
+    assert "α=atan2(−vy,vx)" in math_texts(tires)
+    notebook = (site / "notebooks" / "combined_slip_tires" / "index.html").read_text()
+    assert "κ=0" in math_texts(notebook) and "$\\kappa = 0$" not in notebook
+    assert re.search(r"(\d+) formulas written as MathML, 0 left as TeX", stderr), stderr[-2000:]
+    assert int(re.search(r"(\d+) formulas written as MathML", stderr).group(1)) > 500
+
+
+def load_hooks():
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    return hooks
+
+
+def test_docs_mathml_conversion_and_a_formula_it_cannot_convert(caplog):
+    """The TeX macros the docstrings use come out as MathML Core renders them (an accent sits on
+    its letter, \\operatorname keeps its name, a backslash-newline is a space); a formula
+    latex2mathml cannot convert stays on the page as TeX and the build warns with it."""
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("latex2mathml")
+    hooks = load_hooks()
+    dot = hooks.tex_to_mathml(r"\tau\dot F_n = \bar z", display=False)
+    assert dot.count('<mover accent="true">') == 2 and 'display="inline"' in dot
+    atan2 = hooks.tex_to_mathml(r"\operatorname{atan2}(y, x)", display=True)
+    assert math_texts(atan2) == {"atan2(y,x)"} and atan2.count('mathvariant="normal"') == 4
+    assert "\\" not in hooks.tex_to_mathml("p,\\\n  b = 1", True)
+    for bad in [r"\foo x", "x_", r"\text{a<b}", r"a \\ b"]:
+        with pytest.raises(ValueError):
+            hooks.tex_to_mathml(bad, display=False)
+
+    class Page:
+        class file:
+            src_uri = "notebooks/x.ipynb"
+
+    page = ('<p><span class="arithmatex">\\(\\foo + x\\)</span> and '
+            '<span class="arithmatex">\\(y &lt; 1\\)</span></p>'
+            '<div class="jp-RenderedHTMLCommon jp-RenderedMarkdown">'
+            '<p>$\\kappa$ costs $5 and <code>$HOME$</code> $$\\frac{a}{b}$$</p></div><p>$z$</p>')
+    with caplog.at_level("WARNING"):
+        out = hooks.on_post_page(page, Page, {})
+    assert '<span class="arithmatex">\\(\\foo + x\\)</span>' in out  # left as TeX, and said
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert "\\foo + x" in caplog.records[0].getMessage()
+    assert math_texts(out) == {"y<1", "κ", "ab"}  # not $5, not code, not outside a cell
+    assert "<code>$HOME$</code>" in out and "<p>$z$</p>" in out
