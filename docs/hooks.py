@@ -68,7 +68,7 @@ def tex_to_mathml(tex: str, display: bool) -> str:
         el.tag = el.tag.removeprefix(f"{{{MATHML}}}")
     for el in math.iter():
         # an unknown command is passed through as its name, e.g. <mi>\foo</mi>
-        if el.text and el.text.startswith("\\") and len(el.text) > 1:  # not \\backslash
+        if el.text and el.text.startswith("\\") and len(el.text) > 1:  # not \backslash
             raise ValueError(f"unknown command {el.text}")
         if el.tag == "mo" and not (el.text or el.attrib or len(el)):  # \left. has attributes
             raise ValueError("an empty operator (a name lost on the way)")
