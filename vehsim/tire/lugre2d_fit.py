@@ -70,7 +70,7 @@ def bernstein_load(weights: Float[Array, " 5"]) -> PolynomialLoad:
 
 
 class MatchResult(eqx.Module):
-    """What `fit_to_magic_formula` found: `params` (with $L = L_0$, the patch length at
+    r"""What `fit_to_magic_formula` found: `params` (with $L = L_0$, the patch length at
     `reference_load`), the normal-load shape `load` (its Bernstein `load_weights` when it
     was fitted, else None), the exponent `patch_exponent` $p$ of
     $L = L_0(F_z/F_{z,0})^p$, the `loads` fitted, the errors relative to each curve's peak
