@@ -610,7 +610,14 @@ def _errors_by_load(loads, rms, worst, peak) -> list[dict]:
     return rows
 
 
+STRIBECK_SPEEDS = (0.2, 1.0, 3.0, 10.0)
+"""Slip speeds [m/s] at which the record states the fitted friction $g(v)$ of eq. 29."""
+
+
 def _lugre_record(params, load_weights, exponent, reference_load) -> dict:
+    v = np.asarray(STRIBECK_SPEEDS)[:, None]
+    mu_k, mu_s = np.asarray(params.mu_k), np.asarray(params.mu_s)
+    g = mu_k + (mu_s - mu_k) * np.exp(-(v / float(params.v_s)) ** float(params.gamma))
     return {
         "sigma0_per_m": np.asarray(params.sigma0), "sigma1_s_per_m": np.asarray(params.sigma1),
         "sigma2_s_per_m": np.asarray(params.sigma2), "mu_k": np.asarray(params.mu_k),
@@ -619,6 +626,8 @@ def _lugre_record(params, load_weights, exponent, reference_load) -> dict:
         "patch_length_law": "L = L0 (F_z / reference_load_N)^patch_exponent",
         "patch_exponent": float(exponent), "reference_load_N": float(reference_load),
         "load_weights": None if load_weights is None else np.asarray(load_weights),
+        "friction_at_slip_speed": {  # what the steady state sees of mu_k, mu_s, v_s, gamma
+            "slip_speed_m_per_s": np.asarray(STRIBECK_SPEEDS), "g_x": g[:, 0], "g_y": g[:, 1]},
         "load_shape": "q(xi) ~ sum_k w_k binom(4, k) xi^k (1 - xi)^(4 - k), xi = 0 at the "
                       "leading edge",
     }
