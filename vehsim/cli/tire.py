@@ -50,8 +50,11 @@ def register(subparsers) -> None:
                    help="loads [N] (default 0.5, 1, 1.5 times the nominal load, within the "
                         "file's load range)")
     f.add_argument("--speed", type=float, default=20.0, help="speed [m/s] (20)")
-    f.add_argument("--max-steps", type=int, default=400,
-                   help="Levenberg-Marquardt steps at most (400)")
+    f.add_argument("--max-steps", type=int, default=50,
+                   help="Levenberg-Marquardt steps at most (50: beyond, the sample's errors "
+                        "fall by a point or two while mu_s, v_s, gamma drift off to "
+                        "unphysical values along a valley of equal steady states; "
+                        "docs/tir.md)")
     f.set_defaults(func=_fit_lugre)
 
 
