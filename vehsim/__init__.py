@@ -83,6 +83,12 @@ from .tire.burckhardt import (
     burckhardt_mu as burckhardt_mu,
     fit_burckhardt_family as fit_burckhardt_family,
 )
+from .tire.characteristic import (
+    AbstractCharacteristic as AbstractCharacteristic,
+    MagicFormula1987Characteristic as MagicFormula1987Characteristic,
+    MFCharacteristic as MFCharacteristic,
+    tire_characteristic as tire_characteristic,
+)
 from .tire.distributed import DistributedLuGre as DistributedLuGre
 
 # Combined-slip LuGre, method of moments and Magic Formula (report 2.3-2.4)
@@ -114,7 +120,11 @@ from .tire.lugre2d import (
     PointLuGre2D as PointLuGre2D,
     slip_angle as slip_angle,
 )
-from .tire.lugre2d_fit import fit_to_magic_formula as fit_to_magic_formula
+from .tire.lugre2d_fit import (
+    MatchResult as MatchResult,
+    fit_to_magic_formula as fit_to_magic_formula,
+    lugre_initial_guess as lugre_initial_guess,
+)
 from .tire.lumped2d import LumpedLuGre2D as LumpedLuGre2D
 from .tire.magic_formula import (
     MagicFormula1987 as MagicFormula1987,

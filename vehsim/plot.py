@@ -217,3 +217,51 @@ def turn_figure(runs: dict, title: str = ""):
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def tire_curves_figure(curves: dict, title: str = ""):
+    r"""A tyre property file's Magic Formula at a glance (`vehsim tire plot`): $F_x(\kappa)$,
+    $F_y(\alpha)$, $M_z(\alpha)$ at several loads (top row); $F_y(\alpha)$, $M_z(\alpha)$ at
+    several cambers and the combined-slip curves $F_y(F_x)$ with the friction ellipse
+    $(F_x/\mu_xF_z)^2 + (F_y/\mu_yF_z)^2 = 1$ of the pure-slip peaks, at the nominal load
+    (bottom row). `curves`: ``kappa``, ``alpha_deg`` (grids), ``loads`` [N] with ``Fx``,
+    ``Fy``, ``Mz`` (load, point); ``cambers_deg`` with ``Fy_camber``, ``Mz_camber``
+    (camber, point); ``nominal_load``, ``combined`` (label -> (F_x, F_y) arrays) and
+    ``ellipse`` ($(\mu_xF_z, \mu_yF_z)$)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 3, figsize=(15, 8.5))
+    kappa, deg = np.asarray(curves["kappa"]), np.asarray(curves["alpha_deg"])
+    for i, Fz in enumerate(curves["loads"]):
+        label = f"F_z = {Fz:.0f} N"
+        ax[0, 0].plot(kappa, curves["Fx"][i], label=label)
+        ax[0, 1].plot(deg, curves["Fy"][i], label=label)
+        ax[0, 2].plot(deg, curves["Mz"][i], label=label)
+    for i, g in enumerate(curves["cambers_deg"]):
+        ax[1, 0].plot(deg, curves["Fy_camber"][i], label=f"camber {g:+g} deg")
+        ax[1, 1].plot(deg, curves["Mz_camber"][i], label=f"camber {g:+g} deg")
+    for label, (fx, fy) in curves["combined"].items():
+        ax[1, 2].plot(fx, fy, label=label)
+    a, b = curves["ellipse"]
+    t = np.linspace(0.0, 2.0 * np.pi, 241)
+    ax[1, 2].plot(a * np.cos(t), b * np.sin(t), "k--", lw=0.8, label="friction ellipse")
+    ax[1, 2].set_aspect("equal", adjustable="datalim")
+    nominal = f"F_z = {curves['nominal_load']:.0f} N"
+    labels = [
+        ("slip ratio kappa", "F_x [N]", "longitudinal force, zero slip angle"),
+        ("slip angle alpha [deg]", "F_y [N]", "lateral force, zero slip ratio"),
+        ("slip angle alpha [deg]", "M_z [N m]", "aligning moment, zero slip ratio"),
+        ("slip angle alpha [deg]", "F_y [N]", f"lateral force, {nominal}"),
+        ("slip angle alpha [deg]", "M_z [N m]", f"aligning moment, {nominal}"),
+        ("F_x [N]", "F_y [N]", f"combined slip, {nominal}"),
+    ]
+    for a_, (xl, yl, tl) in zip(ax.ravel(), labels):
+        a_.set(xlabel=xl, ylabel=yl, title=tl)
+        a_.grid(alpha=0.3)
+        a_.axhline(0.0, color="0.6", lw=0.6)
+        a_.axvline(0.0, color="0.6", lw=0.6)
+        a_.legend(fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..params import bakker1987, lugre2d_bakker1987, lugre2d_bakker1987_mz
+from ..tire.characteristic import tire_characteristic
 from ..tire.distributed2d import DistributedLuGre2D, lever_moment, steady_state_forces
 from ..tire.load import QuarticLoad, TrapezoidalLoad, UniformLoad
 from ..tire.lugre2d_fit import QUANTITIES, default_slip_grid, match_errors
@@ -466,3 +467,263 @@ def _steady_table(ctx, p, alphas, wheel, steps) -> None:
         "the load q(xi), and M_z by q(xi)(1/2 - xi), whose integral against a deflection "
         "growing from the leading edge depends strongly on how much load the patch's ends "
         "carry.")
+
+
+# --- Figs. 13-15 and the fit table for a tire the user brings --------------------------------
+
+TIR_ALPHAS_DEG = (0.0, 2.0, 4.0, 8.0, 15.0)
+"""Slip angles [deg] of the curves of Fig. 13 for a fitted tire."""
+
+TIR_KAPPAS = (0.0, 0.05, 0.1, 0.2, -0.1)
+"""Slip ratios of the curves of Fig. 14 for a fitted tire."""
+
+
+@eqx.filter_jit
+def _lugre_grid(params, load, v, kappa, alpha, Fz):
+    """Steady LuGre (F_x, F_y, M_z), shape (alpha, kappa, 3)."""
+    return jax.vmap(jax.vmap(lambda k, a: steady_state_forces(params, load, v, k, a, Fz),
+                             in_axes=(0, None)), in_axes=(None, 0))(kappa, alpha)
+
+
+@eqx.filter_jit
+def _characteristic_grid(char, kappa, alpha, Fz):
+    """The characteristic's (F_x, F_y, M_z), shape (alpha, kappa, 3)."""
+    return char.forces(kappa[None, :], alpha[:, None], Fz)
+
+
+def lugre_fit_curves(mf, fit, v: float = V, kappa=None, alpha=None, n: int = 61) -> dict:
+    """The curves of Figs. 13-15 for the fit `fit` (a `MatchResult`) of the LuGre model to
+    `mf` (anything `tire_characteristic` takes): pure slip at each fitted load (Fig. 15)
+    and combined slip at the reference load (Figs. 13, 14), LuGre and Magic Formula, on
+    `n` points spanning the fit's grids `kappa`, `alpha` (default the characteristic's)."""
+    char = tire_characteristic(mf)
+    k_fit, a_fit = char.slip_grid()
+    k_fit = k_fit if kappa is None else kappa
+    a_fit = a_fit if alpha is None else alpha
+    kappa = jnp.linspace(float(jnp.min(k_fit)), float(jnp.max(k_fit)), n)
+    alpha = jnp.linspace(float(jnp.min(a_fit)), float(jnp.max(a_fit)), n)
+    v = jnp.asarray(v, dtype=float)
+    zero = jnp.zeros(1)
+    out = {"kappa": np.asarray(kappa), "alpha_deg": np.rad2deg(np.asarray(alpha)),
+           "loads": [float(f) for f in np.asarray(fit.loads)],
+           "reference_load": float(fit.reference_load),
+           "alphas13_deg": TIR_ALPHAS_DEG, "kappas14": TIR_KAPPAS}
+    pure = {"lugre": [], "mf": []}
+    for Fz in out["loads"]:
+        p = fit.params_at(Fz)
+        fz = jnp.asarray(Fz)
+        lk = np.asarray(_lugre_grid(p, fit.load, v, kappa, zero, fz))[0, :, 0]
+        la = np.asarray(_lugre_grid(p, fit.load, v, zero, alpha, fz))[:, 0]
+        mk = np.asarray(_characteristic_grid(char, kappa, zero, fz))[0, :, 0]
+        ma = np.asarray(_characteristic_grid(char, zero, alpha, fz))[:, 0]
+        pure["lugre"].append(np.stack([lk, la[:, 1], la[:, 2]]))
+        pure["mf"].append(np.stack([mk, ma[:, 1], ma[:, 2]]))
+    out["pure"] = {k: np.stack(v_) for k, v_ in pure.items()}  # (load, 3, point)
+    Fz0 = jnp.asarray(out["reference_load"])
+    p0 = fit.params_at(Fz0)
+    a13, k14 = jnp.deg2rad(jnp.asarray(TIR_ALPHAS_DEG)), jnp.asarray(TIR_KAPPAS)
+    out["fig13"] = {"lugre": np.asarray(_lugre_grid(p0, fit.load, v, kappa, a13, Fz0)),
+                    "mf": np.asarray(_characteristic_grid(char, kappa, a13, Fz0))}
+    out["fig14"] = {  # (kappa, alpha, 3)
+        "lugre": np.swapaxes(np.asarray(_lugre_grid(p0, fit.load, v, k14, alpha, Fz0)), 0, 1),
+        "mf": np.swapaxes(np.asarray(_characteristic_grid(char, k14, alpha, Fz0)), 0, 1)}
+    return out
+
+
+_NAMES = ("F_x [N]", "F_y [N]", "M_z [N m]")
+
+
+def _draw_fig15(ax, c) -> None:
+    for i, Fz in enumerate(c["loads"]):
+        color = f"C{i}"
+        for j in range(3):
+            x = c["kappa"] if j == 0 else c["alpha_deg"]
+            ax[j].plot(x, c["pure"]["lugre"][i, j], color=color,
+                       label=f"LuGre, {Fz:.0f} N")
+            ax[j].plot(x, c["pure"]["mf"][i, j], "--", color=color,
+                       label=f"Magic Formula, {Fz:.0f} N")
+    ax[0].set(xlabel="slip ratio kappa", ylabel=_NAMES[0], title="Fig. 15: pure slip")
+    ax[1].set(xlabel="slip angle [deg]", ylabel=_NAMES[1])
+    ax[2].set(xlabel="slip angle [deg]", ylabel=_NAMES[2])
+    ax[0].legend(fontsize=7)
+
+
+def _draw_fig13(ax, c) -> None:
+    Fz = c["reference_load"]
+    for i, a in enumerate(c["alphas13_deg"]):
+        for j in range(3):
+            ax[j].plot(c["kappa"], c["fig13"]["lugre"][i, :, j], color=f"C{i}",
+                       label=f"alpha = {a:g} deg")
+            ax[j].plot(c["kappa"], c["fig13"]["mf"][i, :, j], "--", color=f"C{i}")
+    for j in range(3):
+        ax[j].set(xlabel="slip ratio kappa", ylabel=_NAMES[j])
+    ax[0].set_title(f"Fig. 13: combined slip at {Fz:.0f} N (dashed: Magic Formula)")
+    ax[0].legend(fontsize=7)
+
+
+def _draw_fig14(ax, c) -> None:
+    Fz = c["reference_load"]
+    for i, k in enumerate(c["kappas14"]):
+        for j in range(3):
+            ax[j].plot(c["alpha_deg"], c["fig14"]["lugre"][i, :, j], color=f"C{i}",
+                       label=f"kappa = {k:g}")
+            ax[j].plot(c["alpha_deg"], c["fig14"]["mf"][i, :, j], "--", color=f"C{i}")
+    for j in range(3):
+        ax[j].set(xlabel="slip angle [deg]", ylabel=_NAMES[j])
+    ax[0].set_title(f"Fig. 14: combined slip at {Fz:.0f} N (dashed: Magic Formula)")
+    ax[0].legend(fontsize=7)
+
+
+def _finish(fig, ax, title: str):
+    for a_ in np.ravel(ax):
+        a_.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def lugre_fit_figure(curves: dict, title: str = ""):
+    """Figs. 15, 13 and 14 (rows) of `lugre_fit_curves` in one figure: the fitted LuGre model
+    (solid) against the Magic Formula (dashed)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(3, 3, figsize=(15, 12))
+    _draw_fig15(ax[0], curves)
+    _draw_fig13(ax[1], curves)
+    _draw_fig14(ax[2], curves)
+    return _finish(fig, ax, title)
+
+
+def _errors_by_load(loads, rms, worst, peak) -> list[dict]:
+    units = {"F_x": "N", "F_y": "N", "M_z": "N_m"}
+    rows = []
+    for i, Fz in enumerate(loads):
+        row = {"load_N": float(Fz)}
+        for j, q in enumerate(QUANTITIES):
+            u = units[q]
+            row[q] = {f"peak_{u}": float(peak[i, j]), f"rms_{u}": float(rms[i, j] * peak[i, j]),
+                      f"max_{u}": float(worst[i, j] * peak[i, j]),
+                      "rms_relative_to_peak": float(rms[i, j]),
+                      "max_relative_to_peak": float(worst[i, j])}
+        rows.append(row)
+    return rows
+
+
+STRIBECK_SPEEDS = (0.2, 1.0, 3.0, 10.0)
+"""Slip speeds [m/s] at which the record states the fitted friction $g(v)$ of eq. 29."""
+
+
+def _lugre_record(params, load_weights, exponent, reference_load) -> dict:
+    v = np.asarray(STRIBECK_SPEEDS)[:, None]
+    mu_k, mu_s = np.asarray(params.mu_k), np.asarray(params.mu_s)
+    g = mu_k + (mu_s - mu_k) * np.exp(-(v / float(params.v_s)) ** float(params.gamma))
+    return {
+        "sigma0_per_m": np.asarray(params.sigma0), "sigma1_s_per_m": np.asarray(params.sigma1),
+        "sigma2_s_per_m": np.asarray(params.sigma2), "mu_k": np.asarray(params.mu_k),
+        "mu_s": np.asarray(params.mu_s), "v_s_m_per_s": float(params.v_s),
+        "gamma": float(params.gamma), "L0_m": float(params.L),
+        "patch_length_law": "L = L0 (F_z / reference_load_N)^patch_exponent",
+        "patch_exponent": float(exponent), "reference_load_N": float(reference_load),
+        "load_weights": None if load_weights is None else np.asarray(load_weights),
+        "friction_at_slip_speed": {  # what the steady state sees of mu_k, mu_s, v_s, gamma
+            "slip_speed_m_per_s": np.asarray(STRIBECK_SPEEDS), "g_x": g[:, 0], "g_y": g[:, 1]},
+        "load_shape": "q(xi) ~ sum_k w_k binom(4, k) xi^k (1 - xi)^(4 - k), xi = 0 at the "
+                      "leading edge",
+    }
+
+
+def lugre_fit_record(mf, fit, init, v, kappa, alpha) -> dict:
+    """What a fit of the LuGre model to `mf` found, as JSON-ready data with units: the
+    parameters (fitted and the start `init`), the grids, the error table (RMS and worst
+    error of F_x, F_y, M_z at each load, in N or N m and relative to the curve's peak) at
+    the fit and at the start (uniform load), and the solver's status."""
+    from .._results import result_record
+    from ..tire.lugre2d_fit import match_errors
+
+    errors_fn = eqx.filter_jit(match_errors)
+    loads = np.asarray(fit.loads)
+    rms0, max0 = [], []
+    for Fz in loads:
+        e = [np.asarray(x) for x in errors_fn(init, UniformLoad(), mf, Fz, v, kappa, alpha)]
+        rms0.append([np.sqrt(np.mean(x**2)) for x in e])
+        max0.append([np.abs(x).max() for x in e])
+    peak = np.asarray(fit.peak)
+    return {
+        "speed_m_per_s": float(v), "loads_N": loads,
+        "slip_ratio_grid": np.asarray(kappa), "slip_angle_grid_deg": np.rad2deg(np.asarray(alpha)),
+        "slip_angle_sign": "positive when the wheel slides to its right (report, "
+                           "vehsim.AbstractTire); a tyre property file's alpha is its negative",
+        "lugre": _lugre_record(fit.params, fit.load_weights, fit.patch_exponent,
+                               fit.reference_load),
+        "initial_guess": _lugre_record(init, None, 0.0, fit.reference_load),
+        "errors": _errors_by_load(loads, np.asarray(fit.rms_error), np.asarray(fit.max_error),
+                                  peak),
+        "initial_errors": _errors_by_load(loads, np.asarray(rms0), np.asarray(max0), peak),
+        **result_record(fit.result), "num_steps": int(fit.num_steps),
+    }
+
+
+def fit_table(record: dict, key: str = "errors") -> list[str]:
+    """The error table of `lugre_fit_record` as Markdown lines: RMS and worst error of each
+    curve at each load, in N (N m) and in % of the curve's peak."""
+    rows = ["| F_z [N] | F_x RMS [N] | F_x max [N] | F_y RMS [N] | F_y max [N] | "
+            "M_z RMS [N m] | M_z max [N m] |", "|---|---|---|---|---|---|---|"]
+    for row in record[key]:
+        cells = []
+        for q in QUANTITIES:
+            u = "N_m" if q == "M_z" else "N"
+            cells += [f"{row[q][f'{s}_{u}']:.1f} ({100 * row[q][f'{s}_relative_to_peak']:.1f} %)"
+                      for s in ("rms", "max")]
+        rows.append(f"| {row['load_N']:.0f} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def fit_lugre_to(mf, v: float = V, loads=None, max_steps: int = 1024, init=None, **kwargs):
+    """Fit the LuGre model to `mf` (anything `tire_characteristic` takes) on its default
+    grids (`fit_to_magic_formula` with `throw=False`); return `(fit, record)` with the
+    record of `lugre_fit_record`."""
+    from ..tire.lugre2d_fit import fit_to_magic_formula, lugre_initial_guess
+
+    char = tire_characteristic(mf)
+    kappa, alpha = char.slip_grid()
+    init = lugre_initial_guess(char) if init is None else init
+    fit = fit_to_magic_formula(char, init, loads=loads, v=v, kappa=kappa, alpha=alpha,
+                               max_steps=max_steps, throw=False, **kwargs)
+    return fit, lugre_fit_record(char, fit, init, v, kappa, alpha)
+
+
+def figures_for_tir(path, out, v: float = V, loads=None, max_steps: int = 1024, **kwargs):
+    """Figs. 13-15 and the fit table for the tyre property file at `path`: fit the LuGre
+    model to its Magic Formula (`fit_lugre_to`) and write, into the folder `out`,
+    ``fig13_steady_vs_kappa.png``, ``fig14_steady_vs_alpha.png``,
+    ``fig15_lugre_vs_mf.png`` (LuGre solid, the file's Magic Formula dashed) and
+    ``lugre_fit.json`` (`lugre_fit_record`, with the file). Returns `(fit, record)`."""
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .._io import save_figure, write_json
+    from ..tire.mf6 import MFParams
+    from ..tire.tir import read_tir
+
+    tir = read_tir(path)
+    params = MFParams.from_tir(tir)
+    fit, record = fit_lugre_to(params, v, loads, max_steps, **kwargs)
+    record = {"file": str(path), "version": tir.version, **record}
+    curves = lugre_fit_curves(params, fit, v)
+    out = Path(out)
+    name = Path(path).name
+    for stem, draw in (("fig13_steady_vs_kappa", _draw_fig13),
+                       ("fig14_steady_vs_alpha", _draw_fig14),
+                       ("fig15_lugre_vs_mf", _draw_fig15)):
+        fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+        draw(ax, curves)
+        save_figure(_finish(fig, ax, f"{name}: distributed 2D LuGre fitted to its Magic "
+                                     "Formula"), out / f"{stem}.png")
+        plt.close(fig)
+    write_json(out / "lugre_fit.json", record)
+    return fit, record

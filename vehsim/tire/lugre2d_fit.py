@@ -8,7 +8,11 @@ Magic Formula, at several loads $F_z$ and one speed:
 $$\min_\theta\;\sum_{F_z}\sum_{Q\in\{F_x, F_y, M_z\}}\sum_j
   \Bigl(\frac{Q^\text{LuGre}_j(\theta; F_z) - Q^\text{MF}_j(F_z)}
              {\max_j|Q^\text{MF}_j(F_z)|}\Bigr)^2,$$
-each curve relative to its peak, solved by `optimistix.LevenbergMarquardt`. The free
+each curve relative to its peak, solved by `optimistix.LevenbergMarquardt`. The Magic
+Formula is any steady characteristic (`vehsim.tire.characteristic`): the report's 1987
+one, or the Magic Formula 5.2 / 6.1 / 6.2 of a tyre property file (`MFParams`,
+`MFTire`, a `TirFile`), whose loads, reference load and slip grid default to the file's
+(`MFCharacteristic`), and whose start `lugre_initial_guess` reads off its curves. The free
 parameters are $\sigma_{0x}, \sigma_{0y}, \mu_{kx}, \mu_{ky}, \mu_{sx}-\mu_{kx},
 \mu_{sy}-\mu_{ky}, v_s, \gamma$ (through their logarithms, so they stay positive);
 $\sigma_1$, $\sigma_2$ are held (they do not enter the steady state, or are set to zero).
@@ -42,10 +46,10 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._results import RESULTS, as_result
+from .characteristic import AbstractCharacteristic, _default_slip_grid, tire_characteristic
 from .distributed2d import steady_state_forces
 from .load import AbstractLoadDistribution, PolynomialLoad, UniformLoad
 from .lugre2d import LuGre2DParams
-from .magic_formula import MagicFormula1987Params, combined_forces
 
 
 QUANTITIES = ("F_x", "F_y", "M_z")
@@ -66,12 +70,14 @@ def bernstein_load(weights: Float[Array, " 5"]) -> PolynomialLoad:
 
 
 class MatchResult(eqx.Module):
-    """What `fit_to_magic_formula` found: `params` (with $L = L_0$, the patch length at
+    r"""What `fit_to_magic_formula` found: `params` (with $L = L_0$, the patch length at
     `reference_load`), the normal-load shape `load` (its Bernstein `load_weights` when it
     was fitted, else None), the exponent `patch_exponent` $p$ of
     $L = L_0(F_z/F_{z,0})^p$, the `loads` fitted, the errors relative to each curve's peak
     `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$), Levenberg-Marquardt's
-    `result` (a `vehsim.RESULTS` item) and `num_steps`."""
+    `result` (a `vehsim.RESULTS` item) and `num_steps`; `peak` (loads, 3): each Magic
+    Formula curve's peak $\max_j|Q_j^\text{MF}|$ [N, N, N m], so that `rms_error * peak`
+    and `max_error * peak` are the errors in N and N m."""
 
     params: LuGre2DParams
     load: AbstractLoadDistribution
@@ -81,6 +87,7 @@ class MatchResult(eqx.Module):
     loads: Float[Array, " n"]
     rms_error: Float[Array, "n 3"]
     max_error: Float[Array, "n 3"]
+    peak: Float[Array, "n 3"]
     result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
 
@@ -96,18 +103,16 @@ def scaled_patch(params: LuGre2DParams, exponent, reference_load, Fz) -> LuGre2D
 
 
 def default_slip_grid():
-    """Slip ratios in [-0.5, 0.5] and slip angles in (0, 20] deg used for the fit."""
-    kappa = jnp.concatenate([jnp.linspace(-0.5, -0.01, 20), jnp.linspace(0.01, 0.5, 20)])
-    alpha = jnp.deg2rad(jnp.linspace(0.5, 20.0, 30))
-    return kappa, alpha
+    """Slip ratios in [-0.5, 0.5] and slip angles in (0, 20] deg used for the fit (of the
+    1987 Magic Formula; a tyre property file's: `MFCharacteristic.slip_grid`)."""
+    return _default_slip_grid()
 
 
-def magic_formula_curves(mf: MagicFormula1987Params, Fz, kappa, alpha):
+def magic_formula_curves(mf, Fz, kappa, alpha):
     r"""The Magic Formula's pure-slip $(F_x(\kappa), F_y(\alpha), M_z(\alpha))$ at load
-    `Fz` [N] on the `kappa` and `alpha` [rad] grids."""
-    zeros_k, zeros_a = jnp.zeros_like(kappa), jnp.zeros_like(alpha)
-    lat = combined_forces(mf, zeros_a, alpha, Fz)
-    return combined_forces(mf, kappa, zeros_k, Fz)[:, 0], lat[:, 1], lat[:, 2]
+    `Fz` [N] on the `kappa` and `alpha` [rad] grids (`mf`: anything
+    `tire_characteristic` takes)."""
+    return tire_characteristic(mf).pure_curves(Fz, kappa, alpha)
 
 
 def lugre_curves(params: LuGre2DParams, load: AbstractLoadDistribution, Fz, v, kappa, alpha):
@@ -126,11 +131,12 @@ def _relative(lugre, target):
     return tuple((lu - t) / jnp.max(jnp.abs(t)) for lu, t in zip(lugre, target))
 
 
-def match_errors(params: LuGre2DParams, load: AbstractLoadDistribution,
-                 mf: MagicFormula1987Params, Fz, v, kappa, alpha):
+def match_errors(params: LuGre2DParams, load: AbstractLoadDistribution, mf, Fz, v, kappa,
+                 alpha):
     r"""$(Q^\text{LuGre} - Q^\text{MF})/\max|Q^\text{MF}|$ at load `Fz` for $Q = F_x$ on
     the `kappa` grid and $Q = F_y, M_z$ on the `alpha` grid (a tuple of three arrays;
-    `params.L` is the patch length at this load)."""
+    `params.L` is the patch length at this load; `mf`: anything `tire_characteristic`
+    takes)."""
     return _relative(lugre_curves(params, load, Fz, v, kappa, alpha),
                      magic_formula_curves(mf, Fz, kappa, alpha))
 
@@ -140,7 +146,7 @@ class _Fit(eqx.Module):
 
     init: LuGre2DParams
     load: AbstractLoadDistribution
-    mf: MagicFormula1987Params
+    mf: AbstractCharacteristic
     loads: Float[Array, " n"]
     reference_load: Float[Array, ""]
     v: Float[Array, ""]
@@ -181,8 +187,7 @@ class _Fit(eqx.Module):
 
     def targets(self):
         """The Magic Formula's three curves at each load, (loads, points) each."""
-        return jax.vmap(lambda Fz: magic_formula_curves(self.mf, Fz, self.kappa, self.alpha))(
-            self.loads)
+        return jax.vmap(lambda Fz: self.mf.pure_curves(Fz, self.kappa, self.alpha))(self.loads)
 
     def errors(self, theta, targets):
         """The relative errors of `match_errors`: (F_x, F_y, M_z), each (loads, points)."""
@@ -209,15 +214,54 @@ def _solve(fit: _Fit, init: LuGre2DParams, solver, max_steps: int, throw: bool):
     errors = fit.errors(sol.value, targets)  # F_x, F_y, M_z, each (loads, points)
     rms = jnp.stack([jnp.sqrt(jnp.mean(e**2, axis=-1)) for e in errors], axis=-1)
     worst = jnp.stack([jnp.max(jnp.abs(e), axis=-1) for e in errors], axis=-1)
+    peak = jnp.stack([jnp.max(jnp.abs(t), axis=-1) for t in targets], axis=-1)
     return MatchResult(params=params, load=shape, load_weights=weights, patch_exponent=exponent,
                        reference_load=fit.reference_load, loads=fit.loads, rms_error=rms,
-                       max_error=worst, result=sol.result, num_steps=sol.stats["num_steps"])
+                       max_error=worst, peak=peak, result=sol.result,
+                       num_steps=sol.stats["num_steps"])
+
+
+def lugre_initial_guess(mf, Fz=None, *, sigma1=(0.7, 0.7)) -> LuGre2DParams:
+    r"""A start for `fit_to_magic_formula` read off the Magic Formula `mf` (anything
+    `tire_characteristic` takes) at load `Fz` [N] (default its nominal load), for the
+    uniform load.
+
+    At small slip the steady bristle deflection grows linearly from the leading edge,
+    $z = \sigma L\xi$ (eq. 15 with $k\xi \to 0$; $\sigma = \kappa$ or $\tan\alpha$), so
+    $F = F_z\sigma_0\sigma L/2$ and $M_z = -F_yL/6$: the patch length is six times the
+    pneumatic trail $t = -\partial_\alpha M_z/\partial_\alpha F_y$ at $\alpha = 0$
+    (kept within [0.05, 0.5] m), and $\sigma_{0x} = 2K_x/(F_zL)$,
+    $\sigma_{0y} = 2K_y/(F_zL)$ with the slopes $K_x = \partial_\kappa F_x$,
+    $K_y = \partial_\alpha F_y$ at zero slip. $\mu_s$ is 1.05 times each curve's peak
+    $F/F_z$ on `slip_grid`, $\mu_k$ 0.95 times its value at the grid's largest slip;
+    $v_s = 3$ m/s, $\gamma = 0.7$; `sigma1` [s/m] held as given, $\sigma_2 = 0$."""
+    char = tire_characteristic(mf)
+    Fz = char.nominal_load() if Fz is None else float(Fz)
+
+    def fx(k):
+        return char.forces(k, 0.0, Fz)[0]
+
+    def lat(a):
+        return char.forces(0.0, a, Fz)[1:]
+
+    kx = float(jax.grad(fx)(0.0))
+    ky, kz = (float(d) for d in jax.jacfwd(lat)(0.0))
+    L = float(np.clip(-6.0 * kz / ky, 0.05, 0.5)) if ky > 0 else 0.2
+    kappa, alpha = char.slip_grid()
+    cx, cy, _ = (np.abs(np.asarray(c)) / Fz for c in char.pure_curves(Fz, kappa, alpha))
+    far_x = cx[np.argmax(np.abs(np.asarray(kappa)))]
+    far_y = cy[np.argmax(np.abs(np.asarray(alpha)))]
+    mu_s = 1.05 * np.array([cx.max(), cy.max()])
+    mu_k = np.minimum(0.95 * np.array([far_x, far_y]), 0.95 * mu_s)
+    sigma0 = np.maximum(2.0 * np.array([kx, ky]) / (Fz * L), 1.0)
+    return LuGre2DParams(sigma0=sigma0, sigma1=sigma1, sigma2=(0.0, 0.0), mu_k=mu_k,
+                         mu_s=mu_s, v_s=3.0, gamma=0.7, L=L)
 
 
 def fit_to_magic_formula(
-    mf: MagicFormula1987Params,
-    init: LuGre2DParams,
-    loads=(2000.0, 4000.0, 6000.0),
+    mf,
+    init: LuGre2DParams | None = None,
+    loads=None,
     v=20.0,
     kappa=None,
     alpha=None,
@@ -228,7 +272,7 @@ def fit_to_magic_formula(
     symmetric_load: bool = False,
     load_weights=(1.0, 1.0, 1.0, 1.0, 1.0),
     patch_exponent: float = 0.0,
-    reference_load: float = 4000.0,
+    reference_load: float | None = None,
     rtol: float = 1e-6,
     atol: float = 1e-6,
     max_steps: int = 1024,
@@ -236,25 +280,35 @@ def fit_to_magic_formula(
 ) -> MatchResult:
     r"""Fit the steady state of the distributed 2D LuGre model to the Magic Formula `mf`.
 
-    **Arguments:** `mf` Magic Formula coefficients; `init` starting `LuGre2DParams` (also
-    supplies the held `sigma1`, `sigma2`, and the start of $L_0$); `loads` [N] fitted
-    together and the speed `v` [m/s]; `kappa`, `alpha` [rad] grids (default
-    `default_slip_grid()`); `moment`: fit $M_z$ too; `fit_load`: fit the load shape and
+    **Arguments:** `mf` the Magic Formula: the report's 1987 one
+    (`MagicFormula1987Params`), a tyre property file's (`TirFile`, `MFParams`, `MFTire`
+    with its camber and pressure), or any `AbstractCharacteristic`; `init` starting
+    `LuGre2DParams` (also supplies the held `sigma1`, `sigma2`, and the start of $L_0$;
+    default `lugre_initial_guess(mf)`); `loads` [N] fitted together (default the
+    characteristic's `fit_loads`: 2, 4, 6 kN for the 1987 formula, $0.5, 1, 1.5\,F'_{z0}$
+    for a file) and the speed `v` [m/s]; `kappa`, `alpha` [rad] grids (default its
+    `slip_grid`: `default_slip_grid()` for the 1987 formula); `moment`: fit $M_z$ too;
+    `fit_load`: fit the load shape and
     the patch length law (module docstring), starting from the Bernstein weights
     `load_weights` (default: the uniform shape; `symmetric_load`: keep $w_{4-k} = w_k$)
     and the exponent `patch_exponent`; else
     hold `load` (default uniform) and $L$; `reference_load` $F_{z,0}$ [N] of the patch
-    length law; `throw`: raise if Levenberg-Marquardt does not converge (else check
-    `result`).
+    length law (default its `nominal_load`: 4 kN for the 1987 formula, $F'_{z0}$ for a
+    file); `throw`: raise if Levenberg-Marquardt does not converge (else check `result`).
 
     **Returns:** a `MatchResult`: fitted parameters, load shape and patch-length exponent,
-    and the RMS and maximum relative errors of each curve at each load.
+    and the RMS and maximum errors of each curve at each load, relative to its peak (and
+    the peaks, for the errors in N and N m).
     """
+    char = tire_characteristic(mf)
+    init = lugre_initial_guess(char) if init is None else init
+    loads = char.fit_loads() if loads is None else loads
+    reference_load = char.nominal_load() if reference_load is None else reference_load
     if kappa is None or alpha is None:
-        k0, a0 = default_slip_grid()
+        k0, a0 = char.slip_grid()
         kappa = k0 if kappa is None else jnp.asarray(kappa)
         alpha = a0 if alpha is None else jnp.asarray(alpha)
-    fit = _Fit(init, UniformLoad() if load is None else load, mf,
+    fit = _Fit(init, UniformLoad() if load is None else load, char,
                jnp.asarray(loads, dtype=float), jnp.asarray(reference_load, dtype=float),
                jnp.asarray(v, dtype=float), jnp.asarray(kappa), jnp.asarray(alpha),
                jnp.asarray(load_weights, dtype=float),

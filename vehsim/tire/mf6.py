@@ -81,6 +81,7 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -745,7 +746,10 @@ def mf_summary(params: MFParams, Fz=None, p=None) -> dict:
     the peaks of $|F_{x0}|/F_z$ (driving and braking) and $|F_{y0}|/F_z$ with the slips
     where they occur (found on a grid of 2001 slips, $|\kappa| \le 1$,
     $|\alpha| \le 30°$), the slip and cornering stiffnesses $K_{x\kappa}$ [N],
-    $K_{y\alpha}$ [N/rad], and what the coefficients state: $\mu_x = p_{Dx1}\lambda_{\mu x}$,
+    $K_{y\alpha}$ [N/rad], the slopes at zero slip $\partial F_x/\partial\kappa$ [N]
+    (``dFx_dkappa_0``) and $\partial F_y/\partial\alpha$ [N/rad] (``dFy_dalpha_0``: the
+    cornering stiffness as measured, which the shifts $S_{Hy}$, $S_{Vy}$ and the curvature
+    set slightly apart from $K_{y\alpha}$), and what the coefficients state: $\mu_x = p_{Dx1}\lambda_{\mu x}$,
     $\mu_y = p_{Dy1}\lambda_{\mu y}$ at the nominal load, and the cornering stiffness
     $p_{Ky1}F'_{z0}\sin(p_{Ky4}\arctan(F_z/(p_{Ky2}F'_{z0})))$ (4.E25 at zero camber and
     nominal pressure)."""
@@ -760,6 +764,8 @@ def mf_summary(params: MFParams, Fz=None, p=None) -> dict:
     i_d, i_b = np.argmax(fx[drive]), np.argmin(fx[brake])
     i_y = np.argmax(np.abs(fy))
     o0 = mf_evaluate(P, 0.0, 0.0, Fz, 0.0, p, limits=False)
+    slope_x = jax.grad(lambda k: mf_evaluate(P, k, 0.0, Fz, 0.0, p, limits=False).Fx)(0.0)
+    slope_y = jax.grad(lambda a: mf_evaluate(P, 0.0, a, Fz, 0.0, p, limits=False).Fy)(0.0)
     fz0p = float(P.LFZO * P.FNOMIN)
     stated_k = float(P.PKY1 * fz0p * np.sin(P.PKY4 * np.arctan(Fz / (P.PKY2 * fz0p))))
     return {
@@ -768,6 +774,7 @@ def mf_summary(params: MFParams, Fz=None, p=None) -> dict:
         "mu_x_brake": float(-fx[brake][i_b]), "kappa_at_mu_x_brake": float(kappa[brake][i_b]),
         "mu_y": float(np.abs(fy)[i_y]), "alpha_deg_at_mu_y": float(np.rad2deg(alpha[i_y])),
         "Kxk": float(o0.Kxk), "Kya": float(o0.Kya),
+        "dFx_dkappa_0": float(slope_x), "dFy_dalpha_0": float(slope_y),
         "stated_mu_x": float(P.PDX1 * P.LMUX), "stated_mu_y": float(P.PDY1 * P.LMUY),
         "stated_Kya": stated_k,
     }
