@@ -9,6 +9,8 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
+    from ._options import integer, number
+
     p = subparsers.add_parser(
         "tire", help="a tyre property file (.tir): summary, curves, LuGre fit",
         description="Read a Magic Formula 5.2 / 6.1 / 6.2 tyre property file and summarise "
@@ -22,7 +24,7 @@ def register(subparsers) -> None:
                        "occur, the cornering and slip stiffnesses at zero slip, the valid "
                        "ranges. Values in the file's axes (ISO-W).")
     s.add_argument("file", help="tyre property file (.tir)")
-    s.add_argument("--load", type=float, default=None,
+    s.add_argument("--load", type=number(0.0, lower_open=True, unit="N"), default=None,
                    help="load [N] of the summary (default the nominal load LFZO * FNOMIN)")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=_show)
@@ -49,8 +51,9 @@ def register(subparsers) -> None:
     f.add_argument("--loads", default=None, metavar="F1,F2,...",
                    help="loads [N] (default 0.5, 1, 1.5 times the nominal load, within the "
                         "file's load range)")
-    f.add_argument("--speed", type=float, default=20.0, help="speed [m/s] (20)")
-    f.add_argument("--max-steps", type=int, default=50,
+    f.add_argument("--speed", type=number(0.0, 100.0, lower_open=True, unit="m/s"),
+                   default=20.0, help="speed [m/s], in (0, 100] (20)")
+    f.add_argument("--max-steps", type=integer(1, 100_000), default=50,
                    help="Levenberg-Marquardt steps at most (50: beyond, the sample's errors "
                         "fall by a point or two while mu_s, v_s, gamma drift off to "
                         "unphysical values along a valley of equal steady states; "
@@ -166,8 +169,7 @@ def _show(args) -> int:
     from .._io import _jsonable
 
     tir, params = read_tire(args.file)
-    load = None if args.load is None else _positive("--load", args.load)
-    s = tire_summary(tir, params, load)
+    s = tire_summary(tir, params, args.load)
     print(json.dumps(_jsonable(s), indent=2) if args.json else summary_text(s))
     return 0
 
@@ -256,24 +258,21 @@ def _fit_lugre(args) -> int:
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
+    from .._result_files import with_units
     from ..reproduce.combined import fit_lugre_to, fit_table, lugre_fit_curves, lugre_fit_figure
+    from ._options import output_file
     from ._status import exit_status
 
     loads = _parse_loads(args.loads)
-    _positive("--speed", args.speed)
-    if args.max_steps < 1:
-        raise ValueError(f"--max-steps must be at least 1, got {args.max_steps}")
+    output_file("--out", args.out, {".json": "json"})
     out = Path(args.out)
     figure = out.with_suffix(".png")
-    if out == figure:
-        raise ValueError(f"--out {out}: the JSON file needs a name other than its figure's "
-                         "(.png)")
     tir, params = read_tire(args.file)
     print(f"vehsim tire fit-lugre: {args.file}, Magic Formula {float(params.version):.1f}, "
           f"at most {args.max_steps} Levenberg-Marquardt steps", file=sys.stderr, flush=True)
     fit, record = fit_lugre_to(params, args.speed, loads, args.max_steps)
     record = {"file": str(args.file), "version": tir.version, **record}
-    write_json(out, record)
+    write_json(out, with_units(record, strict=False))
     fig = lugre_fit_figure(lugre_fit_curves(params, fit, args.speed),
                            title=f"{Path(args.file).name}: distributed 2D LuGre (solid) fitted "
                                  "to its Magic Formula (dashed)")
