@@ -259,6 +259,7 @@ from .control.loop import (
     closed_loop_grid as closed_loop_grid,
     simulate_braking as simulate_braking,
     simulate_braking_grid as simulate_braking_grid,
+    stack as stack,
 )
 from .control.plant.hardware import (
     BrakeHardware as BrakeHardware,

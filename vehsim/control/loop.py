@@ -52,7 +52,11 @@ class BrakingRun(AbstractSolution):
     sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
     (standing for time `omega_stamp`; a measurement if `fresh`), and the observer's
     `theta_hat`, `v_hat`, wheel-speed `innovation` and the covariance of its log,
-    `theta_covariance`."""
+    `theta_covariance`.
+
+    ``run["v"]`` is a saved signal; a batch of runs (`simulate_braking_grid`: leading axes
+    (C, M); `stack`) is indexed like an array, ``runs[c, m]`` or ``runs[c]``, giving the run
+    (or sub-batch) with every field indexed alike."""
 
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
@@ -62,6 +66,11 @@ class BrakingRun(AbstractSolution):
     signals: dict | None
     ts: Float[Array, " T"] | None
     stats: dict
+
+    def __getitem__(self, index):
+        if isinstance(index, str):
+            return super().__getitem__(index)
+        return jax.tree_util.tree_map(lambda a: a[index], self)
 
 
 class PreviousSample(eqx.Module):
@@ -290,5 +299,7 @@ def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: Fr
 
 
 def stack(items):
-    """A batch (leading axis) of modules of the same structure, e.g. scenarios."""
+    """A batch (one new leading axis) of modules of the same structure: the scenarios and
+    observers of `simulate_braking_grid`, or runs (index a batch of runs with
+    ``runs[i]``)."""
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
