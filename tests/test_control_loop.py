@@ -19,12 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim import stack
 from vehsim._results import RESULTS
 from vehsim.control.controllers.braking import BUILD, DUMP, REBUILD, PeakSlipTracking, RuleBasedABS
 from vehsim.control.estimation.mhe import MovingHorizonEstimator
 from vehsim.control.experiments.metrics import braking_record
 from vehsim.control.experiments.scenarios import braking_scenario
-from vehsim import stack
 from vehsim.control.loop import closed_loop_grid
 from vehsim.control.plant.hardware import realistic_hardware
 from vehsim.control.road.surfaces import surface

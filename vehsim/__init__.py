@@ -241,6 +241,11 @@ from .control.estimation.mhe import (
     MovingHorizonEstimator as MovingHorizonEstimator,
 )
 from .control.estimation.observer import FrictionObserver as FrictionObserver
+from .control.estimation.recorded import (
+    FrictionEstimate as FrictionEstimate,
+    RecordedBraking as RecordedBraking,
+    estimate_friction as estimate_friction,
+)
 from .control.experiments.experiment import braking_experiment as braking_experiment
 from .control.experiments.half_car_abs import (
     TurnRun as TurnRun,

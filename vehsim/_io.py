@@ -15,6 +15,8 @@ import numpy as np
 
 
 T = TypeVar("T")
+FILE_MODE = 0o644
+"""Permissions of a written result file: the owner reads and writes, everyone reads."""
 
 
 def _jsonable(obj: Any) -> Any:
@@ -39,14 +41,16 @@ def _jsonable(obj: Any) -> Any:
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """Yield a temporary file name beside ``path`` (its folder created if needed); what is
-    written there replaces ``path`` by a rename when the block ends, and is removed if the
-    block raises."""
+    written there replaces ``path`` by a rename when the block ends, with the permissions
+    `FILE_MODE` (the temporary file's own are private), and is removed if the block
+    raises."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
         yield tmp
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

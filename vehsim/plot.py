@@ -179,6 +179,47 @@ def braking_figure(runs: dict, title: str = ""):
     return fig
 
 
+def friction_estimate_figure(estimate: dict, record: dict, title: str = ""):
+    r"""The road condition estimated over a recorded braking (`vehsim.estimate_friction`):
+    the estimate with its band of two standard errors and, where known, the truth; below,
+    the measured wheel slip $r\omega/v - 1$ and the brake torque. `estimate` holds arrays
+    ``ts``, ``theta``, ``theta_se`` and ``ok`` (drawn where true); `record` holds ``t``,
+    ``slip``, ``torque`` and optionally ``theta_true``."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    e = {k: np.asarray(v, dtype=float) for k, v in estimate.items()}
+    ok = np.asarray(estimate["ok"], dtype=bool) & np.isfinite(e["theta"])
+    t, theta, se = e["ts"][ok], e["theta"][ok], e["theta_se"][ok]
+    marker = "o-" if t.size < 200 else "-"
+    ax[0].fill_between(t, theta - 2.0 * se, theta + 2.0 * se, color="C0", alpha=0.25,
+                       lw=0, label="estimate +/- 2 standard errors")
+    ax[0].plot(t, theta, marker, color="C0", lw=1.2, ms=3, label="estimate")
+    if record.get("theta_true") is not None:
+        ax[0].plot(record["t"], record["theta_true"], "k--", lw=0.9, label="truth")
+    if theta.size:
+        lo, hi = np.nanmin(theta), np.nanmax(theta)
+        if record.get("theta_true") is not None:
+            lo = min(lo, np.nanmin(record["theta_true"]))
+            hi = max(hi, np.nanmax(record["theta_true"]))
+        pad = 0.25 * (hi - lo) + 0.05 * hi
+        ax[0].set_ylim(max(lo - pad, 0.0), hi + pad)
+    ax[0].set_ylabel("road condition theta [-]")
+    ax[0].legend(fontsize=8)
+    ax[1].plot(record["t"], np.clip(record["slip"], -1.0, 0.2), "C1", lw=0.8)
+    ax[1].set_ylabel("measured wheel slip r omega / v - 1", fontsize=8)
+    twin = ax[1].twinx()
+    twin.plot(record["t"], record["torque"], "0.5", lw=0.8)
+    twin.set_ylabel("brake torque [N m] (grey)", fontsize=8)
+    ax[1].set_xlabel("t [s]")
+    for a in ax:
+        a.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def turn_figure(runs: dict, title: str = ""):
     """The half car braking in a turn: paths, yaw rates and sideslip angles; `runs` maps a
     label to the signals of `vehsim.control.experiments.half_car_abs.simulate_turn`."""

@@ -1,7 +1,7 @@
 """The ``vehsim`` command line (also ``python -m vehsim``).
 
-One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`), each with
-``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
+One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`, `estimate`),
+each with ``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
 Compiled programs are kept in JAX's persistent compilation cache
@@ -16,10 +16,10 @@ import argparse
 import gc
 import sys
 
-from . import brake, fit, optimise, reproduce, sweep
+from . import brake, estimate, fit, optimise, reproduce, sweep
 
 
-COMMANDS = (reproduce, sweep, fit, optimise, brake)
+COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -97,8 +97,7 @@ class RecordedBraking(eqx.Module):
                 raise ValueError(f"{owner}.{name} must have the shape of t, {(K,)}, got "
                                  f"{a.shape}")
             values = np.asarray(a)
-            bad = np.isnan(values) if name == "omega" else ~np.isfinite(values)
-            bad |= np.isinf(values)
+            bad = np.isinf(values) if name == "omega" else ~np.isfinite(values)
             if np.any(bad):
                 k = int(np.argmax(bad))
                 what = "finite or NaN (missing)" if name == "omega" else "finite"
