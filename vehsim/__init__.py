@@ -131,6 +131,10 @@ from .tire.relaxed_magic_formula import (
     MagicFormulaParams as MagicFormulaParams,
     RelaxedMagicFormula as RelaxedMagicFormula,
 )
+from .tire.scaled import (
+    FrictionScaleParams as FrictionScaleParams,
+    ScaledFriction as ScaledFriction,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
@@ -236,14 +240,30 @@ from .control.controllers.traction import (
     TractionControl as TractionControl,
     traction_scenario as traction_scenario,
 )
+from .control.estimation.base import AbstractFrictionEstimator as AbstractFrictionEstimator
 from .control.estimation.mhe import (
+    BrakingRecord as BrakingRecord,
     MHEResult as MHEResult,
     MovingHorizonEstimator as MovingHorizonEstimator,
 )
-from .control.estimation.observer import FrictionObserver as FrictionObserver
+from .control.estimation.observer import (
+    FrictionObserver as FrictionObserver,
+    ObserverState as ObserverState,
+)
+from .control.estimation.parametrisation import (
+    AbstractRoadParametrisation as AbstractRoadParametrisation,
+    FrictionScale as FrictionScale,
+    RoadCondition as RoadCondition,
+)
+from .control.estimation.peak_estimator import (
+    BurckhardtBelief as BurckhardtBelief,
+    PeakEstimator as PeakEstimator,
+    PeakEstimatorState as PeakEstimatorState,
+    estimate_peaks as estimate_peaks,
+)
 from .control.estimation.recorded import (
     FrictionEstimate as FrictionEstimate,
-    RecordedBraking as RecordedBraking,
+    MeasuredBraking as MeasuredBraking,
     estimate_friction as estimate_friction,
 )
 from .control.experiments.experiment import braking_experiment as braking_experiment
@@ -282,6 +302,7 @@ from .control.road.bound import (
     traction_limit as traction_limit,
 )
 from .control.road.peak import (
+    braking_curve as braking_curve,
     peak_braking as peak_braking,
     peak_driving as peak_driving,
 )

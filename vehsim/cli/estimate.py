@@ -28,10 +28,11 @@ import sys
 from pathlib import Path
 
 
-ESTIMATORS = ("observer", "mhe")
+ESTIMATORS = ("observer", "mhe", "peak")
 REQUIRED = ("t", "v", "omega", "T_b")
 OPTIONAL = ("F_x", "F_n", "theta")
-UNITS = {"t_s": "s", "theta": "-", "theta_se": "-", "record_sample_time_s": "s",
+UNITS = {"t_s": "s", "theta": "-", "theta_se": "-", "peak_slip": "-", "peak_mu": "-",
+         "record_sample_time_s": "s",
          "estimator_sample_time_s": "s", "mass_kg": "kg", "radius_m": "m",
          "inertia_kg_m2": "kg m^2", "normal_load_n": "N"}
 
@@ -43,10 +44,14 @@ def register(subparsers) -> None:
         "recorded braking (CSV columns t [s], v [m/s], omega [rad/s], T_b [N m]; optional F_x, "
         "F_n [N] and the true theta) and write estimate.json (theta over time, its standard "
         "error, each estimate's status, units, summary) and estimate.png (theta with a band "
-        "of 2 standard errors, the measured slip). See docs/estimation.md.")
+        "of 2 standard errors, the measured slip); the peak estimator, which assumes no "
+        "tire, estimates the peak of the force-slip curve instead. See docs/estimation.md.")
     p.add_argument("data", help="the recorded braking (CSV)")
     p.add_argument("--estimator", default="observer",
                    help=f"one of: {', '.join(ESTIMATORS)} (default: observer)")
+    p.add_argument("--kappa0", type=float, default=None,
+                   help="assume the lumped LuGre tire with this constant kappa0 (eq. 25) "
+                        "instead of the uniform-load lumped tire (kappa0 from 2 to 1)")
     p.add_argument("--tire", default="dry_asphalt",
                    help="the tire the estimator assumes: a surface (e.g. dry_asphalt, snow, "
                         "cdc1999_1) or a LuGre parameter preset (table3, cdc1999) of "
@@ -77,12 +82,12 @@ def register(subparsers) -> None:
 
 
 def read_recorded_braking(path) -> tuple:
-    """``(RecordedBraking, extras)`` of a CSV in the format of the module docstring;
+    """``(MeasuredBraking, extras)`` of a CSV in the format of the module docstring;
     `extras` holds the side file's ``r``, ``m``, ``J`` and the optional ``theta`` column.
     Raises `ValueError` naming the file, row and column of the first problem."""
     import numpy as np
 
-    from ..control.estimation.recorded import RecordedBraking, nonuniform_step
+    from ..control.estimation.recorded import MeasuredBraking, nonuniform_step
     from ..identify.braking import _fail, _read_columns
 
     path = Path(path)
@@ -109,7 +114,7 @@ def read_recorded_braking(path) -> tuple:
         _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]!r}")
     extras = _side_file(path)
     extras["theta"] = values.get("theta")
-    record = RecordedBraking(values["t"], values["v"], values["omega"], values["T_b"],
+    record = MeasuredBraking(values["t"], values["v"], values["omega"], values["T_b"],
                              values.get("F_x"), values.get("F_n"))
     return record, extras
 
@@ -140,12 +145,14 @@ def _positive(option: str, value) -> None:
         raise ValueError(f"{option} must lie in (0, inf), got {value:g}")
 
 
-def _assumed_params(args):
-    """``(LuGreParams at the prior, (theta_min, theta_max))`` of --tire and its options."""
+def _assumed_tire(args):
+    """``(the assumed tire at the prior, (theta_min, theta_max))`` of --tire, --kappa0 and
+    the prior's options."""
     import equinox as eqx
 
     from ..params import PRESET_KINDS, preset
-    from ..tire.lugre import LuGreParams
+    from ..tire.lugre import LuGreParams, LumpedLuGre
+    from ..tire.uniform_lumped import UniformLumpedLuGre
 
     kind = PRESET_KINDS.get(args.tire)
     if kind == "surface":
@@ -163,10 +170,14 @@ def _assumed_params(args):
     rng = tuple(rng) if args.theta_range is None else tuple(args.theta_range)
     _positive("--prior-theta", prior)
     _positive("--theta-range LO", rng[0])
+    _positive("--kappa0", args.kappa0)
     if not (rng[0] <= prior <= rng[1]):
         raise ValueError(f"--prior-theta must lie in --theta-range [{rng[0]:g}, {rng[1]:g}], "
                          f"got {prior:g}")
-    return eqx.tree_at(lambda p: p.theta, params, prior), rng
+    params = eqx.tree_at(lambda p: p.theta, params, prior)
+    tire = UniformLumpedLuGre(params) if args.kappa0 is None else LumpedLuGre(params,
+                                                                              args.kappa0)
+    return tire, rng
 
 
 def _estimate(args) -> int:
@@ -181,7 +192,7 @@ def _estimate(args) -> int:
                              f"got {getattr(args, option)}")
     if args.stride is not None and args.stride < 1:
         raise ValueError(f"--stride must be at least 1, got {args.stride}")
-    params, (lo, hi) = _assumed_params(args)
+    tire, (lo, hi) = _assumed_tire(args)
     record, extras = read_recorded_braking(args.data)
 
     import numpy as np
@@ -189,9 +200,9 @@ def _estimate(args) -> int:
     from .._constants import GRAVITY
     from ..control.estimation.mhe import MovingHorizonEstimator
     from ..control.estimation.observer import FrictionObserver
+    from ..control.estimation.peak_estimator import PeakEstimator
     from ..control.estimation.recorded import estimate_friction
     from ..control.plant.hardware import ideal_hardware
-    from ..tire.uniform_lumped import UniformLumpedLuGre
     from ..vehicle.quarter_car import QuarterCar
 
     m = args.mass or extras.get("m", 350.0)
@@ -204,15 +215,15 @@ def _estimate(args) -> int:
         _positive(f"{args.data}: the mean of column 'F_n'", Fn)
     else:
         Fn = m * GRAVITY
-    car = QuarterCar(UniformLumpedLuGre(params), mass=m, inertia=J, radius=r, Fn_static=Fn,
-                     omega_eps=1.0)
+    car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
     h = record.sample_time
     hardware = ideal_hardware(sample_time=h if args.sample_time is None else args.sample_time)
     if args.estimator == "observer":
-        estimator = FrictionObserver(params, theta_min=lo, theta_max=hi)
+        estimator = FrictionObserver(tire, theta_min=lo, theta_max=hi)
+    elif args.estimator == "mhe":
+        estimator = MovingHorizonEstimator(tire, lo, hi, starts=args.starts, window=args.window)
     else:
-        estimator = MovingHorizonEstimator(params, lo, hi, starts=args.starts,
-                                           window=args.window)
+        estimator = PeakEstimator()
     if not args.no_progress:
         print(f"vehsim estimate: {args.estimator} over {len(record)} samples of {h:g} s "
               f"({args.data}); compiling and running...", file=sys.stderr, flush=True)
@@ -235,42 +246,53 @@ def _write(args, record, extras, est, car, hardware, h) -> dict:
     from .._results import is_successful, result_name
     from ..plot import friction_estimate_figure
 
-    ts, theta, se = (np.asarray(a, dtype=float) for a in (est.ts, est.theta, est.theta_se))
+    peak = est.theta is None
+    ts = np.asarray(est.ts, dtype=float)
+    fields = ("peak_slip", "peak_mu") if peak else ("theta", "theta_se")
+    values = {f: np.asarray(getattr(est, f), dtype=float) for f in fields}
     ok = np.asarray(is_successful(est.result))
     names = [str(n) for n in np.asarray(result_name(est.result), dtype=object).tolist()]
     last = np.nonzero(ok)[0]
     summary = {"samples": len(record), "record_sample_time_s": h,
                "estimator_sample_time_s": float(hardware.sample_time),
                "estimates": int(ts.size), "estimates_successful": int(ok.sum()),
-               "theta_final": float(theta[last[-1]]) if last.size else None,
-               "theta_se_final": float(se[last[-1]]) if last.size else None,
                "t_final_s": float(ts[last[-1]]) if last.size else None}
+    summary |= {f"{f}_final": float(a[last[-1]]) if last.size else None
+                for f, a in values.items()}
     truth = extras.get("theta")
-    if truth is not None and last.size:
+    if truth is not None and last.size and not peak:
         true_at = np.interp(ts, np.asarray(record.t), truth)
-        rel = theta[ok] / true_at[ok] - 1.0
         summary["theta_true_final"] = float(true_at[last[-1]])
-        summary["relative_error_median"] = float(np.median(np.abs(rel)))
-    out = {"file": str(args.data), "estimator": args.estimator, "tire": args.tire,
+        summary["relative_error_median"] = float(np.median(np.abs(
+            values["theta"][ok] / true_at[ok] - 1.0)))
+    out = {"file": str(args.data), "estimator": args.estimator,
+           "tire": None if peak else args.tire, "kappa0": None if peak else args.kappa0,
            "car": {"mass_kg": float(car.mass), "radius_m": float(car.radius),
                    "inertia_kg_m2": float(car.inertia),
                    "normal_load_n": float(car.Fn_static)},
-           "units": UNITS, "summary": summary,
-           "t_s": ts, "theta": theta, "theta_se": se, "status": names}
+           "units": UNITS, "summary": summary, "t_s": ts, **values, "status": names}
     t = np.asarray(record.t)
     slip = np.asarray(record.omega) * float(car.radius) / np.maximum(np.asarray(record.v),
                                                                       1e-9) - 1.0
+    shown = ({"value": values["peak_mu"], "label": "peak friction mu* [-]"} if peak else
+             {"value": values["theta"], "se": values["theta_se"],
+              "label": "road condition theta [-]"})
     fig = friction_estimate_figure(
-        {"ts": ts, "theta": theta, "theta_se": se, "ok": ok},
-        {"t": t, "slip": slip, "torque": np.asarray(record.torque), "theta_true": truth},
-        title=f"{args.estimator} on {Path(args.data).name} (assumed tire: {args.tire})")
+        {"ts": ts, "ok": ok, **shown},
+        {"t": t, "slip": slip, "torque": np.asarray(record.torque),
+         "truth": None if peak else truth,
+         "peak_slip": values["peak_slip"] if peak else None},
+        title=f"{args.estimator} on {Path(args.data).name}"
+              + ("" if peak else f" (assumed tire: {args.tire}"
+                 + ("" if args.kappa0 is None else f", kappa0 = {args.kappa0:g}") + ")"))
     folder = Path(args.out)
     write_json(folder / "estimate.json", out)
     save_figure(fig, folder / "estimate.png")
     plt.close(fig)
     print(f"wrote {folder / 'estimate.json'} and {folder / 'estimate.png'}", file=sys.stderr)
     if last.size:
-        print(f"  theta at {summary['t_final_s']:.3g} s: {summary['theta_final']:.4g} +/- "
-              f"{summary['theta_se_final']:.2g} ({summary['estimates_successful']} of "
+        a, b = fields
+        print(f"  at {summary['t_final_s']:.3g} s: {a} {summary[a + '_final']:.4g}, {b} "
+              f"{summary[b + '_final']:.2g} ({summary['estimates_successful']} of "
               f"{summary['estimates']} estimates successful)", file=sys.stderr)
     return out

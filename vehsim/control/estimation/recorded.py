@@ -1,7 +1,8 @@
-r"""The road condition $\theta$ estimated from a recorded braking: the friction observer or the
-moving-horizon estimator run over measured samples instead of the closed loop's sensors.
+r"""The road estimated from a recorded braking: the friction observer, the peak estimator or
+the moving-horizon estimator run over measured samples instead of the closed loop's sensors.
 
-A `RecordedBraking` holds samples at times $t_k$ of the vehicle speed $v$ [m/s], the wheel
+A `MeasuredBraking` (what was measured; the estimators read it as the `BrakingRecord` of
+their sample rate, built here) holds samples at times $t_k$ of the vehicle speed $v$ [m/s], the wheel
 speed $\omega$ [rad/s] (NaN where a sample is missing), the brake torque $T_b$ [N m] as it
 acted, and optionally the friction force $F_x$ and normal load $F_n$ [N] (kept for the
 reader; the estimators' quarter car has the constant load `QuarterCar.Fn_static`).
@@ -23,6 +24,12 @@ time and is a measurement unless it is NaN. Through a missing sample the observe
 predicts (no correction, no adaptation) and the moving-horizon fit leaves its residual out.
 The first sample's wheel speed starts the estimators and must be present.
 
+**Estimates.** The observer and the moving-horizon estimator estimate the parameter of
+their assumed tire ($\theta$ of a LuGre tire, `RoadCondition`; a friction scale,
+`FrictionScale`): right where the record's tire is the assumed one at some value of it, the
+best fit of the wrong shape otherwise. The peak estimator assumes no tire and estimates the
+peak of the force-slip curve.
+
 **Uncertainty.** The observer's recursive least squares carries the covariance $P$ of
 $\vartheta = \log\hat\theta$, in the units its `noise_variance` $R$ sets: with $R$ the
 wheel-speed noise's variance, $\operatorname{se}(\hat\theta) = \hat\theta\sqrt P$ (to first
@@ -41,13 +48,14 @@ from jaxtyping import Array, Float
 from ..._checks import is_concrete
 from ..._fields import array_field
 from ..._results import RESULTS
-from ...tire.uniform_lumped import UniformLumpedLuGre
 from ...vehicle.quarter_car import QuarterCar
 from ..plant.hardware import BrakeHardware, ideal_hardware
 from ..plant.integrate import SUBSTEPS
 from ..plant.quarter_car import braking_quarter_car
+from .base import AbstractFrictionEstimator
 from .mhe import MovingHorizonEstimator
 from .observer import FrictionObserver
+from .peak_estimator import PeakEstimator
 
 
 UNIFORM_TOLERANCE = 0.01
@@ -66,7 +74,7 @@ def nonuniform_step(t) -> int | None:
     return int(np.argmax(bad)) + 1 if np.any(bad) else None
 
 
-class RecordedBraking(eqx.Module):
+class MeasuredBraking(eqx.Module):
     r"""A recorded braking (module docstring): times `t` [s] (uniform), vehicle speed `v`
     [m/s], wheel speed `omega` [rad/s] (NaN where missing), brake torque `torque` [N m]
     ($\ge 0$, as it acted), and optionally the friction force `F_x` and the normal load
@@ -83,7 +91,7 @@ class RecordedBraking(eqx.Module):
                                                else jnp.asarray(x, dtype=float))
 
     def __check_init__(self):
-        owner = "RecordedBraking"
+        owner = "MeasuredBraking"
         named = {n: getattr(self, n) for n in ("t", "v", "omega", "torque", "F_x", "F_n")
                  if getattr(self, n) is not None}
         if not all(is_concrete(a) for a in named.values()):
@@ -128,23 +136,34 @@ class RecordedBraking(eqx.Module):
 
 
 class FrictionEstimate(eqx.Module):
-    r"""The estimate of $\theta$ over a recorded braking: at the times `ts` [s] (the
-    observer's samples, or the ends of the moving-horizon windows), the estimate `theta`,
-    its standard error `theta_se` (module docstring) and `result` (a `vehsim.RESULTS`
-    item per time: `nonfinite` where the observer's estimate is not finite, the window's
-    result for the moving-horizon estimator, e.g. `not_identifiable`)."""
+    r"""The estimate over a recorded braking, at the times `ts` [s] (the estimator's
+    samples, or the ends of the moving-horizon windows): the estimate `theta` of the
+    assumed tire's parameter ($\theta$, or $\lambda$ for a `FrictionScale`) and its
+    standard error `theta_se` (module docstring), or for a `PeakEstimator` (which assumes
+    no tire) the estimated peak of the force-slip curve, `peak_slip` ($s^* < 0$) and
+    `peak_mu` ($\mu^* > 0$), the fields it lacks `None`; and `result` (a `vehsim.RESULTS`
+    item per time: `nonfinite` where a sample-by-sample estimate is not finite, the
+    window's result for the moving-horizon estimator, e.g. `not_identifiable`)."""
 
     ts: Float[Array, " N"]
-    theta: Float[Array, " N"]
-    theta_se: Float[Array, " N"]
     result: RESULTS
+    theta: Float[Array, " N"] | None = None
+    theta_se: Float[Array, " N"] | None = None
+    peak_slip: Float[Array, " N"] | None = None
+    peak_mu: Float[Array, " N"] | None = None
 
 
 def _assumed_car(estimator) -> QuarterCar:
-    return braking_quarter_car(UniformLumpedLuGre(estimator.model))
+    """The scenarios' quarter car with the estimator's tire at its prior (for the
+    sample-by-sample estimators, the belief they start from)."""
+    if isinstance(estimator, MovingHorizonEstimator):
+        tire = estimator.model.belief(estimator.model.prior())
+    else:
+        tire = estimator.belief(estimator.init(1.0, 1.0))
+    return braking_quarter_car(tire)
 
 
-def _estimator_samples(record: RecordedBraking, hardware: BrakeHardware):
+def _estimator_samples(record: MeasuredBraking, hardware: BrakeHardware):
     """``(n, indices)``: the decimation and the record's samples the estimator steps at."""
     h = record.sample_time
     T = float(hardware.sample_time)
@@ -159,7 +178,7 @@ def _estimator_samples(record: RecordedBraking, hardware: BrakeHardware):
     return n, indices
 
 
-def _mean_torque(record: RecordedBraking, n: int, indices) -> np.ndarray:
+def _mean_torque(record: MeasuredBraking, n: int, indices) -> np.ndarray:
     """The mean over each estimator sample of the linearly interpolated recorded torque
     (trapezoidal rule of the recorded values; the last sample's value for the last)."""
     Tb = np.asarray(record.torque, dtype=float)
@@ -171,7 +190,7 @@ def _mean_torque(record: RecordedBraking, n: int, indices) -> np.ndarray:
     return means
 
 
-def _signals(record: RecordedBraking, hardware: BrakeHardware) -> dict:
+def _signals(record: MeasuredBraking, hardware: BrakeHardware) -> dict:
     n, idx = _estimator_samples(record, hardware)
     ts = np.asarray(record.t, dtype=float)[idx]
     omega = np.asarray(record.omega, dtype=float)[idx]
@@ -194,24 +213,29 @@ def _check_hardware(hardware: BrakeHardware) -> None:
 
 
 @eqx.filter_jit
-def _observe(observer: FrictionObserver, car, hardware, substeps, s) -> FrictionEstimate:
+def _run(estimator: AbstractFrictionEstimator, car, hardware, substeps, s) -> FrictionEstimate:
+    """`update` at every sample; the states stacked, the initial one first."""
     def step(state, k):
-        new = observer.update(state, car, hardware, substeps, s["v_meas"][k],
-                              s["omega_missing"][k], s["ts"][k], s["fresh"][k],
-                              s["torque"][k - 1], s["target"][k - 1], s["ts"][k - 1])
-        return new, (new.theta, new.covariance)
+        new = estimator.update(state, car, hardware, substeps, s["v_meas"][k],
+                               s["omega_missing"][k], s["ts"][k], s["fresh"][k],
+                               s["torque"][k - 1], s["target"][k - 1], s["ts"][k - 1])
+        return new, new
 
-    state0 = observer.init(s["omega_meas"][0], s["v_meas"][0])
-    _, (theta, P) = jax.lax.scan(step, state0, jnp.arange(1, s["ts"].shape[0]))
-    theta = jnp.concatenate([state0.theta[None], theta])
-    P = jnp.concatenate([state0.covariance[None], P])
-    ok = jnp.isfinite(theta) & jnp.isfinite(P)
+    state0 = estimator.init(s["omega_meas"][0], s["v_meas"][0])
+    states = jax.lax.scan(step, state0, jnp.arange(1, s["ts"].shape[0]))[1]
+    states = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), state0, states)
+    if isinstance(estimator, FrictionObserver):
+        theta, P = states.theta, states.covariance
+        values = dict(theta=theta, theta_se=theta * jnp.sqrt(P))
+    else:
+        values = dict(peak_slip=states.peak_slip, peak_mu=states.peak_mu)
+    ok = jnp.all(jnp.stack([jnp.isfinite(a) for a in values.values()]), axis=0)
     result = jax.vmap(lambda o: RESULTS.where(o, RESULTS.successful, RESULTS.nonfinite))(ok)
-    return FrictionEstimate(s["ts"], theta, theta * jnp.sqrt(P), result)
+    return FrictionEstimate(s["ts"], result, **values)
 
 
-def estimate_friction(record: RecordedBraking,
-                      estimator: FrictionObserver | MovingHorizonEstimator,
+def estimate_friction(record: MeasuredBraking,
+                      estimator: FrictionObserver | MovingHorizonEstimator | PeakEstimator,
                       car: QuarterCar | None = None, hardware: BrakeHardware | None = None,
                       *, stride: int | None = None, substeps: int = SUBSTEPS
                       ) -> FrictionEstimate:
@@ -219,12 +243,12 @@ def estimate_friction(record: RecordedBraking,
 
     **Arguments:**
 
-    - `record`: a `RecordedBraking`.
-    - `estimator`: a `FrictionObserver` (updated at every sample, `FrictionObserver.update`)
-      or a `MovingHorizonEstimator` (windows ending every `stride` samples,
-      `MovingHorizonEstimator.estimate`).
+    - `record`: a `MeasuredBraking`.
+    - `estimator`: a `FrictionObserver` or a `PeakEstimator` (updated at every sample, as
+      in the loop: `AbstractFrictionEstimator.update`), or a `MovingHorizonEstimator`
+      (windows ending every `stride` samples, `MovingHorizonEstimator.estimate`).
     - `car`: the `QuarterCar` of the record (mass, inertia, radius, `Fn_static`; its tire
-      is replaced by the estimator's model); default `braking_quarter_car`.
+      is replaced by the estimator's belief); default `braking_quarter_car`.
     - `hardware`: its `sample_time` is the estimator's step, a whole multiple of the
       record's; delay, rate limit and lag off. Default `ideal_hardware` at the record's step.
     - `stride`: samples between the ends of consecutive moving-horizon windows (default
@@ -233,16 +257,17 @@ def estimate_friction(record: RecordedBraking,
 
     **Returns:** a `FrictionEstimate`.
     """
-    if not isinstance(estimator, FrictionObserver | MovingHorizonEstimator):
-        raise TypeError(f"estimate_friction: estimator must be a FrictionObserver or a "
-                        f"MovingHorizonEstimator, got {type(estimator).__name__}")
+    if not isinstance(estimator, AbstractFrictionEstimator | MovingHorizonEstimator):
+        raise TypeError(f"estimate_friction: estimator must be a FrictionObserver, a "
+                        f"PeakEstimator or a MovingHorizonEstimator, got "
+                        f"{type(estimator).__name__}")
     car = _assumed_car(estimator) if car is None else car
     hardware = ideal_hardware(sample_time=record.sample_time) if hardware is None else hardware
     _check_hardware(hardware)
     s = _signals(record, hardware)
-    if isinstance(estimator, FrictionObserver):
-        return _observe(estimator, car, hardware, int(substeps),
-                        {k: jnp.asarray(a) for k, a in s.items()})
+    if not isinstance(estimator, MovingHorizonEstimator):
+        return _run(estimator, car, hardware, int(substeps),
+                    {k: jnp.asarray(a) for k, a in s.items()})
     N = s["ts"].size
     stride = max(estimator.window // 2, 1) if stride is None else int(stride)
     if stride < 1:
@@ -253,4 +278,4 @@ def estimate_friction(record: RecordedBraking,
                          f"one window of {estimator.window} + 1")
     ends = np.arange(N - 1, estimator.window - 1, -stride)[::-1]
     out = estimator.estimate(car, hardware, s, ends)
-    return FrictionEstimate(out.ts, out.theta, out.theta_se, out.result)
+    return FrictionEstimate(out.ts, out.result, theta=out.theta, theta_se=out.theta_se)
