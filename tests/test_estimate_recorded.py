@@ -170,7 +170,7 @@ def test_the_plant_brakes_at_slip_where_theta_is_identifiable():
 
 # relative errors measured: noise-free, dry 4e-4 and slippery 1.1e-2 at most, within 5 %
 # 0.035 s after the change; noisy (sigma 0.05 m/s and 0.1 rad/s, 15 wheel speeds missing)
-# 4.7e-3 and 1.1e-2, 0.035 s; standard error on the dry road at most 0.9 % of theta
+# 4.3e-3 and 1.1e-2, 0.035 s; standard error on the dry road at most 0.9 % of theta
 @pytest.mark.parametrize("noisy", [False, True])
 def test_observer_tracks_theta_before_and_after_the_change(noisy):
     est = observed(noisy)

@@ -231,6 +231,7 @@ from .control.controllers.braking import (
     AbstractBrakeController as AbstractBrakeController,
     AbstractSlipTracking as AbstractSlipTracking,
     LockedWheel as LockedWheel,
+    Measurement as Measurement,
     PeakSlipTracking as PeakSlipTracking,
     RuleBasedABS as RuleBasedABS,
     SlipTracking as SlipTracking,
@@ -280,13 +281,17 @@ from .control.experiments.metrics import (
 from .control.experiments.scenarios import braking_scenario as braking_scenario
 from .control.experiments.tuning import tune_gains as tune_gains
 from .control.loop import (
+    HANDBACK_SPEED as HANDBACK_SPEED,
+    STOP_SPEED as STOP_SPEED,
     BrakingRun as BrakingRun,
+    closed_loop as closed_loop,
     closed_loop_grid as closed_loop_grid,
     simulate_braking as simulate_braking,
     simulate_braking_grid as simulate_braking_grid,
     stack as stack,
 )
 from .control.plant.hardware import (
+    MAX_DELAY as MAX_DELAY,
     BrakeHardware as BrakeHardware,
     ideal_hardware as ideal_hardware,
     realistic_hardware as realistic_hardware,
