@@ -345,3 +345,16 @@ def test_peak_estimator_runs_over_the_record_as_over_its_braking_record():
     np.testing.assert_allclose(est.peak_slip, states.peak_slip, rtol=1e-12)
     np.testing.assert_allclose(est.peak_mu, states.peak_mu, rtol=1e-12)
     assert np.all(est.peak_slip < 0) and np.all(est.peak_mu > 0)
+
+
+def test_command_line_refuses_a_bad_side_file(tmp_path, capsys):
+    path = _bad(tmp_path, "t,v,omega,T_b\n" + GOOD_ROWS)
+    side = path.with_suffix(".json")
+    for text, message in (('{"r": -0.3}', "'r' must lie in (0, inf), got -0.3"),
+                          ('{"r": 0.3, "J": "heavy"}', "'J' must be a number, got 'heavy'"),
+                          ("{r: 0.3", "invalid JSON side file")):
+        side.write_text(text)
+        assert cli.main(["estimate", str(path), "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert f"{side}: " in err and message in err
+    assert not (tmp_path / "out").exists()
