@@ -6,7 +6,7 @@ road, theta = 1), the road turns slippery (theta = 2.5) at 1 s, and the torque i
 250 N m and rebuilt to 400 N m (slip about -0.03); sampled at 1 kHz, the estimators step
 at 5 ms and assume the plant's structure (the uniform-load lumped tire would read theta
 about 20 % low here). Noise-free, and noisy (Gaussian on omega and v) with a few
-wheel-speed samples missing. One compiled program per estimator serves every record (the
+wheel-speed samples missing (a dropout among them). One compiled program per estimator serves every record (the
 same lengths), the command line's run included."""
 
 import functools
@@ -98,9 +98,11 @@ def record(noisy: bool) -> MeasuredBraking:
         rng = np.random.default_rng(7)
         v = v + 0.05 * rng.standard_normal(v.size)
         omega = omega + 0.1 * rng.standard_normal(omega.size)
-        # missing: 10 of the estimator's samples (every 5th) and 5 between them
+        # missing: 10 of the estimator's samples (every 5th), 5 between them, and a
+        # dropout of 25 ms while the wheel spins up again after the dump
         omega[rng.choice(np.arange(5, omega.size, 5), 10, replace=False)] = np.nan
         omega[rng.choice(np.arange(1, omega.size, 5), 5, replace=False)] = np.nan
+        omega[1090:1115] = np.nan
     return MeasuredBraking(t, v, omega, torque_profile(t))
 
 
@@ -169,8 +171,8 @@ def test_the_plant_brakes_at_slip_where_theta_is_identifiable():
 
 
 # relative errors measured: noise-free, dry 4e-4 and slippery 1.1e-2 at most, within 5 %
-# 0.035 s after the change; noisy (sigma 0.05 m/s and 0.1 rad/s, 15 wheel speeds missing)
-# 4.3e-3 and 1.1e-2, 0.035 s; standard error on the dry road at most 0.9 % of theta
+# 0.035 s after the change; noisy (sigma 0.05 m/s and 0.1 rad/s, wheel speeds missing)
+# 4.3e-3 and 1.6e-2, 0.035 s; standard error on the dry road at most 0.9 % of theta
 @pytest.mark.parametrize("noisy", [False, True])
 def test_observer_tracks_theta_before_and_after_the_change(noisy):
     est = observed(noisy)
@@ -185,7 +187,7 @@ def test_observer_tracks_theta_before_and_after_the_change(noisy):
     assert np.all(est.theta_se[dry] < 0.02 * est.theta[dry])
     jump = (est.ts > T_CHANGE) & (est.ts < T_CHANGE + 0.05)
     assert np.max(est.theta_se[jump]) > 0.1 * THETA_SLIPPERY
-    # and it covers the error once settled (measured: 0.84 standard errors at most)
+    # and it covers the error once settled (measured: 1.01 standard errors at most)
     settled = ((est.ts >= 0.4) & (est.ts <= T_CHANGE)) | (est.ts >= T_CHANGE + 0.1)
     err = np.abs(est.theta - true_theta(est.ts))[settled]
     assert np.all(err < 1.5 * est.theta_se[settled])
@@ -330,21 +332,32 @@ def test_recorded_torque_is_held_at_its_mean_over_each_estimator_sample():
     assert jnp.asarray(s["torque"]).dtype == jnp.float64
 
 
-def test_peak_estimator_runs_over_the_record_as_over_its_braking_record():
-    # the shape-free estimator, sample by sample through the common interface: the same
-    # states as `estimate_peaks` over the BrakingRecord of the estimator's sample rate
-    from vehsim.control.estimation.mhe import BrakingRecord
-    from vehsim.control.estimation.peak_estimator import PeakEstimator, estimate_peaks
-    from vehsim.control.estimation.recorded import _signals
+def test_peak_estimator_runs_over_the_record_sample_by_sample():
+    # the shape-free estimator through the common interface: the states of its `update`
+    # replayed here sample by sample (the torque of the sample before, missing wheel speeds
+    # no measurement), at the estimator's 5 ms on the noisy record
+    from vehsim.control.estimation.peak_estimator import PeakEstimator
 
-    rec, peak = record(False), PeakEstimator()
+    rec, peak = record(True), PeakEstimator()
     est = jax.tree_util.tree_map(np.asarray, estimate_friction(rec, peak, CAR, HARDWARE))
     assert est.theta is None and np.all(is_successful(est.result))
-    states = estimate_peaks(peak, CAR, HARDWARE,
-                            BrakingRecord.from_signals(_signals(rec, HARDWARE)))
-    np.testing.assert_allclose(est.peak_slip, states.peak_slip, rtol=1e-12)
-    np.testing.assert_allclose(est.peak_mu, states.peak_mu, rtol=1e-12)
-    assert np.all(est.peak_slip < 0) and np.all(est.peak_mu > 0)
+    n = round(T_EST / H)
+    t, v, omega = (np.asarray(a)[::n] for a in (rec.t, rec.v, rec.omega))
+    Tb = np.asarray(rec.torque)
+    torque = [np.mean((Tb[i:i + n] + Tb[i + 1:i + n + 1]) / 2) for i in range(0, len(Tb) - n, n)]
+    update = eqx.filter_jit(peak.update)
+    state = peak.init(omega[0], v[0])
+    slips, mus = [float(state.peak_slip)], [float(state.peak_mu)]
+    for k in range(1, t.size):
+        fresh = not np.isnan(omega[k])
+        state = update(state, CAR, HARDWARE, 0, v[k], omega[k] if fresh else np.inf, t[k],
+                       fresh, torque[k - 1], torque[k - 1], t[k - 1])
+        slips.append(float(state.peak_slip))
+        mus.append(float(state.peak_mu))
+    assert np.sum(np.isnan(omega)) >= 5  # missing samples among the estimator's
+    np.testing.assert_allclose(est.ts, t, atol=1e-12)
+    np.testing.assert_allclose(est.peak_slip, slips, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(est.peak_mu, mus, rtol=1e-9, atol=1e-12)
 
 
 def test_command_line_refuses_a_bad_side_file(tmp_path, capsys):

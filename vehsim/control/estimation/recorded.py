@@ -52,8 +52,8 @@ from ...vehicle.quarter_car import QuarterCar
 from ..plant.hardware import BrakeHardware, ideal_hardware
 from ..plant.integrate import SUBSTEPS
 from ..plant.quarter_car import braking_quarter_car
-from .base import AbstractFrictionEstimator
-from .mhe import MovingHorizonEstimator
+from .base import AbstractFrictionEstimator, run_estimator
+from .mhe import BrakingRecord, MovingHorizonEstimator
 from .observer import FrictionObserver
 from .peak_estimator import PeakEstimator
 
@@ -213,17 +213,10 @@ def _check_hardware(hardware: BrakeHardware) -> None:
 
 
 @eqx.filter_jit
-def _run(estimator: AbstractFrictionEstimator, car, hardware, substeps, s) -> FrictionEstimate:
-    """`update` at every sample; the states stacked, the initial one first."""
-    def step(state, k):
-        new = estimator.update(state, car, hardware, substeps, s["v_meas"][k],
-                               s["omega_missing"][k], s["ts"][k], s["fresh"][k],
-                               s["torque"][k - 1], s["target"][k - 1], s["ts"][k - 1])
-        return new, new
-
-    state0 = estimator.init(s["omega_meas"][0], s["v_meas"][0])
-    states = jax.lax.scan(step, state0, jnp.arange(1, s["ts"].shape[0]))[1]
-    states = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), state0, states)
+def _run(estimator: AbstractFrictionEstimator, car, hardware, substeps,
+         record: BrakingRecord) -> FrictionEstimate:
+    """`run_estimator`, the loop's order of updates; the states' estimates."""
+    states = run_estimator(estimator, car, hardware, record, substeps)
     if isinstance(estimator, FrictionObserver):
         theta, P = states.theta, states.covariance
         values = dict(theta=theta, theta_se=theta * jnp.sqrt(P))
@@ -231,7 +224,7 @@ def _run(estimator: AbstractFrictionEstimator, car, hardware, substeps, s) -> Fr
         values = dict(peak_slip=states.peak_slip, peak_mu=states.peak_mu)
     ok = jnp.all(jnp.stack([jnp.isfinite(a) for a in values.values()]), axis=0)
     result = jax.vmap(lambda o: RESULTS.where(o, RESULTS.successful, RESULTS.nonfinite))(ok)
-    return FrictionEstimate(s["ts"], result, **values)
+    return FrictionEstimate(record.ts, result, **values)
 
 
 def estimate_friction(record: MeasuredBraking,
@@ -266,8 +259,10 @@ def estimate_friction(record: MeasuredBraking,
     _check_hardware(hardware)
     s = _signals(record, hardware)
     if not isinstance(estimator, MovingHorizonEstimator):
-        return _run(estimator, car, hardware, int(substeps),
-                    {k: jnp.asarray(a) for k, a in s.items()})
+        # a missing wheel speed is no measurement and bounds nothing: +inf (the loop's
+        # samples without a tone-wheel edge carry a bound instead)
+        s["omega_meas"] = s.pop("omega_missing")
+        return _run(estimator, car, hardware, int(substeps), BrakingRecord.from_signals(s))
     N = s["ts"].size
     stride = max(estimator.window // 2, 1) if stride is None else int(stride)
     if stride < 1:
