@@ -16,6 +16,7 @@ def test_write_json_is_atomic_and_converts_arrays(tmp_path):
     data = json.loads(path.read_text())
     assert data == {"t_f": 3.25, "xs": [0, 1, 2], "bad": None, "worse": [None, None]}
     assert [p.name for p in path.parent.iterdir()] == ["r.json"]  # no temporary left behind
+    assert path.stat().st_mode & 0o777 == 0o644  # readable by all, as a plain write makes it
 
 
 def test_write_atomic_keeps_old_file_on_failure(tmp_path):

@@ -19,12 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim import stack
 from vehsim._results import RESULTS
 from vehsim.control.controllers.braking import BUILD, DUMP, REBUILD, PeakSlipTracking, RuleBasedABS
 from vehsim.control.estimation.mhe import MovingHorizonEstimator
 from vehsim.control.experiments.metrics import braking_record
 from vehsim.control.experiments.scenarios import braking_scenario
-from vehsim.control.loop import closed_loop_grid, stack
+from vehsim.control.loop import closed_loop_grid
 from vehsim.control.plant.hardware import realistic_hardware
 from vehsim.control.road.surfaces import surface
 
@@ -74,6 +75,21 @@ def test_estimate_based_abs_on_dry_asphalt_within_3_percent_of_the_limit():
     rec = braking_record(run, _scenarios()[0][0])
     assert run.result == RESULTS.successful
     assert 1.0 < rec["distance_over_bound"] <= 1.03
+
+
+def test_a_grid_of_runs_is_indexed_per_member_and_restacked():
+    # runs[c, m] is member (c, m) of every field (a signal by name as before), and the
+    # public `stack` of the members gives the batch back
+    runs = _runs("realistic")[0]
+    one = runs[1, 0]
+    assert isinstance(one, type(runs)) and one.stopping_distance.shape == ()
+    np.testing.assert_array_equal(one["v"], runs.signals["v"][1, 0])
+    assert float(one.stopping_distance) == float(runs.stopping_distance[1, 0])
+    assert bool(one.ok) == bool(runs.ok[1, 0])
+    again = stack([runs[1, m] for m in range(len(ROADS))])
+    for a, b in zip(jax.tree_util.tree_leaves(again), jax.tree_util.tree_leaves(runs[1])):
+        np.testing.assert_array_equal(a, b)
+    assert jax.tree_util.tree_structure(again) == jax.tree_util.tree_structure(runs[1])
 
 
 @pytest.mark.parametrize("road", [0, 1])

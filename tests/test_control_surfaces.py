@@ -50,6 +50,24 @@ def test_negative_or_too_long_delay_is_refused():
         SurfaceChange(surface("ice").tire(), distance=-1.0)
 
 
+def test_hardware_checks_a_component_only_while_it_is_on():
+    # 1 ms samples hold at most 8 ms of delay: the default 10 ms is refused with the delay
+    # on and accepted with it off (never applied); likewise a lag, rate limit or tone wheel
+    # switched off keeps values it never uses
+    with pytest.raises(ValueError, match=r"actuator_delay must lie in \[0, 0.008\], got 0.01"):
+        BrakeHardware(sample_time=0.001)
+    ideal = ideal_hardware(sample_time=0.001)
+    assert int(ideal.delay_samples()) == 0
+    BrakeHardware(lag=False, time_constant=0.0, rate_limit=False, torque_rate=-1.0,
+                  encoder=False, encoder_pulses=0.0, noise=False, speed_noise_std=-1.0)
+    for name, value in (("time_constant", 0.0), ("torque_rate", -1.0), ("encoder_pulses", 0.0),
+                        ("speed_noise_std", -1.0)):
+        with pytest.raises(ValueError, match=f"BrakeHardware.{name} must lie in"):
+            BrakeHardware(**{name: value})
+    with pytest.raises(ValueError, match=r"actuator_delay must lie in \[0, 0.008\]"):
+        ideal_hardware(sample_time=0.001, delay=True)
+
+
 @pytest.mark.parametrize("s, v", [(-0.05, 30.0), (-0.3, 12.0), (-0.999, 20.0), (-1.0, 20.0)])
 def test_steady_state_of_the_lumped_tire_is_eq_19(s, v):
     # z_ss = v_r / D with the steady-state kappa of a uniform load: eq. 19 to rounding,

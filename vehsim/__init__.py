@@ -141,6 +141,10 @@ from .tire.relaxed_magic_formula import (
     MagicFormulaParams as MagicFormulaParams,
     RelaxedMagicFormula as RelaxedMagicFormula,
 )
+from .tire.scaled import (
+    FrictionScaleParams as FrictionScaleParams,
+    ScaledFriction as ScaledFriction,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
@@ -238,6 +242,7 @@ from .control.controllers.braking import (
     AbstractBrakeController as AbstractBrakeController,
     AbstractSlipTracking as AbstractSlipTracking,
     LockedWheel as LockedWheel,
+    Measurement as Measurement,
     PeakSlipTracking as PeakSlipTracking,
     RuleBasedABS as RuleBasedABS,
     SlipTracking as SlipTracking,
@@ -247,11 +252,34 @@ from .control.controllers.traction import (
     TractionControl as TractionControl,
     traction_scenario as traction_scenario,
 )
+from .control.estimation.base import (
+    AbstractFrictionEstimator as AbstractFrictionEstimator,
+    run_estimator as run_estimator,
+)
 from .control.estimation.mhe import (
+    BrakingRecord as BrakingRecord,
     MHEResult as MHEResult,
     MovingHorizonEstimator as MovingHorizonEstimator,
 )
-from .control.estimation.observer import FrictionObserver as FrictionObserver
+from .control.estimation.observer import (
+    FrictionObserver as FrictionObserver,
+    ObserverState as ObserverState,
+)
+from .control.estimation.parametrisation import (
+    AbstractRoadParametrisation as AbstractRoadParametrisation,
+    FrictionScale as FrictionScale,
+    RoadCondition as RoadCondition,
+)
+from .control.estimation.peak_estimator import (
+    BurckhardtBelief as BurckhardtBelief,
+    PeakEstimator as PeakEstimator,
+    PeakEstimatorState as PeakEstimatorState,
+)
+from .control.estimation.recorded import (
+    FrictionEstimate as FrictionEstimate,
+    MeasuredBraking as MeasuredBraking,
+    estimate_friction as estimate_friction,
+)
 from .control.experiments.experiment import braking_experiment as braking_experiment
 from .control.experiments.half_car_abs import (
     TurnRun as TurnRun,
@@ -266,12 +294,17 @@ from .control.experiments.metrics import (
 from .control.experiments.scenarios import braking_scenario as braking_scenario
 from .control.experiments.tuning import tune_gains as tune_gains
 from .control.loop import (
+    HANDBACK_SPEED as HANDBACK_SPEED,
+    STOP_SPEED as STOP_SPEED,
     BrakingRun as BrakingRun,
+    closed_loop as closed_loop,
     closed_loop_grid as closed_loop_grid,
     simulate_braking as simulate_braking,
     simulate_braking_grid as simulate_braking_grid,
+    stack as stack,
 )
 from .control.plant.hardware import (
+    MAX_DELAY as MAX_DELAY,
     BrakeHardware as BrakeHardware,
     ideal_hardware as ideal_hardware,
     realistic_hardware as realistic_hardware,
@@ -287,6 +320,7 @@ from .control.road.bound import (
     traction_limit as traction_limit,
 )
 from .control.road.peak import (
+    braking_curve as braking_curve,
     peak_braking as peak_braking,
     peak_driving as peak_driving,
 )

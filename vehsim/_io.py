@@ -53,9 +53,10 @@ def _jsonable(obj: Any) -> Any:
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary file name beside ``path`` (its folder created if needed, the file
-    created with the permissions `FILE_MODE` of any new file); what is written there
-    replaces ``path`` by a rename when the block ends, and is removed if the block raises."""
+    """Yield a temporary file name beside ``path`` (its folder created if needed); what is
+    written there replaces ``path`` by a rename when the block ends, with the permissions
+    `FILE_MODE` of any new file (set again before the rename, for writers that recreate the
+    temporary file), and is removed if the block raises."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -65,6 +66,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         os.close(fd)
     try:
         yield tmp
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -195,6 +195,55 @@ def braking_figure(runs: dict, title: str = ""):
     return fig
 
 
+def friction_estimate_figure(estimate: dict, record: dict, title: str = ""):
+    r"""An estimate over a recorded braking (`vehsim.estimate_friction`): the estimate with
+    its band of two standard errors and, where known, the truth; below, the measured wheel
+    slip $r\omega/v - 1$ (and an estimated peak slip) and the brake torque. `estimate`
+    holds arrays ``ts``, ``value``, ``ok`` (drawn where true), optionally ``se``, and the
+    axis ``label``; `record` holds ``t``, ``slip``, ``torque`` and optionally ``truth``
+    (over ``t``) and ``peak_slip`` (over the estimate's ``ts``)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    ok = np.asarray(estimate["ok"], dtype=bool) & np.isfinite(estimate["value"])
+    t, value = np.asarray(estimate["ts"])[ok], np.asarray(estimate["value"])[ok]
+    se = estimate.get("se")
+    marker = "o-" if t.size < 200 else "-"
+    if se is not None:
+        se = np.asarray(se)[ok]
+        ax[0].fill_between(t, value - 2.0 * se, value + 2.0 * se, color="C0", alpha=0.25,
+                           lw=0, label="estimate +/- 2 standard errors")
+    ax[0].plot(t, value, marker, color="C0", lw=1.2, ms=3, label="estimate")
+    truth = record.get("truth")
+    if truth is not None:
+        ax[0].plot(record["t"], truth, "k--", lw=0.9, label="truth")
+    if value.size:
+        lo, hi = np.nanmin(value), np.nanmax(value)
+        if truth is not None:
+            lo, hi = min(lo, np.nanmin(truth)), max(hi, np.nanmax(truth))
+        pad = 0.25 * (hi - lo) + 0.05 * abs(hi)
+        ax[0].set_ylim(max(lo - pad, 0.0), hi + pad)
+    ax[0].set_ylabel(estimate.get("label", "estimate"))
+    ax[0].legend(fontsize=8)
+    ax[1].plot(record["t"], np.clip(record["slip"], -1.0, 0.2), "C1", lw=0.8,
+               label="measured slip")
+    if record.get("peak_slip") is not None:
+        ax[1].plot(np.asarray(estimate["ts"])[ok], np.asarray(record["peak_slip"])[ok], "C0:",
+                   lw=1.0, label="estimated peak slip")
+        ax[1].legend(fontsize=8)
+    ax[1].set_ylabel("wheel slip r omega / v - 1", fontsize=8)
+    twin = ax[1].twinx()
+    twin.plot(record["t"], record["torque"], "0.5", lw=0.8)
+    twin.set_ylabel("brake torque [N m] (grey)", fontsize=8)
+    ax[1].set_xlabel("t [s]")
+    for a in ax:
+        a.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def turn_figure(runs: dict, title: str = ""):
     """The half car braking in a turn: paths, yaw rates and sideslip angles; `runs` maps a
     label to the signals of `vehsim.control.experiments.half_car_abs.simulate_turn`."""

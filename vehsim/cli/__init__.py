@@ -1,7 +1,8 @@
 """The ``vehsim`` command line (also ``python -m vehsim``).
 
-One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`, `tire`), each with
-``register(subparsers)`` adding a parser whose ``func`` is called with the parsed arguments.
+One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`, `estimate`,
+`tire`), each with ``register(subparsers)`` adding a parser whose ``func`` is called with the
+parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
 Compiled programs are kept in JAX's persistent compilation cache
@@ -16,10 +17,10 @@ import argparse
 import gc
 import sys
 
-from . import brake, fit, optimise, reproduce, sweep, tire
+from . import brake, estimate, fit, optimise, reproduce, sweep, tire
 
 
-COMMANDS = (reproduce, sweep, fit, optimise, brake, tire)
+COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire)
 
 
 def build_parser() -> argparse.ArgumentParser:

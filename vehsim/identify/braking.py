@@ -103,8 +103,11 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
     )
 
 
-def _read_columns(path: Path) -> dict[str, np.ndarray]:
-    """The known columns of the CSV, each value a finite number."""
+def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUMNS,
+                  may_be_missing=()) -> dict[str, np.ndarray]:
+    """The `required` and present `optional` columns of the CSV, each value a finite number
+    (in the columns `may_be_missing`, an empty field or ``nan`` reads as NaN: a missing
+    sample)."""
     with open(path, newline="") as f:
         reader = csv.reader(f)
         try:
@@ -112,13 +115,13 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
         except StopIteration:
             raise ValueError(f"{path}: empty file (expected a header row)") from None
         rows = list(reader)
-    for col in REQUIRED_COLUMNS:
+    for col in required:
         if col not in header:
             _fail(path, None, col, f"missing required column (header has {header}; "
-                  f"required {list(REQUIRED_COLUMNS)})")
+                  f"required {list(required)})")
     if len(set(header)) != len(header):
         raise ValueError(f"{path}: duplicate column names in header {header}")
-    wanted = [c for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in header]
+    wanted = [c for c in tuple(required) + tuple(optional) if c in header]
     index = {c: header.index(c) for c in wanted}
     values = {c: np.empty(len(rows)) for c in wanted}
     for i, row in enumerate(rows, 1):
@@ -128,6 +131,9 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
                   "(inconsistent lengths)")
         for c in wanted:
             text = row[index[c]].strip()
+            if c in may_be_missing and text.lower() in ("", "nan"):
+                values[c][i - 1] = math.nan
+                continue
             try:
                 x = float(text)
             except ValueError:

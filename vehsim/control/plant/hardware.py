@@ -27,9 +27,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from ..._checks import check_nonnegative, check_positive, check_range, is_concrete
+from ..._checks import check_nonnegative, check_positive, is_concrete
 from ..._fields import array_field, bool_field
 
 
@@ -61,19 +62,42 @@ class BrakeHardware(eqx.Module):
     noise: Array = bool_field(default=True)
 
     def __check_init__(self):
+        # a component's values are checked only where it is switched on: with the delay off,
+        # `ideal_hardware(sample_time=0.001)` holds a 10 ms delay it never applies
         owner = "BrakeHardware"
-        for name in ("sample_time", "time_constant", "torque_rate", "max_torque",
-                     "encoder_pulses"):
-            check_positive(owner, name, getattr(self, name))
-        check_nonnegative(owner, "speed_noise_std", self.speed_noise_std)
-        longest = MAX_DELAY * float(self.sample_time) if is_concrete(self.sample_time) \
-            else float("inf")
-        check_range(owner, "actuator_delay", self.actuator_delay, lower=0.0, upper=longest)
+        check_positive(owner, "sample_time", self.sample_time)
+        check_positive(owner, "max_torque", self.max_torque)
+        for switch, name in (("lag", "time_constant"), ("rate_limit", "torque_rate"),
+                             ("encoder", "encoder_pulses")):
+            value = _where_on(getattr(self, switch), getattr(self, name))
+            if value is not None:
+                check_positive(owner, name, value)
+        noise = _where_on(self.noise, self.speed_noise_std)
+        if noise is not None:
+            check_nonnegative(owner, "speed_noise_std", noise)
+        if all(is_concrete(x) for x in (self.delay, self.actuator_delay, self.sample_time)):
+            on, d, T = np.broadcast_arrays(np.asarray(self.delay, dtype=bool),
+                                           np.asarray(self.actuator_delay, dtype=float),
+                                           np.asarray(self.sample_time, dtype=float))
+            bad = on & ~((d >= 0.0) & (d <= MAX_DELAY * T))
+            if np.any(bad):
+                raise ValueError(
+                    f"BrakeHardware.actuator_delay must lie in [0, {MAX_DELAY * T[bad].flat[0]:g}]"
+                    f", got {d[bad].flat[0]:g} (at most {MAX_DELAY} samples of sample_time, "
+                    "the delay buffer's length, while the delay is on; delay=False turns it off)")
 
     def delay_samples(self):
         """The command delay in samples (0 when the delay is switched off)."""
         d = jnp.round(self.actuator_delay / self.sample_time).astype(int)
         return jnp.where(self.delay, d, 0)
+
+
+def _where_on(switch, value):
+    """The concrete values of `value` where `switch` is on (None when either is traced)."""
+    if not (is_concrete(switch) and is_concrete(value)):
+        return None
+    on = np.broadcast_to(np.asarray(switch, dtype=bool), np.shape(value))
+    return np.asarray(value, dtype=float)[on]
 
 
 def realistic_hardware(**changes) -> BrakeHardware:

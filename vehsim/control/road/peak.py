@@ -3,7 +3,9 @@ r"""The peak of a tire's steady-state force-slip curve at a given speed.
 `braking_curve` is the steady-state $\mu(s)$ at braking slip $s = r\omega/v - 1\in[-1, 0]$
 (negative: braking): eq. 19 for `UniformLumpedLuGre`, the lumped steady state for
 `LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its transient slip tends to
-$v_r/|v| = s$). `driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
+$v_r/|v| = s$), $\lambda$ times the wrapped tire's at $s/\rho$ for `ScaledFriction`, and
+the tire's own `steady_state_mu` for any other tire that has one. `driving_curve` is eq. 18
+at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
 `peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
 near zero slip, where the peaks are) and a golden-section search inside the best grid
 cell; the derivative of the peak slip with respect to the tire's parameters and the speed
@@ -22,6 +24,7 @@ import jax.numpy as jnp
 from ...tire.lugre import AbstractLongitudinalTire, LumpedLuGre
 from ...tire.magic_formula import magic_formula
 from ...tire.relaxed_magic_formula import RelaxedMagicFormula
+from ...tire.scaled import ScaledFriction
 from ...tire.uniform_lumped import UniformLumpedLuGre
 
 
@@ -38,7 +41,10 @@ def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
     if isinstance(tire, RelaxedMagicFormula):
         p = tire.params
         return magic_formula(s, p.B, p.C, p.D, p.E)
-    if isinstance(tire, LumpedLuGre):
+    if isinstance(tire, ScaledFriction):
+        p = tire.params
+        return p.scale * braking_curve(tire.tire, s / p.slip_scale, v, r)
+    if isinstance(tire, LumpedLuGre) or hasattr(tire, "steady_state_mu"):
         return tire.steady_state_mu(v, (1.0 + s) * v / r, r)
     raise TypeError(f"no steady-state curve for {type(tire).__name__}")
 

@@ -1,0 +1,298 @@
+"""`vehsim estimate DATA.csv [--estimator observer|mhe] [--tire NAME] [--out DIR]`: the road
+condition theta over a recorded braking (`vehsim.estimate_friction`).
+
+**Format.** A CSV file with one header row and one row per sample, as the identification's
+brakings (`vehsim.identify.braking`), and an optional side file of the same stem with suffix
+``.json`` (``{"r": ..., "m": ..., "J": ...}``, the wheel's radius [m], mass share [kg] and
+inertia [kg m^2]; the options override it):
+
+| column  | unit  | meaning                                                                 |
+|---------|-------|-------------------------------------------------------------------------|
+| `t`     | s     | time, uniformly sampled (steps within 1 % of the mean)                  |
+| `v`     | m/s   | vehicle speed                                                           |
+| `omega` | rad/s | wheel speed; an empty field or ``nan`` is a missing sample              |
+| `T_b`   | N m   | brake torque as it acted, >= 0                                          |
+| `F_x`   | N     | friction force (optional, not used by the estimators)                  |
+| `F_n`   | N     | normal load (optional; its mean is the model's load unless --normal-load) |
+| `theta` | -     | the true road condition (optional, e.g. a simulated record: drawn)      |
+
+A malformed file is refused (exit status 2) with its name, row (1-based data row) and
+column, before anything is computed or written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+
+ESTIMATORS = ("observer", "mhe", "peak")
+REQUIRED = ("t", "v", "omega", "T_b")
+OPTIONAL = ("F_x", "F_n", "theta")
+UNITS = {"t_s": "s", "theta": "-", "theta_se": "-", "peak_slip": "-", "peak_mu": "-",
+         "record_sample_time_s": "s",
+         "estimator_sample_time_s": "s", "mass_kg": "kg", "radius_m": "m",
+         "inertia_kg_m2": "kg m^2", "normal_load_n": "N"}
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "estimate", help="estimate the road condition theta over a recorded braking (CSV)",
+        description="Run the friction observer or the moving-horizon estimator over a "
+        "recorded braking (CSV columns t [s], v [m/s], omega [rad/s], T_b [N m]; optional F_x, "
+        "F_n [N] and the true theta) and write estimate.json (theta over time, its standard "
+        "error, each estimate's status, units, summary) and estimate.png (theta with a band "
+        "of 2 standard errors, the measured slip); the peak estimator, which assumes no "
+        "tire, estimates the peak of the force-slip curve instead. See docs/estimation.md.")
+    p.add_argument("data", help="the recorded braking (CSV)")
+    p.add_argument("--estimator", default="observer",
+                   help=f"one of: {', '.join(ESTIMATORS)} (default: observer)")
+    p.add_argument("--kappa0", type=float, default=None,
+                   help="assume the lumped LuGre tire with this constant kappa0 (eq. 25) "
+                        "instead of the uniform-load lumped tire (kappa0 from 2 to 1)")
+    p.add_argument("--tire", default="dry_asphalt",
+                   help="the tire the estimator assumes: a surface (e.g. dry_asphalt, snow, "
+                        "cdc1999_1) or a LuGre parameter preset (table3, cdc1999) of "
+                        "vehsim.params (default: dry_asphalt)")
+    p.add_argument("--prior-theta", type=float, default=None,
+                   help="the estimator's starting theta (default: the surface's prior, or "
+                        "the preset's theta)")
+    p.add_argument("--theta-range", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="the range theta is projected on (default: the surface's, or 0.3 40)")
+    p.add_argument("--mass", type=float, default=None,
+                   help="mass share of the wheel [kg] (default: side file, else 350)")
+    p.add_argument("--radius", type=float, default=None,
+                   help="rolling radius [m] (default: side file, else 0.3)")
+    p.add_argument("--inertia", type=float, default=None,
+                   help="wheel inertia [kg m^2] (default: side file, else 1.0)")
+    p.add_argument("--normal-load", type=float, default=None,
+                   help="normal load [N] (default: the mean of F_n if recorded, else m g)")
+    p.add_argument("--sample-time", type=float, default=None,
+                   help="the estimator's step [s], a whole multiple of the record's "
+                        "(default: the record's step)")
+    p.add_argument("--window", type=int, default=20, help="mhe: samples per window (20)")
+    p.add_argument("--stride", type=int, default=None,
+                   help="mhe: samples between window ends (default: half a window)")
+    p.add_argument("--starts", type=int, default=3, help="mhe: starts per window (3)")
+    p.add_argument("--out", default="estimate_results",
+                   help="output folder (default: estimate_results/)")
+    p.set_defaults(func=_estimate)
+
+
+def read_recorded_braking(path) -> tuple:
+    """``(MeasuredBraking, extras)`` of a CSV in the format of the module docstring;
+    `extras` holds the side file's ``r``, ``m``, ``J`` and the optional ``theta`` column.
+    Raises `ValueError` naming the file, row and column of the first problem."""
+    import numpy as np
+
+    from ..control.estimation.recorded import MeasuredBraking, nonuniform_step
+    from ..identify.braking import _fail, _read_columns
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such braking file")
+    values = _read_columns(path, REQUIRED, OPTIONAL, may_be_missing=("omega",))
+    n = len(values["t"])
+    if n < 3:
+        raise ValueError(f"{path}: need at least 3 data rows, got {n}")
+    k = nonuniform_step(values["t"])
+    if k is not None:
+        dt = np.diff(values["t"])
+        _fail(path, k + 1, "t", f"time must increase uniformly (steps within 1 % of the mean "
+              f"{np.mean(dt):g} s), got {values['t'][k]!r} after {values['t'][k - 1]!r}; "
+              "resample the record first")
+    if math.isnan(values["omega"][0]):
+        _fail(path, 1, "omega", "the first sample starts the estimators and must be present")
+    for c in ("T_b", "F_n"):
+        if c in values and np.any(values[c] < 0):
+            i = int(np.argmax(values[c] < 0)) + 1
+            _fail(path, i, c, f"must be >= 0 (a magnitude), got {values[c][i - 1]!r}")
+    if "theta" in values and np.any(values["theta"] <= 0):
+        i = int(np.argmax(values["theta"] <= 0)) + 1
+        _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]!r}")
+    extras = _side_file(path)
+    extras["theta"] = values.get("theta")
+    record = MeasuredBraking(values["t"], values["v"], values["omega"], values["T_b"],
+                             values.get("F_x"), values.get("F_n"))
+    return record, extras
+
+
+def _side_file(path: Path) -> dict:
+    side = path.with_suffix(".json")
+    if not side.is_file():
+        return {}
+    try:
+        meta = json.loads(side.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{side}: invalid JSON side file: {e}") from None
+    out = {}
+    for key in ("r", "m", "J"):
+        if meta.get(key) is not None:
+            try:
+                x = float(meta[key])
+            except (TypeError, ValueError):
+                raise ValueError(f"{side}: {key!r} must be a number, got {meta[key]!r}") from None
+            if not (math.isfinite(x) and x > 0):
+                raise ValueError(f"{side}: {key!r} must lie in (0, inf), got {x}")
+            out[key] = x
+    return out
+
+
+def _positive(option: str, value) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{option} must lie in (0, inf), got {value:g}")
+
+
+def _assumed_tire(args):
+    """``(the assumed tire at the prior, (theta_min, theta_max))`` of --tire, --kappa0 and
+    the prior's options."""
+    import equinox as eqx
+
+    from ..params import PRESET_KINDS, preset
+    from ..tire.lugre import LuGreParams, LumpedLuGre
+    from ..tire.uniform_lumped import UniformLumpedLuGre
+
+    kind = PRESET_KINDS.get(args.tire)
+    if kind == "surface":
+        srf = preset(args.tire)
+        params, prior, rng = srf.params, srf.prior_theta, srf.theta_range
+    elif kind == "tire_params" and isinstance(preset(args.tire), LuGreParams):
+        params = preset(args.tire)
+        prior, rng = float(params.theta), (0.3, 40.0)
+    else:
+        names = sorted(n for n, k in PRESET_KINDS.items() if k == "surface") + ["cdc1999",
+                                                                                "table3"]
+        raise ValueError(f"--tire must be a surface or a longitudinal LuGre preset, one of "
+                         f"{', '.join(names)}; got {args.tire!r}")
+    prior = prior if args.prior_theta is None else args.prior_theta
+    rng = tuple(rng) if args.theta_range is None else tuple(args.theta_range)
+    _positive("--prior-theta", prior)
+    _positive("--theta-range LO", rng[0])
+    _positive("--kappa0", args.kappa0)
+    if not (rng[0] <= prior <= rng[1]):
+        raise ValueError(f"--prior-theta must lie in --theta-range [{rng[0]:g}, {rng[1]:g}], "
+                         f"got {prior:g}")
+    params = eqx.tree_at(lambda p: p.theta, params, prior)
+    tire = UniformLumpedLuGre(params) if args.kappa0 is None else LumpedLuGre(params,
+                                                                              args.kappa0)
+    return tire, rng
+
+
+def _estimate(args) -> int:
+    if args.estimator not in ESTIMATORS:
+        raise ValueError(f"--estimator must be one of {', '.join(ESTIMATORS)}, got "
+                         f"{args.estimator!r}")
+    for option in ("mass", "radius", "inertia", "normal_load", "sample_time"):
+        _positive("--" + option.replace("_", "-"), getattr(args, option))
+    for option in ("window", "starts"):
+        if getattr(args, option) < (2 if option == "window" else 1):
+            raise ValueError(f"--{option} must be at least {2 if option == 'window' else 1}, "
+                             f"got {getattr(args, option)}")
+    if args.stride is not None and args.stride < 1:
+        raise ValueError(f"--stride must be at least 1, got {args.stride}")
+    tire, (lo, hi) = _assumed_tire(args)
+    record, extras = read_recorded_braking(args.data)
+
+    import numpy as np
+
+    from .._constants import GRAVITY
+    from ..control.estimation.mhe import MovingHorizonEstimator
+    from ..control.estimation.observer import FrictionObserver
+    from ..control.estimation.peak_estimator import PeakEstimator
+    from ..control.estimation.recorded import estimate_friction
+    from ..control.plant.hardware import ideal_hardware
+    from ..vehicle.quarter_car import QuarterCar
+
+    m = args.mass or extras.get("m", 350.0)
+    r = args.radius or extras.get("r", 0.3)
+    J = args.inertia or extras.get("J", 1.0)
+    if args.normal_load is not None:
+        Fn = args.normal_load
+    elif record.F_n is not None:
+        Fn = float(np.mean(np.asarray(record.F_n)))
+        _positive(f"{args.data}: the mean of column 'F_n'", Fn)
+    else:
+        Fn = m * GRAVITY
+    car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
+    h = record.sample_time
+    hardware = ideal_hardware(sample_time=h if args.sample_time is None else args.sample_time)
+    if args.estimator == "observer":
+        estimator = FrictionObserver(tire, theta_min=lo, theta_max=hi)
+    elif args.estimator == "mhe":
+        estimator = MovingHorizonEstimator(tire, lo, hi, starts=args.starts, window=args.window)
+    else:
+        estimator = PeakEstimator()
+    if not args.no_progress:
+        print(f"vehsim estimate: {args.estimator} over {len(record)} samples of {h:g} s "
+              f"({args.data}); compiling and running...", file=sys.stderr, flush=True)
+    est = estimate_friction(record, estimator, car, hardware, stride=args.stride)
+    out = _write(args, record, extras, est, car, hardware, h)
+    from ._status import exit_status
+
+    return exit_status("estimate", est.result) if out["summary"]["estimates_successful"] == 0 \
+        else 0
+
+
+def _write(args, record, extras, est, car, hardware, h) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from .._io import save_figure, write_json
+    from .._results import is_successful, result_name
+    from ..plot import friction_estimate_figure
+
+    peak = est.theta is None
+    ts = np.asarray(est.ts, dtype=float)
+    fields = ("peak_slip", "peak_mu") if peak else ("theta", "theta_se")
+    values = {f: np.asarray(getattr(est, f), dtype=float) for f in fields}
+    ok = np.asarray(is_successful(est.result))
+    names = [str(n) for n in np.asarray(result_name(est.result), dtype=object).tolist()]
+    last = np.nonzero(ok)[0]
+    summary = {"samples": len(record), "record_sample_time_s": h,
+               "estimator_sample_time_s": float(hardware.sample_time),
+               "estimates": int(ts.size), "estimates_successful": int(ok.sum()),
+               "t_final_s": float(ts[last[-1]]) if last.size else None}
+    summary |= {f"{f}_final": float(a[last[-1]]) if last.size else None
+                for f, a in values.items()}
+    truth = extras.get("theta")
+    if truth is not None and last.size and not peak:
+        true_at = np.interp(ts, np.asarray(record.t), truth)
+        summary["theta_true_final"] = float(true_at[last[-1]])
+        summary["relative_error_median"] = float(np.median(np.abs(
+            values["theta"][ok] / true_at[ok] - 1.0)))
+    out = {"file": str(args.data), "estimator": args.estimator,
+           "tire": None if peak else args.tire, "kappa0": None if peak else args.kappa0,
+           "car": {"mass_kg": float(car.mass), "radius_m": float(car.radius),
+                   "inertia_kg_m2": float(car.inertia),
+                   "normal_load_n": float(car.Fn_static)},
+           "units": UNITS, "summary": summary, "t_s": ts, **values, "status": names}
+    t = np.asarray(record.t)
+    slip = np.asarray(record.omega) * float(car.radius) / np.maximum(np.asarray(record.v),
+                                                                      1e-9) - 1.0
+    shown = ({"value": values["peak_mu"], "label": "peak friction mu* [-]"} if peak else
+             {"value": values["theta"], "se": values["theta_se"],
+              "label": "road condition theta [-]"})
+    fig = friction_estimate_figure(
+        {"ts": ts, "ok": ok, **shown},
+        {"t": t, "slip": slip, "torque": np.asarray(record.torque),
+         "truth": None if peak else truth,
+         "peak_slip": values["peak_slip"] if peak else None},
+        title=f"{args.estimator} on {Path(args.data).name}"
+              + ("" if peak else f" (assumed tire: {args.tire}"
+                 + ("" if args.kappa0 is None else f", kappa0 = {args.kappa0:g}") + ")"))
+    folder = Path(args.out)
+    write_json(folder / "estimate.json", out)
+    save_figure(fig, folder / "estimate.png")
+    plt.close(fig)
+    print(f"wrote {folder / 'estimate.json'} and {folder / 'estimate.png'}", file=sys.stderr)
+    if last.size:
+        a, b = fields
+        print(f"  at {summary['t_final_s']:.3g} s: {a} {summary[a + '_final']:.4g}, {b} "
+              f"{summary[b + '_final']:.2g} ({summary['estimates_successful']} of "
+              f"{summary['estimates']} estimates successful)", file=sys.stderr)
+    return out
