@@ -38,6 +38,8 @@ UNITS = {"t_s": "s", "theta": "-", "theta_se": "-", "peak_slip": "-", "peak_mu":
 
 
 def register(subparsers) -> None:
+    from ._options import choice_of, integer, number
+
     p = subparsers.add_parser(
         "estimate", help="estimate the road condition theta over a recorded braking (CSV)",
         description="Run the friction observer or the moving-horizon estimator over a "
@@ -47,35 +49,35 @@ def register(subparsers) -> None:
         "of 2 standard errors, the measured slip); the peak estimator, which assumes no "
         "tire, estimates the peak of the force-slip curve instead. See docs/estimation.md.")
     p.add_argument("data", help="the recorded braking (CSV)")
-    p.add_argument("--estimator", default="observer",
+    p.add_argument("--estimator", default="observer", type=choice_of(ESTIMATORS, "estimator"),
                    help=f"one of: {', '.join(ESTIMATORS)} (default: observer)")
-    p.add_argument("--kappa0", type=float, default=None,
+    p.add_argument("--kappa0", type=number(0.0, 10.0, lower_open=True), default=None,
                    help="assume the lumped LuGre tire with this constant kappa0 (eq. 25) "
                         "instead of the uniform-load lumped tire (kappa0 from 2 to 1)")
     p.add_argument("--tire", default="dry_asphalt",
                    help="the tire the estimator assumes: a surface (e.g. dry_asphalt, snow, "
                         "cdc1999_1) or a LuGre parameter preset (table3, cdc1999) of "
                         "vehsim.params (default: dry_asphalt)")
-    p.add_argument("--prior-theta", type=float, default=None,
+    p.add_argument("--prior-theta", type=number(0.0, lower_open=True), default=None,
                    help="the estimator's starting theta (default: the surface's prior, or "
                         "the preset's theta)")
-    p.add_argument("--theta-range", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+    p.add_argument("--theta-range", type=number(0.0, lower_open=True), nargs=2, default=None, metavar=("LO", "HI"),
                    help="the range theta is projected on (default: the surface's, or 0.3 40)")
-    p.add_argument("--mass", type=float, default=None,
+    p.add_argument("--mass", type=number(0.0, lower_open=True, unit="kg"), default=None,
                    help="mass share of the wheel [kg] (default: side file, else 350)")
-    p.add_argument("--radius", type=float, default=None,
+    p.add_argument("--radius", type=number(0.0, 5.0, lower_open=True, unit="m"), default=None,
                    help="rolling radius [m] (default: side file, else 0.3)")
-    p.add_argument("--inertia", type=float, default=None,
+    p.add_argument("--inertia", type=number(0.0, lower_open=True, unit="kg m^2"), default=None,
                    help="wheel inertia [kg m^2] (default: side file, else 1.0)")
-    p.add_argument("--normal-load", type=float, default=None,
+    p.add_argument("--normal-load", type=number(0.0, lower_open=True, unit="N"), default=None,
                    help="normal load [N] (default: the mean of F_n if recorded, else m g)")
-    p.add_argument("--sample-time", type=float, default=None,
+    p.add_argument("--sample-time", type=number(0.0, 1.0, lower_open=True, unit="s"), default=None,
                    help="the estimator's step [s], a whole multiple of the record's "
                         "(default: the record's step)")
-    p.add_argument("--window", type=int, default=20, help="mhe: samples per window (20)")
-    p.add_argument("--stride", type=int, default=None,
+    p.add_argument("--window", type=integer(2, 100_000), default=20, help="mhe: samples per window (20)")
+    p.add_argument("--stride", type=integer(1, 100_000), default=None,
                    help="mhe: samples between window ends (default: half a window)")
-    p.add_argument("--starts", type=int, default=3, help="mhe: starts per window (3)")
+    p.add_argument("--starts", type=integer(1, 1024), default=3, help="mhe: starts per window (3)")
     p.add_argument("--out", default="estimate_results",
                    help="output folder (default: estimate_results/)")
     p.set_defaults(func=_estimate)
