@@ -183,17 +183,7 @@ def _assumed_tire(args):
 
 
 def _estimate(args) -> int:
-    if args.estimator not in ESTIMATORS:
-        raise ValueError(f"--estimator must be one of {', '.join(ESTIMATORS)}, got "
-                         f"{args.estimator!r}")
-    for option in ("mass", "radius", "inertia", "normal_load", "sample_time"):
-        _positive("--" + option.replace("_", "-"), getattr(args, option))
-    for option in ("window", "starts"):
-        if getattr(args, option) < (2 if option == "window" else 1):
-            raise ValueError(f"--{option} must be at least {2 if option == 'window' else 1}, "
-                             f"got {getattr(args, option)}")
-    if args.stride is not None and args.stride < 1:
-        raise ValueError(f"--stride must be at least 1, got {args.stride}")
+    # the options' types and ranges are checked while parsing (vehsim.cli._options)
     tire, (lo, hi) = _assumed_tire(args)
     record, extras = read_recorded_braking(args.data)
 
