@@ -107,6 +107,7 @@ from .tire.lugre import (
     PointLuGre as PointLuGre,
     decay_rate as decay_rate,
     relative_velocity as relative_velocity,
+    solve_steady_state as solve_steady_state,
     stribeck as stribeck,
 )
 from .tire.lugre2d import (
