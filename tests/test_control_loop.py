@@ -1,12 +1,12 @@
 """The closed braking loop: the rule-based ABS cycling without locking, the observer
-converging, the moving-horizon estimator recovering theta, and the gradient of a stopping distance with respect to a gain
-against finite differences. One compiled program serves the loop's tests: the forward-mode
-derivative of a grid (two roads x two controllers) with respect to the estimate-based
-controller's log K_p, which returns the runs too; it is called with three hardware
-settings and three gains (array fields: no recompilation). The controllers regulate down to
-0.5 m/s (no hand-back before the stop, whose switch would make the distance jump). The
-distances against the limits, on every named surface and from a prior far from the road,
-are in tests/test_control_tires.py."""
+converging, the moving-horizon estimator recovering theta, and the gradient of a stopping
+distance with respect to a gain against finite differences. One compiled program serves the
+loop's tests: the forward-mode derivative of a grid (two roads x two controllers) with
+respect to the estimate-based controller's log K_p, which returns the runs too; it is called
+with three hardware settings and three gains (array fields: no recompilation). The
+controllers regulate down to 0.5 m/s (no hand-back before the stop, whose switch would make
+the distance jump). The distances against the limits, on every named surface and from a
+prior far from the road, are in tests/test_control_tires.py."""
 
 import functools
 import os
