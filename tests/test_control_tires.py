@@ -78,11 +78,14 @@ def test_closed_form_and_computed_steady_state_agree(name):
     def both(s, v):
         closed = lambda x: tire.braking_mu(x, v, R)  # noqa: E731
         computed = lambda x: _computed(tire, x, v)  # noqa: E731
-        return [(f(s), jax.grad(f)(s), jax.grad(jax.grad(f))(s)) for f in (closed, computed)]
+        state = lambda x: tire.steady_state_mu(v, (1.0 + x) * v / R, R)  # noqa: E731
+        return [(f(s), jax.grad(f)(s), jax.grad(jax.grad(f))(s)) for f in (closed, computed)
+                ] + [state(s)]
 
     for v in (30.0, 8.0):
-        (a, da, dda), (b, db, ddb) = jax.vmap(lambda s: both(s, v))(SLIPS)
+        (a, da, dda), (b, db, ddb), c = jax.vmap(lambda s: both(s, v))(SLIPS)
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(c, a, rtol=1e-10, atol=1e-12)  # the model's own rest state
         inner = slice(1, -2)  # the kinks of |v_r| at s = 0 and of |omega r| at s = -1 aside
         np.testing.assert_allclose(db[inner], da[inner], rtol=1e-8)
         np.testing.assert_allclose(ddb[inner], dda[inner], rtol=1e-6, atol=1e-8)
@@ -357,7 +360,7 @@ def test_gain_tuning_lowers_the_objective_and_its_gradient_is_the_finite_differe
                jnp.asarray([float(physical_limit(sc)[0])]), hw, 180)
     start = SlipTracking(kp=12.0, ki=120.0)
     tuned, j0, j1, steps, result = tune_gains(start, *problem, max_steps=3)
-    assert float(j1) < float(j0) - 1e-3 and int(steps) >= 1
+    assert float(j1) < float(j0) and int(steps) >= 1
     g = jnp.log(jnp.asarray([12.0, 120.0]))
     value, grad = eqx.filter_jit(lambda g: value_and_forward_grad(
         lambda x: mean_distance_ratio(x, start, *problem), g))(g)
