@@ -350,6 +350,7 @@ def test_abs_keeps_steering_in_a_turn_and_a_locked_axle_does_not():
     assert turned["rear locked"] > 3 * kinematic
 
 
+@pytest.mark.slow  # three compiles of the closed loop in forward mode (BFGS, J, its gradient)
 def test_gain_tuning_lowers_the_objective_and_its_gradient_is_the_finite_difference():
     # a tiny problem: one braking on dry asphalt from 8 m/s (stopped in 0.9 s), fixed-slip
     # tracking started from gains 5 times too small; the objective's forward-mode gradient
