@@ -63,3 +63,9 @@ class ScaledFriction(AbstractLongitudinalTire):
     def steady_state_mu(self, v, omega, r):
         r"""$\lambda$ times the tire's steady-state force at the stretched wheel speed."""
         return self.params.scale * self.tire.steady_state_mu(v, self._omega(v, omega, r), r)
+
+    def braking_mu(self, s, v, r):
+        r"""$\lambda\mu_{tire}(s/ho)$: the tire's own steady-state curve (its closed form
+        where it has one), scaled and stretched."""
+        p = self.params
+        return p.scale * self.tire.braking_mu(s / p.slip_scale, v, r)
