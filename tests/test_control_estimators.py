@@ -200,3 +200,22 @@ def test_estimators_refuse_what_they_cannot_estimate():
         RoadCondition(vs.RelaxedMagicFormula(vs.MagicFormulaParams()))
     with pytest.raises(ValueError, match="scalar friction state"):
         MovingHorizonEstimator(vs.DistributedLuGre(srf.params, n=8))
+
+
+def test_peak_estimator_leaves_the_old_road_after_a_change():
+    # Table 3's dry road to theta = 2.5 at 15 m (the same program as the records above): the
+    # change detector forgets the dry curve, so the peak friction follows within 0.25 s
+    scenario, _ = _lugre_record()
+    slippery = vs.LumpedLuGre(eqx.tree_at(lambda p: p.theta, table3(), jnp.asarray(2.5)),
+                              kappa0=KAPPA0)
+    scenario = eqx.tree_at(lambda sc: sc.change, scenario,
+                           vs.SurfaceChange(slippery, distance=15.0))
+    run = simulate_braking(scenario, RuleBasedABS(), braking_scenario("dry_asphalt")[1],
+                           HARDWARE, duration=DURATION)
+    s = {k: np.asarray(v) for k, v in run.signals.items()}
+    states = _replay(PeakEstimator(), scenario.car, HARDWARE, BrakingRecord.from_signals(s))
+    t_change = s["ts"][np.argmax(s["x"] >= 15.0)]
+    after = (s["ts"] >= t_change + 0.25) & (s["v"] > 3.0)
+    mu_true = np.asarray(jax.vmap(lambda v: peak_braking(slippery, v, 0.3)[1])(s["v"][after]))
+    assert after.sum() > 20
+    np.testing.assert_allclose(np.asarray(states.peak_mu)[after], mu_true, rtol=0.1)

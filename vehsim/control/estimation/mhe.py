@@ -14,10 +14,11 @@ driven by that torque, reproduces the measurements: residuals $(\omega(t_j) -
 v_j)/\sigma_v$. The simulation is the plant's own integrator (`integrate_sample`), so that
 on noise-free data of the assumed model the fit recovers $\theta$ to the solver's
 tolerance; on data of another tire it returns the assumed tire's best fit (biased: a
-uniform-load LuGre assumed for a constant-$\kappa_0$ tire reads $\theta$ about 20 % low on
-dry asphalt). Past the peak the wheel's dynamics are unstable
-and the fit has local minima, so it starts from `starts` values of $\theta$ spaced
-logarithmically over $[\theta_{min}, \theta_{max}]$ and keeps the best; optimistix's
+uniform-load LuGre assumed for a constant-$\kappa_0$ tire reads $\theta$ 10 % high on
+Table 3's dry road with $\kappa_0$ = 2, `vehsim.control.experiments.estimators`). Past
+the peak the wheel's dynamics are unstable and the fit has local minima, so it starts from
+`starts` values of $\theta$ spaced logarithmically over $[\theta_{min}, \theta_{max}]$ and
+keeps the best; optimistix's
 Levenberg-Marquardt solves every start of every window of a braking at once (`jax.vmap`).
 Its Jacobian comes from forward differences of the simulation, all columns in one vmapped
 call (a custom JVP rule): a few parameters, and the simulation compiled once rather than

@@ -39,7 +39,7 @@ wheel-speed innovation. Per sample $k$ (period $T$):
 **Assumes** the plant's tire is the assumed one at some value of the parameter: the
 estimate is that value where it is, and the best-fitting value of the wrong shape where it
 is not (biased: a uniform-load LuGre assumed for a constant-$\kappa_0$ tire reads $\theta$
-about 20 % low on dry asphalt). **Blind** (the estimate holds) where the data carry no
+10 % high on Table 3's dry road with $\kappa_0$ = 2). **Blind** (the estimate holds) where the data carry no
 information: the measured wheel speed only counts when a tone-wheel edge arrived in the
 sample (a locked wheel sends none; its speed estimate is then a bound, not a measurement);
 the regressor is small where the force does not depend on the parameter (at small slip the

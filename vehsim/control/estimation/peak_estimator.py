@@ -23,7 +23,10 @@ a flexible three-parameter curve (a rise to a peak or a plateau and a linear fal
 describes dry, wet, snowy and icy roads alike, `vehsim.tire.burckhardt`), by weighted least
 squares, linear in $(c_1, c_3)$ for each $c_2$ of a logarithmic grid (a ridge `ridge`
 towards the prior, $c_1, c_3\ge0$), keeping the $c_2$ of the smallest weighted residual.
-Its peak is
+A change of road shows as measured friction far off the fitted curve: a CUSUM detector on
+$\nu = e^2/R$, $e$ the measured minus the fitted $|\mu|$ at the measured slip,
+$g \leftarrow \max(0, g + \nu - \delta)$, forgets the old curve (every weight times
+`change_discount`) when $g > h$ and restarts. Its peak is
 $$\lambda^* = \frac{\ln(c_1c_2/c_3)}{c_2},\qquad \mu^* = c_1(1 - e^{-c_2\lambda^*}) -
 c_3\lambda^*$$
 (a curve still rising at $\lambda = 1$: $\lambda^* = 1$), and its slope at the measured slip
@@ -111,7 +114,8 @@ class BurckhardtBelief(AbstractLongitudinalTire):
 class PeakEstimatorState(eqx.Module):
     r"""The filtered speed `v` [m/s]; the last fresh wheel speed `omega` [rad/s], its
     `stamp` [s] and whether one has been seen (`primed`); the measured friction `mu` and
-    braking slip `slip` of the last update; the binned curve: per bin the `weight` and the
+    braking slip `slip` of the last update; the change detector's statistic
+    `change_statistic` $g$; the binned curve: per bin the `weight` and the
     mean measured `bin_mu` $|\mu|$ and `bin_slip` $\lambda$; per $c_2$ of the grid the
     fitted `coefficients` $(c_1, c_3)$ and the weighted squared residual `error`; and the
     estimate: the `best` member, the `peak_slip` $s^* < 0$, the `peak_mu` $\mu^* > 0$ and
@@ -123,6 +127,7 @@ class PeakEstimatorState(eqx.Module):
     primed: Array
     mu: Float[Array, ""]
     slip: Float[Array, ""]
+    change_statistic: Float[Array, ""]
     weight: Float[Array, " B"]
     bin_mu: Float[Array, " B"]
     bin_slip: Float[Array, " B"]
@@ -145,8 +150,10 @@ class PeakEstimator(AbstractFrictionEstimator):
     starts from $(c_1, c_3)$ of it, the prior's nearest $c_2$ as the best), `shapes` the grid
     of $c_2$ (12 values from 4 to 320, static length), `bins` (static, 32), `forgetting`
     $\gamma\in(0, 1]$ (0.99), `ridge` (the weight of the prior's $(c_1, c_3)$, in samples,
-    0.1), `speed_injection` $L_v\in[0, 1]$ (0.05), `min_slip` (0.01), `min_speed` [m/s] (3),
-    `relaxation_length` of the belief [m] (0.25).
+    0.1), `noise_variance` $R$ of the measured friction (4e-4), the change detector's
+    `change_drift` $\delta$ (5), `change_threshold` $h$ (200; `inf` turns it off) and
+    `change_discount` (0.01), `speed_injection` $L_v\in[0, 1]$ (0.05), `min_slip` (0.01),
+    `min_speed` [m/s] (3), `relaxation_length` of the belief [m] (0.25).
     """
 
     prior: Float[Array, " 3"] = array_field(default=(1.2801, 23.99, 0.52))
@@ -154,6 +161,10 @@ class PeakEstimator(AbstractFrictionEstimator):
     bins: int = eqx.field(static=True, default=32)
     forgetting: Float[Array, ""] = array_field(default=0.99)
     ridge: Float[Array, ""] = array_field(default=0.1)
+    noise_variance: Float[Array, ""] = array_field(default=4e-4)
+    change_drift: Float[Array, ""] = array_field(default=5.0)
+    change_threshold: Float[Array, ""] = array_field(default=200.0)
+    change_discount: Float[Array, ""] = array_field(default=0.01)
     speed_injection: Float[Array, ""] = array_field(default=0.05)
     min_slip: Float[Array, ""] = array_field(default=0.01)
     min_speed: Float[Array, ""] = array_field(default=3.0)
@@ -166,7 +177,9 @@ class PeakEstimator(AbstractFrictionEstimator):
         check_range(owner, "speed_injection", self.speed_injection, lower=0.0, upper=1.0)
         if self.bins < 2:
             raise ValueError(f"PeakEstimator.bins must be at least 2, got {self.bins}")
-        for name in ("shapes", "ridge", "min_slip", "min_speed", "relaxation_length"):
+        check_range(owner, "change_discount", self.change_discount, lower=0.0, upper=1.0)
+        for name in ("shapes", "ridge", "noise_variance", "change_drift", "change_threshold",
+                     "min_slip", "min_speed", "relaxation_length"):
             check_positive(owner, name, getattr(self, name))
 
     def _estimate(self, coefficients, error, slip):
@@ -186,7 +199,7 @@ class PeakEstimator(AbstractFrictionEstimator):
         z, zb = jnp.zeros(()), jnp.zeros(B)
         best, s_star, mu_star, slope = self._estimate(c, error, z)
         return PeakEstimatorState(jnp.asarray(v0, dtype=float), jnp.asarray(omega0, dtype=float),
-                                  z, jnp.asarray(False), z, z, zb, zb, zb, c, error, best,
+                                  z, jnp.asarray(False), z, z, z, zb, zb, zb, c, error, best,
                                   s_star, mu_star, slope)
 
     def _fit(self, weight, bin_mu, bin_slip):
@@ -220,10 +233,19 @@ class PeakEstimator(AbstractFrictionEstimator):
         slip = jnp.clip(1.0 - r * omega / jnp.maximum(v_hat, 1e-3), 0.0, 1.0)
         informative = valid_rate & (slip > self.min_slip) & (v_hat > self.min_speed)
 
+        c_old = state.coefficients[state.best]
+        fitted_mu = c_old[0] * (1.0 - jnp.exp(-self.shapes[state.best] * slip)) - c_old[1] * slip
+        e = -mu - fitted_mu
+        g = jnp.maximum(state.change_statistic + jnp.where(
+            informative, e * e / self.noise_variance - self.change_drift, 0.0), 0.0)
+        changed = g > self.change_threshold
+        g = jnp.where(changed, 0.0, g)
+        old = jnp.where(changed, self.change_discount, 1.0) * state.weight
+
         B = self.bins
         i = jnp.clip(jnp.floor(jnp.sqrt(slip) * B).astype(int), 0, B - 1)
         here = (jnp.arange(B) == i) & informative
-        weight = jnp.where(informative, self.forgetting * state.weight, state.weight)
+        weight = jnp.where(informative, self.forgetting * old, old)
         weight = weight + here
         w = jnp.where(here, weight, 1.0)
         bin_mu = jnp.where(here, state.bin_mu + (-mu - state.bin_mu) / w, state.bin_mu)
@@ -235,7 +257,7 @@ class PeakEstimator(AbstractFrictionEstimator):
         best, s_star, mu_star, slope = self._estimate(coefficients, error, slip)
         return PeakEstimatorState(
             v_hat, jnp.where(fresh, omega, state.omega), jnp.where(fresh, stamp, state.stamp),
-            state.primed | fresh, jnp.where(valid_rate, mu, state.mu), slip, weight, bin_mu,
+            state.primed | fresh, jnp.where(valid_rate, mu, state.mu), slip, g, weight, bin_mu,
             bin_slip, coefficients, error, best, s_star, mu_star, slope)
 
     def belief(self, state: PeakEstimatorState) -> BurckhardtBelief:
