@@ -9,11 +9,11 @@ forward-mode differentiation through the whole closed loop (two tangents, one pe
 handed to optimistix's BFGS through a custom JVP rule. Reverse mode gives the same gradient
 (`jax.grad` of `mean_distance_ratio`; tests/test_control_gradients.py checks the two against
 finite differences); with two parameters forward mode is the cheaper of the two, in memory
-(nothing stored per sample) and in compile time (docs/differentiating.md). The stopping distance is the interpolated crossing of
-`STOP_SPEED`, a smooth function of the trajectory; the tuning runs with the controllers
-regulating down to the stop (no hand-back, whose switch would make the distance jump
-with the gains) and without the tone wheel (whose edge counts are piecewise constant in the
-trajectory), the speed noise kept. The tuned gains are then judged with the full hardware
+(nothing stored per sample) and in compile time (docs/differentiating.md). The stopping
+distance is the interpolated crossing of `STOP_SPEED`, a smooth function of the trajectory;
+the tuning runs with the controllers regulating down to the stop (no hand-back, whose switch
+would make the distance jump with the gains) and without the tone wheel (whose edge counts
+are piecewise constant in the trajectory), the speed noise kept. The tuned gains are then judged with the full hardware
 on surfaces and speeds left out.
 """
 
