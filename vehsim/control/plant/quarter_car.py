@@ -91,7 +91,8 @@ def change_fraction(change: SurfaceChange, t, x, v):
     """The fraction of the contact patch on the new surface (module docstring).
 
     A change at `inf` (never) is replaced by 0 inside the unused branch as well (double
-    `where`): its derivative $t - \infty$ times a zero cotangent would be a NaN in reverse mode."""
+    `where`): the unused branch's derivative, `t - inf`, times its zero cotangent would be a
+    NaN in reverse mode."""
     never_x, never_t = jnp.isinf(change.distance), jnp.isinf(change.time)
     d = jnp.where(never_x, -1.0, x - jnp.where(never_x, 0.0, change.distance))
     s = jnp.where(never_t, -1.0,
