@@ -88,9 +88,15 @@ class BrakingScenario(eqx.Module):
 
 
 def change_fraction(change: SurfaceChange, t, x, v):
-    """The fraction of the contact patch on the new surface (module docstring)."""
-    d = jnp.where(jnp.isinf(change.distance), -1.0, x - change.distance)
-    s = jnp.where(jnp.isinf(change.time), -1.0, (t - change.time) * jnp.maximum(v, 0.0))
+    """The fraction of the contact patch on the new surface (module docstring).
+
+    A change at `inf` (never) is replaced by 0 inside the unused branch as well (double
+    `where`): the unused branch's derivative, `t - inf`, times its zero cotangent would be a
+    NaN in reverse mode."""
+    never_x, never_t = jnp.isinf(change.distance), jnp.isinf(change.time)
+    d = jnp.where(never_x, -1.0, x - jnp.where(never_x, 0.0, change.distance))
+    s = jnp.where(never_t, -1.0,
+                  (t - jnp.where(never_t, 0.0, change.time)) * jnp.maximum(v, 0.0))
     return jnp.clip(jnp.maximum(d, s) / change.length, 0.0, 1.0)
 
 
