@@ -197,7 +197,7 @@ TRACTION = ("dry_asphalt", "snow")
 def _cases():
     pairs = [braking_scenario(s, 30.0) for s in SURFACES]
     sc, ob = braking_scenario("dry_asphalt", 30.0)
-    pairs.append((sc, eqx.tree_at(lambda o: o.model, ob,
+    pairs.append((sc, eqx.tree_at(lambda o: o.model.tire.params, ob,
                                   surface("dry_asphalt").with_theta(OFF_PRIOR))))
     pairs += [traction_scenario(s, 2.0) for s in TRACTION]
     return pairs
