@@ -92,7 +92,7 @@ def sample_fit():
     return init, fit
 
 
-MAX_STEPS = 200
+MAX_STEPS = 300
 PHYSICAL = {  # what a tyre's LuGre parameters can be (the fit's start: the file's peaks)
     "sigma0 [1/m]": (10.0, 1000.0), "mu_k": (0.3, 1.5), "mu_s": (0.3, 2.5),
     "L0 [m]": (0.05, 1.0), "patch exponent": (-1.0, 1.0)}

@@ -27,10 +27,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._optimality import FTOL as FTOL  # MINPACK's ftol and gtol
-from .._optimality import GTOL as GTOL
-from .._optimality import max_gradient_cosine
-from .._optimality import predicted_reduction as _predicted_reduction
+from .._optimality import (
+    FTOL as FTOL,  # MINPACK's ftol and gtol
+    GTOL as GTOL,
+    max_gradient_cosine,
+    predicted_reduction as _predicted_reduction,
+)
 from .._results import RESULTS, is_successful
 from .parameters import PARAMETER_NAMES, dtheta_du
 
