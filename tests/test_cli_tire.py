@@ -119,6 +119,10 @@ def test_fit_to_a_tir_file_converges_to_physical_parameters(sample_fit):
         v = np.asarray(values[name])
         assert np.all((v > lo) & (v < hi)), (name, v)
     assert np.all(np.asarray(p.mu_k) <= np.asarray(p.mu_s))
+    # had the solver stopped short at this point, the message would say why it is accepted
+    short = eqx.tree_at(lambda f: f.solver_result, fit, RESULTS.nonlinear_max_steps_reached)
+    assert short.message.startswith("stationary by MINPACK's tests"), short.message
+    assert "nonlinear_max_steps_reached" in short.message
 
 
 def test_fit_to_a_tir_file_reports_what_the_pde_and_the_file_give(sample_fit):

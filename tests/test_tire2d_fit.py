@@ -12,7 +12,12 @@ from vehsim._optimality import predicted_reduction
 from vehsim.params import bakker1987, lugre2d_bakker1987, lugre2d_bakker1987_mz
 from vehsim.tire.distributed2d import DistributedLuGre2D, slip_velocities
 from vehsim.tire.load import UniformLoad
-from vehsim.tire.lugre2d_fit import default_slip_grid, fit_to_magic_formula, scaled_patch
+from vehsim.tire.lugre2d_fit import (
+    _judge,
+    default_slip_grid,
+    fit_to_magic_formula,
+    scaled_patch,
+)
 
 
 # The 1987 Magic Formula written out again from Bakker, Nyborg and Pacejka (SAE 870421):
@@ -129,6 +134,23 @@ def test_hold_names_the_stribeck_parameters():
     with pytest.raises(ValueError, match=r"hold: expected names among \('v_s', 'gamma'\), "
                                          r"got 'mu_s'"):
         fit_to_magic_formula(bakker1987(), hold=("v_s", "mu_s"))
+
+
+def test_a_fit_that_stopped_short_is_judged_by_minpack_tests():
+    """A linear least-squares problem r(u) = A u - b: at its solution a solver that ran out
+    of steps is overruled (`successful`: stationary), away from it its result stands, and
+    a NaN makes it `nonfinite`; a converged solver stays `successful`."""
+    rng = np.random.default_rng(1)
+    A, b = rng.normal(size=(12, 3)), rng.normal(size=12)
+    u = jnp.asarray(np.linalg.lstsq(A, b, rcond=None)[0])
+    J = jnp.asarray(A)
+    short = RESULTS.nonlinear_max_steps_reached
+    result, cosine, reduction = _judge(short, u, J, J @ u - b)
+    assert result == RESULTS.successful and float(cosine) < 1e-10 and float(reduction) < 1e-10
+    result, cosine, reduction = _judge(short, 0 * u, J, -jnp.asarray(b))
+    assert result == short and float(cosine) > 1e-3 and float(reduction) > 1e-3
+    assert _judge(RESULTS.successful, 0 * u, J, -jnp.asarray(b))[0] == RESULTS.successful
+    assert _judge(short, u.at[0].set(jnp.nan), J, J @ u - b)[0] == RESULTS.nonfinite
 
 
 def test_predicted_reduction_is_the_gauss_newton_models():

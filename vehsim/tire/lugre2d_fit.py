@@ -273,20 +273,31 @@ class _Fit(eqx.Module):
         return jnp.concatenate([e.ravel() for e in (errors if self.moment else errors[:2])])
 
 
+def _judge(solver_result, theta, J, r):
+    r"""The outcome of a least-squares fit stopped at `theta` with residuals `r` and their
+    Jacobian `J` (in the solver's coordinates) by a solver that said `solver_result`:
+    `(result, gradient cosine, predicted relative reduction)` with `result` `nonfinite`
+    where `theta` or `r` is not finite, else `successful` where the solver converged or
+    MINPACK's tests find the point stationary (cosine $\le$ `GTOL` or reduction $\le$
+    `FTOL`), else `solver_result`."""
+    cosine, reduction = max_gradient_cosine(J, r), predicted_reduction(J, r)
+    stationary = (cosine <= GTOL) | (reduction <= FTOL)
+    finite = jnp.all(jnp.isfinite(theta)) & jnp.all(jnp.isfinite(r))
+    solver_result = as_result(solver_result)
+    result = RESULTS.where(finite, RESULTS.where(is_successful(solver_result) | stationary,
+                                                 RESULTS.successful, solver_result),
+                           RESULTS.nonfinite)
+    return result, cosine, reduction
+
+
 @eqx.filter_jit
 def _solve(fit: _Fit, init: LuGre2DParams, solver, max_steps: int, throw: bool):
     targets = fit.targets()
     sol = optx.least_squares(fit.residuals, solver, fit.pack(init), targets,
                              max_steps=max_steps, throw=False)
-    # MINPACK's tests at the optimum (module docstring)
     theta, lm = sol.value, RESULTS.promote(sol.result)
-    r = fit.residuals(theta, targets)
     J = jax.jacfwd(fit.residuals)(theta, targets)
-    cosine, reduction = max_gradient_cosine(J, r), predicted_reduction(J, r)
-    stationary = (cosine <= GTOL) | (reduction <= FTOL)
-    finite = jnp.all(jnp.isfinite(theta)) & jnp.all(jnp.isfinite(r))
-    result = RESULTS.where(finite, RESULTS.where(is_successful(lm) | stationary,
-                                                 RESULTS.successful, lm), RESULTS.nonfinite)
+    result, cosine, reduction = _judge(lm, theta, J, fit.residuals(theta, targets))
     if throw:
         theta = result.error_if(theta, result != RESULTS.successful)
     params, shape, weights, exponent = fit.unpack(theta)
