@@ -8,10 +8,16 @@ import numpy as np
 import pytest
 
 from vehsim import RESULTS
+from vehsim._optimality import predicted_reduction
 from vehsim.params import bakker1987, lugre2d_bakker1987, lugre2d_bakker1987_mz
 from vehsim.tire.distributed2d import DistributedLuGre2D, slip_velocities
 from vehsim.tire.load import UniformLoad
-from vehsim.tire.lugre2d_fit import default_slip_grid, fit_to_magic_formula, scaled_patch
+from vehsim.tire.lugre2d_fit import (
+    _judge,
+    default_slip_grid,
+    fit_to_magic_formula,
+    scaled_patch,
+)
 
 
 # The 1987 Magic Formula written out again from Bakker, Nyborg and Pacejka (SAE 870421):
@@ -109,6 +115,9 @@ def test_short_fit_reports_what_an_independent_check_measures():
                                patch_exponent=exponent, max_steps=12, throw=False)
     assert int(fit.num_steps) > 0
     assert isinstance(fit.result, RESULTS)  # the one result enumeration, not optimistix's
+    # the 1987 formula's fit keeps the Stribeck velocity and exponent free, as its presets
+    assert fit.held == () and float(fit.params.v_s) != float(start.v_s)
+    assert float(fit.params.gamma) != float(start.gamma)
     cost, cost_before = 0.0, 0.0
     for i, Fz in enumerate(loads):
         measured = independent_errors(fit.params_at(Fz), fit.load, Fz, kappa, alpha)
@@ -117,3 +126,45 @@ def test_short_fit_reports_what_an_independent_check_measures():
                                     kappa, alpha)
         cost, cost_before = cost + np.sum(measured**2), cost_before + np.sum(before**2)
     assert cost < 0.95 * cost_before      # the sum over both loads is what it minimises
+
+
+def test_hold_names_the_stribeck_parameters():
+    """`hold` takes names of `STRIBECK` only; anything else is refused, naming the option,
+    before anything is compiled."""
+    with pytest.raises(ValueError, match=r"hold: expected names among \('v_s', 'gamma'\), "
+                                         r"got 'mu_s'"):
+        fit_to_magic_formula(bakker1987(), hold=("v_s", "mu_s"))
+
+
+def test_a_fit_that_stopped_short_is_judged_by_minpack_tests():
+    """A linear least-squares problem r(u) = A u - b: at its solution a solver that ran out
+    of steps is overruled (`successful`: stationary), away from it its result stands, and
+    a NaN makes it `nonfinite`; a converged solver stays `successful`."""
+    rng = np.random.default_rng(1)
+    A, b = rng.normal(size=(12, 3)), rng.normal(size=12)
+    u = jnp.asarray(np.linalg.lstsq(A, b, rcond=None)[0])
+    J = jnp.asarray(A)
+    short = RESULTS.nonlinear_max_steps_reached
+    result, cosine, reduction = _judge(short, u, J, J @ u - b)
+    assert result == RESULTS.successful and float(cosine) < 1e-10 and float(reduction) < 1e-10
+    result, cosine, reduction = _judge(short, 0 * u, J, -jnp.asarray(b))
+    assert result == short and float(cosine) > 1e-3 and float(reduction) > 1e-3
+    assert _judge(RESULTS.successful, 0 * u, J, -jnp.asarray(b))[0] == RESULTS.successful
+    assert _judge(short, u.at[0].set(jnp.nan), J, J @ u - b)[0] == RESULTS.nonfinite
+
+
+def test_predicted_reduction_is_the_gauss_newton_models():
+    """MINPACK's ftol test on a linear problem r(u) = A u - b, where the Gauss-Newton model
+    is exact: from u = 0 it predicts the reduction |P b|^2 / |b|^2 (P the projection on A's
+    columns), at the least-squares solution 0; NumPy and JAX alike; infinite for a NaN."""
+    rng = np.random.default_rng(0)
+    A, b = rng.normal(size=(12, 3)), rng.normal(size=12)
+    u = np.linalg.lstsq(A, b, rcond=None)[0]
+    projected = A @ u
+    for xp in (np, jnp):
+        J, r0 = xp.asarray(A), xp.asarray(-b)
+        np.testing.assert_allclose(float(predicted_reduction(J, r0)),
+                                   projected @ projected / (b @ b), rtol=1e-10)
+        assert abs(float(predicted_reduction(J, xp.asarray(A @ u - b)))) < 1e-12
+        nan = xp.asarray(np.where(np.arange(12) == 3, np.nan, -b))
+        assert float(predicted_reduction(J, nan)) == np.inf

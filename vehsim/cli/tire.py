@@ -40,10 +40,13 @@ def register(subparsers) -> None:
     f = sub.add_parser("fit-lugre", help="fit the 2D LuGre model to the file's Magic Formula",
                        description="Fit the steady distributed 2D LuGre model (eqs. 31-33), its "
                        "normal-load shape and patch-length law to the file's pure-slip F_x, "
-                       "F_y, M_z at three loads (report Fig. 15; vehsim.fit_to_magic_formula); "
-                       "print the error table, write the JSON (parameters with units, errors "
-                       "in N and relative to each curve's peak, status) and a figure (Figs. "
-                       "15, 13, 14: LuGre solid, Magic Formula dashed) beside it.")
+                       "F_y, M_z at three loads (report Fig. 15; vehsim.fit_to_magic_formula), "
+                       "the Stribeck velocity and exponent held (3 m/s, 0.7: curves at one "
+                       "speed do not determine them); print the error table, write the JSON "
+                       "(parameters with units, errors in N and relative to each curve's "
+                       "peak, status) and a figure (Figs. 15, 13, 14: LuGre solid, Magic "
+                       "Formula dashed) beside it. Exit status 1 unless the fit converged "
+                       "or its optimum is stationary by MINPACK's tests.")
     f.add_argument("file", help="tyre property file (.tir)")
     f.add_argument("--out", default="fit_lugre.json",
                    help="JSON file (default fit_lugre.json); the figure is written beside it "
@@ -53,11 +56,9 @@ def register(subparsers) -> None:
                         "file's load range)")
     f.add_argument("--speed", type=number(0.0, 100.0, lower_open=True, unit="m/s"),
                    default=20.0, help="speed [m/s], in (0, 100] (20)")
-    f.add_argument("--max-steps", type=integer(1, 100_000), default=50,
-                   help="Levenberg-Marquardt steps at most (50: beyond, the sample's errors "
-                        "fall by a point or two while mu_s, v_s, gamma drift off to "
-                        "unphysical values along a valley of equal steady states; "
-                        "docs/tir.md)")
+    f.add_argument("--max-steps", type=integer(1, 100_000), default=300,
+                   help="Levenberg-Marquardt steps at most (300; the sample converges in "
+                        "109; docs/tir.md)")
     f.set_defaults(func=_fit_lugre)
 
 
@@ -278,10 +279,10 @@ def _fit_lugre(args) -> int:
                                  "to its Magic Formula (dashed)")
     save_figure(fig, figure)
     plt.close(fig)
-    print(f"fit: {record['status']} after {record['num_steps']} steps; errors (RMS and worst, "
-          "in % of each curve's peak in brackets):")
+    print(f"fit: {record['status']}: {record['message']}")
+    print("errors (RMS and worst, in % of each curve's peak in brackets):")
     print("\n".join(fit_table(record)))
     print("at the start (uniform load):")
     print("\n".join(fit_table(record, "initial_errors")))
     print(f"wrote {out} and {figure}", file=sys.stderr)
-    return exit_status("tire fit-lugre", fit.result)
+    return exit_status("tire fit-lugre", fit.result, fit.message)

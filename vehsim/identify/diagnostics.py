@@ -27,14 +27,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._optimality import max_gradient_cosine
+from .._optimality import (
+    FTOL as FTOL,  # MINPACK's ftol and gtol
+    GTOL as GTOL,
+    max_gradient_cosine,
+    predicted_reduction as _predicted_reduction,
+)
 from .._results import RESULTS, is_successful
 from .parameters import PARAMETER_NAMES, dtheta_du
 
 
 MAX_CONDITION_NUMBER = 1e9
-GTOL = 1e-6  # the largest gradient cosine of a stationary point (MINPACK's gtol)
-FTOL = 1e-6  # the largest predicted relative loss reduction of one (MINPACK's ftol)
 
 
 def force_errors(F_pred, F_meas) -> dict[str, float]:
@@ -110,15 +113,8 @@ def at_lower_bound(grad_u, theta_all, names: Sequence[str], std_errors) -> np.nd
 
 def predicted_reduction(J, r) -> float:
     """MINPACK's ftol test: the loss reduction the Gauss-Newton model predicts for its full
-    (undamped) step, relative to the loss."""
-    if not J.shape[1]:
-        return 0.0
-    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
-        return math.inf
-    # the normal equations (p x p): the test needs few digits, and they are cheaper than a
-    # tall LAPACK call
-    step = np.linalg.lstsq(J.T @ J, -(J.T @ r), rcond=None)[0]
-    return float(np.sum(r**2) - np.sum((r + J @ step) ** 2)) / max(float(np.sum(r**2)), 1e-300)
+    (undamped) step, relative to the loss (`vehsim._optimality.predicted_reduction`)."""
+    return float(_predicted_reduction(np.asarray(J), np.asarray(r)))
 
 
 def diagnose(J_u, r, prior_residual, theta_all, names: Sequence[str],

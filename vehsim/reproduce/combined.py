@@ -637,7 +637,9 @@ def lugre_fit_record(mf, fit, init, v, kappa, alpha) -> dict:
     """What a fit of the LuGre model to `mf` found, as JSON-ready data with units: the
     parameters (fitted and the start `init`), the grids, the error table (RMS and worst
     error of F_x, F_y, M_z at each load, in N or N m and relative to the curve's peak) at
-    the fit and at the start (uniform load), and the solver's status."""
+    the fit and at the start (uniform load), the Stribeck parameters `held`, and the outcome:
+    `status` and `message` (`MatchResult.message`), Levenberg-Marquardt's own
+    `solver_status`, and the numbers of MINPACK's tests."""
     from .._results import result_record
     from ..tire.lugre2d_fit import match_errors
 
@@ -660,7 +662,11 @@ def lugre_fit_record(mf, fit, init, v, kappa, alpha) -> dict:
         "errors": _errors_by_load(loads, np.asarray(fit.rms_error), np.asarray(fit.max_error),
                                   peak),
         "initial_errors": _errors_by_load(loads, np.asarray(rms0), np.asarray(max0), peak),
-        **result_record(fit.result), "num_steps": int(fit.num_steps),
+        "held": list(fit.held),
+        **result_record(fit.result), "message": fit.message,
+        "solver_status": result_record(fit.solver_result)["status"],
+        "num_steps": int(fit.num_steps), "gradient_cosine": float(fit.gradient_cosine),
+        "predicted_relative_reduction": float(fit.predicted_reduction),
     }
 
 

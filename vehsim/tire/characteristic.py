@@ -53,6 +53,12 @@ class AbstractCharacteristic(eqx.Module):
     def slip_grid(self) -> tuple[Array, Array]:
         """Slip ratios and slip angles [rad] on which it is fitted by default."""
 
+    def held_stribeck(self) -> tuple[str, ...]:
+        r"""The Stribeck parameters of eq. 29 (of ``("v_s", "gamma")``) the LuGre fit
+        holds by default: both, as pure-slip curves at one speed do not determine them
+        (`vehsim.fit_to_magic_formula`)."""
+        return ("v_s", "gamma")
+
     def pure_curves(self, Fz, kappa, alpha):
         r"""$(F_x(\kappa)|_{\alpha=0},\;F_y(\alpha)|_{\kappa=0},\;M_z(\alpha)|_{\kappa=0})$
         at load `Fz` [N] on the `kappa` and `alpha` [rad] grids."""
@@ -86,6 +92,11 @@ class MagicFormula1987Characteristic(AbstractCharacteristic):
 
     def slip_grid(self):
         return _default_slip_grid()
+
+    def held_stribeck(self) -> tuple[str, ...]:
+        r"""None: the presets `lugre2d_bakker1987_mz` were fitted with $v_s$ and $\gamma$
+        free, and that fit converges (to $v_s$ = 4.98 m/s, $\gamma$ = 1.13)."""
+        return ()
 
 
 class MFCharacteristic(AbstractCharacteristic):

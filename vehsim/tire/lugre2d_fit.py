@@ -14,8 +14,34 @@ one, or the Magic Formula 5.2 / 6.1 / 6.2 of a tyre property file (`MFParams`,
 `MFTire`, a `TirFile`), whose loads, reference load and slip grid default to the file's
 (`MFCharacteristic`), and whose start `lugre_initial_guess` reads off its curves. The free
 parameters are $\sigma_{0x}, \sigma_{0y}, \mu_{kx}, \mu_{ky}, \mu_{sx}-\mu_{kx},
-\mu_{sy}-\mu_{ky}, v_s, \gamma$ (through their logarithms, so they stay positive);
-$\sigma_1$, $\sigma_2$ are held (they do not enter the steady state, or are set to zero).
+\mu_{sy}-\mu_{ky}$, and $v_s, \gamma$ unless held (next paragraph), through their
+logarithms, so they stay positive; $\sigma_1$, $\sigma_2$ are held (they do not enter the
+steady state, or are set to zero).
+
+**What curves at one speed determine of the friction.** At the wheel speed $v$ of the fit
+the bristles slide at $|v_r| = v|\kappa|$, $v\sin|\alpha|$ (0.2-10 m/s on the default grids
+at 20 m/s), and the steady forces see eq. 29's $g(|v_r|) = \mu_k + (\mu_s - \mu_k)
+e^{-(|v_r|/v_s)^\gamma}$ only there, and only where the patch slides: at small slip the
+deflection grows linearly, $F = F_z\sigma_0\sigma L/2$, without $g$. $\mu_s$ is $g$ at
+standstill and $v_s$ the speed it falls off at, both below the speeds seen; curves at one
+speed fix $g$ over that decade, not the four numbers per axis that draw it. Fitted
+together, they walk along a valley of near-equal $g$: on the shipped tyre property file
+the loss changes by 1e-5 between 50 and 400 steps while $\mu_s$ grows to $10^5$, $v_s$
+falls to $10^{-7}$ m/s and $\gamma$ to 0.14, and Levenberg-Marquardt never converges
+(holding $\gamma$ alone does not stop it). So by default (argument `hold`;
+`AbstractCharacteristic.held_stribeck`) $v_s$ and $\gamma$, the shape of the Stribeck
+curve, are held at the start's values (`lugre_initial_guess`: 3 m/s, 0.7), and $\mu_k$,
+$\mu_s$, its levels, fitted: that fit converges, with the valley's errors (docs/tir.md).
+Only the 1987 formula's fit keeps them free, as its presets were found (there the fit
+converges, to $v_s$ = 4.98 m/s, $\gamma$ = 1.13). Read $g$ at the grid's sliding speeds
+as what a fit found, rather than $\mu_s$; fitting $v_s$ and $\gamma$ needs curves at
+several speeds.
+
+**Convergence** is judged as MINPACK does (Moré, Garbow and Hillstrom 1980;
+`vehsim._optimality`): a fit is `successful` where Levenberg-Marquardt converges or, having
+stopped short, its optimum passes the gradient-cosine test ($\le 10^{-6}$) or the
+Gauss-Newton step predicts a relative loss reduction $\le 10^{-6}$ (`MatchResult.message`
+says which); else it keeps the solver's result.
 
 **The normal load is fitted too** (`fit_load=True`): its shape, a quartic in the Bernstein
 form $q(\xi) \propto \sum_{k=0}^4 w_k\binom4k\xi^k(1-\xi)^{4-k}$ with weights $w_k \ge 0$
@@ -45,7 +71,8 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from .._results import RESULTS, as_result
+from .._optimality import FTOL, GTOL, max_gradient_cosine, predicted_reduction
+from .._results import RESULTS, as_result, is_successful, result_message, result_name
 from .characteristic import AbstractCharacteristic, _default_slip_grid, tire_characteristic
 from .distributed2d import steady_state_forces
 from .load import AbstractLoadDistribution, PolynomialLoad, UniformLoad
@@ -54,6 +81,10 @@ from .lugre2d import LuGre2DParams
 
 QUANTITIES = ("F_x", "F_y", "M_z")
 """The curves fitted, in the order of the error arrays."""
+
+STRIBECK = ("v_s", "gamma")
+"""The Stribeck velocity and exponent of eq. 29: the parameters `fit_to_magic_formula`
+can hold (`hold`)."""
 
 _DEGREE = 4
 _BERNSTEIN = np.array([  # row k: monomial coefficients of binom(4, k) x^k (1 - x)^(4 - k)
@@ -74,10 +105,13 @@ class MatchResult(eqx.Module):
     `reference_load`), the normal-load shape `load` (its Bernstein `load_weights` when it
     was fitted, else None), the exponent `patch_exponent` $p$ of
     $L = L_0(F_z/F_{z,0})^p$, the `loads` fitted, the errors relative to each curve's peak
-    `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$), Levenberg-Marquardt's
-    `result` (a `vehsim.RESULTS` item) and `num_steps`; `peak` (loads, 3): each Magic
-    Formula curve's peak $\max_j|Q_j^\text{MF}|$ [N, N, N m], so that `rms_error * peak`
-    and `max_error * peak` are the errors in N and N m."""
+    `rms_error` and `max_error` (shape (loads, 3): $F_x, F_y, M_z$); `peak` (loads, 3): each
+    Magic Formula curve's peak $\max_j|Q_j^\text{MF}|$ [N, N, N m], so that
+    `rms_error * peak` and `max_error * peak` are the errors in N and N m; the outcome
+    `result` (a `vehsim.RESULTS` item: `successful` where Levenberg-Marquardt converged or
+    MINPACK's tests find the optimum stationary, module docstring), the solver's own
+    `solver_result` and `num_steps`, the tests' `gradient_cosine` and
+    `predicted_reduction` (relative), and the Stribeck parameters `held`."""
 
     params: LuGre2DParams
     load: AbstractLoadDistribution
@@ -90,6 +124,27 @@ class MatchResult(eqx.Module):
     peak: Float[Array, "n 3"]
     result: RESULTS = eqx.field(converter=as_result)
     num_steps: Array
+    solver_result: RESULTS = eqx.field(converter=as_result)
+    gradient_cosine: Float[Array, ""]
+    predicted_reduction: Float[Array, ""]
+    held: tuple[str, ...] = eqx.field(static=True, default=())
+
+    @property
+    def message(self) -> str:
+        """Why `result`, in words, with the numbers of MINPACK's tests."""
+        steps = int(self.num_steps)
+        tests = (f"gradient cosine {float(self.gradient_cosine):.2g}, predicted relative "
+                 f"loss reduction {float(self.predicted_reduction):.2g}")
+        if bool(is_successful(self.result)):
+            if bool(is_successful(self.solver_result)):
+                return f"converged after {steps} Levenberg-Marquardt steps ({tests})"
+            return (f"stationary by MINPACK's tests ({tests}; either <= {GTOL:g}), although "
+                    f"Levenberg-Marquardt stopped with {result_name(self.solver_result)} "
+                    f"after {steps} steps")
+        if bool(self.result == RESULTS.nonfinite):
+            return "the fit produced non-finite values"
+        return (f"Levenberg-Marquardt stopped after {steps} steps: "
+                f"{result_message(self.solver_result)} ({tests}; both > {GTOL:g})")
 
     def params_at(self, Fz) -> LuGre2DParams:
         """The parameters at load `Fz` [N] (the patch length scaled to it)."""
@@ -157,11 +212,18 @@ class _Fit(eqx.Module):
     moment: bool = eqx.field(static=True)
     fit_load: bool = eqx.field(static=True)
     symmetric: bool = eqx.field(static=True)
+    held: tuple[str, ...] = eqx.field(static=True, default=())
+
+    def _free(self) -> list[int]:
+        """Indices of the fitted entries of (sigma0, mu_k, mu_s - mu_k, v_s, gamma)."""
+        return [i for i in range(8) if i < 6 or STRIBECK[i - 6] not in self.held]
 
     def pack(self, p: LuGre2DParams):
         # a small floor keeps log finite when a start has mu_s = mu_k
         gap = jnp.maximum(p.mu_s - p.mu_k, 1e-3)
         theta = jnp.log(jnp.concatenate([p.sigma0, p.mu_k, gap, jnp.stack([p.v_s, p.gamma])]))
+        if self.held:
+            theta = theta[jnp.array(self._free())]
         if self.fit_load:  # log L0, p, sqrt(w_k / w_2) (k = 0, 1, 3, 4, or 0, 1 if symmetric)
             w = jnp.sqrt(self.weights0 / self.weights0[2])
             free = jnp.array([0, 1] if self.symmetric else [0, 1, 3, 4])
@@ -172,12 +234,18 @@ class _Fit(eqx.Module):
     def unpack(self, theta):
         """(params at the reference load, load shape, its weights or None, patch exponent)
         of `theta`."""
-        e = jnp.exp(theta[:8])
+        n = 8 - len(self.held)
+        e = jnp.exp(theta[:n])
         init = self.init
+        if self.held:  # the held Stribeck parameters back in their places
+            fitted = iter(e[6:])
+            e = jnp.concatenate([e[:6], jnp.stack([
+                jnp.asarray(getattr(init, q), dtype=e.dtype) if q in self.held
+                else next(fitted) for q in STRIBECK])])
         L, exponent, load, weights = init.L, jnp.zeros(()), self.load, None
         if self.fit_load:
-            L, exponent = jnp.exp(theta[8]), theta[9]
-            w = theta[10:] ** 2  # squares: zero weights (a shape vanishing at an edge) reachable
+            L, exponent = jnp.exp(theta[n]), theta[n + 1]
+            w = theta[n + 2:] ** 2  # squares: zero weights (a shape vanishing at an edge) reachable
             w = w[jnp.array([0, 1, 1, 0])] if self.symmetric else w
             weights = jnp.stack([w[0], w[1], jnp.ones(()), w[2], w[3]])
             load = bernstein_load(weights)
@@ -205,20 +273,43 @@ class _Fit(eqx.Module):
         return jnp.concatenate([e.ravel() for e in (errors if self.moment else errors[:2])])
 
 
+def _judge(solver_result, theta, J, r):
+    r"""The outcome of a least-squares fit stopped at `theta` with residuals `r` and their
+    Jacobian `J` (in the solver's coordinates) by a solver that said `solver_result`:
+    `(result, gradient cosine, predicted relative reduction)` with `result` `nonfinite`
+    where `theta` or `r` is not finite, else `successful` where the solver converged or
+    MINPACK's tests find the point stationary (cosine $\le$ `GTOL` or reduction $\le$
+    `FTOL`), else `solver_result`."""
+    cosine, reduction = max_gradient_cosine(J, r), predicted_reduction(J, r)
+    stationary = (cosine <= GTOL) | (reduction <= FTOL)
+    finite = jnp.all(jnp.isfinite(theta)) & jnp.all(jnp.isfinite(r))
+    solver_result = as_result(solver_result)
+    result = RESULTS.where(finite, RESULTS.where(is_successful(solver_result) | stationary,
+                                                 RESULTS.successful, solver_result),
+                           RESULTS.nonfinite)
+    return result, cosine, reduction
+
+
 @eqx.filter_jit
 def _solve(fit: _Fit, init: LuGre2DParams, solver, max_steps: int, throw: bool):
     targets = fit.targets()
     sol = optx.least_squares(fit.residuals, solver, fit.pack(init), targets,
-                             max_steps=max_steps, throw=throw)
-    params, shape, weights, exponent = fit.unpack(sol.value)
-    errors = fit.errors(sol.value, targets)  # F_x, F_y, M_z, each (loads, points)
+                             max_steps=max_steps, throw=False)
+    theta, lm = sol.value, RESULTS.promote(sol.result)
+    J = jax.jacfwd(fit.residuals)(theta, targets)
+    result, cosine, reduction = _judge(lm, theta, J, fit.residuals(theta, targets))
+    if throw:
+        theta = result.error_if(theta, result != RESULTS.successful)
+    params, shape, weights, exponent = fit.unpack(theta)
+    errors = fit.errors(theta, targets)  # F_x, F_y, M_z, each (loads, points)
     rms = jnp.stack([jnp.sqrt(jnp.mean(e**2, axis=-1)) for e in errors], axis=-1)
     worst = jnp.stack([jnp.max(jnp.abs(e), axis=-1) for e in errors], axis=-1)
     peak = jnp.stack([jnp.max(jnp.abs(t), axis=-1) for t in targets], axis=-1)
     return MatchResult(params=params, load=shape, load_weights=weights, patch_exponent=exponent,
                        reference_load=fit.reference_load, loads=fit.loads, rms_error=rms,
-                       max_error=worst, peak=peak, result=sol.result,
-                       num_steps=sol.stats["num_steps"])
+                       max_error=worst, peak=peak, result=result,
+                       num_steps=sol.stats["num_steps"], solver_result=lm,
+                       gradient_cosine=cosine, predicted_reduction=reduction, held=fit.held)
 
 
 def lugre_initial_guess(mf, Fz=None, *, sigma1=(0.7, 0.7)) -> LuGre2DParams:
@@ -258,6 +349,16 @@ def lugre_initial_guess(mf, Fz=None, *, sigma1=(0.7, 0.7)) -> LuGre2DParams:
                          mu_s=mu_s, v_s=3.0, gamma=0.7, L=L)
 
 
+def _held(char: AbstractCharacteristic, hold) -> tuple[str, ...]:
+    if hold is None:
+        return tuple(char.held_stribeck())
+    hold = (hold,) if isinstance(hold, str) else tuple(hold)
+    for q in hold:
+        if q not in STRIBECK:
+            raise ValueError(f"hold: expected names among {STRIBECK}, got {q!r}")
+    return tuple(q for q in STRIBECK if q in hold)
+
+
 def fit_to_magic_formula(
     mf,
     init: LuGre2DParams | None = None,
@@ -273,6 +374,7 @@ def fit_to_magic_formula(
     load_weights=(1.0, 1.0, 1.0, 1.0, 1.0),
     patch_exponent: float = 0.0,
     reference_load: float | None = None,
+    hold=None,
     rtol: float = 1e-6,
     atol: float = 1e-6,
     max_steps: int = 1024,
@@ -294,13 +396,18 @@ def fit_to_magic_formula(
     and the exponent `patch_exponent`; else
     hold `load` (default uniform) and $L$; `reference_load` $F_{z,0}$ [N] of the patch
     length law (default its `nominal_load`: 4 kN for the 1987 formula, $F'_{z0}$ for a
-    file); `throw`: raise if Levenberg-Marquardt does not converge (else check `result`).
+    file); `hold`: the Stribeck parameters of eq. 29 held at `init`'s values, names of
+    `STRIBECK` (default `held_stribeck()` of the characteristic: both, except for the 1987
+    formula; module docstring: curves at one speed do not determine them; ``()`` fits
+    both); `throw`: raise unless the fit is `successful` (module docstring; else check
+    `result` and `message`).
 
     **Returns:** a `MatchResult`: fitted parameters, load shape and patch-length exponent,
     and the RMS and maximum errors of each curve at each load, relative to its peak (and
-    the peaks, for the errors in N and N m).
+    the peaks, for the errors in N and N m), the outcome `result` with its `message`.
     """
     char = tire_characteristic(mf)
+    held = _held(char, hold)
     init = lugre_initial_guess(char) if init is None else init
     loads = char.fit_loads() if loads is None else loads
     reference_load = char.nominal_load() if reference_load is None else reference_load
@@ -313,6 +420,6 @@ def fit_to_magic_formula(
                jnp.asarray(v, dtype=float), jnp.asarray(kappa), jnp.asarray(alpha),
                jnp.asarray(load_weights, dtype=float),
                jnp.asarray(patch_exponent, dtype=float), bool(moment), bool(fit_load),
-               bool(symmetric_load))
+               bool(symmetric_load), held)
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     return _solve(fit, init, solver, int(max_steps), bool(throw))
