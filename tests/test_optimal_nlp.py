@@ -123,6 +123,22 @@ def test_verbose_prints_the_iteration_log_and_compiles_the_quiet_program(bang_ba
     assert f"obj {float(sol.objective): .8e}" in lines[-1]
 
 
+def test_live_log_prints_each_iteration_as_it_runs_the_same_solve(bang_bang, capfd):
+    """``live``: the iteration lines come from the running program (a host callback per
+    iteration, before the solve returns), the same lines as the log printed after it, and
+    the same solve bit for bit."""
+    prob, sol = bang_bang
+    xs0, us0 = _guess(prob.num_stages)
+    after = interior_point(prob, xs0, us0, IPOptions(verbose=True))
+    logged = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("  ip ")]
+    live = interior_point(prob, xs0, us0, IPOptions(live=True))
+    jax.effects_barrier()
+    lines = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("  ip ")]
+    np.testing.assert_array_equal(np.asarray(live.xs), np.asarray(after.xs))
+    # the live lines are the passes that took a step; the log adds the returned iterate's
+    assert len(lines) >= int(sol.iterations) and lines == logged[:len(lines)]
+
+
 def test_the_solver_program_is_exported_once_and_loaded_after(bang_bang, tmp_path,
                                                               monkeypatch):
     """The solver itself never writes: with the persistent cache on, `interior_point` leaves

@@ -51,7 +51,12 @@ def register(subparsers) -> None:
                         "devices); 1: the default point-mass seed")
     p.add_argument("--out", default="results/optimise", help="output folder")
     p.add_argument("--quiet", action="store_true",
-                   help="no iteration log (printed when the solve returns)")
+                   help="no iteration log (printed when the solve returns; with --starts, a "
+                        "line per start)")
+    p.add_argument("--live", action="store_true",
+                   help="print each iteration's line while the solve runs (one solve; the "
+                        "solver then compiles on every run, about a minute: a program with "
+                        "host callbacks is not kept in the cache)")
     p.set_defaults(func=_optimise)
 
 
@@ -68,12 +73,17 @@ def _optimise(args) -> int:
 
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
+    live = args.live and not args.quiet
+    if live and args.starts > 1:
+        raise ValueError("--live logs one solve; with --starts, each start's line is printed "
+                         "when the solves return")
     opts = primitive_options(args.objective, args.starts, max_iter=args.max_iter,
-                             verbose=not args.quiet)
+                             verbose=not args.quiet and not live, live=live)
     print(f"vehsim optimise {args.road} --objective {args.objective}, {args.segments} segments: "
           + waiting_line(getattr(args, "cache_dir", None), "interior-point solver",
                          "exported/interior_point", "about a minute on 2 cores")
-          + "; then solving (the iteration log follows the solve)", file=sys.stderr, flush=True)
+          + "; then solving" + ("" if live else " (the iteration log follows the solve; "
+                                "--live prints it as it runs)"), file=sys.stderr, flush=True)
     # the plotting library is imported on another thread while the solver runs (its compiled
     # loop does not hold the interpreter's lock)
     with ThreadPoolExecutor(1) as pool:

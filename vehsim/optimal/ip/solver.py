@@ -78,7 +78,9 @@ class IPOptions(eqx.Module):
     IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
     ``verbose``: print the iteration log to stderr when the solve returns
     (`print_iteration_log`; not part of the compiled program, so the quiet and the verbose
-    solve are one program)."""
+    solve are one program); ``live``: print each iteration's line while the solve runs (a
+    host callback per iteration, so a program of its own; for one solve, not a `vmap`ped
+    batch, whose members would interleave)."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -89,6 +91,7 @@ class IPOptions(eqx.Module):
     multiplier_init: str = eqx.field(static=True, default="least-squares")
     bound_multiplier_init: str = eqx.field(static=True, default="mu-based")
     verbose: bool = eqx.field(static=True, default=False)
+    live: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
@@ -277,10 +280,16 @@ def print_iteration_log(sol: IPSolution, file=None) -> None:
     for i in range(n):
         if np.isnan(log.mu[i]):
             break
-        print(f"  ip {i:4d}  obj {log.objective[i]: .8e}  inf_pr {log.inf_pr[i]:.2e}  "
-              f"inf_du {log.inf_du[i]:.2e}  mu {log.mu[i]:.1e}  alpha {log.alpha[i]:.2e}  "
-              f"reg {log.regularisation[i]:.1e}  ls {int(log.trials[i])}",
-              file=sys.stderr if file is None else file, flush=True)
+        _print_row(i, log.objective[i], log.inf_pr[i], log.inf_du[i], log.mu[i], log.alpha[i],
+                   log.regularisation[i], log.trials[i], file=file)
+
+
+def _print_row(i, objective, inf_pr, inf_du, mu, alpha, regularisation, trials, file=None):
+    """One line of the iteration log (`print_iteration_log`, and ``IPOptions.live``)."""
+    print(f"  ip {int(i):4d}  obj {float(objective): .8e}  inf_pr {float(inf_pr):.2e}  "
+          f"inf_du {float(inf_du):.2e}  mu {float(mu):.1e}  alpha {float(alpha):.2e}  "
+          f"reg {float(regularisation):.1e}  ls {int(trials)}",
+          file=sys.stderr if file is None else file, flush=True)
 
 
 def _report(sol: IPSolution, options: IPOptions) -> None:
@@ -384,6 +393,10 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
                         inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta,
                         factorisations=step.factorisations, trials=n_trials)
+    if options.live:  # the line of this pass, on the host as it happens (not the setup pass)
+        jax.lax.cond(setup, lambda: None, lambda: jax.debug.callback(
+            _print_row, st.iteration, d.objective, res.inf_pr, res.inf_du, mu, alpha,
+            step.delta, n_trials))
     finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
     # keep the iterate whose residuals are reported when the loop ends on this pass
     hold = converged | ~finite | (st.iteration == options.max_iter - 1) & ~setup
