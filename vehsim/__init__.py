@@ -80,6 +80,8 @@ from .robot.unicycle import (
     SystemII as SystemII,
 )
 from .tire.burckhardt import (
+    BurckhardtParams as BurckhardtParams,
+    RelaxedBurckhardt as RelaxedBurckhardt,
     burckhardt_mu as burckhardt_mu,
     fit_burckhardt_family as fit_burckhardt_family,
 )
@@ -107,6 +109,7 @@ from .tire.lugre import (
     PointLuGre as PointLuGre,
     decay_rate as decay_rate,
     relative_velocity as relative_velocity,
+    solve_steady_state as solve_steady_state,
     stribeck as stribeck,
 )
 from .tire.lugre2d import (
@@ -253,6 +256,7 @@ from .control.experiments.metrics import (
     estimate_record as estimate_record,
 )
 from .control.experiments.scenarios import braking_scenario as braking_scenario
+from .control.experiments.tires import OTHER_TIRES as OTHER_TIRES, other_tire as other_tire
 from .control.experiments.tuning import tune_gains as tune_gains
 from .control.loop import (
     BrakingRun as BrakingRun,

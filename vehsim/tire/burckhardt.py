@@ -14,16 +14,24 @@ as ice has, so that a locked wheel would out-brake any ABS on ice.) Cobblestone,
 peak lies at 40 % slip where the others peak below 20 %, gets its own $\sigma_0$: no
 $\theta$ moves the peak that far. The fitted values are the presets of
 `vehsim.control.road.surfaces`.
+
+`RelaxedBurckhardt` is a tire whose steady state is Burckhardt's curve itself, through a
+relaxation length (the structure of `RelaxedMagicFormula`).
 """
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import Array, Float
 
-from .lugre import LuGreParams
+from .._checks import check_nonnegative, check_positive
+from .._fields import array_field
+from .._math import one_minus_exp_over, safe_abs
+from .lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity
 from .steady_state import braking_mu_uniform
 
 
@@ -88,3 +96,56 @@ def fit_burckhardt_family(max_steps: int = 500):
     sol = optx.least_squares(residuals, optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12), u0,
                              max_steps=max_steps, throw=False)
     return sol.value, dict(zip(BURCKHARDT, family_params(sol.value))), sol.result
+
+
+class BurckhardtParams(eqx.Module):
+    r"""Burckhardt's curve $\mu_B(\lambda) = c_1(1 - e^{-c_2\lambda}) - c_3\lambda$ with a
+    relaxation length.
+
+    **Fields:** `c1` [-] (> 0), `c2` [-] (> 0), `c3` [-] ($\ge 0$), `relaxation_length`
+    $\sigma_\kappa$ [m] (> 0). Default: dry asphalt (`BURCKHARDT`), 0.25 m.
+    """
+
+    c1: Float[Array, "*batch"] = array_field(default=BURCKHARDT["dry_asphalt"][0])
+    c2: Float[Array, "*batch"] = array_field(default=BURCKHARDT["dry_asphalt"][1])
+    c3: Float[Array, "*batch"] = array_field(default=BURCKHARDT["dry_asphalt"][2])
+    relaxation_length: Float[Array, "*batch"] = array_field(default=0.25)
+
+    def __check_init__(self):
+        owner = "BurckhardtParams"
+        check_positive(owner, "c1", self.c1)
+        check_positive(owner, "c2", self.c2)
+        check_nonnegative(owner, "c3", self.c3)
+        check_positive(owner, "relaxation_length", self.relaxation_length)
+
+
+class RelaxedBurckhardt(AbstractLongitudinalTire):
+    r"""Burckhardt's curve driven by a transient slip with relaxation length $\sigma_\kappa$.
+
+    $$\dot u = v_r - |v|\,\frac{u}{\sigma_\kappa},\qquad
+      \mu = \operatorname{sgn}(s')\,\mu_B(|s'|) = c_1c_2s'\varphi(c_2|s'|) - c_3s',\qquad
+      s' = \frac{u}{\sigma_\kappa},$$
+    $\varphi(x) = (1 - e^{-x})/x$ (smooth through $s' = 0$): the curve made odd, so that a
+    driven wheel gets the mirror of the braking curve. Burckhardt, *Fahrwerktechnik:
+    Radschlupf-Regelsysteme* (Vogel, 1993) for the curve and its coefficients
+    (`BURCKHARDT`); Pacejka (2012), ch. 7 for the relaxation length. In braking the peak is
+    at $\lambda^* = \ln(c_1c_2/c_3)/c_2$ with $\mu^* = c_1 - c_3/c_2 - c_3\lambda^*$
+    (at $\lambda = 1$ where $c_1c_2e^{-c_2} \ge c_3$), at every speed. No closed-form
+    steady state is coded: `steady_state` is computed (`solve_steady_state`).
+
+    **Arguments:** `params`, a `BurckhardtParams`.
+    """
+
+    params: BurckhardtParams
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def dynamics(self, state, v, omega, r):
+        p = self.params
+        return relative_velocity(v, omega, r) - safe_abs(v) * state / p.relaxation_length
+
+    def mu(self, state, v, omega, r):
+        p = self.params
+        s = state / p.relaxation_length
+        return p.c1 * p.c2 * s * one_minus_exp_over(p.c2 * safe_abs(s)) - p.c3 * s

@@ -179,7 +179,8 @@ class DistributedLuGre(AbstractLongitudinalTire):
         return jnp.where(is_zero, 0.0, num / jnp.where(is_zero, 1.0, zbar))
 
     def steady_state(self, v, omega, r):
-        """Discrete steady state for constant inputs (one linear solve)."""
+        """Discrete steady state for constant inputs (one linear solve; `steady_state_mu`
+        and `braking_mu` use it)."""
         v_r, a, b = self._operator(v, omega, r)
         A = a * jnp.eye(self.n + 1) + b * (self.D.at[0, 0].add(self.tau))
         degenerate = (a == 0) & (b == 0)

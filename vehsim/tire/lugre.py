@@ -15,7 +15,9 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
 from .._checks import check_order, check_positive, check_range
@@ -90,6 +92,13 @@ class AbstractLongitudinalTire(eqx.Module):
 
     Subclasses provide `init_state`, `dynamics` (the state's time derivative, driven by
     $v$, $\omega$, $r$) and `mu` (the normalised force $F/F_n$).
+
+    **Steady state.** `steady_state` is the state at rest under constant $v$, $\omega$,
+    $r$ (``dynamics = 0``), `steady_state_mu` the force there and `braking_mu` the same at
+    braking slip $s = r\omega/v - 1$: by default computed (`solve_steady_state`, Newton
+    from the undeflected state), overridden by the closed forms of the models that have
+    one (eq. 19 for `UniformLumpedLuGre`, eqs. 22-23 at rest for `LumpedLuGre`, the
+    formula for `RelaxedMagicFormula`, one linear solve for `DistributedLuGre`).
     """
 
     params: eqx.AbstractVar[LuGreParams]
@@ -105,6 +114,52 @@ class AbstractLongitudinalTire(eqx.Module):
     @abc.abstractmethod
     def mu(self, state, v, omega, r):
         """Normalised friction force $F/F_n$."""
+
+    def steady_state(self, v, omega, r):
+        """The friction state at rest under constant `v`, `omega`, `r` (by default
+        `solve_steady_state`)."""
+        return solve_steady_state(self, v, omega, r)
+
+    def steady_state_mu(self, v, omega, r):
+        """Steady-state $F/F_n$ under constant `v`, `omega`, `r`: `mu` at `steady_state`."""
+        return self.mu(self.steady_state(v, omega, r), v, omega, r)
+
+    def braking_mu(self, s, v, r):
+        r"""Steady-state $F/F_n$ at braking slip $s\in[-1, 0]$ and speed $v > 0$:
+        `steady_state_mu` at $\omega = (1 + s)v/r$."""
+        return self.steady_state_mu(v, (1.0 + s) * v / r, r)
+
+
+NEWTON_STEPS = 3
+"""Newton steps of `solve_steady_state` (one is exact for the dynamics linear in the state
+of every model in `vehsim.tire`)."""
+
+
+def solve_steady_state(tire: AbstractLongitudinalTire, v, omega, r, steps: int = NEWTON_STEPS):
+    r"""The state $z$ with ``tire.dynamics(z, v, omega, r)`` $= 0$, by `steps` Newton steps
+    from ``tire.init_state()`` (the Jacobian by forward-mode differentiation).
+
+    The steps are unrolled and differentiated through, so derivatives of every order with
+    respect to $v$, $\omega$, $r$ and the tire's fields are those of the converged state
+    (exact after one step for dynamics linear in the state: $\dot z = b - Az$ gives
+    $z = A^{-1}b$). A component with no restoring dynamics (a zero row of the Jacobian,
+    e.g. a point contact at rest, $v_r = 0$) keeps its initial value. Jit-, vmap- and
+    grad-safe; any state pytree (scalar or vector, e.g. `DistributedLuGre`'s nodes).
+    """
+    z, unravel = ravel_pytree(tire.init_state())
+    if z.size == 0:
+        return unravel(z)
+
+    def rates(x):
+        return ravel_pytree(tire.dynamics(unravel(x), v, omega, r))[0]
+
+    eye = jnp.eye(z.size, dtype=z.dtype)
+    for _ in range(steps):
+        f, J = rates(z), jax.jacfwd(rates)(z)
+        held = jnp.all(J == 0, axis=1)
+        J = jnp.where(held[:, None], eye, J)
+        z = z - jnp.linalg.solve(J, jnp.where(held, 0.0, f))
+    return unravel(z)
 
 
 class PointLuGre(AbstractLongitudinalTire):

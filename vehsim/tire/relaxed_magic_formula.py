@@ -16,7 +16,7 @@ from jaxtyping import Array, Float
 
 from .._checks import check_positive, check_range
 from .._fields import array_field
-from .._math import safe_abs
+from .._math import safe_abs, safe_div
 from .lugre import AbstractLongitudinalTire, relative_velocity
 from .magic_formula import magic_formula
 
@@ -64,3 +64,14 @@ class RelaxedMagicFormula(AbstractLongitudinalTire):
     def mu(self, state, v, omega, r):
         p = self.params
         return magic_formula(state / p.relaxation_length, p.B, p.C, p.D, p.E)
+
+    def steady_state(self, v, omega, r):
+        r"""$u = \sigma_\kappa v_r/|v|$ (0 at $v = 0$)."""
+        return safe_div(self.params.relaxation_length * relative_velocity(v, omega, r),
+                        safe_abs(v))
+
+    def braking_mu(self, s, v, r=None):
+        r"""The formula at braking slip $s$ (the transient slip's rest value; $v$ and $r$ do
+        not enter)."""
+        p = self.params
+        return magic_formula(s, p.B, p.C, p.D, p.E)

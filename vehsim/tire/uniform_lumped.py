@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import safe_abs
+from .._math import safe_abs, safe_div
 from .lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity, stribeck
 from .steady_state import braking_mu_uniform, driving_mu_uniform
 
@@ -64,8 +64,14 @@ class UniformLumpedLuGre(AbstractLongitudinalTire):
         zdot = self.dynamics(state, v, omega, r)
         return p.sigma0 * state + p.sigma1 * zdot + p.sigma2 * relative_velocity(v, omega, r)
 
-    def braking_mu(self, s, v):
-        r"""Steady-state $F/F_n$ at braking slip $s = r\omega/v - 1\in[-1, 0]$ (eq. 19)."""
+    def steady_state(self, v, omega, r):
+        r"""$\bar z_{ss} = v_r L\psi(k)/|\omega r|$, i.e. $v_r$ over the decay rate (0 at
+        rest)."""
+        return safe_div(relative_velocity(v, omega, r), decay(self.params, v, omega, r))
+
+    def braking_mu(self, s, v, r=None):
+        r"""Steady-state $F/F_n$ at braking slip $s = r\omega/v - 1\in[-1, 0]$ (eq. 19; the
+        radius does not enter)."""
         return braking_mu_uniform(self.params, s, v)
 
     def driving_mu(self, s, omega, r):

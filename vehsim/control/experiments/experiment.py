@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import PRNGKeyArray
 
 from ..._results import result_record
+from ...tire.lugre import AbstractLongitudinalTire
 from ..controllers.braking import LockedWheel
 from ..loop import HANDBACK_SPEED, simulate_braking_grid, stack
 from ..plant.hardware import BrakeHardware, realistic_hardware
@@ -27,19 +28,24 @@ MAX_DURATION = 150.0
 """The longest braking simulated [s] (a locked wheel on ice from 30 m/s takes about 90 s)."""
 
 
-def _signals_of(runs, i, scenario):
+def _signals_of(runs, i, scenario, lugre_road):
     s = {k: np.asarray(v[i, 0]) for k, v in runs.signals.items()}
     s["peak_slip"], s["peak_mu"] = available_friction(scenario, s)
-    s["theta_true"] = np.asarray(true_theta(scenario, s["ts"], s["x"]))
+    s["theta_true"] = (np.asarray(true_theta(scenario, s["ts"], s["x"])) if lugre_road
+                       else np.full_like(s["ts"], np.nan))
     return s
 
 
 def braking_experiment(surface: str, controller_name: str = "estimate", speed: float = 30.0,
                        change_to: str | None = None, change_distance: float = math.inf,
                        change_time: float = math.inf, hardware: BrakeHardware | None = None,
-                       key: PRNGKeyArray | None = None, duration: float | None = None):
+                       key: PRNGKeyArray | None = None, duration: float | None = None,
+                       tire: AbstractLongitudinalTire | None = None):
     """Brake on `surface` (changing to `change_to` at `change_distance` [m] or `change_time`
-    [s]) from `speed` [m/s] with the controller `controller_name` and with a locked wheel.
+    [s]) from `speed` [m/s] with the controller `controller_name` and with a locked wheel;
+    `tire`: a plant tire other than the surface's (e.g. `other_tire`), the observer still
+    built for the surface, as `braking_scenario` (the truth of theta is then undefined:
+    ``theta_true``, ``theta_settling_time_s`` and ``theta_bias`` are NaN).
 
     **Returns:** ``(record, signals)``: the JSON-ready record (the controller's
     ``stopping_distance_m``, ``bound_distance_m``, ``distance_over_bound``, the same over
@@ -52,7 +58,8 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     hardware = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
     scenario, observer = braking_scenario(surface, speed, change_to, change_distance,
-                                          change_time)
+                                          change_time, tire)
+    lugre_road = tire is None
     if duration is None:
         duration = min(1.5 * float(physical_limit(scenario)[1]) + 1.0, MAX_DURATION)
     runs = simulate_braking_grid(stack([scenario]), [controller(controller_name), LockedWheel()],
@@ -62,7 +69,7 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     for i, label in enumerate((controller_name, "locked")):
         run = jax.tree_util.tree_map(lambda a: a[i, 0], runs)
         out[label] = dict(braking_record(run, scenario, hardware), **result_record(run.result))
-    signals = {label: _signals_of(runs, i, scenario)
+    signals = {label: _signals_of(runs, i, scenario, lugre_road)
                for i, label in enumerate((controller_name, "locked"))}
     s = signals[controller_name]
     below = np.nonzero(s["v"] < HANDBACK_SPEED)[0]
@@ -70,7 +77,7 @@ def braking_experiment(surface: str, controller_name: str = "estimate", speed: f
     record = {"surface": surface, "change_to": change_to, "change_distance_m": change_distance,
               "change_time_s": change_time, "controller": controller_name,
               "speed_m_s": speed, "duration_s": duration, **out[controller_name],
-              "theta_true": float(scenario.car.tire.params.theta),
+              "theta_true": float(scenario.car.tire.params.theta) if lugre_road else math.nan,
               **estimate_record(s["ts"], s["theta_hat"], s["theta_true"], 0.0, t_end),
               "locked_wheel": out["locked"]}
     return record, signals

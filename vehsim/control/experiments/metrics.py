@@ -87,8 +87,12 @@ def available_friction(scenario: BrakingScenario, signals: dict):
 
 
 def estimate_record(ts, theta_hat, theta_true, t_from: float, t_to: float) -> dict:
-    """The settling time and bias of an estimate (`settling`), with the final estimate."""
-    t_settle, bias = settling(ts, theta_hat, theta_true, t_from, t_to)
+    """The settling time and bias of an estimate (`settling`; NaN where the truth is NaN
+    throughout), with the final estimate."""
+    if np.all(np.isnan(np.asarray(theta_true, dtype=float))):  # no truth to settle on
+        t_settle, bias = math.nan, math.nan
+    else:
+        t_settle, bias = settling(ts, theta_hat, theta_true, t_from, t_to)
     ts = np.asarray(ts)
     last = np.nonzero(ts <= t_to)[0]
     return {"theta_settling_time_s": t_settle, "theta_bias": bias,

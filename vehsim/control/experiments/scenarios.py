@@ -51,7 +51,7 @@ def braking_scenario(name: str, speed: float = 30.0, change_to: str | None = Non
                      tire: AbstractLongitudinalTire | None = None):
     """``(BrakingScenario, FrictionObserver)`` of a braking from `speed` [m/s] on the surface
     `name`, changing to the surface `change_to` at `change_distance` [m] or `change_time` [s]
-    (`tire`: a plant tire other than the surface's, e.g. a Magic Formula, with the
+    (`tire`: a plant tire other than the surface's, e.g. `other_tire(name)`, with the
     observer still built for the surface)."""
     first = surface(name)
     plant_tire = first.tire() if tire is None else tire

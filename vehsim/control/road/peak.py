@@ -1,9 +1,12 @@
 r"""The peak of a tire's steady-state force-slip curve at a given speed.
 
 `braking_curve` is the steady-state $\mu(s)$ at braking slip $s = r\omega/v - 1\in[-1, 0]$
-(negative: braking): eq. 19 for `UniformLumpedLuGre`, the lumped steady state for
-`LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its transient slip tends to
-$v_r/|v| = s$). `driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
+(negative: braking) of any tire, its `braking_mu`: eq. 19 for `UniformLumpedLuGre`, the
+lumped steady state for `LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its
+transient slip tends to $v_r/|v| = s$), one linear solve for `DistributedLuGre`, and for
+any other tire (`MFLongitudinalTire`, `RelaxedBurckhardt`, ...) its state brought to rest
+at fixed slip and speed by Newton's method (`solve_steady_state`).
+`driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
 `peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
 near zero slip, where the peaks are) and a golden-section search inside the best grid
 cell; the derivative of the peak slip with respect to the tire's parameters and the speed
@@ -19,9 +22,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ...tire.lugre import AbstractLongitudinalTire, LumpedLuGre
-from ...tire.magic_formula import magic_formula
-from ...tire.relaxed_magic_formula import RelaxedMagicFormula
+from ...tire.lugre import AbstractLongitudinalTire
 from ...tire.uniform_lumped import UniformLumpedLuGre
 
 
@@ -31,16 +32,10 @@ _INVERSE_GOLDEN = 0.5 * (5.0**0.5 - 1.0)
 
 
 def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
-    r"""Steady-state $\mu = F/F_n$ at braking slip `s` and speed `v` [m/s] (module docstring;
-    `r` [m] matters for `LumpedLuGre` only). Negative: a braking force."""
-    if isinstance(tire, UniformLumpedLuGre):
-        return tire.braking_mu(s, v)
-    if isinstance(tire, RelaxedMagicFormula):
-        p = tire.params
-        return magic_formula(s, p.B, p.C, p.D, p.E)
-    if isinstance(tire, LumpedLuGre):
-        return tire.steady_state_mu(v, (1.0 + s) * v / r, r)
-    raise TypeError(f"no steady-state curve for {type(tire).__name__}")
+    r"""Steady-state $\mu = F/F_n$ at braking slip `s` and speed `v` [m/s] of any
+    `AbstractLongitudinalTire` (module docstring; the wheel radius `r` [m] fixes
+    $\omega = (1 + s)v/r$ where the model needs it). Negative: a braking force."""
+    return tire.braking_mu(s, v, r)
 
 
 def driving_curve(tire: UniformLumpedLuGre, s, v):
