@@ -134,6 +134,10 @@ from .tire.relaxed_magic_formula import (
     MagicFormulaParams as MagicFormulaParams,
     RelaxedMagicFormula as RelaxedMagicFormula,
 )
+from .tire.scaled import (
+    FrictionScaleParams as FrictionScaleParams,
+    ScaledFriction as ScaledFriction,
+)
 from .tire.steady_state import (
     braking_mu_uniform as braking_mu_uniform,
     driving_mu_uniform as driving_mu_uniform,
@@ -239,11 +243,27 @@ from .control.controllers.traction import (
     TractionControl as TractionControl,
     traction_scenario as traction_scenario,
 )
+from .control.estimation.base import AbstractFrictionEstimator as AbstractFrictionEstimator
 from .control.estimation.mhe import (
+    BrakingRecord as BrakingRecord,
     MHEResult as MHEResult,
     MovingHorizonEstimator as MovingHorizonEstimator,
 )
-from .control.estimation.observer import FrictionObserver as FrictionObserver
+from .control.estimation.observer import (
+    FrictionObserver as FrictionObserver,
+    ObserverState as ObserverState,
+)
+from .control.estimation.parametrisation import (
+    AbstractRoadParametrisation as AbstractRoadParametrisation,
+    FrictionScale as FrictionScale,
+    RoadCondition as RoadCondition,
+)
+from .control.estimation.peak_estimator import (
+    BurckhardtBelief as BurckhardtBelief,
+    PeakEstimator as PeakEstimator,
+    PeakEstimatorState as PeakEstimatorState,
+    estimate_peaks as estimate_peaks,
+)
 from .control.experiments.experiment import braking_experiment as braking_experiment
 from .control.experiments.half_car_abs import (
     TurnRun as TurnRun,
@@ -280,6 +300,7 @@ from .control.road.bound import (
     traction_limit as traction_limit,
 )
 from .control.road.peak import (
+    braking_curve as braking_curve,
     peak_braking as peak_braking,
     peak_driving as peak_driving,
 )

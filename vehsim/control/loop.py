@@ -1,8 +1,9 @@
 r"""The closed braking loop at the controller's rate, one `lax.scan` over samples.
 
 Per sample $k$ at $t_k = kT$: measure (`vehsim.control.plant.sensors`), update the observer with
-the mean brake torque of the last sample, let the controller command a torque (the full
-torque below `handback_speed`), pass it through the actuator (`vehsim.control.plant.hardware`) and
+the mean brake torque of the last sample, let the controller command a torque from the
+measurement and the estimator's belief (its `belief`: the tire it believes in;
+the full torque below `handback_speed`), pass it through the actuator (`vehsim.control.plant.hardware`) and
 integrate the plant to $t_{k+1}$ (`vehsim.control.plant.quarter_car`). The stopping distance and time
 are recorded when the speed first falls below `stop_speed` (linear interpolation within
 the sample), so a batch need not keep trajectories.
@@ -15,13 +16,13 @@ import functools as ft
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float, PRNGKeyArray, PyTree
 
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._results import RESULTS, as_result
 from .._solution import AbstractSolution
 from .controllers.braking import AbstractBrakeController, measurement
-from .estimation.observer import FrictionObserver, ObserverState
+from .estimation.base import AbstractFrictionEstimator
 from .plant.hardware import (
     ActuatorState,
     BrakeHardware,
@@ -51,9 +52,9 @@ class BrakingRun(AbstractSolution):
     distance `x`, speeds `v`, `omega`, the true `slip` $r\\omega/v - 1$ and friction `mu`
     $= F_x/F_n$, the brake `torque` at the sample and the `target` it lags towards over the
     sample, the controller's `command` and `phase`, the measured `v_meas`, `omega_meas`
-    (standing for time `omega_stamp`; a measurement if `fresh`), and the observer's
-    `theta_hat`, `v_hat`, wheel-speed `innovation` and the covariance of its log,
-    `theta_covariance`."""
+    (standing for time `omega_stamp`; a measurement if `fresh`), and the estimator's
+    `signals` (for a `FrictionObserver`: `theta_hat`, `v_hat`, wheel-speed `innovation`
+    and the covariance of its log, `theta_covariance`)."""
 
     stopping_distance: Float[Array, ""]
     stopping_time: Float[Array, ""]
@@ -91,13 +92,14 @@ class LoopState(eqx.Module):
     y: Array
     encoder: EncoderState
     actuator: ActuatorState
-    observer: ObserverState
+    observer: PyTree
     previous: PreviousSample
     stop: StopRecord
     result: RESULTS
 
 
-def _init(scenario: BrakingScenario, observer: FrictionObserver, hardware: BrakeHardware):
+def _init(scenario: BrakingScenario, observer: AbstractFrictionEstimator,
+          hardware: BrakeHardware):
     y0 = initial_plant_state(scenario)
     qs = unpack(scenario, y0)[1]
     inf = jnp.asarray(jnp.inf, dtype=y0.dtype)
@@ -121,9 +123,8 @@ def _sense(scenario, observer, hardware, substeps, key, st: LoopState, k):
         lambda o: o, st.observer)
     m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T,
                     mean_brake_torque(hardware, previous.torque, previous.target))
-    seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh, v_hat=obs.v,
-                theta_hat=obs.theta, innovation=obs.innovation,
-                theta_covariance=obs.covariance)
+    seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh) | \
+        observer.signals(obs)
     previous = eqx.tree_at(lambda p: p.omega, previous, omega_m)
     st = LoopState(st.y, enc, st.actuator, obs, previous, st.stop, st.result)
     return st, m, seen
@@ -157,8 +158,8 @@ def _signals(scenario, y, t, torque, cmd, phase):
 def _sample(scenario, controller, observer, hardware, key, substeps, save, handback, carry, k):
     st, ctrl = carry
     st, m, seen = _sense(scenario, observer, hardware, substeps, key, st, k)
-    ctrl, cmd, phase = controller.command(ctrl, m, st.observer.theta, observer.model,
-                                          scenario.car, hardware.sample_time, hardware.max_torque)
+    ctrl, cmd, phase = controller.command(ctrl, m, observer.belief(st.observer), scenario.car,
+                                          hardware.sample_time, hardware.max_torque)
     st, out = _move(scenario, hardware, substeps, handback, save, st, k, cmd, phase)
     return (st, ctrl), (out | seen if save else None)
 
@@ -175,7 +176,7 @@ def _stop(stop: StopRecord, scenario, y0, y1, t, T) -> StopRecord:
 
 
 def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
-                observer: FrictionObserver, hardware: BrakeHardware, key: PRNGKeyArray,
+                observer: AbstractFrictionEstimator, hardware: BrakeHardware, key: PRNGKeyArray,
                 n_steps: int, substeps: int = SUBSTEPS, save: bool = True,
                 handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
@@ -200,14 +201,15 @@ def _simulate(scenario, controller, observer, hardware, key, n_steps, substeps, 
 
 
 def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeController,
-                     observer: FrictionObserver, hardware: BrakeHardware | None = None,
+                     observer: AbstractFrictionEstimator, hardware: BrakeHardware | None = None,
                      key: PRNGKeyArray | None = None, duration: float = 5.0,
                      substeps: int = SUBSTEPS, save: bool = True,
                      handback_speed: float = HANDBACK_SPEED) -> BrakingRun:
     """Simulate one closed-loop braking (jitted; new array values do not recompile).
 
     **Arguments:** `scenario` (`BrakingScenario`), `controller`, `observer`
-    (`FrictionObserver`, run for every controller), `hardware` (default: realistic),
+    (an `AbstractFrictionEstimator`, e.g. a `FrictionObserver`, run for every controller),
+    `hardware` (default: realistic),
     `key` (sensor noise; default PRNGKey(0)), `duration` [s] (rounded to whole samples),
     `substeps` (integration sub-steps per sample), `save` (keep the signals),
     `handback_speed` [m/s].
@@ -228,7 +230,8 @@ def _grid_step(scenarios, controllers, observers, hardware, keys, substeps, save
     def sense(st):
         st, m, seen = jax.vmap(lambda sc, ob, key, s: _sense(sc, ob, hardware, substeps, key, s, k))(
             scenarios, observers, keys, st)
-        return st, (m, st.observer.theta, observers, scenarios), seen
+        beliefs = jax.vmap(lambda ob, s: ob.belief(s.observer))(observers, st)
+        return st, (m, beliefs, scenarios), seen
 
     def act(st, seen, commands):
         cmd, phase = commands
@@ -244,14 +247,15 @@ def _grid_step(scenarios, controllers, observers, hardware, keys, substeps, save
 
 def _law(controller, hardware, ctrl, inputs):
     """A braking controller as a law of the controller grid: its state, and the (torque
-    command, phase) of the sample's measurement."""
-    m, theta, observer, scenario = inputs
-    ctrl, cmd, phase = controller.command(ctrl, m, theta, observer.model, scenario.car,
-                                          hardware.sample_time, hardware.max_torque)
+    command, phase) of the sample's measurement and the observer's belief."""
+    m, belief, scenario = inputs
+    ctrl, cmd, phase = controller.command(ctrl, m, belief, scenario.car, hardware.sample_time,
+                                          hardware.max_torque)
     return ctrl, (cmd, phase)
 
 
-def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+def closed_loop_grid(scenarios: BrakingScenario, controllers,
+                     observers: AbstractFrictionEstimator,
                      hardware: BrakeHardware, keys, n_steps: int, substeps: int = SUBSTEPS,
                      save: bool = False, handback_speed=HANDBACK_SPEED) -> BrakingRun:
     """`simulate_braking_grid` as a pure function of its inputs (jit, vmap, jvp apply)."""
@@ -272,7 +276,8 @@ def closed_loop_grid(scenarios: BrakingScenario, controllers, observers: Frictio
 _grid = eqx.filter_jit(closed_loop_grid)
 
 
-def simulate_braking_grid(scenarios: BrakingScenario, controllers, observers: FrictionObserver,
+def simulate_braking_grid(scenarios: BrakingScenario, controllers,
+                          observers: AbstractFrictionEstimator,
                           keys, hardware: BrakeHardware | None = None, duration: float = 5.0,
                           substeps: int = SUBSTEPS, save: bool = False,
                           handback_speed: float = HANDBACK_SPEED) -> BrakingRun:

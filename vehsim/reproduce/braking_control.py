@@ -192,8 +192,6 @@ def _magic_formula(ctx):
 
     from ..control.road.peak import peak_braking
     from ..tire.relaxed_magic_formula import MagicFormulaParams, RelaxedMagicFormula
-    from ..tire.uniform_lumped import UniformLumpedLuGre
-
     mf = RelaxedMagicFormula(MagicFormulaParams(D=1.0))
     sc, ob = braking_scenario("dry_asphalt", 30.0, tire=mf)
     runs = simulate_braking_grid(stack([sc]), [controller(c) for c in CONTROLLERS], stack([ob]),
@@ -206,7 +204,7 @@ def _magic_formula(ctx):
         run = jax.tree_util.tree_map(lambda a: a[i, 0], runs)
         t, th = np.asarray(run.signals["ts"]), np.asarray(run.signals["theta_hat"])
         theta = float(np.median(th[(t > 0.5) & (t < float(run.stopping_time) - 0.5)]))
-        lugre = UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, ob.model, theta))
+        lugre = eqx.tree_at(lambda t: t.params.theta, ob.model.tire, theta)
         s_l, mu_l = (float(x) for x in peak_braking(lugre, 30.0))
         rec = braking_record(run, sc) | {"theta_estimate": theta, "lugre_peak_slip": s_l,
                                          "lugre_peak_mu": mu_l}

@@ -3,7 +3,10 @@ r"""Braking controllers, sampled at the hardware's rate, commanding a brake torq
 Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel
 slip $\hat s = r\hat\omega/\hat v - 1$, the wheel's peripheral acceleration
 $r\Delta\hat\omega/T$ and the mean brake torque $\bar T_b$ the actuator applied over the
-last sample, known from the commands through the actuator's model as the observer knows it) and the observer's $\hat\theta$ (`vehsim.control.estimation.observer`).
+last sample, known from the commands through the actuator's model as the estimators know
+it) and the estimator's *belief*: the tire it currently believes in (its assumed model at the current estimate, e.g. `UniformLumpedLuGre` at $\hat\theta$;
+`vehsim.control.estimation`). An estimate-based target is read off the belief's steady-state
+curve (`braking_curve`, `peak_braking`), whatever the belief's family.
 Below `handback_speed` (3 m/s by default) every controller hands back to plain braking (the
 full torque): there slip measurement is poor and a locked wheel costs little distance.
 
@@ -18,11 +21,12 @@ full torque): there slip measurement is poor and a locked wheel costs little dis
   ($\epsilon > 0$, saturating at $e_{max}$ = 1 m/s, so that the feedback corrects the
   feedforward rather than overriding it at the onset) and $e = \epsilon$ when it slips too
   much (a wheel running away past the peak is pulled back at full gain), with
-  $T_{ff} = \hat\mu(s^*)F_n\,(r + J(1+s^*)/(mr))$, $\hat\mu$ eq. 19 at $\hat\theta$ and
-  $\hat v$: the brake torque that balances the friction torque and decelerates the wheel
+  $T_{ff} = \hat\mu(s^*)F_n\,(r + J(1+s^*)/(mr))$, $\hat\mu$ the belief's steady-state
+  curve at $\hat v$ (eq. 19 at $\hat\theta$ for a `UniformLumpedLuGre` belief): the brake
+  torque that balances the friction torque and decelerates the wheel
   with the car ($J\dot\omega = -rF - T_b$, $\dot\omega = (1+s^*)\dot v/r$, $m\dot v = F$).
-- `PeakSlipTracking`: the same with $s^*$ the peak of eq. 19 at $\hat\theta$ and the
-  measured speed (`peak_braking` of the observer's model), scaled by `slip_scale`.
+- `PeakSlipTracking`: the same with $s^*$ the peak of the belief's curve at the measured
+  speed (`peak_braking`), scaled by `slip_scale`.
 """
 
 from __future__ import annotations
@@ -36,10 +40,9 @@ from jaxtyping import Array, Float
 from ..._checks import check_nonnegative, check_positive, check_range
 from ..._fields import array_field
 from ..._math import safe_div
-from ...tire.lugre import LuGreParams
-from ...tire.uniform_lumped import UniformLumpedLuGre
+from ...tire.lugre import AbstractLongitudinalTire
 from ...vehicle.quarter_car import QuarterCar
-from ..road.peak import peak_braking
+from ..road.peak import braking_curve, peak_braking
 
 
 class Measurement(eqx.Module):
@@ -60,9 +63,10 @@ class AbstractBrakeController(eqx.Module):
         """The controller's state before the first sample."""
 
     @abc.abstractmethod
-    def command(self, state, m: Measurement, theta_hat, model: LuGreParams, car: QuarterCar,
+    def command(self, state, m: Measurement, belief: AbstractLongitudinalTire, car: QuarterCar,
                 dt, max_torque):
-        """``(state, torque [N m], phase)`` for this sample (phase: an integer label)."""
+        """``(state, torque [N m], phase)`` for this sample (phase: an integer label);
+        `belief` is the tire the estimator currently believes in (module docstring)."""
 
 
 class LockedWheel(AbstractBrakeController):
@@ -71,7 +75,7 @@ class LockedWheel(AbstractBrakeController):
     def init(self, max_torque):
         return jnp.zeros(())
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
+    def command(self, state, m, belief, car, dt, max_torque):
         return state, max_torque, jnp.zeros((), int)
 
 
@@ -131,7 +135,7 @@ class RuleBasedABS(AbstractBrakeController):
             jnp.where(decel, DUMP, SLOW_BUILD))
         return jnp.where(lam > self.lock_slip, DUMP, nxt)
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
+    def command(self, state, m, belief, car, dt, max_torque):
         phase, torque, a, reference = state
         a = a + (m.wheel_accel - a) * (1.0 - jnp.exp(-dt / self.filter_time))
         new = self._next_phase(phase, a, -m.slip, torque, reference)
@@ -155,15 +159,15 @@ class AbstractSlipTracking(AbstractBrakeController):
     ki: eqx.AbstractVar[Float[Array, ""]]
 
     @abc.abstractmethod
-    def target(self, m: Measurement, theta_hat, model: LuGreParams, radius):
+    def target(self, m: Measurement, belief: AbstractLongitudinalTire, radius):
         r"""$(s^*, \hat\mu(s^*))$ at this sample: the target slip ($< 0$) and the friction
-        magnitude eq. 19 gives there at $\hat\theta$."""
+        magnitude the belief's steady-state curve gives there."""
 
     def init(self, max_torque):
         return jnp.zeros(())
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
-        s_target, mu_target = self.target(m, theta_hat, model, car.radius)
+    def command(self, state, m, belief, car, dt, max_torque):
+        s_target, mu_target = self.target(m, belief, car.radius)
         integral, torque = track_slip(state, m, s_target, mu_target, car, dt, max_torque,
                                       self.kp, self.ki)
         return integral, torque, jnp.zeros((), int)
@@ -197,14 +201,14 @@ class SlipTracking(AbstractSlipTracking):
         check_nonnegative("SlipTracking", "kp", self.kp)
         check_nonnegative("SlipTracking", "ki", self.ki)
 
-    def target(self, m, theta_hat, model, radius):
-        tire = UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, model, theta_hat))
-        return self.slip, -tire.braking_mu(self.slip, jnp.maximum(m.v, 0.5))
+    def target(self, m, belief, radius):
+        return self.slip, -braking_curve(belief, self.slip, jnp.maximum(m.v, 0.5), radius)
 
 
 class PeakSlipTracking(AbstractSlipTracking):
-    r"""Target slip: `slip_scale` times the peak of eq. 19 at the estimated $\hat\theta$
-    and the measured speed; gains `kp` (60) and `ki` (600) as `SlipTracking`."""
+    r"""Target slip: `slip_scale` times the peak of the belief's steady-state curve at the
+    measured speed (eq. 19 at $\hat\theta$ for a `UniformLumpedLuGre` belief); gains `kp`
+    (60) and `ki` (600) as `SlipTracking`."""
 
     slip_scale: Float[Array, ""] = array_field(default=1.0)
     kp: Float[Array, ""] = array_field(default=60.0)
@@ -215,12 +219,11 @@ class PeakSlipTracking(AbstractSlipTracking):
         check_nonnegative("PeakSlipTracking", "kp", self.kp)
         check_nonnegative("PeakSlipTracking", "ki", self.ki)
 
-    def target(self, m, theta_hat, model, radius):
-        tire = UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, model, theta_hat))
+    def target(self, m, belief, radius):
         v = jnp.maximum(m.v, 0.5)
-        s_peak, _ = peak_braking(tire, v, radius)
+        s_peak, _ = peak_braking(belief, v, radius)
         s = jnp.clip(self.slip_scale * s_peak, -1.0, -1e-3)
-        return s, -tire.braking_mu(s, v)
+        return s, -braking_curve(belief, s, v, radius)
 
 
 def measurement(omega, v, omega_prev, radius, dt, brake_torque=0.0) -> Measurement:

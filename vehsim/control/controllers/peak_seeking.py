@@ -34,7 +34,6 @@ from jaxtyping import Array, Float
 
 from ..._checks import check_nonnegative, check_positive, check_range
 from ..._fields import array_field
-from ...tire.uniform_lumped import UniformLumpedLuGre
 from ..road.peak import braking_curve, peak_braking
 from .braking import AbstractBrakeController, track_slip
 
@@ -55,11 +54,6 @@ class PeakSeekingState(eqx.Module):
     cov: Float[Array, ""]
     engaged: Float[Array, ""]
     time: Float[Array, ""]
-
-
-def believed_tire(theta_hat, model):
-    """The tire the estimator believes in: the observer's model at $\\hat\\theta$."""
-    return UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, model, theta_hat))
 
 
 class PeakSeekingABS(AbstractBrakeController):
@@ -105,23 +99,22 @@ class PeakSeekingABS(AbstractBrakeController):
         cov = (1.0 - g) * (st.cov + g * d_lam * d_mu)
         return (weight, mean_slip, mean_mu, var, cov), cov / (var + self.variance_floor), w
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
+    def command(self, state, m, belief, car, dt, max_torque):
         st: PeakSeekingState = state
-        tire = believed_tire(theta_hat, model)
         r = car.radius
         v = jnp.maximum(m.v, 0.5)
         lam = -m.slip
         brake = m.brake_torque * jnp.tanh(m.omega / car.omega_eps)
         mu = (brake + car.inertia * m.wheel_accel / r) / (r * car.Fn_static)
         first = st.time == 0.0
-        lam_target = jnp.where(first, -peak_braking(tire, v, r)[0], st.target)
+        lam_target = jnp.where(first, -peak_braking(belief, v, r)[0], st.target)
         moments, slope, near = self._slope(st, 0.5 * (lam + st.slip), mu, lam_target, dt)
         step = st.engaged * near * self.rate * dt * jnp.tanh(slope / self.slope_scale)
         lam_target = jnp.clip(lam_target + step, self.min_slip, 1.0)
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
         s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
-        integral, torque = track_slip(st.integral, m, s, -braking_curve(tire, s, v, r), car, dt,
+        integral, torque = track_slip(st.integral, m, s, -braking_curve(belief, s, v, r), car, dt,
                                       max_torque, self.kp, self.ki)
         new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
         return new, torque, jnp.round(lam_target * 1000).astype(int)  # DEV

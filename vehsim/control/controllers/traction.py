@@ -7,8 +7,9 @@ delay stand for the engine's torque response). Slips are driving slips,
 $s = 1 - v/(r\omega)\in[0, 1)$.
 
 - `FullThrottle`: the drive torque `drive_torque` from the start (the wheel spins up).
-- `TractionControl`: the wheel speed held at $v/(1 - s^*)$, $s^*$ the peak of eq. 18 at the
-  estimated $\hat\theta$ and the measured speed (`peak_driving`), by the feedforward
+- `TractionControl`: the wheel speed held at $v/(1 - s^*)$, $s^*$ the peak of the belief's
+  driving curve (eq. 18 at $\hat\theta$ for a `UniformLumpedLuGre` belief) at the measured
+  speed (`peak_driving`), by the feedforward
   $T_{ff} = \hat\mu^*F_n(r + J/(mr(1 - s^*)))$ (the drive torque that balances the friction
   torque and accelerates the wheel with the car) plus PI feedback on the peripheral speed
   error, as `PeakSlipTracking` brakes.
@@ -18,13 +19,11 @@ The physical limit is `traction_limit`: the speed a point mass reaches at the dr
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ..._checks import check_nonnegative, check_positive
 from ..._fields import array_field
-from ...tire.uniform_lumped import UniformLumpedLuGre
 from ..experiments.scenarios import observer_for
 from ..plant.quarter_car import BrakingScenario, braking_quarter_car
 from ..road.peak import peak_driving
@@ -43,7 +42,7 @@ class FullThrottle(AbstractBrakeController):
     def init(self, max_torque):
         return jnp.zeros(())
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
+    def command(self, state, m, belief, car, dt, max_torque):
         return state, -self.drive_torque, jnp.zeros((), int)
 
 
@@ -66,10 +65,9 @@ class TractionControl(AbstractBrakeController):
     def init(self, max_torque):
         return jnp.zeros(())
 
-    def command(self, state, m, theta_hat, model, car, dt, max_torque):
-        tire = UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, model, theta_hat))
+    def command(self, state, m, belief, car, dt, max_torque):
         v = jnp.maximum(m.v, 0.5)
-        s_peak, mu_peak = peak_driving(tire, v)
+        s_peak, mu_peak = peak_driving(belief, v)
         s = jnp.clip(self.slip_scale * s_peak, 1e-3, 0.95)
         r = car.radius
         feedforward = mu_peak * car.Fn_static * (r + car.inertia / (car.mass * r * (1.0 - s)))

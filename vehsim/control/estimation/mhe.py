@@ -1,15 +1,21 @@
 r"""A moving-horizon estimator of the road condition: Levenberg-Marquardt through the simulator.
 
-Over a window of the last $N$ samples of a braking (measured wheel speeds at their time
-stamps, measured vehicle speeds, and the brake torque the actuator model gives for the
-commands), fit
-$$u = (\log\theta,\ [\log\mu_s,\ \log\mu_c],\ \bar z_0,\ \omega_0,\ v_0)$$
-so that the quarter car with the lumped tire (`UniformLumpedLuGre`), started from
-$(v_0, \omega_0, \bar z_0)$ at the window's start and driven by that torque, reproduces the
-measurements: residuals $(\omega(t_j) - \omega_j)/\sigma_\omega$ where the wheel speed is a
-measurement (`fresh`) and $(v(t_j) - v_j)/\sigma_v$. The simulation is the plant's own
-integrator (`integrate_sample`), so that on noise-free data of the lumped model the fit
-recovers $\theta$ to the solver's tolerance. Past the peak the wheel's dynamics are unstable
+Over a window of the last $N$ samples of a braking (a `BrakingRecord`: measured wheel speeds
+at their time stamps, measured vehicle speeds, and the brake torque the actuator model gives
+for the commands), fit
+$$u = (\log\theta,\ [\log\mu_s,\ \log\mu_c],\ \bar z_0/z_s,\ \omega_0,\ v_0)$$
+(the log-parameters of the assumed model, a parametrisation of
+`vehsim.control.estimation.parametrisation`: by default the lumped tire `UniformLumpedLuGre`
+with its $\theta$; any LuGre tire with a scalar friction state, or any such tire with a
+friction scale $\lambda$, and $z_s$ the model's typical deflection) so that the quarter car
+with the assumed tire, started from $(v_0, \omega_0, \bar z_0)$ at the window's start and
+driven by that torque, reproduces the measurements: residuals $(\omega(t_j) -
+\omega_j)/\sigma_\omega$ where the wheel speed is a measurement (`fresh`) and $(v(t_j) -
+v_j)/\sigma_v$. The simulation is the plant's own integrator (`integrate_sample`), so that
+on noise-free data of the assumed model the fit recovers $\theta$ to the solver's
+tolerance; on data of another tire it returns the assumed tire's best fit (biased: a
+uniform-load LuGre assumed for a constant-$\kappa_0$ tire reads $\theta$ about 20 % low on
+dry asphalt). Past the peak the wheel's dynamics are unstable
 and the fit has local minima, so it starts from `starts` values of $\theta$ spaced
 logarithmically over $[\theta_{min}, \theta_{max}]$ and keeps the best; optimistix's
 Levenberg-Marquardt solves every start of every window of a braking at once (`jax.vmap`).
@@ -42,77 +48,105 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ..._checks import check_positive
 from ..._fields import array_field
 from ..._optimality import max_gradient_cosine
 from ..._results import RESULTS, is_successful
-from ...tire.lugre import LuGreParams
-from ...tire.uniform_lumped import UniformLumpedLuGre, decay
 from ...vehicle.quarter_car import QuarterCar, QuarterCarState
 from ..plant.hardware import BrakeHardware
 from ..plant.integrate import SUBSTEPS, hermite, integrate_sample
 from .observer import _copy_rates
+from .parametrisation import AbstractRoadParametrisation, as_parametrisation, steady_state
 
 
-FREE_NAMES = ("theta", "mu_s", "mu_c")
 _DIFFERENCE_STEP = 1e-7
 _GTOL = 1e-6
 
 
+class BrakingRecord(eqx.Module):
+    r"""The signals of a braking an estimator reads, per control sample $k$ (length K):
+    the sample times `ts` [s], the brake `torque` [N m] the actuator applied at the sample
+    and the `target` it lagged towards over the sample (the actuator model's, for the
+    commands), the measured wheel speed `omega_meas` [rad/s] standing for time
+    `omega_stamp` [s] (a measurement only if `fresh`: a tone-wheel edge arrived in the
+    sample) and the measured vehicle speed `v_meas` [m/s]. `BrakingRecord.from_signals`
+    takes them from a saved run's signals (`BrakingRun.signals`)."""
+
+    ts: Float[Array, " K"]
+    torque: Float[Array, " K"]
+    target: Float[Array, " K"]
+    omega_stamp: Float[Array, " K"]
+    omega_meas: Float[Array, " K"]
+    v_meas: Float[Array, " K"]
+    fresh: Bool[Array, " K"]
+
+    @classmethod
+    def from_signals(cls, signals: dict) -> BrakingRecord:
+        """The record of a saved run's `signals` (a dict with these names)."""
+        return cls(**{n: jnp.asarray(signals[n]) for n in _WINDOW_SIGNALS})
+
+    def window(self, end, length: int) -> BrakingRecord:
+        """The `length` + 1 samples ending at index `end` (traceable)."""
+        return jax.tree_util.tree_map(
+            lambda a: jax.lax.dynamic_slice_in_dim(a, end - length, length + 1), self)
+
+
 class MHEResult(eqx.Module):
-    """Per window: the end time `ts` [s], the estimate `theta`, its standard error
-    `theta_se`, the final normalised cost `cost` and `result` (a `vehsim.RESULTS` item)."""
+    r"""Per window: the end time `ts` [s], the estimate `theta` (of the model's first
+    parameter: $\theta$, or $\lambda$ for a `FrictionScale`), its standard error
+    `theta_se`, the final normalised cost `cost`, `result` (a `vehsim.RESULTS` item) and
+    all the estimated parameters `values` (W, p: in the order of the model's `names`)."""
 
     ts: Float[Array, " W"]
     theta: Float[Array, " W"]
     theta_se: Float[Array, " W"]
     cost: Float[Array, " W"]
     result: RESULTS
+    values: Float[Array, "W p"]
 
 
 class MovingHorizonEstimator(eqx.Module):
     r"""The estimator of the module docstring.
 
-    **Fields:** `model` (`LuGreParams` of the tire; `mu_s`, `mu_c` are the initial
-    guesses), `theta_min`, `theta_max` (the range of the starts), `starts` (static, 5),
-    `window` (samples, static, 20), `free` (a subset of ``("theta", "mu_s", "mu_c")``
-    containing ``"theta"``, static), `wheel_noise` $\sigma_\omega$ [rad/s] (0.1),
-    `speed_noise` $\sigma_v$ [m/s] (0.05), `max_log_se` (0.1), `max_steps` (static, 40).
+    **Fields:** `model`, the assumed tire and what of it is estimated (an
+    `AbstractRoadParametrisation`: its prior values other than the first are the initial
+    guesses, e.g. `RoadCondition(tire, free=("theta", "mu_s"))`; given `LuGreParams`, the
+    `RoadCondition` of a `UniformLumpedLuGre` tire; a LuGre tire, its `RoadCondition`; any
+    other tire, its `FrictionScale`; the tire's friction state must be a scalar),
+    `theta_min`, `theta_max` (the range of the starts of the first parameter), `starts`
+    (static, 5), `window` (samples, static, 20), `wheel_noise` $\sigma_\omega$ [rad/s]
+    (0.1), `speed_noise` $\sigma_v$ [m/s] (0.05), `max_log_se` (0.1), `max_steps` (static,
+    40).
     """
 
-    model: LuGreParams
+    model: AbstractRoadParametrisation = eqx.field(converter=as_parametrisation)
     theta_min: Float[Array, ""] = array_field(default=0.3)
     theta_max: Float[Array, ""] = array_field(default=40.0)
     starts: int = eqx.field(static=True, default=5)
     window: int = eqx.field(static=True, default=20)
-    free: tuple[str, ...] = eqx.field(static=True, default=("theta",))
     wheel_noise: Float[Array, ""] = array_field(default=0.1)
     speed_noise: Float[Array, ""] = array_field(default=0.05)
     max_log_se: Float[Array, ""] = array_field(default=0.1)
     max_steps: int = eqx.field(static=True, default=40)
 
     def __check_init__(self):
-        if "theta" not in self.free or not set(self.free) <= set(FREE_NAMES):
-            raise ValueError(f"MovingHorizonEstimator.free must contain 'theta' and only "
-                             f"names of {FREE_NAMES}, got {self.free}")
+        state = self.model.belief(self.model.prior()).init_state()
+        if ravel_pytree(state)[0].shape != (1,):
+            raise ValueError("MovingHorizonEstimator.model must be a tire with a scalar "
+                             "friction state (the window's initial state is one unknown)")
         if self.window < 2:
             raise ValueError(f"MovingHorizonEstimator.window must be at least 2 samples, got "
                              f"{self.window}")
         for name in ("wheel_noise", "speed_noise", "max_log_se", "theta_min", "theta_max"):
             check_positive("MovingHorizonEstimator", name, getattr(self, name))
 
-    def _params(self, u):
-        values = {n: jnp.exp(u[i]) for i, n in enumerate(self.free)}
-        return eqx.tree_at(lambda p: [getattr(p, n) for n in values], self.model,
-                           list(values.values()))
-
-    def _simulate(self, u, car: QuarterCar, hardware: BrakeHardware, data):
+    def _simulate(self, u, car: QuarterCar, hardware: BrakeHardware, data: BrakingRecord):
         """Wheel speeds at the stamps and vehicle speeds at the samples 1..N of a window."""
-        k = len(self.free)
-        z_scale = self.model.mu_s / (self.model.theta * self.model.sigma0)
-        car = eqx.tree_at(lambda c: c.tire, car, UniformLumpedLuGre(self._params(u)))
+        k = len(self.model.names)
+        z_scale = self.model.state_scale()
+        car = eqx.tree_at(lambda c: c.tire, car, self.model.belief(u[:k]))
         y0, unravel = ravel_pytree(QuarterCarState(u[k + 2], u[k + 1], car.Fn_static,
                                                    z_scale * u[k]))
         T = hardware.sample_time
@@ -126,25 +160,23 @@ class MovingHorizonEstimator(eqx.Module):
                             r1[1])
             return y1, (omega, y1[0])
 
-        xs = (data["ts"][:-1], data["torque"][:-1], data["target"][:-1],
-              data["omega_stamp"][1:])
+        xs = (data.ts[:-1], data.torque[:-1], data.target[:-1], data.omega_stamp[1:])
         return jax.lax.scan(sample, y0, xs)[1]
 
     def _residuals(self, u, car, hardware, data):
         omega, v = self._simulate(u, car, hardware, data)
-        r_omega = jnp.where(data["fresh"][1:], (omega - data["omega_meas"][1:])
-                            / self.wheel_noise, 0.0)
-        return jnp.concatenate([r_omega, (v - data["v_meas"][1:]) / self.speed_noise])
+        r_omega = jnp.where(data.fresh[1:], (omega - data.omega_meas[1:]) / self.wheel_noise,
+                            0.0)
+        return jnp.concatenate([r_omega, (v - data.v_meas[1:]) / self.speed_noise])
 
-    def initial_guess(self, car: QuarterCar, data, theta):
-        """At road condition `theta`: the model's other values, the measured speeds at the
-        window's start and the steady friction state at the measured slip."""
-        v, omega = data["v_meas"][0], data["omega_meas"][0]
-        p = eqx.tree_at(lambda q: q.theta, self.model, theta)
-        z_ss = (car.radius * omega - v) / decay(p, v, omega, car.radius)
-        z_scale = self.model.mu_s / (self.model.theta * self.model.sigma0)
-        logs = [jnp.log(getattr(p, n)) for n in self.free]
-        return jnp.stack(logs + [z_ss / z_scale, omega, v])
+    def initial_guess(self, car: QuarterCar, data: BrakingRecord, theta):
+        """At the first parameter `theta`: the model's other values, the measured speeds at
+        the window's start and the steady friction state at the measured slip."""
+        v, omega = data.v_meas[0], data.omega_meas[0]
+        logs = self.model.prior().at[0].set(jnp.log(theta))
+        z_ss = steady_state(self.model.prior_with(theta), v, omega, car.radius)
+        z_scale = self.model.state_scale()
+        return jnp.concatenate([logs, jnp.stack([z_ss / z_scale, omega, v])])
 
     def _residuals_and_jacobian(self, u, car, hardware, data):
         """The residuals and their forward-difference Jacobian, one vmapped simulation."""
@@ -153,9 +185,14 @@ class MovingHorizonEstimator(eqx.Module):
         rs = jax.vmap(lambda v: self._residuals(v, car, hardware, data))(points)
         return rs[0], ((rs[1:] - rs[0][None]) / h[:, None]).T
 
-    def fit_window(self, car: QuarterCar, hardware: BrakeHardware, data):
-        """``(theta, theta_se, cost, result)`` of one window (`data`: the run's signals
-        over the window's N + 1 samples)."""
+    def fit_window(self, car: QuarterCar, hardware: BrakeHardware, data: BrakingRecord | dict):
+        """``(theta, theta_se, cost, result)`` of one window (`data`: the record of the
+        window's N + 1 samples, or a dict of its signals)."""
+        if not isinstance(data, BrakingRecord):
+            data = BrakingRecord.from_signals(data)
+        return self._fit(car, hardware, data)[:4]
+
+    def _fit(self, car, hardware, data: BrakingRecord):
 
         @jax.custom_jvp
         def residuals(u):
@@ -196,25 +233,27 @@ class MovingHorizonEstimator(eqx.Module):
         # (non-finite values, a linear solve) stands: its point says nothing
         judged = is_successful(solved) | (solved == RESULTS.nonlinear_max_steps_reached)
         result = RESULTS.where(identifiable | ~judged, solved, RESULTS.not_identifiable)
-        return theta, theta_se, jnp.sum(r * r) / r.shape[0], result
+        k = len(self.model.names)
+        return theta, theta_se, jnp.sum(r * r) / r.shape[0], result, jnp.exp(u[:k])
 
-    def estimate(self, car: QuarterCar, hardware: BrakeHardware, signals: dict, ends) -> MHEResult:
+    def estimate(self, car: QuarterCar, hardware: BrakeHardware,
+                 record: BrakingRecord | dict, ends) -> MHEResult:
         """Fit the windows ending at the sample indices `ends` (each at least `window`) of
-        a saved run's `signals`, all in one vmapped, jitted call (compiled once per window,
-        run length and number of windows)."""
-        data = {n: jnp.asarray(signals[n]) for n in _WINDOW_SIGNALS}
-        return _estimate(self, car, hardware, data, jnp.asarray(ends))
+        a `BrakingRecord` (or a saved run's `signals`), all in one vmapped, jitted call
+        (compiled once per window, run length and number of windows)."""
+        if not isinstance(record, BrakingRecord):
+            record = BrakingRecord.from_signals(record)
+        return _estimate(self, car, hardware, record, jnp.asarray(ends))
 
 
 _WINDOW_SIGNALS = ("ts", "torque", "target", "omega_stamp", "omega_meas", "v_meas", "fresh")
 
 
 @eqx.filter_jit
-def _estimate(mhe: MovingHorizonEstimator, car, hardware, signals, ends) -> MHEResult:
+def _estimate(mhe: MovingHorizonEstimator, car, hardware, record: BrakingRecord,
+              ends) -> MHEResult:
     def one(end):
-        data = {n: jax.lax.dynamic_slice_in_dim(signals[n], end - mhe.window, mhe.window + 1)
-                for n in _WINDOW_SIGNALS}
-        return mhe.fit_window(car, hardware, data)
+        return mhe._fit(car, hardware, record.window(end, mhe.window))
 
-    theta, se, cost, result = jax.vmap(one)(ends)
-    return MHEResult(signals["ts"][ends], theta, se, cost, result)
+    theta, se, cost, result, values = jax.vmap(one)(ends)
+    return MHEResult(record.ts[ends], theta, se, cost, result, values)

@@ -1,18 +1,22 @@
-r"""A nonlinear observer of the friction state with an adaptive road condition $\theta$.
+r"""A nonlinear observer of the friction state with an adaptive road parameter.
 
 In the line of Canudas de Wit and Tsiotras (CDC 1999) and Canudas de Wit, Horowitz and
-Tsiotras (1999, the report's ref. [35]): a copy of the wheel and the lumped tire (eqs.
-22-23, `UniformLumpedLuGre` at the estimate $\hat\theta$) runs beside the plant under the
-known brake torque, its wheel speed is corrected by the measured one (output injection), and
-$\theta$ is adapted from the wheel-speed innovation. Per sample $k$ (period $T$):
+Tsiotras (1999, the report's ref. [35]): a copy of the wheel and the assumed tire (a
+parametrisation, `vehsim.control.estimation.parametrisation`: by default the lumped tire of
+eqs. 22-23, `UniformLumpedLuGre`, at the estimate $\hat\theta$; any LuGre tire with its
+$\theta$, or any tire with a friction scale $\lambda$) runs beside the plant under the known
+brake torque, its wheel speed is corrected by the measured one (output injection), and the
+log-parameter $\vartheta$ ($\log\hat\theta$, or $\log\hat\lambda$) is adapted from the
+wheel-speed innovation. Per sample $k$ (period $T$):
 
 1. *predict*: integrate the copy $(\hat v, \hat\omega, F_n, \hat z)$ over the sample from
    $\hat v_{k-1}$, $\hat\omega_{k-1}$ and $\hat z_{k-1}$, under the brake torque the
    actuator model gives for the commands (the plant's integrator, so that the copy is exact
-   when $\hat\theta = \theta$), giving $\hat\omega_k^-$, $\hat z_k$, and the copy's wheel
-   speed $\hat\omega^-(t_m)$ at the time $t_m$ the measurement stands for (the midpoint of
-   the last tone-wheel edge interval, `vehsim.control.plant.sensors`; linear between sub-steps);
-2. *adapt* $\vartheta = \log\hat\theta$ by recursive least squares on the innovation
+   when the assumed tire is the plant's), giving $\hat\omega_k^-$, $\hat z_k$, and the copy's
+   wheel speed $\hat\omega^-(t_m)$ at the time $t_m$ the measurement stands for (the midpoint
+   of the last tone-wheel edge interval, `vehsim.control.plant.sensors`; linear between
+   sub-steps);
+2. *adapt* $\vartheta$ by recursive least squares on the innovation
    $e = \omega_m - \hat\omega^-(t_m)$ with the regressor $\phi = \partial\hat\omega^-(t_m)/
    \partial\vartheta$ (carried through the copy by sensitivity states; the directional
    derivative by forward-mode differentiation through the copy's integrator, exact in
@@ -32,11 +36,15 @@ $\theta$ is adapted from the wheel-speed innovation. Per sample $k$ (period $T$)
    \hat v_k^-)$ with the measured (noisy) vehicle speed $v_k$: a filtered speed, which the
    controllers use.
 
-The measured wheel speed only counts when a tone-wheel edge arrived in the sample (a locked
-wheel sends none; its speed estimate is then a bound, not a measurement). The regressor is
-small where the force does not depend on $\theta$ (at small slip the curves of all roads
-share their slope, eq. 19): there the gain vanishes and the estimate holds; with a constant
-speed and no braking nothing is identifiable, and nothing moves.
+**Assumes** the plant's tire is the assumed one at some value of the parameter: the
+estimate is that value where it is, and the best-fitting value of the wrong shape where it
+is not (biased: a uniform-load LuGre assumed for a constant-$\kappa_0$ tire reads $\theta$
+about 20 % low on dry asphalt). **Blind** (the estimate holds) where the data carry no
+information: the measured wheel speed only counts when a tone-wheel edge arrived in the
+sample (a locked wheel sends none; its speed estimate is then a bound, not a measurement);
+the regressor is small where the force does not depend on the parameter (at small slip the
+curves of all roads share their slope, eq. 19): there the gain vanishes and the estimate
+holds; with a constant speed and no braking nothing is identifiable, and nothing moves.
 """
 
 from __future__ import annotations
@@ -45,28 +53,30 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, PyTree
 
 from ..._checks import check_positive, check_range, is_concrete
 from ..._fields import array_field
-from ...tire.lugre import LuGreParams
-from ...tire.uniform_lumped import UniformLumpedLuGre
+from ...tire.lugre import AbstractLongitudinalTire
 from ...vehicle.quarter_car import QuarterCar, QuarterCarState
 from ..plant.hardware import BrakeHardware, brake_torque
 from ..plant.integrate import hermite, integrate_sample
+from .base import AbstractFrictionEstimator
+from .parametrisation import AbstractRoadParametrisation, as_parametrisation
 
 
 class ObserverState(eqx.Module):
-    r"""$\hat z$, $\hat\omega$, $\hat v$, $\vartheta = \log\hat\theta$, its covariance
-    $P$, the sensitivities $\partial(\hat\omega, \hat z, \hat v)/\partial\vartheta$, the
-    last innovation and the change detector's statistic $g$."""
+    r"""$\hat z$ (the assumed tire's friction state), $\hat\omega$, $\hat v$, $\vartheta =
+    \log\hat\theta$ (the log of the estimated parameter, $\theta$ or $\lambda$), its
+    covariance $P$, the sensitivities $\partial(\hat\omega, \hat z, \hat v)/\partial
+    \vartheta$, the last innovation and the change detector's statistic $g$."""
 
-    z: Float[Array, ""]
+    z: PyTree
     omega: Float[Array, ""]
     v: Float[Array, ""]
     log_theta: Float[Array, ""]
     covariance: Float[Array, ""]
-    sensitivity: Float[Array, " 3"]
+    sensitivity: Float[Array, " n"]
     innovation: Float[Array, ""]
     change_statistic: Float[Array, ""]
 
@@ -81,11 +91,14 @@ def _copy_rates(t, y, args):
     return ravel_pytree(car.dynamics(t, qs, brake_torque(hardware, torque0, target, t - t0)))[0]
 
 
-class FrictionObserver(eqx.Module):
+class FrictionObserver(AbstractFrictionEstimator):
     r"""The observer of the module docstring.
 
-    **Fields:** `model` (`LuGreParams` of the tire; its `theta` is the prior $\hat\theta_0$),
-    `theta_min`, `theta_max` (the projection range, containing the prior), `forgetting`
+    **Fields:** `model`, the assumed tire and its estimated parameter (an
+    `AbstractRoadParametrisation` with one parameter, whose prior is $\hat\theta_0$; given
+    `LuGreParams`, the `RoadCondition` of a `UniformLumpedLuGre` tire; a LuGre tire, its
+    `RoadCondition`; any other tire, its `FrictionScale`), `theta_min`, `theta_max` (the
+    projection range of the estimated parameter, containing the prior), `forgetting`
     $\lambda\in(0, 1]$ (0.98), `initial_covariance` $P_0$ (1, in $(\log\theta)^2$),
     `max_covariance` $P_{max}$ (10), `noise_variance` $R$ of the wheel-speed innovation
     [rad^2/s^2] (0.05), `max_step` $\Delta_{max}$ (0.2), `injection` $L\in[0, 1]$ (0.5),
@@ -93,7 +106,7 @@ class FrictionObserver(eqx.Module):
     $\delta$ (20) and `change_threshold` $h$ (200; `inf` turns it off).
     """
 
-    model: LuGreParams
+    model: AbstractRoadParametrisation = eqx.field(converter=as_parametrisation)
     theta_min: Float[Array, ""] = array_field(default=0.3)
     theta_max: Float[Array, ""] = array_field(default=40.0)
     forgetting: Float[Array, ""] = array_field(default=0.98)
@@ -108,10 +121,14 @@ class FrictionObserver(eqx.Module):
 
     def __check_init__(self):
         owner = "FrictionObserver"
+        if len(self.model.names) != 1:
+            raise ValueError(f"FrictionObserver.model must estimate one parameter, got "
+                             f"{self.model.names}")
         check_positive(owner, "theta_min", self.theta_min)
-        if is_concrete(self.theta_min) and is_concrete(self.theta_max):
+        prior = jnp.exp(self.model.prior()[0])
+        if is_concrete(self.theta_min) and is_concrete(self.theta_max) and is_concrete(prior):
             check_range(owner, "theta_max", self.theta_max, lower=float(self.theta_min))
-            check_range(owner, "model.theta (the prior)", self.model.theta,
+            check_range(owner, f"model.{self.model.names[0]} (the prior)", prior,
                         lower=float(self.theta_min), upper=float(self.theta_max))
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
@@ -124,21 +141,37 @@ class FrictionObserver(eqx.Module):
     def init(self, omega0, v0) -> ObserverState:
         """Undeflected tire, the measured speeds, the prior $\\hat\\theta_0$."""
         z = jnp.zeros(())
-        return ObserverState(z, jnp.asarray(omega0, dtype=float), jnp.asarray(v0, dtype=float),
-                             jnp.log(self.model.theta), self.initial_covariance, jnp.zeros(3), z,
-                             z)
+        log_prior = self.model.prior()[0]
+        tire_state = self.belief_at(log_prior).init_state()
+        n = ravel_pytree(tire_state)[0].shape[0]
+        return ObserverState(tire_state, jnp.asarray(omega0, dtype=float),
+                             jnp.asarray(v0, dtype=float), log_prior, self.initial_covariance,
+                             jnp.zeros(n + 2), z, z)
+
+    def belief(self, state: ObserverState) -> AbstractLongitudinalTire:
+        """The tire the observer believes in at `state`: its model at the estimate."""
+        return self.belief_at(state.log_theta)
+
+    def signals(self, state: ObserverState) -> dict:
+        """The filtered speed `v_hat`, the estimate `theta_hat`, the wheel-speed
+        `innovation` and the covariance `theta_covariance` of the estimate's log."""
+        return dict(v_hat=state.v, theta_hat=state.theta, innovation=state.innovation,
+                    theta_covariance=state.covariance)
+
+    def belief_at(self, log_theta) -> AbstractLongitudinalTire:
+        """The assumed tire at the log-parameter `log_theta` (a scalar)."""
+        return self.model.belief(log_theta[None])
 
     def _predict(self, car: QuarterCar, hardware: BrakeHardware, substeps, v, omega, z, log_theta,
                  torque0, target, t0, stamp):
         """Step 1: ``(omega(stamp), omega_k^-, z_k, v_k^-)`` of the copy at $\\hat\\theta =
         e^\\vartheta$ (the stamp clipped to the sample)."""
-        tire = UniformLumpedLuGre(eqx.tree_at(lambda p: p.theta, self.model,
-                                              jnp.exp(log_theta)))
-        car = eqx.tree_at(lambda c: c.tire, car, tire)
+        car = eqx.tree_at(lambda c: c.tire, car, self.belief_at(log_theta))
         y, unravel = ravel_pytree(QuarterCarState(v, omega, car.Fn_static, z))
         args = (car, unravel, hardware, torque0, target, t0)
         T = hardware.sample_time
-        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, ((0, 1, 3),), substeps)
+        block = (0, 1) + tuple(range(3, y.shape[0]))
+        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, (block,), substeps)
         rate0, rate1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
         tau = jnp.clip((stamp - t0) / T, 0.0, 1.0)
         at_stamp = hermite(tau, T, y[1], y1[1], rate0[1], rate1[1])
@@ -151,15 +184,21 @@ class FrictionObserver(eqx.Module):
         `torque0` lagging towards `target`), compared with the measured wheel speed `omega`
         standing for time `stamp` (a measurement only if `fresh`) and the measured vehicle
         speed `v` at the sample's end."""
-        x = jnp.stack([state.omega, state.z, state.v, state.log_theta])
+        z_flat, unravel = ravel_pytree(state.z)
+        n = z_flat.shape[0]
+        x = jnp.concatenate([state.omega[None], z_flat, state.v[None], state.log_theta[None]])
         d = jnp.concatenate([state.sensitivity, jnp.ones(1)])
 
         def predict(x):
-            return jnp.stack(self._predict(car, hardware, substeps, x[2], x[0], x[1], x[3], torque0,
-                                           target, t0, stamp))
+            at_stamp, omega_end, z_end, v_end = self._predict(
+                car, hardware, substeps, x[n + 1], x[0], unravel(x[1:n + 1]), x[n + 2], torque0,
+                target, t0, stamp)
+            return jnp.concatenate([at_stamp[None], omega_end[None], ravel_pytree(z_end)[0],
+                                    v_end[None]])
 
-        (omega_m, omega_pred, z, v_pred), (d_omega, d_end, dz, dv) = jax.jvp(predict, (x,),
-                                                                              (d,))
+        out, d_out = jax.jvp(predict, (x,), (d,))
+        omega_m, omega_pred, z, v_pred = out[0], out[1], unravel(out[2:n + 2]), out[n + 2]
+        d_omega, d_end, dz, dv = d_out[0], d_out[1], d_out[2:n + 2], d_out[n + 2]
         e = jnp.where(fresh, omega - omega_m, 0.0)
         P = state.covariance
         nis = e * e / (self.noise_variance + d_omega * d_omega * P)
@@ -178,5 +217,6 @@ class FrictionObserver(eqx.Module):
         L = jnp.where(fresh, self.injection, 0.0)
         omega_hat = jnp.where(fresh, omega_pred + L * e, jnp.minimum(omega_pred, omega))
         v_hat = v_pred + self.speed_injection * (v - v_pred)
-        sensitivity = jnp.stack([(1.0 - L) * d_end, dz, (1.0 - self.speed_injection) * dv])
+        sensitivity = jnp.concatenate([((1.0 - L) * d_end)[None], dz,
+                                       ((1.0 - self.speed_injection) * dv)[None]])
         return ObserverState(z, omega_hat, v_hat, log_theta, P, sensitivity, e, g)

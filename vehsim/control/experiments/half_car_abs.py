@@ -118,7 +118,7 @@ def _sample(sc, controllers, hardware, key, st: TurnState, k):
     cmds, phases, new_ctrl = [], [], []
     for i, controller in enumerate(controllers):
         m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T)
-        c, cmd, phase = controller.command(st.controllers[i], m, None, None, None, T,
+        c, cmd, phase = controller.command(st.controllers[i], m, None, None, T,
                                            hardware.max_torque)
         new_ctrl.append(c)
         cap = hardware.max_torque * (1.0 if i == 0 else sc.rear_share)

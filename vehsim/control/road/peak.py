@@ -5,7 +5,8 @@ r"""The peak of a tire's steady-state force-slip curve at a given speed.
 lumped steady state for `LumpedLuGre`, the formula itself for `RelaxedMagicFormula` (its
 transient slip tends to $v_r/|v| = s$), one linear solve for `DistributedLuGre`, and for
 any other tire (`MFLongitudinalTire`, `RelaxedBurckhardt`, ...) its state brought to rest
-at fixed slip and speed by Newton's method (`solve_steady_state`).
+at fixed slip and speed by Newton's method (`solve_steady_state`); for `ScaledFriction`
+$\lambda$ times the wrapped tire's at $s/\rho$.
 `driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
 `peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
 near zero slip, where the peaks are) and a golden-section search inside the best grid
@@ -23,6 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from ...tire.lugre import AbstractLongitudinalTire
+from ...tire.scaled import ScaledFriction
 from ...tire.uniform_lumped import UniformLumpedLuGre
 
 
@@ -35,6 +37,9 @@ def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
     r"""Steady-state $\mu = F/F_n$ at braking slip `s` and speed `v` [m/s] of any
     `AbstractLongitudinalTire` (module docstring; the wheel radius `r` [m] fixes
     $\omega = (1 + s)v/r$ where the model needs it). Negative: a braking force."""
+    if isinstance(tire, ScaledFriction):
+        p = tire.params
+        return p.scale * braking_curve(tire.tire, s / p.slip_scale, v, r)
     return tire.braking_mu(s, v, r)
 
 

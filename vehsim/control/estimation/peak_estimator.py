@@ -1,0 +1,246 @@
+r"""A shape-free estimator of the force-slip curve's peak: measured friction against measured
+slip, fitted by recursive least squares on a moving window.
+
+**Measured friction.** The wheel's dynamics $J\dot\omega = -rF_x - T_b\tanh(\omega/
+\omega_\epsilon)$ (`QuarterCar`) give the friction force from the known brake torque and the
+measured wheel acceleration: between two fresh tone-wheel measurements $\omega_{k-1}$,
+$\omega_k$ (standing for their time stamps),
+$$\mu_k = -\frac{J(\omega_k - \omega_{k-1})/\Delta t + \bar T_b\tanh(\omega_k/\omega_\epsilon)}
+  {rF_n},$$
+$\bar T_b$ the mean brake torque over the sample (the actuator model's, Simpson's rule). The
+vehicle speed is filtered with the measured friction, $\hat v^-_k = \hat v_{k-1} +
+\mu_kF_nT/m$ ($m\dot v = F_x$), $\hat v_k = \hat v_k^- + L_v(v_k - \hat v_k^-)$, and the
+braking slip is $\lambda_k = 1 - r\omega_k/\hat v_k$. Nothing here assumes a tire model.
+
+**The curve.** $|\mu|$ against $\lambda$ is fitted by Burckhardt's family
+$$|\mu| = c_1(1 - e^{-c_2\lambda}) - c_3\lambda,$$
+a flexible three-parameter curve (a rise to a peak or a plateau and a linear fall; it
+describes dry, wet, snowy and icy roads alike, `vehsim.tire.burckhardt`): linear in
+$(c_1, c_3)$ for a given $c_2$, so a bank of recursive least-squares filters, one per $c_2$
+of a logarithmic grid, each with forgetting $\gamma$ (a moving window of about
+$1/(1-\gamma)$ samples) and its covariance bounded (no wind-up), and the member of the
+smallest exponentially weighted squared prediction error is the estimate. Its peak is
+$$\lambda^* = \frac{\ln(c_1c_2/c_3)}{c_2},\qquad \mu^* = c_1(1 - e^{-c_2\lambda^*}) -
+c_3\lambda^*$$
+(a curve still rising at $\lambda = 1$: $\lambda^* = 1$), and its slope at the measured slip
+$d|\mu|/d\lambda = c_1c_2e^{-c_2\lambda} - c_3$ (> 0 below the peak).
+
+**Assumes** the curve is a steady-state one (the tire's transient lags the slip by its
+relaxation, $L/|\omega r|$, a few milliseconds at speed) and that the family fits it near
+the data; the peak is extrapolated from the data, so it is only measured where the slip has
+been near it (an ABS cycling through the peak; a peak-seeking controller). **Blind** (the
+estimate holds) on a locked wheel (no tone-wheel edges: no measured acceleration), below
+`min_slip` (all roads share the initial slope: the friction level is not in the data) and
+below `min_speed`; at a constant slip the data hold no slope, and the fit only moves along
+the curves through the measured point (the bounded covariance keeps it from winding up).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ..._checks import check_positive, check_range
+from ..._fields import array_field
+from ..._math import safe_abs
+from ...tire.lugre import AbstractLongitudinalTire, relative_velocity
+from ...vehicle.quarter_car import QuarterCar
+from ..plant.hardware import BrakeHardware, brake_torque
+from .base import AbstractFrictionEstimator
+
+
+GRAVITY = 9.81
+
+
+def burckhardt_peak(c1, c2, c3):
+    r"""$(\lambda^*, \mu^*)$ of $c_1(1 - e^{-c_2\lambda}) - c_3\lambda$ on $[0, 1]$ (module
+    docstring; $\lambda^* = 1$ where the curve still rises there, 0 where it never rises)."""
+    rises = c1 * c2 > c3
+    interior = rises & (c3 > 0) & (c1 * c2 * jnp.exp(-c2) < c3)
+    ratio = jnp.where(interior, c1 * c2 / jnp.where(interior, c3, 1.0), jnp.e)
+    lam = jnp.where(interior, jnp.log(ratio) / c2, jnp.where(rises, 1.0, 0.0))
+    return lam, c1 * (1.0 - jnp.exp(-c2 * lam)) - c3 * lam
+
+
+class BurckhardtBelief(AbstractLongitudinalTire):
+    r"""The tire the peak estimator believes in: Burckhardt's curve $(c_1, c_2, c_3)$ as the
+    steady state of a transient slip with relaxation length `relaxation_length` (0.25 m),
+    $\dot u = v_r - |v|u/\sigma$, $\mu = \operatorname{sign}(u)\,\mu_B(|u|/\sigma)$ (as
+    `RelaxedMagicFormula`). `params` holds $(c_1, c_2, c_3)$."""
+
+    params: Float[Array, " 3"]
+    relaxation_length: Float[Array, ""] = array_field(default=0.25)
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def dynamics(self, state, v, omega, r):
+        return relative_velocity(v, omega, r) - safe_abs(v) * state / self.relaxation_length
+
+    def _curve(self, s):
+        c1, c2, c3 = self.params
+        lam = jnp.minimum(safe_abs(s), 1.0)
+        return jnp.sign(s) * (c1 * (1.0 - jnp.exp(-c2 * lam)) - c3 * lam)
+
+    def mu(self, state, v, omega, r):
+        return self._curve(state / self.relaxation_length)
+
+    def steady_state_mu(self, v, omega, r):
+        """$\\mu_B$ at the slip $v_r/|v|$ (with the sign of $v_r$)."""
+        return self._curve(relative_velocity(v, omega, r) / jnp.maximum(safe_abs(v), 1e-9))
+
+
+class PeakEstimatorState(eqx.Module):
+    r"""The filtered speed `v` [m/s]; the last fresh wheel speed `omega` [rad/s], its
+    `stamp` [s] and whether one has been seen (`primed`); the measured friction `mu` and
+    braking slip `slip` of the last update; per member of the bank the coefficients
+    `coefficients` $(c_1, c_3)$, their `covariance` and the weighted squared prediction
+    error `error`; and the estimate: the `best` member, the `peak_slip` $s^* < 0$, the
+    `peak_mu` $\mu^* > 0$ and the `slope` $d|\mu|/d\lambda$ at the measured slip."""
+
+    v: Float[Array, ""]
+    omega: Float[Array, ""]
+    stamp: Float[Array, ""]
+    primed: Array
+    mu: Float[Array, ""]
+    slip: Float[Array, ""]
+    coefficients: Float[Array, "G 2"]
+    covariance: Float[Array, "G 2 2"]
+    error: Float[Array, " G"]
+    best: Int[Array, ""]
+    peak_slip: Float[Array, ""]
+    peak_mu: Float[Array, ""]
+    slope: Float[Array, ""]
+
+
+def _default_grid():
+    return np.geomspace(4.0, 320.0, 12)
+
+
+class PeakEstimator(AbstractFrictionEstimator):
+    r"""The estimator of the module docstring.
+
+    **Fields:** `prior` $(c_1, c_2, c_3)$ (dry asphalt's, (1.2801, 23.99, 0.52): every member
+    starts from $(c_1, c_3)$ of it, the prior's $c_2$ member as the best), `shapes` the grid
+    of $c_2$ (12 values from 4 to 320, static length), `forgetting` $\gamma\in(0, 1]$ (0.98),
+    `noise_variance` $R$ of the measured friction (1e-4), `initial_covariance` (1),
+    `max_covariance` (the bound of each diagonal entry, 10), `speed_injection`
+    $L_v\in[0, 1]$ (0.05), `min_slip` (0.01), `min_speed` [m/s] (3), `relaxation_length` of
+    the belief [m] (0.25).
+    """
+
+    prior: Float[Array, " 3"] = array_field(default=(1.2801, 23.99, 0.52))
+    shapes: Float[Array, " G"] = array_field(default_factory=_default_grid)
+    forgetting: Float[Array, ""] = array_field(default=0.98)
+    noise_variance: Float[Array, ""] = array_field(default=1e-4)
+    initial_covariance: Float[Array, ""] = array_field(default=1.0)
+    max_covariance: Float[Array, ""] = array_field(default=10.0)
+    speed_injection: Float[Array, ""] = array_field(default=0.05)
+    min_slip: Float[Array, ""] = array_field(default=0.01)
+    min_speed: Float[Array, ""] = array_field(default=3.0)
+    relaxation_length: Float[Array, ""] = array_field(default=0.25)
+
+    def __check_init__(self):
+        owner = "PeakEstimator"
+        check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
+                    lower_open=True)
+        check_range(owner, "speed_injection", self.speed_injection, lower=0.0, upper=1.0)
+        for name in ("shapes", "noise_variance", "initial_covariance", "max_covariance",
+                     "min_slip", "min_speed", "relaxation_length"):
+            check_positive(owner, name, getattr(self, name))
+
+    def _estimate(self, coefficients, error, slip):
+        best = jnp.argmin(error)
+        c1, c3 = coefficients[best, 0], coefficients[best, 1]
+        c2 = self.shapes[best]
+        lam_star, mu_star = burckhardt_peak(c1, c2, c3)
+        slope = c1 * c2 * jnp.exp(-c2 * slip) - c3
+        return best, -lam_star, mu_star, slope
+
+    def init(self, omega0, v0) -> PeakEstimatorState:
+        """The measured speeds; every member at the prior, the prior's nearest member the
+        best."""
+        G = self.shapes.shape[0]
+        c = jnp.broadcast_to(jnp.stack([self.prior[0], self.prior[2]]), (G, 2))
+        P = jnp.broadcast_to(self.initial_covariance * jnp.eye(2), (G, 2, 2))
+        error = jnp.abs(jnp.log(self.shapes / self.prior[1])) * 1e-9
+        z = jnp.zeros(())
+        best, s_star, mu_star, slope = self._estimate(c, error, z)
+        return PeakEstimatorState(jnp.asarray(v0, dtype=float), jnp.asarray(omega0, dtype=float),
+                                  z, jnp.asarray(False), z, z, c, P, error, best, s_star,
+                                  mu_star, slope)
+
+    def update(self, state: PeakEstimatorState, car: QuarterCar, hardware: BrakeHardware,
+               substeps: int, v, omega, stamp, fresh, torque0, target, t0):
+        """One sample (`AbstractFrictionEstimator.update`; `substeps` unused)."""
+        T = hardware.sample_time
+        torque = (brake_torque(hardware, torque0, target, 0.0)
+                  + 4.0 * brake_torque(hardware, torque0, target, 0.5 * T)
+                  + brake_torque(hardware, torque0, target, T)) / 6.0
+        dt = stamp - state.stamp
+        valid_rate = fresh & state.primed & (dt > 0)
+        accel = jnp.where(valid_rate, (omega - state.omega) / jnp.where(valid_rate, dt, 1.0), 0.0)
+        Fn, r = car.Fn_static, car.radius
+        mu = -(car.inertia * accel + torque * jnp.tanh(omega / car.omega_eps)) / (r * Fn)
+        v_pred = state.v + jnp.where(valid_rate, mu * Fn * T / car.mass, 0.0)
+        v_hat = v_pred + self.speed_injection * (v - v_pred)
+        slip = jnp.clip(1.0 - r * omega / jnp.maximum(v_hat, 1e-3), 0.0, 1.0)
+        informative = valid_rate & (slip > self.min_slip) & (v_hat > self.min_speed)
+
+        y = -mu
+        phi = jnp.stack([1.0 - jnp.exp(-self.shapes * slip), -slip * jnp.ones_like(self.shapes)],
+                        axis=-1)  # (G, 2)
+        P = state.covariance
+        prediction = jnp.sum(phi * state.coefficients, axis=-1)
+        e = y - prediction
+        Pphi = jnp.einsum("gij,gj->gi", P, phi)
+        gain = Pphi / (self.noise_variance + jnp.sum(phi * Pphi, axis=-1))[:, None]
+        coefficients = state.coefficients + gain * e[:, None]
+        P_new = (P - gain[:, :, None] * Pphi[:, None, :]) / self.forgetting
+        P_new = 0.5 * (P_new + jnp.swapaxes(P_new, 1, 2))
+        # bounded covariance: scale each member's matrix so its diagonal stays below the bound
+        scale = jnp.minimum(1.0, self.max_covariance / jnp.max(
+            jnp.diagonal(P_new, axis1=1, axis2=2), axis=-1))
+        P_new = P_new * scale[:, None, None]
+        error = self.forgetting * state.error + (1.0 - self.forgetting) * e * e
+
+        keep = lambda new, old: jnp.where(informative, new, old)  # noqa: E731
+        coefficients = keep(coefficients, state.coefficients)
+        P_new = keep(P_new, P)
+        error = keep(error, state.error)
+        best, s_star, mu_star, slope = self._estimate(coefficients, error, slip)
+        return PeakEstimatorState(
+            v_hat, jnp.where(fresh, omega, state.omega), jnp.where(fresh, stamp, state.stamp),
+            state.primed | fresh, jnp.where(valid_rate, mu, state.mu), slip, coefficients,
+            P_new, error, best, s_star, mu_star, slope)
+
+    def belief(self, state: PeakEstimatorState) -> BurckhardtBelief:
+        """The best member's curve as a tire (`BurckhardtBelief`): `peak_braking` of it is
+        the state's peak."""
+        c = state.coefficients[state.best]
+        return BurckhardtBelief(jnp.stack([c[0], self.shapes[state.best], c[1]]),
+                                self.relaxation_length)
+
+    def signals(self, state: PeakEstimatorState) -> dict:
+        """The filtered speed `v_hat`, the measured friction `mu_meas` and slip
+        `slip_meas`, and the estimate: `peak_slip`, `peak_mu`, `slope`."""
+        return dict(v_hat=state.v, mu_meas=state.mu, slip_meas=-state.slip,
+                    peak_slip=state.peak_slip, peak_mu=state.peak_mu, slope=state.slope)
+
+
+def estimate_peaks(estimator: PeakEstimator, car: QuarterCar, hardware: BrakeHardware,
+                   record) -> PeakEstimatorState:
+    """The estimator run over a recorded braking (a `BrakingRecord`): its state after every
+    sample (leading axis: samples)."""
+    def step(state, k):
+        new = estimator.update(state, car, hardware, 0, record.v_meas[k], record.omega_meas[k],
+                               record.omega_stamp[k], record.fresh[k], record.torque[k - 1],
+                               record.target[k - 1], record.ts[k - 1])
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(k > 0, a, b), new, state)
+        return new, new
+
+    state0 = estimator.init(record.omega_meas[0], record.v_meas[0])
+    return jax.lax.scan(step, state0, jnp.arange(record.ts.shape[0]))[1]
