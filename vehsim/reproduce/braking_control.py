@@ -111,10 +111,11 @@ def reproduce(ctx) -> None:
     ctx.figure(braking_figure(signals, "wet asphalt from 30 m/s"), "braking_wet_asphalt",
                "Estimate-based ABS and a locked wheel on wet asphalt from 30 m/s")
     ctx.text(NOTES)
+    _mismatch(ctx, hardware)
     if ctx.quick:
-        ctx.text("Quick mode: three surfaces. `vehsim reproduce --full --only braking_control` "
-                 "adds every surface, surface changes, ideal hardware, the estimators with and "
-                 "without noise, the Magic Formula tire, traction control, ABS in a turn and "
+        ctx.text("Quick mode: three surfaces, the two Magic Formula tires. `vehsim reproduce "
+                 "--full --only braking_control` adds every surface, every tire, surface "
+                 "changes, ideal hardware, the estimators with and without noise, the Magic Formula tire, traction control, ABS in a turn and "
                  "the gain tuning.")
         return
     changes = [tuple(c) for c in CHANGES]
@@ -154,6 +155,44 @@ def _surface_of(scenario):
     sigma0 = float(scenario.car.tire.params.sigma0)
     return next(n for n in SURFACES if abs(float(surface(n).params.theta) - theta) < 1e-9
                 and abs(float(surface(n).params.sigma0) - sigma0) < 1e-9)
+
+
+QUICK_MISMATCH = ("mf_sharp", "mf_low_flat")
+"""The other-shape tires of the quick mode's mismatch table (one grid)."""
+
+
+def _mismatch(ctx, hardware):
+    """Tires (named surfaces and other shapes) x controllers, distance over the limits;
+    quick mode: the two Magic Formulas on the realistic hardware."""
+    from ..control.experiments.mismatch import mismatch_table
+    from ..control.experiments.tires import OTHER_TIRES, other_tire
+
+    others = QUICK_MISMATCH if ctx.quick else OTHER_TIRES
+    rows = {name: ("dry_asphalt", other_tire(name), None, np.inf) for name in others}
+    if not ctx.quick:
+        rows = {name: (name, None, None, np.inf) for name in SURFACES} | rows
+    names = list(CONTROLLERS)
+    settings = [("realistic", hardware)] + ([] if ctx.quick else [("ideal", ideal_hardware())])
+    for label, hw in settings:
+        ctx.log(f"mismatch table: {len(rows)} tires x {len(names)} controllers, {label}")
+        tab = mismatch_table(rows, {n: controller(n) for n in names}, hw,
+                             duration=12.0 if ctx.quick else None)  # quick: one grid
+        lines = ["| tire | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for i, row in enumerate(tab["rows"]):
+            ctx.record(f"braking_control.mismatch.{label}.{row}", {
+                "physical_limit_m": float(tab["physical_limit"][i]),
+                "actuated_limit_m": float(tab["actuated_limit"][i]),
+                **{n: {"stopping_distance_m": float(tab["distance"][i, j]),
+                       "distance_over_bound": float(tab["over_physical"][i, j]),
+                       "distance_over_actuated_bound": float(tab["over_actuated"][i, j])}
+                   for j, n in enumerate(names)}})
+            lines.append(f"| {row} | " + " | ".join(
+                f"{tab['over_actuated'][i, j]:.4f} ({tab['over_physical'][i, j]:.4f})"
+                for j in range(len(names))) + " |")
+        ctx.text(f"**Tire mismatch, {label} hardware**: from 30 m/s, controllers and observer "
+                 "built for the LuGre road (the other shapes' observer for dry asphalt); "
+                 "stopping distance over the limit on this hardware (over the physical "
+                 "limit):", *lines)
 
 
 def _estimators(ctx):

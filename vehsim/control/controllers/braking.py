@@ -1,12 +1,13 @@
 r"""Braking controllers, sampled at the hardware's rate, commanding a brake torque $T_c\ge0$.
 
-Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel
-slip $\hat s = r\hat\omega/\hat v - 1$, the wheel's peripheral acceleration
-$r\Delta\hat\omega/T$ and the mean brake torque $\bar T_b$ the actuator applied over the
-last sample, known from the commands through the actuator's model as the estimators know
-it) and the estimator's *belief*: the tire it currently believes in (its assumed model at the current estimate, e.g. `UniformLumpedLuGre` at $\hat\theta$;
-`vehsim.control.estimation`). An estimate-based target is read off the belief's steady-state
-curve (`braking_curve`, `peak_braking`), whatever the belief's family.
+Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel slip
+$\hat s = r\hat\omega/\hat v - 1$, the wheel's peripheral acceleration $r\Delta\hat\omega/T$
+and the mean brake torque $\bar T_b$ the actuator applied over the last sample, known from
+the commands through the actuator's model as the estimators know it) and the estimator's
+*belief*: the tire it currently believes in (its assumed model at the current estimate, e.g.
+`UniformLumpedLuGre` at $\hat\theta$; `vehsim.control.estimation`). An estimate-based target
+is read off the belief's steady-state curve (`braking_curve`, `peak_braking`), whatever the
+belief's family.
 Below `handback_speed` (3 m/s by default) every controller hands back to plain braking (the
 full torque): there slip measurement is poor and a locked wheel costs little distance.
 

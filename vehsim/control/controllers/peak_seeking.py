@@ -1,29 +1,29 @@
-r"""A peak-seeking ABS: the slip target of the believed tire, corrected by the slope of the
-friction the wheel measures.
+r"""A peak-seeking ABS: extremum seeking on the friction the wheel measures.
 
-The wheel's own equation, $J\dot\omega = -rF - T_b$ (eq. 22), gives the friction over the
-last sample from what the controller knows: the mean brake torque $\bar T_b$ and the
-measured change of wheel speed,
-$$\hat\mu_k = \frac{\bar T_b + J(\hat\omega_k - \hat\omega_{k-1})/T}{rF_n},$$
+The wheel's own equation, $J\dot\omega = -rF - T_b\tanh(\omega/\omega_\epsilon)$ (eq. 22
+with the brake's smoothing), gives the friction over the last sample from what the
+controller knows: the mean brake torque $\bar T_b$ and the measured change of wheel speed,
+$$\hat\mu_k = \frac{\bar T_b\tanh(\hat\omega_k/\omega_\epsilon) + J(\hat\omega_k -
+\hat\omega_{k-1})/T}{rF_n},$$
 paired with the braking slip at the middle of the sample, $\bar\lambda_k = -(\hat s_k +
-\hat s_{k-1})/2$ (the mean of the two ends: an error of $\hat\omega_k$ then enters the
-friction and the slip with uncorrelated weights). The slope $d\mu/d\lambda$ is the
-exponentially weighted least-squares slope of $\hat\mu$ on $\bar\lambda$ over the last
-`window` seconds,
-$$b = \frac{C_{\lambda\mu}}{C_{\lambda\lambda} + \epsilon},$$
-($C$ the weighted covariances, updated recursively). The braking slip target is the peak
-$\lambda_m$ of the believed tire's steady-state curve at the measured speed (the
-estimate-based controller's target) plus an offset $\Delta$ that climbs the measured
-curve,
-$$\dot\Delta = \rho\tanh(b/b_0),\qquad \lambda^* = \operatorname{clip}(\lambda_m + \Delta,
-\lambda_{min}, 1),$$
-(extremum seeking: $\Delta$ stops where the measured slope vanishes, at the true tire's
-peak whatever its shape). A small sinusoidal dither of amplitude `dither` and frequency
-`dither_frequency` on the target keeps the regression excited. $\Delta$ adapts only once the
-wheel has first reached the target (before that the onset's linear range would drive it),
-and is clipped so that $\lambda_m + \Delta$ stays in $[\lambda_{min}, 1]$. The wheel is
-held at $s^* = -(\lambda^* + \text{dither})$ by the slip-tracking PI law
-(`AbstractSlipTracking`), its feedforward from the believed curve at $s^*$.
+\hat s_{k-1})/2$ (an error of $\hat\omega_k$ then enters the friction and the slip with
+uncorrelated weights). The slope $d\mu/d\lambda$ at the target $\lambda^*$ is the
+least-squares slope of $\hat\mu$ on $\bar\lambda$, each pair weighted by
+$w_k = e^{-(\bar\lambda_k - \lambda^*)^2/2h^2}$ (kernel width $h$: only pairs near the
+target count, not the onset's linear range nor an excursion past the peak) and forgotten
+over `window` seconds,
+$$b = \frac{C_{\lambda\mu}}{C_{\lambda\lambda} + \epsilon}$$
+($C$ the weighted covariances, updated recursively). The braking slip target starts at the
+peak of the believed tire's steady-state curve (`peak_braking` of the belief at the first
+sample: the estimate-based controller's target) and climbs the measured curve,
+$$\dot\lambda^* = \rho\,w_k\tanh(b/b_0),\qquad \lambda^*\in[\lambda_{min}, 1],$$
+so it stops where the measured slope vanishes, at the true tire's peak whatever its shape
+(a curve rising to the locked wheel drives it to 1: full torque). It moves only once the
+wheel has first reached it and only while the wheel is near it ($w_k$). A sinusoidal
+dither of amplitude `dither` and frequency `dither_frequency` on the target keeps the
+regression excited. The wheel is held at $s^* = -(\lambda^* + \text{dither})$ by the
+slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$: the
+belief enters only there and in the start.
 """
 
 from __future__ import annotations
@@ -39,10 +39,11 @@ from .braking import AbstractBrakeController, track_slip
 
 
 class PeakSeekingState(eqx.Module):
-    r"""The PI `integral` [N m], the target's `offset` $\Delta$, the braking slip at the
-    last sample `slip`, the weighted means (`mean_slip`, `mean_mu`), variance `var_slip`
-    and covariance `cov` of $(\bar\lambda, \hat\mu)$, `engaged` (1 once the wheel reached
-    the target) and the `time` since the onset [s]."""
+    r"""The PI `integral` [N m], the braking slip `target` $\lambda^*$, the braking slip at the
+    last sample `slip`, the kernel weights' forgotten sum `weight`, the weighted means
+    (`mean_slip`, `mean_mu`), variance `var_slip` and covariance `cov` of $(\bar\lambda,
+    \hat\mu)$, `engaged` (1 once the wheel reached the target) and the `time` since the
+    onset [s]."""
 
     integral: Float[Array, ""]
     target: Float[Array, ""]
@@ -59,19 +60,21 @@ class PeakSeekingState(eqx.Module):
 class PeakSeekingABS(AbstractBrakeController):
     r"""Extremum seeking on the measured friction (module docstring).
 
-    **Fields:** `rate` $\rho$ [1/s] (1.0), `slope_scale` $b_0$ (0.5), `window` [s] (0.1),
-    `variance_floor` $\epsilon$ (1e-6), `min_slip` $\lambda_{min}$ (0.02), `dither` (0.01),
+    **Fields:** `rate` $\rho$ [1/s] (0.3), `slope_scale` $b_0$ (0.5), `window` [s] (0.1),
+    `kernel_width` $h$ (0.03), `variance_floor` $\epsilon$ (1e-6), `min_slip`
+    $\lambda_{min}$ (0.02), `dither` (0.005),
     `dither_frequency` [Hz] (5), gains `kp` (60) and `ki` (600) as `SlipTracking`.
     """
 
-    rate: Float[Array, ""] = array_field(default=1.0)
+    rate: Float[Array, ""] = array_field(default=0.3)
     slope_scale: Float[Array, ""] = array_field(default=0.5)
     window: Float[Array, ""] = array_field(default=0.1)
     kernel_width: Float[Array, ""] = array_field(default=0.03)
     variance_floor: Float[Array, ""] = array_field(default=1e-6)
     min_slip: Float[Array, ""] = array_field(default=0.02)
-    dither: Float[Array, ""] = array_field(default=0.01)
+    dither: Float[Array, ""] = array_field(default=0.005)
     dither_frequency: Float[Array, ""] = array_field(default=5.0)
+    measured_feedforward: Float[Array, ""] = array_field(default=0.0)
     kp: Float[Array, ""] = array_field(default=60.0)
     ki: Float[Array, ""] = array_field(default=600.0)
 
@@ -114,7 +117,9 @@ class PeakSeekingABS(AbstractBrakeController):
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
         s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
-        integral, torque = track_slip(st.integral, m, s, -braking_curve(belief, s, v, r), car, dt,
-                                      max_torque, self.kp, self.ki)
+        believed = -braking_curve(belief, s, v, r)
+        mu_ff = believed + self.measured_feedforward * engaged * (moments[2] - believed)
+        integral, torque = track_slip(st.integral, m, s, mu_ff, car, dt, max_torque, self.kp,
+                                      self.ki)
         new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
         return new, torque, jnp.round(lam_target * 1000).astype(int)  # DEV
