@@ -115,8 +115,8 @@ def reproduce(ctx) -> None:
     if ctx.quick:
         ctx.text("Quick mode: three surfaces, the two Magic Formula tires. `vehsim reproduce "
                  "--full --only braking_control` adds every surface, every tire, surface "
-                 "changes, ideal hardware, the estimators with and without noise, the Magic Formula tire, traction control, ABS in a turn and "
-                 "the gain tuning.")
+                 "changes, ideal hardware, the estimators with and without noise, the Magic "
+                 "Formula tire, traction control, ABS in a turn and the gain tuning.")
         return
     changes = [tuple(c) for c in CHANGES]
     records, _ = grid_records(changes, hardware, 100.0)
@@ -283,15 +283,21 @@ def _turn(ctx):
     import equinox as eqx
     import jax.numpy as jnp
 
-    from ..control.controllers.braking import LockedWheel, RuleBasedABS
+    from ..control.controllers.braking import LockedWheel, RuleBasedABS, SlipTracking
+    from ..control.controllers.peak_seeking import PeakSeekingABS
     from ..control.experiments.half_car_abs import rear_abs, simulate_turn, turn_scenario
 
     sc = turn_scenario("dry_asphalt", 25.0, 0.03)
     cases = {"ABS on both axles": (RuleBasedABS(), rear_abs(), 0.4),
              "locked wheels": (LockedWheel(), LockedWheel(), 0.4),
              "front ABS, rear locked": (RuleBasedABS(), LockedWheel(), 1.0),
-             "no braking": (LockedWheel(), LockedWheel(), 0.4)}
+             "no braking": (LockedWheel(), LockedWheel(), 0.4),
+             "fixed slip front, rear ABS": (SlipTracking(), rear_abs(), 0.4),
+             "peak seeking front, rear ABS": (PeakSeekingABS(), rear_abs(), 0.4),
+             "peak seeking on both axles": (PeakSeekingABS(), PeakSeekingABS(), 0.4)}
     runs = {}
+    lines = ["| brakes | heading change (deg) | peak sideslip (deg) | peak yaw rate (rad/s) | "
+             "path end (m) |", "|---|---|---|---|---|"]
     for label, (front, rear, share) in cases.items():
         q = eqx.tree_at(lambda q: q.rear_share, sc, jnp.asarray(share))
         if label == "no braking":
@@ -305,6 +311,12 @@ def _turn(ctx):
                "heading_change_deg": float(np.degrees(s["psi"][moving][-1])),
                "path_end_m": [float(s["x"][moving][-1]), float(s["y"][moving][-1])]}
         ctx.record(f"braking_control.turn.{label}", rec)
+        lines.append(f"| {label} | {rec['heading_change_deg']:.1f} | "
+                     f"{rec['max_abs_sideslip_deg']:.2f} | {rec['max_abs_yaw_rate']:.3f} | "
+                     f"{rec['path_end_m'][0]:.1f}, {rec['path_end_m'][1]:.1f} |")
+    ctx.text("**Steerability**: the half car braking in a turn on dry asphalt from 25 m/s "
+             "(steering 0.03 rad): an ABS that keeps the wheels rolling keeps the car turning "
+             "(heading change) without spinning it (sideslip):", *lines)
     ctx.figure(turn_figure(runs, "braking in a turn on dry asphalt, 25 m/s, delta = 0.03 rad"),
                "braking_in_a_turn", "ABS on both axles of the half car braking in a turn")
 
