@@ -22,8 +22,9 @@ so it stops where the measured slope vanishes, at the true tire's peak whatever 
 wheel has first reached it and only while the wheel is near it ($w_k$). A sinusoidal
 dither of amplitude `dither` and frequency `dither_frequency` on the target keeps the
 regression excited. The wheel is held at $s^* = -(\lambda^* + \text{dither})$ by the
-slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$: the
-belief enters only there and in the start.
+slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$ until
+the wheel first reaches the target and from then on from the measured friction near the
+target (the weighted mean of $\hat\mu$): the belief enters only in the start.
 """
 
 from __future__ import annotations
@@ -74,7 +75,6 @@ class PeakSeekingABS(AbstractBrakeController):
     min_slip: Float[Array, ""] = array_field(default=0.02)
     dither: Float[Array, ""] = array_field(default=0.005)
     dither_frequency: Float[Array, ""] = array_field(default=5.0)
-    measured_feedforward: Float[Array, ""] = array_field(default=0.0)
     kp: Float[Array, ""] = array_field(default=60.0)
     ki: Float[Array, ""] = array_field(default=600.0)
 
@@ -91,7 +91,8 @@ class PeakSeekingABS(AbstractBrakeController):
         return PeakSeekingState(z, z, z, z, z, z, z, z, z, z)
 
     def _slope(self, st: PeakSeekingState, lam, mu, center, dt):
-        """The weighted moments after the pair $(\bar\lambda, \hat\mu)$, and the slope."""
+        r"""The weighted moments after the pair $(\bar\lambda, \hat\mu)$, the slope and the
+        pair's kernel weight."""
         w = jnp.exp(-0.5 * jnp.square((lam - center) / self.kernel_width))
         a = -jnp.expm1(-dt / self.window)
         weight = (1.0 - a) * st.weight + a * w
@@ -118,8 +119,8 @@ class PeakSeekingABS(AbstractBrakeController):
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
         s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
         believed = -braking_curve(belief, s, v, r)
-        mu_ff = believed + self.measured_feedforward * engaged * (moments[2] - believed)
+        mu_ff = believed + engaged * (moments[2] - believed)  # measured once engaged
         integral, torque = track_slip(st.integral, m, s, mu_ff, car, dt, max_torque, self.kp,
                                       self.ki)
         new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
-        return new, torque, jnp.round(lam_target * 1000).astype(int)  # DEV
+        return new, torque, jnp.zeros((), int)
