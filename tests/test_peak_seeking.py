@@ -91,19 +91,41 @@ CONTROLLERS = {"seek": PeakSeekingABS(), "fixed": SlipTracking(), "locked": Lock
 
 
 @pytest.fixture(scope="module")
-def table():
-    """The two Magic Formula tires (one grid) from 30 m/s on the realistic hardware."""
+def other_shapes():
+    """The two Magic Formula tires (one grid) from 30 m/s on the realistic hardware, the
+    observer built for dry asphalt's LuGre."""
     rows = {name: ("dry_asphalt", other_tire(name), None, math.inf)
             for name in ("mf_sharp", "mf_low_flat")}
     return mismatch_table(rows, CONTROLLERS, realistic_hardware(), duration=12.0)
 
 
-def test_seek_near_the_actuated_limit_on_other_shapes(table):
-    seek = table["over_actuated"][:, 0]
-    assert np.all(np.isfinite(seek))
-    assert np.all(seek < 1.03 * 1.0 + 0.04), seek
+@pytest.fixture(scope="module")
+def lugre_roads():
+    """Named surfaces and surface changes that stop within 12 s (one grid)."""
+    rows = {name: (name, None, None, math.inf)
+            for name in ("dry_asphalt", "wet_asphalt", "cobblestone", "cdc1999_0.6")}
+    rows |= {"snow to dry": ("snow", None, "dry_asphalt", 50.0),
+             "ice to dry": ("ice", None, "dry_asphalt", 100.0)}
+    return mismatch_table(rows, CONTROLLERS, realistic_hardware(), duration=12.0)
 
 
-def test_seek_never_worse_than_fixed_slip_or_locked(table):
-    d = table["distance"]
-    assert np.all(d[:, 0] <= 1.005 * np.min(d[:, 1:], axis=1)), d
+def test_seek_near_the_actuated_limit_on_other_shapes(other_shapes):
+    """Within 3 % of the limit on the hardware on the low, flat Magic Formula (whose peak
+    at large slip the estimate-based target misses); on the sharp one within 7 %: there the
+    slip-tracking loop itself cycles around the peak with the actuator's 25 ms of delay and
+    lag (the fixed-slip controller is as far off)."""
+    seek = dict(zip(other_shapes["rows"], other_shapes["over_actuated"][:, 0]))
+    assert seek["mf_low_flat"] < 1.03, seek
+    assert seek["mf_sharp"] < 1.07, seek
+
+
+def test_seek_never_worse_than_fixed_slip_or_locked(other_shapes, lugre_roads):
+    for table in (other_shapes, lugre_roads):
+        d = table["distance"]
+        assert np.all(d[:, 0] <= 1.005 * np.min(d[:, 1:], axis=1)), (table["rows"], d)
+
+
+def test_seek_near_the_actuated_limit_on_lugre_roads(lugre_roads):
+    ratio = dict(zip(lugre_roads["rows"], lugre_roads["over_actuated"][:, 0]))
+    for row, value in ratio.items():
+        assert value < (1.05 if " to " in row else 1.03), ratio
