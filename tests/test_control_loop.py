@@ -1,11 +1,12 @@
-"""The closed braking loop: the estimate-based ABS near the physical limit on dry asphalt,
-the rule-based ABS cycling without locking, the observer converging, the moving-horizon
-estimator recovering theta, and the gradient of a stopping distance with respect to a gain
-against finite differences. One compiled program serves the loop's tests: the forward-mode
-derivative of a grid (two roads x two controllers) with respect to the estimate-based
-controller's log K_p, which returns the runs too; it is called with three hardware
-settings and three gains (array fields: no recompilation). The controllers regulate down to
-0.5 m/s (no hand-back before the stop, whose switch would make the distance jump)."""
+"""The closed braking loop: the rule-based ABS cycling without locking, the observer
+converging, the moving-horizon estimator recovering theta, and the gradient of a stopping
+distance with respect to a gain against finite differences. One compiled program serves the
+loop's tests: the forward-mode derivative of a grid (two roads x two controllers) with
+respect to the estimate-based controller's log K_p, which returns the runs too; it is called
+with three hardware settings and three gains (array fields: no recompilation). The
+controllers regulate down to 0.5 m/s (no hand-back before the stop, whose switch would make
+the distance jump). The distances against the limits, on every named surface and from a
+prior far from the road, are in tests/test_control_tires.py."""
 
 import functools
 import os
@@ -22,7 +23,6 @@ import pytest
 from vehsim._results import RESULTS
 from vehsim.control.controllers.braking import BUILD, DUMP, REBUILD, PeakSlipTracking, RuleBasedABS
 from vehsim.control.estimation.mhe import MovingHorizonEstimator
-from vehsim.control.experiments.metrics import braking_record
 from vehsim.control.experiments.scenarios import braking_scenario
 from vehsim.control.loop import closed_loop_grid, stack
 from vehsim.control.plant.hardware import realistic_hardware
@@ -67,13 +67,6 @@ def _runs(label, log_kp=LOG_KP):
 
 def _run(label, controller, road):
     return jax.tree_util.tree_map(lambda a: np.asarray(a[controller, road]), _runs(label)[0])
-
-
-def test_estimate_based_abs_on_dry_asphalt_within_3_percent_of_the_limit():
-    run = _run("realistic", 1, 0)
-    rec = braking_record(run, _scenarios()[0][0])
-    assert run.result == RESULTS.successful
-    assert 1.0 < rec["distance_over_bound"] <= 1.03
 
 
 @pytest.mark.parametrize("road", [0, 1])
