@@ -248,7 +248,10 @@ from .control.controllers.traction import (
     TractionControl as TractionControl,
     traction_scenario as traction_scenario,
 )
-from .control.estimation.base import AbstractFrictionEstimator as AbstractFrictionEstimator
+from .control.estimation.base import (
+    AbstractFrictionEstimator as AbstractFrictionEstimator,
+    run_estimator as run_estimator,
+)
 from .control.estimation.mhe import (
     BrakingRecord as BrakingRecord,
     MHEResult as MHEResult,
@@ -267,7 +270,6 @@ from .control.estimation.peak_estimator import (
     BurckhardtBelief as BurckhardtBelief,
     PeakEstimator as PeakEstimator,
     PeakEstimatorState as PeakEstimatorState,
-    estimate_peaks as estimate_peaks,
 )
 from .control.experiments.experiment import braking_experiment as braking_experiment
 from .control.experiments.half_car_abs import (

@@ -12,14 +12,18 @@ vehicle speed is filtered with the measured friction, $\hat v^-_k = \hat v_{k-1}
 \mu_kF_nT/m$ ($m\dot v = F_x$), $\hat v_k = \hat v_k^- + L_v(v_k - \hat v_k^-)$, and the
 braking slip is $\lambda_k = 1 - r\omega_k/\hat v_k$. Nothing here assumes a tire model.
 
-**The curve.** $|\mu|$ against $\lambda$ is fitted by Burckhardt's family
+**The curve.** The measured points are kept as a curve over the slip axis: `bins` bins
+(finer near zero slip, edges $(i/B)^2$), each holding the running means of the measured
+$|\mu|$ and $\lambda$ that fell in it and their weight, every weight multiplied by the
+forgetting $\gamma$ at each informative sample (a moving window of about $1/(1-\gamma)$
+samples that keeps the slips the wheel has left: a sweep through the peak is remembered
+while the wheel works elsewhere). The binned curve is fitted by Burckhardt's family
 $$|\mu| = c_1(1 - e^{-c_2\lambda}) - c_3\lambda,$$
 a flexible three-parameter curve (a rise to a peak or a plateau and a linear fall; it
-describes dry, wet, snowy and icy roads alike, `vehsim.tire.burckhardt`): linear in
-$(c_1, c_3)$ for a given $c_2$, so a bank of recursive least-squares filters, one per $c_2$
-of a logarithmic grid, each with forgetting $\gamma$ (a moving window of about
-$1/(1-\gamma)$ samples) and its covariance bounded (no wind-up), and the member of the
-smallest exponentially weighted squared prediction error is the estimate. Its peak is
+describes dry, wet, snowy and icy roads alike, `vehsim.tire.burckhardt`), by weighted least
+squares, linear in $(c_1, c_3)$ for each $c_2$ of a logarithmic grid (a ridge `ridge`
+towards the prior, $c_1, c_3\ge0$), keeping the $c_2$ of the smallest weighted residual.
+Its peak is
 $$\lambda^* = \frac{\ln(c_1c_2/c_3)}{c_2},\qquad \mu^* = c_1(1 - e^{-c_2\lambda^*}) -
 c_3\lambda^*$$
 (a curve still rising at $\lambda = 1$: $\lambda^* = 1$), and its slope at the measured slip
@@ -28,11 +32,11 @@ $d|\mu|/d\lambda = c_1c_2e^{-c_2\lambda} - c_3$ (> 0 below the peak).
 **Assumes** the curve is a steady-state one (the tire's transient lags the slip by its
 relaxation, $L/|\omega r|$, a few milliseconds at speed) and that the family fits it near
 the data; the peak is extrapolated from the data, so it is only measured where the slip has
-been near it (an ABS cycling through the peak; a peak-seeking controller). **Blind** (the
-estimate holds) on a locked wheel (no tone-wheel edges: no measured acceleration), below
-`min_slip` (all roads share the initial slope: the friction level is not in the data) and
-below `min_speed`; at a constant slip the data hold no slope, and the fit only moves along
-the curves through the measured point (the bounded covariance keeps it from winding up).
+been near it (an ABS cycling through the peak; a peak-seeking controller); before that it is
+the prior's. **Blind** (the estimate holds) on a locked wheel (no tone-wheel edges: no
+measured acceleration), below `min_slip` (all roads share the initial slope: the friction
+level is not in the data) and below `min_speed`; at a constant slip the data fill one bin
+and hold no slope: the ridge keeps the fit near the prior's shape through that point.
 """
 
 from __future__ import annotations
@@ -88,6 +92,17 @@ class BurckhardtBelief(AbstractLongitudinalTire):
     def mu(self, state, v, omega, r):
         return self._curve(state / self.relaxation_length)
 
+    def peak(self):
+        """``(s*, mu*)``: the braking slip ($< 0$) and friction of the curve's peak, in
+        closed form (`burckhardt_peak`; `peak_braking` of this tire finds the same)."""
+        lam, mu = burckhardt_peak(*self.params)
+        return -lam, mu
+
+    def slope(self, s):
+        r"""$d|\mu|/d\lambda$ at braking slip `s` ($\lambda = -s$; > 0 below the peak)."""
+        c1, c2, c3 = self.params
+        return c1 * c2 * jnp.exp(-c2 * jnp.abs(s)) - c3
+
     def steady_state_mu(self, v, omega, r):
         """$\\mu_B$ at the slip $v_r/|v|$ (with the sign of $v_r$)."""
         return self._curve(relative_velocity(v, omega, r) / jnp.maximum(safe_abs(v), 1e-9))
@@ -96,10 +111,11 @@ class BurckhardtBelief(AbstractLongitudinalTire):
 class PeakEstimatorState(eqx.Module):
     r"""The filtered speed `v` [m/s]; the last fresh wheel speed `omega` [rad/s], its
     `stamp` [s] and whether one has been seen (`primed`); the measured friction `mu` and
-    braking slip `slip` of the last update; per member of the bank the coefficients
-    `coefficients` $(c_1, c_3)$, their `covariance` and the weighted squared prediction
-    error `error`; and the estimate: the `best` member, the `peak_slip` $s^* < 0$, the
-    `peak_mu` $\mu^* > 0$ and the `slope` $d|\mu|/d\lambda$ at the measured slip."""
+    braking slip `slip` of the last update; the binned curve: per bin the `weight` and the
+    mean measured `bin_mu` $|\mu|$ and `bin_slip` $\lambda$; per $c_2$ of the grid the
+    fitted `coefficients` $(c_1, c_3)$ and the weighted squared residual `error`; and the
+    estimate: the `best` member, the `peak_slip` $s^* < 0$, the `peak_mu` $\mu^* > 0$ and
+    the `slope` $d|\mu|/d\lambda$ at the measured slip."""
 
     v: Float[Array, ""]
     omega: Float[Array, ""]
@@ -107,8 +123,10 @@ class PeakEstimatorState(eqx.Module):
     primed: Array
     mu: Float[Array, ""]
     slip: Float[Array, ""]
+    weight: Float[Array, " B"]
+    bin_mu: Float[Array, " B"]
+    bin_slip: Float[Array, " B"]
     coefficients: Float[Array, "G 2"]
-    covariance: Float[Array, "G 2 2"]
     error: Float[Array, " G"]
     best: Int[Array, ""]
     peak_slip: Float[Array, ""]
@@ -124,20 +142,18 @@ class PeakEstimator(AbstractFrictionEstimator):
     r"""The estimator of the module docstring.
 
     **Fields:** `prior` $(c_1, c_2, c_3)$ (dry asphalt's, (1.2801, 23.99, 0.52): every member
-    starts from $(c_1, c_3)$ of it, the prior's $c_2$ member as the best), `shapes` the grid
-    of $c_2$ (12 values from 4 to 320, static length), `forgetting` $\gamma\in(0, 1]$ (0.98),
-    `noise_variance` $R$ of the measured friction (1e-4), `initial_covariance` (1),
-    `max_covariance` (the bound of each diagonal entry, 10), `speed_injection`
-    $L_v\in[0, 1]$ (0.05), `min_slip` (0.01), `min_speed` [m/s] (3), `relaxation_length` of
-    the belief [m] (0.25).
+    starts from $(c_1, c_3)$ of it, the prior's nearest $c_2$ as the best), `shapes` the grid
+    of $c_2$ (12 values from 4 to 320, static length), `bins` (static, 32), `forgetting`
+    $\gamma\in(0, 1]$ (0.99), `ridge` (the weight of the prior's $(c_1, c_3)$, in samples,
+    0.1), `speed_injection` $L_v\in[0, 1]$ (0.05), `min_slip` (0.01), `min_speed` [m/s] (3),
+    `relaxation_length` of the belief [m] (0.25).
     """
 
     prior: Float[Array, " 3"] = array_field(default=(1.2801, 23.99, 0.52))
     shapes: Float[Array, " G"] = array_field(default_factory=_default_grid)
-    forgetting: Float[Array, ""] = array_field(default=0.98)
-    noise_variance: Float[Array, ""] = array_field(default=1e-4)
-    initial_covariance: Float[Array, ""] = array_field(default=1.0)
-    max_covariance: Float[Array, ""] = array_field(default=10.0)
+    bins: int = eqx.field(static=True, default=32)
+    forgetting: Float[Array, ""] = array_field(default=0.99)
+    ridge: Float[Array, ""] = array_field(default=0.1)
     speed_injection: Float[Array, ""] = array_field(default=0.05)
     min_slip: Float[Array, ""] = array_field(default=0.01)
     min_speed: Float[Array, ""] = array_field(default=3.0)
@@ -148,8 +164,9 @@ class PeakEstimator(AbstractFrictionEstimator):
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
         check_range(owner, "speed_injection", self.speed_injection, lower=0.0, upper=1.0)
-        for name in ("shapes", "noise_variance", "initial_covariance", "max_covariance",
-                     "min_slip", "min_speed", "relaxation_length"):
+        if self.bins < 2:
+            raise ValueError(f"PeakEstimator.bins must be at least 2, got {self.bins}")
+        for name in ("shapes", "ridge", "min_slip", "min_speed", "relaxation_length"):
             check_positive(owner, name, getattr(self, name))
 
     def _estimate(self, coefficients, error, slip):
@@ -161,17 +178,30 @@ class PeakEstimator(AbstractFrictionEstimator):
         return best, -lam_star, mu_star, slope
 
     def init(self, omega0, v0) -> PeakEstimatorState:
-        """The measured speeds; every member at the prior, the prior's nearest member the
-        best."""
-        G = self.shapes.shape[0]
+        """The measured speeds; an empty curve; every member at the prior, the prior's
+        nearest $c_2$ the best."""
+        G, B = self.shapes.shape[0], self.bins
         c = jnp.broadcast_to(jnp.stack([self.prior[0], self.prior[2]]), (G, 2))
-        P = jnp.broadcast_to(self.initial_covariance * jnp.eye(2), (G, 2, 2))
         error = jnp.abs(jnp.log(self.shapes / self.prior[1])) * 1e-9
-        z = jnp.zeros(())
+        z, zb = jnp.zeros(()), jnp.zeros(B)
         best, s_star, mu_star, slope = self._estimate(c, error, z)
         return PeakEstimatorState(jnp.asarray(v0, dtype=float), jnp.asarray(omega0, dtype=float),
-                                  z, jnp.asarray(False), z, z, c, P, error, best, s_star,
-                                  mu_star, slope)
+                                  z, jnp.asarray(False), z, z, zb, zb, zb, c, error, best,
+                                  s_star, mu_star, slope)
+
+    def _fit(self, weight, bin_mu, bin_slip):
+        """Weighted least squares of every member on the binned curve, with the ridge."""
+        prior = jnp.stack([self.prior[0], self.prior[2]])
+
+        def one(c2):
+            phi = jnp.stack([1.0 - jnp.exp(-c2 * bin_slip), -bin_slip], axis=-1)  # (B, 2)
+            A = phi.T @ (weight[:, None] * phi) + self.ridge * jnp.eye(2)
+            b = phi.T @ (weight * bin_mu) + self.ridge * prior
+            c = jnp.maximum(jnp.linalg.solve(A, b), 0.0)
+            e = bin_mu - phi @ c
+            return c, jnp.sum(weight * e * e) + self.ridge * jnp.sum((c - prior) ** 2)
+
+        return jax.vmap(one)(self.shapes)
 
     def update(self, state: PeakEstimatorState, car: QuarterCar, hardware: BrakeHardware,
                substeps: int, v, omega, stamp, fresh, torque0, target, t0):
@@ -190,32 +220,23 @@ class PeakEstimator(AbstractFrictionEstimator):
         slip = jnp.clip(1.0 - r * omega / jnp.maximum(v_hat, 1e-3), 0.0, 1.0)
         informative = valid_rate & (slip > self.min_slip) & (v_hat > self.min_speed)
 
-        y = -mu
-        phi = jnp.stack([1.0 - jnp.exp(-self.shapes * slip), -slip * jnp.ones_like(self.shapes)],
-                        axis=-1)  # (G, 2)
-        P = state.covariance
-        prediction = jnp.sum(phi * state.coefficients, axis=-1)
-        e = y - prediction
-        Pphi = jnp.einsum("gij,gj->gi", P, phi)
-        gain = Pphi / (self.noise_variance + jnp.sum(phi * Pphi, axis=-1))[:, None]
-        coefficients = state.coefficients + gain * e[:, None]
-        P_new = (P - gain[:, :, None] * Pphi[:, None, :]) / self.forgetting
-        P_new = 0.5 * (P_new + jnp.swapaxes(P_new, 1, 2))
-        # bounded covariance: scale each member's matrix so its diagonal stays below the bound
-        scale = jnp.minimum(1.0, self.max_covariance / jnp.max(
-            jnp.diagonal(P_new, axis1=1, axis2=2), axis=-1))
-        P_new = P_new * scale[:, None, None]
-        error = self.forgetting * state.error + (1.0 - self.forgetting) * e * e
+        B = self.bins
+        i = jnp.clip(jnp.floor(jnp.sqrt(slip) * B).astype(int), 0, B - 1)
+        here = (jnp.arange(B) == i) & informative
+        weight = jnp.where(informative, self.forgetting * state.weight, state.weight)
+        weight = weight + here
+        w = jnp.where(here, weight, 1.0)
+        bin_mu = jnp.where(here, state.bin_mu + (-mu - state.bin_mu) / w, state.bin_mu)
+        bin_slip = jnp.where(here, state.bin_slip + (slip - state.bin_slip) / w, state.bin_slip)
 
-        keep = lambda new, old: jnp.where(informative, new, old)  # noqa: E731
-        coefficients = keep(coefficients, state.coefficients)
-        P_new = keep(P_new, P)
-        error = keep(error, state.error)
+        fitted, error = self._fit(weight, bin_mu, bin_slip)
+        coefficients = jnp.where(informative, fitted, state.coefficients)
+        error = jnp.where(informative, error, state.error)
         best, s_star, mu_star, slope = self._estimate(coefficients, error, slip)
         return PeakEstimatorState(
             v_hat, jnp.where(fresh, omega, state.omega), jnp.where(fresh, stamp, state.stamp),
-            state.primed | fresh, jnp.where(valid_rate, mu, state.mu), slip, coefficients,
-            P_new, error, best, s_star, mu_star, slope)
+            state.primed | fresh, jnp.where(valid_rate, mu, state.mu), slip, weight, bin_mu,
+            bin_slip, coefficients, error, best, s_star, mu_star, slope)
 
     def belief(self, state: PeakEstimatorState) -> BurckhardtBelief:
         """The best member's curve as a tire (`BurckhardtBelief`): `peak_braking` of it is
@@ -230,17 +251,3 @@ class PeakEstimator(AbstractFrictionEstimator):
         return dict(v_hat=state.v, mu_meas=state.mu, slip_meas=-state.slip,
                     peak_slip=state.peak_slip, peak_mu=state.peak_mu, slope=state.slope)
 
-
-def estimate_peaks(estimator: PeakEstimator, car: QuarterCar, hardware: BrakeHardware,
-                   record) -> PeakEstimatorState:
-    """The estimator run over a recorded braking (a `BrakingRecord`): its state after every
-    sample (leading axis: samples)."""
-    def step(state, k):
-        new = estimator.update(state, car, hardware, 0, record.v_meas[k], record.omega_meas[k],
-                               record.omega_stamp[k], record.fresh[k], record.torque[k - 1],
-                               record.target[k - 1], record.ts[k - 1])
-        new = jax.tree_util.tree_map(lambda a, b: jnp.where(k > 0, a, b), new, state)
-        return new, new
-
-    state0 = estimator.init(record.omega_meas[0], record.v_meas[0])
-    return jax.lax.scan(step, state0, jnp.arange(record.ts.shape[0]))[1]
