@@ -22,9 +22,11 @@ so it stops where the measured slope vanishes, at the true tire's peak whatever 
 wheel has first reached it and only while the wheel is near it ($w_k$). A sinusoidal
 dither of amplitude `dither` and frequency `dither_frequency` on the target keeps the
 regression excited. The wheel is held at $s^* = -(\lambda^* + \text{dither})$ by the
-slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$ until
-the wheel first reaches the target and from then on from the measured friction near the
-target (the weighted mean of $\hat\mu$): the belief enters only in the start.
+slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$ (after
+a change of road the estimator's belief moves within a few samples, where the measured
+curve near the old target says nothing of the new road); a target at the locked wheel
+($\lambda^* = 1$) commands the full torque. The belief enters only in the start and the
+feedforward.
 """
 
 from __future__ import annotations
@@ -118,9 +120,8 @@ class PeakSeekingABS(AbstractBrakeController):
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
         s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
-        believed = -braking_curve(belief, s, v, r)
-        mu_ff = believed + engaged * (moments[2] - believed)  # measured once engaged
-        integral, torque = track_slip(st.integral, m, s, mu_ff, car, dt, max_torque, self.kp,
-                                      self.ki)
+        integral, torque = track_slip(st.integral, m, s, -braking_curve(belief, s, v, r), car,
+                                      dt, max_torque, self.kp, self.ki)
+        torque = jnp.where(s <= -1.0, max_torque, torque)  # a target at the locked wheel
         new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
         return new, torque, jnp.zeros((), int)
