@@ -166,7 +166,8 @@ class NumpyBraking:
 
     def __init__(self, scenario, observer, ctrl, ctrl_name, hw, noise):
         self.p = tire_values(scenario.car.tire.params)
-        self.pm = tire_values(observer.model)
+        model = observer.model  # a RoadCondition of the LuGre tire, or its LuGreParams
+        self.pm = tire_values(getattr(getattr(model, "tire", None), "params", model))
         c = scenario.car
         self.car = dict(m=float(c.mass), J=float(c.inertia), r=float(c.radius),
                         Fn=float(c.Fn_static), eps=float(c.omega_eps))
