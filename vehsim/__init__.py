@@ -249,6 +249,11 @@ from .control.controllers.braking import (
     PeakSlipTracking as PeakSlipTracking,
     RuleBasedABS as RuleBasedABS,
     SlipTracking as SlipTracking,
+    track_slip as track_slip,
+)
+from .control.controllers.peak_seeking import (
+    PeakSeekingABS as PeakSeekingABS,
+    PeakSeekingState as PeakSeekingState,
 )
 from .control.controllers.traction import (
     FullThrottle as FullThrottle,
@@ -294,6 +299,7 @@ from .control.experiments.metrics import (
     braking_record as braking_record,
     estimate_record as estimate_record,
 )
+from .control.experiments.mismatch import mismatch_table as mismatch_table
 from .control.experiments.scenarios import braking_scenario as braking_scenario
 from .control.experiments.tires import OTHER_TIRES as OTHER_TIRES, other_tire as other_tire
 from .control.experiments.tuning import tune_gains as tune_gains

@@ -1,8 +1,8 @@
 """Benchmark: 4096 closed-loop brakings in one jitted call against a NumPy/SciPy loop.
 
 Grid: 8 surfaces (the Burckhardt family and three of the CDC 1999 set) x 4 initial speeds
-(15-30 m/s) x 4 controllers (locked wheel, rule-based ABS, fixed-slip and estimate-based
-slip tracking) x 32 noise seeds = 4096 brakings of 3 s at the controller's 200 Hz, with the
+(15-30 m/s) x 5 controllers (locked wheel, rule-based ABS, fixed-slip and estimate-based
+slip tracking, peak seeking) x 32 noise seeds = 5120 brakings of 3 s at the controller's 200 Hz, with the
 realistic hardware (actuator delay, rate limit and lag, tone-wheel edge timing, speed noise)
 and the adaptive-theta observer running in every braking. vehsim:
 `vehsim.control.loop.simulate_braking_grid`, one jitted call (8 fixed ROS34PW2 steps per
@@ -15,8 +15,15 @@ this problem) at rtol 1e-8, atol 1e-10, with scalar `math` vector fields (faster
 for six states); the peak search's 64-point grid vectorised in NumPy. Its speed noise is the
 same samples as vehsim's, drawn beforehand from the same keys (not timed). It is timed on a
 subset of brakings spread over the grid and extrapolated per braking to the full grid (a
-full run would take hours). Accuracy: on that subset, the largest differences of the final
-speed and distance between the two, and of the stopping distance where both stopped.
+full run would take hours); the subset draws from the four controllers it implements
+(`BASELINE_CONTROLLERS`; the peak-seeking law costs what fixed-slip tracking does beside
+the three integrations per sample, and its runs are counted at the subset's mean cost).
+Accuracy: on that subset, the largest differences of the final speed and distance between
+the two, and of the stopping distance where both stopped.
+
+The mismatch row: every controller on the tires of other shapes (`OTHER_TIRES`) from 30 m/s
+to the stop (`mismatch_table`, one grid per tire structure and horizon), its wall time
+including compilation, and each cell's distance over the limit on the hardware.
 
 Prints one JSON line; headline `ratio` = baseline wall time / vehsim wall time (median of
 `--repeats` timed calls after the compiling one).
@@ -41,11 +48,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
+from vehsim.control.experiments.mismatch import mismatch_table  # noqa: E402
 from vehsim.control.experiments.scenarios import (  # noqa: E402
     CONTROLLERS,
     braking_scenario,
     controller,
 )
+from vehsim.control.experiments.tires import OTHER_TIRES, other_tire  # noqa: E402
 from vehsim.control.loop import simulate_braking_grid, stack  # noqa: E402
 from vehsim.control.plant.hardware import realistic_hardware  # noqa: E402
 
@@ -54,6 +63,8 @@ SURFACES = ("dry_asphalt", "wet_asphalt", "cobblestone", "snow", "ice", "cdc1999
             "cdc1999_0.6", "cdc1999_0.4")
 SPEEDS = (15.0, 20.0, 25.0, 30.0)
 DURATION = 3.0
+BASELINE_CONTROLLERS = ("locked", "rule", "fixed", "estimate")
+"""The controllers the NumPy/SciPy baseline implements."""
 RTOL, ATOL = 1e-8, 1e-10
 
 
@@ -155,7 +166,8 @@ class NumpyBraking:
 
     def __init__(self, scenario, observer, ctrl, ctrl_name, hw, noise):
         self.p = tire_values(scenario.car.tire.params)
-        self.pm = tire_values(observer.model)
+        model = observer.model  # a RoadCondition of the LuGre tire, or its LuGreParams
+        self.pm = tire_values(getattr(getattr(model, "tire", None), "params", model))
         c = scenario.car
         self.car = dict(m=float(c.mass), J=float(c.inertia), r=float(c.radius),
                         Fn=float(c.Fn_static), eps=float(c.omega_eps))
@@ -368,7 +380,9 @@ def time_baseline(out, scenarios, observers, keys, hw, subset, seeds):
     runs = members(seeds)
     M, n = len(runs), int(round(DURATION / float(hw.sample_time)))
     rng = np.random.default_rng(0)
-    picks = [(i % len(CONTROLLERS), int(rng.integers(M))) for i in range(subset)]
+    names = list(CONTROLLERS)
+    picks = [(names.index(BASELINE_CONTROLLERS[i % len(BASELINE_CONTROLLERS)]),
+              int(rng.integers(M))) for i in range(subset)]
     diffs, wall, cpu = [], 0.0, 0.0
     for ci, m in picks:
         name = list(CONTROLLERS)[ci]
@@ -405,6 +419,10 @@ def main(argv=None):
     diffs, per_run, per_run_cpu, picks = time_baseline(out, scenarios, observers, keys, hw,
                                                        args.subset, args.seeds)
     stopped = float(np.mean(np.isfinite(np.asarray(out.stopping_distance))))
+    rows = {t: ("dry_asphalt", other_tire(t), None, math.inf) for t in OTHER_TIRES}
+    t0 = time.perf_counter()
+    tab = mismatch_table(rows, {c: controller(c) for c in CONTROLLERS}, hw)
+    mismatch_wall = time.perf_counter() - t0
     print(json.dumps({
         "benchmark": "abs_batch",
         "grid": {"surfaces": len(SURFACES), "speeds": len(SPEEDS),
@@ -427,6 +445,9 @@ def main(argv=None):
         "accuracy_max_stopping_distance_diff_m": float(diffs[:, 2].max()),
         "accuracy_median_final_distance_diff_m": float(np.median(diffs[:, 1])),
         "fraction_stopped_within_3_s": round(stopped, 3),
+        "mismatch": {"tires": tab["rows"], "controllers": tab["controllers"],
+                     "distance_over_actuated_bound": np.round(tab["over_actuated"], 4).tolist(),
+                     "wall_s_with_compilation": round(mismatch_wall, 1)},
         "load_average_1min_before_after": [round(load, 2), round(os.getloadavg()[0], 2)],
         "cpu_count": os.cpu_count(),
         "device": str(jax.devices()[0]),

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 
-CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate")
+CONTROLLER_NAMES = ("locked", "rule", "fixed", "estimate", "seek")
 """The keys of `vehsim.control.experiments.scenarios.CONTROLLERS`, spelled out here so that building the
 command line does not import the controllers (which would slow down every command)."""
 

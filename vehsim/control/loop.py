@@ -28,6 +28,7 @@ from .plant.hardware import (
     BrakeHardware,
     actuator_target,
     brake_torque,
+    mean_brake_torque,
     realistic_hardware,
 )
 from .plant.integrate import SUBSTEPS
@@ -129,7 +130,8 @@ def _sense(scenario, observer, hardware, substeps, key, st: LoopState, k):
         k > 0, lambda o: observer.update(o, scenario.car, hardware, substeps, v_m, omega_m, stamp,
                                          fresh, previous.torque, previous.target, t - T),
         lambda o: o, st.observer)
-    m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T)
+    m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T,
+                    mean_brake_torque(hardware, previous.torque, previous.target))
     seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh) | \
         observer.signals(obs)
     previous = eqx.tree_at(lambda p: p.omega, previous, omega_m)

@@ -111,11 +111,12 @@ def reproduce(ctx) -> None:
     ctx.figure(braking_figure(signals, "wet asphalt from 30 m/s"), "braking_wet_asphalt",
                "Estimate-based ABS and a locked wheel on wet asphalt from 30 m/s")
     ctx.text(NOTES)
+    _mismatch(ctx, hardware)
     if ctx.quick:
-        ctx.text("Quick mode: three surfaces. `vehsim reproduce --full --only braking_control` "
-                 "adds every surface, surface changes, ideal hardware, the estimators with and "
-                 "without noise, the Magic Formula tire, traction control, ABS in a turn and "
-                 "the gain tuning.")
+        ctx.text("Quick mode: three surfaces, the two Magic Formula tires. `vehsim reproduce "
+                 "--full --only braking_control` adds every surface, every tire, surface "
+                 "changes, ideal hardware, the estimators with and without noise, the Magic "
+                 "Formula tire, traction control, ABS in a turn and the gain tuning.")
         return
     changes = [tuple(c) for c in CHANGES]
     records, _ = grid_records(changes, hardware, 100.0)
@@ -154,6 +155,44 @@ def _surface_of(scenario):
     sigma0 = float(scenario.car.tire.params.sigma0)
     return next(n for n in SURFACES if abs(float(surface(n).params.theta) - theta) < 1e-9
                 and abs(float(surface(n).params.sigma0) - sigma0) < 1e-9)
+
+
+QUICK_MISMATCH = ("mf_sharp", "mf_low_flat")
+"""The other-shape tires of the quick mode's mismatch table (one grid)."""
+
+
+def _mismatch(ctx, hardware):
+    """Tires (named surfaces and other shapes) x controllers, distance over the limits;
+    quick mode: the two Magic Formulas on the realistic hardware."""
+    from ..control.experiments.mismatch import mismatch_table
+    from ..control.experiments.tires import OTHER_TIRES, other_tire
+
+    others = QUICK_MISMATCH if ctx.quick else OTHER_TIRES
+    rows = {name: ("dry_asphalt", other_tire(name), None, np.inf) for name in others}
+    if not ctx.quick:
+        rows = {name: (name, None, None, np.inf) for name in SURFACES} | rows
+    names = list(CONTROLLERS)
+    settings = [("realistic", hardware)] + ([] if ctx.quick else [("ideal", ideal_hardware())])
+    for label, hw in settings:
+        ctx.log(f"mismatch table: {len(rows)} tires x {len(names)} controllers, {label}")
+        tab = mismatch_table(rows, {n: controller(n) for n in names}, hw,
+                             duration=12.0 if ctx.quick else None)  # quick: one grid
+        lines = ["| tire | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for i, row in enumerate(tab["rows"]):
+            ctx.record(f"braking_control.mismatch.{label}.{row}", {
+                "physical_limit_m": float(tab["physical_limit"][i]),
+                "actuated_limit_m": float(tab["actuated_limit"][i]),
+                **{n: {"stopping_distance_m": float(tab["distance"][i, j]),
+                       "distance_over_bound": float(tab["over_physical"][i, j]),
+                       "distance_over_actuated_bound": float(tab["over_actuated"][i, j])}
+                   for j, n in enumerate(names)}})
+            lines.append(f"| {row} | " + " | ".join(
+                f"{tab['over_actuated'][i, j]:.4f} ({tab['over_physical'][i, j]:.4f})"
+                for j in range(len(names))) + " |")
+        ctx.text(f"**Tire mismatch, {label} hardware**: from 30 m/s, controllers and observer "
+                 "built for the LuGre road (the other shapes' observer for dry asphalt); "
+                 "stopping distance over the limit on this hardware (over the physical "
+                 "limit):", *lines)
 
 
 def _estimators(ctx):
@@ -244,15 +283,21 @@ def _turn(ctx):
     import equinox as eqx
     import jax.numpy as jnp
 
-    from ..control.controllers.braking import LockedWheel, RuleBasedABS
+    from ..control.controllers.braking import LockedWheel, RuleBasedABS, SlipTracking
+    from ..control.controllers.peak_seeking import PeakSeekingABS
     from ..control.experiments.half_car_abs import rear_abs, simulate_turn, turn_scenario
 
     sc = turn_scenario("dry_asphalt", 25.0, 0.03)
     cases = {"ABS on both axles": (RuleBasedABS(), rear_abs(), 0.4),
              "locked wheels": (LockedWheel(), LockedWheel(), 0.4),
              "front ABS, rear locked": (RuleBasedABS(), LockedWheel(), 1.0),
-             "no braking": (LockedWheel(), LockedWheel(), 0.4)}
+             "no braking": (LockedWheel(), LockedWheel(), 0.4),
+             "fixed slip front, rear ABS": (SlipTracking(), rear_abs(), 0.4),
+             "peak seeking front, rear ABS": (PeakSeekingABS(), rear_abs(), 0.4),
+             "peak seeking on both axles": (PeakSeekingABS(), PeakSeekingABS(), 0.4)}
     runs = {}
+    lines = ["| brakes | heading change (deg) | peak sideslip (deg) | peak yaw rate (rad/s) | "
+             "path end (m) |", "|---|---|---|---|---|"]
     for label, (front, rear, share) in cases.items():
         q = eqx.tree_at(lambda q: q.rear_share, sc, jnp.asarray(share))
         if label == "no braking":
@@ -266,6 +311,12 @@ def _turn(ctx):
                "heading_change_deg": float(np.degrees(s["psi"][moving][-1])),
                "path_end_m": [float(s["x"][moving][-1]), float(s["y"][moving][-1])]}
         ctx.record(f"braking_control.turn.{label}", rec)
+        lines.append(f"| {label} | {rec['heading_change_deg']:.1f} | "
+                     f"{rec['max_abs_sideslip_deg']:.2f} | {rec['max_abs_yaw_rate']:.3f} | "
+                     f"{rec['path_end_m'][0]:.1f}, {rec['path_end_m'][1]:.1f} |")
+    ctx.text("**Steerability**: the half car braking in a turn on dry asphalt from 25 m/s "
+             "(steering 0.03 rad): an ABS that keeps the wheels rolling keeps the car turning "
+             "(heading change) without spinning it (sideslip):", *lines)
     ctx.figure(turn_figure(runs, "braking in a turn on dry asphalt, 25 m/s, delta = 0.03 rad"),
                "braking_in_a_turn", "ABS on both axles of the half car braking in a turn")
 

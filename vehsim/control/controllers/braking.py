@@ -1,11 +1,13 @@
 r"""Braking controllers, sampled at the hardware's rate, commanding a brake torque $T_c\ge0$.
 
-Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel
-slip $\hat s = r\hat\omega/\hat v - 1$ and the wheel's peripheral acceleration
-$r\Delta\hat\omega/T$) and the estimator's *belief*: the tire it currently believes in (its
-assumed model at the current estimate, e.g. `UniformLumpedLuGre` at $\hat\theta$;
-`vehsim.control.estimation`). An estimate-based target is read off the belief's steady-state
-curve (`braking_curve`, `peak_braking`), whatever the belief's family.
+Each sees the `Measurement` of the sample (measured wheel and vehicle speed, the wheel slip
+$\hat s = r\hat\omega/\hat v - 1$, the wheel's peripheral acceleration $r\Delta\hat\omega/T$
+and the mean brake torque $\bar T_b$ the actuator applied over the last sample, known from
+the commands through the actuator's model as the estimators know it) and the estimator's
+*belief*: the tire it currently believes in (its assumed model at the current estimate, e.g.
+`UniformLumpedLuGre` at $\hat\theta$; `vehsim.control.estimation`). An estimate-based target
+is read off the belief's steady-state curve (`braking_curve`, `peak_braking`), whatever the
+belief's family.
 Below `handback_speed` (3 m/s by default) every controller hands back to plain braking (the
 full torque): there slip measurement is poor and a locked wheel costs little distance.
 
@@ -51,6 +53,7 @@ class Measurement(eqx.Module):
     v: Float[Array, ""]
     slip: Float[Array, ""]
     wheel_accel: Float[Array, ""]
+    brake_torque: Float[Array, ""]
 
 
 class AbstractBrakeController(eqx.Module):
@@ -166,14 +169,23 @@ class AbstractSlipTracking(AbstractBrakeController):
 
     def command(self, state, m, belief, car, dt, max_torque):
         s_target, mu_target = self.target(m, belief, car.radius)
-        r = car.radius
-        feedforward = mu_target * car.Fn_static * (r + car.inertia * (1.0 + s_target) / (
-            car.mass * r))
-        eps = r * m.omega - (1.0 + s_target) * m.v
-        e = jnp.where(eps > 0, ERROR_SCALE * jnp.tanh(eps / ERROR_SCALE), eps)
-        integral = jnp.clip(state + self.ki * e * dt, -feedforward, max_torque - feedforward)
-        torque = jnp.clip(feedforward + integral + self.kp * e, 0.0, max_torque)
+        integral, torque = track_slip(state, m, s_target, mu_target, car, dt, max_torque,
+                                      self.kp, self.ki)
         return integral, torque, jnp.zeros((), int)
+
+
+def track_slip(integral, m: Measurement, s_target, mu_target, car: QuarterCar, dt, max_torque,
+               kp, ki):
+    r"""``(integral, torque)``: the PI law of `AbstractSlipTracking` holding the wheel at the
+    slip `s_target` around the feedforward of the friction magnitude `mu_target` there."""
+    r = car.radius
+    feedforward = mu_target * car.Fn_static * (r + car.inertia * (1.0 + s_target) / (
+        car.mass * r))
+    eps = r * m.omega - (1.0 + s_target) * m.v
+    e = jnp.where(eps > 0, ERROR_SCALE * jnp.tanh(eps / ERROR_SCALE), eps)
+    integral = jnp.clip(integral + ki * e * dt, -feedforward, max_torque - feedforward)
+    torque = jnp.clip(feedforward + integral + kp * e, 0.0, max_torque)
+    return integral, torque
 
 
 class SlipTracking(AbstractSlipTracking):
@@ -215,7 +227,9 @@ class PeakSlipTracking(AbstractSlipTracking):
         return s, -braking_curve(belief, s, v, radius)
 
 
-def measurement(omega, v, omega_prev, radius, dt) -> Measurement:
-    """The `Measurement` of a sample from the measured speeds."""
+def measurement(omega, v, omega_prev, radius, dt, brake_torque=0.0) -> Measurement:
+    """The `Measurement` of a sample from the measured speeds and the mean brake torque
+    [N m] the actuator applied over the last sample."""
     slip = safe_div(radius * omega, v, fill=1.0) - 1.0
-    return Measurement(omega, v, jnp.clip(slip, -1.0, 1.0), radius * (omega - omega_prev) / dt)
+    return Measurement(omega, v, jnp.clip(slip, -1.0, 1.0), radius * (omega - omega_prev) / dt,
+                       jnp.asarray(brake_torque, dtype=jnp.result_type(omega, float)))

@@ -5,10 +5,11 @@ dynamic isotropic lumped LuGre tires (`IsotropicLumpedLuGre`, the surface's para
 $\kappa_0$ = 1.5), steered to a constant angle `delta` from the start and braked from
 `brake_time` on. Each axle has its own actuator (`BrakeHardware`, per-axle torque) and
 controller, sampled at the hardware's rate; the controllers see the axle's wheel speed and
-its longitudinal speed over the ground (measured with the hardware's speed noise; the
-tone wheels are not modelled here). Axle torques are $T_i = -T_{b,i}\tanh(\omega_i/
-\omega_\epsilon)$, $\omega_\epsilon$ = 1 rad/s. Integration as the quarter car's
-(`integrate_sample`, implicit in each wheel with its tire).
+its longitudinal speed over the ground (measured with the hardware's speed noise; the tone
+wheels are not modelled here) and the axle's mean brake torque over the last sample, and are
+told the road's lumped LuGre curve and the axle as a quarter car (`axle_cars`). Axle torques
+are $T_i = -T_{b,i}\tanh(\omega_i/ \omega_\epsilon)$, $\omega_\epsilon$ = 1 rad/s.
+Integration as the quarter car's (`integrate_sample`, implicit in each wheel with its tire).
 
 With locked wheels a tire has no lateral grip left to give: locked front wheels plough the
 car straight on (the yaw rate falls to nothing while steered), a locked rear axle lets the
@@ -27,12 +28,20 @@ from ..._fields import array_field
 from ..._results import RESULTS
 from ..._solution import AbstractSolution
 from ...tire.isotropic_lumped import IsotropicLumpedLuGre
+from ...tire.uniform_lumped import UniformLumpedLuGre
 from ...vehicle.half_car import HalfCar
 from ...vehicle.maneuvers import smooth_step
 from ...vehicle.params import rally_gravel
 from ...vehicle.planar import axle_velocities
+from ...vehicle.quarter_car import QuarterCar
 from ..controllers.braking import AbstractBrakeController, RuleBasedABS, measurement
-from ..plant.hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
+from ..plant.hardware import (
+    ActuatorState,
+    BrakeHardware,
+    actuator_target,
+    brake_torque,
+    mean_brake_torque,
+)
 from ..plant.integrate import SUBSTEPS, integrate_sample
 from ..road.surfaces import surface
 
@@ -70,13 +79,15 @@ def rear_abs() -> RuleBasedABS:
 class TurnState(eqx.Module):
     """What the turn carries from sample to sample: the car's state `y`, the axles'
     actuators (batched over the two axles), the axle controllers' states, the wheel speeds
-    at the last sample `omega_prev` and the first unsuccessful `result` of a sample's
+    at the last sample `omega_prev`, the axles' mean brake torques over it `brake_prev` and
+    the first unsuccessful `result` of a sample's
     integration."""
 
     y: Array
     actuator: ActuatorState
     controllers: tuple
     omega_prev: Array
+    brake_prev: Array
     result: RESULTS
 
 
@@ -106,6 +117,18 @@ def _rates(t, y, args):
     return sc.car.f(y, _controls(sc, hardware, y, t, t0, torque0, target))
 
 
+def axle_cars(sc: TurnScenario):
+    """What an axle's controller is told: the belief (the road's lumped LuGre,
+    `UniformLumpedLuGre` of the tire's parameters: the turn has no estimator) and the axle as
+    a quarter car (its static load, wheel inertia and radius)."""
+    p = sc.car.params
+    belief = UniformLumpedLuGre(sc.car.tire.params)
+    length = p.lF + p.lR
+    return belief, tuple(QuarterCar(belief, mass=p.m * share / length, inertia=inertia,
+                                    radius=p.r, omega_eps=OMEGA_EPS)
+                         for share, inertia in ((p.lR, p.Iw_F), (p.lF, p.Iw_R)))
+
+
 def _sample(sc, controllers, hardware, key, st: TurnState, k):
     T = hardware.sample_time
     t = k * T
@@ -115,10 +138,11 @@ def _sample(sc, controllers, hardware, key, st: TurnState, k):
     noise = hardware.speed_noise_std * jax.random.normal(jax.random.fold_in(key, k), (2,))
     v_m = jnp.stack([VFx, VRx]) + jnp.where(hardware.noise, noise, 0.0)
     omega = st.y[6:8]
+    belief, cars = axle_cars(sc)
     cmds, phases, new_ctrl = [], [], []
     for i, controller in enumerate(controllers):
-        m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T)
-        c, cmd, phase = controller.command(st.controllers[i], m, None, None, T,
+        m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T, st.brake_prev[i])
+        c, cmd, phase = controller.command(st.controllers[i], m, belief, cars[i], T,
                                            hardware.max_torque)
         new_ctrl.append(c)
         cap = hardware.max_torque * (1.0 if i == 0 else sc.rear_share)
@@ -130,9 +154,10 @@ def _sample(sc, controllers, hardware, key, st: TurnState, k):
     y1, result = integrate_sample(_rates, st.y, args, t, T, sc.car.stiff_blocks)
     out = dict(ts=t, state=st.y, torque=act.torque, phase=jnp.stack(phases),
                slip=p.r * omega / jnp.stack([VFx, VRx]) - 1.0)
+    brake_mean = mean_brake_torque(hardware, act.torque, target)
     act = eqx.tree_at(lambda a: a.torque, act, brake_torque(hardware, act.torque, target, T))
     result = RESULTS.where(st.result == RESULTS.successful, result, st.result)
-    return TurnState(y1, act, tuple(new_ctrl), omega, result), out
+    return TurnState(y1, act, tuple(new_ctrl), omega, brake_mean, result), out
 
 
 @eqx.filter_jit
@@ -141,7 +166,7 @@ def _simulate(sc, controllers, hardware, key, n_steps):
     act0 = jax.vmap(lambda _: ActuatorState.init())(jnp.arange(2))
     ctrl0 = tuple(c.init(hardware.max_torque) for c in controllers)
     step = lambda st, k: _sample(sc, controllers, hardware, key, st, k)  # noqa: E731
-    st0 = TurnState(y0, act0, ctrl0, y0[6:8], RESULTS.successful)
+    st0 = TurnState(y0, act0, ctrl0, y0[6:8], jnp.zeros(2, y0.dtype), RESULTS.successful)
     st, out = jax.lax.scan(step, st0, jnp.arange(n_steps))
     return st.result, out
 

@@ -21,13 +21,14 @@ from ..controllers.braking import (
     RuleBasedABS,
     SlipTracking,
 )
+from ..controllers.peak_seeking import PeakSeekingABS
 from ..estimation.observer import FrictionObserver
 from ..plant.quarter_car import BrakingScenario, SurfaceChange, braking_quarter_car
 from ..road.surfaces import Surface, surface
 
 
 CONTROLLERS = {"locked": LockedWheel, "rule": RuleBasedABS, "fixed": SlipTracking,
-               "estimate": PeakSlipTracking}
+               "estimate": PeakSlipTracking, "seek": PeakSeekingABS}
 """Controllers by the names the command line and result files use."""
 
 

@@ -1,0 +1,137 @@
+"""The peak-seeking ABS: its slope estimate against lines and curves written here, and its
+stopping distances against the limit, the fixed-slip controller and the locked wheel on
+tires whose peak the observer's LuGre family misplaces."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vehsim.control.controllers.braking import LockedWheel, Measurement, SlipTracking
+from vehsim.control.controllers.peak_seeking import PeakSeekingABS
+from vehsim.control.experiments.mismatch import mismatch_table
+from vehsim.control.experiments.tires import other_tire
+from vehsim.control.plant.hardware import realistic_hardware
+from vehsim.control.plant.quarter_car import braking_quarter_car
+from vehsim.control.road.surfaces import surface
+
+
+def _moments(controller, pairs, center, dt=0.005):
+    st = controller.init(2500.0)
+    slope = None
+    for lam, mu in pairs:
+        moments, slope, _ = controller._slope(st, lam, mu, center, dt)
+        st = st.__class__(st.integral, st.target, st.slip, *moments, st.engaged, st.time)
+    return slope
+
+
+@pytest.mark.parametrize("b", [-0.8, 0.3, 2.0])
+def test_slope_of_a_line(b):
+    """Pairs on mu = 0.9 + b (lambda - 0.15), spread around the centre: the weighted
+    least-squares slope is b (up to the variance floor)."""
+    c = PeakSeekingABS(variance_floor=1e-12)
+    lam = 0.15 + 0.02 * np.sin(np.arange(200) * 0.7)
+    slope = _moments(c, zip(lam, 0.9 + b * (lam - 0.15)), 0.15)
+    assert float(slope) == pytest.approx(b, rel=1e-6)
+
+
+def test_slope_is_local():
+    """On mu = 1 - 4 (lambda - 0.2)^2 the pairs near the centre decide: the slope at 0.1 is
+    positive, at 0.3 negative, close to the derivative 8 (0.2 - centre), though pairs from
+    the whole range 0-0.45 are fed."""
+    c = PeakSeekingABS()
+    rng = np.random.default_rng(0)
+    for center, expect in ((0.1, 0.8), (0.3, -0.8)):
+        lam = np.concatenate([np.linspace(0.0, 0.45, 60), center + 0.01 * rng.standard_normal(60)])
+        slope = _moments(c, zip(lam, 1.0 - 4.0 * (lam - 0.2) ** 2), center)
+        assert float(slope) == pytest.approx(expect, abs=0.25)
+
+
+def test_target_climbs_to_the_peak_of_a_static_curve():
+    """A wheel that sits at the commanded slip plus a ripple on a static curve with its peak
+    at braking slip 0.3: the target walks there from the belief's peak (0.19) and stays."""
+    belief = surface("dry_asphalt").tire()
+    car = braking_quarter_car(belief)
+    c = PeakSeekingABS()
+    dt, v = 0.005, 20.0
+    st = c.init(2500.0)
+    lam_prev = 0.0
+    command = jax.jit(lambda st, m: c.command(st, m, belief, car, dt, 2500.0))
+    for k in range(800):
+        lam = float(st.target) + 0.02 * math.sin(2 * math.pi * 7 * k * dt) if k else 0.0
+        mu = 1.0 - 3.0 * (lam - 0.3) ** 2
+        torque = mu * float(car.radius * car.Fn_static)  # steady wheel: no acceleration
+        omega = (1.0 - lam) * v / float(car.radius)
+        m = Measurement(jnp.asarray(omega), jnp.asarray(v), jnp.asarray(-lam),
+                        jnp.asarray(0.0), jnp.asarray(torque))
+        st, _, _ = command(st, m)
+        lam_prev = lam
+    assert lam_prev == pytest.approx(0.3, abs=0.05)
+    assert float(st.target) == pytest.approx(0.3, abs=0.02)
+
+
+def test_no_nan_in_forward_mode_at_zero_speed_and_slip():
+    belief = surface("dry_asphalt").tire()
+    car = braking_quarter_car(belief)
+
+    def torque(rate):
+        c = PeakSeekingABS(rate=rate)
+        z = jnp.zeros(())
+        _, t, _ = c.command(c.init(2500.0), Measurement(z, z, z, z, z), belief, car, 0.005,
+                            2500.0)
+        return t
+
+    value, tangent = jax.jvp(torque, (jnp.asarray(0.3),), (jnp.asarray(1.0),))
+    assert np.isfinite(float(value)) and np.isfinite(float(tangent))
+
+
+CONTROLLERS = {"seek": PeakSeekingABS(), "fixed": SlipTracking(), "locked": LockedWheel()}
+
+
+@pytest.fixture(scope="module")
+def other_shapes():
+    """The two Magic Formula tires (one grid) from 30 m/s on the realistic hardware, the
+    observer built for dry asphalt's LuGre."""
+    rows = {name: ("dry_asphalt", other_tire(name), None, math.inf)
+            for name in ("mf_sharp", "mf_low_flat")}
+    return mismatch_table(rows, CONTROLLERS, realistic_hardware(), duration=12.0)
+
+
+@pytest.fixture(scope="module")
+def lugre_roads():
+    """Named surfaces and surface changes that stop within 12 s (one grid)."""
+    rows = {name: (name, None, None, math.inf)
+            for name in ("dry_asphalt", "wet_asphalt", "cobblestone", "cdc1999_0.6")}
+    rows |= {"snow to dry": ("snow", None, "dry_asphalt", 50.0),
+             "ice to dry": ("ice", None, "dry_asphalt", 100.0)}
+    return mismatch_table(rows, CONTROLLERS, realistic_hardware(), duration=12.0)
+
+
+def test_seek_near_the_actuated_limit_on_other_shapes(other_shapes):
+    """Within 3 % of the limit on the hardware on the low, flat Magic Formula (whose peak
+    at large slip the estimate-based target misses); on the sharp one within 7 %: there the
+    slip-tracking loop itself cycles around the peak with the actuator's 25 ms of delay and
+    lag (the fixed-slip controller is as far off)."""
+    seek = dict(zip(other_shapes["rows"], other_shapes["over_actuated"][:, 0]))
+    assert seek["mf_low_flat"] < 1.03, seek
+    assert seek["mf_sharp"] < 1.07, seek
+
+
+def test_seek_never_worse_than_fixed_slip_or_locked(other_shapes, lugre_roads):
+    """At most 0.5 % longer than the better of fixed slip and the locked wheel; 1.5 % on the
+    sharp Magic Formula (both slip-tracking loops cycle there) and after a change to dry
+    asphalt (the target walks from the old road's peak at `rate`, where fixed slip sits
+    near dry asphalt's peak from the start)."""
+    for table in (other_shapes, lugre_roads):
+        d = table["distance"]
+        slack = np.array([1.015 if row == "mf_sharp" or " to " in row else 1.005
+                          for row in table["rows"]])
+        assert np.all(d[:, 0] <= slack * np.min(d[:, 1:], axis=1)), (table["rows"], d)
+
+
+def test_seek_near_the_actuated_limit_on_lugre_roads(lugre_roads):
+    ratio = dict(zip(lugre_roads["rows"], lugre_roads["over_actuated"][:, 0]))
+    for row, value in ratio.items():
+        assert value < (1.05 if " to " in row else 1.03), ratio

@@ -1,0 +1,127 @@
+r"""A peak-seeking ABS: extremum seeking on the friction the wheel measures.
+
+The wheel's own equation, $J\dot\omega = -rF - T_b\tanh(\omega/\omega_\epsilon)$ (eq. 22
+with the brake's smoothing), gives the friction over the last sample from what the
+controller knows: the mean brake torque $\bar T_b$ and the measured change of wheel speed,
+$$\hat\mu_k = \frac{\bar T_b\tanh(\hat\omega_k/\omega_\epsilon) + J(\hat\omega_k -
+\hat\omega_{k-1})/T}{rF_n},$$
+paired with the braking slip at the middle of the sample, $\bar\lambda_k = -(\hat s_k +
+\hat s_{k-1})/2$ (an error of $\hat\omega_k$ then enters the friction and the slip with
+uncorrelated weights). The slope $d\mu/d\lambda$ at the target $\lambda^*$ is the
+least-squares slope of $\hat\mu$ on $\bar\lambda$, each pair weighted by
+$w_k = e^{-(\bar\lambda_k - \lambda^*)^2/2h^2}$ (kernel width $h$: only pairs near the
+target count, not the onset's linear range nor an excursion past the peak) and forgotten
+over `window` seconds,
+$$b = \frac{C_{\lambda\mu}}{C_{\lambda\lambda} + \epsilon}$$
+($C$ the weighted covariances, updated recursively). The braking slip target starts at the
+peak of the believed tire's steady-state curve (`peak_braking` of the belief at the first
+sample: the estimate-based controller's target) and climbs the measured curve,
+$$\dot\lambda^* = \rho\,w_k\tanh(b/b_0),\qquad \lambda^*\in[\lambda_{min}, 1],$$
+so it stops where the measured slope vanishes, at the true tire's peak whatever its shape
+(a curve rising to the locked wheel drives it to 1: full torque). It moves only once the
+wheel has first reached it and only while the wheel is near it ($w_k$). A sinusoidal
+dither of amplitude `dither` and frequency `dither_frequency` on the target keeps the
+regression excited. The wheel is held at $s^* = -(\lambda^* + \text{dither})$ by the
+slip-tracking PI law (`track_slip`), its feedforward from the belief's curve at $s^*$ (after
+a change of road the estimator's belief moves within a few samples, where the measured
+curve near the old target says nothing of the new road); a target at the locked wheel
+($\lambda^* = 1$) commands the full torque. The belief enters only in the start and the
+feedforward.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ..._checks import check_nonnegative, check_positive, check_range
+from ..._fields import array_field
+from ..road.peak import braking_curve, peak_braking
+from .braking import AbstractBrakeController, track_slip
+
+
+class PeakSeekingState(eqx.Module):
+    r"""The PI `integral` [N m], the braking slip `target` $\lambda^*$, the braking slip at the
+    last sample `slip`, the kernel weights' forgotten sum `weight`, the weighted means
+    (`mean_slip`, `mean_mu`), variance `var_slip` and covariance `cov` of $(\bar\lambda,
+    \hat\mu)$, `engaged` (1 once the wheel reached the target) and the `time` since the
+    onset [s]."""
+
+    integral: Float[Array, ""]
+    target: Float[Array, ""]
+    slip: Float[Array, ""]
+    weight: Float[Array, ""]
+    mean_slip: Float[Array, ""]
+    mean_mu: Float[Array, ""]
+    var_slip: Float[Array, ""]
+    cov: Float[Array, ""]
+    engaged: Float[Array, ""]
+    time: Float[Array, ""]
+
+
+class PeakSeekingABS(AbstractBrakeController):
+    r"""Extremum seeking on the measured friction (module docstring).
+
+    **Fields:** `rate` $\rho$ [1/s] (0.3), `slope_scale` $b_0$ (0.5), `window` [s] (0.1),
+    `kernel_width` $h$ (0.03), `variance_floor` $\epsilon$ (1e-6), `min_slip`
+    $\lambda_{min}$ (0.02), `dither` (0.005),
+    `dither_frequency` [Hz] (5), gains `kp` (60) and `ki` (600) as `SlipTracking`.
+    """
+
+    rate: Float[Array, ""] = array_field(default=0.3)
+    slope_scale: Float[Array, ""] = array_field(default=0.5)
+    window: Float[Array, ""] = array_field(default=0.1)
+    kernel_width: Float[Array, ""] = array_field(default=0.03)
+    variance_floor: Float[Array, ""] = array_field(default=1e-6)
+    min_slip: Float[Array, ""] = array_field(default=0.02)
+    dither: Float[Array, ""] = array_field(default=0.005)
+    dither_frequency: Float[Array, ""] = array_field(default=5.0)
+    kp: Float[Array, ""] = array_field(default=60.0)
+    ki: Float[Array, ""] = array_field(default=600.0)
+
+    def __check_init__(self):
+        owner = "PeakSeekingABS"
+        for name in ("slope_scale", "window", "kernel_width", "variance_floor"):
+            check_positive(owner, name, getattr(self, name))
+        for name in ("rate", "dither", "dither_frequency", "kp", "ki"):
+            check_nonnegative(owner, name, getattr(self, name))
+        check_range(owner, "min_slip", self.min_slip, lower=0.0, upper=1.0)
+
+    def init(self, max_torque):
+        z = jnp.zeros(())
+        return PeakSeekingState(z, z, z, z, z, z, z, z, z, z)
+
+    def _slope(self, st: PeakSeekingState, lam, mu, center, dt):
+        r"""The weighted moments after the pair $(\bar\lambda, \hat\mu)$, the slope and the
+        pair's kernel weight."""
+        w = jnp.exp(-0.5 * jnp.square((lam - center) / self.kernel_width))
+        a = -jnp.expm1(-dt / self.window)
+        weight = (1.0 - a) * st.weight + a * w
+        g = a * w / jnp.maximum(weight, 1e-12)
+        d_lam, d_mu = lam - st.mean_slip, mu - st.mean_mu
+        mean_slip, mean_mu = st.mean_slip + g * d_lam, st.mean_mu + g * d_mu
+        var = (1.0 - g) * (st.var_slip + g * d_lam * d_lam)
+        cov = (1.0 - g) * (st.cov + g * d_lam * d_mu)
+        return (weight, mean_slip, mean_mu, var, cov), cov / (var + self.variance_floor), w
+
+    def command(self, state, m, belief, car, dt, max_torque):
+        st: PeakSeekingState = state
+        r = car.radius
+        v = jnp.maximum(m.v, 0.5)
+        lam = -m.slip
+        brake = m.brake_torque * jnp.tanh(m.omega / car.omega_eps)
+        mu = (brake + car.inertia * m.wheel_accel / r) / (r * car.Fn_static)
+        first = st.time == 0.0
+        lam_target = jnp.where(first, -peak_braking(belief, v, r)[0], st.target)
+        moments, slope, near = self._slope(st, 0.5 * (lam + st.slip), mu, lam_target, dt)
+        step = st.engaged * near * self.rate * dt * jnp.tanh(slope / self.slope_scale)
+        lam_target = jnp.clip(lam_target + step, self.min_slip, 1.0)
+        engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
+        dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
+        s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
+        integral, torque = track_slip(st.integral, m, s, -braking_curve(belief, s, v, r), car,
+                                      dt, max_torque, self.kp, self.ki)
+        torque = jnp.where(s <= -1.0, max_torque, torque)  # a target at the locked wheel
+        new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
+        return new, torque, jnp.zeros((), int)
