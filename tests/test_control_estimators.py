@@ -183,7 +183,8 @@ def test_scaled_friction_curve_is_the_tires_scaled_and_stretched():
 
 def test_peak_slip_tracking_aims_at_the_peak_of_the_belief():
     mf = vs.RelaxedMagicFormula(vs.MagicFormulaParams())
-    m = Measurement(jnp.asarray(60.0), jnp.asarray(20.0), jnp.asarray(-0.1), jnp.asarray(0.0))
+    m = Measurement(jnp.asarray(60.0), jnp.asarray(20.0), jnp.asarray(-0.1), jnp.asarray(0.0),
+                    jnp.asarray(0.0))
     s, mu = PeakSlipTracking().target(m, mf, 0.3)
     s_mf, mu_mf = peak_braking(mf, 20.0)
     assert float(s) == pytest.approx(float(s_mf), rel=1e-9)

@@ -175,8 +175,9 @@ def _mismatch(ctx, hardware):
     settings = [("realistic", hardware)] + ([] if ctx.quick else [("ideal", ideal_hardware())])
     for label, hw in settings:
         ctx.log(f"mismatch table: {len(rows)} tires x {len(names)} controllers, {label}")
+        # quick: one grid; tiny (the tests of the command): its first 2 s
         tab = mismatch_table(rows, {n: controller(n) for n in names}, hw,
-                             duration=12.0 if ctx.quick else None)  # quick: one grid
+                             duration=2.0 if ctx.tiny else 12.0 if ctx.quick else None)
         lines = ["| tire | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
         for i, row in enumerate(tab["rows"]):
             ctx.record(f"braking_control.mismatch.{label}.{row}", {
