@@ -122,7 +122,10 @@ class ProgressBar:
 def progress_bar(label: str, total: float, unit: str = "", enabled: bool = True,
                  **kwargs) -> Iterator[ProgressBar | None]:
     """Open a `ProgressBar` for the callbacks of the compiled work run inside the block
-    (block until that work is done before leaving it); does nothing if not `enabled`."""
+    (block until that work is done before leaving it); does nothing if not `enabled`. On
+    leaving, the callbacks still in flight are waited for (`jax.effects_barrier`: a host
+    callback may arrive after the arrays it reports on are ready), so the bar's last line
+    counts all the work."""
     if not enabled:
         yield None
         return
@@ -131,6 +134,7 @@ def progress_bar(label: str, total: float, unit: str = "", enabled: bool = True,
     try:
         yield bar
     finally:
+        jax.effects_barrier()
         _OPEN.remove(bar)
         bar.close()
 
