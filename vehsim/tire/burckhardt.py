@@ -31,7 +31,7 @@ from jaxtyping import Array, Float
 from .._checks import check_nonnegative, check_positive
 from .._fields import array_field
 from .._math import one_minus_exp_over, safe_abs
-from .lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity
+from .lugre import AbstractLongitudinalTire, LuGreParams, relaxed_deflection_rate
 from .steady_state import braking_mu_uniform
 
 
@@ -142,8 +142,7 @@ class RelaxedBurckhardt(AbstractLongitudinalTire):
         return jnp.zeros(())
 
     def dynamics(self, state, v, omega, r):
-        p = self.params
-        return relative_velocity(v, omega, r) - safe_abs(v) * state / p.relaxation_length
+        return relaxed_deflection_rate(state, v, omega, r, self.params.relaxation_length)
 
     def mu(self, state, v, omega, r):
         p = self.params

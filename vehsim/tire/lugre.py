@@ -87,6 +87,12 @@ def relative_velocity(v, omega, r):
     return r * omega - v
 
 
+def relaxed_deflection_rate(u, v, omega, r, relaxation_length):
+    r"""$\dot u = v_r - |v|\,u/\sigma$: the carcass deflection $u$ [m] of a tire whose
+    transient slip $u/\sigma$ relaxes over the length $\sigma$ towards $v_r/|v|$."""
+    return relative_velocity(v, omega, r) - safe_abs(v) * u / relaxation_length
+
+
 class AbstractLongitudinalTire(eqx.Module):
     r"""A longitudinal tire friction model with internal friction state.
 

@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 from .._checks import check_positive, check_range
 from .._fields import array_field
 from .._math import safe_abs, safe_div
-from .lugre import AbstractLongitudinalTire, relative_velocity
+from .lugre import AbstractLongitudinalTire, relative_velocity, relaxed_deflection_rate
 from .magic_formula import magic_formula
 
 
@@ -58,8 +58,7 @@ class RelaxedMagicFormula(AbstractLongitudinalTire):
         return jnp.zeros(())
 
     def dynamics(self, state, v, omega, r):
-        p = self.params
-        return relative_velocity(v, omega, r) - safe_abs(v) * state / p.relaxation_length
+        return relaxed_deflection_rate(state, v, omega, r, self.params.relaxation_length)
 
     def mu(self, state, v, omega, r):
         p = self.params
