@@ -548,30 +548,27 @@ def _draw_fig15(ax, c) -> None:
     ax[0].legend(fontsize=7)
 
 
-def _draw_fig13(ax, c) -> None:
+def _draw_combined(ax, c, fig: str, x, xlabel: str, values, label) -> None:
+    """Figs. 13-14: LuGre (solid) and Magic Formula (dashed) at each of `values`."""
     Fz = c["reference_load"]
-    for i, a in enumerate(c["alphas13_deg"]):
+    for i, value in enumerate(values):
         for j in range(3):
-            ax[j].plot(c["kappa"], c["fig13"]["lugre"][i, :, j], color=f"C{i}",
-                       label=f"alpha = {a:g} deg")
-            ax[j].plot(c["kappa"], c["fig13"]["mf"][i, :, j], "--", color=f"C{i}")
+            ax[j].plot(x, c[fig]["lugre"][i, :, j], color=f"C{i}", label=label(value))
+            ax[j].plot(x, c[fig]["mf"][i, :, j], "--", color=f"C{i}")
     for j in range(3):
-        ax[j].set(xlabel="slip ratio kappa", ylabel=_NAMES[j])
-    ax[0].set_title(f"Fig. 13: combined slip at {Fz:.0f} N (dashed: Magic Formula)")
+        ax[j].set(xlabel=xlabel, ylabel=_NAMES[j])
+    ax[0].set_title(f"Fig. {fig[3:]}: combined slip at {Fz:.0f} N (dashed: Magic Formula)")
     ax[0].legend(fontsize=7)
+
+
+def _draw_fig13(ax, c) -> None:
+    _draw_combined(ax, c, "fig13", c["kappa"], "slip ratio kappa", c["alphas13_deg"],
+                   lambda a: f"alpha = {a:g} deg")
 
 
 def _draw_fig14(ax, c) -> None:
-    Fz = c["reference_load"]
-    for i, k in enumerate(c["kappas14"]):
-        for j in range(3):
-            ax[j].plot(c["alpha_deg"], c["fig14"]["lugre"][i, :, j], color=f"C{i}",
-                       label=f"kappa = {k:g}")
-            ax[j].plot(c["alpha_deg"], c["fig14"]["mf"][i, :, j], "--", color=f"C{i}")
-    for j in range(3):
-        ax[j].set(xlabel="slip angle [deg]", ylabel=_NAMES[j])
-    ax[0].set_title(f"Fig. 14: combined slip at {Fz:.0f} N (dashed: Magic Formula)")
-    ax[0].legend(fontsize=7)
+    _draw_combined(ax, c, "fig14", c["alpha_deg"], "slip angle [deg]", c["kappas14"],
+                   lambda k: f"kappa = {k:g}")
 
 
 def _finish(fig, ax, title: str):
