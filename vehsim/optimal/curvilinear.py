@@ -97,15 +97,24 @@ def point_mass_rhs(X: Array, a: Array, kappa: Array) -> Array:
 
 def _rk4_steps(rhs: Callable, x, u, h, kappas):
     """RK4 steps of size ``h`` with the curvature at each step's (start, middle, end) in the
-    rows of ``kappas`` (S, 3); returns the end state and the S step starts."""
+    rows of ``kappas`` (S, 3); returns the end state and the S step starts. The four stages
+    of a step are a `lax.scan` loop, so the right-hand side is traced (and its second
+    derivatives compiled) once (as `vehsim.optimal.shooting`)."""
+    a = jnp.asarray(_RK4_A)
     b = jnp.asarray(_RK4_B)
 
     def step(x, kap):
-        k1 = rhs(x, u, kap[0])
-        k2 = rhs(x + 0.5 * h * k1, u, kap[1])
-        k3 = rhs(x + 0.5 * h * k2, u, kap[1])
-        k4 = rhs(x + h * k3, u, kap[2])
-        return x + h * (b[0] * k1 + b[1] * k2 + b[2] * k3 + b[3] * k4), x
+        kap_stage = jnp.stack([kap[0], kap[1], kap[1], kap[2]])
+
+        def stage(carry, abk):
+            k_prev, acc = carry
+            ai, bi, ki = abk
+            k = rhs(x + (ai * h) * k_prev, u, ki)
+            return (k, acc + bi * k), None
+
+        (_, acc), _ = jax.lax.scan(stage, (jnp.zeros_like(x), jnp.zeros_like(x)),
+                                   (a, b, kap_stage))
+        return x + h * acc, x
 
     if kappas.shape[0] == 1:
         end, start = step(x, kappas[0])

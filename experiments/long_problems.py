@@ -1,0 +1,124 @@
+"""Long arc-length problems: how the structured interior point's cost per iteration grows
+with the number of stages (it should grow linearly: one Riccati pass and per-stage
+derivatives), on a rally stage of seven corners (`rally_stage`) and a closed lap.
+
+Prints one JSON line per solve: road, stages, iterations, wall_s (the solve, compiled
+beforehand), compile_s, per_iteration_s, t_f, the point-mass bound's t_f (``--bound``), the
+largest distance off the road at the nodes and between them (re-integration), the
+periodicity residual of a lap; then a line with the slope of log(per-iteration time) against
+log(stages) (least squares).
+
+Usage: PYTHONPATH=. python experiments/long_problems.py [--stages 150 500 1000 2000]
+       [--road rally|lap|both] [--bound]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import numpy as np
+
+
+jax.config.update("jax_enable_x64", True)
+
+RALLY_SEGMENTS = [
+    ("straight", 120.0), ("arc", 30.0, 60.0), ("straight", 60.0), ("arc", 20.0, -90.0),
+    ("straight", 80.0), ("arc", 40.0, 45.0), ("straight", 50.0), ("arc", 15.0, -120.0),
+    ("straight", 100.0), ("arc", 25.0, 90.0), ("straight", 60.0), ("arc", 50.0, -30.0),
+    ("straight", 80.0),
+]
+"""A gravel stage of about 740 m: seven corners from a 15 m hairpin to a 50 m kink."""
+LAP_SEGMENTS = [
+    ("straight", 60.0), ("arc", 20.0, 90.0), ("straight", 30.0), ("arc", 15.0, 90.0),
+    ("straight", 60.0), ("arc", 20.0, 90.0), ("straight", 30.0), ("arc", 15.0, 90.0),
+]
+"""A small closed circuit (about 340 m) of four corners."""
+WIDTH = 8.0
+START_SPEED = 5.0
+
+
+def rally_stage(road_class=None):
+    """The rally stage (8 m wide; the start gate fixes 5 m/s)."""
+    if road_class is None:
+        from vehsim import CentrelineRoad as road_class
+    return road_class.from_segments(RALLY_SEGMENTS, WIDTH, start_speed=START_SPEED)
+
+
+def small_lap(road_class=None):
+    """The closed circuit (8 m wide)."""
+    if road_class is None:
+        from vehsim import CentrelineRoad as road_class
+    return road_class.from_segments(LAP_SEGMENTS, WIDTH, closed=True)
+
+
+def solve(road, name: str, M: int, bound: bool) -> dict:
+    import jax.numpy as jnp
+
+    from vehsim.optimal.curvilinear import (
+        CurvilinearManeuverOCP,
+        RoadPrimitive,
+        road_point_mass_bound,
+        speed_profile_guess,
+    )
+    from vehsim.optimal.ip import IPOptions, compile_interior_point
+    from vehsim.optimal.primitives import rally_gravel_car
+
+    car = rally_gravel_car()
+    options = IPOptions(max_iter=500)
+    prob = CurvilinearManeuverOCP.from_road(road, car, num_stages=M)
+    xs0, us0 = speed_profile_guess(road, car, M)
+    t0 = time.perf_counter()
+    program = compile_interior_point(prob, xs0, us0, options)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sol = program(prob, xs0, us0, options, throw=False)
+    jax.block_until_ready(sol.xs)
+    wall = time.perf_counter() - t0
+    prim = RoadPrimitive(problem=prob, solution=sol, road=road)
+    v = prim.violations()
+    xs = np.asarray(sol.xs)
+    its = int(sol.iterations)
+    rec = dict(road=name, stages=M, status=str(sol.message), iterations=its,
+               wall_s=round(wall, 3), compile_s=round(compile_s, 1),
+               per_iteration_s=round(wall / max(its, 1), 5), t_f=float(prim.t_f),
+               max_violation_nodes=v["corridor"],
+               max_violation_between_nodes=v["corridor_between_nodes"])
+    if prob.closed:
+        rec["periodicity"] = float(np.max(np.abs(xs[-1, :8] - xs[0, :8])))
+    if bound:
+        pm = road_point_mass_bound(road, num_stages=M, throw=False)
+        rec["point_mass_t_f"] = float(pm.t_f)
+        rec["point_mass_status"] = str(pm.solution.message)
+    del jnp
+    return rec
+
+
+def main(argv=None, road_class=None) -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--stages", type=int, nargs="+", default=[150, 500, 1000, 2000])
+    ap.add_argument("--road", choices=("rally", "lap", "both"), default="both")
+    ap.add_argument("--bound", action="store_true", help="solve the point-mass bound too")
+    args = ap.parse_args(argv)
+    roads = []
+    if args.road in ("rally", "both"):
+        roads.append(("rally_stage", rally_stage(road_class)))
+    if args.road in ("lap", "both"):
+        roads.append(("small_lap", small_lap(road_class)))
+    for name, road in roads:
+        rows = []
+        for M in args.stages:
+            rec = solve(road, name, M, args.bound)
+            rows.append(rec)
+            print(json.dumps(rec), flush=True)
+        if len(rows) > 1:
+            slope = np.polyfit(np.log([r["stages"] for r in rows]),
+                               np.log([r["per_iteration_s"] for r in rows]), 1)[0]
+            print(json.dumps(dict(road=name, per_iteration_slope=round(float(slope), 3))),
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
