@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim._constants import GRAVITY as G
 from vehsim.optimal.curvilinear import (
     CurvilinearManeuverOCP,
     CurvilinearPointMassOCP,
@@ -22,9 +23,6 @@ from vehsim.optimal.curvilinear import (
     speed_profile_guess,
 )
 from vehsim.optimal.primitives import rally_gravel_car
-
-
-from vehsim._constants import GRAVITY as G
 
 
 class _Gate:
