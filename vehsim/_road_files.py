@@ -107,13 +107,13 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
 def write_road(path: str | os.PathLike, road: CentrelineRoad) -> Path:
     """Write ``road`` as a CSV file in the layout `read_road` reads (atomically): its centre
     line and widths at its knots (about every 0.5 m; a closed road's last knot, equal to the
-    first, left out), to micrometres."""
+    first, left out), to nanometres."""
     s = road.knots[:-1] if road.closed else road.knots
     x, y = road.position(s)
     wr, wl = road.width_right(s), road.width_left(s)
     head = (f"# {road.name}: {'closed' if road.closed else 'open'} road, centre line "
             f"{road.length:.6f} m long, written by vehsim\n# {','.join(COLUMNS)}\n")
-    body = "".join(f"{a:.6f},{b:.6f},{c:.6f},{d:.6f}\n" for a, b, c, d in zip(x, y, wr, wl))
+    body = "".join(f"{a:.9f},{b:.9f},{c:.9f},{d:.9f}\n" for a, b, c, d in zip(x, y, wr, wl))
     return write_atomic(path, head + body)
 
 
