@@ -124,6 +124,16 @@ def test_from_points_on_a_circle_is_reparametrised_by_true_arc_length():
     np.testing.assert_allclose(d, 2 * R * np.sin(ds / (2 * R)), rtol=1e-7)
 
 
+def test_from_points_passes_through_its_points_with_their_widths(loop):
+    x, y, wr, wl = _wavy_loop()
+    s, n = loop.to_frenet(x, y)
+    np.testing.assert_allclose(n, 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.stack(loop.position(s)), np.stack([x, y]), atol=1e-9)
+    np.testing.assert_allclose(loop.width_right(s), wr, atol=1e-9)
+    np.testing.assert_allclose(loop.width_left(s), wl, atol=1e-9)
+    assert s[0] == pytest.approx(0.0, abs=1e-9) and np.all(np.diff(s) > 0)  # in order
+
+
 def test_to_frenet_inverts_to_cartesian_and_n_is_to_the_left(loop):
     rng = np.random.default_rng(2)
     s = rng.uniform(0, loop.length, 500)
