@@ -13,13 +13,13 @@ it only while $1 - n\kappa > 0$, so a width reaching the local radius of curvatu
 boundary folds over itself) is refused. A closed road (a circuit) is periodic in $s$ with
 period $L$.
 
-Stored form: the curve is sampled at knots $s_0 = 0 < \dots < s_K = L$ (about every
-`SPACING` metres, and at every junction of segments), with position, unit tangent and the
-second derivative $\kappa N$ on each side of a knot; between knots the position is the
-quintic Hermite interpolant of these (so $C^2$, and exactly $C^2$ across knots of a spline
-centre line; a curvature jump of joined segments stays a jump at the junction), the widths
-the cubic Hermite interpolant of their values and slopes. Every method takes and returns
-numpy arrays and is vectorised over its arguments.
+Stored form: the curve is sampled at knots $s_0 = 0 < \dots < s_K = L$ (at most
+`SPACING` metres apart, and at every junction of segments or breakpoint of a spline), with
+position, unit tangent and the second derivative $\kappa N$ on each side of a knot; between
+knots the position is the quintic Hermite interpolant of these (so $C^2$, and exactly $C^2$
+across knots of a spline centre line; a curvature jump of joined segments stays a jump at the
+junction), the widths the cubic Hermite interpolant of their values and slopes. Every method
+takes and returns numpy arrays and is vectorised over its arguments.
 
 Gates (`Gate`): the start and end lines of a problem, each a line across the road at an arc
 length, with the lateral interval it allows and optionally a fixed speed.
@@ -434,18 +434,23 @@ class CentrelineRoad(eqx.Module):
         seg = (speed(mid[:, None] + half[:, None] * gx[None]) @ gw) * half
         sb = np.concatenate([[0.0], np.cumsum(seg)])
         length = float(sb[-1])
-        nk = max(8 * npts, int(math.ceil(length / SPACING)))
-        s_k = np.linspace(0.0, length, nk + 1)
+        # knots: every breakpoint of the spline (where its third derivative jumps), and
+        # equal steps of at most SPACING between them
+        pieces = np.maximum(1, np.ceil(np.diff(sb) / SPACING)).astype(int)
+        frac = np.concatenate([np.arange(m) / m for m in pieces])
+        j_of = np.repeat(np.arange(len(pieces)), pieces)
+        s_k = np.concatenate([sb[j_of] + frac * np.diff(sb)[j_of], [length]])
+        u_lin = np.concatenate([brk[j_of] + frac * np.diff(brk)[j_of], [U]])
 
         def arc(uu):
             j = np.clip(np.searchsorted(brk, uu, side="right") - 1, 0, len(brk) - 2)
             m, hh = 0.5 * (uu + brk[j]), 0.5 * (uu - brk[j])
             return sb[j] + (speed(m[:, None] + hh[:, None] * gx[None]) @ gw) * hh
 
-        u_k = np.interp(s_k, sb, brk)
-        for _ in range(4):
-            u_k = np.clip(u_k - (arc(u_k) - s_k) / speed(u_k), 0.0, U)
-        u_k[0], u_k[-1] = 0.0, U
+        u_k = u_lin
+        exact = np.concatenate([frac == 0, [True]])  # the breakpoints themselves
+        for _ in range(5):
+            u_k = np.where(exact, u_k, np.clip(u_k - (arc(u_k) - s_k) / speed(u_k), 0.0, U))
         p = np.asarray(splev(u_k, tck)).T
         d1 = np.asarray(splev(u_k, tck, der=1)).T
         d2 = np.asarray(splev(u_k, tck, der=2)).T
@@ -661,9 +666,9 @@ def _validate(road: CentrelineRoad) -> None:
                 f"road {name!r}: {key} {w[i]:g} m reaches the radius of curvature "
                 f"{1 / abs(kappa[i]):g} m at s = {s[i]:.6g} m (the {side} edge folds over "
                 f"itself: n kappa = {fold[i]:.3g} >= 1)")
-    # self-intersection of the centre line (a polyline about every SPACING metres)
+    # self-intersection of the centre line (a polyline through at most 1000 of the knots)
     n_seg = len(road.knots) - 1
-    step = max(1, n_seg // 4000)
+    step = max(1, -(-n_seg // 1000))
     idx = np.arange(0, n_seg + 1, step)
     if idx[-1] != n_seg:
         idx = np.append(idx, n_seg)
