@@ -177,6 +177,12 @@ def test_closed_roads_wrap_in_s(loop):
     eps = 1e-4
     assert loop.curvature(-eps) == pytest.approx(loop.curvature(eps), abs=1e-3)
     assert loop.heading(L - eps) - loop.heading(0.0) == pytest.approx(2 * np.pi, abs=1e-3)
+    # and so are the widths (periodic splines): at t = 0 of `_wavy_loop`, dw_l/dt = 0 and
+    # dw_r/dt = 1, and ds/dt = 0.7 r(0) = 47.6 m
+    h = 1e-3
+    for f, slope in ((loop.width_left, 0.0), (loop.width_right, 1 / 47.6)):
+        assert (f(h) - f(-h)) / (2 * h) == pytest.approx(slope, abs=1e-5)
+        assert (f(h) - f(0.0)) / h == pytest.approx((f(0.0) - f(-h)) / h, abs=1e-6)
 
 
 def test_gates_default_to_the_full_width_at_both_ends_and_can_be_set(loop):
