@@ -311,13 +311,7 @@ class CentrelineRoad(eqx.Module):
             side = np.concatenate([side, [0.0, 0.0]])
             lo = np.concatenate([lo, [0.0, 0.0]])
             hi = np.concatenate([hi, [0.0, 0.0]])
-        out = np.zeros(len(q))
-        inside = np.zeros(len(q), bool)
-        near = np.zeros(len(q), int)
-        for i0 in range(0, len(q), 64):
-            qq = q[i0:i0 + 64]
-            inside[i0:i0 + 64] = _even_odd(qq, a, b)
-            out[i0:i0 + 64], near[i0:i0 + 64] = _nearest_side(qq, a, b)
+        inside, out, near = _polygon_query(q, a, b)
         out[inside] = 0.0
         curve = ~inside & (side[near] != 0.0)  # nearest side on an edge curve, not a cap
         if np.any(curve):
@@ -597,22 +591,63 @@ def _nearest(points, q):
     return out
 
 
-def _even_odd(q, a, b):
-    """Even-odd rule: whether points q (Q, 2) are inside the polygon of sides a -> b."""
-    ya, yb = a[None, :, 1], b[None, :, 1]
-    py = q[:, None, 1]
+_BLOCK = 32
+"""Polygon sides per bounding box in `_polygon_query`."""
+
+
+def _polygon_query(q, a, b):
+    """For points q (Q, 2) and the polygon of sides a -> b (E, 2): inside by the even-odd
+    rule, the distance to the nearest side and its index. Sides are grouped in blocks of
+    `_BLOCK` consecutive ones with bounding boxes; only the blocks that can hold the nearest
+    side (box distance <= an upper bound) or that a ray from the point to +x can cross are
+    looked at."""
+    e = len(a)
+    nb = -(-e // _BLOCK)
+    pad = nb * _BLOCK - e  # degenerate sides at the last vertex: never crossed, never nearer
+    a = np.concatenate([a, np.repeat(b[-1:], pad, axis=0)])
+    b = np.concatenate([b, np.repeat(b[-1:], pad, axis=0)])
+    ab, bb = a.reshape(nb, _BLOCK, 2), b.reshape(nb, _BLOCK, 2)
+    lo = np.minimum(ab, bb).min(axis=1)
+    hi = np.maximum(ab, bb).max(axis=1)
+    nq = len(q)
+    inside = np.zeros(nq, bool)
+    dist = np.full(nq, np.inf)
+    near = np.zeros(nq, int)
+    for i0 in range(0, nq, 512):
+        qq = q[i0:i0 + 512]
+        below, above = lo[None] - qq[:, None], qq[:, None] - hi[None]  # (Q, nb, 2)
+        gap = np.maximum(np.maximum(below, above), 0.0)
+        lb = np.hypot(gap[..., 0], gap[..., 1])
+        first = np.argmin(lb, axis=1)
+        upper, _ = _block_nearest(qq, ab[first], bb[first])
+        qi, bi = np.nonzero(lb <= upper[:, None])
+        d, j = _block_nearest(qq[qi], ab[bi], bb[bi])
+        order = np.lexsort((d, qi))
+        keep = order[np.r_[True, qi[order][1:] != qi[order][:-1]]]
+        dist[i0 + qi[keep]] = d[keep]
+        near[i0 + qi[keep]] = bi[keep] * _BLOCK + j[keep]
+        # even-odd: the blocks spanning the point's y and reaching right of it
+        qi, bi = np.nonzero((below[..., 1] <= 0) & (above[..., 1] <= 0) & (above[..., 0] <= 0))
+        crossings = _block_crossings(qq[qi], ab[bi], bb[bi])
+        inside[i0:i0 + 512] = np.bincount(qi, weights=crossings, minlength=len(qq)) % 2 == 1
+    return inside, dist, near
+
+
+def _block_crossings(q, a, b):
+    """Number of sides a -> b (P, n, 2) that the ray from each q (P, 2) to +x crosses."""
+    ya, yb, py = a[..., 1], b[..., 1], q[:, None, 1]
     crosses = (ya > py) != (yb > py)
     with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[None, :, 0] + (py - ya) * (b[None, :, 0] - a[None, :, 0]) / (yb - ya)
-    return (np.sum(crosses & (q[:, None, 0] < xi), axis=1) % 2) == 1
+        xi = a[..., 0] + (py - ya) * (b[..., 0] - a[..., 0]) / (yb - ya)
+    return np.sum(crosses & (q[:, None, 0] < xi), axis=1)
 
 
-def _nearest_side(q, a, b):
-    """Distance from points q to the nearest side a -> b, and that side's index."""
+def _block_nearest(q, a, b):
+    """Distance from each q (P, 2) to the nearest of its sides a -> b (P, n, 2), and which."""
     ab = b - a
     ll = np.maximum(np.sum(ab * ab, axis=-1), 1e-300)
-    t = np.clip(((q[:, None, :] - a[None]) * ab[None]).sum(-1) / ll[None], 0.0, 1.0)
-    c = a[None] + t[..., None] * ab[None]
+    t = np.clip(((q[:, None, :] - a) * ab).sum(-1) / ll, 0.0, 1.0)
+    c = a + t[..., None] * ab
     d = np.hypot(q[:, None, 0] - c[..., 0], q[:, None, 1] - c[..., 1])
     j = np.argmin(d, axis=1)
     return d[np.arange(len(q)), j], j
