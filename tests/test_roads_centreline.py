@@ -311,3 +311,39 @@ def test_the_shipped_circuit_loads_closed_with_its_published_length():
     np.testing.assert_allclose(road.position(road.length), road.position(0.0), atol=1e-9)
     with pytest.raises(ValueError, match="unknown track 'Monaco'"):
         vs.track("Monaco")
+
+
+@pytest.mark.parametrize("which", ["centreline", "rectangle"])
+def test_path_on_road_figure_draws_the_path_by_speed_and_every_footprint(which, loop):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vehsim.plot import path_on_road_figure, road_figure
+
+    road = loop if which == "centreline" else vs.road("corner90")
+    if which == "centreline":
+        s = np.linspace(0, 100, 51)
+        x, y = loop.to_cartesian(s, 0.5)
+        psi = loop.heading(s)
+    else:
+        x, y = np.linspace(-5, 9, 51), np.full(51, 9.0)
+        psi = np.zeros(51)
+    speed = np.linspace(5.0, 15.0, 51)
+    fig = path_on_road_figure(road, x, y, psi, speed, footprint=(4.0, 2.0), every=10)
+    ax = fig.axes[0]
+    feet = [p for p in ax.patches if p.get_gid() == "footprint"]
+    assert len(feet) == 6  # samples 0, 10, ..., 50
+    # each footprint is the 4 m x 2 m rectangle centred on its sample, turned by psi
+    corners = feet[1].get_xy()[:4]
+    np.testing.assert_allclose(corners.mean(axis=0), [x[10], y[10]], atol=1e-9)
+    np.testing.assert_allclose(np.hypot(*(corners[0] - corners[1])), 2.0, atol=1e-9)
+    np.testing.assert_allclose(np.arctan2(*(corners[0] - corners[3])[::-1]), psi[10], atol=1e-9)
+    lines = ax.collections[-1]
+    np.testing.assert_allclose(lines.get_array(), 0.5 * (speed[1:] + speed[:-1]))
+    assert fig.axes[1].get_ylabel() == "speed [m/s]"  # the colour bar
+    plt.close(fig)
+    fig = road_figure(road, path=(x, y))
+    assert fig.axes[0].get_title() == road.name
+    plt.close(fig)
