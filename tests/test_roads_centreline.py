@@ -173,6 +173,9 @@ def test_closed_roads_wrap_in_s(loop):
     for f in ("position", "curvature", "width_left", "width_right"):
         np.testing.assert_allclose(getattr(loop, f)(s + L), getattr(loop, f)(s), atol=1e-9)
         np.testing.assert_allclose(getattr(loop, f)(s - 3 * L), getattr(loop, f)(s), atol=1e-9)
+    # the heading goes on turning: one counter-clockwise lap adds 2 pi
+    np.testing.assert_allclose(loop.heading(s + L), loop.heading(s) + 2 * np.pi, atol=1e-9)
+    np.testing.assert_allclose(loop.heading(s - 2 * L), loop.heading(s) - 4 * np.pi, atol=1e-9)
     # the seam is smooth: curvature and heading rate continuous across s = 0
     eps = 1e-4
     assert loop.curvature(-eps) == pytest.approx(loop.curvature(eps), abs=1e-3)
@@ -193,6 +196,7 @@ def test_gates_default_to_the_full_width_at_both_ends_and_can_be_set(loop):
     road = loop.with_gates(start=Gate.at(loop, 10.0, n_min=-1.0, n_max=1.0, speed=20.0),
                            end=(float(x), float(y)))
     assert road.start == Gate(s=10.0, n_min=-1.0, n_max=1.0, speed=20.0)
+    assert road.start.lateral == (-1.0, 1.0)
     assert road.end.s == pytest.approx(100.0, abs=1e-8)
     np.testing.assert_allclose(road.end.endpoints(road)[1],
                                loop.to_cartesian(100.0, loop.width_left(100.0)), atol=1e-9)
@@ -306,8 +310,8 @@ def test_the_shipped_circuit_loads_closed_with_its_published_length():
     # length, e.g. Wikipedia "Motorsport Arena Oschersleben"); the centre line is 3692.8 m
     assert road.length == pytest.approx(3696.0, rel=0.02)
     # one clockwise lap, and the seam of the periodic spline is closed
-    assert road.heading(road.length - 1e-6) - road.heading(0.0) == pytest.approx(-2 * np.pi,
-                                                                               abs=1e-3)
+    assert road.heading(road.length) - road.heading(0.0) == pytest.approx(-2 * np.pi, abs=1e-9)
+    assert road.heading(road.length - 1e-6) == pytest.approx(road.heading(road.length), abs=1e-6)
     np.testing.assert_allclose(road.position(road.length), road.position(0.0), atol=1e-9)
     with pytest.raises(ValueError, match="unknown track 'Monaco'"):
         vs.track("Monaco")

@@ -101,6 +101,11 @@ class Gate(eqx.Module):
                 f"{wl if n > 0 else wr:g} m to the {'left' if n > 0 else 'right'}")
         return cls.at(road, s, speed=speed)
 
+    @property
+    def lateral(self) -> tuple[float, float]:
+        """The lateral interval ``(n_min, n_max)`` [m] the gate allows."""
+        return self.n_min, self.n_max
+
     def endpoints(self, road: CentrelineRoad) -> np.ndarray:
         """The gate's two ends as a (2, 2) array: right end (``n_min``), left end (``n_max``)."""
         x, y = road.to_cartesian(np.array([self.s, self.s]),
@@ -193,12 +198,17 @@ class CentrelineRoad(eqx.Module):
         return p[..., 0], p[..., 1]
 
     def heading(self, s) -> np.ndarray:
-        r"""The tangent's angle $\theta(s)$ [rad], unwrapped (continuous in $s$; for a closed
-        road on $[0, L)$, $\theta(L) - \theta(0) = \pm 2\pi \times$ the winding number)."""
+        r"""The tangent's angle $\theta(s)$ [rad], unwrapped: continuous in $s$, and for a
+        closed road continued over the laps, $\theta(s + L) = \theta(s) + \Theta$ with
+        $\Theta = \theta(L) - \theta(0)$ the lap's total turn ($\pm 2\pi$ for a circuit)."""
         _, d1, _, k = self._curve(s)
         th = self.headings[k]
         c, sn = np.cos(th), np.sin(th)
-        return th + np.arctan2(c * d1[..., 1] - sn * d1[..., 0], c * d1[..., 0] + sn * d1[..., 1])
+        out = th + np.arctan2(c * d1[..., 1] - sn * d1[..., 0], c * d1[..., 0] + sn * d1[..., 1])
+        if self.closed:
+            laps = np.floor(np.asarray(s, float) / self.length)
+            out = out + laps * (self.headings[-1] - self.headings[0])
+        return out
 
     def curvature(self, s) -> np.ndarray:
         r"""Signed curvature $\kappa(s) = \theta'(s)$ [1/m], left turns positive."""
