@@ -134,6 +134,23 @@ def test_from_points_passes_through_its_points_with_their_widths(loop):
     assert s[0] == pytest.approx(0.0, abs=1e-9) and np.all(np.diff(s) > 0)  # in order
 
 
+def test_smoothing_is_the_rms_distance_of_the_points_from_the_curve():
+    # a circle of radius 50 m through noisy points (0.27 m rms): interpolated, its curvature
+    # wiggles beyond the 3 m widths' limit and the road is refused; smoothed by 0.25 m, the
+    # points lie 0.25 m rms from the curve and its curvature is close to 1/R
+    R, n = 50.0, 120
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    r = R + np.random.default_rng(5).normal(0.0, 0.3, n)
+    x, y, w = r * np.cos(t), r * np.sin(t), np.full(n, 3.0)
+    with pytest.raises(ValueError, match="reaches the radius of curvature"):
+        CentrelineRoad.from_points(x, y, w, w, closed=True)
+    road = CentrelineRoad.from_points(x, y, w, w, closed=True, smoothing=0.25)
+    _, off = road.to_frenet(x, y)
+    assert 0.9 * 0.25 < np.sqrt(np.mean(off**2)) <= 0.25 * 1.001
+    s = np.linspace(0, road.length, 1000)
+    np.testing.assert_allclose(road.curvature(s), 1 / R, atol=0.1 / R)
+
+
 def test_to_frenet_inverts_to_cartesian_and_n_is_to_the_left(loop):
     rng = np.random.default_rng(2)
     s = rng.uniform(0, loop.length, 500)
