@@ -9,7 +9,7 @@ periodicity residual of a lap; then a line with the slope of log(per-iteration t
 log(stages) (least squares).
 
 Usage: PYTHONPATH=. python experiments/long_problems.py [--stages 150 500 1000 2000]
-       [--road rally|lap|both] [--bound]
+       [--road rally|lap|both] [--bound] [--coarse 150]
 """
 
 from __future__ import annotations
@@ -40,27 +40,28 @@ WIDTH = 8.0
 START_SPEED = 5.0
 
 
-def rally_stage(road_class=None):
+def rally_stage():
     """The rally stage (8 m wide; the start gate fixes 5 m/s)."""
-    if road_class is None:
-        from vehsim import CentrelineRoad as road_class
-    return road_class.from_segments(RALLY_SEGMENTS, WIDTH, start_speed=START_SPEED)
+    from vehsim import CentrelineRoad, Gate
+
+    road = CentrelineRoad.from_segments(RALLY_SEGMENTS, WIDTH, name="rally_stage")
+    return road.with_gates(Gate.at(road, 0.0, speed=START_SPEED), None)
 
 
-def small_lap(road_class=None):
+def small_lap():
     """The closed circuit (8 m wide)."""
-    if road_class is None:
-        from vehsim import CentrelineRoad as road_class
-    return road_class.from_segments(LAP_SEGMENTS, WIDTH, closed=True)
+    from vehsim import CentrelineRoad
+
+    return CentrelineRoad.from_segments(LAP_SEGMENTS, WIDTH, name="small_lap", closed=True)
 
 
-def solve(road, name: str, M: int, bound: bool) -> dict:
-    import jax.numpy as jnp
-
+def solve(road, name: str, M: int, bound: bool, coarse: int | None) -> dict:
     from vehsim.optimal.curvilinear import (
         CurvilinearManeuverOCP,
         RoadPrimitive,
+        resample_drive,
         road_point_mass_bound,
+        road_primitive,
         speed_profile_guess,
     )
     from vehsim.optimal.ip import IPOptions, compile_interior_point
@@ -70,6 +71,11 @@ def solve(road, name: str, M: int, bound: bool) -> dict:
     options = IPOptions(max_iter=500)
     prob = CurvilinearManeuverOCP.from_road(road, car, num_stages=M)
     xs0, us0 = speed_profile_guess(road, car, M)
+    if coarse is not None and coarse < M:  # start from the coarse solution (road_primitive)
+        first = road_primitive(road, car=car, num_stages=coarse, options=options, throw=False)
+        if bool(first.solution.converged):
+            xs0, us0 = resample_drive(first.problem, first.solution.xs, M)
+            options = IPOptions(max_iter=500, mu0=1e-3)
     t0 = time.perf_counter()
     program = compile_interior_point(prob, xs0, us0, options)
     compile_s = time.perf_counter() - t0
@@ -81,7 +87,7 @@ def solve(road, name: str, M: int, bound: bool) -> dict:
     v = prim.violations()
     xs = np.asarray(sol.xs)
     its = int(sol.iterations)
-    rec = dict(road=name, stages=M, status=str(sol.message), iterations=its,
+    rec = dict(road=name, stages=M, coarse_stages=coarse, status=str(sol.message), iterations=its,
                wall_s=round(wall, 3), compile_s=round(compile_s, 1),
                per_iteration_s=round(wall / max(its, 1), 5), t_f=float(prim.t_f),
                max_violation_nodes=v["corridor"],
@@ -92,25 +98,26 @@ def solve(road, name: str, M: int, bound: bool) -> dict:
         pm = road_point_mass_bound(road, num_stages=M, throw=False)
         rec["point_mass_t_f"] = float(pm.t_f)
         rec["point_mass_status"] = str(pm.solution.message)
-    del jnp
     return rec
 
 
-def main(argv=None, road_class=None) -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--stages", type=int, nargs="+", default=[150, 500, 1000, 2000])
     ap.add_argument("--road", choices=("rally", "lap", "both"), default="both")
     ap.add_argument("--bound", action="store_true", help="solve the point-mass bound too")
+    ap.add_argument("--coarse", type=int, default=None,
+                    help="start each solve from the solution on this many stages")
     args = ap.parse_args(argv)
     roads = []
     if args.road in ("rally", "both"):
-        roads.append(("rally_stage", rally_stage(road_class)))
+        roads.append(("rally_stage", rally_stage()))
     if args.road in ("lap", "both"):
-        roads.append(("small_lap", small_lap(road_class)))
+        roads.append(("small_lap", small_lap()))
     for name, road in roads:
         rows = []
         for M in args.stages:
-            rec = solve(road, name, M, args.bound)
+            rec = solve(road, name, M, args.bound, args.coarse)
             rows.append(rec)
             print(json.dumps(rec), flush=True)
         if len(rows) > 1:

@@ -779,6 +779,19 @@ class RoadPrimitive(eqx.Module):
         return rec
 
 
+def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages: int):
+    """A car drive's knots ``xs`` of ``prob`` on another grid of ``num_stages`` stages
+    (linear interpolation in s; the inputs stay piecewise linear, their rates the
+    differences): a guess for a finer problem from a coarse solution."""
+    xs = np.asarray(xs, float)
+    L = float(prob.length)
+    s_old = np.linspace(0.0, L, xs.shape[0])
+    s_new = np.linspace(0.0, L, num_stages + 1)
+    new = np.stack([np.interp(s_new, s_old, xs[:, j]) for j in range(xs.shape[1])], 1)
+    us = np.diff(new[:, 5:8], axis=0) / (L / num_stages)
+    return jax.device_put(new), jax.device_put(us)
+
+
 def road_point_mass_bound(road, objective: str = "min-time", *, D: float = 0.52,
                           num_stages: int = 100, steps_per_stage: int = 1,
                           tf_max: float = 60.0, fraction: float = 0.8,
@@ -801,7 +814,8 @@ def road_point_mass_bound(road, objective: str = "min-time", *, D: float = 0.52,
 def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | None = None,
                    num_stages: int = 100, steps_per_stage: int = 1, margin: float = 0.0,
                    tf_max: float = 60.0, rate_weight: float = 1e-4, fraction: float = 0.8,
-                   guess=None, options: IPOptions | None = None, throw: bool = True,
+                   guess=None, coarse_stages: int | None = None, warm_mu0: float = 1e-3,
+                   options: IPOptions | None = None, throw: bool = True,
                    solver: Callable = interior_point) -> RoadPrimitive:
     """Minimum-time (or maximum-exit-speed within ``tf_max`` [s]) drive of the reduced
     half-car along a centre-line road (`CurvilinearManeuverOCP`): open roads from the start
@@ -811,7 +825,10 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
     ``car`` (default the benchmark's `rally_gravel_car`), the grid ``num_stages`` x
     ``steps_per_stage`` RK4 steps, the corridor ``margin`` [m], ``rate_weight``, the
     starting ``guess`` (xs, us; default `speed_profile_guess` with ``fraction`` of the
-    friction), ``options`` (default ``IPOptions(max_iter=500)``), ``throw``, ``solver``
+    friction), ``coarse_stages``: first solve on that many stages from the guess, then start
+    the fine problem from its solution (`resample_drive`) with the barrier ``warm_mu0``
+    (long roads: the fine problem from the speed profile may stall), ``options`` (default
+    ``IPOptions(max_iter=500)``), ``throw``, ``solver``
     (`interior_point` or a function with its signature).
 
     **Returns:** a `RoadPrimitive`.
@@ -825,6 +842,14 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
                                             num_stages=num_stages,
                                             steps_per_stage=steps_per_stage, margin=margin,
                                             tf_max=tf_max, rate_weight=rate_weight)
+    if guess is None and coarse_stages is not None and coarse_stages < num_stages:
+        coarse = road_primitive(road, objective, car=car, num_stages=coarse_stages,
+                                steps_per_stage=steps_per_stage, margin=margin, tf_max=tf_max,
+                                rate_weight=rate_weight, fraction=fraction, options=options,
+                                throw=False, solver=solver)
+        if bool(coarse.solution.converged):
+            guess = resample_drive(coarse.problem, coarse.solution.xs, num_stages)
+            options = eqx.tree_at(lambda o: o.mu0, options, jnp.asarray(warm_mu0, float))
     if guess is None:
         guess = speed_profile_guess(road, car, num_stages, fraction)
         if objective == "max-exit":
