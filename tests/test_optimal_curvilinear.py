@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim import CentrelineRoad, Gate
 from vehsim._constants import GRAVITY as G
 from vehsim.optimal.curvilinear import (
     CurvilinearManeuverOCP,
@@ -210,6 +211,23 @@ def test_cartesian_path_of_the_primitive_is_the_road_frame_path(corner):
     assert rec["status"] == "successful" and rec["t_f"] == pytest.approx(float(prim.t_f))
     assert rec["max_corridor_violation_between_nodes"] < 0.01
     assert rec["t"][-1] == pytest.approx(rec["t_f"]) and np.all(np.diff(rec["t"]) > 0)
+
+
+def test_the_library_road_gives_the_stand_in_drive(corner):
+    """The same corner as a `CentrelineRoad` (its own curvature, widths, frame and distance
+    off the road): the same problem arrays, the same optimum and violations."""
+    road, prim = corner
+    lib = CentrelineRoad.from_segments(CORNER, 8.0)
+    w = 0.8 * road.w
+    lib = lib.with_gates(Gate.at(lib, 0.0, n_min=-w, n_max=w, speed=8.0),
+                         Gate.at(lib, lib.length, n_min=-w, n_max=w))
+    assert lib.length == pytest.approx(road.length, rel=1e-12)
+    other = road_primitive(lib, num_stages=M_OPEN)
+    np.testing.assert_allclose(other.problem.curvature, prim.problem.curvature, atol=1e-9)
+    assert float(other.t_f) == pytest.approx(float(prim.t_f), rel=1e-7)
+    v, w2 = prim.violations(), other.violations()
+    assert w2["corridor_between_nodes"] == pytest.approx(v["corridor_between_nodes"], abs=2e-4)
+    np.testing.assert_allclose(other.cartesian()["x"], prim.cartesian()["x"], atol=1e-6)
 
 
 def test_closed_lap_is_periodic(lap):
