@@ -242,6 +242,7 @@ from .optimal.curvilinear import (
     CurvilinearManeuverOCP as CurvilinearManeuverOCP,
     CurvilinearPointMassOCP as CurvilinearPointMassOCP,
     RoadPrimitive as RoadPrimitive,
+    resample_drive as resample_drive,
     road_point_mass_bound as road_point_mass_bound,
     road_primitive as road_primitive,
     spatial_rhs as spatial_rhs,
