@@ -255,10 +255,11 @@ def test_speed_profile_closed_forms():
     np.testing.assert_allclose(v[mid], math.sqrt(a * 20.0), rtol=1e-12)
     early = s < 5.0
     np.testing.assert_allclose(v[early], np.sqrt(v0**2 + 2 * a * s[early]), rtol=1e-9)
-    # and braking into the arc (from its first sample s_a): v^2 = a R + 2 a (s_a - s)
+    # and braking into the arc: v^2 = a R + 2 a (s_b - s) (s_b the straight's last sample:
+    # each step brakes with the friction left where the speed is known, none on the arc)
     late = (s > 55.0) & (s < 60.0)
-    s_a = s[s >= 60.0].min()
-    np.testing.assert_allclose(v[late], np.sqrt(a * 20.0 + 2 * a * (s_a - s[late])), rtol=1e-9)
+    s_b = s[s < 60.0].max()
+    np.testing.assert_allclose(v[late], np.sqrt(a * 20.0 + 2 * a * (s_b - s[late])), rtol=1e-9)
     # the guess of the car: centre line, yaw rate v kappa, times of 1/v
     xs, us = speed_profile_guess(road, rally_gravel_car(), 30, f)
     xs = np.asarray(xs)
