@@ -157,8 +157,10 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
     conditions. Subclasses define the physical state (its first two entries are $n$ and
     $\\xi$, its last the time $t$)."""
 
-    # subclasses define: length, curvature, corridor, corridor_mid, gate arrays, flags,
-    # num_stages, steps_per_stage, closed, objective, tf_max, rate_weight
+    # subclasses define the fields: length, curvature, corridor, corridor_mid,
+    # corridor_steps, start_lateral, end_lateral, start_speed, end_speed (arrays),
+    # start_speed_fixed, end_speed_fixed, num_stages, steps_per_stage, closed, objective
+    # (static), tf_max, rate_weight
 
     @property
     @abc.abstractmethod
@@ -295,9 +297,8 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
 
 
 def _interior_nodes(prob, k):
-    """Corridor bounds at the step starts after the first of stage ``k`` (S-1, 2): the
-    midpoint bounds of the previous step are not these, so they are interpolated from the
-    node and midpoint bounds (exact for straight-sided corridors)."""
+    """Corridor bounds at the step starts after the first of stage ``k`` (S-1, 2; none for
+    one step per stage)."""
     S = prob.steps_per_stage
     if S == 1:
         return jnp.zeros((0, 2))
