@@ -112,10 +112,12 @@ def lap():
     return road, road_primitive(road, num_stages=50)
 
 
-def test_point_mass_on_a_straight_is_the_closed_form():
+@pytest.mark.parametrize("steps", [1, 2])
+def test_point_mass_on_a_straight_is_the_closed_form(steps):
     D, v0, L = 0.52, 5.0, 100.0
     road = _ArcsRoad([("straight", L)], 8.0, start_speed=v0)
-    pm = road_point_mass_bound(road, D=D, num_stages=M_OPEN)
+    M = M_OPEN // steps
+    pm = road_point_mass_bound(road, D=D, num_stages=M, steps_per_stage=steps)
     a = D * float(pm.problem.g)
     exact = (math.sqrt(v0**2 + 2 * a * L) - v0) / a
     assert float(pm.t_f) == pytest.approx(exact, rel=1e-5)
