@@ -175,6 +175,20 @@ def test_distance_off_an_annulus_is_the_closed_form():
     assert np.any(exact == 0) and np.any(r < R - wl) and np.any(r > R + wr)
 
 
+def test_distance_off_the_road_is_exact_within_millimetres_of_curved_edges():
+    # a tight annulus: inner edge radius 1 m, outer 15 m; points 1 mm either side of both
+    # edges (between the stored edge samples, a polygon through them is off by up to 5 mm)
+    R, wr, wl = 5.0, 10.0, 4.0
+    road = CentrelineRoad.from_segments([("arc", R, 360.0)], (wr, wl), start=(0.0, -R),
+                                        closed=True)
+    phi = np.random.default_rng(6).uniform(0, 2 * np.pi, 400)
+    r = np.concatenate([np.full(100, R + wr) + d for d in (-1e-3, 1e-3)]
+                       + [np.full(100, R - wl) + d for d in (-1e-3, 1e-3)])
+    exact = np.maximum(np.maximum(R - wl - r, r - (R + wr)), 0.0)
+    got = road.distance_off_road(r * np.cos(phi), r * np.sin(phi))
+    np.testing.assert_allclose(got, exact, atol=1e-9)
+
+
 def test_distance_off_an_open_straight_is_the_distance_to_its_rectangle():
     road = CentrelineRoad.from_segments([("straight", 40.0)], (2.0, 3.0), start=(5.0, 1.0))
     x, y = np.random.default_rng(4).uniform(-10, 60, (2, 1000))
