@@ -195,10 +195,10 @@ def test_distance_off_an_open_straight_is_the_distance_to_its_rectangle():
     dx = np.maximum(np.maximum(5.0 - x, x - 45.0), 0.0)
     dy = np.maximum(np.maximum(-1.0 - y, y - 4.0), 0.0)
     np.testing.assert_allclose(road.distance_off_road(x, y), np.hypot(dx, dy), atol=1e-9)
+    np.testing.assert_array_equal(road.on_road(x, y), np.hypot(dx, dy) == 0)
     # just beyond the ends, beside the corners (the end line is the nearest side)
     x, y = np.array([45.01, 45.01, 4.99, 4.99, 45.001]), np.array([3.99, -0.99, 3.99, -0.99, 0.0])
     np.testing.assert_allclose(road.distance_off_road(x, y), [0.01] * 4 + [0.001], atol=1e-12)
-    np.testing.assert_array_equal(road.on_road(x, y), np.hypot(dx, dy) == 0)
 
 
 def test_closed_roads_wrap_in_s(loop):
