@@ -215,6 +215,17 @@ from .optimal.roads import Road as Road, road as road
 
 
 # isort: split
+# roads from data: centre line and widths (racetrack CSV files, shipped circuits)
+from ._road_files import (
+    read_road as read_road,
+    shipped_tracks as shipped_tracks,
+    track as track,
+    write_road as write_road,
+)
+from .optimal.centreline import CentrelineRoad as CentrelineRoad, Gate as Gate
+
+
+# isort: split
 # replay of primitives on the full half-car
 from .optimal.replay import (
     Replay as Replay,

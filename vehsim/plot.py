@@ -314,3 +314,85 @@ def tire_curves_figure(curves: dict, title: str = ""):
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def draw_centreline_road(ax, road, num: int | None = None):
+    """Draw a `CentrelineRoad` on ``ax``: the road surface between its edges, the edges,
+    the dashed centre line and the start and end gates; ``num`` points per edge (default
+    about one per metre, at most 4000)."""
+    from matplotlib.patches import Polygon
+
+    num = num or int(min(4000, max(200, road.length)))
+    left, right = road.boundaries(num)
+    ax.add_patch(Polygon(np.concatenate([left, right[::-1]]), closed=True, facecolor="0.88",
+                         edgecolor="none", zorder=0))
+    for edge in (left, right):
+        ax.plot(edge[:, 0], edge[:, 1], "-", color="0.35", lw=0.8, zorder=1)
+    centre = np.asarray(road.centreline)
+    ax.plot(centre[:, 0], centre[:, 1], "--", color="0.6", lw=0.6, zorder=1)
+    for gate, colour in ((road.start, "tab:green"), (road.end, "tab:red")):
+        ends = gate.endpoints(road)
+        ax.plot(ends[:, 0], ends[:, 1], "-", color=colour, lw=1.5, zorder=2)
+    ax.set_aspect("equal")
+
+
+def _draw_any_road(ax, road):
+    if hasattr(road, "legs"):
+        draw_road(ax, road)
+    else:
+        draw_centreline_road(ax, road)
+
+
+def road_figure(road, path=None, *, title: str | None = None):
+    """A figure of a road (a rectangle `Road`: its legs; a `CentrelineRoad`: surface, edges,
+    centre line, start gate green, end gate red) and optionally a path ``(x, y)`` [m] on it."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    _draw_any_road(ax, road)
+    if path is not None:
+        ax.plot(np.asarray(path[0]), np.asarray(path[1]), "k-", lw=1.0)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(road.name if title is None else title)
+    ax.autoscale_view()
+    fig.tight_layout()
+    return fig
+
+
+def path_on_road_figure(road, x, y, psi, speed, *, footprint=(4.2, 1.8), every: int | None = None,
+                        title: str | None = None):
+    """A path on a road (rectangle or centre-line) coloured by speed [m/s] (colour bar), with
+    the car's footprint, a ``footprint = (length, width)`` [m] rectangle centred on the path
+    and turned by the heading ``psi`` [rad], every ``every`` samples (default: about 25
+    along the path, the first and last included)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon
+
+    x, y, psi, speed = (np.asarray(v, float) for v in (x, y, psi, speed))
+    n = len(x)
+    every = max(1, (n - 1) // 24) if every is None else int(every)
+    fig, ax = plt.subplots(figsize=(8, 6))
+    _draw_any_road(ax, road)
+    pts = np.stack([x, y], axis=-1)
+    segs = np.stack([pts[:-1], pts[1:]], axis=1)
+    lc = LineCollection(segs, cmap="viridis", linewidths=2.0, zorder=3)
+    lc.set_array(0.5 * (speed[:-1] + speed[1:]))
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, label="speed [m/s]", shrink=0.8)
+    length, width = footprint
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
+    marks = sorted(set(range(0, n, every)) | {n - 1})
+    for i in marks:
+        c, s = np.cos(psi[i]), np.sin(psi[i])
+        corners = np.stack([x[i] + c * half[:, 0] - s * half[:, 1],
+                            y[i] + s * half[:, 0] + c * half[:, 1]], axis=-1)
+        ax.add_patch(Polygon(corners, closed=True, facecolor="none", edgecolor="tab:blue",
+                             lw=0.8, zorder=4, gid="footprint"))
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(road.name if title is None else title)
+    ax.autoscale_view()
+    fig.tight_layout()
+    return fig

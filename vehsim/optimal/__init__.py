@@ -1,6 +1,7 @@
 """Optimal driving primitives (report section 2.5, Table 4, Fig. 20).
 
-`roads` (the benchmark corridors and boundary sets), `shooting` (the maneuver problems by
+`roads` (the benchmark corridors and boundary sets), `centreline` (roads given by a centre
+line and widths: racetrack data, gates), `shooting` (the maneuver problems by
 direct multiple shooting), `ip` (the structured interior-point method), `guesses` (initial
 guesses), `primitives` (the solves), `primitive` (a solved maneuver and its record) and
 `replay` (a primitive's torques on the full half-car). The public names are exported flat
