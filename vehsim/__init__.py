@@ -237,6 +237,21 @@ from .optimal.replay import (
 
 
 # isort: split
+# minimum-time drives on centre-line roads, in the road's frame (arc length)
+from .optimal.curvilinear import (
+    CurvilinearManeuverOCP as CurvilinearManeuverOCP,
+    CurvilinearPointMassOCP as CurvilinearPointMassOCP,
+    RoadPrimitive as RoadPrimitive,
+    resample_drive as resample_drive,
+    road_point_mass_bound as road_point_mass_bound,
+    road_primitive as road_primitive,
+    spatial_rhs as spatial_rhs,
+    speed_profile as speed_profile,
+    speed_profile_guess as speed_profile_guess,
+)
+
+
+# isort: split
 # labelled results (xarray, netCDF), sweeps across processes, the compilation cache
 from ._compilation import enable_compilation_cache as enable_compilation_cache
 from ._result_files import load_result as load_result

@@ -136,7 +136,11 @@ def _violation_arrays(prob, xs, us, substeps: int):
 def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
     """JSON-ready record of a solved car primitive: t_f, exit_speed, ``status`` (the result's
     name) and ``message``, iterations, residuals, violations, the point-mass ``bound`` and
-    the ratio to it, states and inputs at every node."""
+    the ratio to it, states and inputs at every node. A drive on a centre-line road (a
+    primitive with a ``record`` method, `RoadPrimitive`) gives its own record, with the same
+    fields."""
+    if hasattr(prim, "record"):
+        return prim.record(bound)
     sol = prim.solution
     sig = prim.signals()
     # read off host copies: each eager operation on a device array is a program of its own

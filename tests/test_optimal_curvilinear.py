@@ -1,0 +1,272 @@
+"""Minimum-time drives on centre-line roads in the road's frame (arc length as the
+independent variable): the point mass against its closed form, the car against an
+independent Cartesian re-simulation in time, a periodic lap, the speed-profile guess.
+
+The roads here are a stand-in written in the test (straights and circular arcs with
+analytic curvature, positions and a brute-force distance off the road), independent of the
+library's road classes."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vehsim import CentrelineRoad, Gate
+from vehsim._constants import GRAVITY as G
+from vehsim.optimal.curvilinear import (
+    CurvilinearManeuverOCP,
+    CurvilinearPointMassOCP,
+    road_point_mass_bound,
+    road_primitive,
+    speed_profile,
+    speed_profile_guess,
+)
+from vehsim.optimal.primitives import rally_gravel_car
+
+
+class _Gate:
+    def __init__(self, s, lateral, speed=None):
+        self.s, self.lateral, self.speed = s, lateral, speed
+
+
+class _ArcsRoad:
+    """Straights and arcs ("straight", L) / ("arc", R, degrees, left positive), constant
+    width, gates at both ends."""
+
+    def __init__(self, segments, width, closed=False, start_speed=None):
+        self.pieces = []
+        s0, x0, y0, th0 = 0.0, 0.0, 0.0, 0.0
+        for seg in segments:
+            if seg[0] == "straight":
+                L, k = float(seg[1]), 0.0
+            else:
+                L, k = seg[1] * abs(math.radians(seg[2])), math.copysign(1 / seg[1], seg[2])
+            self.pieces.append((s0, L, k, x0, y0, th0))
+            x0, y0, th0 = self._pose(k, L, x0, y0, th0)
+            s0 += L
+        self.length, self.closed, self.w = s0, closed, width / 2
+        self.start = _Gate(0.0, (-0.8 * self.w, 0.8 * self.w), start_speed)
+        self.end = _Gate(s0, (-0.8 * self.w, 0.8 * self.w))
+        self._dense = np.stack(self.position(np.linspace(0, s0, int(s0 / 0.01) + 1)), 1)
+
+    @staticmethod
+    def _pose(k, d, x0, y0, th0):
+        kk = np.where(k == 0, 1.0, k)
+        th = th0 + k * d
+        x = np.where(k == 0, x0 + d * np.cos(th0), x0 + (np.sin(th) - np.sin(th0)) / kk)
+        y = np.where(k == 0, y0 + d * np.sin(th0), y0 - (np.cos(th) - np.cos(th0)) / kk)
+        return x, y, th
+
+    def _piece(self, s):
+        s = np.mod(s, self.length) if self.closed else np.asarray(s, float)
+        starts = np.array([p[0] for p in self.pieces])
+        i = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, len(starts) - 1)
+        return s, np.array(self.pieces)[i]
+
+    def curvature(self, s):
+        return self._piece(s)[1][..., 2]
+
+    def width_left(self, s):
+        return np.full(np.shape(s), self.w)
+
+    width_right = width_left
+
+    def _all(self, s):
+        s, P = self._piece(s)
+        return self._pose(P[..., 2], s - P[..., 0], P[..., 3], P[..., 4], P[..., 5])
+
+    def position(self, s):
+        return self._all(s)[:2]
+
+    def heading(self, s):
+        return self._all(s)[2]
+
+    def to_cartesian(self, s, n):
+        x, y, th = self._all(s)
+        return x - n * np.sin(th), y + n * np.cos(th)
+
+    def distance_off_road(self, x, y):
+        p = np.stack([np.ravel(x), np.ravel(y)], 1)
+        d = np.concatenate([np.min(np.hypot(q[:, None, 0] - self._dense[None, :, 0],
+                                            q[:, None, 1] - self._dense[None, :, 1]), 1)
+                            for q in np.array_split(p, max(1, len(p) // 200))])
+        return np.maximum(d - self.w, 0.0).reshape(np.shape(x))
+
+
+CORNER = [("straight", 20.0), ("arc", 20.0, 90.0), ("straight", 20.0)]
+OVAL = [("straight", 30.0), ("arc", 12.0, 180.0), ("straight", 30.0), ("arc", 12.0, 180.0)]
+M_OPEN = 40
+
+
+@pytest.fixture(scope="module")
+def corner():
+    road = _ArcsRoad(CORNER, 8.0, start_speed=8.0)
+    return road, road_primitive(road, num_stages=M_OPEN)
+
+
+@pytest.fixture(scope="module")
+def lap():
+    road = _ArcsRoad(OVAL, 8.0, closed=True)
+    return road, road_primitive(road, num_stages=50)
+
+
+def test_point_mass_on_a_straight_is_the_closed_form():
+    D, v0, L = 0.52, 5.0, 100.0
+    road = _ArcsRoad([("straight", L)], 8.0, start_speed=v0)
+    pm = road_point_mass_bound(road, D=D, num_stages=M_OPEN)
+    a = D * float(pm.problem.g)
+    exact = (math.sqrt(v0**2 + 2 * a * L) - v0) / a
+    assert float(pm.t_f) == pytest.approx(exact, rel=1e-5)
+    assert float(pm.exit_speed) == pytest.approx(math.sqrt(v0**2 + 2 * a * L), rel=1e-5)
+
+
+def test_car_is_slower_than_the_point_mass_and_on_the_road(corner):
+    road, prim = corner
+    assert bool(prim.solution.converged)
+    pm = road_point_mass_bound(road, num_stages=M_OPEN)
+    assert float(pm.t_f) < float(prim.t_f) < 1.1 * float(pm.t_f)
+    v = prim.violations()
+    assert v["corridor"] < 1e-6 and v["corridor_between_nodes"] < 0.01
+    assert v["boundary"] < 1e-8 and v["defects"] < 1e-8
+    xs = np.asarray(prim.solution.xs)
+    assert xs[0, 2] == pytest.approx(8.0) and abs(xs[-1, 1]) < 1e-8 and abs(xs[-1, 4]) < 1e-8
+
+
+def _cartesian_drive(car, z0, t_knots, inputs, substeps):
+    """The Cartesian reduced half-car (x, y, psi, vx, vy, r) integrated in time by RK4 with
+    inputs linear in time between the knot times; returns every substep's state."""
+    f = jax.jit(lambda z, u: car.f(z, u))
+    z = np.asarray(z0, float)
+    out = [z]
+    for k in range(len(t_knots) - 1):
+        dt = (t_knots[k + 1] - t_knots[k]) / substeps
+        for j in range(substeps):
+            u = lambda a: inputs[k] + (inputs[k + 1] - inputs[k]) * (j + a) / substeps
+            k1 = np.asarray(f(z, u(0.0)))
+            k2 = np.asarray(f(z + 0.5 * dt * k1, u(0.5)))
+            k3 = np.asarray(f(z + 0.5 * dt * k2, u(0.5)))
+            k4 = np.asarray(f(z + dt * k3, u(1.0)))
+            z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            out.append(z)
+    return np.array(out)
+
+
+def _cartesian_knots(road, xs):
+    s = np.linspace(0, road.length, len(xs))
+    x, y = road.to_cartesian(s, xs[:, 0])
+    return np.stack([x, y, np.unwrap(road.heading(s)) + xs[:, 1], xs[:, 2], xs[:, 3],
+                     xs[:, 4]], 1)
+
+
+def test_cartesian_re_simulation_stays_on_the_road_and_ends_at_the_gate(corner):
+    road, prim = corner
+    car = prim.problem.vehicle
+    xs = np.asarray(prim.solution.xs)
+    cart = _cartesian_knots(road, xs)
+    # stage by stage from each knot: the path between the nodes, and the next knot
+    f = jax.jit(jax.vmap(lambda z0, t, u: _stage_rk4(car, z0, t, u, 20)))
+    ends, path = f(cart[:-1], np.stack([xs[:-1, 8], xs[1:, 8]], 1),
+                   np.stack([xs[:-1, 5:8], xs[1:, 5:8]], 1))
+    ends, path = np.asarray(ends), np.asarray(path)
+    assert np.max(np.hypot(*(ends[:, :2] - cart[1:, :2]).T)) < 0.01
+    assert np.max(road.distance_off_road(path[..., 0], path[..., 1])) < 0.01
+    # the whole drive in time from the first knot ends at the end gate
+    drive = _cartesian_drive(car, cart[0], xs[:, 8], xs[:, 5:8], 10)
+    end_x, end_y = road.position(road.length)
+    heading = road.heading(road.length)
+    along = (drive[-1, 0] - end_x) * np.cos(heading) + (drive[-1, 1] - end_y) * np.sin(heading)
+    across = -(drive[-1, 0] - end_x) * np.sin(heading) + (drive[-1, 1] - end_y) * np.cos(heading)
+    assert abs(along) < 0.15 and abs(across - xs[-1, 0]) < 0.3
+    assert road.end.lateral[0] - 0.01 < across < road.end.lateral[1] + 0.01
+
+
+def _stage_rk4(car, z0, t, u, substeps):
+    dt = (t[1] - t[0]) / substeps
+
+    def step(z, j):
+        inp = lambda a: u[0] + (u[1] - u[0]) * (j + a) / substeps
+        k1 = car.f(z, inp(0.0))
+        k2 = car.f(z + 0.5 * dt * k1, inp(0.5))
+        k3 = car.f(z + 0.5 * dt * k2, inp(0.5))
+        k4 = car.f(z + dt * k3, inp(1.0))
+        z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return z, z
+
+    return jax.lax.scan(step, z0, jnp.arange(substeps, dtype=float))
+
+
+def test_cartesian_path_of_the_primitive_is_the_road_frame_path(corner):
+    road, prim = corner
+    pose = prim.cartesian()
+    xs = np.asarray(prim.nodes())
+    # independent: the stand-in's own frame, offset n along the left normal
+    s = np.linspace(0, road.length, len(xs))
+    cx, cy = road.position(s)
+    th = road.heading(s)
+    np.testing.assert_allclose(pose["x"], cx - xs[:, 0] * np.sin(th), atol=1e-12)
+    np.testing.assert_allclose(pose["y"], cy + xs[:, 0] * np.cos(th), atol=1e-12)
+    rec = prim.record()
+    assert rec["status"] == "successful" and rec["t_f"] == pytest.approx(float(prim.t_f))
+    assert rec["max_corridor_violation_between_nodes"] < 0.01
+    assert rec["t"][-1] == pytest.approx(rec["t_f"]) and np.all(np.diff(rec["t"]) > 0)
+
+
+def test_the_library_road_gives_the_stand_in_drive(corner):
+    """The same corner as a `CentrelineRoad` (its own curvature, widths, frame and distance
+    off the road): the same problem arrays, the same optimum and violations."""
+    road, prim = corner
+    lib = CentrelineRoad.from_segments(CORNER, 8.0)
+    w = 0.8 * road.w
+    lib = lib.with_gates(Gate.at(lib, 0.0, n_min=-w, n_max=w, speed=8.0),
+                         Gate.at(lib, lib.length, n_min=-w, n_max=w))
+    assert lib.length == pytest.approx(road.length, rel=1e-12)
+    other = road_primitive(lib, num_stages=M_OPEN)
+    np.testing.assert_allclose(other.problem.curvature, prim.problem.curvature, atol=1e-9)
+    assert float(other.t_f) == pytest.approx(float(prim.t_f), rel=1e-7)
+    v, w2 = prim.violations(), other.violations()
+    assert w2["corridor_between_nodes"] == pytest.approx(v["corridor_between_nodes"], abs=2e-4)
+    np.testing.assert_allclose(other.cartesian()["x"], prim.cartesian()["x"], atol=1e-6)
+
+
+def test_closed_lap_is_periodic(lap):
+    road, prim = lap
+    assert bool(prim.solution.converged)
+    xs = np.asarray(prim.solution.xs)
+    assert np.max(np.abs(xs[-1, :8] - xs[0, :8])) < 1e-8
+    assert xs[0, 8] == 0.0 or abs(xs[0, 8]) < 1e-10
+    v = prim.violations()
+    assert v["corridor_between_nodes"] < 0.01
+    # the lap beats the quasi-steady speed profile it started from
+    s, vel = speed_profile(road, 0.52, 0.8)
+    t_profile = np.sum(np.diff(s) * 0.5 * (1 / vel[1:] + 1 / vel[:-1]))
+    assert float(prim.t_f) < t_profile
+
+
+def test_speed_profile_closed_forms():
+    D, f, v0 = 0.52, 0.8, 5.0
+    a = f * D * G
+    road = _ArcsRoad([("straight", 60.0), ("arc", 20.0, 90.0), ("straight", 30.0)], 8.0,
+                     start_speed=v0)
+    s, v = speed_profile(road, D, f, g=G)
+    # steady cornering in the middle of the arc, free acceleration from the start
+    mid = (s > 60 + 0.4 * 31.4) & (s < 60 + 0.6 * 31.4)
+    np.testing.assert_allclose(v[mid], math.sqrt(a * 20.0), rtol=1e-12)
+    early = s < 5.0
+    np.testing.assert_allclose(v[early], np.sqrt(v0**2 + 2 * a * s[early]), rtol=1e-9)
+    # the guess of the car: centre line, yaw rate v kappa, times of 1/v
+    xs, us = speed_profile_guess(road, rally_gravel_car(), 30, f)
+    xs = np.asarray(xs)
+    assert xs.shape == (31, 9) and us.shape == (30, 3)
+    assert np.all(xs[:, 0] == 0) and xs[0, 8] == 0 and np.all(np.diff(xs[:, 8]) > 0)
+
+
+def test_bad_arguments_are_refused():
+    road = _ArcsRoad(CORNER, 8.0)
+    with pytest.raises(ValueError, match="objective"):
+        CurvilinearManeuverOCP.from_road(road, rally_gravel_car(), objective="fast")
+    with pytest.raises(ValueError, match="margin"):
+        CurvilinearPointMassOCP.from_road(road, margin=4.0)
+    with pytest.raises(ValueError, match="num_stages"):
+        CurvilinearPointMassOCP.from_road(road, num_stages=1)
