@@ -14,7 +14,7 @@ command $u = (T_F, T_R, \delta)$ goes through the steps of the braking hardware
    plant's integrator sees as a function of time within the sample.
 
 **Values** (modelling choices, **not from a source**): a 20 Hz control period; torque
-channels (drive-train or brake) with one sample of delay, 0.1 s lag, 10 kN m/s and 4 kN m
+channels (drive-train or brake) with one sample of delay, 0.05 s lag, 30 kN m/s and 4 kN m
 per axle; an electric steering actuator with one sample of delay, 0.05 s lag, 1 rad/s (road
 wheel) and 0.6 rad.
 """
@@ -36,15 +36,15 @@ class DriveActuators(eqx.Module):
     docstring). Per-channel fields have shape (3,).
 
     **Fields** (SI units): `sample_time` $T$ [s] (0.05); `delay` [s] (0.05 each, rounded to
-    whole samples, at most `MAX_DELAY`); `time_constant` $\tau$ [s] (0.1, 0.1, 0.05);
-    `rate` [N m/s, N m/s, rad/s] (10 000, 10 000, 1); `limit` [N m, N m, rad] (4000, 4000,
+    whole samples, at most `MAX_DELAY`); `time_constant` $\tau$ [s] (0.05 each);
+    `rate` [N m/s, N m/s, rad/s] (30 000, 30 000, 1); `limit` [N m, N m, rad] (4000, 4000,
     0.6); switches `delay_on`, `rate_limit_on`, `lag_on` (per channel or one for all).
     """
 
     sample_time: Float[Array, ""] = array_field(default=0.05)
     delay: Float[Array, " 3"] = array_field(default=(0.05, 0.05, 0.05))
-    time_constant: Float[Array, " 3"] = array_field(default=(0.1, 0.1, 0.05))
-    rate: Float[Array, " 3"] = array_field(default=(10_000.0, 10_000.0, 1.0))
+    time_constant: Float[Array, " 3"] = array_field(default=(0.05, 0.05, 0.05))
+    rate: Float[Array, " 3"] = array_field(default=(30_000.0, 30_000.0, 1.0))
     limit: Float[Array, " 3"] = array_field(default=(4000.0, 4000.0, 0.6))
     delay_on: Array = bool_field(default=True)
     rate_limit_on: Array = bool_field(default=True)

@@ -101,7 +101,7 @@ class AbstractGripEstimator(eqx.Module):
         """What a saved run keeps of the state, by name."""
 
 
-def steady_state_mu(tire: LumpedLuGre2D, scale, v_r, c):
+def scaled_steady_state_mu(tire: LumpedLuGre2D, scale, v_r, c):
     r"""$(\mu_x, \mu_y)$ of the lumped 2D LuGre in steady state on a road of friction scale
     $\lambda$ = `scale` (module docstring)."""
     t = scale_friction(tire, scale)
@@ -201,7 +201,7 @@ class AxleGripEstimator(AbstractGripEstimator):
     def model_mu(self, log_scale, v_r, c):
         r"""$\mu_{ss}$ of the assumed tire at $\lambda = e^\vartheta$ per axle."""
         def one(th, vr, cc):
-            return safe_norm(steady_state_mu(self.tire, jnp.exp(th), vr, cc))
+            return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), vr, cc))
         return jax.vmap(one)(log_scale, v_r, c)
 
     def update(self, state: AxleGripState, m: DriveMeasurement) -> AxleGripState:
@@ -228,7 +228,7 @@ class AxleGripEstimator(AbstractGripEstimator):
 
         def mu_at(kap):
             v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
-            return safe_norm(steady_state_mu(self.tire, scale, v_r, (1.0 - kap) * V))
+            return safe_norm(scaled_steady_state_mu(self.tire, scale, v_r, (1.0 - kap) * V))
 
         mus = jax.vmap(mu_at)(kappa)
         i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)

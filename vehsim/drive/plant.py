@@ -26,7 +26,6 @@ computed (eqs. 37-38) but the half-car does not use it.
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 

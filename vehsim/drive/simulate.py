@@ -100,6 +100,26 @@ class PathFollower(AbstractDriveController):
         return state, jnp.concatenate([torque, delta[None]])
 
 
+class CommandSchedule(AbstractDriveController):
+    r"""Open loop: the command `commands[k]` $(T_F, T_R, \delta)$ at sample $k$ (the last
+    row held after the table ends); the measurements are ignored. **Fields:** `commands`
+    shape (N, 3)."""
+
+    commands: Float[Array, "N 3"] = array_field()
+
+    def __check_init__(self):
+        if jnp.ndim(self.commands) != 2 or jnp.shape(self.commands)[-1] != 3:
+            raise ValueError(f"CommandSchedule.commands must have shape (N, 3) (T_F, T_R, "
+                             f"delta per sample), got {jnp.shape(self.commands)}")
+
+    def init(self, measurement):
+        return jnp.zeros((), int)
+
+    def command(self, state, measurement, estimate):
+        k = jnp.minimum(state, self.commands.shape[0] - 1)
+        return state + 1, self.commands[k]
+
+
 class DriveRun(eqx.Module):
     """A drive, sample by sample (leading axis: samples $1..N$): the plant `states`
     (`DriveState`), the `measurements`, the `commands` issued before each sample, and the
