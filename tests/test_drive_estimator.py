@@ -67,7 +67,8 @@ def test_converges_on_constant_grip_under_braking_pulses(drive, lam):
 
 def test_holds_prior_without_excitation(drive):
     est = vs.AxleGripEstimator()
-    run = drive(_road(0.6), vs.PathFollower(), est)  # straight, coasting at 20 m/s
+    # straight, coasting at 20 m/s (a far look-ahead: no steering from the position noise)
+    run = drive(_road(0.6), vs.PathFollower(lookahead=1000.0), est)
     scale = np.asarray(run.estimates.scale)
     np.testing.assert_allclose(scale, 1.0, atol=0.02)
     var = np.asarray(run.estimates.scale_std / run.estimates.scale) ** 2
@@ -86,5 +87,5 @@ def test_tracks_a_change_of_grip(drive):
     before = (t > 0.6) & (x < 20.0)
     assert before.sum() >= 3
     np.testing.assert_allclose(scale[before], 1.0, rtol=0.1)
-    assert x[-1] > 40.0
+    assert x[-10] - 1.4 > 26.0  # the rear axle is on the new road for the last 10 samples
     np.testing.assert_allclose(scale[-10:], 0.5, rtol=0.1)

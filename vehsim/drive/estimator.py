@@ -12,8 +12,14 @@ each axle's force and load, with the nominal car (`HalfCarParams`) and no tire m
   $F^b_{Fy} = (m a_y\ell_R + J\dot r)/\ell$, $F_{Ry} = (m a_y\ell_F - J\dot r)/\ell$,
   $F^b_{Fy}$ the front force's body-$y$ part, $F^b_{Fy} = F_{Fx}\sin\delta + F_{Fy}
   \cos\delta$, giving $F_{Fy}$;
-- loads from the quasi-static load transfer, $F_{Fz} = m(g\ell_R - a_xh)/\ell$,
-  $F_{Rz} = m(g\ell_F + a_xh)/\ell$ (the reduced model's, eqs. 61-63);
+- loads from the suspension of eqs. 54-60 driven by the measured longitudinal
+  acceleration: the body's heave and pitch $(z, \dot z, \theta, \dot\theta)$ integrated
+  over the sample (classical Runge-Kutta, `load_substeps` steps) with
+  $\Sigma f_x = ma_x$ in eq. 55 ($a_x$ linear between the samples), the loads of eqs.
+  59-60 averaged over the sample; with `dynamic_loads=False`, the quasi-static load
+  transfer $F_{Fz} = m(g\ell_R - a_xh)/\ell$, $F_{Rz} = m(g\ell_F + a_xh)/\ell$ (the reduced
+  model's), which runs ahead of the real one by the pitch dynamics (15 % of the front load
+  at the onset of a braking pulse);
 
 so $\mu_i = \sqrt{F_{ix}^2 + F_{iy}^2}/F_{iz}$, with $a_x$, $a_y$, speeds and yaw rates
 averaged over the sample's two ends.
@@ -37,14 +43,18 @@ standard deviation $|\partial\mu^*/\partial\vartheta|\sqrt P$.
 approaches it: at small slip all roads share the slope (eq. 19; $\bar z \approx
 v_r/(\kappa c)$, independent of $\lambda$), so $H \approx 0$ and the gain vanishes by
 itself; $H$ grows to about $\mu_{ss}$ as the slip nears and passes the peak (braking or
-driving pulses, a slalom or a corner near the limit). **Without excitation** (straight,
+driving pulses, a slalom or a corner near the limit). The filter takes a sample in only
+where the axle uses at least `min_utilisation` of the estimated peak: below, the model's
+slip comes from noisy velocities and is biased upwards (the norm of a noise), so that
+small-slip data, informative or not, would pull the estimate down. **Without excitation** (straight,
 constant speed; slips small) the estimate holds its prior or last value, and its variance
 grows by forgetting up to $P_{max}$ (the belief widens to the cap, never further); below
 `min_speed` nothing is measured (the slip is ill-defined) and the same holds. **Blind
 spots:** a tire whose shape differs from the assumed one is read as the best-fitting
-$\lambda$ of the wrong shape (biased); the quasi-static loads ignore the suspension's
-dynamics (eqs. 54-60) and the force is the sample's mean against the slip at its
-midpoint, so fast transients (a wheel locking within a sample) read as noise; a brake
+$\lambda$ of the wrong shape (biased); the loads follow the suspension's
+dynamics only as far as the nominal suspension and the measured $a_x$ describe them
+(no road profile, no unmeasured pitch disturbance), the force is the sample's mean against
+the slip at its midpoint, so fast transients (a wheel locking within a sample) read as noise; a brake
 holding a locked wheel transmits less than its torque, which the $\tanh$ brake model
 approximates.
 """
@@ -111,13 +121,15 @@ def scaled_steady_state_mu(tire: LumpedLuGre2D, scale, v_r, c):
 
 
 class AxleGripState(eqx.Module):
-    r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, and
+    r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
+    heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
     the last utilised friction `mu_used`, model friction `mu_model`, combined slip `slip`
     ($\|v_r\|/\max(|V|, v_{min})$) and gain `gain` (each (2,))."""
 
     log_scale: Float[Array, " 2"]
     variance: Float[Array, " 2"]
     last: DriveMeasurement
+    suspension: Float[Array, " 4"]
     mu_used: Float[Array, " 2"]
     mu_model: Float[Array, " 2"]
     slip: Float[Array, " 2"]
@@ -132,8 +144,10 @@ class AxleGripEstimator(AbstractGripEstimator):
     `initial_variance` $P_0$ of $\log\lambda$ (0.09), `max_variance` $P_{max}$ (0.25),
     `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
     (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
-    `min_speed` [m/s] (3), `omega_eps` [rad/s] (the plant's brake smoothing, 0.5),
-    `reference_speed` [m/s] of the reported peak (20).
+    `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
+    at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake smoothing, 0.5),
+    `reference_speed` [m/s] of the reported peak (20), `dynamic_loads` (True: the
+    suspension's loads; False: quasi-static), `load_substeps` (10).
     """
 
     params: HalfCarParams = eqx.field(default_factory=rally_gravel)
@@ -147,8 +161,11 @@ class AxleGripEstimator(AbstractGripEstimator):
     scale_min: Float[Array, ""] = array_field(default=0.1)
     scale_max: Float[Array, ""] = array_field(default=3.0)
     min_speed: Float[Array, ""] = array_field(default=3.0)
+    min_utilisation: Float[Array, ""] = array_field(default=0.5)
     omega_eps: Float[Array, ""] = array_field(default=0.5)
     reference_speed: Float[Array, ""] = array_field(default=20.0)
+    dynamic_loads: bool = eqx.field(static=True, default=True)
+    load_substeps: int = eqx.field(static=True, default=10)
 
     def __check_init__(self):
         owner = "AxleGripEstimator"
@@ -156,7 +173,7 @@ class AxleGripEstimator(AbstractGripEstimator):
             raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
                             f"{type(self.tire).__name__}")
         for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
-                     "max_step", "scale_min", "scale_max", "min_speed", "omega_eps",
+                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation", "omega_eps",
                      "reference_speed"):
             check_positive(owner, name, getattr(self, name))
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
@@ -166,11 +183,51 @@ class AxleGripEstimator(AbstractGripEstimator):
         """The prior $\\lambda_0$ with variance $P_0$ on both axles."""
         z = jnp.zeros(2)
         lam = jnp.log(self.prior_scale) * jnp.ones(2)
-        return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement, z, z, z, z)
+        return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement,
+                             jnp.zeros(4), z, z, z, z)
 
-    def utilised_friction(self, m0: DriveMeasurement, m1: DriveMeasurement):
+    def _loads(self, q):
+        p = self.params
+        z, z_dot, theta, theta_dot = q[0], q[1], q[2], q[3]
+        FzF0, FzR0 = p.static_loads()
+        sn, cs = jnp.sin(theta), jnp.cos(theta)
+        FzF = FzF0 - p.K_F * (z - p.lF * sn) - p.C_F * (z_dot - p.lF * cs * theta_dot)
+        FzR = FzR0 - p.K_R * (z + p.lR * sn) - p.C_R * (z_dot + p.lR * cs * theta_dot)
+        return jnp.stack([FzF, FzR])
+
+    def _suspension_rates(self, q, ax):
+        p = self.params
+        Fz = self._loads(q)
+        z_dd = (Fz[0] + Fz[1]) / p.m - p.g
+        theta_dd = ((Fz[1] * p.lR - Fz[0] * p.lF) * jnp.cos(q[2])
+                    - p.m * ax * (p.h + q[0])) / p.Iy
+        return jnp.stack([q[1], z_dd, q[3], theta_dd])
+
+    def axle_loads(self, q, ax0, ax1, dt):
+        r"""``(mean loads, q at the end)``: the suspension (eqs. 54-60) from `q` over a
+        sample of length `dt`, $a_x$ going linearly from `ax0` to `ax1` (module docstring).
+        """
+        n = self.load_substeps
+        h = dt / n
+
+        def step(q, j):
+            def a(tau):
+                return ax0 + (ax1 - ax0) * tau
+            t = j / n
+            k1 = self._suspension_rates(q, a(t))
+            k2 = self._suspension_rates(q + 0.5 * h * k1, a(t + 0.5 / n))
+            k3 = self._suspension_rates(q + 0.5 * h * k2, a(t + 0.5 / n))
+            k4 = self._suspension_rates(q + h * k3, a(t + 1.0 / n))
+            q1 = q + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            return q1, 0.5 * (self._loads(q) + self._loads(q1))
+
+        q1, loads = jax.lax.scan(step, q, jnp.arange(n))
+        return jnp.mean(loads, axis=0), q1
+
+    def utilised_friction(self, m0: DriveMeasurement, m1: DriveMeasurement, Fz=None):
         r"""``(mu, slip, v_r, c)`` per axle over the sample from `m0` to `m1` (module
-        docstring); `mu` = $\|F_i\|/F_{iz}$, `v_r` shape (2, 2)."""
+        docstring); `mu` = $\|F_i\|/F_{iz}$, `v_r` shape (2, 2). `Fz`: the axle loads
+        (default the quasi-static ones)."""
         p = self.params
         dt = m1.t - m0.t
         dt = jnp.where(dt > 0, dt, 1.0)
@@ -186,7 +243,8 @@ class AxleGripEstimator(AbstractGripEstimator):
         FyR = (p.m * ay * p.lF - p.Iz * r_dot) / ell
         delta = 0.5 * (m0.delta + m1.delta)
         FyF = (FyF_body - Fx[0] * jnp.sin(delta)) / jnp.cos(delta)
-        Fz = jnp.stack([p.m * (p.g * p.lR - ax * p.h), p.m * (p.g * p.lF + ax * p.h)]) / ell
+        if Fz is None:
+            Fz = jnp.stack([p.m * (p.g * p.lR - ax * p.h), p.m * (p.g * p.lF + ax * p.h)]) / ell
         force = safe_norm(jnp.stack([Fx, jnp.stack([FyF, FyR])], axis=-1))
         mu = safe_div(force, jnp.maximum(Fz, 0.0))
         vx, vy = 0.5 * (m0.vx + m1.vx), 0.5 * (m0.vy + m1.vy)
@@ -205,11 +263,17 @@ class AxleGripEstimator(AbstractGripEstimator):
         return jax.vmap(one)(log_scale, v_r, c)
 
     def update(self, state: AxleGripState, m: DriveMeasurement) -> AxleGripState:
-        mu, slip, v_r, c = self.utilised_friction(state.last, m)
+        dt = jnp.where(m.t > state.last.t, m.t - state.last.t, 0.0)
+        if self.dynamic_loads:
+            Fz, susp = self.axle_loads(state.suspension, state.last.ax, m.ax, dt)
+        else:
+            Fz, susp = None, state.suspension
+        mu, slip, v_r, c = self.utilised_friction(state.last, m, Fz)
         h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (state.log_scale,),
                        (jnp.ones(2),))
+        peak = jax.vmap(lambda th: self.peak(jnp.exp(th)))(state.log_scale)
         valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
-            m.t > state.last.t)
+            m.t > state.last.t) & (mu >= self.min_utilisation * peak)
         P = jnp.minimum(state.variance / self.forgetting, self.max_variance)
         R = self.noise_std**2
         K = jnp.where(valid, P * H / (H * H * P + R), 0.0)
@@ -218,7 +282,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         log_scale = jnp.clip(state.log_scale + step, jnp.log(self.scale_min),
                              jnp.log(self.scale_max))
         P = (1.0 - K * H) * P
-        return AxleGripState(log_scale, P, m, jnp.where(valid, mu, 0.0), h, slip, K)
+        return AxleGripState(log_scale, P, m, susp, jnp.where(valid, mu, 0.0), h, slip, K)
 
     def peak(self, scale):
         r"""$\mu^*(\lambda)$: the assumed tire's largest $\mu_{ss}$ in pure braking slip
