@@ -151,7 +151,7 @@ def test_batch_of_256_drives_in_one_call():
     ctrl = vs.PathFollower(curvature=0.02, torque=jnp.array([0.0, 400.0]),
                            pulse_torque=jnp.array([-1500.0, -1500.0]), pulse_width=0.2,
                            pulse_period=0.4)
-    speeds = jnp.linspace(8.0, 20.0, 256)
+    speeds = jnp.full(256, 12.0).at[0].set(20.0)
     keys = jax.random.split(jax.random.key(1), 256)
 
     def one(v, key):
@@ -161,8 +161,9 @@ def test_batch_of_256_drives_in_one_call():
     final, ay = jax.jit(jax.vmap(one))(speeds, keys)
     assert final.shape == (256, plant.nominal_car.state_size)
     assert np.all(np.isfinite(final)) and np.all(np.isfinite(ay))
-    # distinct seeds give distinct noise, distinct speeds distinct drives
-    assert np.unique(np.asarray(final[:, 0])).size == 256
+    # the same car under 255 seeds: the sensor noise steers each drive its own way
+    assert np.unique(np.asarray(final[1:, 1])).size == 255
+    assert final[0, 0] > final[1:, 0].max()  # the faster car went further
 
 
 def test_forward_gradient_of_final_x_wrt_torque(run_schedule):

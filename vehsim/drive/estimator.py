@@ -34,7 +34,12 @@ the measured ground velocity, yaw rate and steering angle, `axle_velocities`) an
 forgetting: $P^- = \min(P/\gamma, P_{max})$; $H = \partial\mu_{ss}/\partial\vartheta$
 (forward mode); $K = P^-H/(H^2P^- + R)$; $\vartheta \leftarrow \Pi(\vartheta +
 \operatorname{clip}(K(\mu_i - \mu_{ss}), \pm\Delta_{max}))$, $\Pi$ the projection onto
-$[\log\lambda_{min}, \log\lambda_{max}]$; $P = (1 - KH)P^-$. The estimate is $\lambda$ with
+$[\log\lambda_{min}, \log\lambda_{max}]$; $P = (1 - KH)P^-$. A change of road shows as
+innovations far larger than the covariance expects once $P$ has shrunk: a CUSUM detector
+on the normalised innovation squared $\nu = e^2/(H^2P^- + R)$, $g \leftarrow \max(0, g +
+\nu - \delta)$, raises $P^-$ to $P_0$ when $g > h$ and restarts (covariance resetting, as
+`FrictionObserver` does), so the estimate leaves the old road within a few informative
+samples instead of at the pace of forgetting. The estimate is $\lambda$ with
 the standard deviation $\lambda\sqrt P$, and the peak friction $\mu^*(\lambda)$: the
 largest $\mu_{ss}$ of the assumed tire in pure braking slip at `reference_speed`, with its
 standard deviation $|\partial\mu^*/\partial\vartheta|\sqrt P$.
@@ -55,8 +60,9 @@ $\lambda$ of the wrong shape (biased); the loads follow the suspension's
 dynamics only as far as the nominal suspension and the measured $a_x$ describe them
 (no road profile, no unmeasured pitch disturbance), the force is the sample's mean against
 the slip at its midpoint, so fast transients (a wheel locking within a sample) read as noise; a brake
-holding a locked wheel transmits less than its torque, which the $\tanh$ brake model
-approximates.
+holding a locked wheel transmits less than its torque (the plant's $\tanh$ brake, within
+the wheel-speed noise of the lock speed): a braked wheel turning slower than
+$5\omega_\epsilon$ at either end of the sample is not measured.
 """
 
 from __future__ import annotations
@@ -124,7 +130,8 @@ class AxleGripState(eqx.Module):
     r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
     heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
     the last utilised friction `mu_used`, model friction `mu_model`, combined slip `slip`
-    ($\|v_r\|/\max(|V|, v_{min})$) and gain `gain` (each (2,))."""
+    ($\|v_r\|/\max(|V|, v_{min})$), gain `gain` and the change detector's statistic
+    `change_statistic` $g$ (each (2,))."""
 
     log_scale: Float[Array, " 2"]
     variance: Float[Array, " 2"]
@@ -134,6 +141,7 @@ class AxleGripState(eqx.Module):
     mu_model: Float[Array, " 2"]
     slip: Float[Array, " 2"]
     gain: Float[Array, " 2"]
+    change_statistic: Float[Array, " 2"]
 
 
 class AxleGripEstimator(AbstractGripEstimator):
@@ -145,7 +153,9 @@ class AxleGripEstimator(AbstractGripEstimator):
     `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
     (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
     `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
-    at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake smoothing, 0.5),
+    at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake
+    smoothing, 0.5), the change detector's
+    `change_drift` $\delta$ (10) and `change_threshold` $h$ (40; `inf` turns it off),
     `reference_speed` [m/s] of the reported peak (20), `dynamic_loads` (True: the
     suspension's loads; False: quasi-static), `load_substeps` (10).
     """
@@ -163,6 +173,8 @@ class AxleGripEstimator(AbstractGripEstimator):
     min_speed: Float[Array, ""] = array_field(default=3.0)
     min_utilisation: Float[Array, ""] = array_field(default=0.5)
     omega_eps: Float[Array, ""] = array_field(default=0.5)
+    change_drift: Float[Array, ""] = array_field(default=10.0)
+    change_threshold: Float[Array, ""] = array_field(default=40.0)
     reference_speed: Float[Array, ""] = array_field(default=20.0)
     dynamic_loads: bool = eqx.field(static=True, default=True)
     load_substeps: int = eqx.field(static=True, default=10)
@@ -173,8 +185,8 @@ class AxleGripEstimator(AbstractGripEstimator):
             raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
                             f"{type(self.tire).__name__}")
         for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
-                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation", "omega_eps",
-                     "reference_speed"):
+                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
+                     "omega_eps", "change_drift", "change_threshold", "reference_speed"):
             check_positive(owner, name, getattr(self, name))
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
@@ -184,7 +196,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         z = jnp.zeros(2)
         lam = jnp.log(self.prior_scale) * jnp.ones(2)
         return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement,
-                             jnp.zeros(4), z, z, z, z)
+                             jnp.zeros(4), z, z, z, z, z)
 
     def _loads(self, q):
         p = self.params
@@ -274,15 +286,25 @@ class AxleGripEstimator(AbstractGripEstimator):
         peak = jax.vmap(lambda th: self.peak(jnp.exp(th)))(state.log_scale)
         valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
             m.t > state.last.t) & (mu >= self.min_utilisation * peak)
+        # a braked wheel near lock: its brake torque is not what it transmits (tanh model
+        # within the wheel-speed noise of its lock speed): no force measured
+        locked = jnp.minimum(jnp.abs(state.last.omega), jnp.abs(m.omega)) < 5 * self.omega_eps
+        valid = valid & ((m.torque >= 0) | ~locked)
         P = jnp.minimum(state.variance / self.forgetting, self.max_variance)
         R = self.noise_std**2
-        K = jnp.where(valid, P * H / (H * H * P + R), 0.0)
         e = mu - h
+        nis = e * e / (H * H * P + R)
+        g = jnp.maximum(state.change_statistic + jnp.where(valid, nis - self.change_drift, 0.0),
+                        0.0)
+        changed = g > self.change_threshold
+        P = jnp.where(changed, jnp.maximum(P, self.initial_variance), P)
+        g = jnp.where(changed, 0.0, g)
+        K = jnp.where(valid, P * H / (H * H * P + R), 0.0)
         step = jnp.clip(K * e, -self.max_step, self.max_step)
         log_scale = jnp.clip(state.log_scale + step, jnp.log(self.scale_min),
                              jnp.log(self.scale_max))
         P = (1.0 - K * H) * P
-        return AxleGripState(log_scale, P, m, susp, jnp.where(valid, mu, 0.0), h, slip, K)
+        return AxleGripState(log_scale, P, m, susp, jnp.where(valid, mu, 0.0), h, slip, K, g)
 
     def peak(self, scale):
         r"""$\mu^*(\lambda)$: the assumed tire's largest $\mu_{ss}$ in pure braking slip
