@@ -155,7 +155,7 @@ class AxleGripEstimator(AbstractGripEstimator):
     `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
     at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake
     smoothing, 0.5), the change detector's
-    `change_drift` $\delta$ (10) and `change_threshold` $h$ (40; `inf` turns it off),
+    `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
     `reference_speed` [m/s] of the reported peak (20), `dynamic_loads` (True: the
     suspension's loads; False: quasi-static), `load_substeps` (10).
     """
@@ -174,7 +174,7 @@ class AxleGripEstimator(AbstractGripEstimator):
     min_utilisation: Float[Array, ""] = array_field(default=0.5)
     omega_eps: Float[Array, ""] = array_field(default=0.5)
     change_drift: Float[Array, ""] = array_field(default=10.0)
-    change_threshold: Float[Array, ""] = array_field(default=40.0)
+    change_threshold: Float[Array, ""] = array_field(default=80.0)
     reference_speed: Float[Array, ""] = array_field(default=20.0)
     dynamic_loads: bool = eqx.field(static=True, default=True)
     load_substeps: int = eqx.field(static=True, default=10)
