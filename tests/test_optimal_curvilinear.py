@@ -26,6 +26,9 @@ from vehsim.optimal.curvilinear import (
 from vehsim.optimal.primitives import rally_gravel_car
 
 
+pytestmark = pytest.mark.xdist_group("curvilinear")  # with tests/test_cli_roads.py
+
+
 class _Gate:
     def __init__(self, s, lateral, speed=None):
         self.s, self.lateral, self.speed = s, lateral, speed

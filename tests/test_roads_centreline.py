@@ -175,6 +175,20 @@ def test_distance_off_an_annulus_is_the_closed_form():
     assert np.any(exact == 0) and np.any(r < R - wl) and np.any(r > R + wr)
 
 
+def test_distance_off_the_road_is_exact_within_millimetres_of_curved_edges():
+    # a tight annulus: inner edge radius 1 m, outer 15 m; points 0.1 and 1 mm either side of
+    # both edges (a polygon through the stored edge samples is off by up to 0.3 and 5 mm)
+    R, wr, wl = 5.0, 10.0, 4.0
+    road = CentrelineRoad.from_segments([("arc", R, 360.0)], (wr, wl), start=(0.0, -R),
+                                        closed=True)
+    phi = np.random.default_rng(6).uniform(0, 2 * np.pi, 800)
+    r = np.concatenate([np.full(100, R + wr) + d for d in (-1e-3, -1e-4, 1e-4, 1e-3)]
+                       + [np.full(100, R - wl) + d for d in (-1e-3, -1e-4, 1e-4, 1e-3)])
+    exact = np.maximum(np.maximum(R - wl - r, r - (R + wr)), 0.0)
+    got = road.distance_off_road(r * np.cos(phi), r * np.sin(phi))
+    np.testing.assert_allclose(got, exact, atol=1e-9)
+
+
 def test_distance_off_an_open_straight_is_the_distance_to_its_rectangle():
     road = CentrelineRoad.from_segments([("straight", 40.0)], (2.0, 3.0), start=(5.0, 1.0))
     x, y = np.random.default_rng(4).uniform(-10, 60, (2, 1000))
@@ -182,6 +196,9 @@ def test_distance_off_an_open_straight_is_the_distance_to_its_rectangle():
     dy = np.maximum(np.maximum(-1.0 - y, y - 4.0), 0.0)
     np.testing.assert_allclose(road.distance_off_road(x, y), np.hypot(dx, dy), atol=1e-9)
     np.testing.assert_array_equal(road.on_road(x, y), np.hypot(dx, dy) == 0)
+    # just beyond the ends, beside the corners (the end line is the nearest side)
+    x, y = np.array([45.01, 45.01, 4.99, 4.99, 45.001]), np.array([3.99, -0.99, 3.99, -0.99, 0.0])
+    np.testing.assert_allclose(road.distance_off_road(x, y), [0.01] * 4 + [0.001], atol=1e-12)
 
 
 def test_closed_roads_wrap_in_s(loop):

@@ -368,6 +368,44 @@ from .control.road.surfaces import (
 
 
 # isort: split
+# the car driven on the move: plant with varying grip, actuators, sensors, grip estimation
+from .drive.actuators import (
+    DriveActuators as DriveActuators,
+    DriveActuatorState as DriveActuatorState,
+    ideal_actuators as ideal_actuators,
+)
+from .drive.estimator import (
+    AbstractGripEstimator as AbstractGripEstimator,
+    AxleGripEstimator as AxleGripEstimator,
+    AxleGripState as AxleGripState,
+    GripEstimate as GripEstimate,
+    scaled_steady_state_mu as scaled_steady_state_mu,
+)
+from .drive.grip import (
+    AbstractGripField as AbstractGripField,
+    GripPatches as GripPatches,
+    GripProfile as GripProfile,
+    UniformGrip as UniformGrip,
+    scale_friction as scale_friction,
+)
+from .drive.plant import (
+    DrivePlant as DrivePlant,
+    DriveState as DriveState,
+    drive_step as drive_step,
+    init_drive as init_drive,
+    measure_drive as measure_drive,
+)
+from .drive.sensors import DriveMeasurement as DriveMeasurement, DriveSensors as DriveSensors
+from .drive.simulate import (
+    AbstractDriveController as AbstractDriveController,
+    CommandSchedule as CommandSchedule,
+    DriveRun as DriveRun,
+    PathFollower as PathFollower,
+    simulate_drive as simulate_drive,
+)
+
+
+# isort: split
 # tyre property files (.tir) and the Magic Formula 5.2 / 6.1 / 6.2
 from .tire.mf6 import (
     MFLongitudinalTire as MFLongitudinalTire,

@@ -124,7 +124,7 @@ def shipped_tracks() -> dict[str, Path]:
 
 
 def track(name: str, *, smoothing: float = 0.0) -> CentrelineRoad:
-    """The shipped circuit ``name`` (e.g. ``"Norisring"``) as a closed `CentrelineRoad`."""
+    """The shipped circuit ``name`` (e.g. ``"Oschersleben"``) as a closed `CentrelineRoad`."""
     tracks = shipped_tracks()
     if name not in tracks:
         raise ValueError(f"unknown track {name!r}; shipped: {sorted(tracks)}")

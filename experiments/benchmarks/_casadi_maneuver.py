@@ -62,14 +62,12 @@ def _corridor(rd, x, y, eps):
     return cons
 
 
-def casadi_model(D):
-    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
-    docs/maneuvers.md)."""
+def body_model(D, vx, vy, r, kF, kR, d):
+    """The reduced half-car's body accelerations $(\dot v_x, \dot v_y, \dot r)$ and axle
+    speeds $(V_{Fx}, V_{Rx})$ at the inputs $(\kappa_F, \kappa_R, \delta)$, in CasADi (the
+    formulas of docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
     B, C = 7.0, 1.6
-    X = ca.SX.sym("X", 10)
-    v = ca.SX.sym("v", 3)
-    psi, vx, vy, r, kF, kR, d, tf = X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9]
     VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
     VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
     VRx, VRy = vx, vy - lR * r
@@ -90,10 +88,20 @@ def casadi_model(D):
     Fbx = fFx * ca.cos(d) - fFy * ca.sin(d) + fRx
     Fby = fFx * ca.sin(d) + fFy * ca.cos(d) + fRy
     Mz = (fFy * ca.cos(d) + fFx * ca.sin(d)) * lF - fRy * lR
+    return ca.vertcat(Fbx / m + r * vy, Fby / m - r * vx, Mz / Iz), ca.vertcat(VFx, VRx)
+
+
+def casadi_model(D):
+    """dX/dtau and the axle speeds of the reduced half-car, in CasADi (the formulas of
+    docs/maneuvers.md)."""
+    X = ca.SX.sym("X", 10)
+    v = ca.SX.sym("v", 3)
+    psi, vx, vy, r, kF, kR, d, tf = X[2], X[3], X[4], X[5], X[6], X[7], X[8], X[9]
+    body, axle_speeds = body_model(D, vx, vy, r, kF, kR, d)
     rates = ca.vertcat(vx * ca.cos(psi) - vy * ca.sin(psi), vx * ca.sin(psi) + vy * ca.cos(psi),
-                       r, Fbx / m + r * vy, Fby / m - r * vx, Mz / Iz)
+                       r, body)
     dX = ca.vertcat(tf * rates, v, 0)
-    return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [ca.vertcat(VFx, VRx)])
+    return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [axle_speeds])
 
 
 def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4", tf_max=4.0,

@@ -292,6 +292,90 @@ def sweep(problems, sizes, mu0=None) -> None:
     )), flush=True)
 
 
+def road_arrays(prob) -> dict:
+    """A curvilinear problem's road as plain data for `_casadi_spatial.ipopt_solve`."""
+    start_speed = float(prob.start_speed) if prob.start_speed_fixed else None
+    end_speed = float(prob.end_speed) if prob.end_speed_fixed else None
+    return dict(length=float(prob.length), closed=bool(prob.closed),
+                curvature=np.asarray(prob.curvature)[:, 0, :],
+                corridor=np.asarray(prob.corridor), corridor_mid=np.asarray(prob.corridor_mid)[:, 0],
+                start_lateral=np.asarray(prob.start_lateral).tolist(),
+                end_lateral=np.asarray(prob.end_lateral).tolist(),
+                start_speed=start_speed, end_speed=end_speed)
+
+
+def long_problems(stages, road_name: str = "rally", coarse_above: int = 300) -> None:
+    """The long problems: minimum time on the rally stage (or the small closed lap) of
+    experiments/long_problems.py at each number of stages, vehsim's structured interior point
+    against CasADi + IPOPT on the same transcription (`_casadi_spatial`) from the same start:
+    the speed-profile guess, or above ``coarse_above`` stages the solution on a quarter of
+    them resampled (both solvers then start with the barrier 1e-3). Per size: iterations,
+    wall time (vehsim: compiled beforehand, the best of two solves) and time per iteration of
+    both, ``ratio`` (IPOPT / vehsim wall time), the minimum times and the largest distance off
+    the road between the nodes of both solutions (re-integrated by vehsim's `RoadPrimitive`);
+    then the log-log slope of the time per iteration against the stages."""
+    import _casadi_spatial
+    import equinox as eqx
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    from long_problems import rally_stage, small_lap
+
+    from vehsim.optimal.curvilinear import (
+        CurvilinearManeuverOCP,
+        RoadPrimitive,
+        resample_drive,
+        road_primitive,
+        speed_profile_guess,
+    )
+    from vehsim.optimal.ip import IPOptions, compile_interior_point
+
+    road = rally_stage() if road_name == "rally" else small_lap()
+    car = rally_gravel_car()
+    rows = []
+    for M in stages:
+        prob = CurvilinearManeuverOCP.from_road(road, car, num_stages=M)
+        options = IPOptions(max_iter=500)
+        xs0, us0 = speed_profile_guess(road, car, M)
+        if M > coarse_above:
+            first = road_primitive(road, car=car, num_stages=M // 4, options=options,
+                                   throw=False)
+            xs0, us0 = resample_drive(first.problem, first.solution.xs, M)
+            options = IPOptions(max_iter=500, mu0=1e-3)
+        print(f"# long problem {road.name}, {M} stages", file=sys.stderr, flush=True)
+        program = compile_interior_point(prob, xs0, us0, options)
+        wall, sol = _best_time(lambda: program(prob, xs0, us0, options, throw=False), 2)
+        ours = RoadPrimitive(problem=prob, solution=sol, road=road)
+        ip = _casadi_spatial.ipopt_solve(road_arrays(prob), LIMITS, "min-time",
+                                         float(car.tire.D), np.asarray(xs0), np.asarray(us0),
+                                         rate_weight=float(prob.rate_weight),
+                                         mu_init=float(options.mu0))
+        theirs = RoadPrimitive(problem=prob, solution=eqx.tree_at(
+            lambda s: (s.xs, s.us), sol, (jax.numpy.asarray(ip["xs"]),
+                                          jax.numpy.asarray(ip["us"]))), road=road)
+        its = int(sol.iterations)
+        row = dict(problem=f"{road.name}:min-time", stages=M, vehsim_status=str(sol.message),
+                   vehsim_iterations=its, vehsim_wall_s=wall,
+                   vehsim_per_iteration_s=wall / max(its, 1), vehsim_t_f=float(ours.t_f),
+                   vehsim_between_nodes_m=ours.violations()["corridor_between_nodes"],
+                   ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],
+                   ipopt_wall_s=ip["wall"],
+                   ipopt_per_iteration_s=ip["wall"] / max(ip["iterations"], 1),
+                   ipopt_t_f=float(ip["xs"][-1, 8]),
+                   ipopt_between_nodes_m=theirs.violations()["corridor_between_nodes"],
+                   ratio=ip["wall"] / wall,
+                   ratio_per_iteration=(ip["wall"] / max(ip["iterations"], 1))
+                   / (wall / max(its, 1)), loadavg=os.getloadavg()[0])
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        jax.clear_caches()
+    if len(rows) > 1:
+        logs = np.log([r["stages"] for r in rows])
+        print(json.dumps(dict(problem=f"{road.name}:min-time scaling", stages=list(stages),
+                              **{f"{who}_per_iteration_log_log_slope": float(np.polyfit(
+                                  logs, np.log([r[f"{who}_per_iteration_s"] for r in rows]),
+                                  1)[0]) for who in ("vehsim", "ipopt")})), flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--segments", type=int, default=150)
@@ -310,8 +394,17 @@ def main(argv=None):
                          "(e.g. 30,50,100,150,200)")
     ap.add_argument("--mu0", type=float, default=None,
                     help="initial barrier of the sweep's solves (default: the primitives')")
+    ap.add_argument("--stages", default="",
+                    help="comma-separated stage counts of the long problems (e.g. "
+                         "150,500,1000,2000): the rally stage of experiments/long_problems.py "
+                         "in the road's frame, against IPOPT on the same transcription")
+    ap.add_argument("--long-road", choices=["rally", "lap"], default="rally",
+                    help="the road of --stages: the rally stage or the small closed lap")
     args = ap.parse_args(argv)
     N = args.segments
+    if args.stages:
+        long_problems([int(n) for n in args.stages.split(",")], args.long_road)
+        return
     if args.sweep:
         sweep(args.problems, [int(n) for n in args.sweep.split(",")], args.mu0)
         return

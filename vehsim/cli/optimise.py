@@ -30,8 +30,27 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "optimise", help="optimal driving primitive (min-time / max-exit) on a benchmark road"
     )
-    p.add_argument("road", choices=["corner90", "uturn", "sturn"],
-                   help="benchmark road (docs/maneuvers.md): corner90, uturn or sturn")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("road", nargs="?", choices=["corner90", "uturn", "sturn"],
+                       help="benchmark road (docs/maneuvers.md): corner90, uturn or sturn")
+    where.add_argument("--road-file", metavar="CSV",
+                       help="a road given by its centre line and widths (columns x_m, y_m, "
+                            "w_tr_right_m, w_tr_left_m, one row per point; docs/roads.md), "
+                            "driven from its first to its last point (--closed: a lap)")
+    where.add_argument("--track", choices=sorted(_shipped_tracks()),
+                       help="a circuit shipped with vehsim, driven as a lap")
+    p.add_argument("--closed", action="store_true",
+                   help="with --road-file: the road is a circuit and the drive a lap (periodic: "
+                        "it ends in the state it started)")
+    p.add_argument("--smoothing", type=number(0.0, 10.0, unit="m"), default=0.0,
+                   help="with --road-file or --track: the rms distance [m] allowed between the "
+                        "file's points and the smoothed centre line (0: through the points)")
+    p.add_argument("--start-speed", type=number(1.0, 100.0, unit="m/s"), default=None,
+                   help="with --road-file: the speed at the start line [m/s] (default: free, a "
+                        "flying start as on the benchmark roads)")
+    p.add_argument("--margin", type=number(0.0, 10.0, unit="m"), default=0.0,
+                   help="with --road-file or --track: keep the centre of gravity this far "
+                        "inside the edges [m] (0)")
     p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time",
                    help="min-time: reach the exit line soonest; max-exit: the largest exit "
                         "speed within --tf-max (default: min-time)")
@@ -39,8 +58,9 @@ def register(subparsers) -> None:
                    help="time budget of max-exit [s] (benchmark: 4.0, docs/maneuvers.md)")
     p.add_argument("--friction", type=number(0.0, 2.0, lower_open=True), default=0.52,
                    help="tire peak friction D, in (0, 2] (0.52)")
-    p.add_argument("--segments", type=integer(2, 20_000), default=150,
-                   help="shooting segments (one RK4 node each; the benchmark uses >= 150 nodes)")
+    p.add_argument("--segments", type=integer(2, 20_000), default=None,
+                   help="shooting segments (one RK4 node each; the benchmark roads: 150, the "
+                        "benchmark's; a road file: one per 2.5 m, 100 to 2000)")
     p.add_argument("--max-iter", type=integer(1, 100_000), default=500,
                    help="interior-point iteration limit (500)")
     p.add_argument("--starts", type=integer(1, 1024), default=1,
@@ -60,7 +80,22 @@ def register(subparsers) -> None:
     p.set_defaults(func=_optimise)
 
 
+def _shipped_tracks() -> list[str]:
+    """The shipped circuits' names (the CSV files of vehsim/data/tracks; read without importing
+    the numerical packages, so that the command line answers at once)."""
+    return [p.stem for p in (Path(__file__).resolve().parent.parent / "data" / "tracks").glob(
+        "*.csv")]
+
+
 def _optimise(args) -> int:
+    if args.road is None:
+        from .optimise_road import optimise_road
+
+        return optimise_road(args)
+    if args.closed:
+        raise ValueError("--closed applies to --road-file (a benchmark road is a stage)")
+    if args.segments is None:
+        args.segments = 150
     import jax
 
     from .._compilation import primitive_and_bound

@@ -300,10 +300,12 @@ class CentrelineRoad(eqx.Module):
         r"""Exact distance [m] of points from the road region $\{c(s) + nN(s) : -w_r(s) \le n
         \le w_l(s)\}$ (0 on the road), as `Road.distance_off_road`.
 
-        Inside: even-odd rule on the boundary polygon (open roads: left edge, end line,
-        right edge reversed, start line; closed: the ring between the two closed edges).
-        Outside: the distance to the nearest polygon side, refined on the exact edge curve by a
-        golden-section search over the neighbouring arc lengths."""
+        The boundary polygon through edge samples (open roads: left edge, end line, right
+        edge reversed, start line; closed: the ring between the two closed edges) gives, by
+        the even-odd rule, inside or outside and the nearest side. Outside, and within a side's
+        length of an edge, the nearest point of the exact edge curve is found by a
+        golden-section search over the neighbouring arc lengths: its distance, and the side of
+        the edge the point is on, decide."""
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
         shape = x.shape
         q = np.stack([x.ravel(), y.ravel()], axis=-1)
@@ -323,15 +325,23 @@ class CentrelineRoad(eqx.Module):
             hi = np.concatenate([hi, [0.0, 0.0]])
         inside, out, near = _polygon_query(q, a, b)
         out[inside] = 0.0
-        curve = ~inside & (side[near] != 0.0)  # nearest side on an edge curve, not a cap
+        # outside, or near an edge curve (where the polygon's sides, chords of the curve, may
+        # put a point on the wrong side): the nearest point of the exact edge curve, and on
+        # which side of it the point is
+        delta = float(np.max(np.hypot(*(b - a).T)))
+        curve = (side[near] != 0.0) & (~inside | (out < delta))
         if np.any(curve):
             j = near[curve]
-            out[curve] = self._edge_distance(q[curve], side[j], lo[j], hi[j])
+            d, s_near, outward = self._edge_distance(q[curve], side[j], lo[j], hi[j])
+            at_end = ~self.closed & ((s_near <= 0.0) | (s_near >= self.length))
+            off = np.where(at_end, ~inside[curve], outward)  # at a corner: the polygon's word
+            out[curve] = np.where(off, d, 0.0)
         return out.reshape(shape)
 
     def _edge_distance(self, q, side, lo, hi):
         """Distance from points q to the edge curve (side +1 left, -1 right) near arc lengths
-        [lo, hi]: golden-section search over [lo - (hi - lo), hi + (hi - lo)]."""
+        [lo, hi] (golden-section search over [lo - (hi - lo), hi + (hi - lo)]), the arc length
+        of the nearest point, and whether q lies beyond the edge (off the road)."""
         span = hi - lo
         a, b = lo - span, hi + span
         if not self.closed:
@@ -347,8 +357,23 @@ class CentrelineRoad(eqx.Module):
             c, d = b - g * (b - a), a + g * (b - a)
             first = dist2(c) < dist2(d)
             a, b = np.where(first, a, c), np.where(first, d, b)
-        best = np.minimum(dist2(0.5 * (a + b)), np.minimum(dist2(lo), dist2(hi)))
-        return np.sqrt(best)
+        s = 0.5 * (a + b)
+        d2 = dist2(s)
+        # whether q is beyond the edge: (q - b(s)) . the edge's outward normal, which is the
+        # edge's tangent b'(s) turned left (left edge) or right (right edge) by 90 degrees
+        eps = 1e-6 * max(1.0, float(np.max(hi - lo)))
+        n = np.where(side > 0, self.width_left(s), -self.width_right(s))
+        px, py = self.to_cartesian(s, n)
+        s_a, s_b = s - eps, s + eps
+        if not self.closed:
+            s_a, s_b = np.clip(s_a, 0.0, self.length), np.clip(s_b, 0.0, self.length)
+        ax_, ay_ = self.to_cartesian(s_a, np.where(side > 0, self.width_left(s_a),
+                                                   -self.width_right(s_a)))
+        bx_, by_ = self.to_cartesian(s_b, np.where(side > 0, self.width_left(s_b),
+                                                   -self.width_right(s_b)))
+        tx, ty = bx_ - ax_, by_ - ay_
+        beyond = side * ((q[:, 1] - py) * tx - (q[:, 0] - px) * ty) > 0
+        return np.sqrt(d2), s, beyond
 
     def on_road(self, x, y, tol: float = 1e-9) -> np.ndarray:
         """Whether points are on the road (`distance_off_road` <= ``tol``)."""

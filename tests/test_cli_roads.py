@@ -1,0 +1,90 @@
+"""`vehsim optimise --road-file` / `--track`: a road read from the file the test writes is
+driven as the library drives it (the record's time and violations are the library's), the
+figure is written; bad roads and contradictory options end with exit 2, the option or the
+row named, before anything is solved and with no file written.
+
+Runs in the worker of tests/test_optimal_curvilinear.py (the same grid of 40 stages: one
+compiled solver for both)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vehsim import CentrelineRoad, Gate, cli, read_road, road_primitive, write_road
+
+
+pytestmark = pytest.mark.xdist_group("curvilinear")
+
+CORNER = [("straight", 20.0), ("arc", 20.0, 90.0), ("straight", 20.0)]
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _run(argv, capsys):
+    code = cli.main(["--no-compilation-cache", *map(str, argv)])
+    return code, capsys.readouterr().err
+
+
+def test_road_file_drive_is_the_library_drive(tmp_path, capsys):
+    path = tmp_path / "corner.csv"
+    write_road(path, CentrelineRoad.from_segments(CORNER, 8.0, name="corner"))
+    out = tmp_path / "out"
+    code, err = _run(["optimise", "--road-file", path, "--segments", 40, "--start-speed", 8,
+                      "--out", out, "--quiet"], capsys)
+    assert code == 0, err
+    rec = json.loads((out / "corner_min-time.json").read_text())
+    assert (out / "corner_min-time.png").read_bytes()[:8] == PNG
+    road = read_road(path)
+    road = road.with_gates(Gate.at(road, 0.0, speed=8.0), None)
+    lib = road_primitive(road, num_stages=40)
+    assert rec["status"] == "successful" and not rec["closed"]
+    assert rec["t_f"] == pytest.approx(float(lib.t_f), rel=1e-9)
+    assert rec["units"]["max_corridor_violation_between_nodes"] == "m"
+    v = lib.violations()
+    assert rec["max_corridor_violation_between_nodes"] == pytest.approx(
+        v["corridor_between_nodes"], abs=1e-12)
+    assert rec["states"]["vx"][0] == pytest.approx(8.0, abs=1e-6)  # the start gate's speed
+    # the file holds points of the centre line; the spline through them has its length to 1e-5
+    assert rec["length"] == pytest.approx(20 + 20 * np.pi / 2 + 20, rel=1e-5)
+    assert "40 stages" in err and "wrote" in err
+
+
+def _bad_file(tmp_path, rows, name="bad"):
+    path = tmp_path / f"{name}.csv"
+    path.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n"
+                    + "".join(",".join(map(str, r)) + "\n" for r in rows))
+    return path
+
+
+GOOD = [(0, 0, 3, 3), (10, 0, 3, 3), (20, 0, 3, 3), (30, 0, 3, 3), (40, 0, 3, 3)]
+
+
+@pytest.mark.parametrize("case, match", [
+    ("negative width", "line 4, w_tr_right_m must be > 0"),
+    ("too few points", "at least 4 centre-line points"),
+    ("closed benchmark", "--closed applies to --road-file"),
+    ("start speed on a lap", "--start-speed applies to an open road"),
+    ("max-exit lap", "max-exit needs an open road"),
+    ("starts", "--starts and --live"),
+    ("two roads", "not allowed with"),
+    ("no road", "one of the arguments"),
+])
+def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case, match):
+    out = tmp_path / "out"
+    good = _bad_file(tmp_path, GOOD, "good")
+    argv = {
+        "negative width": ["--road-file", _bad_file(tmp_path, GOOD[:2] + [(20, 0, -1, 3)]
+                                                    + GOOD[3:], "negative")],
+        "too few points": ["--road-file", _bad_file(tmp_path, GOOD[:3], "short")],
+        "closed benchmark": ["corner90", "--closed"],
+        "start speed on a lap": ["--track", "Oschersleben", "--start-speed", "5"],
+        "max-exit lap": ["--road-file", good, "--closed", "--objective", "max-exit"],
+        "starts": ["--road-file", good, "--starts", "2"],
+        "two roads": ["corner90", "--road-file", good],
+        "no road": [],
+    }[case]
+    code, err = _run(["optimise", *argv, "--out", out], capsys)
+    assert code == 2 and match in err, err
+    assert "Traceback" not in err
+    assert not Path(out).exists()

@@ -1,0 +1,92 @@
+"""The per-axle grip estimator on the move: it converges under excitation, holds its prior
+without, tracks a change of road; its model is the tire's steady state."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+
+
+N = 60  # samples (3 s at 20 Hz)
+
+
+def _road(*scales, stations=(0.0, 1.0)):
+    """A `GripProfile` along x (one structure for every road, so one compilation)."""
+    if len(scales) == 1:
+        scales = scales * 2
+    return vs.GripProfile(stations=jnp.asarray(stations), scales=jnp.asarray(scales))
+
+
+def _pulses(torque):
+    """Straight line, braking pulses of `torque` per axle (0.2 s every 0.5 s)."""
+    return vs.PathFollower(torque=jnp.array([0.0, 0.0]), pulse_torque=jnp.array([torque] * 2),
+                           pulse_period=0.5, pulse_width=0.2, slalom_amplitude=0.03)
+
+
+@pytest.fixture(scope="module")
+def drive():
+    run = jax.jit(lambda plant, ctrl, est, key: vs.simulate_drive(
+        plant, ctrl, vs.init_drive(plant, vx=20.0), key, N, est))
+
+    def go(road, ctrl, est=None, key=0):
+        est = vs.AxleGripEstimator() if est is None else est
+        return run(vs.DrivePlant(grip=road), ctrl, est, jax.random.key(key))
+    return go
+
+
+def test_steady_state_mu_is_the_tires_steady_state():
+    """The estimator's model zeroes the tire's own friction-state derivative (eq. 35)."""
+    tire = vs.DrivePlant().tire
+    for lam, v_r, c in ((1.0, jnp.array([-2.0, 0.5]), 18.0), (0.5, jnp.array([0.3, -1.0]), 20.0),
+                        (0.8, jnp.array([-15.0, 0.0]), 5.0)):
+        t = vs.scale_friction(tire, lam)
+        mu = vs.scaled_steady_state_mu(tire, lam, v_r, c)
+        zb = mu / t.params.sigma0  # sigma2 = 0 for this tire
+        z = jnp.concatenate([zb, jnp.zeros(1)])
+        np.testing.assert_allclose(t.derivative(z, v_r, c)[:2], 0.0, atol=1e-12)
+        np.testing.assert_allclose(t.mu(z, v_r, c)[:2], mu, rtol=1e-12)
+
+
+@pytest.mark.parametrize("lam", [0.6, 1.0])
+def test_converges_on_constant_grip_under_braking_pulses(drive, lam):
+    est = vs.AxleGripEstimator()
+    run = drive(_road(lam), _pulses(-3500.0 * lam), est)
+    t = np.asarray(run.measurements.t)
+    scale = np.asarray(run.estimates.scale)
+    late = t >= 1.5
+    np.testing.assert_allclose(scale[late], lam, rtol=0.15)
+    np.testing.assert_allclose(np.asarray(run.estimates.peak)[late], float(est.peak(lam)),
+                               rtol=0.15)
+    assert np.all(np.asarray(run.estimates.scale_std)[-1] < 0.1 * lam)
+    # the same drive with the gain switched off (infinite noise) stays at the prior
+    off = drive(_road(lam), _pulses(-3500.0 * lam), vs.AxleGripEstimator(noise_std=1e6))
+    np.testing.assert_allclose(np.asarray(off.estimates.scale), 1.0, atol=1e-6)
+
+
+def test_holds_prior_without_excitation(drive):
+    est = vs.AxleGripEstimator()
+    # straight, coasting at 20 m/s (a far look-ahead: no steering from the position noise)
+    run = drive(_road(0.6), vs.PathFollower(lookahead=1000.0), est)
+    scale = np.asarray(run.estimates.scale)
+    np.testing.assert_allclose(scale, 1.0, atol=0.02)
+    var = np.asarray(run.estimates.scale_std / run.estimates.scale) ** 2
+    assert np.all(var <= float(est.max_variance) * (1 + 1e-9))
+    np.testing.assert_allclose(var[-1], float(est.max_variance), rtol=1e-3)  # widened to cap
+    # the car did coast straight (no excitation): small utilised friction
+    assert np.all(np.abs(np.asarray(run.measurements.ax)) < 0.6)
+
+
+def test_tracks_a_change_of_grip(drive):
+    road = _road(1.0, 0.5, stations=(22.0, 26.0))  # the front axle reaches it at ~1 s
+    run = drive(road, _pulses(-3500.0))
+    t = np.asarray(run.measurements.t)
+    x = np.asarray(run.states.car[:, 0])
+    scale = np.asarray(run.estimates.scale)
+    before = (t > 0.6) & (x < 20.0)  # converged, both axles short of the change
+    assert before.sum() >= 3
+    np.testing.assert_allclose(np.median(scale[before], axis=0), 1.0, rtol=0.1)
+    np.testing.assert_allclose(scale[before], 1.0, rtol=0.25)
+    assert x[-5] - 1.4 > 30.0  # the rear axle is well onto the new road for the last samples
+    np.testing.assert_allclose(scale[-5:], 0.5, rtol=0.1)

@@ -1,0 +1,103 @@
+"""`vehsim optimise --road-file stage.csv [--closed]` and `vehsim optimise --track NAME`: the
+minimum-time (or maximum-exit-speed) drive of the benchmark car along a road given by its
+centre line and widths (`vehsim.road_primitive`), written as JSON (with the distance off the
+road between the nodes) and a figure along the road (speed as colour, the car's footprint
+at intervals)."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+
+STAGE_LENGTH = 2.5
+"""Default stage length [m] of a centre-line road: ``--segments`` defaults to the road's
+length over this, within `MIN_STAGES` and `MAX_STAGES`."""
+MIN_STAGES, MAX_STAGES = 100, 2000
+COARSE_ABOVE = 300
+"""Above this many stages the drive starts from a solve on a quarter of them (``coarse_stages``
+of `vehsim.road_primitive`): from the speed-profile guess a long fine problem may stall."""
+
+
+def road_from_args(args):
+    """The road the options name (read and checked before anything compiles)."""
+    from .._road_files import read_road, track
+
+    if args.track is not None:
+        return track(args.track, smoothing=args.smoothing)
+    return read_road(args.road_file, closed=args.closed, smoothing=args.smoothing)
+
+
+def default_stages(length: float) -> int:
+    """Stages for a road of ``length`` [m]: one per `STAGE_LENGTH`, within the limits."""
+    return int(min(MAX_STAGES, max(MIN_STAGES, math.ceil(length / STAGE_LENGTH))))
+
+
+def optimise_road(args) -> int:
+    import jax
+
+    from .._io import save_figure, write_json
+    from .._result_files import with_units
+    from ..optimal.curvilinear import road_point_mass_bound, road_primitive
+    from ..optimal.ip import IPOptions
+    from ..optimal.primitives import rally_gravel_car
+    from ..plot import path_on_road_figure
+    from .optimise import UNITS
+
+    units = {**UNITS, "length": "m", "s": "m", "states.n": "m", "states.xi": "rad",
+             "violations.speed_floor": "m/s", "start_speed": "m/s"}
+    if args.starts != 1 or args.live:
+        raise ValueError("--starts and --live apply to the benchmark roads; a road file or "
+                         "track starts from its speed profile")
+    road = road_from_args(args)
+    if args.start_speed is not None:
+        if road.closed:
+            raise ValueError("--start-speed applies to an open road (a lap ends in the state "
+                             "it starts, at a speed of its own)")
+        from ..optimal.centreline import Gate
+
+        road = road.with_gates(Gate.at(road, 0.0, speed=args.start_speed), None)
+    if road.closed and args.objective == "max-exit":
+        raise ValueError("--objective max-exit needs an open road (a lap has no exit); "
+                         "leave out --closed or use --objective min-time")
+    stages = args.segments if args.segments is not None else default_stages(road.length)
+    coarse = stages // 4 if stages > COARSE_ABOVE else None
+    kind = "lap" if road.closed else "stage"
+    print(f"vehsim optimise {road.name}: a {road.length:.1f} m {kind}, {stages} stages of "
+          f"{road.length / stages:.2f} m"
+          + (f" (first solved on {coarse})" if coarse else "")
+          + "; compiling the interior-point solver (about a minute on 2 cores), then solving",
+          file=sys.stderr, flush=True)
+    car = rally_gravel_car(args.friction)
+    options = IPOptions(max_iter=args.max_iter, verbose=not args.quiet)
+    t0 = time.perf_counter()
+    prim = road_primitive(road, args.objective, car=car, num_stages=stages,
+                          margin=args.margin, tf_max=args.tf_max, coarse_stages=coarse,
+                          options=options, throw=False)
+    jax.block_until_ready(prim.solution.xs)
+    wall = time.perf_counter() - t0
+    bound = road_point_mass_bound(road, args.objective, D=args.friction,
+                                  num_stages=min(stages, 500), tf_max=args.tf_max, throw=False)
+    rec = prim.record(bound)
+    rec["wall_time_s"] = wall
+    rec["start_speed"] = args.start_speed
+    out = Path(args.out)
+    stem = f"{road.name}_{args.objective}"
+    write_json(out / f"{stem}.json", with_units(rec, units))
+    st = rec["states"]
+    speed = rec["signals"]["speed"]
+    title = (f"{road.name}, {args.objective}: t = {rec['t_f']:.2f} s"
+             + ("" if road.closed else f", exit {rec['exit_speed']:.1f} m/s")
+             + f", off the road {100 * rec['max_corridor_violation_between_nodes']:.1f} cm")
+    fig = path_on_road_figure(road, st["x"], st["y"], st["psi"], speed, title=title)
+    save_figure(fig, out / f"{stem}.png")
+    print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.3f} s, exit speed "
+          f"{rec['exit_speed']:.2f} m/s, off the road at the nodes "
+          f"{rec['max_corridor_violation']:.2e} m and between them "
+          f"{rec['max_corridor_violation_between_nodes']:.2e} m, {rec['iterations']} "
+          f"iterations, {wall:.1f} s; wrote {out / stem}.json/.png", file=sys.stderr)
+    from ._status import exit_status
+
+    return exit_status("optimise", prim.solution.result)

@@ -1,0 +1,343 @@
+r"""Grip estimated on the move, per axle, from the forces the axles carry.
+
+**Utilised friction.** Over a sample $[t_{k-1}, t_k]$ ($\Delta t$) the measurements give
+each axle's force and load, with the nominal car (`HalfCarParams`) and no tire model:
+
+- longitudinal, from the wheel equations 52-53, $I_i\dot\omega_i = T_i - rF_{ix}$:
+  $F_{ix} = (\bar T_i - I_i(\omega_{i,k} - \omega_{i,k-1})/\Delta t)/r$, with $\bar T_i$
+  the mean axle torque of the sample (a negative one, a brake, times
+  $\tanh(\bar\omega_i/\omega_\epsilon)$ as in the plant) - exact for the sample mean;
+- lateral, from eqs. 50-51 with the measured lateral acceleration and the yaw
+  acceleration $\dot r = (r_k - r_{k-1})/\Delta t$ (two equations, two axles):
+  $F^b_{Fy} = (m a_y\ell_R + J\dot r)/\ell$, $F_{Ry} = (m a_y\ell_F - J\dot r)/\ell$,
+  $F^b_{Fy}$ the front force's body-$y$ part, $F^b_{Fy} = F_{Fx}\sin\delta + F_{Fy}
+  \cos\delta$, giving $F_{Fy}$;
+- loads from the suspension of eqs. 54-60 driven by the measured longitudinal
+  acceleration: the body's heave and pitch $(z, \dot z, \theta, \dot\theta)$ integrated
+  over the sample (classical Runge-Kutta, `load_substeps` steps) with
+  $\Sigma f_x = ma_x$ in eq. 55 ($a_x$ linear between the samples), the loads of eqs.
+  59-60 averaged over the sample; with `dynamic_loads=False`, the quasi-static load
+  transfer $F_{Fz} = m(g\ell_R - a_xh)/\ell$, $F_{Rz} = m(g\ell_F + a_xh)/\ell$ (the reduced
+  model's), which runs ahead of the real one by the pitch dynamics (15 % of the front load
+  at the onset of a braking pulse);
+
+so $\mu_i = \sqrt{F_{ix}^2 + F_{iy}^2}/F_{iz}$, with $a_x$, $a_y$, speeds and yaw rates
+averaged over the sample's two ends.
+
+**The model.** The assumed tire (the plant's family, `LumpedLuGre2D`, with its nominal
+parameters) on a road of friction scale $\lambda = e^\vartheta$ (`vehsim.scale_friction`,
+$\theta = 1/\lambda$) has in steady state (eq. 35 with $\dot{\bar z} = 0$)
+$\bar z = v_r/(C_0(v_r)/\lambda + \kappa c)$, $\mu_{ss} = \|\sigma_0\bar z + \sigma_2
+v_r\|$, at the axle's relative velocity $v_r = (\omega r - V_x, -V_y)$ (eq. 34; $V$ from
+the measured ground velocity, yaw rate and steering angle, `axle_velocities`) and $c =
+|\omega r|$. Per axle, an extended Kalman filter on $\vartheta$ with a random walk by
+forgetting: $P^- = \min(P/\gamma, P_{max})$; $H = \partial\mu_{ss}/\partial\vartheta$
+(forward mode); $K = P^-H/(H^2P^- + R)$; $\vartheta \leftarrow \Pi(\vartheta +
+\operatorname{clip}(K(\mu_i - \mu_{ss}), \pm\Delta_{max}))$, $\Pi$ the projection onto
+$[\log\lambda_{min}, \log\lambda_{max}]$; $P = (1 - KH)P^-$. A change of road shows as
+innovations far larger than the covariance expects once $P$ has shrunk: a CUSUM detector
+on the normalised innovation squared $\nu = e^2/(H^2P^- + R)$, $g \leftarrow \max(0, g +
+\nu - \delta)$, raises $P^-$ to $P_0$ when $g > h$ and restarts (covariance resetting, as
+`FrictionObserver` does), so the estimate leaves the old road within a few informative
+samples instead of at the pace of forgetting. The estimate is $\lambda$ with
+the standard deviation $\lambda\sqrt P$, and the peak friction $\mu^*(\lambda)$: the
+largest $\mu_{ss}$ of the assumed tire in pure braking slip at `reference_speed`, with its
+standard deviation $|\partial\mu^*/\partial\vartheta|\sqrt P$.
+
+**Excitation.** The data say something about the peak only where the friction used
+approaches it: at small slip all roads share the slope (eq. 19; $\bar z \approx
+v_r/(\kappa c)$, independent of $\lambda$), so $H \approx 0$ and the gain vanishes by
+itself; $H$ grows to about $\mu_{ss}$ as the slip nears and passes the peak (braking or
+driving pulses, a slalom or a corner near the limit). The filter takes a sample in only
+where the axle uses at least `min_utilisation` of the estimated peak: below, the model's
+slip comes from noisy velocities and is biased upwards (the norm of a noise), so that
+small-slip data, informative or not, would pull the estimate down. **Without excitation** (straight,
+constant speed; slips small) the estimate holds its prior or last value, and its variance
+grows by forgetting up to $P_{max}$ (the belief widens to the cap, never further); below
+`min_speed` nothing is measured (the slip is ill-defined) and the same holds. **Blind
+spots:** a tire whose shape differs from the assumed one is read as the best-fitting
+$\lambda$ of the wrong shape (biased); the loads follow the suspension's
+dynamics only as far as the nominal suspension and the measured $a_x$ describe them
+(no road profile, no unmeasured pitch disturbance), the force is the sample's mean against
+the slip at its midpoint, so fast transients (a wheel locking within a sample) read as noise; a brake
+holding a locked wheel transmits less than its torque (the plant's $\tanh$ brake, within
+the wheel-speed noise of the lock speed): a braked wheel turning slower than
+$5\omega_\epsilon$ at either end of the sample is not measured.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._checks import check_positive, check_range
+from .._fields import array_field
+from .._math import safe_abs, safe_div, safe_norm
+from ..tire.lugre2d import decay_rates
+from ..tire.lumped2d import LumpedLuGre2D
+from ..tire.params import lugre2d_bakker1987
+from ..vehicle.params import HalfCarParams, rally_gravel
+from ..vehicle.planar import axle_velocities
+from .grip import scale_friction
+from .sensors import DriveMeasurement
+
+
+class GripEstimate(eqx.Module):
+    r"""A belief about the grip per axle (front, rear): the friction scale `scale`
+    $\lambda$ ($= 1/\theta$) and its standard deviation `scale_std`, the peak friction
+    `peak` $\mu^*$ and its standard deviation `peak_std` (each shape (2,))."""
+
+    scale: Float[Array, " 2"]
+    scale_std: Float[Array, " 2"]
+    peak: Float[Array, " 2"]
+    peak_std: Float[Array, " 2"]
+
+
+class AbstractGripEstimator(eqx.Module):
+    """An estimator of the road's grip run on the drive's measurements, sample by sample."""
+
+    @abc.abstractmethod
+    def init(self, measurement: DriveMeasurement):
+        """The state before the first sample, from the first measurement."""
+
+    @abc.abstractmethod
+    def update(self, state, measurement: DriveMeasurement):
+        """The state after the sample that ends at `measurement`."""
+
+    @abc.abstractmethod
+    def estimate(self, state) -> GripEstimate:
+        """The belief at `state`."""
+
+    @abc.abstractmethod
+    def signals(self, state) -> dict:
+        """What a saved run keeps of the state, by name."""
+
+
+def scaled_steady_state_mu(tire: LumpedLuGre2D, scale, v_r, c):
+    r"""$(\mu_x, \mu_y)$ of the lumped 2D LuGre in steady state on a road of friction scale
+    $\lambda$ = `scale` (module docstring)."""
+    t = scale_friction(tire, scale)
+    den = decay_rates(t.params, v_r) + t.gains(v_r, c)[:2] * c
+    zb = safe_div(v_r, den)
+    return t.params.sigma0 * zb + t.params.sigma2 * v_r
+
+
+class AxleGripState(eqx.Module):
+    r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
+    heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
+    the last utilised friction `mu_used`, model friction `mu_model`, combined slip `slip`
+    ($\|v_r\|/\max(|V|, v_{min})$), gain `gain` and the change detector's statistic
+    `change_statistic` $g$ (each (2,))."""
+
+    log_scale: Float[Array, " 2"]
+    variance: Float[Array, " 2"]
+    last: DriveMeasurement
+    suspension: Float[Array, " 4"]
+    mu_used: Float[Array, " 2"]
+    mu_model: Float[Array, " 2"]
+    slip: Float[Array, " 2"]
+    gain: Float[Array, " 2"]
+    change_statistic: Float[Array, " 2"]
+
+
+class AxleGripEstimator(AbstractGripEstimator):
+    r"""The per-axle grip estimator of the module docstring.
+
+    **Fields:** `params` (the nominal `HalfCarParams`, default `rally_gravel()`), `tire`
+    (the assumed `LumpedLuGre2D`, default the plant's), `prior_scale` $\lambda_0$ (1),
+    `initial_variance` $P_0$ of $\log\lambda$ (0.09), `max_variance` $P_{max}$ (0.25),
+    `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
+    (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
+    `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
+    at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake
+    smoothing, 0.5), the change detector's
+    `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
+    `reference_speed` [m/s] of the reported peak (20), `dynamic_loads` (True: the
+    suspension's loads; False: quasi-static), `load_substeps` (10).
+    """
+
+    params: HalfCarParams = eqx.field(default_factory=rally_gravel)
+    tire: LumpedLuGre2D = eqx.field(default_factory=lambda: LumpedLuGre2D(lugre2d_bakker1987()))
+    prior_scale: Float[Array, ""] = array_field(default=1.0)
+    initial_variance: Float[Array, ""] = array_field(default=0.09)
+    max_variance: Float[Array, ""] = array_field(default=0.25)
+    forgetting: Float[Array, ""] = array_field(default=0.97)
+    noise_std: Float[Array, ""] = array_field(default=0.05)
+    max_step: Float[Array, ""] = array_field(default=0.2)
+    scale_min: Float[Array, ""] = array_field(default=0.1)
+    scale_max: Float[Array, ""] = array_field(default=3.0)
+    min_speed: Float[Array, ""] = array_field(default=3.0)
+    min_utilisation: Float[Array, ""] = array_field(default=0.5)
+    omega_eps: Float[Array, ""] = array_field(default=0.5)
+    change_drift: Float[Array, ""] = array_field(default=10.0)
+    change_threshold: Float[Array, ""] = array_field(default=80.0)
+    reference_speed: Float[Array, ""] = array_field(default=20.0)
+    dynamic_loads: bool = eqx.field(static=True, default=True)
+    load_substeps: int = eqx.field(static=True, default=10)
+
+    def __check_init__(self):
+        owner = "AxleGripEstimator"
+        if not isinstance(self.tire, LumpedLuGre2D):
+            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
+                            f"{type(self.tire).__name__}")
+        for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
+                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
+                     "omega_eps", "change_drift", "change_threshold", "reference_speed"):
+            check_positive(owner, name, getattr(self, name))
+        check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
+                    lower_open=True)
+
+    def init(self, measurement: DriveMeasurement) -> AxleGripState:
+        """The prior $\\lambda_0$ with variance $P_0$ on both axles."""
+        z = jnp.zeros(2)
+        lam = jnp.log(self.prior_scale) * jnp.ones(2)
+        return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement,
+                             jnp.zeros(4), z, z, z, z, z)
+
+    def _loads(self, q):
+        p = self.params
+        z, z_dot, theta, theta_dot = q[0], q[1], q[2], q[3]
+        FzF0, FzR0 = p.static_loads()
+        sn, cs = jnp.sin(theta), jnp.cos(theta)
+        FzF = FzF0 - p.K_F * (z - p.lF * sn) - p.C_F * (z_dot - p.lF * cs * theta_dot)
+        FzR = FzR0 - p.K_R * (z + p.lR * sn) - p.C_R * (z_dot + p.lR * cs * theta_dot)
+        return jnp.stack([FzF, FzR])
+
+    def _suspension_rates(self, q, ax):
+        p = self.params
+        Fz = self._loads(q)
+        z_dd = (Fz[0] + Fz[1]) / p.m - p.g
+        theta_dd = ((Fz[1] * p.lR - Fz[0] * p.lF) * jnp.cos(q[2])
+                    - p.m * ax * (p.h + q[0])) / p.Iy
+        return jnp.stack([q[1], z_dd, q[3], theta_dd])
+
+    def axle_loads(self, q, ax0, ax1, dt):
+        r"""``(mean loads, q at the end)``: the suspension (eqs. 54-60) from `q` over a
+        sample of length `dt`, $a_x$ going linearly from `ax0` to `ax1` (module docstring).
+        """
+        n = self.load_substeps
+        h = dt / n
+
+        def step(q, j):
+            def a(tau):
+                return ax0 + (ax1 - ax0) * tau
+            t = j / n
+            k1 = self._suspension_rates(q, a(t))
+            k2 = self._suspension_rates(q + 0.5 * h * k1, a(t + 0.5 / n))
+            k3 = self._suspension_rates(q + 0.5 * h * k2, a(t + 0.5 / n))
+            k4 = self._suspension_rates(q + h * k3, a(t + 1.0 / n))
+            q1 = q + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            return q1, 0.5 * (self._loads(q) + self._loads(q1))
+
+        q1, loads = jax.lax.scan(step, q, jnp.arange(n))
+        return jnp.mean(loads, axis=0), q1
+
+    def utilised_friction(self, m0: DriveMeasurement, m1: DriveMeasurement, Fz=None):
+        r"""``(mu, slip, v_r, c)`` per axle over the sample from `m0` to `m1` (module
+        docstring); `mu` = $\|F_i\|/F_{iz}$, `v_r` shape (2, 2). `Fz`: the axle loads
+        (default the quasi-static ones)."""
+        p = self.params
+        dt = m1.t - m0.t
+        dt = jnp.where(dt > 0, dt, 1.0)
+        omega = 0.5 * (m0.omega + m1.omega)
+        T = m1.torque
+        T = jnp.maximum(T, 0.0) + jnp.minimum(T, 0.0) * jnp.tanh(omega / self.omega_eps)
+        Iw = jnp.stack([p.Iw_F, p.Iw_R])
+        Fx = (T - Iw * (m1.omega - m0.omega) / dt) / p.r
+        ay, ax = 0.5 * (m0.ay + m1.ay), 0.5 * (m0.ax + m1.ax)
+        r_dot = (m1.yaw_rate - m0.yaw_rate) / dt
+        ell = p.lF + p.lR
+        FyF_body = (p.m * ay * p.lR + p.Iz * r_dot) / ell
+        FyR = (p.m * ay * p.lF - p.Iz * r_dot) / ell
+        delta = 0.5 * (m0.delta + m1.delta)
+        FyF = (FyF_body - Fx[0] * jnp.sin(delta)) / jnp.cos(delta)
+        if Fz is None:
+            Fz = jnp.stack([p.m * (p.g * p.lR - ax * p.h), p.m * (p.g * p.lF + ax * p.h)]) / ell
+        force = safe_norm(jnp.stack([Fx, jnp.stack([FyF, FyR])], axis=-1))
+        mu = safe_div(force, jnp.maximum(Fz, 0.0))
+        vx, vy = 0.5 * (m0.vx + m1.vx), 0.5 * (m0.vy + m1.vy)
+        yaw = 0.5 * (m0.yaw_rate + m1.yaw_rate)
+        VFx, VFy, VRx, VRy = axle_velocities(p, vx, vy, yaw, delta)
+        V = jnp.stack([jnp.stack([VFx, VFy]), jnp.stack([VRx, VRy])])
+        v_r = jnp.stack([omega * p.r - V[:, 0], -V[:, 1]], axis=-1)
+        c = safe_abs(omega * p.r)
+        slip = safe_norm(v_r) / jnp.maximum(safe_norm(V), self.min_speed)
+        return mu, slip, v_r, c
+
+    def model_mu(self, log_scale, v_r, c):
+        r"""$\mu_{ss}$ of the assumed tire at $\lambda = e^\vartheta$ per axle."""
+        def one(th, vr, cc):
+            return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), vr, cc))
+        return jax.vmap(one)(log_scale, v_r, c)
+
+    def update(self, state: AxleGripState, m: DriveMeasurement) -> AxleGripState:
+        dt = jnp.where(m.t > state.last.t, m.t - state.last.t, 0.0)
+        if self.dynamic_loads:
+            Fz, susp = self.axle_loads(state.suspension, state.last.ax, m.ax, dt)
+        else:
+            Fz, susp = None, state.suspension
+        mu, slip, v_r, c = self.utilised_friction(state.last, m, Fz)
+        h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (state.log_scale,),
+                       (jnp.ones(2),))
+        peak = jax.vmap(lambda th: self.peak(jnp.exp(th)))(state.log_scale)
+        valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
+            m.t > state.last.t) & (mu >= self.min_utilisation * peak)
+        # a braked wheel near lock: its brake torque is not what it transmits (tanh model
+        # within the wheel-speed noise of its lock speed): no force measured
+        locked = jnp.minimum(jnp.abs(state.last.omega), jnp.abs(m.omega)) < 5 * self.omega_eps
+        valid = valid & ((m.torque >= 0) | ~locked)
+        P = jnp.minimum(state.variance / self.forgetting, self.max_variance)
+        R = self.noise_std**2
+        e = mu - h
+        nis = e * e / (H * H * P + R)
+        g = jnp.maximum(state.change_statistic + jnp.where(valid, nis - self.change_drift, 0.0),
+                        0.0)
+        changed = g > self.change_threshold
+        P = jnp.where(changed, jnp.maximum(P, self.initial_variance), P)
+        g = jnp.where(changed, 0.0, g)
+        K = jnp.where(valid, P * H / (H * H * P + R), 0.0)
+        step = jnp.clip(K * e, -self.max_step, self.max_step)
+        log_scale = jnp.clip(state.log_scale + step, jnp.log(self.scale_min),
+                             jnp.log(self.scale_max))
+        P = (1.0 - K * H) * P
+        return AxleGripState(log_scale, P, m, susp, jnp.where(valid, mu, 0.0), h, slip, K, g)
+
+    def peak(self, scale):
+        r"""$\mu^*(\lambda)$: the assumed tire's largest $\mu_{ss}$ in pure braking slip
+        (0 to 1, 96 points, refined by a parabola) at `reference_speed`."""
+        V = self.reference_speed
+        kappa = jnp.linspace(0.0, 1.0, 97)[1:]
+
+        def mu_at(kap):
+            v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
+            return safe_norm(scaled_steady_state_mu(self.tire, scale, v_r, (1.0 - kap) * V))
+
+        mus = jax.vmap(mu_at)(kappa)
+        i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)
+        a, b, cc = mus[i - 1], mus[i], mus[i + 1]
+        den = a - 2 * b + cc
+        shift = jnp.clip(safe_div(0.5 * (a - cc), den), -1.0, 1.0)
+        return b - 0.25 * (a - cc) * shift
+
+    def estimate(self, state: AxleGripState) -> GripEstimate:
+        lam = jnp.exp(state.log_scale)
+        std = jnp.sqrt(state.variance)
+        peak, dpeak = jax.vmap(lambda th: jax.jvp(lambda t: self.peak(jnp.exp(t)), (th,),
+                                                  (jnp.ones(()),)))(state.log_scale)
+        return GripEstimate(lam, lam * std, peak, jnp.abs(dpeak) * std)
+
+    def signals(self, state: AxleGripState) -> dict:
+        """`scale_F`, `scale_R` ($\\lambda$), `log_scale_variance_F`, `_R`, `mu_used_F`,
+        `_R`, `mu_model_F`, `_R`, `slip_F`, `_R`."""
+        out = {}
+        for i, axle in enumerate("FR"):
+            out[f"scale_{axle}"] = jnp.exp(state.log_scale[i])
+            out[f"log_scale_variance_{axle}"] = state.variance[i]
+            out[f"mu_used_{axle}"] = state.mu_used[i]
+            out[f"mu_model_{axle}"] = state.mu_model[i]
+            out[f"slip_{axle}"] = state.slip[i]
+        return out

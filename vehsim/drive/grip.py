@@ -1,0 +1,150 @@
+r"""Road grip that varies along the road: a friction scale $\lambda(x, y)$.
+
+A grip field gives the friction scale $\lambda > 0$ at a point $(x, y)$ of the road: the
+tire's friction coefficients are multiplied by $\lambda$ there (`scale_friction`). For the
+LuGre family this is the road-condition parameter of the report, $\theta = 1/\lambda$: the
+bristle decay of eq. 22 (eq. 27 in combined slip), $\theta\sigma_0|v_r|/g(v_r)$, is the same
+for $\mu\to\lambda\mu$ as for $\theta\to\theta/\lambda$, so the steady-state curve is
+$\lambda$ times the nominal one, stretched by $\lambda$ along the slip axis (peak
+$\lambda\mu^*$, same initial slope, eq. 19). The half-car of eqs. 49-60 reads the field at
+each axle's contact point separately (`DrivePlant`), so the two axles can be on different
+surfaces.
+
+Transitions are smooth ($C^1$), so gradients through a drive that crosses them are finite:
+the circular patches of `GripPatches` have a $\tanh$ edge of width `width`, the profile of
+`GripProfile` moves between its stations by the cubic smoothstep $3u^2 - 2u^3$.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._checks import check_positive
+from .._fields import array_field
+from .._math import safe_hypot
+from ..tire.base import AbstractTire
+from ..tire.lugre import LuGreParams
+from ..tire.lugre2d import LuGre2DParams
+
+
+class AbstractGripField(eqx.Module):
+    r"""The friction scale $\lambda(x, y) > 0$ of the road at a point (module docstring)."""
+
+    @abc.abstractmethod
+    def scale_at(self, x, y) -> Float[Array, ""]:
+        r"""$\lambda$ at $(x, y)$ [m] (inertial frame)."""
+
+
+class UniformGrip(AbstractGripField):
+    r"""The same scale $\lambda$ = `scale` everywhere (1: the tire's own road)."""
+
+    scale: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        check_positive("UniformGrip", "scale", self.scale)
+
+    def scale_at(self, x, y):
+        return self.scale + 0.0 * (x + y)
+
+
+def _smoothstep(u):
+    u = jnp.clip(u, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+class GripPatches(AbstractGripField):
+    r"""Circular patches on a uniform road: $\lambda = \lambda_0$ (`base`) away from them;
+    patch $i$ (centre $c_i$, radius $R_i$, scale $\lambda_i$) blends in with the weight
+    $w_i = \frac12\bigl(1 - \tanh\frac{|p - c_i| - R_i}{w}\bigr)$, $w$ = `width` [m]:
+    $\lambda \leftarrow \lambda + w_i(\lambda_i - \lambda)$, patch after patch (a later patch
+    lies on top of an earlier one).
+
+    **Fields:** `base` (1), `centres` [m] shape (N, 2), `radii` [m] (N,), `scales` (N,),
+    `width` [m] (1).
+    """
+
+    centres: Float[Array, "N 2"] = array_field()
+    radii: Float[Array, " N"] = array_field()
+    scales: Float[Array, " N"] = array_field()
+    base: Float[Array, ""] = array_field(default=1.0)
+    width: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        owner = "GripPatches"
+        if jnp.ndim(self.centres) != 2 or jnp.shape(self.centres)[-1] != 2:
+            raise ValueError(f"{owner}.centres must have shape (N, 2), got "
+                             f"{jnp.shape(self.centres)}")
+        n = jnp.shape(self.centres)[0]
+        for name in ("radii", "scales"):
+            if jnp.shape(getattr(self, name)) != (n,):
+                raise ValueError(f"{owner}.{name} must have shape ({n},) like centres, got "
+                                 f"{jnp.shape(getattr(self, name))}")
+        check_positive(owner, "radii", self.radii)
+        check_positive(owner, "scales", self.scales)
+        check_positive(owner, "base", self.base)
+        check_positive(owner, "width", self.width)
+
+    def scale_at(self, x, y):
+        lam = self.base + 0.0 * (x + y)
+        for i in range(self.centres.shape[0]):
+            d = safe_hypot(x - self.centres[i, 0], y - self.centres[i, 1])
+            w = 0.5 * (1.0 - jnp.tanh((d - self.radii[i]) / self.width))
+            lam = lam + w * (self.scales[i] - lam)
+        return lam
+
+
+class GripProfile(AbstractGripField):
+    r"""Grip along a direction: with the station $s = (p - o)\cdot(\cos\phi, \sin\phi)$,
+    $\lambda = \lambda_1$ before $s_1$, $\lambda_K$ after $s_K$, and between stations
+    $\lambda_j + (\lambda_{j+1} - \lambda_j)S\bigl(\frac{s - s_j}{s_{j+1} - s_j}\bigr)$,
+    $S(u) = 3u^2 - 2u^3$ (a $C^1$ ramp over each interval).
+
+    **Fields:** `stations` $s_j$ [m] (K,), increasing; `scales` $\lambda_j$ (K,);
+    `origin` $o$ [m] (2,) (0, 0); `direction` $\phi$ [rad] (0: along $x$).
+    """
+
+    stations: Float[Array, " K"] = array_field()
+    scales: Float[Array, " K"] = array_field()
+    origin: Float[Array, " 2"] = array_field(default=(0.0, 0.0))
+    direction: Float[Array, ""] = array_field(default=0.0)
+
+    def __check_init__(self):
+        owner = "GripProfile"
+        shape = jnp.shape(self.stations)
+        if len(shape) != 1 or shape[0] < 1 or jnp.shape(self.scales) != shape:
+            raise ValueError(f"{owner}.stations and scales must be vectors of one length >= 1,"
+                             f" got shapes {shape} and {jnp.shape(self.scales)}")
+        check_positive(owner, "scales", self.scales)
+        check_positive(owner, "stations (their increments)", jnp.diff(self.stations))
+
+    def station(self, x, y):
+        """$s$ of the point $(x, y)$ [m]."""
+        return ((x - self.origin[0]) * jnp.cos(self.direction)
+                + (y - self.origin[1]) * jnp.sin(self.direction))
+
+    def scale_at(self, x, y):
+        s = self.station(x, y)
+        lam = self.scales[0] + 0.0 * s
+        for j in range(self.stations.shape[0] - 1):
+            u = (s - self.stations[j]) / (self.stations[j + 1] - self.stations[j])
+            lam = lam + (self.scales[j + 1] - self.scales[j]) * _smoothstep(u)
+        return lam
+
+
+def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
+    r"""`tire` on a road of friction scale $\lambda$ = `scale`: its friction coefficients
+    times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$), the
+    rest unchanged (module docstring)."""
+    params = getattr(tire, "params", None)
+    if isinstance(params, LuGre2DParams):
+        return eqx.tree_at(lambda t: (t.params.mu_k, t.params.mu_s), tire,
+                           (scale * params.mu_k, scale * params.mu_s))
+    if isinstance(params, LuGreParams):
+        return eqx.tree_at(lambda t: (t.params.mu_c, t.params.mu_s), tire,
+                           (scale * params.mu_c, scale * params.mu_s))
+    raise TypeError(f"scale_friction needs a LuGre tire (params LuGre2DParams or LuGreParams),"
+                    f" got {type(tire).__name__}")
