@@ -103,13 +103,27 @@ def _dense_weights(theta):
     return (theta - 1.5 * t2 + 2.0 * t3 / 3.0, mid, mid, -0.5 * t2 + 2.0 * t3 / 3.0)
 
 
+def _clearance(planes, d, eps=1e-3):
+    """Corner clearance margin of chord ``d``, as vehsim.optimal.shooting's."""
+    normals = [(nx / np.hypot(nx, ny), ny / np.hypot(nx, ny)) for nx, ny, _ in planes]
+    m = 0
+    for i, ni in enumerate(normals):
+        for nj in normals[i + 1:]:
+            if ni[0] * nj[0] + ni[1] * nj[1] < -1.0 + 1e-9:
+                continue
+            a, b = (ca.sqrt((d[0] * n[0] + d[1] * n[1]) ** 2 + eps**2) for n in (ni, nj))
+            m = ca.fmax(m, a * b / (a + b))
+    return m
+
+
 def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4", tf_max=4.0,
                 rate_weight=1e-5, warm=None, corner_clearance=True, interior_points=0):
     """Build the problem on ``road`` (`road_data`) with ``limits`` (`LIMIT_NAMES`) and solve it
     from (``xs0``, ``us0``); the solver call is timed (``wall``). ``corner_clearance`` and
     ``interior_points`` as vehsim's `ManeuverOCP` (rk4 only): the inner corners at both ends
-    of every chord between consecutive constrained points hold with half its length, and the
-    corridor also holds at ``interior_points`` points of RK4's continuous extension."""
+    of every chord between consecutive constrained points hold with its clearance margin,
+    and the corridor also holds at ``interior_points`` points of RK4's continuous
+    extension."""
     rd, lim = _road(road), SimpleNamespace(**limits)
     f, axles = casadi_model(D)
     opti = ca.Opti()
@@ -136,10 +150,10 @@ def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4
             pts.append(X[:2, k + 1])
             if corner_clearance and n_corners:
                 for p, q in zip(pts[:-1], pts[1:]):
-                    half = 0.5 * ca.sqrt(ca.sumsqr(q - p) + 1e-12)
                     for e in (p, q):
-                        for c in _corridor(rd, e[0], e[1], lim.SMOOTHING)[-n_corners:]:
-                            opti.subject_to(c - half >= 0)
+                        cs = _corridor(rd, e[0], e[1], lim.SMOOTHING)[-n_corners:]
+                        for c, planes in zip(cs, rd.corners):
+                            opti.subject_to(c - _clearance(planes, q - p) >= 0)
         else:
             opti.subject_to(X[:, k + 1] == xk + h / 2 * (f(xk, vk) + f(X[:, k + 1], vk)))
     for k in range(N + 1):

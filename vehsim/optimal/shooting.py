@@ -17,12 +17,17 @@ an inner corner (a sharp convex obstacle) cuts it by up to half its length. Two 
 local to a segment:
 
 - *corner clearance* (``corner_clearance``): every inner-corner constraint at both ends of a
-  chord $d$ between consecutive nodes (or interior points, below) holds with the margin
-  $|d|/2$,
-  $\max_i a_i(p) \ge |d|/2$. Along the chord each $a_i$ (unit normal) changes by at most
-  $|d|$, so a point of the chord in the forbidden region $\{a_i < 0\ \forall i\}$ would be
-  within $|d|/2$ of both ends' half-planes: none is, and the path leaves its chord by the
-  sagitta $\kappa |d|^2/8$ only;
+  chord $d$ between consecutive nodes (or interior points, below) holds with a margin,
+  $\max_i a_i(p) \ge m(d)$, $m(d) = \max_{i,j} \frac{|d\cdot n_i|\,|d\cdot n_j|}
+  {|d\cdot n_i| + |d\cdot n_j|}$ over the pairs of half-planes of the corner (unit normals,
+  anti-parallel pairs left out: a chord joining them would cross the whole forbidden region).
+  If the ends satisfy the same half-plane the chord stays in it; if one end has $a_i \ge m$
+  and the other $a_j \ge m$, at a fraction $s$ of the chord $a_i \ge m - s|d\cdot n_i|$ and
+  $a_j \ge m - (1-s)|d\cdot n_j|$, so no point of the chord is in the forbidden region
+  $\{a_k < 0\ \forall k\}$ (its distance from the road is $\min_k(-a_k)$). The path leaves
+  its chord by the sagitta $\kappa |d|^2/8$ only. For a 90 degree corner crossed at 45
+  degrees $m = |d|/(2\sqrt2)$, the depth by which such a chord between nodes on the road
+  cuts it;
 - *interior points* (``interior_points`` $P$): the corridor also at $\theta = j/(P+1)$ of
   every RK4 step, on RK4's continuous extension
   $x(\theta) = x + h\sum_i b_i(\theta) k_i$ (third order, from the four stages already
@@ -117,10 +122,9 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
         if self.corner_clearance and n_corners:
             seq = nodes[:, None] if dense is None else jnp.concatenate([nodes[:, None], dense], 1)
             pts = jnp.concatenate([seq[..., :2].reshape(-1, 2), x_next[None, :2]], 0)
-            d = pts[1:] - pts[:-1]
-            half = 0.5 * jnp.sqrt(jnp.sum(d * d, 1) + 1e-12)[:, None]
+            m = _clearance(road.corners, pts[1:] - pts[:-1])
             corner = jax.vmap(lambda p: road.corridor(p[0], p[1])[-n_corners:])
-            parts += [corner(pts[:-1]) - half - margin, corner(pts[1:]) - half - margin]
+            parts += [corner(pts[:-1]) - m - margin, corner(pts[1:]) - m - margin]
         if dense is not None:
             flat = dense.reshape(-1, dense.shape[-1])
             parts.append(jax.vmap(lambda X: road.corridor(X[0], X[1]))(flat) - margin)
@@ -141,6 +145,29 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
         h = 1.0 / (self.num_stages * S)
         _, fine = jax.vmap(lambda x, u: _rk4_segment(self._rhs, x, u, h, S))(xs[:-1], us)
         return jnp.concatenate([fine.reshape(-1, xs.shape[1]), xs[-1:]], 0)
+
+
+CLEARANCE_SOFTENING = 1e-3
+"""[m]: $|t|$ in the corner clearance is $\sqrt{t^2 + \epsilon^2}$ (smooth, and larger)."""
+
+
+def _clearance(corners, d):
+    """Corner clearance margins (chords, corners) [m] of chords ``d`` (n, 2) (module
+    docstring)."""
+    out = []
+    for planes in corners:
+        normals = [(nx_ / math.hypot(nx_, ny_), ny_ / math.hypot(nx_, ny_))
+                   for nx_, ny_, _ in planes]
+        m = jnp.zeros(d.shape[:1], d.dtype)
+        for i, ni in enumerate(normals):
+            for nj in normals[i + 1:]:
+                if ni[0] * nj[0] + ni[1] * nj[1] < -1.0 + 1e-9:
+                    continue
+                a, b = (jnp.sqrt((d[:, 0] * n[0] + d[:, 1] * n[1]) ** 2
+                                 + CLEARANCE_SOFTENING**2) for n in (ni, nj))
+                m = jnp.maximum(m, a * b / (a + b))
+        out.append(m)
+    return jnp.stack(out, 1)
 
 
 _RK4_A = (0.0, 0.5, 0.5, 1.0)
@@ -197,11 +224,11 @@ def _rk4_segment_dense(rhs, x, u, h, S, thetas):
             k_prev, acc = carry
             ai, wi = aw
             k = rhs(x + (ai * h) * k_prev, u)
-            return (k, acc + wi[:, None] * k), None
+            return (k, acc + wi[:, None] * k[None, :]), None
 
         acc0 = jnp.zeros((w.shape[1],) + x.shape, x.dtype)
         (_, acc), _ = jax.lax.scan(stage, (jnp.zeros_like(x), acc0), (a, w))
-        return x + h * acc[0], (x, x + h * acc[1:])
+        return x + h * acc[0], (x, x[None, :] + h * acc[1:])
 
     end, (starts, dense) = jax.lax.scan(step, x, None, length=S)
     return end, starts, dense
