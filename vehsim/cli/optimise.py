@@ -48,8 +48,8 @@ def register(subparsers) -> None:
                         "continuous extension (0)")
     p.add_argument("--no-corner-clearance", dest="corner_clearance", action="store_false",
                    help="impose the inner corners at the nodes only, without the clearance "
-                        "of half the chord between consecutive nodes that keeps the path on "
-                        "the road between them")
+                        "(the depth by which the chord between consecutive nodes could cut "
+                        "a corner) that keeps the path on the road between them")
     p.add_argument("--max-iter", type=integer(1, 100_000), default=500,
                    help="interior-point iteration limit (500)")
     p.add_argument("--starts", type=integer(1, 1024), default=1,
