@@ -17,3 +17,10 @@ def corner90_min_time():
     """corner90 min-time on M segments x 1 RK4 step (a `Primitive`; treat it as read-only)."""
     return min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
                               options=IPOptions(max_iter=300))
+
+
+@functools.cache
+def corner90_min_time_nodes_only():
+    """The same problem with the corridor at the nodes only (no corner clearance)."""
+    return min_time_primitive("corner90", num_stages=M, steps_per_stage=1,
+                              options=IPOptions(max_iter=300), corner_clearance=False)

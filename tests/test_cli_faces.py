@@ -86,6 +86,9 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     np.testing.assert_allclose(rec["point_mass_t_f"], float(bound.t_f), rtol=1e-9)
     assert rec["point_mass_t_f"] < rec["t_f"] and rec["max_corridor_violation"] <= 1e-3
     assert set(rec["violations"]) >= {"corridor", "boundary", "defects"}
+    assert (rec["steps_per_stage"], rec["corner_clearance"], rec["interior_points"]) == (
+        1, True, 0)
+    assert rec["max_corridor_violation_between_nodes"] < 0.01  # the corner clearance
     assert len(rec["t"]) == len(rec["states"]["x"]) == len(rec["inputs"]["delta"]) == M + 1
     assert (rec["units"]["t_f"], rec["units"]["states.vx"],
             rec["units"]["max_corridor_violation_between_nodes"]) == ("s", "m/s", "m")

@@ -67,6 +67,7 @@ GOOD = [(0, 0, 3, 3), (10, 0, 3, 3), (20, 0, 3, 3), (30, 0, 3, 3), (40, 0, 3, 3)
     ("start speed on a lap", "--start-speed applies to an open road"),
     ("max-exit lap", "max-exit needs an open road"),
     ("starts", "--starts and --live"),
+    ("corner options", "--interior-points and --no-corner-clearance apply"),
     ("two roads", "not allowed with"),
     ("no road", "one of the arguments"),
 ])
@@ -81,6 +82,7 @@ def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case
         "start speed on a lap": ["--track", "Oschersleben", "--start-speed", "5"],
         "max-exit lap": ["--road-file", good, "--closed", "--objective", "max-exit"],
         "starts": ["--road-file", good, "--starts", "2"],
+        "corner options": ["--road-file", good, "--interior-points", "2"],
         "two roads": ["corner90", "--road-file", good],
         "no road": [],
     }[case]

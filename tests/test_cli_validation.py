@@ -51,6 +51,9 @@ BAD = {
     "no iterations": (["optimise", "corner90", "--max-iter", "0"], "--max-iter"),
     "no friction": (["optimise", "corner90", "--friction", "0"], "--friction"),
     "negative time budget": (["optimise", "corner90", "--tf-max", "-1"], "--tf-max"),
+    "no RK4 step": (["optimise", "corner90", "--steps-per-stage", "0"], "--steps-per-stage"),
+    "too many interior points": (["optimise", "corner90", "--interior-points", "9"],
+                                 "--interior-points"),
     # fit
     "zero radius": (["fit", "{tmp}/x.csv", "--radius", "0"], "--radius"),
     "no fit starts": (["fit", "{tmp}/x.csv", "--starts", "0"], "--starts"),

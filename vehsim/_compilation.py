@@ -332,7 +332,8 @@ def prepare_record_programs(prob: ManeuverOCP, xs, us, substeps: int = SUBSTEPS)
 def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
                         car=None, tf_max: float = 4.0, num_stages: int = 50,
                         steps_per_stage: int = 3, options: IPOptions | None = None,
-                        starts=DEFAULT_STARTS, throw: bool = True) -> tuple[Primitive, Primitive]:
+                        starts=DEFAULT_STARTS, throw: bool = True, corner_clearance: bool = True,
+                        interior_points: int = 0) -> tuple[Primitive, Primitive]:
     """`vehsim.primitive_and_bound` (same arguments, same programs, same numbers) arranged
     for the time to the first answer: the car's program compiles, or loads
     (`compiled_interior_point`, `compiled_starts`), on a thread while this one makes the
@@ -348,7 +349,8 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     _check_objective(objective)
     car = rally_gravel_car() if car is None else car
     options = primitive_options(objective, starts) if options is None else options
-    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max)
+    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max,
+                       corner_clearance=corner_clearance, interior_points=interior_points)
     batched = isinstance(starts, int)
     with ThreadPoolExecutor(1) as pool:
         if batched:
@@ -364,7 +366,9 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
             first = guesses[0]
         bound = point_mass_bound(road, objective, D=float(car.tire.D), num_stages=num_stages,
                                  steps_per_stage=steps_per_stage, tf_max=tf_max, throw=False,
-                                 solver=exported_interior_point)
+                                 solver=exported_interior_point,
+                                 corner_clearance=corner_clearance,
+                                 interior_points=interior_points)
         prepare_record_programs(prob, *first)
         solve = pending.result()
     if batched:

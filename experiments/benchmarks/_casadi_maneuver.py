@@ -104,16 +104,42 @@ def casadi_model(D):
     return ca.Function("f", [X, v], [dX]), ca.Function("axles", [X], [axle_speeds])
 
 
+def _dense_weights(theta):
+    """RK4's third-order continuous extension, as vehsim.optimal.shooting's."""
+    t2, t3 = theta * theta, theta**3
+    mid = t2 - 2.0 * t3 / 3.0
+    return (theta - 1.5 * t2 + 2.0 * t3 / 3.0, mid, mid, -0.5 * t2 + 2.0 * t3 / 3.0)
+
+
+def _clearance(planes, d, eps=1e-3):
+    """Corner clearance margin of chord ``d``, as vehsim.optimal.shooting's."""
+    normals = [(nx / np.hypot(nx, ny), ny / np.hypot(nx, ny)) for nx, ny, _ in planes]
+    m = 0
+    for i, ni in enumerate(normals):
+        for nj in normals[i + 1:]:
+            if ni[0] * nj[0] + ni[1] * nj[1] < -1.0 + 1e-9:
+                continue
+            a, b = (ca.sqrt((d[0] * n[0] + d[1] * n[1]) ** 2 + eps**2) for n in (ni, nj))
+            m = ca.fmax(m, a * b / (a + b))
+    return m
+
+
 def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4", tf_max=4.0,
-                rate_weight=1e-5, warm=None):
+                rate_weight=1e-5, warm=None, corner_clearance=True, interior_points=0):
     """Build the problem on ``road`` (`road_data`) with ``limits`` (`LIMIT_NAMES`) and solve it
-    from (``xs0``, ``us0``); the solver call is timed (``wall``)."""
+    from (``xs0``, ``us0``); the solver call is timed (``wall``). ``corner_clearance`` and
+    ``interior_points`` as vehsim's `ManeuverOCP` (rk4 only): the inner corners at both ends
+    of every chord between consecutive constrained points hold with its clearance margin,
+    and the corridor also holds at ``interior_points`` points of RK4's continuous
+    extension."""
     rd, lim = _road(road), SimpleNamespace(**limits)
     f, axles = casadi_model(D)
     opti = ca.Opti()
     X = opti.variable(10, N + 1)
     V = opti.variable(3, N)
     h = 1.0 / N
+    n_corners = len(rd.corners)
+    thetas = [(j + 1) / (interior_points + 1) for j in range(interior_points)]
     for k in range(N):
         xk, vk = X[:, k], V[:, k]
         if method == "rk4":
@@ -122,6 +148,20 @@ def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4
             k3 = f(xk + 0.5 * h * k2, vk)
             k4 = f(xk + h * k3, vk)
             opti.subject_to(X[:, k + 1] == xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4))
+            pts = [xk[:2]]
+            for t in thetas:
+                b = _dense_weights(t)
+                xd = xk + h * (b[0] * k1 + b[1] * k2 + b[2] * k3 + b[3] * k4)
+                pts.append(xd[:2])
+                for c in _corridor(rd, xd[0], xd[1], lim.SMOOTHING):
+                    opti.subject_to(c >= 0)
+            pts.append(X[:2, k + 1])
+            if corner_clearance and n_corners:
+                for p, q in zip(pts[:-1], pts[1:]):
+                    for e in (p, q):
+                        cs = _corridor(rd, e[0], e[1], lim.SMOOTHING)[-n_corners:]
+                        for c, planes in zip(cs, rd.corners):
+                            opti.subject_to(c - _clearance(planes, q - p) >= 0)
         else:
             opti.subject_to(X[:, k + 1] == xk + h / 2 * (f(xk, vk) + f(X[:, k + 1], vk)))
     for k in range(N + 1):
@@ -163,6 +203,7 @@ def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4
         ok = False
     wall = time.perf_counter() - t0
     xs = np.asarray(sol.value(X)).T
+    us = np.asarray(sol.value(V)).reshape(3, N).T
     stats = opti.stats()
-    return dict(ok=ok, wall=wall, xs=xs, iterations=int(stats.get("iter_count", -1)),
+    return dict(ok=ok, wall=wall, xs=xs, us=us, iterations=int(stats.get("iter_count", -1)),
                 status=str(stats.get("return_status")))

@@ -125,6 +125,14 @@ def violations(rd, xs):
     return float(np.max(off))
 
 
+def violation_between_nodes(prob, xs, us):
+    """Largest distance off the road [m] of the path re-integrated between the nodes
+    (`ManeuverOCP.fine_nodes`, 20 RK4 substeps per step) of knots ``xs`` and rates ``us``
+    (either solver's)."""
+    fine = np.asarray(prob.fine_nodes(jax.numpy.asarray(xs), jax.numpy.asarray(us), 20))
+    return violations(prob.road, fine)
+
+
 IPOPT_ONCE = """
 import json, sys
 import numpy as np
@@ -400,6 +408,11 @@ def main(argv=None):
                          "in the road's frame, against IPOPT on the same transcription")
     ap.add_argument("--long-road", choices=["rally", "lap"], default="rally",
                     help="the road of --stages: the rally stage or the small closed lap")
+    ap.add_argument("--no-corner-clearance", dest="corner_clearance", action="store_false",
+                    help="both solvers: inner corners at the nodes only (ManeuverOCP)")
+    ap.add_argument("--interior-points", type=int, default=0,
+                    help="both solvers: the corridor at this many points inside each RK4 "
+                         "step (ManeuverOCP)")
     args = ap.parse_args(argv)
     N = args.segments
     if args.stages:
@@ -422,11 +435,13 @@ def main(argv=None):
         name, objective = problem.split(":")
         rd = road_by_name(name)
         print(f"# {name} {objective}", file=sys.stderr, flush=True)
-        xs0, us0 = car_guess(car, rd, N, 1)
+        between = dict(corner_clearance=args.corner_clearance,
+                       interior_points=args.interior_points)
+        xs0, us0 = car_guess(car, rd, N, 1, **between)
         if objective == "max-exit":
             xs0 = xs0.at[:, IDX_TF].set(np.minimum(xs0[:, IDX_TF], 0.98 * 4.0))
         prob = ManeuverOCP(vehicle=car, road=rd, objective=objective, num_stages=N,
-                           steps_per_stage=1)
+                           steps_per_stage=1, **between)
         opts = primitive_options(objective)  # the primitives' settings (max-exit: mu0 0.01)
         t0 = time.perf_counter()
         sol = interior_point(prob, xs0, us0, opts, throw=False)
@@ -436,10 +451,11 @@ def main(argv=None):
         xs = np.asarray(sol.xs)
         profile = iteration_profile(prob, sol, ours / max(int(sol.iterations), 1))
         t_build = time.perf_counter()
-        ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method)
+        ip = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method, **between)
         ipopt_total = time.perf_counter() - t_build
         for _ in range(2):  # the best of three solver calls, as for vehsim
-            again = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method)
+            again = ipopt_solve(rd, objective, 0.52, N, xs0, us0, method=args.method,
+                                **between)
             ip["wall"] = min(ip["wall"], again["wall"])
         val = (lambda x: x[-1, IDX_TF]) if objective == "min-time" else (
             lambda x: math.hypot(x[-1, 3], x[-1, 4]))
@@ -451,7 +467,9 @@ def main(argv=None):
             ipopt_status=ip["status"], ipopt_iterations=ip["iterations"],
             vehsim_corridor_violation=violations(rd, prob.nodes(sol.xs, sol.us).__array__()),
             ipopt_corridor_violation=violations(rd, ip["xs"]),
-            vehsim_wall_s=ours, ipopt_wall_s=ip["wall"], ratio=ip["wall"] / ours,
+            vehsim_violation_between_nodes=violation_between_nodes(prob, xs, sol.us),
+            ipopt_violation_between_nodes=violation_between_nodes(prob, ip["xs"], ip["us"]),
+            **between, vehsim_wall_s=ours, ipopt_wall_s=ip["wall"], ratio=ip["wall"] / ours,
             vehsim_compile_s=first - ours, ipopt_build_s=ipopt_total - ip["wall"],
             profile=profile, loadavg=os.getloadavg()[0],
         )), flush=True)

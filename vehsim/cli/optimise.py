@@ -18,7 +18,7 @@ UNITS = {
     "violations.time_budget": "s", "max_corridor_violation": "m",
     "max_corridor_violation_between_nodes": "m", "point_mass_t_f": "s",
     "point_mass_exit_speed": "m/s", "t_f_over_bound": "1", "starts[].objective":
-    "s (min-time) or -m/s (max-exit)",
+    "s (min-time) or -m/s (max-exit)", "interior_points": "1",
 }
 """Units of the optimise JSON's fields that `vehsim.labelled.UNITS` and their names do not
 give (the interior point's residuals are scaled, dimensionless)."""
@@ -61,6 +61,15 @@ def register(subparsers) -> None:
     p.add_argument("--segments", type=integer(2, 20_000), default=None,
                    help="shooting segments (one RK4 node each; the benchmark roads: 150, the "
                         "benchmark's; a road file: one per 2.5 m, 100 to 2000)")
+    p.add_argument("--steps-per-stage", type=integer(1, 20), default=1,
+                   help="RK4 steps per segment, each step's start a node (1)")
+    p.add_argument("--interior-points", type=integer(0, 8), default=0,
+                   help="corridor also at this many points inside every RK4 step, on RK4's "
+                        "continuous extension (0)")
+    p.add_argument("--no-corner-clearance", dest="corner_clearance", action="store_false",
+                   help="impose the inner corners at the nodes only, without the clearance "
+                        "(the depth by which the chord between consecutive nodes could cut "
+                        "a corner) that keeps the path on the road between them")
     p.add_argument("--max-iter", type=integer(1, 100_000), default=500,
                    help="interior-point iteration limit (500)")
     p.add_argument("--starts", type=integer(1, 1024), default=1,
@@ -126,7 +135,9 @@ def _optimise(args) -> int:
         t0 = time.perf_counter()
         prim, bound = primitive_and_bound(
             args.road, args.objective, car=car, tf_max=args.tf_max, num_stages=args.segments,
-            steps_per_stage=1, options=opts, throw=False, **starts)
+            steps_per_stage=args.steps_per_stage, options=opts, throw=False,
+            corner_clearance=args.corner_clearance, interior_points=args.interior_points,
+            **starts)
         jax.block_until_ready(prim.solution.xs)
         wall = time.perf_counter() - t0
         plotting.result()
@@ -140,7 +151,8 @@ def _optimise(args) -> int:
     save_figure(fig, out / f"{stem}.png")
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "
           f"{rec['exit_speed']:.3f} m/s, max corridor violation "
-          f"{rec['max_corridor_violation']:.2e} m, "
+          f"{rec['max_corridor_violation']:.2e} m at the nodes, "
+          f"{rec['max_corridor_violation_between_nodes']:.2e} m between them, "
           f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
           file=sys.stderr)
     from ._status import exit_status

@@ -60,6 +60,10 @@ def optimise_road(args) -> int:
     if args.starts != 1 or args.live:
         raise ValueError("--starts and --live apply to the benchmark roads; a road file or "
                          "track starts from its speed profile")
+    if args.interior_points or not args.corner_clearance:
+        raise ValueError("--interior-points and --no-corner-clearance apply to the benchmark "
+                         "roads' corners; on a road file the corridor holds at each step's "
+                         "midpoint as well as at the nodes")
     road = road_from_args(args)
     if args.start_speed is not None:
         if road.closed:
@@ -83,6 +87,7 @@ def optimise_road(args) -> int:
     options = IPOptions(max_iter=args.max_iter, verbose=not args.quiet)
     t0 = time.perf_counter()
     prim = road_primitive(road, args.objective, car=car, num_stages=stages,
+                          steps_per_stage=args.steps_per_stage,
                           margin=args.margin, tf_max=args.tf_max, coarse_stages=coarse,
                           options=options, throw=False)
     jax.block_until_ready(prim.solution.xs)

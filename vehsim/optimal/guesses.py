@@ -74,14 +74,17 @@ def car_guess_from_point_mass(car: ReducedHalfCar, road: Road, pm_xs, pm_us):
 
 def car_guess(car: ReducedHalfCar, road: Road, num_stages: int, steps_per_stage: int = 1,
               margin: float = 0.5, friction_fraction: float = 0.6,
-              solver: Callable = interior_point):
+              solver: Callable = interior_point, corner_clearance: bool = True,
+              interior_points: int = 0):
     """A comfortable starting guess for the car: the min-time point mass in a corridor shrunk
     by ``margin`` [m] with ``friction_fraction`` of the tire's peak friction (so that the
     car's corridor, friction and speed-floor constraints all have slack), solved by
     ``solver`` (`interior_point`) and mapped to car states and inputs by
-    `car_guess_from_point_mass`."""
+    `car_guess_from_point_mass`; ``corner_clearance``, ``interior_points``: the point mass's
+    corridor between the nodes (`PointMassOCP`)."""
     prob = PointMassOCP(road=road, friction=friction_fraction * float(car.tire.D),
-                        num_stages=num_stages, steps_per_stage=steps_per_stage, margin=margin)
+                        num_stages=num_stages, steps_per_stage=steps_per_stage, margin=margin,
+                        corner_clearance=corner_clearance, interior_points=interior_points)
     xs0, us0 = centreline_guess(road, num_stages, 4.0)
     pm = solver(prob, xs0, us0, IPOptions(), throw=False)
     return car_guess_from_point_mass(car, road, pm.xs, pm.us)

@@ -152,6 +152,9 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
         residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
                        compl=float(sol.compl)),
         segments=prim.problem.num_stages, nodes=len(sig["x"]),
+        steps_per_stage=prim.problem.steps_per_stage,
+        corner_clearance=prim.problem.corner_clearance,
+        interior_points=prim.problem.interior_points,
     )
     v = prim.violations()
     rec["violations"] = v

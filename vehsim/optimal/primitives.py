@@ -98,15 +98,19 @@ def _better(sol: IPSolution, best: IPSolution | None) -> bool:
 def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float = 0.52,
                      num_stages: int = 50, steps_per_stage: int = 3, tf_max: float = 4.0,
                      options: IPOptions | None = None, throw: bool = True,
-                     solver: Callable = interior_point) -> Primitive:
+                     solver: Callable = interior_point, corner_clearance: bool = True,
+                     interior_points: int = 0) -> Primitive:
     """The physical bound of the benchmark (docs/maneuvers.md): a point mass with
     $|a| \\le D g$, a lower bound on t_f (an upper bound on the exit speed). Two
     centreline starts (4 and 7 m/s), the best converged optimum kept; ``options`` default
-    ``IPOptions()``; ``solver``: the interior-point solve (`interior_point`)."""
+    ``IPOptions()``; ``solver``: the interior-point solve (`interior_point`);
+    ``corner_clearance``, ``interior_points``: the corridor between the nodes
+    (`PointMassOCP`)."""
     options = IPOptions() if options is None else options
     rd = _road(road)
     prob = PointMassOCP(road=rd, friction=D, objective=objective, tf_max=tf_max,
-                        num_stages=num_stages, steps_per_stage=steps_per_stage)
+                        num_stages=num_stages, steps_per_stage=steps_per_stage,
+                        corner_clearance=corner_clearance, interior_points=interior_points)
     best = None
     for speed in (4.0, 7.0):
         xs0, us0 = centreline_guess(rd, num_stages, speed)
@@ -119,7 +123,8 @@ def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float 
 
 
 def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
-                       steps_per_stage: int = 1):
+                       steps_per_stage: int = 1, corner_clearance: bool = True,
+                       interior_points: int = 0):
     """``n`` starting guesses (knots (n, M+1, 10), controls (n, M, 3)) of different kinds:
     point-mass optima (`MULTISTART_SEEDS`, solved in one batched call) and constant-speed
     runs along the centreline (`CENTRELINE_SPEEDS`), alternating from the default seed."""
@@ -132,7 +137,8 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
                          f"{len(MULTISTART_SEEDS) + len(CENTRELINE_SPEEDS)}, got {n}")
     margins, fractions = (jnp.asarray(c, float) for c in zip(*MULTISTART_SEEDS[:n_seeds]))
     prob = PointMassOCP(road=road, friction=float(car.tire.D), num_stages=num_stages,
-                        steps_per_stage=steps_per_stage)
+                        steps_per_stage=steps_per_stage, corner_clearance=corner_clearance,
+                        interior_points=interior_points)
     xs0, us0 = centreline_guess(road, num_stages, 4.0)
 
     def seed(margin, fraction):
@@ -149,11 +155,13 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
 
 
 def car_problem(road: str | Road, objective: str, car: ReducedHalfCar, num_stages: int,
-                steps_per_stage: int, tf_max: float, rate_weight: float = 1e-5) -> ManeuverOCP:
+                steps_per_stage: int, tf_max: float, rate_weight: float = 1e-5,
+                corner_clearance: bool = True, interior_points: int = 0) -> ManeuverOCP:
     """The car's maneuver problem that `min_time_primitive` and `max_exit_primitive` solve."""
     return ManeuverOCP(vehicle=car, road=_road(road), objective=objective, tf_max=tf_max,
                        num_stages=num_stages, steps_per_stage=steps_per_stage,
-                       rate_weight=rate_weight)
+                       rate_weight=rate_weight, corner_clearance=corner_clearance,
+                       interior_points=interior_points)
 
 
 def car_guesses(prob: ManeuverOCP, starts=DEFAULT_STARTS, guess=None,
@@ -166,7 +174,9 @@ def car_guesses(prob: ManeuverOCP, starts=DEFAULT_STARTS, guess=None,
     guesses = []
     for margin, frac in starts:
         xs0, us0 = car_guess(prob.vehicle, prob.road, prob.num_stages, prob.steps_per_stage,
-                             margin=margin, friction_fraction=frac, solver=solver)
+                             margin=margin, friction_fraction=frac, solver=solver,
+                             corner_clearance=prob.corner_clearance,
+                             interior_points=prob.interior_points)
         if prob.objective == "max-exit":
             xs0 = _within_budget(xs0, prob.tf_max)
         guesses.append((xs0, us0))
@@ -189,10 +199,12 @@ def best_of_guesses(prob: ManeuverOCP, guesses, options: IPOptions, solver: Call
 
 def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options, throw,
                guess=None, rate_weight=1e-5, starts=DEFAULT_STARTS,
-               solver: Callable = interior_point) -> Primitive:
+               solver: Callable = interior_point, corner_clearance: bool = True,
+               interior_points: int = 0) -> Primitive:
     """The car's primitive: from point-mass seeds solved one after the other, or (an int
     ``starts``) from every start of `multistart_guesses` in one batched call."""
-    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max, rate_weight)
+    prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max, rate_weight,
+                       corner_clearance, interior_points)
     if isinstance(starts, int) and guess is None:
         xs0, us0 = batched_starts(prob, starts)
         sols = solve_starts(prob, xs0, us0, canonical_options(options), starts_batch_size())
@@ -224,7 +236,8 @@ def batched_starts(prob: ManeuverOCP, n: int):
     on a CPU force one host device per core with
     ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` before JAX starts)."""
     xs0, us0 = multistart_guesses(prob.vehicle, prob.road, n, prob.num_stages,
-                                  prob.steps_per_stage)
+                                  prob.steps_per_stage, prob.corner_clearance,
+                                  prob.interior_points)
     if prob.objective == "max-exit":
         xs0 = _within_budget(xs0, prob.tf_max)
     return pad_members((xs0, us0), len(jax.devices()))
@@ -259,7 +272,8 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
                        num_stages: int = 50, steps_per_stage: int = 3,
                        options: IPOptions | None = None, guess=None,
                        starts=DEFAULT_STARTS, throw: bool = True,
-                       solver: Callable = interior_point) -> Primitive:
+                       solver: Callable = interior_point, corner_clearance: bool = True,
+                       interior_points: int = 0) -> Primitive:
     """Minimum-time maneuver through ``road`` (Table 4 boundary conditions, free t_f).
 
     **Arguments:** ``road`` (name or `Road`), ``car`` (default `rally_gravel_car()`),
@@ -272,21 +286,25 @@ def min_time_primitive(road: str | Road = "corner90", *, car: ReducedHalfCar | N
     every start's solution kept in the primitive's ``starts``; the best converged optimum is
     returned either way. ``throw``. ``solver``: the interior-point solve of the seeds and
     the car (`interior_point`, or a function with its signature); an int ``starts`` solves
-    the car's starts in one batched program of its own.
+    the car's starts in one batched program of its own. ``corner_clearance``,
+    ``interior_points``: the corridor between the nodes (`ManeuverOCP`; the point-mass
+    seeds get the same).
 
     **Returns:** a `Primitive`.
     """
     car = rally_gravel_car() if car is None else car
     options = primitive_options("min-time", starts) if options is None else options
     return _solve_car(road, "min-time", car, num_stages, steps_per_stage, 4.0, options, throw,
-                      guess, starts=starts, solver=solver)
+                      guess, starts=starts, solver=solver, corner_clearance=corner_clearance,
+                      interior_points=interior_points)
 
 
 def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
                        car: ReducedHalfCar | None = None, num_stages: int = 50,
                        steps_per_stage: int = 3, options: IPOptions | None = None,
                        guess=None, starts=DEFAULT_STARTS, throw: bool = True,
-                       solver: Callable = interior_point) -> Primitive:
+                       solver: Callable = interior_point, corner_clearance: bool = True,
+                       interior_points: int = 0) -> Primitive:
     """Maximum exit speed through ``road`` with t_f <= ``tf_max`` (4.0 s on corner90 in the
     benchmark, docs/maneuvers.md); arguments as `min_time_primitive` (the default
     ``options``, `primitive_options`, start from point-mass seeds at the smaller barrier
@@ -294,15 +312,17 @@ def max_exit_primitive(road: str | Road = "corner90", *, tf_max: float = 4.0,
     car = rally_gravel_car() if car is None else car
     options = primitive_options("max-exit", starts) if options is None else options
     return _solve_car(road, "max-exit", car, num_stages, steps_per_stage, tf_max, options,
-                      throw, guess, starts=starts, solver=solver)
+                      throw, guess, starts=starts, solver=solver,
+                      corner_clearance=corner_clearance, interior_points=interior_points)
 
 
 def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-time", *,
                         car: ReducedHalfCar | None = None, tf_max: float = 4.0,
                         num_stages: int = 50, steps_per_stage: int = 3,
                         options: IPOptions | None = None, starts=DEFAULT_STARTS,
-                        throw: bool = True,
-                        solver: Callable = interior_point) -> tuple[Primitive, Primitive]:
+                        throw: bool = True, solver: Callable = interior_point,
+                        corner_clearance: bool = True,
+                        interior_points: int = 0) -> tuple[Primitive, Primitive]:
     """A primitive and its physical bound, what `solution_record` compares: the car's
     `min_time_primitive` or `max_exit_primitive` (arguments as there) and the
     `point_mass_bound` of the same road, objective, friction, discretisation and budget.
@@ -314,10 +334,12 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     car = rally_gravel_car() if car is None else car
     options = primitive_options(objective, starts) if options is None else options
     prim = _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, options,
-                      throw, starts=starts, solver=solver)
+                      throw, starts=starts, solver=solver, corner_clearance=corner_clearance,
+                      interior_points=interior_points)
     bound = point_mass_bound(road, objective, D=float(car.tire.D), num_stages=num_stages,
                              steps_per_stage=steps_per_stage, tf_max=tf_max, throw=False,
-                             solver=solver)
+                             solver=solver, corner_clearance=corner_clearance,
+                             interior_points=interior_points)
     return prim, bound
 
 

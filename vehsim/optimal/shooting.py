@@ -11,6 +11,28 @@ Knot state $X = (x, y, \psi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, t_f)$ (10)
 control $v$ (3). The corridor and the axle-speed floor $V_{Fx}, V_{Rx} \ge 1$ m/s hold at
 every RK4 node ($M S + 1$ nodes, uniform in $\tau$), the input bounds at the knots (the inputs
 are linear in between).
+
+Between the nodes the path is not constrained, and a chord between two nodes on either side of
+an inner corner (a sharp convex obstacle) cuts it by up to half its length. Two remedies, each
+local to a segment:
+
+- *corner clearance* (``corner_clearance``): every inner-corner constraint at both ends of a
+  chord $d$ between consecutive nodes (or interior points, below) holds with a margin,
+  $\max_i a_i(p) \ge m(d)$, $m(d) = \max_{i,j} \frac{|d\cdot n_i|\,|d\cdot n_j|}
+  {|d\cdot n_i| + |d\cdot n_j|}$ over the pairs of half-planes of the corner (unit normals,
+  anti-parallel pairs left out: a chord joining them would cross the whole forbidden region).
+  If the ends satisfy the same half-plane the chord stays in it; if one end has $a_i \ge m$
+  and the other $a_j \ge m$, at a fraction $s$ of the chord $a_i \ge m - s|d\cdot n_i|$ and
+  $a_j \ge m - (1-s)|d\cdot n_j|$, so no point of the chord is in the forbidden region
+  $\{a_k < 0\ \forall k\}$ (its distance from the road is $\min_k(-a_k)$). The path leaves
+  its chord by the sagitta $\kappa |d|^2/8$ only. For a 90 degree corner crossed at 45
+  degrees $m = |d|/(2\sqrt2)$, the depth by which such a chord between nodes on the road
+  cuts it;
+- *interior points* (``interior_points`` $P$): the corridor also at $\theta = j/(P+1)$ of
+  every RK4 step, on RK4's continuous extension
+  $x(\theta) = x + h\sum_i b_i(\theta) k_i$ (third order, from the four stages already
+  computed): $b_1 = \theta - \frac32\theta^2 + \frac23\theta^3$,
+  $b_2 = b_3 = \theta^2 - \frac23\theta^3$, $b_4 = -\frac12\theta^2 + \frac23\theta^3$.
 """
 
 from __future__ import annotations
@@ -39,6 +61,15 @@ SPEED_FLOOR = 1.0
 TF_MIN = 0.3
 
 
+def _check_between(owner: str, corner_clearance, interior_points) -> None:
+    if not isinstance(corner_clearance, bool):
+        raise TypeError(f"{owner}.corner_clearance must be True or False, got "
+                        f"{corner_clearance!r}")
+    if not isinstance(interior_points, int) or not 0 <= interior_points <= 8:
+        raise ValueError(f"{owner}.interior_points must be an int in [0, 8], got "
+                         f"{interior_points!r}")
+
+
 class AbstractManeuverOCP(AbstractStagewiseNLP):
     """Shared machinery: RK4 segments with nodes, corridor, boundary conditions."""
 
@@ -59,14 +90,45 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
 
     def transition_and_path(self, x, u, k):
         """One integration gives both the next knot and the node constraints."""
-        x_next, nodes = self._segment(x, u, k)
-        return x_next, self._path(x, u, nodes)
+        x_next, nodes, dense = self._segment_points(x, u)
+        return x_next, self._path(x, u, nodes, x_next, dense)
 
     def transition(self, x, u, k):
         return self._segment(x, u, k)[0]
 
     def path_inequality(self, x, u, k):
-        return self._path(x, u, self._segment(x, u, k)[1])
+        x_next, nodes, dense = self._segment_points(x, u)
+        return self._path(x, u, nodes, x_next, dense)
+
+    def _segment_points(self, x, u):
+        """The end knot, the S nodes and the (S, P) interior points of one segment."""
+        S = self.steps_per_stage
+        h = 1.0 / (self.num_stages * S)
+        P = self.interior_points
+        if P == 0:
+            x_next, nodes = _rk4_segment(self._rhs, x, u, h, S)
+            return x_next, nodes, None
+        thetas = tuple((j + 1) / (P + 1) for j in range(P))
+        return _rk4_segment(self._rhs, x, u, h, S, thetas)
+
+    def _corridor_between(self, nodes, x_next, dense, margin=0.0):
+        """Corridor constraints that bound the path between the nodes: the corridor at the
+        interior points ``dense`` (S, P, nx), and the corner clearance at both ends of every
+        chord between consecutive constrained points (nodes and interior points in order, the
+        last chord ending at ``x_next``); ``margin`` [m] shrinks both."""
+        parts = []
+        road = self.road
+        n_corners = len(road.corners)
+        if self.corner_clearance and n_corners:
+            seq = nodes[:, None] if dense is None else jnp.concatenate([nodes[:, None], dense], 1)
+            pts = jnp.concatenate([seq[..., :2].reshape(-1, 2), x_next[None, :2]], 0)
+            m = _clearance(road.corners, pts[1:] - pts[:-1])
+            corner = jax.vmap(lambda p: road.corridor(p[0], p[1])[-n_corners:])
+            parts += [corner(pts[:-1]) - m - margin, corner(pts[1:]) - m - margin]
+        if dense is not None:
+            flat = dense.reshape(-1, dense.shape[-1])
+            parts.append(jax.vmap(lambda X: road.corridor(X[0], X[1]))(flat) - margin)
+        return jnp.concatenate([p.reshape(-1) for p in parts]) if parts else jnp.zeros((0,))
 
     def _segment(self, x, u, k):
         """RK4 over one segment; returns the end knot and the states at the S nodes."""
@@ -85,12 +147,37 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
         return jnp.concatenate([fine.reshape(-1, xs.shape[1]), xs[-1:]], 0)
 
 
+CLEARANCE_SOFTENING = 1e-3
+"""[m]: $|t|$ in the corner clearance is $\sqrt{t^2 + \epsilon^2}$ (smooth, and larger)."""
+
+
+def _clearance(corners, d):
+    """Corner clearance margins (chords, corners) [m] of chords ``d`` (n, 2) (module
+    docstring)."""
+    out = []
+    for planes in corners:
+        normals = [(nx_ / math.hypot(nx_, ny_), ny_ / math.hypot(nx_, ny_))
+                   for nx_, ny_, _ in planes]
+        m = jnp.zeros(d.shape[:1], d.dtype)
+        for i, ni in enumerate(normals):
+            for nj in normals[i + 1:]:
+                if ni[0] * nj[0] + ni[1] * nj[1] < -1.0 + 1e-9:
+                    continue
+                a, b = (jnp.sqrt((d[:, 0] * n[0] + d[:, 1] * n[1]) ** 2
+                                 + CLEARANCE_SOFTENING**2) for n in (ni, nj))
+                m = jnp.maximum(m, a * b / (a + b))
+        out.append(m)
+    return jnp.stack(out, 1)
+
+
 _RK4_A = (0.0, 0.5, 0.5, 1.0)
 _RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
 
 
-def _rk4_segment(rhs, x, u, h, S):
-    """``S`` classical RK4 steps of size ``h``; returns the end state and the S step starts.
+def _rk4_segment(rhs, x, u, h, S, thetas=()):
+    """``S`` classical RK4 steps of size ``h``; returns the end state and the S step starts,
+    and with interior fractions ``thetas`` (P of them) also the (S, P) states of RK4's
+    continuous extension at them (`_dense_weights`).
 
     Both the steps and the four stages of a step are `lax.scan` loops, so the right-hand
     side is traced (and its second derivatives compiled) once, not 4 S times: compile time
@@ -98,6 +185,8 @@ def _rk4_segment(rhs, x, u, h, S):
     outer loop: a loop of one iteration still costs its tracing (each derivative of a scan
     is traced to a fixed point), its compilation and its run time."""
     a = jnp.asarray(_RK4_A)
+    if thetas:
+        return _rk4_segment_dense(rhs, x, u, h, S, thetas)
     b = jnp.asarray(_RK4_B)
 
     def step(x, _):
@@ -116,6 +205,35 @@ def _rk4_segment(rhs, x, u, h, S):
     return jax.lax.scan(step, x, None, length=S)
 
 
+def _dense_weights(theta: float) -> tuple:
+    """Weights $b_i(\theta)$ of RK4's third-order continuous extension (module docstring);
+    $b_i(1)$ are RK4's weights."""
+    t2, t3 = theta * theta, theta**3
+    mid = t2 - 2.0 * t3 / 3.0
+    return (theta - 1.5 * t2 + 2.0 * t3 / 3.0, mid, mid, -0.5 * t2 + 2.0 * t3 / 3.0)
+
+
+def _rk4_segment_dense(rhs, x, u, h, S, thetas):
+    """`_rk4_segment` with the continuous extension at ``thetas``: one accumulator per
+    fraction beside RK4's own, from the same four stages."""
+    a = jnp.asarray(_RK4_A)
+    w = jnp.asarray([_RK4_B] + [_dense_weights(t) for t in thetas]).T  # (4, 1 + P)
+
+    def step(x, _):
+        def stage(carry, aw):
+            k_prev, acc = carry
+            ai, wi = aw
+            k = rhs(x + (ai * h) * k_prev, u)
+            return (k, acc + wi[:, None] * k[None, :]), None
+
+        acc0 = jnp.zeros((w.shape[1],) + x.shape, x.dtype)
+        (_, acc), _ = jax.lax.scan(stage, (jnp.zeros_like(x), acc0), (a, w))
+        return x + h * acc[0], (x, x[None, :] + h * acc[1:])
+
+    end, (starts, dense) = jax.lax.scan(step, x, None, length=S)
+    return end, starts, dense
+
+
 class ManeuverOCP(AbstractManeuverOCP):
     r"""Minimum-time or maximum-exit-speed maneuver of the reduced half-car (eqs. 61-63).
 
@@ -123,7 +241,9 @@ class ManeuverOCP(AbstractManeuverOCP):
     ('min-time' or 'max-exit'), ``tf_max`` [s] (time budget of max-exit), ``num_stages``
     $M$, ``steps_per_stage`` $S$ (nodes $= MS$), ``rate_weight`` (a small penalty
     $w\int |du/d\tau|^2 d\tau$ on input rates that picks one input history where the cost is
-    flat; it moves $t_f$ by far less than the discretisation error).
+    flat; it moves $t_f$ by far less than the discretisation error); between the nodes
+    (module docstring): ``corner_clearance`` (default True) and ``interior_points`` $P$
+    (default 0); both off is the corridor at the nodes only.
     """
 
     vehicle: ReducedHalfCar
@@ -133,6 +253,8 @@ class ManeuverOCP(AbstractManeuverOCP):
     num_stages: int = eqx.field(static=True, default=50)
     steps_per_stage: int = eqx.field(static=True, default=3)
     rate_weight: Array = array_field(default=1e-5)
+    corner_clearance: bool = eqx.field(static=True, default=True)
+    interior_points: int = eqx.field(static=True, default=0)
     state_size: int = eqx.field(static=True, default=NX)
     control_size: int = eqx.field(static=True, default=NU)
 
@@ -143,6 +265,7 @@ class ManeuverOCP(AbstractManeuverOCP):
             )
         if self.num_stages < 2 or self.steps_per_stage < 1:
             raise ValueError("ManeuverOCP.num_stages must be >= 2 and steps_per_stage >= 1")
+        _check_between(type(self).__name__, self.corner_clearance, self.interior_points)
 
     def _rhs(self, X, v):
         tf = X[IDX_TF]
@@ -161,9 +284,10 @@ class ManeuverOCP(AbstractManeuverOCP):
             DELTA_MAX - d, d + DELTA_MAX, X[IDX_TF] - TF_MIN,
         ])
 
-    def _path(self, x, u, nodes):
+    def _path(self, x, u, nodes, x_next, dense):
         node_c = jax.vmap(self._node_constraints)(nodes).reshape(-1)
-        return jnp.concatenate([node_c, self._input_bounds(x)])
+        between = self._corridor_between(nodes, x_next, dense)
+        return jnp.concatenate([node_c, between, self._input_bounds(x)])
 
     def stage_cost(self, x, u, k):
         return self.rate_weight * jnp.sum(u * u) / self.num_stages
@@ -207,7 +331,11 @@ class PointMassOCP(AbstractManeuverOCP):
     inertial velocity component; the heading conditions become "velocity along the heading"). State
     $(x, y, v_x, v_y, t_f)$ (inertial velocity), control $a$ (piecewise constant).
     ``margin`` [m] shrinks the corridor (0 for the bound; > 0 for comfortable initial
-    guesses of the car problem)."""
+    guesses of the car problem); ``corner_clearance``, ``interior_points``: as
+    `ManeuverOCP`'s (the margin shrinks them too)."""
+
+    def __check_init__(self):
+        _check_between(type(self).__name__, self.corner_clearance, self.interior_points)
 
     road: Road
     friction: Array = array_field(default=0.52)
@@ -218,6 +346,8 @@ class PointMassOCP(AbstractManeuverOCP):
     steps_per_stage: int = eqx.field(static=True, default=3)
     rate_weight: Array = array_field(default=1e-6)
     margin: Array = array_field(default=0.0)
+    corner_clearance: bool = eqx.field(static=True, default=True)
+    interior_points: int = eqx.field(static=True, default=0)
     state_size: int = eqx.field(static=True, default=5)
     control_size: int = eqx.field(static=True, default=2)
 
@@ -225,10 +355,11 @@ class PointMassOCP(AbstractManeuverOCP):
         tf = X[4]
         return jnp.concatenate([tf * X[2:4], tf * a, jnp.zeros((1,))])
 
-    def _path(self, x, u, nodes):
+    def _path(self, x, u, nodes, x_next, dense):
         c = jax.vmap(lambda X: self.road.corridor(X[0], X[1]) - self.margin)(nodes).reshape(-1)
+        between = self._corridor_between(nodes, x_next, dense, self.margin)
         amax = self.friction * self.g
-        return jnp.concatenate([c, jnp.stack([amax**2 - u @ u, x[4] - 0.1])])
+        return jnp.concatenate([c, between, jnp.stack([amax**2 - u @ u, x[4] - 0.1])])
 
     def stage_cost(self, x, u, k):
         return self.rate_weight * jnp.sum(u * u) / self.num_stages
