@@ -189,11 +189,18 @@ def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4
     else:
         opti.subject_to(X[9, N] <= tf_max)
         opti.minimize(-ca.sqrt(X[3, N] ** 2 + X[4, N] ** 2) + reg)
+    return solve_opti(opti, X, V, xs0, us0)
+
+
+def solve_opti(opti, X, V, xs0, us0, **ipopt_options) -> dict:
+    """IPOPT (MUMPS, tolerance 1e-8, quiet; ``ipopt_options`` added) on the problem of
+    ``opti`` from the knots ``xs0`` and controls ``us0`` of its variables ``X`` and ``V``;
+    the solver call is timed (``wall``). Returns the solution, status and iterations."""
     opti.set_initial(X, np.asarray(xs0).T)
     opti.set_initial(V, np.asarray(us0).T)
     opti.solver("ipopt", {"print_time": False},
                 {"print_level": 0, "tol": 1e-8, "max_iter": 3000, "linear_solver": "mumps",
-                 "sb": "yes"})
+                 "sb": "yes", **ipopt_options})
     t0 = time.perf_counter()
     try:
         sol = opti.solve()
@@ -202,8 +209,9 @@ def ipopt_solve(road: dict, limits: dict, objective, D, N, xs0, us0, method="rk4
         sol = opti.debug
         ok = False
     wall = time.perf_counter() - t0
-    xs = np.asarray(sol.value(X)).T
-    us = np.asarray(sol.value(V)).reshape(3, N).T
+    nu, M = V.shape
     stats = opti.stats()
-    return dict(ok=ok, wall=wall, xs=xs, us=us, iterations=int(stats.get("iter_count", -1)),
+    return dict(ok=ok, wall=wall, xs=np.asarray(sol.value(X)).T,
+                us=np.asarray(sol.value(V)).reshape(nu, M).T,
+                iterations=int(stats.get("iter_count", -1)),
                 status=str(stats.get("return_status")))

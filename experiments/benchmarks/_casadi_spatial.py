@@ -10,11 +10,9 @@ plain data (`road_arrays` in ocp_vs_ipopt.py), the bounds as ``limits``.
 
 from __future__ import annotations
 
-import time
-
 import casadi as ca
 import numpy as np
-from _casadi_maneuver import body_model
+from _casadi_maneuver import body_model, solve_opti
 
 
 NX = 9
@@ -96,21 +94,4 @@ def ipopt_solve(road: dict, limits: dict, objective: str, D: float, xs0, us0,
     else:
         opti.subject_to(X[8, M] <= tf_max)
         opti.minimize(-ca.sqrt(X[2, M] ** 2 + X[3, M] ** 2) + reg)
-    opti.set_initial(X, np.asarray(xs0).T)
-    opti.set_initial(V, np.asarray(us0).T)
-    opti.solver("ipopt", {"print_time": False},
-                {"print_level": 0, "tol": 1e-8, "max_iter": 3000, "linear_solver": "mumps",
-                 "mu_init": mu_init, "sb": "yes"})
-    t0 = time.perf_counter()
-    try:
-        sol = opti.solve()
-        ok = True
-    except RuntimeError:
-        sol = opti.debug
-        ok = False
-    wall = time.perf_counter() - t0
-    stats = opti.stats()
-    return dict(ok=ok, wall=wall, xs=np.asarray(sol.value(X)).T,
-                us=np.asarray(sol.value(V)).reshape(NU, M).T,
-                iterations=int(stats.get("iter_count", -1)),
-                status=str(stats.get("return_status")))
+    return solve_opti(opti, X, V, xs0, us0, mu_init=mu_init)
