@@ -4,6 +4,7 @@ tires whose peak the observer's LuGre family misplaces."""
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -22,8 +23,9 @@ def _moments(controller, pairs, center, dt=0.005):
     st = controller.init(2500.0)
     slope = None
     for lam, mu in pairs:
-        moments, slope, _ = controller._slope(st, lam, mu, center, dt)
-        st = st.__class__(st.integral, st.target, st.slip, *moments, st.engaged, st.time)
+        moments, slope, _, _ = controller._slope(st, lam, mu, center, dt)
+        st = eqx.tree_at(lambda s: (s.weight, s.mean_slip, s.mean_mu, s.var_slip, s.var_mu, s.cov), st,
+                         moments)
     return slope
 
 

@@ -50,11 +50,14 @@ class PeakSeekingState(eqx.Module):
 
     integral: Float[Array, ""]
     target: Float[Array, ""]
+    scale: Float[Array, ""]
+    speed: Float[Array, ""]
     slip: Float[Array, ""]
     weight: Float[Array, ""]
     mean_slip: Float[Array, ""]
     mean_mu: Float[Array, ""]
     var_slip: Float[Array, ""]
+    var_mu: Float[Array, ""]
     cov: Float[Array, ""]
     engaged: Float[Array, ""]
     time: Float[Array, ""]
@@ -77,6 +80,11 @@ class PeakSeekingABS(AbstractBrakeController):
     min_slip: Float[Array, ""] = array_field(default=0.02)
     dither: Float[Array, ""] = array_field(default=0.005)
     dither_frequency: Float[Array, ""] = array_field(default=5.0)
+    confidence: Float[Array, ""] = array_field(default=1.0)
+    mu_variance_floor: Float[Array, ""] = array_field(default=1e-8)
+    follow_speed: Float[Array, ""] = array_field(default=0.0)
+    start_scale: Float[Array, ""] = array_field(default=0.6)
+    descent_rate: Float[Array, ""] = array_field(default=0.3)
     kp: Float[Array, ""] = array_field(default=60.0)
     ki: Float[Array, ""] = array_field(default=600.0)
 
@@ -90,7 +98,7 @@ class PeakSeekingABS(AbstractBrakeController):
 
     def init(self, max_torque):
         z = jnp.zeros(())
-        return PeakSeekingState(z, z, z, z, z, z, z, z, z, z)
+        return PeakSeekingState(z, z, z, z, z, z, z, z, z, z, z, z, z)
 
     def _slope(self, st: PeakSeekingState, lam, mu, center, dt):
         r"""The weighted moments after the pair $(\bar\lambda, \hat\mu)$, the slope and the
@@ -102,8 +110,11 @@ class PeakSeekingABS(AbstractBrakeController):
         d_lam, d_mu = lam - st.mean_slip, mu - st.mean_mu
         mean_slip, mean_mu = st.mean_slip + g * d_lam, st.mean_mu + g * d_mu
         var = (1.0 - g) * (st.var_slip + g * d_lam * d_lam)
+        var_mu = (1.0 - g) * (st.var_mu + g * d_mu * d_mu)
         cov = (1.0 - g) * (st.cov + g * d_lam * d_mu)
-        return (weight, mean_slip, mean_mu, var, cov), cov / (var + self.variance_floor), w
+        fit = jnp.square(cov) / ((var + self.variance_floor) * (var_mu + self.mu_variance_floor))
+        return ((weight, mean_slip, mean_mu, var, var_mu, cov), cov / (var + self.variance_floor),
+                w, fit)
 
     def command(self, state, m, belief, car, dt, max_torque):
         st: PeakSeekingState = state
@@ -113,15 +124,21 @@ class PeakSeekingABS(AbstractBrakeController):
         brake = m.brake_torque * jnp.tanh(m.omega / car.omega_eps)
         mu = (brake + car.inertia * m.wheel_accel / r) / (r * car.Fn_static)
         first = st.time == 0.0
-        lam_target = jnp.where(first, -peak_braking(belief, v, r)[0], st.target)
-        moments, slope, near = self._slope(st, 0.5 * (lam + st.slip), mu, lam_target, dt)
-        step = st.engaged * near * self.rate * dt * jnp.tanh(slope / self.slope_scale)
-        lam_target = jnp.clip(lam_target + step, self.min_slip, 1.0)
+        speed = jnp.where(first | (self.follow_speed > 0), v, st.speed)
+        lam_belief = jnp.clip(-peak_braking(belief, speed, r)[0], self.min_slip, 1.0)
+        scale = jnp.where(first, jnp.where(lam_belief >= 1.0 - 1e-3, 1.0, self.start_scale), st.scale)
+        center = jnp.where(first, scale * lam_belief, st.target)
+        moments, slope, near, fit = self._slope(st, 0.5 * (lam + st.slip), mu, center, dt)
+        rate = jnp.where(slope > 0, self.rate, self.descent_rate)
+        trust = jnp.where(self.confidence > 0, fit, 1.0)
+        step = st.engaged * near * trust * rate * dt * jnp.tanh(slope / self.slope_scale)
+        scale = jnp.clip(scale + step / lam_belief, self.min_slip / lam_belief, 1.0 / lam_belief)
+        lam_target = scale * lam_belief
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
         s = -jnp.clip(lam_target + dither, 1e-3, 1.0)
         integral, torque = track_slip(st.integral, m, s, -braking_curve(belief, s, v, r), car,
                                       dt, max_torque, self.kp, self.ki)
         torque = jnp.where(s <= -1.0, max_torque, torque)  # a target at the locked wheel
-        new = PeakSeekingState(integral, lam_target, lam, *moments, engaged, st.time + dt)
+        new = PeakSeekingState(integral, lam_target, scale, speed, lam, *moments, engaged, st.time + dt)
         return new, torque, jnp.zeros((), int)
