@@ -121,6 +121,24 @@ def test_no_nan_in_forward_mode_at_zero_speed_and_slip():
     assert np.isfinite(float(value)) and np.isfinite(float(tangent))
 
 
+def test_no_nan_in_reverse_mode_over_samples_at_zero_slip():
+    """Two samples from rest at zero slip (the second reads the start and the fit's R^2
+    of a single pair): finite gradients with respect to the start and the rates."""
+    belief = surface("dry_asphalt").tire()
+    car = braking_quarter_car(belief)
+
+    def torque(p):
+        c = PeakSeekingABS(rate=p[0], descent_rate=p[1], start_scale=p[2])
+        v, omega = jnp.asarray(20.0), jnp.asarray(20.0 / float(car.radius))
+        m = Measurement(omega, v, jnp.zeros(()), jnp.zeros(()), jnp.zeros(()))
+        st, t1, _ = c.command(c.init(2500.0), m, belief, car, 0.005, 2500.0)
+        _, t2, _ = c.command(st, m, belief, car, 0.005, 2500.0)
+        return t1 + t2
+
+    g = jax.grad(torque)(jnp.asarray([0.6, 0.3, 0.7]))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
 CONTROLLERS = {"seek": PeakSeekingABS(), "fixed": SlipTracking(), "locked": LockedWheel()}
 
 
