@@ -101,6 +101,7 @@ class PeakSeekingABS(AbstractBrakeController):
     dither_frequency: Float[Array, ""] = array_field(default=5.0)
     mu_variance_floor: Float[Array, ""] = array_field(default=1e-8)
     start_scale: Float[Array, ""] = array_field(default=0.7)
+    start_slip: Float[Array, ""] = array_field(default=0.1)
     change_ratio: Float[Array, ""] = array_field(default=1.5)
     descent_rate: Float[Array, ""] = array_field(default=0.3)
     kp: Float[Array, ""] = array_field(default=60.0)
@@ -115,6 +116,7 @@ class PeakSeekingABS(AbstractBrakeController):
         for name in ("rate", "descent_rate", "dither", "dither_frequency", "kp", "ki"):
             check_nonnegative(owner, name, getattr(self, name))
         check_range(owner, "min_slip", self.min_slip, lower=0.0, upper=1.0)
+        check_range(owner, "start_slip", self.start_slip, lower=0.0, upper=1.0)
 
     def init(self, max_torque):
         z = jnp.zeros(())
@@ -150,7 +152,9 @@ class PeakSeekingABS(AbstractBrakeController):
         new_road = first | (jnp.abs(jnp.log(lam_belief / jnp.where(first, 1.0, st.reference)))
                             > jnp.log(self.change_ratio))
         reference = jnp.where(new_road, lam_belief, st.reference)
-        start = jnp.where(lam_belief >= 1.0 - 1e-3, 1.0, self.start_scale)
+        # below the belief's peak, but not below `start_slip` (nor above the peak)
+        start = jnp.clip(self.start_slip / lam_belief, self.start_scale, 1.0)
+        start = jnp.where(lam_belief >= 1.0 - 1e-3, 1.0, start)
         scale = jnp.where(new_road, start, st.scale)
         center = jnp.where(new_road, scale * lam_belief, st.target)
         moments, slope, near, fit = self._slope(st, 0.5 * (lam + st.slip), mu, center, dt)
