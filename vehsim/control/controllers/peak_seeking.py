@@ -28,8 +28,12 @@ at the onset and whenever $\lambda_b$ has moved by more than a factor `change_ra
 where it last started (a new road: the multiple learnt on the old one is dropped),
 below the belief's peak, $\kappa_0$ = `start_scale` (where the curve rises everywhere
 below the peak, a loop held there is stable whatever the tire; past a sharp peak, the
-actuator's delay and lag make the slip loop cycle), or at 1 where the belief's curve
-rises to the locked wheel, and climbs the measured curve,
+actuator's delay and lag make the slip loop cycle), but not below the slip $\lambda_s$ =
+`start_slip` nor above the peak, $\kappa = \min(1, \max(\kappa_0, \lambda_s/\lambda_b))$
+(on a road whose peak lies at small slip, snow and ice, the measured slopes are small
+against the measurement's errors and the walk up from below the peak is slow: the loop
+starts at the peak), or at 1 where the belief's curve rises to the locked wheel, and
+climbs the measured curve,
 $$\dot\lambda^* = \lambda_b\dot\kappa = \rho_\pm\,w_k R^2\tanh(b/b_0),\qquad
 \lambda^*\in[\lambda_{min}, 1],$$
 $\rho_+$ = `rate` uphill ($b > 0$), $\rho_-$ = `descent_rate` downhill, so it stops where
@@ -85,8 +89,9 @@ class PeakSeekingABS(AbstractBrakeController):
     r"""Extremum seeking on the measured friction (module docstring).
 
     **Fields:** `rate` $\rho_+$ [1/s] (0.6), `descent_rate` $\rho_-$ [1/s] (0.3),
-    `start_scale` $\kappa_0$ (0.7), `change_ratio` (1.5), `slope_scale` $b_0$ (0.5), `window` [s] (0.1),
-    `kernel_width` $h$ (0.03), `variance_floor` $\epsilon$ (1e-6), `mu_variance_floor`
+    `start_scale` $\kappa_0$ (0.7), `start_slip` $\lambda_s$ (0.1), `change_ratio` (1.5),
+    `slope_scale` $b_0$ (0.5), `window` [s] (0.1), `kernel_width` $h$ (0.03),
+    `variance_floor` $\epsilon$ (1e-6), `mu_variance_floor`
     $\epsilon_\mu$ (1e-8), `min_slip` $\lambda_{min}$ (0.02), `dither` (0.005),
     `dither_frequency` [Hz] (5), gains `kp` (60) and `ki` (600) as `SlipTracking`.
     """
