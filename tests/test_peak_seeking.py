@@ -156,7 +156,8 @@ def lugre_roads():
     """Named surfaces and a surface change that stop within 12 s (one grid)."""
     rows = {name: (name, None, None, math.inf)
             for name in ("dry_asphalt", "wet_asphalt", "cobblestone", "cdc1999_0.6")}
-    rows |= {"snow to dry": ("snow", None, "dry_asphalt", 50.0)}
+    rows |= {"snow to dry": ("snow", None, "dry_asphalt", 50.0),
+             "ice to dry": ("ice", None, "dry_asphalt", 100.0)}
     return mismatch_table(rows, CONTROLLERS, realistic_hardware(), duration=12.0)
 
 
@@ -177,6 +178,9 @@ def test_seek_never_worse_than_fixed_slip_or_locked(other_shapes, lugre_roads):
 
 
 def test_seek_near_the_actuated_limit_on_lugre_roads(lugre_roads):
+    """Within 3 % of the limit on the hardware on the named roads, 5 % across a change of
+    road (from ice to dry asphalt: the target starts at ice's peak, not below it, so the
+    torque meets the dry road's friction at once)."""
     ratio = dict(zip(lugre_roads["rows"], lugre_roads["over_actuated"][:, 0]))
     for row, value in ratio.items():
         assert value < (1.05 if " to " in row else 1.03), ratio
