@@ -31,11 +31,11 @@ below the peak, a loop held there is stable whatever the tire; past a sharp peak
 actuator's delay and lag make the slip loop cycle), but not below the slip $\lambda_s$ =
 `start_slip` nor above the peak, $\kappa = \min(1, \max(\kappa_0, \lambda_s/\lambda_b))$
 (on a road whose peak lies at small slip, snow and ice, the measured slopes are small
-against the measurement's errors and the walk up from below the peak is slow: the loop
-starts at the peak), or at 1 where the belief's curve rises to the locked wheel, and
-climbs the measured curve,
+against the measurement's errors, read downhill near the peak and walk the target below
+it: the loop starts at the peak and stays at or above it), or at 1 where the belief's
+curve rises to the locked wheel, and climbs the measured curve,
 $$\dot\lambda^* = \lambda_b\dot\kappa = \rho_\pm\,w_k R^2\tanh(b/b_0),\qquad
-\lambda^*\in[\lambda_{min}, 1],$$
+\lambda^*\in[\max(\lambda_{min}, \min(\lambda_b, \lambda_s)), 1],$$
 $\rho_+$ = `rate` uphill ($b > 0$), $\rho_-$ = `descent_rate` downhill, so it stops where
 the measured slope vanishes, at the true tire's peak whatever its shape (a curve rising
 to the locked wheel drives it to 1: full torque), and moves only as fast as the fit
@@ -165,7 +165,8 @@ class PeakSeekingABS(AbstractBrakeController):
         moments, slope, near, fit = self._slope(st, 0.5 * (lam + st.slip), mu, center, dt)
         rate = jnp.where(slope > 0, self.rate, self.descent_rate)
         step = st.engaged * near * fit * rate * dt * jnp.tanh(slope / self.slope_scale)
-        scale = jnp.clip(scale + step / lam_belief, self.min_slip / lam_belief, 1.0 / lam_belief)
+        floor = jnp.maximum(self.min_slip, jnp.minimum(lam_belief, self.start_slip))
+        scale = jnp.clip(scale + step / lam_belief, floor / lam_belief, 1.0 / lam_belief)
         lam_target = scale * lam_belief
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
         dither = self.dither * jnp.sin(2.0 * jnp.pi * self.dither_frequency * st.time)
