@@ -76,34 +76,54 @@ def test_fit_is_the_weighted_coefficient_of_determination():
     assert float(fit) == pytest.approx(r2, rel=1e-6)
 
 
-def test_target_climbs_to_the_peak_of_a_static_curve():
-    """A wheel that sits at the commanded slip plus a ripple on a static curve with its peak
-    at braking slip 0.3: the target walks there from 0.7 of the belief's peak (0.19) and
-    stays."""
-    belief = surface("dry_asphalt").tire()
+def _walk(c, belief, curve, steps, v=20.0, dt=0.005):
+    """The controller on a wheel that sits at the commanded slip plus a ripple on the
+    static curve `curve` (steady: the torque equals the friction's): the last state,
+    slip and measurement, and the compiled law."""
     car = braking_quarter_car(belief)
-    c = PeakSeekingABS()
-    dt, v = 0.005, 20.0
     st = c.init(2500.0)
-    lam_prev = 0.0
+    lam = 0.0
     command = jax.jit(lambda st, m, belief=belief: c.command(st, m, belief, car, dt, 2500.0))
-    for k in range(800):
+    for k in range(steps):
         lam = float(st.target) + 0.02 * math.sin(2 * math.pi * 7 * k * dt) if k else 0.0
-        mu = 1.0 - 3.0 * (lam - 0.3) ** 2
-        torque = mu * float(car.radius * car.Fn_static)  # steady wheel: no acceleration
+        torque = curve(lam) * float(car.radius * car.Fn_static)
         omega = (1.0 - lam) * v / float(car.radius)
         m = Measurement(jnp.asarray(omega), jnp.asarray(v), jnp.asarray(-lam),
                         jnp.asarray(0.0), jnp.asarray(torque))
         st, _, _ = command(st, m)
-        lam_prev = lam
-    assert lam_prev == pytest.approx(0.3, abs=0.05)
+    return st, lam, m, command, car
+
+
+def test_target_climbs_to_the_peak_of_a_static_curve():
+    """A wheel on a static curve with its peak at braking slip 0.3: the target walks there
+    from 0.7 of the belief's peak (0.19) and stays."""
+    c = PeakSeekingABS()
+    st, lam, m, command, car = _walk(c, surface("dry_asphalt").tire(),
+                                     lambda x: 1.0 - 3.0 * (x - 0.3) ** 2, 800)
+    assert lam == pytest.approx(0.3, abs=0.05)
     assert float(st.target) == pytest.approx(0.3, abs=0.02)
-    # the belief turns to ice (its peak at 20 m/s a third of dry asphalt's): a new road, the
-    # target restarts at 0.7 of the new peak instead of keeping the multiple learnt (1.5)
+    # the belief turns to ice (its peak at 20 m/s, 0.08, below `start_slip`): a new road,
+    # the target restarts at the new peak instead of keeping the multiple learnt (1.5)
     ice = surface("ice").tire()
-    lam_ice = -float(peak_braking(ice, v, car.radius)[0])
+    lam_ice = -float(peak_braking(ice, 20.0, car.radius)[0])
+    assert lam_ice < float(c.start_slip)
     st, _, _ = command(st, m, ice)
-    assert float(st.target) == pytest.approx(0.7 * lam_ice, rel=0.02)
+    assert float(st.target) == pytest.approx(lam_ice, rel=0.02)
+
+
+@pytest.mark.parametrize("start_slip", [0.1, 0.0])
+def test_target_stays_at_the_peak_of_a_low_friction_belief(start_slip):
+    """An ice belief (peak at 0.08 at 20 m/s) on a curve whose peak lies at 0.03: the
+    target starts at the belief's peak and walks no lower; without the floor
+    (`start_slip` 0) it starts at 0.7 of the belief's peak and walks down to the curve's."""
+    ice = surface("ice").tire()
+    lam_ice = -float(peak_braking(ice, 20.0, float(braking_quarter_car(ice).radius))[0])
+    st, _, _, _, _ = _walk(PeakSeekingABS(start_slip=start_slip), ice,
+                           lambda x: 0.05 - 20.0 * (x - 0.03) ** 2, 800)
+    if start_slip:
+        assert float(st.target) == pytest.approx(lam_ice, rel=1e-6)
+    else:
+        assert float(st.target) == pytest.approx(0.03, abs=0.015)
 
 
 def test_no_nan_in_forward_mode_at_zero_speed_and_slip():
