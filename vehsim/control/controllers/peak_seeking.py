@@ -157,15 +157,15 @@ class PeakSeekingABS(AbstractBrakeController):
         new_road = first | (jnp.abs(jnp.log(lam_belief / jnp.where(first, 1.0, st.reference)))
                             > jnp.log(self.change_ratio))
         reference = jnp.where(new_road, lam_belief, st.reference)
-        # below the belief's peak, but not below `start_slip` (nor above the peak)
-        start = jnp.clip(self.start_slip / lam_belief, self.start_scale, 1.0)
+        # the target's floor: `start_slip`, or the belief's peak where that lies below it
+        floor = jnp.maximum(self.min_slip, jnp.minimum(lam_belief, self.start_slip))
+        start = jnp.maximum(self.start_scale, floor / lam_belief)
         start = jnp.where(lam_belief >= 1.0 - 1e-3, 1.0, start)
         scale = jnp.where(new_road, start, st.scale)
         center = jnp.where(new_road, scale * lam_belief, st.target)
         moments, slope, near, fit = self._slope(st, 0.5 * (lam + st.slip), mu, center, dt)
         rate = jnp.where(slope > 0, self.rate, self.descent_rate)
         step = st.engaged * near * fit * rate * dt * jnp.tanh(slope / self.slope_scale)
-        floor = jnp.maximum(self.min_slip, jnp.minimum(lam_belief, self.start_slip))
         scale = jnp.clip(scale + step / lam_belief, floor / lam_belief, 1.0 / lam_belief)
         lam_target = scale * lam_belief
         engaged = jnp.maximum(st.engaged, jnp.where(lam >= lam_target, 1.0, 0.0))
