@@ -114,14 +114,21 @@ def test_target_climbs_to_the_peak_of_a_static_curve():
 @pytest.mark.parametrize("start_slip", [0.1, 0.0])
 def test_target_stays_at_the_peak_of_a_low_friction_belief(start_slip):
     """An ice belief (peak at 0.08 at 20 m/s) on a curve whose peak lies at 0.03: the
-    target starts at the belief's peak and walks no lower; without the floor
+    target starts at the belief's peak and walks no lower than its peak at the present
+    speed; without the floor
     (`start_slip` 0) it starts at 0.7 of the belief's peak and walks down to the curve's."""
     ice = surface("ice").tire()
     lam_ice = -float(peak_braking(ice, 20.0, float(braking_quarter_car(ice).radius))[0])
-    st, _, _, _, _ = _walk(PeakSeekingABS(start_slip=start_slip), ice,
-                           lambda x: 0.05 - 20.0 * (x - 0.03) ** 2, 800)
+    st, _, m, command, car = _walk(PeakSeekingABS(start_slip=start_slip), ice,
+                                   lambda x: 0.05 - 20.0 * (x - 0.03) ** 2, 800)
     if start_slip:
         assert float(st.target) == pytest.approx(lam_ice, rel=1e-6)
+        # the car slows to 10 m/s: the floor follows the belief's peak there (0.13)
+        lam_10 = -float(peak_braking(ice, 10.0, car.radius)[0])
+        assert lam_10 > 1.3 * lam_ice
+        m = eqx.tree_at(lambda m: (m.omega, m.v), m, (m.omega / 2.0, jnp.asarray(10.0)))
+        st, _, _ = command(st, m)
+        assert float(st.target) == pytest.approx(lam_10, rel=1e-6)
     else:
         assert float(st.target) == pytest.approx(0.03, abs=0.015)
 

@@ -28,14 +28,15 @@ at the onset and whenever $\lambda_b$ has moved by more than a factor `change_ra
 where it last started (a new road: the multiple learnt on the old one is dropped),
 below the belief's peak, $\kappa_0$ = `start_scale` (where the curve rises everywhere
 below the peak, a loop held there is stable whatever the tire; past a sharp peak, the
-actuator's delay and lag make the slip loop cycle), but not below the slip $\lambda_s$ =
-`start_slip` nor above the peak, $\kappa = \min(1, \max(\kappa_0, \lambda_s/\lambda_b))$
-(on a road whose peak lies at small slip, snow and ice, the measured slopes are small
-against the measurement's errors, read downhill near the peak and walk the target below
-it: the loop starts at the peak and stays at or above it), or at 1 where the belief's
-curve rises to the locked wheel, and climbs the measured curve,
+actuator's delay and lag make the slip loop cycle), but not below the floor $\lambda_f$,
+or at 1 where the belief's curve rises to the locked wheel, and climbs the measured curve,
 $$\dot\lambda^* = \lambda_b\dot\kappa = \rho_\pm\,w_k R^2\tanh(b/b_0),\qquad
-\lambda^*\in[\max(\lambda_{min}, \min(\lambda_b, \lambda_s)), 1],$$
+\lambda^*\in[\lambda_f, 1],\qquad \lambda_f = \begin{cases}\lambda^*_{belief}(v) &
+\lambda_b < \lambda_s\\ \max(\lambda_{min}, \lambda_s) & \text{otherwise,}\end{cases}$$
+$\lambda_s$ = `start_slip`: on a road whose peak lies at small slip, snow and ice, the
+measured slopes are small against the measurement's errors and read downhill near the
+peak, so the belief's peak at the present speed $v$ (which moves to larger slip as the
+car slows) bounds the target from below; elsewhere the slip $\lambda_s$ does.
 $\rho_+$ = `rate` uphill ($b > 0$), $\rho_-$ = `descent_rate` downhill, so it stops where
 the measured slope vanishes, at the true tire's peak whatever its shape (a curve rising
 to the locked wheel drives it to 1: full torque), and moves only as fast as the fit
@@ -45,7 +46,7 @@ wheel is near it ($w_k$). A sinusoidal dither of amplitude `dither` and frequenc
 $s^* = -(\lambda^* + \text{dither})$ by the slip-tracking PI law (`track_slip`), its
 feedforward from the belief's curve at $s^*$; a target at the locked wheel
 ($\lambda^* = 1$) commands the full torque. The belief enters in the start, the
-reference $\lambda_b$ and the feedforward.
+reference $\lambda_b$, the floor and the feedforward.
 """
 
 from __future__ import annotations
@@ -157,8 +158,11 @@ class PeakSeekingABS(AbstractBrakeController):
         new_road = first | (jnp.abs(jnp.log(lam_belief / jnp.where(first, 1.0, st.reference)))
                             > jnp.log(self.change_ratio))
         reference = jnp.where(new_road, lam_belief, st.reference)
-        # the target's floor: `start_slip`, or the belief's peak where that lies below it
-        floor = jnp.maximum(self.min_slip, jnp.minimum(lam_belief, self.start_slip))
+        # the target's floor: `start_slip`, or on a road whose peak lies below it the
+        # belief's peak at the present speed
+        lam_now = jnp.clip(-peak_braking(belief, v, r)[0], self.min_slip, 1.0)
+        floor = jnp.where(lam_belief < self.start_slip, lam_now,
+                          jnp.maximum(self.min_slip, self.start_slip))
         start = jnp.maximum(self.start_scale, floor / lam_belief)
         start = jnp.where(lam_belief >= 1.0 - 1e-3, 1.0, start)
         scale = jnp.where(new_road, start, st.scale)
