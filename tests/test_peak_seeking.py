@@ -211,3 +211,12 @@ def test_seek_near_the_actuated_limit_on_lugre_roads(lugre_roads):
     ratio = dict(zip(lugre_roads["rows"], lugre_roads["over_actuated"][:, 0]))
     for row, value in ratio.items():
         assert value < (1.05 if " to " in row else 1.03), ratio
+
+
+def test_target_walks_no_lower_than_start_slip():
+    """A dry-asphalt belief (peak at 0.23 at 20 m/s) on a curve whose peak lies at 0.05:
+    the target walks down from 0.7 of the belief's peak and stops at `start_slip` (0.1)."""
+    c = PeakSeekingABS()
+    st, _, _, _, _ = _walk(c, surface("dry_asphalt").tire(),
+                           lambda x: 1.0 - 20.0 * (x - 0.05) ** 2, 800)
+    assert float(st.target) == pytest.approx(float(c.start_slip), rel=1e-6)
