@@ -111,7 +111,7 @@ def test_the_public_api_does_not_pull_in_the_upper_layers():
     assert not deps & set(UPPER)
 
 
-CORE = ("tire", "vehicle", "optimal", "control", "identify", "robot", "solvers")
+CORE = ("tire", "vehicle", "optimal", "control", "identify", "robot", "solvers", "drive")
 """The numerical core: functions of arrays and modules."""
 
 
