@@ -47,6 +47,7 @@ from .._fields import array_field
 from .._results import result_name, result_record
 from ..vehicle.reduced import ReducedHalfCar
 from .ip import AbstractStagewiseNLP, IPOptions, IPSolution, interior_point
+from .primitive import AbstractSolvedDrive, run_program
 from .shooting import DELTA_MAX, KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
 
 
@@ -626,11 +627,6 @@ def point_mass_guess(road, D: float, num_stages: int, fraction: float = 0.8):
 # the solved drive
 
 
-def run_program(name: str, program: Callable, args: tuple):
-    """``program(*args)`` (as `vehsim.optimal.primitive.run_program`)."""
-    return program(*args)
-
-
 @eqx.filter_jit
 def _nodes(prob, xs, us):
     return prob.nodes(xs, us)
@@ -654,7 +650,7 @@ def _car_signals(vehicle, states, inputs) -> dict:
     return jax.vmap(vehicle.signals)(states, inputs)
 
 
-class RoadPrimitive(eqx.Module):
+class RoadPrimitive(AbstractSolvedDrive):
     """A drive solved on a centre-line road: ``problem`` (`CurvilinearManeuverOCP` or
     `CurvilinearPointMassOCP`), its interior-point ``solution`` and the ``road``. The same
     reading as `Primitive`: ``t_f`` [s], ``exit_speed`` [m/s], ``result``, `nodes`, `time`,
@@ -665,18 +661,6 @@ class RoadPrimitive(eqx.Module):
     road: Any
     runner: Callable = eqx.field(static=True, default=run_program)
     starts: IPSolution | None = None
-
-    @property
-    def t_f(self):
-        return self.problem.final_time(self.solution.xs[..., -1, :])
-
-    @property
-    def exit_speed(self):
-        return self.problem.speed(self.solution.xs[..., -1, :])
-
-    @property
-    def result(self):
-        return self.solution.result
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in s."""

@@ -34,18 +34,13 @@ def run_program(name: str, program: Callable, args: tuple):
     return program(*args)
 
 
-class Primitive(eqx.Module):
-    """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
-    ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] (read off the last knot by the problem's
-    ``final_time`` and ``speed``: the car's and the point mass's states differ) and
-    ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a
-    multi-start solve (batched along axis 0), or None; ``runner``: how the nodes, signals and
-    violations are computed, ``runner(name, program, args)`` (default `run_program`)."""
+class AbstractSolvedDrive(eqx.Module):
+    """A solved drive (a ``problem`` with ``final_time`` and ``speed`` of its knot states, and
+    its interior-point ``solution``): ``t_f`` [s], ``exit_speed`` [m/s] read off the last
+    knot, and ``result`` (`vehsim.RESULTS`)."""
 
-    problem: Any
-    solution: IPSolution
-    starts: IPSolution | None = None
-    runner: Callable = eqx.field(static=True, default=run_program)
+    problem: eqx.AbstractVar[Any]
+    solution: eqx.AbstractVar[IPSolution]
 
     @property
     def t_f(self):
@@ -58,6 +53,20 @@ class Primitive(eqx.Module):
     @property
     def result(self):
         return self.solution.result
+
+
+class Primitive(AbstractSolvedDrive):
+    """A solved maneuver: ``problem`` (`ManeuverOCP` or `PointMassOCP`) and the interior-point
+    ``solution``; ``t_f`` [s], ``exit_speed`` [m/s] (read off the last knot by the problem's
+    ``final_time`` and ``speed``: the car's and the point mass's states differ) and
+    ``result`` (`vehsim.RESULTS`); ``starts``: the solutions from every start of a
+    multi-start solve (batched along axis 0), or None; ``runner``: how the nodes, signals and
+    violations are computed, ``runner(name, program, args)`` (default `run_program`)."""
+
+    problem: Any
+    solution: IPSolution
+    starts: IPSolution | None = None
+    runner: Callable = eqx.field(static=True, default=run_program)
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in tau."""
