@@ -12,7 +12,7 @@ the test suite's (0) unless ``--xla-default`` is given.
 
 Prints one JSON line.
 Usage: PYTHONPATH=. python experiments/benchmarks/loop_gradient_compile.py [--programs plain jvp grad]
-[--speed 30] [--samples 540] [--xla-default]  (tests/test_control_gradients.py's braking:
+[--speed 30] [--samples 540] [--estimator observer|none] [--xla-default]  (tests/test_control_gradients.py's braking:
 --speed 3 --samples 80)
 """
 
@@ -25,6 +25,36 @@ import sys
 import time
 
 
+def _pass_through(belief):
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from vehsim.control.estimation.base import AbstractFrictionEstimator
+
+    class State(eqx.Module):
+        v: jnp.ndarray
+
+    class PassThrough(AbstractFrictionEstimator):
+        """No estimate: the belief fixed, the measured speed as the filtered one."""
+
+        fixed: object
+
+        def init(self, omega0, v0):
+            return State(jnp.asarray(v0, dtype=float))
+
+        def update(self, state, car, hardware, substeps, v, omega, stamp, fresh, torque0,
+                   target, t0):
+            return State(v)
+
+        def belief(self, state):
+            return self.fixed
+
+        def signals(self, state):
+            return {}
+
+    return PassThrough(belief)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--programs", nargs="+", default=["plain", "jvp", "grad"],
@@ -32,6 +62,9 @@ def main(argv=None):
     ap.add_argument("--speed", type=float, default=30.0, help="initial speed [m/s]")
     ap.add_argument("--samples", type=int, default=540,
                     help="samples of 5 ms (the scan's length: the programs are the same)")
+    ap.add_argument("--estimator", choices=["observer", "none"], default="observer",
+                    help="none: a stand-in that passes the measured speed through (the "
+                         "plant's and the controller's share of the cost)")
     ap.add_argument("--xla-default", action="store_true",
                     help="keep XLA's default backend optimisation level")
     args = ap.parse_args(argv)
@@ -47,6 +80,8 @@ def main(argv=None):
     import vehsim as vs
 
     scenario, observer = vs.braking_scenario("dry_asphalt", args.speed)
+    if args.estimator == "none":
+        observer = _pass_through(observer.belief(observer.init(1.0, args.speed)))
     hardware = vs.realistic_hardware(encoder=False)
     n_steps = args.samples
 
@@ -60,6 +95,7 @@ def main(argv=None):
                 "grad": jax.value_and_grad(distance)}
     g = jnp.log(60.0)
     out = {"benchmark": "loop_gradient_compile", "speed": args.speed, "samples": n_steps,
+           "estimator": args.estimator,
            "xla_backend_optimization_level": "default" if args.xla_default else 0}
     for name in args.programs:
         w0 = time.perf_counter()
