@@ -16,7 +16,8 @@ from vehsim.control.experiments.tires import other_tire
 from vehsim.control.loop import closed_loop_grid, stack
 from vehsim.control.plant.hardware import realistic_hardware
 from vehsim.control.road.bound import traction_limit
-from vehsim.control.road.peak import peak_driving
+from vehsim.control.road.peak import driving_curve, peak_driving
+from vehsim.control.road.surfaces import surface
 from vehsim.tire.scaled import ScaledFriction
 
 
@@ -52,6 +53,17 @@ def test_driving_peak_of_a_magic_formula_tire_is_the_formulas():
     for v in (2.0, 10.0):
         s, mu = peak_driving(other_tire("mf_sharp"), v, r=0.3)
         assert abs(float(s) - s_true) < 2e-4 and abs(float(mu) - mu_true) < 1e-6
+
+
+def test_driving_curve_of_any_tire_is_eq_18_where_that_exists():
+    # a uniform-load LuGre tire wrapped (ScaledFriction at scale 1) takes the generic route,
+    # its steady state at omega = v / ((1 - s) r); eq. 18 is the closed form
+    tire = surface("dry_asphalt").tire()
+    for s in (0.02, 0.1, 0.3, 0.7):
+        for v in (2.0, 20.0):
+            closed = float(driving_curve(tire, s, v, 0.3))
+            generic = float(driving_curve(ScaledFriction(tire), s, v, 0.3))
+            assert closed > 0 and abs(generic - closed) < 1e-9 * closed, (s, v)
 
 
 def test_traction_control_on_a_magic_formula_tire_with_its_own_model():
