@@ -21,13 +21,23 @@ the three integrations per sample, and its runs are counted at the subset's mean
 Accuracy: on that subset, the largest differences of the final speed and distance between
 the two, and of the stopping distance where both stopped.
 
-The mismatch row: every controller on the tires of other shapes (`OTHER_TIRES`) from 30 m/s
-to the stop (`mismatch_table`, one grid per tire structure and horizon), its wall time
-including compilation, and each cell's distance over the limit on the hardware.
+The shape-free estimator: the controllers that read an estimator's belief
+(`PEAK_CONTROLLERS`: estimate-based slip tracking and peak seeking) on the same runs with the
+`PeakEstimator` instead of the observer, one more jitted call (its wall time, median of
+`--repeats`, and its runs beside the headline's; not in `ratio`, whose baseline implements
+the observer only).
+
+The mismatch rows: every controller on the tires of other shapes (`OTHER_TIRES`, or
+`--tires`) from 30 m/s to the stop (`mismatch_table`, one grid per tire structure and
+horizon) with the observer built for dry asphalt, and the `PEAK_CONTROLLERS` with the
+`PeakEstimator`; each its wall time including compilation, and each cell's distance over
+the limit on the hardware.
 
 Prints one JSON line; headline `ratio` = baseline wall time / vehsim wall time (median of
 `--repeats` timed calls after the compiling one).
 Usage: PYTHONPATH=. python experiments/benchmarks/abs_batch.py [--seeds 32] [--subset 16]
+[--repeats 3] [--tires mf_sharp ...]  (smallest check: --seeds 1 --subset 1 --repeats 1
+--tires mf_sharp)
 """
 
 from __future__ import annotations
@@ -48,6 +58,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
+from vehsim.control.estimation.peak_estimator import PeakEstimator  # noqa: E402
 from vehsim.control.experiments.mismatch import mismatch_table  # noqa: E402
 from vehsim.control.experiments.scenarios import (  # noqa: E402
     CONTROLLERS,
@@ -66,6 +77,8 @@ DURATION = 3.0
 BASELINE_CONTROLLERS = ("locked", "rule", "fixed", "estimate")
 """The controllers the NumPy/SciPy baseline implements."""
 RTOL, ATOL = 1e-8, 1e-10
+PEAK_CONTROLLERS = ("estimate", "seek")
+"""The controllers run with the `PeakEstimator` as well (those that read the belief's peak)."""
 
 
 def members(seeds: int):
@@ -376,6 +389,27 @@ def time_vehsim(scenarios, observers, keys, hw, repeats):
     return out, first, walls, cpus
 
 
+def time_peak_estimator(scenarios, keys, hw, repeats):
+    """The `PEAK_CONTROLLERS` on the same runs with the `PeakEstimator`: ``(runs, first
+    call [s], median wall [s])``."""
+    observers = stack([PeakEstimator()] * keys.shape[0])
+    ctrls = [controller(c) for c in PEAK_CONTROLLERS]
+
+    def call():
+        out = simulate_braking_grid(scenarios, ctrls, observers, keys, hw, duration=DURATION)
+        return jax.block_until_ready(out)
+
+    t0 = time.perf_counter()
+    out = call()
+    first = time.perf_counter() - t0
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        call()
+        walls.append(time.perf_counter() - t0)
+    return out, first, float(np.median(walls))
+
+
 def time_baseline(out, scenarios, observers, keys, hw, subset, seeds):
     runs = members(seeds)
     M, n = len(runs), int(round(DURATION / float(hw.sample_time)))
@@ -409,6 +443,7 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=32)
     ap.add_argument("--subset", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--tires", nargs="+", default=list(OTHER_TIRES), choices=OTHER_TIRES)
     args = ap.parse_args(argv)
     hw = realistic_hardware()
     scenarios, observers, keys = vehsim_inputs(args.seeds)
@@ -419,10 +454,17 @@ def main(argv=None):
     diffs, per_run, per_run_cpu, picks = time_baseline(out, scenarios, observers, keys, hw,
                                                        args.subset, args.seeds)
     stopped = float(np.mean(np.isfinite(np.asarray(out.stopping_distance))))
-    rows = {t: ("dry_asphalt", other_tire(t), None, math.inf) for t in OTHER_TIRES}
+    peak_out, peak_first, peak_wall = time_peak_estimator(scenarios, keys, hw, args.repeats)
+    peak_over = peak_out.stopping_distance / out.stopping_distance[
+        np.array([list(CONTROLLERS).index(c) for c in PEAK_CONTROLLERS])]
+    rows = {t: ("dry_asphalt", other_tire(t), None, math.inf) for t in args.tires}
     t0 = time.perf_counter()
     tab = mismatch_table(rows, {c: controller(c) for c in CONTROLLERS}, hw)
     mismatch_wall = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    peak_tab = mismatch_table(rows, {c: controller(c) for c in PEAK_CONTROLLERS}, hw,
+                              estimator=PeakEstimator())
+    peak_mismatch_wall = time.perf_counter() - t0
     print(json.dumps({
         "benchmark": "abs_batch",
         "grid": {"surfaces": len(SURFACES), "speeds": len(SPEEDS),
@@ -445,9 +487,19 @@ def main(argv=None):
         "accuracy_max_stopping_distance_diff_m": float(diffs[:, 2].max()),
         "accuracy_median_final_distance_diff_m": float(np.median(diffs[:, 1])),
         "fraction_stopped_within_3_s": round(stopped, 3),
+        "peak_estimator": {
+            "controllers": list(PEAK_CONTROLLERS), "runs": len(PEAK_CONTROLLERS) * keys.shape[0],
+            "wall_s": round(peak_wall, 3), "compile_and_first_call_s": round(peak_first, 2),
+            "stopping_distance_over_observer_median": [
+                round(float(np.nanmedian(np.where(np.isfinite(r), r, np.nan))), 4)
+                for r in np.asarray(peak_over)]},
         "mismatch": {"tires": tab["rows"], "controllers": tab["controllers"],
                      "distance_over_actuated_bound": np.round(tab["over_actuated"], 4).tolist(),
                      "wall_s_with_compilation": round(mismatch_wall, 1)},
+        "mismatch_peak_estimator": {
+            "tires": peak_tab["rows"], "controllers": peak_tab["controllers"],
+            "distance_over_actuated_bound": np.round(peak_tab["over_actuated"], 4).tolist(),
+            "wall_s_with_compilation": round(peak_mismatch_wall, 1)},
         "load_average_1min_before_after": [round(load, 2), round(os.getloadavg()[0], 2)],
         "cpu_count": os.cpu_count(),
         "device": str(jax.devices()[0]),

@@ -126,10 +126,12 @@ def _sense(scenario, observer, hardware, substeps, key, st: LoopState, k):
     omega_m, stamp, fresh, enc = wheel_speed(hardware, st.encoder, t, qs.omega)
     v_m = vehicle_speed(hardware, key, k, qs.v)
     previous = st.previous
-    obs = jax.lax.cond(
-        k > 0, lambda o: observer.update(o, scenario.car, hardware, substeps, v_m, omega_m, stamp,
-                                         fresh, previous.torque, previous.target, t - T),
-        lambda o: o, st.observer)
+    # the update of the first sample (no last sample yet) is computed and dropped, not
+    # branched around: a vmapped cond computes both branches anyway, and reverse mode
+    # through a cond keeps residuals for both (a larger program to compile)
+    updated = observer.update(st.observer, scenario.car, hardware, substeps, v_m, omega_m, stamp,
+                              fresh, previous.torque, previous.target, t - T)
+    obs = jax.tree_util.tree_map(lambda a, b: jnp.where(k > 0, a, b), updated, st.observer)
     m = measurement(omega_m, obs.v, previous.omega, scenario.car.radius, T,
                     mean_brake_torque(hardware, previous.torque, previous.target))
     seen = dict(v_meas=v_m, omega_meas=omega_m, omega_stamp=stamp, fresh=fresh) | \

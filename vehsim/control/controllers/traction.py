@@ -8,13 +8,17 @@ $s = 1 - v/(r\omega)\in[0, 1)$.
 
 - `FullThrottle`: the drive torque `drive_torque` from the start (the wheel spins up).
 - `TractionControl`: the wheel speed held at $v/(1 - s^*)$, $s^*$ the peak of the belief's
-  driving curve (eq. 18 at $\hat\theta$ for a `UniformLumpedLuGre` belief) at the measured
-  speed (`peak_driving`), by the feedforward
+  driving curve (`driving_curve`: eq. 18 at $\hat\theta$ for a `UniformLumpedLuGre`
+  belief, the computed steady state for any other) at the measured speed (`peak_driving`),
+  by the feedforward
   $T_{ff} = \hat\mu^*F_n(r + J/(mr(1 - s^*)))$ (the drive torque that balances the friction
   torque and accelerates the wheel with the car) plus PI feedback on the peripheral speed
   error, as `PeakSlipTracking` brakes.
 
 The physical limit is `traction_limit`: the speed a point mass reaches at the driving peak.
+`traction_scenario` builds the driven wheel on a named surface, on any plant tire, with the
+observer over any assumed model (`FrictionObserver`); the shape-free `PeakEstimator` reads
+braking slips only, and on a driven wheel holds its prior.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ from jaxtyping import Array, Float
 
 from ..._checks import check_nonnegative, check_positive
 from ..._fields import array_field
+from ...tire.lugre import AbstractLongitudinalTire
+from ..estimation.observer import FrictionObserver
 from ..experiments.scenarios import observer_for
 from ..plant.quarter_car import BrakingScenario, braking_quarter_car
 from ..road.peak import peak_driving
@@ -67,7 +73,7 @@ class TractionControl(AbstractBrakeController):
 
     def command(self, state, m, belief, car, dt, max_torque):
         v = jnp.maximum(m.v, 0.5)
-        s_peak, mu_peak = peak_driving(belief, v)
+        s_peak, mu_peak = peak_driving(belief, v, r=car.radius)
         s = jnp.clip(self.slip_scale * s_peak, 1e-3, 0.95)
         r = car.radius
         feedforward = mu_peak * car.Fn_static * (r + car.inertia / (car.mass * r * (1.0 - s)))
@@ -78,8 +84,20 @@ class TractionControl(AbstractBrakeController):
         return integral, -torque, jnp.zeros((), int)
 
 
-def traction_scenario(name: str, speed: float = 2.0):
+def traction_scenario(name: str, speed: float = 2.0,
+                      tire: AbstractLongitudinalTire | None = None, model=None, **changes):
     """``(BrakingScenario, FrictionObserver)`` of a driven wheel from `speed` [m/s] on the
-    surface `name` (rolling freely at the start)."""
+    surface `name` (rolling freely at the start).
+
+    `tire`: a plant tire other than the surface's (e.g. `other_tire(name)`); `model`: what
+    the observer assumes (any `FrictionObserver.model`: an `AbstractRoadParametrisation`, a
+    LuGre tire with its road condition, any other tire with its friction scale; default: the
+    surface's tire at its family's prior road condition, as `braking_scenario`); `changes`:
+    further `FrictionObserver` fields (with a `model`, its projection range `theta_min`,
+    `theta_max` default to the observer's own)."""
     srf = surface(name)
-    return BrakingScenario(braking_quarter_car(srf.tire()), speed), observer_for(srf)
+    plant_tire = srf.tire() if tire is None else tire
+    scenario = BrakingScenario(braking_quarter_car(plant_tire), speed)
+    if model is None:
+        return scenario, observer_for(srf, **changes)
+    return scenario, FrictionObserver(model, **changes)

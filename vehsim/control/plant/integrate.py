@@ -39,6 +39,11 @@ def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBS
         t = t0 + j * h
         return solver.step(term, t, t + h, y, args, None, False)[0], None
 
+    # reverse mode keeps one state per step and recomputes the step on the way back, instead
+    # of stacking every intermediate of the step (its Jacobian, the stages, the solves) over
+    # the steps: a smaller program to compile (docs/differentiating.md); no effect on values,
+    # on plain runs or on forward mode
+    sub = jax.checkpoint(sub, prevent_cse=False)
     y1 = jax.lax.scan(sub, y0, jnp.arange(substeps))[0]
     ok = jnp.all(jnp.isfinite(y1))
     return y1, RESULTS.where(ok, RESULTS.successful, RESULTS.nonfinite)

@@ -156,14 +156,15 @@ def actuated_limit(scenario: BrakingScenario, hardware: BrakeHardware,
 def _driving_time(tire, car, v_lo, v_hi):
     """Time for the point mass to accelerate from `v_lo` to `v_hi` at the driving peak."""
     speeds, w = _speed_quadrature(v_lo, v_hi)
-    mu = jax.vmap(lambda v: peak_driving(tire, v)[1])(speeds)
+    mu = jax.vmap(lambda v: peak_driving(tire, v, r=car.radius)[1])(speeds)
     return jnp.sum(w * car.mass / (mu * car.Fn_static))
 
 
 @eqx.filter_jit
 def traction_limit(scenario: BrakingScenario, duration):
     r"""The speed [m/s] a point mass reaches from the scenario's speed after `duration` [s]
-    if the tire delivered the peak of its driving curve (eq. 18, `peak_driving`) at every
+    if the tire (any tire) delivered the peak of its driving curve (`peak_driving`; eq. 18
+    for `UniformLumpedLuGre`) at every
     instant: the speed $v$ at which $\int_{v_0}^v m\,du/(\mu^*(u)F_n)$ = `duration`, by
     bisection (no surface change)."""
     car, v0 = scenario.car, scenario.speed

@@ -7,7 +7,8 @@ transient slip tends to $v_r/|v| = s$), one linear solve for `DistributedLuGre`,
 `ScaledFriction` the wrapped tire's scaled and stretched, and for any other tire
 (`MFLongitudinalTire`, `RelaxedBurckhardt`, ...) its state brought to rest at fixed slip and
 speed by Newton's method (`solve_steady_state`).
-`driving_curve` is eq. 18 at driving slip $s = 1 - v/(r\omega)\in[0, 1]$.
+`driving_curve` is the same at driving slip $s = 1 - v/(r\omega)\in[0, 1]$ (eq. 18 for
+`UniformLumpedLuGre`).
 `peak_braking` and `peak_driving` find the slip of the largest $|\mu|$ by a grid (finer
 near zero slip, where the peaks are) and a golden-section search inside the best grid
 cell; the derivative of the peak slip with respect to the tire's parameters and the speed
@@ -39,10 +40,14 @@ def braking_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
     return tire.braking_mu(s, v, r)
 
 
-def driving_curve(tire: UniformLumpedLuGre, s, v):
-    r"""Steady-state $\mu$ at driving slip `s` $\in[0, 1)$ and speed `v` (eq. 18, with
-    $r\omega = v/(1-s)$)."""
-    return tire.driving_mu(s, v / (1.0 - s), 1.0)
+def driving_curve(tire: AbstractLongitudinalTire, s, v, r=0.3):
+    r"""Steady-state $\mu$ at driving slip `s` $\in[0, 1)$ and speed `v` [m/s] of any
+    `AbstractLongitudinalTire`: eq. 18 for `UniformLumpedLuGre` (with $r\omega = v/(1-s)$),
+    for any other tire its `steady_state_mu` at $\omega = v/((1 - s)r)$ (the wheel radius `r`
+    [m]). Positive: a driving force."""
+    if isinstance(tire, UniformLumpedLuGre):
+        return tire.driving_mu(s, v / (1.0 - s), 1.0)
+    return tire.steady_state_mu(v, v / ((1.0 - s) * r), r)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
@@ -80,8 +85,8 @@ def _braking_magnitude(lam, args):
 
 
 def _driving_magnitude(s, args):
-    tire, v = args
-    return driving_curve(tire, s, v)
+    tire, v, r = args
+    return driving_curve(tire, s, v, r)
 
 
 def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
@@ -92,8 +97,9 @@ def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
     return -lam, _braking_magnitude(lam, args)
 
 
-def peak_driving(tire: UniformLumpedLuGre, v, max_slip=0.99):
-    r"""Driving slip $s^* > 0$ of the largest traction force at speed `v`, and $\mu^*$."""
-    args = (tire, jnp.asarray(v, dtype=float))
+def peak_driving(tire: AbstractLongitudinalTire, v, max_slip=0.99, r=0.3):
+    r"""Driving slip $s^* > 0$ of the largest traction force at speed `v` [m/s] of any tire
+    (`driving_curve`; wheel radius `r` [m]), and $\mu^*$."""
+    args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
     s = _argmax(_driving_magnitude, 0.0, float(max_slip), args)
     return s, _driving_magnitude(s, args)
