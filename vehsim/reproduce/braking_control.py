@@ -317,7 +317,10 @@ def _turn(ctx):
                      f"{rec['path_end_m'][0]:.1f}, {rec['path_end_m'][1]:.1f} |")
     ctx.text("**Steerability**: the half car braking in a turn on dry asphalt from 25 m/s "
              "(steering 0.03 rad): an ABS that keeps the wheels rolling keeps the car turning "
-             "(heading change) without spinning it (sideslip):", *lines)
+             "(heading change) without spinning it (sideslip). The last row is the reason "
+             "the rear axle runs the conservative `rear_abs()`: peak seeking drives the rear "
+             "slip to the longitudinal peak, where the rear tire has little lateral force left, "
+             "and the car spins (sideslip past 90 degrees):", *lines)
     ctx.figure(turn_figure(runs, "braking in a turn on dry asphalt, 25 m/s, delta = 0.03 rad"),
                "braking_in_a_turn", "ABS on both axles of the half car braking in a turn")
 
