@@ -124,22 +124,26 @@ class DriveRun(eqx.Module):
     """A drive, sample by sample (leading axis: samples $1..N$): the plant `states`
     (`DriveState`), the `measurements`, the `commands` issued before each sample, and the
     estimator's `estimates` (`GripEstimate`, None without an estimator); `final`: the plant
-    state at the end."""
+    state at the end; `poses`: the centre of gravity's $(x, y)$ at every integration step
+    (N, substeps, 2; None unless asked for, `simulate_drive(..., substep_poses=True)`)."""
 
     states: DriveState
     measurements: DriveMeasurement
     commands: Float[Array, "N 3"]
     estimates: PyTree
     final: DriveState
+    poses: PyTree = None
 
 
 def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state0: DriveState,
-                   key, num_samples: int, estimator=None) -> DriveRun:
+                   key, num_samples: int, estimator=None, *,
+                   substep_poses: bool = False) -> DriveRun:
     r"""`num_samples` control samples of `controller` driving `plant` from `state0`, the
     sensor noise of sample $k$ drawn from ``fold_in(key, k)`` (module docstring).
 
     `estimator`: an `AbstractGripEstimator` run on the measurements; the controller gets
-    its `estimate` before each command."""
+    its `estimate` before each command. `substep_poses`: also record the centre of
+    gravity's pose at every integration step (`DriveRun.poses`, `drive_step`)."""
     m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
     c0 = controller.init(m0)
     e0 = None if estimator is None else estimator.init(m0)
@@ -148,12 +152,13 @@ def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state
         state, m, cs, es = carry
         estimate = None if estimator is None else estimator.estimate(es)
         cs, command = controller.command(cs, m, estimate)
-        state, m = drive_step(plant, state, command, jax.random.fold_in(key, k + 1))
+        state, m, *poses = drive_step(plant, state, command, jax.random.fold_in(key, k + 1),
+                                      substep_poses=substep_poses)
         if estimator is not None:
             es = estimator.update(es, m)
             estimate = estimator.estimate(es)
-        return (state, m, cs, es), (state, m, command, estimate)
+        return (state, m, cs, es), (state, m, command, estimate, poses[0] if poses else None)
 
-    (final, _, _, _), (states, ms, commands, estimates) = jax.lax.scan(
+    (final, _, _, _), (states, ms, commands, estimates, poses) = jax.lax.scan(
         sample, (state0, m0, c0, e0), jnp.arange(num_samples))
-    return DriveRun(states, ms, commands, estimates, final)
+    return DriveRun(states, ms, commands, estimates, final, poses=poses)
