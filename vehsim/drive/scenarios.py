@@ -65,6 +65,7 @@ from ..optimal.centreline import CentrelineRoad, Gate
 from .actuators import DriveActuators
 from .estimator import AxleGripEstimator
 from .grip import AbstractGripField, GripPatches, GripProfile, UniformGrip
+from .horizon import RoadTable
 from .plant import DrivePlant, DriveState, init_drive
 from .sensors import DriveSensors
 
@@ -242,7 +243,8 @@ def _peaks_along(estimator, field, x, y):
 
 
 class DriveScenario(eqx.Module):
-    r"""A drive to make: the `road` (`CentrelineRoad`, NumPy: keep it out of `jit`), its
+    r"""A drive to make: the `road` (`CentrelineRoad`, NumPy: keep it out of `jit`) and its
+    `table` (`RoadTable`, JAX, its `peak` column the true peak friction of the grip), its
     `grip` (`ScenarioGrip`), the `plant` (`DrivePlant` on that grip), the initial plant
     state `state0` (on the start gate's centre, heading along the road, at `start_speed`
     [m/s], wheels rolling freely), and the time budget `num_samples` (control samples).
@@ -250,6 +252,7 @@ class DriveScenario(eqx.Module):
 
     name: str = eqx.field(static=True)
     road: CentrelineRoad
+    table: RoadTable
     grip: ScenarioGrip
     plant: DrivePlant
     state0: DriveState
@@ -278,11 +281,14 @@ class DriveScenario(eqx.Module):
 def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                    actuators: DriveActuators | None = None,
                    sensors: DriveSensors | None = None, start_speed: float | None = None,
-                   time_budget: float | None = None, substeps: int = 40) -> DriveScenario:
+                   time_budget: float | None = None, substeps: int = 40,
+                   table_spacing: float = 0.1, table_points: int | None = None
+                   ) -> DriveScenario:
     """The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
     default `DriveActuators` and `DriveSensors` unless given, `substeps` integration steps
     per sample, the start speed [m/s] (default `START_SPEEDS`) and the time budget [s]
-    (default `TIME_BUDGETS`)."""
+    (default `TIME_BUDGETS`); the road table at `table_spacing` [m] with `table_points`
+    samples (default just enough; more pad it, so that tables of different roads batch)."""
     _check_name("road", road_name, ROAD_NAMES)
     _check_name("grip", grip_name, GRIP_NAMES)
     road = scenario_road(road_name)
@@ -298,7 +304,11 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                        sensors=DriveSensors() if sensors is None else sensors)
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
+    table = RoadTable.from_road(road, table_spacing, table_points)
+    table = eqx.tree_at(lambda tb: tb.peak, table,
+                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
     T = float(plant.actuators.sample_time)
-    return DriveScenario(name=f"{road_name}/{grip_name}", road=road, grip=grip, plant=plant,
+    return DriveScenario(name=f"{road_name}/{grip_name}", road=road, table=table, grip=grip,
+                         plant=plant,
                          state0=state0, start_speed=v0,
                          num_samples=int(math.ceil(budget / T - 1e-9)))
