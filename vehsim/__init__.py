@@ -413,6 +413,7 @@ from .drive.metrics import (
     drive_path as drive_path,
     drive_time as drive_time,
     max_distance_off_road as max_distance_off_road,
+    path_departure as path_departure,
 )
 from .drive.plant import (
     DrivePlant as DrivePlant,
@@ -423,6 +424,7 @@ from .drive.plant import (
 )
 from .drive.scenarios import (
     DriveScenario as DriveScenario,
+    PatchedProfile as PatchedProfile,
     ScenarioGrip as ScenarioGrip,
     drive_scenario as drive_scenario,
     main_corner as main_corner,

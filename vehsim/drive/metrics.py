@@ -18,6 +18,12 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   every point is off the open road's end). Poses that the Frenet frame already places on
   the road (Newton's stationary point $p = c(s) + nN(s)$ with $0 < s < L$ and
   $|n| \le w(s)$ proves it, whichever centre-line point it found) skip the exact test.
+- **Departure in JAX** (`path_departure`, for batches of drives): the poses projected onto
+  a `RoadTable` one sample's poses at a time (`RoadTable.to_frenet`, a local search and
+  Newton from the last arc length), and $\max(n - w_l(s), -w_r(s) - n, 0)$: the exact
+  distance off a road of constant width while the projection is the nearest centre-line
+  point and the pose lies within the road's reach (the road is then the set of points
+  within $w$ of its centre line), up to the table's interpolation error ($10^{-4}$ m).
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
@@ -25,6 +31,7 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -166,3 +173,24 @@ def drive_outcome(road: CentrelineRoad, t, x, y, tolerance: float = GATE_TOLERAN
     off = max_distance_off_road(road, xs, ys)
     return DriveOutcome(time=float(time) if crossed else None, max_off_road=off,
                         completed=bool(crossed and off <= limit))
+
+
+def path_departure(table, x, y, upto, s_start=0.0):
+    r"""The largest distance off the road (module docstring, JAX) of the poses `x`, `y`
+    (shape (N, S): N samples of S poses each, in order) whose flat index is at most `upto`
+    (the pose before the end-gate crossing; `EndGate.crossing`'s index minus one, as the
+    path there starts with the start pose), projected onto `table` (a `RoadTable`) a
+    sample's poses at a time, each from the last arc length of the sample before (from
+    `s_start` for the first)."""
+    N, S = x.shape
+
+    def sample(s, xy):
+        xs, ys, idx = xy
+        ss, ns, _ = jax.vmap(lambda px, py: table.to_frenet(px, py, 0.0 * px, s))(xs, ys)
+        lo_hi = table.corridor_at(ss)
+        off = jnp.maximum(jnp.maximum(ns - lo_hi[:, 1], lo_hi[:, 0] - ns), 0.0)
+        return ss[-1], jnp.max(jnp.where(idx <= upto, off, 0.0))
+
+    idx = jnp.arange(N * S).reshape(N, S)
+    _, offs = jax.lax.scan(sample, jnp.asarray(s_start, float), (x, y, idx))
+    return jnp.max(offs)

@@ -29,18 +29,21 @@ Each scenario is therefore given by its peaks, and its scales solve $\mu^*(\lamb
 peak (`scale_for_peak`, bisection): $\lambda_0$ (`nominal_scale`, 0.400) has the benchmark's
 $D = 0.52$.
 
-- `nominal`: peak 0.52 everywhere (`UniformGrip`);
+- `nominal`: peak 0.52 everywhere;
 - `minus20`: peak $0.8 \times 0.52$ everywhere (a planner that assumes 0.52 overestimates
   it by 25 %);
-- `icy`: a circular patch of peak $0.5 \times 0.52$ (`GripPatches`, $\tanh$ edge of 1 m)
-  centred on the apex of the road's main corner (corner90's corner, the first corner of
-  uturn and sturn, the stage's hairpin), radius 3 m on the benchmark corners, 8 m on the
-  stage, on the nominal road;
-- `rising`: peak $0.6 \times 0.52$ at the start rising to 0.52 at a third of the road
-  (`GripProfile` along the direction from the start to the end of the road, its stations
+- `icy`: a circular patch of peak $0.5 \times 0.52$ ($\tanh$ edge of 1 m, as
+  `GripPatches`) centred on the apex of the road's main corner (corner90's corner, the first
+  corner of uturn and sturn, the stage's hairpin), radius 3 m on the benchmark corners, 8 m
+  on the stage, on the nominal road;
+- `rising`: peak $0.6 \times 0.52$ at the start rising to 0.52 at a third of the road (a
+  `GripProfile` along the direction from the start to the end of the road, its stations
   those of the start and of the centre line at $s = L/3$; on these roads the centre line
   never comes back below that station, so the grip along it rises monotonically).
 
+Every scenario's field is a `PatchedProfile` (a two-station profile times one patch; a
+uniform road has equal stations' scales, no patch a factor of 1), so that the plants of all
+scenarios have one structure: one compilation serves them, and they batch in one `vmap`.
 `ScenarioGrip.peak` is the true peak $\mu^*(\lambda(c(s)))$ along the centre line (the
 oracle's friction and the offline bound's).
 
@@ -61,10 +64,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._fields import array_field
+from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from .actuators import DriveActuators
 from .estimator import AxleGripEstimator
-from .grip import AbstractGripField, GripPatches, GripProfile, UniformGrip
+from .grip import AbstractGripField, GripPatches, GripProfile
 from .horizon import RoadTable
 from .plant import DrivePlant, DriveState, init_drive
 from .sensors import DriveSensors
@@ -199,29 +204,58 @@ class ScenarioGrip(eqx.Module):
         return jnp.interp(s, self.arc_length, self.peak)
 
 
-def _grip_field(name: str, road: CentrelineRoad) -> AbstractGripField:
+class PatchedProfile(AbstractGripField):
+    r"""A `GripProfile` $\lambda_p$ with circular patches that multiply it: $\lambda =
+    \lambda_p(x, y)\prod_i\bigl(1 + w_i(f_i - 1)\bigr)$, $w_i = \frac12\bigl(1 -
+    \tanh\frac{|p - c_i| - R_i}{w}\bigr)$ as in `GripPatches` (a factor $f_i = 1$ is no
+    patch). Every grip scenario is one of these with two stations and one patch, so that
+    plants of different scenarios batch in one `vmap` and share a compilation.
+
+    **Fields:** `profile` (`GripProfile`), `centres` [m] (N, 2), `radii` [m] (N,),
+    `factors` $f_i$ (N,), `width` $w$ [m] (1).
+    """
+
+    profile: GripProfile
+    centres: Float[Array, "N 2"] = array_field()
+    radii: Float[Array, " N"] = array_field()
+    factors: Float[Array, " N"] = array_field()
+    width: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        GripPatches(centres=self.centres, radii=self.radii, scales=self.factors,
+                    width=self.width)  # the same checks, with the patches' names
+
+    def scale_at(self, x, y):
+        lam = self.profile.scale_at(x, y)
+        for i in range(self.centres.shape[0]):
+            d = safe_hypot(x - self.centres[i, 0], y - self.centres[i, 1])
+            w = 0.5 * (1.0 - jnp.tanh((d - self.radii[i]) / self.width))
+            lam = lam * (1.0 + w * (self.factors[i] - 1.0))
+        return lam
+
+
+def _grip_field(name: str, road: CentrelineRoad) -> PatchedProfile:
     lam0 = nominal_scale()
-    if name == "nominal":
-        return UniformGrip(scale=lam0)
-    if name == "minus20":
-        return UniformGrip(scale=scale_for_peak(MINUS20_PEAK * BENCHMARK_PEAK))
-    if name == "icy":
-        radius = _ROADS[road.name][5] if road.name in _ROADS else 3.0
-        s0, s1 = main_corner(road.name) if road.name in _ROADS else (0.0, road.length)
-        cx, cy = road.position(0.5 * (s0 + s1))
-        return GripPatches(centres=jnp.asarray([[float(cx), float(cy)]]),
-                           radii=jnp.asarray([radius]), scales=jnp.asarray(
-                               [scale_for_peak(PATCH_PEAK * BENCHMARK_PEAK)]),
-                           base=lam0, width=1.0)
-    # rising
     (x0, x1), (y0, y1) = road.position(np.array([0.0, road.length]))
     direction = math.atan2(float(y1 - y0), float(x1 - x0))
     xt, yt = road.position(road.length / 3.0)
-    station = (float(xt) - float(x0)) * math.cos(direction) + (float(yt) - float(y0)) * math.sin(
-        direction)
-    return GripProfile(stations=jnp.asarray([0.0, station]),
-                       scales=jnp.asarray([scale_for_peak(RISING_START * BENCHMARK_PEAK), lam0]),
-                       origin=jnp.asarray([float(x0), float(y0)]), direction=direction)
+    third = ((float(xt) - float(x0)) * math.cos(direction)
+             + (float(yt) - float(y0)) * math.sin(direction))
+    s0, s1 = main_corner(road.name) if road.name in _ROADS else (0.0, road.length)
+    cx, cy = road.position(0.5 * (s0 + s1))
+    radius = _ROADS[road.name][5] if road.name in _ROADS else 3.0
+    start = end = lam0
+    factor = 1.0
+    if name == "minus20":
+        start = end = scale_for_peak(MINUS20_PEAK * BENCHMARK_PEAK)
+    elif name == "icy":
+        factor = scale_for_peak(PATCH_PEAK * BENCHMARK_PEAK) / lam0
+    elif name == "rising":
+        start = scale_for_peak(RISING_START * BENCHMARK_PEAK)
+    profile = GripProfile(stations=jnp.asarray([0.0, third]), scales=jnp.asarray([start, end]),
+                          origin=jnp.asarray([float(x0), float(y0)]), direction=direction)
+    return PatchedProfile(profile=profile, centres=jnp.asarray([[float(cx), float(cy)]]),
+                          radii=jnp.asarray([radius]), factors=jnp.asarray([factor]), width=1.0)
 
 
 def scenario_grip(name: str, road: CentrelineRoad) -> ScenarioGrip:
