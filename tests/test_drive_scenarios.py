@@ -158,7 +158,7 @@ def test_drive_time_interpolates_the_gate_crossing():
     road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 2.0)
     h = 0.1
     t = np.arange(0.0, 5.0, h)
-    a, v0 = 2.0, 1.0
+    a, v0 = 2.0, 1.3  # crossing at t = 3.869 s, between samples
     x = v0 * t + 0.5 * a * t**2  # crosses x = 20 between two samples
     i = np.searchsorted(x, 20.0) - 1
     expected = t[i] + h * (20.0 - x[i]) / (x[i + 1] - x[i])  # linear between the poses
