@@ -262,6 +262,8 @@ def test_substep_poses_are_the_integrators_states(replay):
     t, x, y = vs.drive_path(run, sc.state0)
     assert len(t) == 1 + poses.shape[0] * poses.shape[1]
     np.testing.assert_allclose(np.diff(t), sc.sample_time / sc.plant.substeps, rtol=1e-9)
+    np.testing.assert_allclose(t[sc.plant.substeps::sc.plant.substeps], np.asarray(run.states.t),
+                               rtol=1e-12)
     # consecutive poses are a step's travel apart (< 12 m/s x 1.25 ms)
     assert np.max(np.hypot(np.diff(x), np.diff(y))) < 12.0 * sc.sample_time / sc.plant.substeps
 
