@@ -25,10 +25,12 @@ wheel speeds, $\Delta T_i = k_\omega I_i(\omega^{ref}_i - \omega_i)$,
 $\omega^{ref}_i = (1 + \kappa_i)V_{ix}/r$ from the measured velocities and steering.
 
 **Offline bound** (`offline_bound`): the minimum-time drive of the reduced model on the
-scenario's road from the drive's start, with the tire's peak $D$ set to the true grip's:
-exact for a uniform grip; for a grip that varies along the road, the smallest true peak
-on the road (a conservative stand-in for the per-stage friction, which makes the bound's
-time an upper estimate of the true optimum there).
+scenario's road from the drive's start, with the tire's peak $D$ the true grip's: one $D$
+on a uniform grip; on a grip that varies along the road, each stage's own (the arc-length
+problem with a per-stage friction, `horizon_problem` over the whole road), solved from the
+drive at the smallest peak (feasible for it, and slower: the fallback where the per-stage
+solve fails). The per-stage problem ends with the horizon problem's terminal bounds
+($|v_y| \le 0.1v_x$, $|\xi| \le 0.15$ rad) instead of the gate's $\xi = r = \dot n = 0$.
 """
 
 from __future__ import annotations
@@ -42,12 +44,14 @@ from jaxtyping import Array, Float
 from .._fields import array_field
 from .._math import wrap_angle
 from ..optimal.curvilinear import RoadPrimitive, road_primitive
+from ..optimal.ip import IPOptions, interior_point
 from ..optimal.primitives import rally_gravel_car
 from ..optimal.replay import TrackingGains
 from ..optimal.shooting import DELTA_MAX
 from ..vehicle.params import HalfCarParams, rally_gravel
 from ..vehicle.planar import axle_velocities
 from .actuators import DriveActuators
+from .horizon import horizon_problem
 from .scenarios import BENCHMARK_PEAK, DriveScenario
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController, CommandSchedule
@@ -186,9 +190,27 @@ def nominal_primitive(scenario: DriveScenario, D: float = BENCHMARK_PEAK, **kwar
 
 
 def offline_bound(scenario: DriveScenario, **kwargs) -> tuple[RoadPrimitive, float, bool]:
-    """The offline bound of the module docstring: ``(primitive, D, exact)``, `exact` False
-    where the grip varies along the road (the smallest true peak used)."""
+    """The offline bound of the module docstring: ``(primitive, D, exact)``. On a uniform
+    grip the minimum-time drive with $D$ = the true peak (`nominal_primitive`); on a grip
+    that varies along the road, the drive with the per-stage peak (`horizon_problem` over
+    the whole road, margin 0, the steering rate free, each stage's $D$ the true peak at its
+    midpoint), solved from the drive at the smallest peak $D$ (feasible for it); `exact` is
+    False where that solve did not converge and the smallest-peak drive is returned."""
     peak = np.asarray(scenario.grip.peak)
-    exact = bool(np.ptp(peak) < 1e-6)
     D = float(np.min(peak))
-    return nominal_primitive(scenario, D, **kwargs), D, exact
+    floor = nominal_primitive(scenario, D, **kwargs)
+    if np.ptp(peak) < 1e-6:
+        return floor, D, True
+    prob0 = floor.problem
+    M = prob0.num_stages
+    L = float(scenario.road.length)
+    mid = (np.arange(M) + 0.5) * L / M
+    D_stage = scenario.grip.peak_at(jnp.asarray(mid))
+    xs, us = floor.solution.xs, floor.solution.us
+    prob = horizon_problem(scenario.table, rally_gravel_car(BENCHMARK_PEAK), 0.0, xs[0, :8],
+                           D_stage, horizon=L, margin=0.0, rate_weight=prob0.rate_weight,
+                           steer_rate=1e3, steer_limit=DELTA_MAX)
+    sol = interior_point(prob, xs, us, IPOptions(max_iter=500), throw=False)
+    if not bool(sol.converged):
+        return floor, D, False
+    return RoadPrimitive(problem=prob, solution=sol, road=floor.road), D, True
