@@ -24,7 +24,10 @@ them; the stage (four times their budget) has its own.
 default tracking) in ONE jitted, vmapped call (plants, controllers, initial states and keys
 batched; the end-gate time and the departure computed in the same call, on the road
 tables, `path_departure`); prints the compile and run wall times and the completion
-rate, and checks the JAX departure against the exact NumPy one on a few drives.
+rate, and checks the JAX departure against the exact NumPy one on a few drives (equal
+while the car stays within a metre of the road; a car metres off loses the local
+projection, and the JAX value is then a lower bound, still far past the 5 cm limit, so
+completion agrees).
 
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
@@ -234,12 +237,15 @@ def monte_carlo(args):
         x = np.concatenate([[float(sc.state0.car[0])], p[..., 0].ravel()])
         y = np.concatenate([[float(sc.state0.car[1])], p[..., 1].ravel()])
         ref = vs.drive_outcome(sc.road, t, x, y)
-        check.append(abs(ref.max_off_road - float(off[b])))
+        near = ref.max_off_road < 1.0  # tracked: the exact value; far off: a lower bound
+        check.append(dict(error=abs(ref.max_off_road - float(off[b])) if near else None,
+                          completed_agrees=bool(done[b]) == ref.completed,
+                          lower_bound=bool(off[b] <= ref.max_off_road + 2e-4)))
         print(f"#   check {meta[b][:3]}: JAX off {float(off[b]):.5f} m, NumPy "
               f"{ref.max_off_road:.5f} m; time {float(tc[b]):.4f} / {ref.time}")
     summary = dict(kind="monte-carlo", driver=args.mc_driver, drives=B,
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
-                   max_departure_check_error=float(max(check)), per_scenario={})
+                   departure_checks=check, per_scenario={})
     for road in args.roads:
         for grip in args.grips:
             m = np.array([(r == road) and (g == grip) for r, g, _, _ in meta])

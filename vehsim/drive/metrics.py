@@ -23,7 +23,11 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   Newton from the last arc length), and $\max(n - w_l(s), -w_r(s) - n, 0)$: the exact
   distance off a road of constant width while the projection is the nearest centre-line
   point and the pose lies within the road's reach (the road is then the set of points
-  within $w$ of its centre line), up to the table's interpolation error ($10^{-4}$ m).
+  within $w$ of its centre line), up to the table's interpolation error ($10^{-4}$ m). A
+  car that leaves the road by more than the projection's search distance (4 m) loses it:
+  the value is then a lower bound, but the path passed every smaller distance at the
+  integrator's resolution while it was tracked, so a departure beyond `DEPARTURE_LIMIT`
+  is always seen.
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
