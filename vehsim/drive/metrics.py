@@ -25,9 +25,9 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   point and the pose lies within the road's reach (the road is then the set of points
   within $w$ of its centre line), up to the table's interpolation error ($10^{-4}$ m). A
   car that leaves the road by more than the projection's search distance (4 m) loses it:
-  the value is then a lower bound, but the path passed every smaller distance at the
-  integrator's resolution while it was tracked, so a departure beyond `DEPARTURE_LIMIT`
-  is always seen.
+  the value is then no distance at all (larger or smaller than the true one), but the
+  path passed every smaller distance at the integrator's resolution while it was
+  tracked, so a departure beyond `DEPARTURE_LIMIT` is always seen.
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
