@@ -391,7 +391,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
     fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
-    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([-1.0, 1.0])
+    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
     nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
     return HorizonOCP(
@@ -450,17 +450,21 @@ def shift_plan(xs, us, distance, horizon):
     return cols, us_new
 
 
-def fit_planner_tire(D=0.52, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
-    r"""A `FrictionEllipseTire` of peak ``D`` whose shape fits the steady state of the
-    plant's LuGre tire: $B, C$ of $\sin(C\arctan(Bs))$ least-squares fitted to
-    $\mu_{ss}(s)/\max\mu_{ss}$ of ``tire`` (default the drive plant's `LumpedLuGre2D`
-    with `lugre2d_bakker1987`) on a road of friction scale ``scale`` at ``speed`` [m/s]
-    (`scaled_steady_state_mu`), in pure braking ($s = \kappa/(1 - \kappa)$ for the braking
-    slip $\kappa$ up to ``max_slip``) and pure side slip ($s = \tan\alpha$, $\alpha$ up
-    to ``max_slip`` rad) together. The LuGre curve peaks at a few per cent of slip and
-    falls off after it; the benchmark's gravel tire (B = 7, C = 1.6) peaks near 20 %, so a
-    planner with it asks for slips, and expects lateral forces, the plant does not
-    have."""
+def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
+    r"""A `FrictionEllipseTire` of the plant tire's steady state: $B, C$ of
+    $\sin(C\arctan(Bs))$ least-squares fitted to $\mu_{ss}(s)/\max\mu_{ss}$ of ``tire``
+    (default the drive plant's `LumpedLuGre2D` with `lugre2d_bakker1987`) on a road of
+    friction scale ``scale`` at ``speed`` [m/s] (`scaled_steady_state_mu`), in pure braking
+    ($s = \kappa/(1 - \kappa)$ for the braking slip $\kappa$ up to ``max_slip``) and pure
+    side slip ($s = \tan\alpha$, $\alpha$ up to ``max_slip`` rad) together; the peak
+    ``D`` as given, or (None) the largest $\mu_{ss}$ of these curves.
+
+    The LuGre curve peaks at a few per cent of slip and falls off after it; the benchmark's
+    gravel tire (B = 7, C = 1.6) peaks near 20 %, so a planner with it asks for slips,
+    and expects lateral forces, that the plant does not have. The LuGre friction also
+    rises as the sliding speed falls (the Stribeck curve, eq. 21): its peak at scale
+    $\lambda_0 = 0.52/\mu^*(1)$ is 0.52 at 20 m/s (`AxleGripEstimator.reference_speed`)
+    but 0.64 at 12 m/s."""
     from scipy.optimize import least_squares
 
     from ..tire.friction_ellipse import FrictionEllipseTire
@@ -475,12 +479,13 @@ def fit_planner_tire(D=0.52, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
     c = np.concatenate([(1 - k) * V, np.full_like(k, V)])
     mu = jax.vmap(lambda v, cc: jnp.linalg.norm(scaled_steady_state_mu(tire, scale, v, cc)))(
         jnp.asarray(vr), jnp.asarray(c))
-    mu = np.asarray(mu) / float(np.max(mu))
+    peak = float(np.max(mu))
+    mu = np.asarray(mu) / peak
     sl = np.concatenate([k / (1 - k), np.tan(k)])
     fit = least_squares(lambda p: np.sin(p[1] * np.arctan(p[0] * sl)) - mu, [10.0, 1.5],
                         bounds=([0.5, 1.0], [200.0, 1.99]))
     B, C = (float(v) for v in fit.x)
-    return FrictionEllipseTire(B=B, C=C, D=D)
+    return FrictionEllipseTire(B=B, C=C, D=peak if D is None else D)
 
 
 # ---- the controller ---------------------------------------------------------------------
