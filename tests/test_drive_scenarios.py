@@ -253,6 +253,7 @@ def replay():
     return prim, ref, out
 
 
+@pytest.mark.slow  # the primitive's solve and a drive's compilation, a few minutes
 def test_substep_poses_are_the_integrators_states(replay):
     _, _, out = replay
     sc, run, _ = out["nominal"]
@@ -268,6 +269,7 @@ def test_substep_poses_are_the_integrators_states(replay):
     assert np.max(np.hypot(np.diff(x), np.diff(y))) < 12.0 * sc.sample_time / sc.plant.substeps
 
 
+@pytest.mark.slow
 def test_open_loop_replay_follows_the_primitive_on_its_road_and_not_on_less_grip(replay):
     prim, ref, out = replay
     tt = np.linspace(0.0, float(ref.duration), 4000)
