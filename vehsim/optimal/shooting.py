@@ -148,7 +148,7 @@ class AbstractManeuverOCP(AbstractStagewiseNLP):
 
 
 CLEARANCE_SOFTENING = 1e-3
-"""[m]: $|t|$ in the corner clearance is $\sqrt{t^2 + \epsilon^2}$ (smooth, and larger)."""
+r"""[m]: $|t|$ in the corner clearance is $\sqrt{t^2 + \epsilon^2}$ (smooth, and larger)."""
 
 
 def _clearance(corners, d):
