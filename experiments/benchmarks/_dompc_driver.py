@@ -10,13 +10,21 @@ is a time-varying parameter (tvp) of each stage $k$: the curvature at the stage'
 (``kap0``, ``kap1``, ``kap2``), the per-stage grip multiplier of the tire's $D$ (``grip``),
 the corridor at the node and at the stage's midpoint (``n_lo``, ``n_hi``, ``mid_lo``,
 ``mid_hi``) and, on the last stage only (``last`` = 1), the corridor at the end node and the
-terminal speed bound (``end_lo``, ``end_hi``, ``vx_max``).
+terminal speed bound (``end_lo``, ``end_hi``, ``speed_max``).
 
 Constraints (as `HorizonOCP`): the corridor at every node and at each stage's midpoint on the
 cubic Hermite interpolant of $n$ (as `CurvilinearManeuverOCP`), the axle speeds above the
 floor, the slips and the steering angle in their boxes, the steering rate
-$|u_\delta \dot s| \le$ the actuator's rate, and at $s_0 + H$ the corridor, the axle speeds
-and $v_x \le \sqrt{D}\,v_1(s_0 + H)$. Objective $t(H) + w\sum_k h|u_k|^2$.
+$|u_\delta \dot s| \le$ the actuator's rate, and at $s_0 + H$ the corridor, the axle speeds,
+the speed $|v| \le$ ``speed_max`` ($\beta\sqrt{D}\,v_1(s_0 + H)$), the sideslip
+$|v_y| \le \sigma v_x$ and the heading $|\xi| \le \xi_{max}$. Objective
+$t(H) + w\sum_k h|u_k|^2$.
+
+The bounds on the slips and the steering angle are do-mpc's state bounds (knots 1..M; the
+first knot is fixed), $|\xi(H)| \le \xi_{max}$ a terminal bound; the constraints of the
+end knot that move with $s_0$ are rows of the last stage that read the stage's RK4 end state
+(``last`` = 1; on the other stages they are constants far from their bound): do-mpc's
+nonlinear constraints see only the stages' first knots.
 
 This module imports neither JAX nor vehsim (the road's data arrive as arrays).
 """
@@ -31,7 +39,7 @@ from _casadi_maneuver import body_model
 STATES = ("n", "xi", "vx", "vy", "r", "kappa_F", "kappa_R", "delta", "t")
 INPUTS = ("rate_kappa_F", "rate_kappa_R", "rate_delta")
 TVP = ("kap0", "kap1", "kap2", "grip", "n_lo", "n_hi", "mid_lo", "mid_hi", "last",
-       "end_lo", "end_hi", "vx_max")
+       "end_lo", "end_hi", "speed_max")
 LF = 1.3
 """Distance [m] from the centre of gravity to the front axle (as `body_model`'s)."""
 FREE = 1e3
@@ -86,13 +94,14 @@ def horizon_model(H: float, M: int, D: float):
 
 
 def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight: float = 1e-4,
-                steer_rate: float = 1.0, tol: float = 1e-6, max_iter: int = 100,
+                steer_rate: float = 1.0, terminal_sideslip: float = 0.1,
+                terminal_heading: float = 0.15, tol: float = 1e-6, max_iter: int = 100,
                 mu_init: float | None = None, linear_solver: str = "mumps",
                 warm_start: bool = True):
     """The do-mpc MPC of the horizon problem (module docstring) and a function
     ``set_horizon(tvp)`` taking the (M + 1, len(TVP)) tvp table of the current sample.
 
-    ``limits``: SPEED_FLOOR, KAPPA_MIN, KAPPA_MAX, DELTA_MAX. IPOPT with ``linear_solver``,
+    ``limits``: SPEED_FLOOR, KAPPA_MIN, KAPPA_MAX, DELTA_MAX (the steering limit). IPOPT with ``linear_solver``,
     tolerance ``tol``, at most ``max_iter`` iterations, initial barrier ``mu_init`` (None:
     IPOPT's) and, with ``warm_start``, IPOPT's warm start from the previous solution and
     multipliers (do-mpc passes them)."""
@@ -123,6 +132,10 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
                          ("delta", -lim["DELTA_MAX"], lim["DELTA_MAX"])):
         mpc.bounds["lower", "_x", name] = lo
         mpc.bounds["upper", "_x", name] = hi
+        mpc.terminal_bounds["lower", name] = lo
+        mpc.terminal_bounds["upper", name] = hi
+    mpc.terminal_bounds["lower", "xi"] = -terminal_heading
+    mpc.terminal_bounds["upper", "xi"] = terminal_heading
     mpc.settings.use_terminal_bounds = True
 
     def slope(x, k):  # dn/ds
@@ -143,7 +156,10 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
         "end_hi": last * (n1 - p["end_hi"]) - (1 - last) * FREE,
         "end_floor_F": last * (lim["SPEED_FLOOR"] - axles1[0]) - (1 - last) * FREE,
         "end_floor_R": last * (lim["SPEED_FLOOR"] - axles1[1]) - (1 - last) * FREE,
-        "end_speed": last * (nxt[2] - p["vx_max"]) - (1 - last) * FREE,
+        "end_speed": last * (nxt[2] ** 2 + nxt[3] ** 2 - p["speed_max"] ** 2)
+        - (1 - last) * FREE,
+        "end_slip_hi": last * (nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
+        "end_slip_lo": last * (-nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
     }
     for name, expr in cons.items():
         mpc.set_nl_cons(name, expr, ub=0.0)
@@ -164,11 +180,11 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     return mpc, set_horizon
 
 
-def tvp_table(curvature, grip, corridor, corridor_mid, vx_max) -> np.ndarray:
+def tvp_table(curvature, grip, corridor, corridor_mid, speed_max) -> np.ndarray:
     """The (M + 1, len(TVP)) tvp rows of a sample from the horizon's arrays: ``curvature``
     (M, 3) at each stage's RK4 points, ``grip`` (M,), ``corridor`` (M + 1, 2) lower/upper n
-    at the nodes, ``corridor_mid`` (M, 2) at the midpoints, ``vx_max`` the terminal speed
-    bound (the row M repeats row M - 1: do-mpc reads it only for the terminal cost)."""
+    at the nodes, ``corridor_mid`` (M, 2) at the midpoints, ``speed_max`` the terminal
+    speed bound (the row M repeats row M - 1: do-mpc reads it only for the terminal cost)."""
     kap = np.asarray(curvature, float)
     M = kap.shape[0]
     t = np.zeros((M + 1, len(TVP)))
@@ -178,7 +194,7 @@ def tvp_table(curvature, grip, corridor, corridor_mid, vx_max) -> np.ndarray:
     t[:M, 6:8] = corridor_mid
     t[M - 1, 8] = 1.0
     t[:M, 9:11] = np.asarray(corridor, float)[M]
-    t[:M, 11] = vx_max
+    t[:M, 11] = speed_max
     t[M] = t[M - 1]
     return t
 

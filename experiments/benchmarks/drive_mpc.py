@@ -1,0 +1,363 @@
+"""Benchmark: vehsim's receding-horizon driver against the same MPC in do-mpc.
+
+Both controllers solve the same horizon problem per sample (`vehsim.HorizonOCP`: the
+reduced half-car in arc length over H m in M stages, one RK4 step per stage, the corridor
+with its margin at the knots and the stages' midpoints, the node constraints, the steering
+rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h) and
+drive the same plant (`vehsim.DrivePlant`, the lumped 2D LuGre tires on the nominal gravel
+grip lambda0 = 0.52 / mu*(1), the actuators' delay, rate limit and lag, the sensors' noise
+of the same seed) on the same road at 20 Hz.
+
+- vehsim: `RecedingHorizonDriver` (its jitted ``command``: projection, prediction over the
+  actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
+  with ``block_until_ready`` in a Python loop.
+- do-mpc (`_dompc_driver`): the problem as do-mpc's discrete model with the arc length as
+  the independent variable (``t_step`` = H/M; the same RK4 stage map, so the same
+  transcription), the road's data along the horizon as time-varying parameters set from the
+  current station each sample, IPOPT (MUMPS; HSL's MA27 is not in this CasADi build) to the
+  same tolerance and iteration cap, warm-started by do-mpc from its previous solution and
+  multipliers, ``store_full_solution`` off, no printing. Per sample, in Python: the
+  driver's own jitted projection and prediction and the problem's arrays (the same
+  functions as vehsim's, so both see identical data), ``mpc.make_step``, and the driver's
+  conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`).
+
+Per-sample compute of each controller alone (the plant's step is not timed): p50, p99, mean
+and max; ``ratio`` = do-mpc p50 / vehsim p50 (and the p99 ratio); the closed-loop results
+(drive time to the end gate, the CG's largest distance off the road at the samples,
+completed); the open-loop agreement of the first horizon solve (same state, same
+starting guess): objectives and the largest differences of the plans. Run on one core:
+
+    taskset -c 0 env OMP_NUM_THREADS=1 \\
+      XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \\
+      PYTHONPATH=. python experiments/benchmarks/drive_mpc.py --out \\
+      experiments/benchmarks/drive_mpc_results.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+jax.config.update("jax_enable_x64", True)
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # also when loaded by path
+import _dompc_driver  # noqa: E402
+
+import vehsim  # noqa: E402
+from vehsim.drive.horizon import profile_guess, shift_plan  # noqa: E402
+from vehsim.drive.plant import drive_step, init_drive, measure_drive  # noqa: E402
+from vehsim.optimal.ip import interior_point  # noqa: E402
+from vehsim.optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR  # noqa: E402
+
+
+SAMPLE_TIME = 0.05
+
+
+def scenario(name: str):
+    """The road: helper B's `scenario_road` if this vehsim has it, else the corner built
+    here (the benchmark's 90 degree corner as a centre line: 10 m, a 4 m arc to the right,
+    10 m; 2 m wide)."""
+    make = getattr(vehsim, "scenario_road", None)
+    if make is not None:
+        return make(name)
+    if name != "corner90":
+        raise SystemExit("this vehsim has no scenario_road; only corner90 is built here")
+    return vehsim.CentrelineRoad.from_segments(
+        [("straight", 10.0), ("arc", 4.0, -90.0), ("straight", 10.0)], 2.0,
+        start=(-5.0, 9.0), name="corner90")
+
+
+def nominal_plant():
+    """`DrivePlant` on the nominal gravel: uniform grip lambda0 = 0.52 / mu*(1)."""
+    lam0 = 0.52 / float(vehsim.AxleGripEstimator().peak(1.0))
+    return vehsim.DrivePlant(grip=vehsim.UniformGrip(scale=lam0)), lam0
+
+
+def percentiles(times):
+    t = np.asarray(times) * 1e3
+    return {"p50_ms": round(float(np.percentile(t, 50)), 3),
+            "p99_ms": round(float(np.percentile(t, 99)), 3),
+            "mean_ms": round(float(np.mean(t)), 3), "max_ms": round(float(np.max(t)), 3),
+            "samples": int(t.size)}
+
+
+# ---- the do-mpc controller ----------------------------------------------------------------
+
+
+class DompcDriver:
+    """The do-mpc MPC as a drive controller (module docstring), with the vehsim driver
+    ``driver``'s projection, prediction, problem data and command conversion."""
+
+    def __init__(self, driver, shift: bool = False):
+        self.driver = driver
+        self.shift = shift
+        d = driver
+        limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                      DELTA_MAX=float(d.steer_limit))
+        ocp = d.problem(0.0, jnp.zeros(8), jnp.full((d.num_stages,), float(d.nominal_peak)))
+        self.mpc, self.set_horizon = _dompc_driver.horizon_mpc(
+            float(d.horizon), d.num_stages, limits, D=float(d.vehicle.tire.D),
+            rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
+            terminal_sideslip=float(ocp.terminal_sideslip),
+            terminal_heading=float(ocp.terminal_heading), tol=d.tol,
+            max_iter=d.max_iterations, mu_init=float(d.mu0))
+
+        def prepare(s_prev, inputs, m):
+            s, X5 = d._measured_state(m, s_prev)
+            y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
+                if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
+            state8 = jnp.concatenate([y[1:], inputs])
+            D = d.planner_friction(y[0], None)
+            prob = d.problem(y[0], state8, D)
+            return s, y[0], state8, D, (prob.curvature[:, 0], prob.grip, prob.corridor,
+                                        prob.corridor_mid[:, 0], prob.terminal_speed)
+
+        def finish(xs, us, D0, inputs_prev, m):
+            inputs, torques = d.plan_command(xs, us, D0)
+            torques = torques + d.slip_gain * (inputs_prev[:2] - d.measured_slip(m))
+            return inputs, jnp.concatenate([torques, inputs[2:]])
+
+        self._prepare = jax.jit(prepare)
+        self._finish = jax.jit(finish)
+        self._shift = jax.jit(lambda xs, us, dist: shift_plan(xs, us, dist, d.horizon))
+        self.make_step_times = []
+        self.iterations = []
+        self.success = []
+
+    def _solve(self, state8, tvp_arrays):
+        self.set_horizon(_dompc_driver.tvp_table(*(np.asarray(a) for a in tvp_arrays)))
+        x0 = np.concatenate([np.asarray(state8), [0.0]])
+        t0 = time.perf_counter()
+        self.mpc.make_step(x0)
+        self.make_step_times.append(time.perf_counter() - t0)
+        stats = self.mpc.solver_stats
+        self.iterations.append(int(stats["iter_count"]))
+        self.success.append(bool(stats["success"]))
+        return _dompc_driver.plan(self.mpc)
+
+    def first_problem(self, m):
+        """The first sample's station, inputs, problem and starting guess (as
+        `RecedingHorizonDriver.init`)."""
+        d = self.driver
+        d2 = (d.table.x - m.x) ** 2 + (d.table.y - m.y) ** 2
+        s_guess = d.table.s[jnp.argmin(d2)]
+        inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
+        s, X5 = d._measured_state(m, s_guess)
+        state8 = jnp.concatenate([X5, inputs])
+        D = d.planner_friction(s, None)
+        prob = d.problem(s, state8, D)
+        guess = profile_guess(d.table, d.vehicle, s, state8, D, horizon=d.horizon)
+        return s, inputs, state8, prob, guess
+
+    def init(self, m):
+        """The first plan, from `profile_guess`, re-solved until IPOPT converges (at most 5
+        calls of ``max_iter`` iterations; untimed, as vehsim's `init`)."""
+        s, inputs, state8, prob, (xs0, us0) = self.first_problem(m)
+        _dompc_driver.set_guess(self.mpc, xs0, us0)
+        arrays = (prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
+                  prob.terminal_speed)
+        for _ in range(5):
+            xs, us = self._solve(state8, arrays)
+            if self.success[-1]:
+                break
+        self.make_step_times.clear()
+        self.iterations.clear()
+        self.success.clear()
+        # compile the jitted pieces now (vehsim's command is compiled before its loop too)
+        jax.block_until_ready(self._prepare(s, inputs, m))
+        jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
+                                           inputs, m))
+        if self.shift:
+            jax.block_until_ready(self._shift(jnp.asarray(xs), jnp.asarray(us), 0.0))
+        return {"s": s, "s_plan": s, "inputs": inputs, "xs": xs, "us": us}
+
+    def command(self, cs, m):
+        s, s_pred, state8, D, arrays = self._prepare(cs["s"], cs["inputs"], m)
+        if self.shift:
+            xs0, us0 = self._shift(jnp.asarray(cs["xs"]), jnp.asarray(cs["us"]),
+                                   s_pred - cs["s_plan"])
+            _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
+        xs, us = self._solve(state8, arrays)
+        inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
+        return {"s": s, "s_plan": s_pred, "inputs": inputs, "xs": xs, "us": us}, command
+
+
+# ---- the closed loop ----------------------------------------------------------------------
+
+
+def closed_loop(command, cs, plant, state0, m0, key, num_samples, step):
+    """Drive ``num_samples`` samples in a Python loop; the controller's ``command(cs, m)``
+    alone is timed (its outputs blocked on). Returns the per-sample times and the plant's
+    true CG poses (x, y) with their times."""
+    state, m = state0, m0
+    times, poses = [], [np.asarray(state0.car[:2])]
+    for k in range(num_samples):
+        t0 = time.perf_counter()
+        cs, cmd = command(cs, m)
+        cmd = jax.block_until_ready(cmd)
+        times.append(time.perf_counter() - t0)
+        state, m = step(plant, state, cmd, jax.random.fold_in(key, k + 1))
+        poses.append(np.asarray(state.car[:2]))
+        if not np.all(np.isfinite(poses[-1])):
+            break
+    return times, np.array(poses)
+
+
+def drive_result(road, table, poses, budget):
+    """Drive time (the CG crossing s = L, interpolated between samples; None if never),
+    the CG's largest distance off the road at the samples, completed (crossed before the
+    time budget, never more than 5 cm off the road)."""
+    ok = np.all(np.isfinite(poses), axis=1)
+    poses = poses[ok]
+    project = jax.jit(lambda x, y, sg: table.to_frenet(x, y, 0.0, sg)[0])
+    s, s_prev = [], float(table.s[0] + 5.0)
+    for x, y in poses:
+        s_prev = float(project(x, y, s_prev))
+        s.append(s_prev)
+    s = np.array(s)
+    L = float(road.length)
+    t = SAMPLE_TIME * np.arange(len(s))
+    after = np.nonzero(s >= L)[0]
+    if after.size and after[0] > 0:
+        j = after[0]
+        t_end = t[j - 1] + (L - s[j - 1]) / (s[j] - s[j - 1]) * SAMPLE_TIME
+        upto = j + 1
+    else:
+        t_end, upto = None, len(s)
+    off = float(np.max(np.asarray(road.distance_off_road(poses[:upto, 0], poses[:upto, 1]))))
+    completed = bool(t_end is not None and t_end <= budget and off <= 0.05 and ok.all())
+    return {"drive_time_s": None if t_end is None else round(float(t_end), 4),
+            "max_off_road_m": round(off, 4), "completed": completed}
+
+
+def objective(xs, us, H, w):
+    M = us.shape[0]
+    return float(xs[-1, 8] + w * H / M * np.sum(np.asarray(us) ** 2))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--road", default="corner90")
+    ap.add_argument("--speed", type=float, default=8.0, help="initial speed [m/s]")
+    ap.add_argument("--samples", type=int, default=100)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--horizon", type=float, default=30.0)
+    ap.add_argument("--stages", type=int, default=30)
+    ap.add_argument("--modes", default="converged,rti", help="vehsim modes to run")
+    ap.add_argument("--shift", action="store_true",
+                    help="warm-start do-mpc from its plan shifted by the distance travelled "
+                         "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
+    ap.add_argument("--out", default=None, help="append the JSON lines to this file")
+    args = ap.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    load_before = os.getloadavg()
+
+    road = scenario(args.road)
+    plant, lam0 = nominal_plant()
+    table = vehsim.RoadTable.from_road(road)
+    start_x, start_y = (float(v) for v in road.position(0.0))
+    psi0 = float(road.heading(0.0))
+    state0 = init_drive(plant, vx=args.speed, x=start_x, y=start_y, psi=psi0)
+    key = jax.random.PRNGKey(args.seed)
+    m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
+    step = jax.jit(drive_step)
+    budget = args.samples * SAMPLE_TIME
+    rows = []
+
+    def emit(**row):
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+    common = dict(road=args.road, horizon_m=args.horizon, stages=args.stages,
+                  sample_time_s=SAMPLE_TIME, initial_speed=args.speed, seed=args.seed)
+    results = {}
+    for mode in args.modes.split(","):
+        driver = vehsim.RecedingHorizonDriver(table=table, horizon=args.horizon,
+                                              num_stages=args.stages, mode=mode)
+        init = jax.jit(lambda m, d=driver: d.init(m))
+        command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
+        t0 = time.perf_counter()
+        cs = jax.block_until_ready(init(m0))
+        t_init = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(command(cs, m0))
+        t_compile = time.perf_counter() - t0
+        infos = []
+
+        def timed(cs, m, command=command):
+            cs, cmd = command(cs, m)
+            infos.append(cs)
+            return cs, cmd
+
+        times, poses = closed_loop(timed, cs, plant, state0, m0, key, args.samples, step)
+        its = np.array([int(c.iterations) for c in infos])
+        conv = np.array([bool(c.converged) for c in infos])
+        res = drive_result(road, table, poses, budget)
+        results[mode] = (driver, cs, percentiles(times))
+        emit(controller=f"vehsim-{mode}", **common, **percentiles(times),
+             real_time_factor_p99=round(SAMPLE_TIME / np.percentile(times, 99), 2),
+             iterations_mean=round(float(its.mean()), 2), iterations_max=int(its.max()),
+             converged_fraction=round(float(conv.mean()), 3),
+             init_and_compile_s=round(t_init, 2), command_compile_s=round(t_compile, 2), **res)
+
+    # do-mpc, with the converged-mode driver's settings (same tolerance and iteration cap)
+    driver, cs_v, p_v = results.get("converged", next(iter(results.values())))
+    t0 = time.perf_counter()
+    dm = DompcDriver(driver, shift=args.shift)
+    t_setup = time.perf_counter() - t0
+    cs = dm.init(m0)
+    # open-loop agreement of the first horizon solve: same state, same guess
+    xs_v, xs_d, us_d = np.asarray(cs_v.xs), np.asarray(cs["xs"]), np.asarray(cs["us"])
+    _, _, _, prob, guess = dm.first_problem(m0)
+    sol = interior_point(prob, *guess, driver.options(first=True), throw=False)
+    w = float(driver.rate_weight)
+    emit(comparison="open_loop_first_solve", **common,
+         vehsim_objective=objective(np.asarray(sol.xs), np.asarray(sol.us), args.horizon, w),
+         vehsim_objective_reported=float(sol.objective),
+         vehsim_converged=bool(sol.converged), vehsim_iterations=int(sol.iterations),
+         dompc_objective=objective(xs_d, us_d, args.horizon, w),
+         max_abs_diff_knots=float(np.max(np.abs(np.asarray(sol.xs) - xs_d))),
+         max_abs_diff_knots_per_state=np.max(np.abs(np.asarray(sol.xs) - xs_d), 0).tolist(),
+         max_abs_diff_rates=float(np.max(np.abs(np.asarray(sol.us) - us_d))),
+         vehsim_init_plan_vs_solve=float(np.max(np.abs(xs_v - np.asarray(sol.xs)))))
+
+    def dm_command(cs, m):
+        return dm.command(cs, m)
+
+    times, poses = closed_loop(dm_command, cs, plant, state0, m0, key, args.samples, step)
+    res = drive_result(road, table, poses, budget)
+    p_d = percentiles(times)
+    emit(controller="do-mpc", **common, **p_d,
+         make_step=percentiles(dm.make_step_times),
+         iterations_mean=round(float(np.mean(dm.iterations)), 2),
+         iterations_max=int(np.max(dm.iterations)),
+         converged_fraction=round(float(np.mean(dm.success)), 3),
+         setup_s=round(t_setup, 2), warm_start="shifted" if args.shift else "do-mpc",
+         linear_solver="mumps", do_mpc=__import__("do_mpc").__version__,
+         casadi=__import__("casadi").__version__, **res)
+    for mode, (_, _, p) in results.items():
+        emit(ratio_against=f"vehsim-{mode}", **common,
+             ratio=round(p_d["p50_ms"] / p["p50_ms"], 2),
+             ratio_p99=round(p_d["p99_ms"] / p["p99_ms"], 2))
+    emit(note="machine", load_average_before=[round(v, 2) for v in load_before],
+         load_average_after=[round(v, 2) for v in os.getloadavg()],
+         cpu_affinity=sorted(os.sched_getaffinity(0)), cpu_count=os.cpu_count(),
+         xla_flags=os.environ.get("XLA_FLAGS", ""), date=time.strftime("%Y-%m-%d %H:%M UTC",
+                                                                       time.gmtime()))
+    if args.out:
+        with open(args.out, "a") as f:
+            for row in rows:
+                f.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()
