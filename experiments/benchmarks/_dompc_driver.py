@@ -97,14 +97,18 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
                 steer_rate: float = 1.0, terminal_sideslip: float = 0.1,
                 terminal_heading: float = 0.15, tol: float = 1e-6, max_iter: int = 100,
                 mu_init: float | None = None, linear_solver: str = "mumps",
-                warm_start: bool = True):
+                warm_start: bool = True, cse: bool = True, jit: str | None = None):
     """The do-mpc MPC of the horizon problem (module docstring) and a function
     ``set_horizon(tvp)`` taking the (M + 1, len(TVP)) tvp table of the current sample.
 
     ``limits``: SPEED_FLOOR, KAPPA_MIN, KAPPA_MAX, DELTA_MAX (the steering limit). IPOPT with ``linear_solver``,
     tolerance ``tol``, at most ``max_iter`` iterations, initial barrier ``mu_init`` (None:
     IPOPT's) and, with ``warm_start``, IPOPT's warm start from the previous solution and
-    multipliers (do-mpc passes them)."""
+    multipliers (do-mpc passes them). ``cse``: CasADi's common-subexpression elimination on
+    the NLP's expressions (the stage's RK4 step appears both in do-mpc's dynamics and in the
+    constraints that read the stage's end). ``jit``: compile the NLP's functions (objective,
+    constraints, their derivatives) to machine code with CasADi's JIT through the system's C
+    compiler, with these flags (e.g. "-O1"; None: CasADi's virtual machine)."""
     import do_mpc
 
     model, X, v, p, nxt = horizon_model(H, M, D)
@@ -112,6 +116,11 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     mpc = do_mpc.controller.MPC(model)
     opts = {"ipopt.linear_solver": linear_solver, "ipopt.print_level": 0, "ipopt.sb": "yes",
             "print_time": 0, "ipopt.tol": tol, "ipopt.max_iter": max_iter}
+    if cse:
+        opts["oracle_options"] = {"cse": True}
+    if jit is not None:
+        opts.update({"jit": True, "compiler": "shell",
+                     "jit_options": {"flags": jit.split(), "verbose": False}})
     if mu_init is not None:
         opts["ipopt.mu_init"] = mu_init
     if warm_start:

@@ -4,9 +4,10 @@ Both controllers solve the same horizon problem per sample (`vehsim.HorizonOCP`:
 reduced half-car in arc length over H m in M stages, one RK4 step per stage, the corridor
 with its margin at the knots and the stages' midpoints, the node constraints, the steering
 rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h) and
-drive the same plant (`vehsim.DrivePlant`, the lumped 2D LuGre tires on the nominal gravel
-grip lambda0 = 0.52 / mu*(1), the actuators' delay, rate limit and lag, the sensors' noise
-of the same seed) on the same road at 20 Hz.
+drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "nominal")`
+(the `DrivePlant` with the lumped 2D LuGre tires on the gravel whose peak friction is the
+planner's D = 0.52, the actuators' delay, rate limit and lag, the sensors' noise of the same
+seed, the scenario's start speed and time budget).
 
 - vehsim: `RecedingHorizonDriver` (its jitted ``command``: projection, prediction over the
   actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
@@ -23,9 +24,10 @@ of the same seed) on the same road at 20 Hz.
 
 Per-sample compute of each controller alone (the plant's step is not timed): p50, p99, mean
 and max; ``ratio`` = do-mpc p50 / vehsim p50 (and the p99 ratio); the closed-loop results
-(drive time to the end gate, the CG's largest distance off the road at the samples,
-completed); the open-loop agreement of the first horizon solve (same state, same
-starting guess): objectives and the largest differences of the plans. Run on one core:
+(`vehsim.drive_outcome` on the CG's path at every integration step: drive time to the
+end gate, largest distance off the road, completed); the open-loop agreement of the first
+horizon solve (same state, same starting guess): objectives and the largest differences of
+the plans. Run on one core:
 
     taskset -c 0 env OMP_NUM_THREADS=1 \\
       XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \\
@@ -54,32 +56,14 @@ import _dompc_driver  # noqa: E402
 
 import vehsim  # noqa: E402
 from vehsim.drive.horizon import profile_guess, shift_plan  # noqa: E402
-from vehsim.drive.plant import drive_step, init_drive, measure_drive  # noqa: E402
+from vehsim.drive.metrics import drive_outcome  # noqa: E402
+from vehsim.drive.plant import drive_step, measure_drive  # noqa: E402
+from vehsim.drive.scenarios import drive_scenario  # noqa: E402
 from vehsim.optimal.ip import interior_point  # noqa: E402
 from vehsim.optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR  # noqa: E402
 
 
 SAMPLE_TIME = 0.05
-
-
-def scenario(name: str):
-    """The road: helper B's `scenario_road` if this vehsim has it, else the corner built
-    here (the benchmark's 90 degree corner as a centre line: 10 m, a 4 m arc to the right,
-    10 m; 2 m wide)."""
-    make = getattr(vehsim, "scenario_road", None)
-    if make is not None:
-        return make(name)
-    if name != "corner90":
-        raise SystemExit("this vehsim has no scenario_road; only corner90 is built here")
-    return vehsim.CentrelineRoad.from_segments(
-        [("straight", 10.0), ("arc", 4.0, -90.0), ("straight", 10.0)], 2.0,
-        start=(-5.0, 9.0), name="corner90")
-
-
-def nominal_plant():
-    """`DrivePlant` on the nominal gravel: uniform grip lambda0 = 0.52 / mu*(1)."""
-    lam0 = 0.52 / float(vehsim.AxleGripEstimator().peak(1.0))
-    return vehsim.DrivePlant(grip=vehsim.UniformGrip(scale=lam0)), lam0
 
 
 def percentiles(times):
@@ -196,47 +180,31 @@ class DompcDriver:
 
 def closed_loop(command, cs, plant, state0, m0, key, num_samples, step):
     """Drive ``num_samples`` samples in a Python loop; the controller's ``command(cs, m)``
-    alone is timed (its outputs blocked on). Returns the per-sample times and the plant's
-    true CG poses (x, y) with their times."""
+    alone is timed (its outputs blocked on). Returns the per-sample times and the CG's path
+    ``(t, x, y)`` at every integration step, the start first (as `vehsim.drive_path`)."""
     state, m = state0, m0
-    times, poses = [], [np.asarray(state0.car[:2])]
+    S = plant.substeps
+    times, t, xy = [], [0.0], [np.asarray(state0.car[:2])[None]]
     for k in range(num_samples):
         t0 = time.perf_counter()
         cs, cmd = command(cs, m)
         cmd = jax.block_until_ready(cmd)
         times.append(time.perf_counter() - t0)
-        state, m = step(plant, state, cmd, jax.random.fold_in(key, k + 1))
-        poses.append(np.asarray(state.car[:2]))
-        if not np.all(np.isfinite(poses[-1])):
+        state, m, poses = step(plant, state, cmd, jax.random.fold_in(key, k + 1))
+        t.extend(SAMPLE_TIME * (k + np.arange(1, S + 1) / S))
+        xy.append(np.asarray(poses))
+        if not np.all(np.isfinite(xy[-1])):
             break
-    return times, np.array(poses)
+    xy = np.concatenate(xy)
+    return times, (np.array(t), xy[:, 0], xy[:, 1])
 
 
-def drive_result(road, table, poses, budget):
-    """Drive time (the CG crossing s = L, interpolated between samples; None if never),
-    the CG's largest distance off the road at the samples, completed (crossed before the
-    time budget, never more than 5 cm off the road)."""
-    ok = np.all(np.isfinite(poses), axis=1)
-    poses = poses[ok]
-    project = jax.jit(lambda x, y, sg: table.to_frenet(x, y, 0.0, sg)[0])
-    s, s_prev = [], float(table.s[0] + 5.0)
-    for x, y in poses:
-        s_prev = float(project(x, y, s_prev))
-        s.append(s_prev)
-    s = np.array(s)
-    L = float(road.length)
-    t = SAMPLE_TIME * np.arange(len(s))
-    after = np.nonzero(s >= L)[0]
-    if after.size and after[0] > 0:
-        j = after[0]
-        t_end = t[j - 1] + (L - s[j - 1]) / (s[j] - s[j - 1]) * SAMPLE_TIME
-        upto = j + 1
-    else:
-        t_end, upto = None, len(s)
-    off = float(np.max(np.asarray(road.distance_off_road(poses[:upto, 0], poses[:upto, 1]))))
-    completed = bool(t_end is not None and t_end <= budget and off <= 0.05 and ok.all())
-    return {"drive_time_s": None if t_end is None else round(float(t_end), 4),
-            "max_off_road_m": round(off, 4), "completed": completed}
+def drive_result(road, path):
+    """Drive time to the end gate, the CG's largest distance off the road (every integration
+    step), completed (`vehsim.drive_outcome`)."""
+    out = drive_outcome(road, *path)
+    return {"drive_time_s": out.time, "max_off_road_m": out.max_off_road,
+            "completed": out.completed}
 
 
 def objective(xs, us, H, w):
@@ -247,8 +215,10 @@ def objective(xs, us, H, w):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--road", default="corner90")
-    ap.add_argument("--speed", type=float, default=8.0, help="initial speed [m/s]")
-    ap.add_argument("--samples", type=int, default=100)
+    ap.add_argument("--speed", type=float, default=None,
+                    help="initial speed [m/s] (default: the scenario's)")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="samples to drive (default: the scenario's time budget)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--horizon", type=float, default=30.0)
     ap.add_argument("--stages", type=int, default=30)
@@ -261,16 +231,12 @@ def main(argv=None):
     warnings.filterwarnings("ignore")
     load_before = os.getloadavg()
 
-    road = scenario(args.road)
-    plant, lam0 = nominal_plant()
-    table = vehsim.RoadTable.from_road(road)
-    start_x, start_y = (float(v) for v in road.position(0.0))
-    psi0 = float(road.heading(0.0))
-    state0 = init_drive(plant, vx=args.speed, x=start_x, y=start_y, psi=psi0)
+    sc = drive_scenario(args.road, "nominal", start_speed=args.speed)
+    road, plant, table, state0 = sc.road, sc.plant, sc.table, sc.state0
+    num_samples = sc.num_samples if args.samples is None else args.samples
     key = jax.random.PRNGKey(args.seed)
     m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
-    step = jax.jit(drive_step)
-    budget = args.samples * SAMPLE_TIME
+    step = jax.jit(lambda p, st, c, k: drive_step(p, st, c, k, substep_poses=True))
     rows = []
 
     def emit(**row):
@@ -278,7 +244,8 @@ def main(argv=None):
         print(json.dumps(row), flush=True)
 
     common = dict(road=args.road, horizon_m=args.horizon, stages=args.stages,
-                  sample_time_s=SAMPLE_TIME, initial_speed=args.speed, seed=args.seed)
+                  sample_time_s=SAMPLE_TIME, initial_speed=float(sc.start_speed),
+                  grip="nominal", seed=args.seed, samples_budget=num_samples)
     results = {}
     for mode in args.modes.split(","):
         driver = vehsim.RecedingHorizonDriver(table=table, horizon=args.horizon,
@@ -298,10 +265,10 @@ def main(argv=None):
             infos.append(cs)
             return cs, cmd
 
-        times, poses = closed_loop(timed, cs, plant, state0, m0, key, args.samples, step)
+        times, path = closed_loop(timed, cs, plant, state0, m0, key, num_samples, step)
         its = np.array([int(c.iterations) for c in infos])
         conv = np.array([bool(c.converged) for c in infos])
-        res = drive_result(road, table, poses, budget)
+        res = drive_result(road, path)
         results[mode] = (driver, cs, percentiles(times))
         emit(controller=f"vehsim-{mode}", **common, **percentiles(times),
              real_time_factor_p99=round(SAMPLE_TIME / np.percentile(times, 99), 2),
@@ -333,8 +300,8 @@ def main(argv=None):
     def dm_command(cs, m):
         return dm.command(cs, m)
 
-    times, poses = closed_loop(dm_command, cs, plant, state0, m0, key, args.samples, step)
-    res = drive_result(road, table, poses, budget)
+    times, path = closed_loop(dm_command, cs, plant, state0, m0, key, num_samples, step)
+    res = drive_result(road, path)
     p_d = percentiles(times)
     emit(controller="do-mpc", **common, **p_d,
          make_step=percentiles(dm.make_step_times),
