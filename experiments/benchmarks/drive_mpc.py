@@ -178,13 +178,16 @@ class DompcDriver:
 # ---- the closed loop ----------------------------------------------------------------------
 
 
-def closed_loop(command, cs, plant, state0, m0, key, num_samples, step):
-    """Drive ``num_samples`` samples in a Python loop; the controller's ``command(cs, m)``
-    alone is timed (its outputs blocked on). Returns the per-sample times and the CG's path
-    ``(t, x, y)`` at every integration step, the start first (as `vehsim.drive_path`)."""
+def closed_loop(command, cs, plant, state0, m0, key, num_samples, step, table):
+    """Drive at most ``num_samples`` samples in a Python loop, until the CG is past the road's
+    end (arc length L on ``table``); the controller's ``command(cs, m)`` alone is timed (its
+    outputs blocked on). Returns the per-sample times and the CG's path ``(t, x, y)`` at
+    every integration step, the start first (as `vehsim.drive_path`)."""
     state, m = state0, m0
     S = plant.substeps
     times, t, xy = [], [0.0], [np.asarray(state0.car[:2])[None]]
+    station = jax.jit(lambda car, sg: table.to_frenet(car[0], car[1], car[2], sg)[0])
+    s = 0.0
     for k in range(num_samples):
         t0 = time.perf_counter()
         cs, cmd = command(cs, m)
@@ -193,7 +196,8 @@ def closed_loop(command, cs, plant, state0, m0, key, num_samples, step):
         state, m, poses = step(plant, state, cmd, jax.random.fold_in(key, k + 1))
         t.extend(SAMPLE_TIME * (k + np.arange(1, S + 1) / S))
         xy.append(np.asarray(poses))
-        if not np.all(np.isfinite(xy[-1])):
+        s = float(station(state.car, s))
+        if not np.all(np.isfinite(xy[-1])) or s > float(table.length):
             break
     xy = np.concatenate(xy)
     return times, (np.array(t), xy[:, 0], xy[:, 1])
@@ -265,7 +269,8 @@ def main(argv=None):
             infos.append(cs)
             return cs, cmd
 
-        times, path = closed_loop(timed, cs, plant, state0, m0, key, num_samples, step)
+        times, path = closed_loop(timed, cs, plant, state0, m0, key, num_samples, step,
+                                  table)
         its = np.array([int(c.iterations) for c in infos])
         conv = np.array([bool(c.converged) for c in infos])
         res = drive_result(road, path)
@@ -300,7 +305,8 @@ def main(argv=None):
     def dm_command(cs, m):
         return dm.command(cs, m)
 
-    times, path = closed_loop(dm_command, cs, plant, state0, m0, key, num_samples, step)
+    times, path = closed_loop(dm_command, cs, plant, state0, m0, key, num_samples, step,
+                              table)
     res = drive_result(road, path)
     p_d = percentiles(times)
     emit(controller="do-mpc", **common, **p_d,
