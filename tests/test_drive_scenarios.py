@@ -48,8 +48,12 @@ def test_benchmark_roads_have_the_benchmarks_gates_legs_and_width(roads, name):
     s = np.linspace(0.0, road.length, 2001)
     np.testing.assert_allclose(road.width_left(s), 1.0)
     np.testing.assert_allclose(road.width_right(s), 1.0)
-    assert np.max(np.abs(road.curvature(s))) == pytest.approx(1 / vs.drive.scenarios.
-                                                              BENCHMARK_ARC_RADIUS)
+    # the legs' centre lines joined by arcs of 4 m: |n kappa| <= 1/4, and the length is the
+    # legs' minus what the arcs cut (2 - pi/2) R per corner
+    assert np.max(np.abs(road.curvature(s))) == pytest.approx(0.25)
+    legs = {"corner90": 28.0, "uturn": 46.0, "sturn": 46.0}[name]
+    corners = 1 if name == "corner90" else 2
+    assert road.length == pytest.approx(legs - corners * (2.0 - math.pi / 2) * 4.0)
     # on the straight parts the road's edges are the benchmark legs' walls: the edge is on
     # the benchmark road, 1 cm beyond it is not
     straight = np.abs(road.curvature(s)) < 1e-12
@@ -154,7 +158,7 @@ def test_drive_time_interpolates_the_gate_crossing():
     road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 2.0)
     h = 0.1
     t = np.arange(0.0, 5.0, h)
-    a, v0 = 2.0, 1.0
+    a, v0 = 2.0, 1.3  # crossing at t = 3.869 s, between samples
     x = v0 * t + 0.5 * a * t**2  # crosses x = 20 between two samples
     i = np.searchsorted(x, 20.0) - 1
     expected = t[i] + h * (20.0 - x[i]) / (x[i + 1] - x[i])  # linear between the poses
