@@ -43,6 +43,7 @@ import os
 import sys
 import time
 import warnings
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -85,6 +86,11 @@ class DompcDriver:
         self.driver = driver
         self.shift = shift
         d = driver
+        tire, par = d.vehicle.tire, d.vehicle.params
+        if (float(tire.B), float(tire.C), float(par.m), float(par.Iz), float(par.lF),
+                float(par.lR), float(par.h)) != (7.0, 1.6, 1450.0, 2740.0, 1.3, 1.4, 0.4):
+            raise SystemExit("the do-mpc model (_casadi_maneuver.body_model) is the rally "
+                             "gravel car with B = 7, C = 1.6: the driver plans with another")
         limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
                       DELTA_MAX=float(d.steer_limit))
         ocp = d.problem(0.0, jnp.zeros(8), jnp.full((d.num_stages,), float(d.nominal_peak)))
@@ -95,15 +101,18 @@ class DompcDriver:
             terminal_heading=float(ocp.terminal_heading), tol=d.tol,
             max_iter=d.max_iterations, mu_init=float(d.mu0))
 
-        def prepare(s_prev, inputs, m):
-            s, X5 = d._measured_state(m, s_prev)
+        def prepare(s_prev, position, velocity, inputs, m):
+            position, velocity = d.filter_position(
+                SimpleNamespace(position=position, velocity=velocity), m)
+            s, X5 = d._measured_state(m, position, s_prev)
             y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
                 if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
             state8 = jnp.concatenate([y[1:], inputs])
             D = d.planner_friction(y[0], None)
             prob = d.problem(y[0], state8, D)
-            return s, y[0], state8, D, (prob.curvature[:, 0], prob.grip, prob.corridor,
-                                        prob.corridor_mid[:, 0], prob.terminal_speed)
+            return s, position, velocity, y[0], state8, D, (
+                prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
+                prob.terminal_speed)
 
         def finish(xs, us, D0, inputs_prev, m):
             inputs, torques = d.plan_command(xs, us, D0)
@@ -135,7 +144,7 @@ class DompcDriver:
         d2 = (d.table.x - m.x) ** 2 + (d.table.y - m.y) ** 2
         s_guess = d.table.s[jnp.argmin(d2)]
         inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
-        s, X5 = d._measured_state(m, s_guess)
+        s, X5 = d._measured_state(m, jnp.stack([m.x, m.y]), s_guess)
         state8 = jnp.concatenate([X5, inputs])
         D = d.planner_friction(s, None)
         prob = d.problem(s, state8, D)
@@ -157,22 +166,26 @@ class DompcDriver:
         self.iterations.clear()
         self.success.clear()
         # compile the jitted pieces now (vehsim's command is compiled before its loop too)
-        jax.block_until_ready(self._prepare(s, inputs, m))
+        position, velocity = jnp.stack([m.x, m.y]), self.driver._world_velocity(m)
+        jax.block_until_ready(self._prepare(s, position, velocity, inputs, m))
         jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
                                            inputs, m))
         if self.shift:
             jax.block_until_ready(self._shift(jnp.asarray(xs), jnp.asarray(us), 0.0))
-        return {"s": s, "s_plan": s, "inputs": inputs, "xs": xs, "us": us}
+        return {"s": s, "position": position, "velocity": velocity, "s_plan": s,
+                "inputs": inputs, "xs": xs, "us": us}
 
     def command(self, cs, m):
-        s, s_pred, state8, D, arrays = self._prepare(cs["s"], cs["inputs"], m)
+        s, position, velocity, s_pred, state8, D, arrays = self._prepare(
+            cs["s"], cs["position"], cs["velocity"], cs["inputs"], m)
         if self.shift:
             xs0, us0 = self._shift(jnp.asarray(cs["xs"]), jnp.asarray(cs["us"]),
                                    s_pred - cs["s_plan"])
             _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
         xs, us = self._solve(state8, arrays)
         inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
-        return {"s": s, "s_plan": s_pred, "inputs": inputs, "xs": xs, "us": us}, command
+        return {"s": s, "position": position, "velocity": velocity, "s_plan": s_pred,
+                "inputs": inputs, "xs": xs, "us": us}, command
 
 
 # ---- the closed loop ----------------------------------------------------------------------
@@ -224,8 +237,10 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=None,
                     help="samples to drive (default: the scenario's time budget)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--horizon", type=float, default=30.0)
-    ap.add_argument("--stages", type=int, default=30)
+    ap.add_argument("--horizon", type=float, default=None,
+                    help="horizon H [m] (default: the driver's)")
+    ap.add_argument("--stages", type=int, default=None,
+                    help="stages M (default: the driver's)")
     ap.add_argument("--modes", default="converged,rti", help="vehsim modes to run")
     ap.add_argument("--shift", action="store_true",
                     help="warm-start do-mpc from its plan shifted by the distance travelled "
@@ -247,13 +262,16 @@ def main(argv=None):
         rows.append(row)
         print(json.dumps(row), flush=True)
 
-    common = dict(road=args.road, horizon_m=args.horizon, stages=args.stages,
+    sizes = {k: v for k, v in (("horizon", args.horizon), ("num_stages", args.stages))
+             if v is not None}
+    probe = vehsim.RecedingHorizonDriver(table=table, **sizes)
+    H, M = float(probe.horizon), probe.num_stages
+    common = dict(road=args.road, horizon_m=H, stages=M,
                   sample_time_s=SAMPLE_TIME, initial_speed=float(sc.start_speed),
                   grip="nominal", seed=args.seed, samples_budget=num_samples)
     results = {}
     for mode in args.modes.split(","):
-        driver = vehsim.RecedingHorizonDriver(table=table, horizon=args.horizon,
-                                              num_stages=args.stages, mode=mode)
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()
@@ -293,14 +311,23 @@ def main(argv=None):
     sol = interior_point(prob, *guess, driver.options(first=True), throw=False)
     w = float(driver.rate_weight)
     emit(comparison="open_loop_first_solve", **common,
-         vehsim_objective=objective(np.asarray(sol.xs), np.asarray(sol.us), args.horizon, w),
+         vehsim_objective=objective(np.asarray(sol.xs), np.asarray(sol.us), H, w),
          vehsim_objective_reported=float(sol.objective),
          vehsim_converged=bool(sol.converged), vehsim_iterations=int(sol.iterations),
-         dompc_objective=objective(xs_d, us_d, args.horizon, w),
+         dompc_objective=objective(xs_d, us_d, H, w),
          max_abs_diff_knots=float(np.max(np.abs(np.asarray(sol.xs) - xs_d))),
          max_abs_diff_knots_per_state=np.max(np.abs(np.asarray(sol.xs) - xs_d), 0).tolist(),
          max_abs_diff_rates=float(np.max(np.abs(np.asarray(sol.us) - us_d))),
          vehsim_init_plan_vs_solve=float(np.max(np.abs(xs_v - np.asarray(sol.xs)))))
+    # the same problem: vehsim's interior point started from do-mpc's optimum stays there
+    sol2 = interior_point(prob, jnp.asarray(xs_d), jnp.asarray(us_d),
+                          driver.options(first=True), throw=False)
+    emit(comparison="open_loop_vehsim_from_dompc_solution", **common,
+         vehsim_objective=objective(np.asarray(sol2.xs), np.asarray(sol2.us), H, w),
+         vehsim_converged=bool(sol2.converged), vehsim_iterations=int(sol2.iterations),
+         dompc_objective=objective(xs_d, us_d, H, w),
+         max_abs_diff_knots=float(np.max(np.abs(np.asarray(sol2.xs) - xs_d))),
+         max_abs_diff_rates=float(np.max(np.abs(np.asarray(sol2.us) - us_d))))
 
     def dm_command(cs, m):
         return dm.command(cs, m)
