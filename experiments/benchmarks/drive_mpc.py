@@ -17,13 +17,16 @@ seed, the scenario's start speed and time budget).
   transcription), the road's data along the horizon as time-varying parameters set from the
   current station each sample, IPOPT (MUMPS; HSL's MA27 is not in this CasADi build) to the
   same tolerance and iteration cap, warm-started by do-mpc from its previous solution and
-  multipliers, ``store_full_solution`` off, no printing. Per sample, in Python: the
+  multipliers (``--shift``: from the previous plan shifted by the distance travelled, as
+  vehsim's driver does), CasADi's common-subexpression elimination on,
+  ``store_full_solution`` off, no printing. Per sample, in Python: the
   driver's own jitted projection and prediction and the problem's arrays (the same
   functions as vehsim's, so both see identical data), ``mpc.make_step``, and the driver's
   conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`).
 
-Per-sample compute of each controller alone (the plant's step is not timed): p50, p99, mean
-and max; ``ratio`` = do-mpc p50 / vehsim p50 (and the p99 ratio); the closed-loop results
+Per-sample compute of each controller alone (the plant's step is not timed; each drive
+stops once the car is past the road's end): p50, p99, mean and max; ``ratio`` = do-mpc
+p50 / vehsim p50 (and the p99 ratio); the closed-loop results
 (`vehsim.drive_outcome` on the CG's path at every integration step: drive time to the
 end gate, largest distance off the road, completed); the open-loop agreement of the first
 horizon solve (same state, same starting guess): objectives and the largest differences of
