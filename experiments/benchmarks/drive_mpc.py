@@ -1,0 +1,366 @@
+"""Benchmark: vehsim's receding-horizon driver against the same MPC in do-mpc.
+
+Both controllers solve the same horizon problem per sample (`vehsim.HorizonOCP`: the
+reduced half-car in arc length over H m in M stages, one RK4 step per stage, the corridor
+with its margin at the knots and the stages' midpoints, the node constraints, the steering
+rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h) and
+drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "nominal")`
+(the `DrivePlant` with the lumped 2D LuGre tires on the gravel whose peak friction is the
+planner's D = 0.52, the actuators' delay, rate limit and lag, the sensors' noise of the same
+seed, the scenario's start speed and time budget).
+
+- vehsim: `RecedingHorizonDriver` (its jitted ``command``: projection, prediction over the
+  actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
+  with ``block_until_ready`` in a Python loop.
+- do-mpc (`_dompc_driver`): the problem as do-mpc's discrete model with the arc length as
+  the independent variable (``t_step`` = H/M; the same RK4 stage map, so the same
+  transcription), the road's data along the horizon as time-varying parameters set from the
+  current station each sample, IPOPT (MUMPS; HSL's MA27 is not in this CasADi build) to the
+  same tolerance and iteration cap, warm-started by do-mpc from its previous solution and
+  multipliers (``--shift``: from the previous plan shifted by the distance travelled, as
+  vehsim's driver does), CasADi's common-subexpression elimination on,
+  ``store_full_solution`` off, no printing. Per sample, in Python: the
+  driver's own jitted projection and prediction and the problem's arrays (the same
+  functions as vehsim's, so both see identical data), ``mpc.make_step``, and the driver's
+  conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`).
+
+Per-sample compute of each controller alone (the plant's step is not timed; each drive
+stops once the car is past the road's end): p50, p99, mean and max; ``ratio`` = do-mpc
+p50 / vehsim p50 (and the p99 ratio); the closed-loop results
+(`vehsim.drive_outcome` on the CG's path at every integration step: drive time to the
+end gate, largest distance off the road, completed); the open-loop agreement of the first
+horizon solve (same state, same starting guess): objectives and the largest differences of
+the plans. Run on one core:
+
+    taskset -c 0 env OMP_NUM_THREADS=1 \\
+      XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \\
+      PYTHONPATH=. python experiments/benchmarks/drive_mpc.py --out \\
+      experiments/benchmarks/drive_mpc_results.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+jax.config.update("jax_enable_x64", True)
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # also when loaded by path
+import _dompc_driver  # noqa: E402
+
+import vehsim  # noqa: E402
+from vehsim.drive.horizon import profile_guess, shift_plan  # noqa: E402
+from vehsim.drive.metrics import drive_outcome  # noqa: E402
+from vehsim.drive.plant import drive_step, measure_drive  # noqa: E402
+from vehsim.drive.scenarios import drive_scenario  # noqa: E402
+from vehsim.optimal.ip import interior_point  # noqa: E402
+from vehsim.optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR  # noqa: E402
+
+
+SAMPLE_TIME = 0.05
+
+
+def percentiles(times):
+    t = np.asarray(times) * 1e3
+    return {"p50_ms": round(float(np.percentile(t, 50)), 3),
+            "p99_ms": round(float(np.percentile(t, 99)), 3),
+            "mean_ms": round(float(np.mean(t)), 3), "max_ms": round(float(np.max(t)), 3),
+            "samples": int(t.size)}
+
+
+# ---- the do-mpc controller ----------------------------------------------------------------
+
+
+class DompcDriver:
+    """The do-mpc MPC as a drive controller (module docstring), with the vehsim driver
+    ``driver``'s projection, prediction, problem data and command conversion."""
+
+    def __init__(self, driver, shift: bool = False):
+        self.driver = driver
+        self.shift = shift
+        d = driver
+        tire, par = d.vehicle.tire, d.vehicle.params
+        if (float(tire.B), float(tire.C), float(par.m), float(par.Iz), float(par.lF),
+                float(par.lR), float(par.h)) != (7.0, 1.6, 1450.0, 2740.0, 1.3, 1.4, 0.4):
+            raise SystemExit("the do-mpc model (_casadi_maneuver.body_model) is the rally "
+                             "gravel car with B = 7, C = 1.6: the driver plans with another")
+        limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                      DELTA_MAX=float(d.steer_limit))
+        ocp = d.problem(0.0, jnp.zeros(8), jnp.full((d.num_stages,), float(d.nominal_peak)))
+        self.mpc, self.set_horizon = _dompc_driver.horizon_mpc(
+            float(d.horizon), d.num_stages, limits, D=float(d.vehicle.tire.D),
+            rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
+            terminal_sideslip=float(ocp.terminal_sideslip),
+            terminal_heading=float(ocp.terminal_heading), tol=d.tol,
+            max_iter=d.max_iterations, mu_init=float(d.mu0))
+
+        def prepare(s_prev, position, velocity, inputs, m):
+            position, velocity = d.filter_position(
+                SimpleNamespace(position=position, velocity=velocity), m)
+            s, X5 = d._measured_state(m, position, s_prev)
+            y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
+                if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
+            state8 = jnp.concatenate([y[1:], inputs])
+            D = d.planner_friction(y[0], None)
+            prob = d.problem(y[0], state8, D)
+            return s, position, velocity, y[0], state8, D, (
+                prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
+                prob.terminal_speed)
+
+        def finish(xs, us, D0, inputs_prev, m):
+            inputs, torques = d.plan_command(xs, us, D0)
+            torques = torques + d.slip_gain * (inputs_prev[:2] - d.measured_slip(m))
+            return inputs, jnp.concatenate([torques, inputs[2:]])
+
+        self._prepare = jax.jit(prepare)
+        self._finish = jax.jit(finish)
+        self._shift = jax.jit(lambda xs, us, dist: shift_plan(xs, us, dist, d.horizon))
+        self.make_step_times = []
+        self.iterations = []
+        self.success = []
+
+    def _solve(self, state8, tvp_arrays):
+        self.set_horizon(_dompc_driver.tvp_table(*(np.asarray(a) for a in tvp_arrays)))
+        x0 = np.concatenate([np.asarray(state8), [0.0]])
+        t0 = time.perf_counter()
+        self.mpc.make_step(x0)
+        self.make_step_times.append(time.perf_counter() - t0)
+        stats = self.mpc.solver_stats
+        self.iterations.append(int(stats["iter_count"]))
+        self.success.append(bool(stats["success"]))
+        return _dompc_driver.plan(self.mpc)
+
+    def first_problem(self, m):
+        """The first sample's station, inputs, problem and starting guess (as
+        `RecedingHorizonDriver.init`)."""
+        d = self.driver
+        d2 = (d.table.x - m.x) ** 2 + (d.table.y - m.y) ** 2
+        s_guess = d.table.s[jnp.argmin(d2)]
+        inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
+        s, X5 = d._measured_state(m, jnp.stack([m.x, m.y]), s_guess)
+        state8 = jnp.concatenate([X5, inputs])
+        D = d.planner_friction(s, None)
+        prob = d.problem(s, state8, D)
+        guess = profile_guess(d.table, d.vehicle, s, state8, D, horizon=d.horizon)
+        return s, inputs, state8, prob, guess
+
+    def init(self, m):
+        """The first plan, from `profile_guess`, re-solved until IPOPT converges (at most 5
+        calls of ``max_iter`` iterations; untimed, as vehsim's `init`)."""
+        s, inputs, state8, prob, (xs0, us0) = self.first_problem(m)
+        _dompc_driver.set_guess(self.mpc, xs0, us0)
+        arrays = (prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
+                  prob.terminal_speed)
+        for _ in range(5):
+            xs, us = self._solve(state8, arrays)
+            if self.success[-1]:
+                break
+        self.make_step_times.clear()
+        self.iterations.clear()
+        self.success.clear()
+        # compile the jitted pieces now (vehsim's command is compiled before its loop too)
+        position, velocity = jnp.stack([m.x, m.y]), self.driver._world_velocity(m)
+        jax.block_until_ready(self._prepare(s, position, velocity, inputs, m))
+        jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
+                                           inputs, m))
+        if self.shift:
+            jax.block_until_ready(self._shift(jnp.asarray(xs), jnp.asarray(us), 0.0))
+        return {"s": s, "position": position, "velocity": velocity, "s_plan": s,
+                "inputs": inputs, "xs": xs, "us": us}
+
+    def command(self, cs, m):
+        s, position, velocity, s_pred, state8, D, arrays = self._prepare(
+            cs["s"], cs["position"], cs["velocity"], cs["inputs"], m)
+        if self.shift:
+            xs0, us0 = self._shift(jnp.asarray(cs["xs"]), jnp.asarray(cs["us"]),
+                                   s_pred - cs["s_plan"])
+            _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
+        xs, us = self._solve(state8, arrays)
+        inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
+        return {"s": s, "position": position, "velocity": velocity, "s_plan": s_pred,
+                "inputs": inputs, "xs": xs, "us": us}, command
+
+
+# ---- the closed loop ----------------------------------------------------------------------
+
+
+def closed_loop(command, cs, plant, state0, m0, key, num_samples, step, table):
+    """Drive at most ``num_samples`` samples in a Python loop, until the CG is past the road's
+    end (arc length L on ``table``); the controller's ``command(cs, m)`` alone is timed (its
+    outputs blocked on). Returns the per-sample times and the CG's path ``(t, x, y)`` at
+    every integration step, the start first (as `vehsim.drive_path`)."""
+    state, m = state0, m0
+    S = plant.substeps
+    times, t, xy = [], [0.0], [np.asarray(state0.car[:2])[None]]
+    station = jax.jit(lambda car, sg: table.to_frenet(car[0], car[1], car[2], sg)[0])
+    s = 0.0
+    for k in range(num_samples):
+        t0 = time.perf_counter()
+        cs, cmd = command(cs, m)
+        cmd = jax.block_until_ready(cmd)
+        times.append(time.perf_counter() - t0)
+        state, m, poses = step(plant, state, cmd, jax.random.fold_in(key, k + 1))
+        t.extend(SAMPLE_TIME * (k + np.arange(1, S + 1) / S))
+        xy.append(np.asarray(poses))
+        s = float(station(state.car, s))
+        if not np.all(np.isfinite(xy[-1])) or s > float(table.length):
+            break
+    xy = np.concatenate(xy)
+    return times, (np.array(t), xy[:, 0], xy[:, 1])
+
+
+def drive_result(road, path):
+    """Drive time to the end gate, the CG's largest distance off the road (every integration
+    step), completed (`vehsim.drive_outcome`)."""
+    out = drive_outcome(road, *path)
+    return {"drive_time_s": out.time, "max_off_road_m": out.max_off_road,
+            "completed": out.completed}
+
+
+def objective(xs, us, H, w):
+    M = us.shape[0]
+    return float(xs[-1, 8] + w * H / M * np.sum(np.asarray(us) ** 2))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--road", default="corner90")
+    ap.add_argument("--speed", type=float, default=None,
+                    help="initial speed [m/s] (default: the scenario's)")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="samples to drive (default: the scenario's time budget)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--horizon", type=float, default=None,
+                    help="horizon H [m] (default: the driver's)")
+    ap.add_argument("--stages", type=int, default=None,
+                    help="stages M (default: the driver's)")
+    ap.add_argument("--modes", default="converged,rti", help="vehsim modes to run")
+    ap.add_argument("--shift", action="store_true",
+                    help="warm-start do-mpc from its plan shifted by the distance travelled "
+                         "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
+    ap.add_argument("--out", default=None, help="append the JSON lines to this file")
+    args = ap.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    load_before = os.getloadavg()
+
+    sc = drive_scenario(args.road, "nominal", start_speed=args.speed)
+    road, plant, table, state0 = sc.road, sc.plant, sc.table, sc.state0
+    num_samples = sc.num_samples if args.samples is None else args.samples
+    key = jax.random.PRNGKey(args.seed)
+    m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
+    step = jax.jit(lambda p, st, c, k: drive_step(p, st, c, k, substep_poses=True))
+    rows = []
+
+    def emit(**row):
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+    sizes = {k: v for k, v in (("horizon", args.horizon), ("num_stages", args.stages))
+             if v is not None}
+    probe = vehsim.RecedingHorizonDriver(table=table, **sizes)
+    H, M = float(probe.horizon), probe.num_stages
+    common = dict(road=args.road, horizon_m=H, stages=M,
+                  sample_time_s=SAMPLE_TIME, initial_speed=float(sc.start_speed),
+                  grip="nominal", seed=args.seed, samples_budget=num_samples)
+    results = {}
+    for mode in args.modes.split(","):
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes)
+        init = jax.jit(lambda m, d=driver: d.init(m))
+        command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
+        t0 = time.perf_counter()
+        cs = jax.block_until_ready(init(m0))
+        t_init = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(command(cs, m0))
+        t_compile = time.perf_counter() - t0
+        infos = []
+
+        def timed(cs, m, command=command):
+            cs, cmd = command(cs, m)
+            infos.append(cs)
+            return cs, cmd
+
+        times, path = closed_loop(timed, cs, plant, state0, m0, key, num_samples, step,
+                                  table)
+        its = np.array([int(c.iterations) for c in infos])
+        conv = np.array([bool(c.converged) for c in infos])
+        res = drive_result(road, path)
+        results[mode] = (driver, cs, percentiles(times))
+        emit(controller=f"vehsim-{mode}", **common, **percentiles(times),
+             real_time_factor_p99=round(SAMPLE_TIME / np.percentile(times, 99), 2),
+             iterations_mean=round(float(its.mean()), 2), iterations_max=int(its.max()),
+             converged_fraction=round(float(conv.mean()), 3),
+             init_and_compile_s=round(t_init, 2), command_compile_s=round(t_compile, 2), **res)
+
+    # do-mpc, with the converged-mode driver's settings (same tolerance and iteration cap)
+    driver, cs_v, p_v = results.get("converged", next(iter(results.values())))
+    t0 = time.perf_counter()
+    dm = DompcDriver(driver, shift=args.shift)
+    t_setup = time.perf_counter() - t0
+    cs = dm.init(m0)
+    # open-loop agreement of the first horizon solve: same state, same guess
+    xs_v, xs_d, us_d = np.asarray(cs_v.xs), np.asarray(cs["xs"]), np.asarray(cs["us"])
+    _, _, _, prob, guess = dm.first_problem(m0)
+    sol = interior_point(prob, *guess, driver.options(first=True), throw=False)
+    w = float(driver.rate_weight)
+    emit(comparison="open_loop_first_solve", **common,
+         vehsim_objective=objective(np.asarray(sol.xs), np.asarray(sol.us), H, w),
+         vehsim_objective_reported=float(sol.objective),
+         vehsim_converged=bool(sol.converged), vehsim_iterations=int(sol.iterations),
+         dompc_objective=objective(xs_d, us_d, H, w),
+         max_abs_diff_knots=float(np.max(np.abs(np.asarray(sol.xs) - xs_d))),
+         max_abs_diff_knots_per_state=np.max(np.abs(np.asarray(sol.xs) - xs_d), 0).tolist(),
+         max_abs_diff_rates=float(np.max(np.abs(np.asarray(sol.us) - us_d))),
+         vehsim_init_plan_vs_solve=float(np.max(np.abs(xs_v - np.asarray(sol.xs)))))
+    # the same problem: vehsim's interior point started from do-mpc's optimum stays there
+    sol2 = interior_point(prob, jnp.asarray(xs_d), jnp.asarray(us_d),
+                          driver.options(first=True), throw=False)
+    emit(comparison="open_loop_vehsim_from_dompc_solution", **common,
+         vehsim_objective=objective(np.asarray(sol2.xs), np.asarray(sol2.us), H, w),
+         vehsim_converged=bool(sol2.converged), vehsim_iterations=int(sol2.iterations),
+         dompc_objective=objective(xs_d, us_d, H, w),
+         max_abs_diff_knots=float(np.max(np.abs(np.asarray(sol2.xs) - xs_d))),
+         max_abs_diff_rates=float(np.max(np.abs(np.asarray(sol2.us) - us_d))))
+
+    def dm_command(cs, m):
+        return dm.command(cs, m)
+
+    times, path = closed_loop(dm_command, cs, plant, state0, m0, key, num_samples, step,
+                              table)
+    res = drive_result(road, path)
+    p_d = percentiles(times)
+    emit(controller="do-mpc", **common, **p_d,
+         make_step=percentiles(dm.make_step_times),
+         iterations_mean=round(float(np.mean(dm.iterations)), 2),
+         iterations_max=int(np.max(dm.iterations)),
+         converged_fraction=round(float(np.mean(dm.success)), 3),
+         setup_s=round(t_setup, 2), warm_start="shifted" if args.shift else "do-mpc",
+         linear_solver="mumps", do_mpc=__import__("do_mpc").__version__,
+         casadi=__import__("casadi").__version__, **res)
+    for mode, (_, _, p) in results.items():
+        emit(ratio_against=f"vehsim-{mode}", **common,
+             ratio=round(p_d["p50_ms"] / p["p50_ms"], 2),
+             ratio_p99=round(p_d["p99_ms"] / p["p99_ms"], 2))
+    emit(note="machine", load_average_before=[round(v, 2) for v in load_before],
+         load_average_after=[round(v, 2) for v in os.getloadavg()],
+         cpu_affinity=sorted(os.sched_getaffinity(0)), cpu_count=os.cpu_count(),
+         xla_flags=os.environ.get("XLA_FLAGS", ""), date=time.strftime("%Y-%m-%d %H:%M UTC",
+                                                                       time.gmtime()))
+    if args.out:
+        with open(args.out, "a") as f:
+            for row in rows:
+                f.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()

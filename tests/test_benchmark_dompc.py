@@ -1,0 +1,50 @@
+"""The do-mpc peer of the receding-horizon benchmark (experiments/benchmarks/drive_mpc.py)
+writes its own CasADi model of the horizon: its stage map must be vehsim's."""
+
+import sys
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vehsim.optimal.curvilinear import _rk4_steps, spatial_rhs
+from vehsim.optimal.primitives import rally_gravel_car
+
+
+ca = pytest.importorskip("casadi")
+sys.path.insert(0, str(Path(__file__).parent.parent / "experiments" / "benchmarks"))
+import _dompc_driver  # noqa: E402
+
+
+def _random_points(rng, count):
+    """States (n, xi, vx, vy, r, kappa_F, kappa_R, delta, t) of a car driving forward."""
+    lo = np.array([-0.8, -0.3, 3.0, -1.5, -1.0, -0.3, -0.3, -0.5, 0.0])
+    hi = np.array([0.8, 0.3, 25.0, 1.5, 1.0, 0.3, 0.3, 0.5, 5.0])
+    X = rng.uniform(lo, hi, (count, 9))
+    v = rng.normal(0.0, 0.05, (count, 3))
+    kap = rng.uniform(-0.25, 0.25, (count, 3))
+    D = rng.uniform(0.3, 1.1, count)
+    return X, v, kap, D
+
+
+def test_casadi_horizon_model_is_spatial_rhs():
+    """`spatial_rate` (CasADi) equals `spatial_rhs` (eqs. 61-63 in the road's frame) of
+    `rally_gravel_car(D)` at random states, rates, curvatures and frictions, and one
+    `rk4_step` equals vehsim's RK4 stage map with the curvature at the step's start,
+    middle and end (the do-mpc model's discrete dynamics)."""
+    X, v, kap, D = _random_points(np.random.default_rng(0), 16)
+    h = 1.0
+    for x, u, k, d in zip(X, v, kap, D):
+        car = rally_gravel_car(float(d))
+        rate, _, _ = _dompc_driver.spatial_rate(ca.DM(x), ca.DM(u), float(k[0]), float(d))
+        np.testing.assert_allclose(np.asarray(rate).ravel(),
+                                   np.asarray(spatial_rhs(car, jnp.asarray(x), jnp.asarray(u),
+                                                          k[0])),
+                                   rtol=1e-10, atol=1e-12)
+        step = _dompc_driver.rk4_step(ca.DM(x), ca.DM(u), tuple(float(c) for c in k),
+                                      float(d), h)
+        ref, _ = _rk4_steps(lambda x_, u_, k_: spatial_rhs(car, x_, u_, k_), jnp.asarray(x),
+                            jnp.asarray(u), h, jnp.asarray(k)[None])
+        np.testing.assert_allclose(np.asarray(step).ravel(), np.asarray(ref),
+                                   rtol=1e-10, atol=1e-12)
