@@ -1,0 +1,223 @@
+"""`vehsim drive`: a short drive writes the JSON with its documented fields and units, the
+figure and the animation (one frame per `--frame-every` samples, and the last), the
+controller timed sample by sample issues the drive's own commands, the truth the record
+reports is the grip the options ask for; every bad option ends with exit 2 naming it, no
+traceback and nothing written; the figure's footprints and the animation's frames are
+where the drive put them."""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+from vehsim import cli
+from vehsim.plot import animation_frames, drive_animation, drive_figure, drive_trace
+
+
+pytestmark = pytest.mark.xdist_group("drive")
+
+PNG = b"\x89PNG\r\n\x1a\n"
+GIF = (b"GIF87a", b"GIF89a")
+SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
+DURATION, EVERY = 1.5, 4
+KEYS = {"road", "length", "closed", "controller", "mode", "completed", "drive_time",
+        "max_distance_off_road", "sample_time", "duration", "nominal_scale", "nominal_D",
+        "compute_time", "real_time_factor", "commands_replayed_max_difference", "estimate",
+        "planner_D", "truth", "trajectory", "settings", "wall_time_s", "units"}
+
+
+def _run(argv, capsys):
+    try:
+        code = cli.main(["--no-compilation-cache", *map(str, argv)])
+    except SystemExit as e:  # argparse's own errors
+        code = e.code
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def road_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("road") / "bend.csv"
+    vs.write_road(path, vs.CentrelineRoad.from_segments(SEGMENTS, 6.0, name="bend"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def drive(road_file, tmp_path_factory):
+    """One short drive on the command line: (output folder, its record, stderr)."""
+    out = tmp_path_factory.mktemp("drive")
+    code = cli.main(["--no-compilation-cache", "drive", "--road-file", str(road_file),
+                     "--controller", "tracking", "--grip", "0.8", "--duration", str(DURATION),
+                     "--frame-every", str(EVERY), "--seed", "3", "--out", str(out)])
+    assert code == 0
+    return out, json.loads((out / "drive.json").read_text())
+
+
+def test_drive_writes_the_documented_record_figure_and_animation(drive):
+    out, rec = drive
+    assert set(rec) == KEYS
+    n = round(DURATION / 0.05)
+    assert len(rec["trajectory"]["t"]) == n and rec["duration"] == pytest.approx(DURATION)
+    assert rec["road"] == "bend" and rec["controller"] == "tracking" and rec["mode"] is None
+    assert rec["settings"]["seed"] == 3 and rec["settings"]["grip"] == 0.8
+    assert rec["estimate"] is None  # only the rh controller runs the estimator
+    for key in ("max_distance_off_road", "compute_time.p50", "compute_time.p99",
+                "trajectory.x"):
+        assert key in rec["units"], key
+    ct = rec["compute_time"]
+    assert ct["samples"] == n - 1 and 0 < ct["p50"] <= ct["p99"] <= ct["max"]
+    assert rec["real_time_factor"] == pytest.approx(ct["p50"] / 0.05)
+    # the controller compiled apart and run on the recorded measurements issued the commands
+    # that drove
+    assert rec["commands_replayed_max_difference"] == 0.0
+    assert (out / "drive.png").read_bytes()[:8] == PNG
+    gif = out / "drive.gif"
+    assert gif.read_bytes()[:6] in GIF
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.n_frames == len(animation_frames(n, EVERY)) == math.ceil(n / EVERY) + 1
+    assert sorted(p.name for p in out.iterdir()) == ["drive.gif", "drive.json", "drive.png"]
+
+
+def test_the_record_reports_the_grip_asked_for(drive):
+    """--grip 0.8 of the nominal road: the true peak under both axles is 0.8 D = 0.416 (the
+    nominal scale computed from the tire's peak, not typed)."""
+    _, rec = drive
+    peak = np.asarray(rec["truth"]["peak"])
+    assert peak.shape == (len(rec["trajectory"]["t"]), 2)
+    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-9)
+    assert rec["nominal_scale"] * float(vs.AxleGripEstimator().peak(1.0)) == pytest.approx(0.52)
+
+
+BAD = {
+    "unknown road": (["--road", "moon"], "--road"),
+    "no road": ([], "--road"),
+    "closed without a file": (["--road", "corner90", "--closed"], "--closed"),
+    "missing road file": (["--road-file", "{tmp}/missing.csv"], "missing.csv"),
+    "zero grip": (["--road", "corner90", "--grip", "0"], "--grip"),
+    "nan grip": (["--road", "corner90", "--grip", "nan"], "--grip"),
+    "too much grip": (["--road", "corner90", "--grip", "4"], "--grip"),
+    "patch of three numbers": (["--road", "corner90", "--patch", "1,2,3"], "--patch"),
+    "patch of no radius": (["--road", "corner90", "--patch", "1,2,0,0.5"], "--patch"),
+    "patch of no grip": (["--road", "corner90", "--patch", "1,2,3,0"], "--patch"),
+    "patch not a number": (["--road", "corner90", "--patch", "1,a,3,0.5"], "--patch"),
+    "patch off the road": (["--road", "corner90", "--patch", "500,500,5,0.5"], "--patch"),
+    "unknown controller": (["--road", "corner90", "--controller", "pid"], "--controller"),
+    "unknown mode": (["--road", "corner90", "--mode", "fast"], "--mode"),
+    "mode without rh": (["--road", "corner90", "--controller", "tracking", "--mode", "rti"],
+                        "--mode"),
+    "negative seed": (["--road", "corner90", "--seed", "-1"], "--seed"),
+    "zero duration": (["--road", "corner90", "--duration", "0"], "--duration"),
+    "endless duration": (["--road", "corner90", "--duration", "inf"], "--duration"),
+    "unknown animation format": (["--road", "corner90", "--animation-format", "avi"],
+                                 "--animation-format"),
+    "format without animation": (["--road", "corner90", "--no-animation",
+                                  "--animation-format", "gif"], "--animation-format"),
+    "no frames": (["--road", "corner90", "--frame-every", "0"], "--frame-every"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_option_exits_2_naming_it_and_writes_nothing(case, tmp_path, capsys, monkeypatch):
+    argv, option = BAD[case]
+    monkeypatch.chdir(tmp_path)
+    argv = ["drive", *(a.format(tmp=tmp_path) for a in argv), "--out", str(tmp_path / "out")]
+    code, err = _run(argv, capsys)
+    assert code == 2, err
+    assert option in err, err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.rglob("*")) == [], "a file was written"
+
+
+def test_mp4_without_ffmpeg_is_refused_before_driving(tmp_path, capsys, monkeypatch):
+    from matplotlib import animation
+
+    monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
+    code, err = _run(["drive", "--road", "corner90", "--animation-format", "mp4", "--out",
+                      tmp_path / "out"], capsys)
+    assert code == 2 and "--animation-format mp4" in err and "ffmpeg" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    """A drive of 13 samples on a bend with an icy patch, the estimator on."""
+    road = vs.CentrelineRoad.from_segments(SEGMENTS, 6.0, name="bend")
+    plant = vs.DrivePlant(grip=vs.GripPatches(centres=jnp.array([[8.0, 0.0]]),
+                                              radii=jnp.array([3.0]),
+                                              scales=jnp.array([0.2]), base=0.5))
+    driver = vs.PathFollower(curvature=1 / 25, torque=jnp.array([0.0, 200.0]))
+    run = jax.jit(lambda k: vs.simulate_drive(plant, driver, vs.init_drive(plant, vx=10.0), k,
+                                              13, estimator=vs.AxleGripEstimator()))(
+        jax.random.key(0))
+    return road, plant, run
+
+
+@pytest.mark.parametrize("every", [1, 4, 13])
+def test_animation_has_one_frame_per_subsample(small_run, tmp_path, every):
+    from PIL import Image
+
+    road, plant, run = small_run
+    path = tmp_path / "a.gif"
+    frames = drive_animation(road, run, path, plant, every=every, dpi=30)
+    expected = sorted(set(range(0, 13, every)) | {12})
+    assert animation_frames(13, every) == expected
+    with Image.open(path) as im:
+        assert frames == im.n_frames == len(expected)
+
+
+def test_figure_footprints_sit_at_the_poses(small_run):
+    """Each footprint drawn is a 4.2 m x 1.8 m rectangle centred on a sample's centre of
+    gravity, its long side along that sample's heading."""
+    import matplotlib.pyplot as plt
+
+    road, plant, run = small_run
+    fig = drive_figure(road, run, plant, every=3)
+    car = np.asarray(run.states.car)
+    feet = [p.get_xy()[:4] for a in fig.axes for p in a.patches if p.get_gid() == "footprint"]
+    assert len(feet) == len(range(0, 13, 3)) + (12 % 3 != 0)
+    for k, corners in zip(sorted(set(range(0, 13, 3)) | {12}), feet):
+        np.testing.assert_allclose(corners.mean(axis=0), car[k, :2], atol=1e-9)
+        long_side = corners[0] - corners[3]
+        np.testing.assert_allclose(np.hypot(*long_side), 4.2, rtol=1e-12)
+        np.testing.assert_allclose(np.hypot(*(corners[0] - corners[1])), 1.8, rtol=1e-12)
+        np.testing.assert_allclose(np.arctan2(long_side[1], long_side[0]), car[k, 2],
+                                   atol=1e-12)
+    plt.close(fig)
+
+
+def test_trace_truth_and_planned_horizon(small_run):
+    """The truth under each axle is the grip field at the axle's contact point times the
+    tire's peak; a planned horizon (s, n) is drawn at the road's c(s) + n N(s)."""
+    road, plant, run = small_run
+    info = {"horizon_s": np.linspace(0, 20, 13 * 5).reshape(13, 5),
+            "horizon_n": np.full((13, 5), 0.7), "D": np.full((13, 5), 0.4)}
+    run = eqx_with_info(run, info)
+    tr = drive_trace(road, run, plant, nominal_peak=1.5)
+    car = np.asarray(run.states.car)
+    lF = float(plant.params.lF)
+    xF = car[:, 0] + lF * np.cos(car[:, 2])
+    yF = car[:, 1] + lF * np.sin(car[:, 2])
+    np.testing.assert_allclose(tr["peak_true"][:, 0],
+                               1.5 * np.asarray(plant.grip.scale_at(xF, yF)), rtol=1e-12)
+    assert tr["peak_true"][:, 0].min() < 0.5 < 0.7 < tr["peak_true"][:, 0].max()  # the patch
+    s, n = info["horizon_s"], info["horizon_n"]
+    cx, cy = road.position(s)
+    th = road.heading(s)
+    np.testing.assert_allclose(tr["horizon_x"], cx - 0.7 * np.sin(th), atol=1e-9)
+    np.testing.assert_allclose(tr["horizon_y"], cy + 0.7 * np.cos(th), atol=1e-9)
+    np.testing.assert_allclose(tr["planner_D"], 0.4)
+
+
+def eqx_with_info(run, info):
+    """`run` with `controller_info` (a plain object: the drive's record may not carry it)."""
+    class WithInfo:
+        def __init__(self, run, info):
+            self.__dict__.update({f: getattr(run, f) for f in
+                                  ("states", "measurements", "commands", "estimates", "final")})
+            self.controller_info = info
+    return WithInfo(run, info)
