@@ -208,8 +208,8 @@ def test_trace_truth_and_planned_horizon(small_run):
     s, n = info["horizon_s"], info["horizon_n"]
     cx, cy = road.position(s)
     th = road.heading(s)
-    np.testing.assert_allclose(tr["horizon_x"], cx - 0.7 * np.sin(th), atol=1e-9)
-    np.testing.assert_allclose(tr["horizon_y"], cy + 0.7 * np.cos(th), atol=1e-9)
+    np.testing.assert_allclose(tr["horizon_x"], cx - n * np.sin(th), atol=1e-9)
+    np.testing.assert_allclose(tr["horizon_y"], cy + n * np.cos(th), atol=1e-9)
     np.testing.assert_allclose(tr["planner_D"], 0.4)
 
 
