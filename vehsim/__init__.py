@@ -388,6 +388,15 @@ from .drive.grip import (
     UniformGrip as UniformGrip,
     scale_friction as scale_friction,
 )
+from .drive.horizon import (
+    HorizonOCP as HorizonOCP,
+    HorizonState as HorizonState,
+    RecedingHorizonDriver as RecedingHorizonDriver,
+    RoadTable as RoadTable,
+    horizon_problem as horizon_problem,
+    profile_guess as profile_guess,
+    shift_plan as shift_plan,
+)
 from .drive.plant import (
     DrivePlant as DrivePlant,
     DriveState as DriveState,

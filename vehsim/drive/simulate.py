@@ -122,15 +122,17 @@ class CommandSchedule(AbstractDriveController):
 
 class DriveRun(eqx.Module):
     """A drive, sample by sample (leading axis: samples $1..N$): the plant `states`
-    (`DriveState`), the `measurements`, the `commands` issued before each sample, and the
+    (`DriveState`), the `measurements`, the `commands` issued before each sample, the
     estimator's `estimates` (`GripEstimate`, None without an estimator); `final`: the plant
-    state at the end."""
+    state at the end; `controller_info`: the controller's `info(state)` after each command
+    (None for a controller without `info`)."""
 
     states: DriveState
     measurements: DriveMeasurement
     commands: Float[Array, "N 3"]
     estimates: PyTree
     final: DriveState
+    controller_info: PyTree = None
 
 
 def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state0: DriveState,
@@ -139,21 +141,24 @@ def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state
     sensor noise of sample $k$ drawn from ``fold_in(key, k)`` (module docstring).
 
     `estimator`: an `AbstractGripEstimator` run on the measurements; the controller gets
-    its `estimate` before each command."""
+    its `estimate` before each command. A controller with an `info(state)` method has it
+    recorded after each command (`DriveRun.controller_info`)."""
     m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
     c0 = controller.init(m0)
     e0 = None if estimator is None else estimator.init(m0)
+    info = getattr(controller, "info", None)
 
     def sample(carry, k):
         state, m, cs, es = carry
         estimate = None if estimator is None else estimator.estimate(es)
         cs, command = controller.command(cs, m, estimate)
+        record = None if info is None else info(cs)
         state, m = drive_step(plant, state, command, jax.random.fold_in(key, k + 1))
         if estimator is not None:
             es = estimator.update(es, m)
             estimate = estimator.estimate(es)
-        return (state, m, cs, es), (state, m, command, estimate)
+        return (state, m, cs, es), (state, m, command, estimate, record)
 
-    (final, _, _, _), (states, ms, commands, estimates) = jax.lax.scan(
+    (final, _, _, _), (states, ms, commands, estimates, infos) = jax.lax.scan(
         sample, (state0, m0, c0, e0), jnp.arange(num_samples))
-    return DriveRun(states, ms, commands, estimates, final)
+    return DriveRun(states, ms, commands, estimates, final, infos)

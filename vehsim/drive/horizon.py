@@ -1,0 +1,695 @@
+r"""The receding-horizon driver: the reduced half-car (eqs. 61-63) planned over a moving
+window of the road in arc length, re-solved every control sample, driving the full
+half-car plant (eqs. 49-60).
+
+**The road as arrays.** `RoadTable` samples a centre-line road at a fixed spacing $\Delta$:
+arc length $s_j$, centre point $c(s_j)$, heading $\theta(s_j)$, curvature $\kappa(s_j)$,
+widths $w_l, w_r$, the friction-limited speed $v_1(s)$ of unit peak friction
+(`speed_profile` with $D = 1$) and a peak friction $D(s)$ along the road. Between samples
+the centre line is the cubic Hermite interpolant of the points and unit tangents
+($C^1$, error $O(\Delta^4\kappa^3)$), the other columns are linear. An open road is extended
+by straights of its end widths before its start and past its end (a horizon may reach
+beyond the end gate); a closed one is periodic. The projection of a pose
+(`RoadTable.to_frenet`) is a search over the samples near a guess followed by Newton's
+method on $(p - c(s))\cdot c'(s) = 0$: a few fixed steps, so it is `jit`/`vmap`-able and
+differentiable.
+
+**The horizon problem** (`HorizonOCP`, built by `horizon_problem` from arrays only): the
+arc-length problem of `CurvilinearManeuverOCP` (knots $X = (n, \xi, v_x, v_y, r, \kappa_F,
+\kappa_R, \delta, t)$, controls $u = d(\kappa_F, \kappa_R, \delta)/ds$, one RK4 step per
+stage) on $[s_0, s_0 + H]$ with $M$ stages,
+
+$$\min\ t(H) + w\sum_k |u_k|^2 h\quad\text{s.t.}\quad X_0[0{:}8] = \hat X,\ t_0 = 0,\quad
+  -w_r + m \le n \le w_l - m,\quad |u_\delta\,\dot s| \le \dot\delta_{max},\quad
+  |v(H)| \le \beta\sqrt{D}\,v_1(s_0 + H),\ |v_y(H)| \le \sigma v_x(H),\
+  |\xi(H)| \le \xi_{max},$$
+
+$\hat X$ the current (predicted) state, the corridor at the knots and the stages'
+midpoints, the speed floor and slip and steering bounds at the knots, and the terminal
+bound: the friction-limited speed profile scales exactly with $\sqrt D$, so a plan that
+ends below it can always brake for what lies beyond the horizon. Stage $k$'s tire has the
+peak $D_k$ = `grip`$_k\cdot D$ (the per-stage friction of the planner).
+
+**The controller** (`RecedingHorizonDriver`) per sample: project the measured pose, predict
+it over the actuator delay with the reduced model and the inputs already on their way,
+shift the previous plan by the distance travelled (interpolated in $s$), solve by
+`interior_point` from it, and apply the plan's first inputs: the steering angle directly,
+the axle torques from the planned slips through the wheel equations 52-53,
+$T_i = I_i\dot\omega_i + r f_{ix}$ (`ReducedHalfCar.recover_torques`), plus a feedback on
+the slip error measured from the wheel speeds and the ground velocity.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._checks import check_positive
+from .._fields import array_field
+from .._math import wrap_angle
+from ..optimal.curvilinear import (
+    SPEED_CAP,
+    CurvilinearManeuverOCP,
+    _rk4_steps,
+    spatial_rhs,
+    speed_profile,
+)
+from ..optimal.ip import IPOptions, IPSolution, interior_point
+from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
+from ..vehicle.reduced import ReducedHalfCar
+from .sensors import DriveMeasurement
+from .simulate import AbstractDriveController
+
+
+EXTENSION = 60.0
+"""Length [m] of the straight that extends an open road past its end in a `RoadTable`."""
+BACK_EXTENSION = 5.0
+"""Length [m] of the straight before an open road's start in a `RoadTable`."""
+SEARCH_DISTANCE = 4.0
+"""Distance [m] on each side of the guess over which `RoadTable.to_frenet` compares
+samples."""
+NEWTON_STEPS = 4
+"""Newton steps of `RoadTable.to_frenet` after the search."""
+
+
+# ---- the road as arrays -----------------------------------------------------------------
+
+
+def _hermite3(t, h, p0, m0, m1, p1):
+    """Cubic Hermite on t in [0, 1] (interval length h): value and first two s-derivatives."""
+    t2, t3 = t * t, t * t * t
+    v = ((2 * t3 - 3 * t2 + 1) * p0 + (t3 - 2 * t2 + t) * h * m0 + (-2 * t3 + 3 * t2) * p1
+         + (t3 - t2) * h * m1)
+    d = ((6 * t2 - 6 * t) * p0 + (3 * t2 - 4 * t + 1) * h * m0 + (-6 * t2 + 6 * t) * p1
+         + (3 * t2 - 2 * t) * h * m1) / h
+    dd = ((12 * t - 6) * p0 + (6 * t - 4) * h * m0 + (-12 * t + 6) * p1
+          + (6 * t - 2) * h * m1) / (h * h)
+    return v, d, dd
+
+
+class RoadTable(eqx.Module):
+    r"""A centre-line road sampled at a fixed spacing (module docstring), as arrays.
+
+    **Fields** (each sample column shape (N,)): `start` $s$ of the first sample [m] (open
+    roads: $-$`BACK_EXTENSION`), `spacing` $\Delta$ [m], `length` $L$ [m] (an array, so
+    tables of different roads of the same `num_points` batch in one `vmap`), the columns `s`,
+    `x`, `y`, `heading` (unwrapped), `curvature`, `width_left`, `width_right`,
+    `speed_limit` ($v_1$: `speed_profile` with $D = 1$ and all the friction), `peak` (the
+    peak friction $D(s)$ along the road: the true grip for the planner's oracle, see
+    `with_grip`); `closed` and `search_points` (static).
+
+    The interpolated centre line is within $10^{-4}$ m of the road's at the default spacing
+    of 0.1 m where the curvature jumps (joined segments; $O(\Delta^2\,|[\kappa]|)$), far
+    closer elsewhere.
+
+    Build it with `RoadTable.from_road`. Arc lengths given to the methods are wrapped
+    (`wrap`): modulo $L$ on a closed road, clipped to the table on an open one.
+    """
+
+    start: Float[Array, ""]
+    spacing: Float[Array, ""]
+    length: Float[Array, ""]
+    s: Float[Array, " N"]
+    x: Float[Array, " N"]
+    y: Float[Array, " N"]
+    heading: Float[Array, " N"]
+    curvature: Float[Array, " N"]
+    width_left: Float[Array, " N"]
+    width_right: Float[Array, " N"]
+    speed_limit: Float[Array, " N"]
+    peak: Float[Array, " N"]
+    closed: bool = eqx.field(static=True, default=False)
+    search_points: int = eqx.field(static=True, default=16)
+
+    @classmethod
+    def from_road(cls, road, spacing: float = 0.1, num_points: int | None = None, *,
+                  peak: float = 0.52, extension: float = EXTENSION) -> RoadTable:
+        """The table of ``road`` (a `CentrelineRoad`) at ``spacing`` [m] (a closed road:
+        the nearest spacing that divides its length). ``num_points``: the number of samples
+        (default: just enough); more pad the table (an open road's end straight grows, a
+        closed road repeats its last sample), fewer are refused. ``peak``: the constant
+        peak friction column (`with_grip` sets a varying one); ``extension`` [m]: the
+        straight past an open road's end (at least the horizon)."""
+        spacing = float(spacing)
+        if not (math.isfinite(spacing) and spacing > 0):
+            raise ValueError(f"RoadTable.from_road: spacing must be > 0 m, got {spacing}")
+        L = float(road.length)
+        closed = bool(getattr(road, "closed", False))
+        if closed:
+            K = max(2, int(math.ceil(L / spacing)))
+            spacing = L / K
+            need = K + 1
+            start = 0.0
+        else:
+            start = -BACK_EXTENSION
+            need = int(math.ceil((L + BACK_EXTENSION + float(extension)) / spacing)) + 1
+        N = need if num_points is None else int(num_points)
+        if N < need:
+            raise ValueError(f"RoadTable.from_road: num_points={num_points} is too few for "
+                             f"road {getattr(road, 'name', '')!r}: it needs {need} at spacing "
+                             f"{spacing:g} m")
+        s = start + spacing * np.arange(N)
+        _, v1 = speed_profile(road, 1.0, 1.0, start_speed=SPEED_CAP, points=4000)
+        s_prof = np.linspace(0.0, L, len(v1))
+        if closed:
+            sc = np.minimum(s, L)
+            sc[need:] = L
+            x, y = road.position(sc)
+            th = np.asarray(road.heading(sc), float)
+            kap = np.asarray(road.curvature(sc), float)
+            wl, wr = road.width_left(sc), road.width_right(sc)
+            v = np.interp(sc, s_prof, v1)
+        else:
+            sc = np.clip(s, 0.0, L)
+            x, y = road.position(sc)
+            th = np.asarray(road.heading(sc), float)
+            tx, ty = np.cos(th), np.sin(th)
+            beyond = s - sc  # < 0 before the start, > 0 past the end
+            x, y = x + beyond * tx, y + beyond * ty
+            kap = np.where(beyond == 0.0, np.asarray(road.curvature(sc), float), 0.0)
+            wl, wr = road.width_left(sc), road.width_right(sc)
+            v = np.where(beyond > 0, SPEED_CAP, np.interp(sc, s_prof, v1))
+        col = lambda a: jnp.asarray(np.asarray(a, float))
+        return cls(start=col(start), spacing=col(spacing), length=col(L), s=col(s), x=col(x),
+                   y=col(y), heading=col(th), curvature=col(kap), width_left=col(wl),
+                   width_right=col(wr), speed_limit=col(v), peak=col(np.full(N, peak)),
+                   closed=closed, search_points=int(math.ceil(SEARCH_DISTANCE / spacing)))
+
+    def with_grip(self, grip, peak_at_unit_scale) -> RoadTable:
+        r"""The table with `peak` $= \mu^*(1)\,\lambda(c(s))$: a grip field
+        (`AbstractGripField`) read on the centre line times the tire's peak friction at
+        scale 1 (e.g. `AxleGripEstimator().peak(1.0)`)."""
+        lam = jax.vmap(grip.scale_at)(self.x, self.y)
+        return eqx.tree_at(lambda t: t.peak, self, peak_at_unit_scale * lam)
+
+    @property
+    def num_points(self) -> int:
+        """Samples in the table."""
+        return self.s.shape[-1]
+
+    def wrap(self, s):
+        """Arc length on the table: modulo $L$ (closed road) or clipped to the table."""
+        if self.closed:
+            return jnp.remainder(s, self.length)
+        return jnp.clip(s, self.s[0], self.s[-1])
+
+    def _locate(self, s):
+        s = self.wrap(s)
+        i = jnp.clip(jnp.floor((s - self.start) / self.spacing).astype(int), 0,
+                     self.num_points - 2)
+        t = (s - self.s[i]) / self.spacing
+        return i, t
+
+    def _linear(self, column, s):
+        i, t = self._locate(s)
+        return column[i] + t * (column[i + 1] - column[i])
+
+    def _curve(self, s):
+        """$c(s)$, $c'(s)$, $c''(s)$ of the Hermite centre line, each a pair (x, y)."""
+        i, t = self._locate(s)
+        h = self.spacing
+        th0, th1 = self.heading[i], self.heading[i + 1]
+        px = _hermite3(t, h, self.x[i], jnp.cos(th0), jnp.cos(th1), self.x[i + 1])
+        py = _hermite3(t, h, self.y[i], jnp.sin(th0), jnp.sin(th1), self.y[i + 1])
+        return (px[0], py[0]), (px[1], py[1]), (px[2], py[2]), th0
+
+    def position(self, s):
+        """The centre line $c(s)$ [m] as (x, y)."""
+        return self._curve(s)[0]
+
+    def heading_at(self, s):
+        r"""The tangent's angle $\theta(s)$ [rad] of the interpolated centre line."""
+        _, (dx, dy), _, th0 = self._curve(s)
+        c, sn = jnp.cos(th0), jnp.sin(th0)
+        return th0 + jnp.arctan2(c * dy - sn * dx, c * dx + sn * dy)
+
+    def curvature_at(self, s):
+        r"""$\kappa(s)$ [1/m] (linear between samples)."""
+        return self._linear(self.curvature, s)
+
+    def speed_limit_at(self, s):
+        """$v_1(s)$ [m/s]: the friction-limited speed at unit peak friction."""
+        return self._linear(self.speed_limit, s)
+
+    def peak_at(self, s):
+        """The peak friction $D(s)$ of the `peak` column."""
+        return self._linear(self.peak, s)
+
+    def corridor_at(self, s, margin=0.0):
+        """Bounds (lower, upper) on $n$ [m]: $(-w_r + m, w_l - m)$, stacked on the last axis."""
+        return jnp.stack([-self._linear(self.width_right, s) + margin,
+                          self._linear(self.width_left, s) - margin], -1)
+
+    def to_cartesian(self, s, n):
+        """The point $c(s) + nN(s)$ [m] as (x, y)."""
+        (px, py), (dx, dy), _, _ = self._curve(s)
+        v = jnp.sqrt(dx * dx + dy * dy)
+        return px - n * dy / v, py + n * dx / v
+
+    def to_frenet(self, x, y, psi, s_guess):
+        r"""$(s, n, \xi)$ of the pose $(x, y, \psi)$: the nearest of the samples within
+        `SEARCH_DISTANCE` of ``s_guess`` (`search_points` on each side), then `NEWTON_STEPS` Newton steps on
+        $f(s) = (p - c(s))\cdot c'(s) = 0$ ($f' = |c'|^2 - (p - c)\cdot c''$, floored at
+        0.1, steps within $\pm\Delta$); $n = (p - c(s))\cdot N(s)$, $\xi = \psi - \theta(s)$
+        in $(-\pi, \pi]$. On a closed road $s$ is not wrapped: it stays continuous with
+        ``s_guess`` (counting laps). Differentiable in the pose (the search only picks the
+        starting sample)."""
+        h = self.spacing
+        offsets = jnp.arange(-self.search_points, self.search_points + 1)
+        base = jnp.round((s_guess - self.start) / h)
+        cand = self.start + (base + offsets) * h  # continuous arc lengths near the guess
+        if not self.closed:
+            cand = jnp.clip(cand, self.s[0], self.s[-1])
+        (cx, cy) = self.position(cand)
+        d2 = (cx - x) ** 2 + (cy - y) ** 2
+        s = jax.lax.stop_gradient(cand[jnp.argmin(d2)])
+
+        def newton(s, _):
+            (px, py), (dx, dy), (ddx, ddy), _ = self._curve(s)
+            rx, ry = x - px, y - py
+            f = rx * dx + ry * dy
+            fp = dx * dx + dy * dy - (rx * ddx + ry * ddy)
+            step = jnp.clip(f / jnp.maximum(fp, 0.1), -h, h)
+            s = s + step
+            if not self.closed:
+                s = jnp.clip(s, self.s[0], self.s[-1])
+            return s, None
+
+        s, _ = jax.lax.scan(newton, s, None, length=NEWTON_STEPS)
+        (px, py), (dx, dy), _, _ = self._curve(s)
+        v = jnp.sqrt(dx * dx + dy * dy)
+        n = ((y - py) * dx - (x - px) * dy) / v
+        xi = wrap_angle(psi - self.heading_at(s))
+        return s, n, xi
+
+
+# ---- the horizon problem ------------------------------------------------------------------
+
+
+class HorizonOCP(CurvilinearManeuverOCP):
+    r"""The horizon problem of the module docstring: `CurvilinearManeuverOCP` on a window of
+    length `length` $H$ with the initial state fixed, the steering-rate bound, the
+    terminal speed bound and a per-stage peak friction. Build it with `horizon_problem`.
+
+    **Fields** (besides `CurvilinearManeuverOCP`'s; the gates' are unused):
+    `initial_state` $\hat X$ (8,) $(n, \xi, v_x, v_y, r, \kappa_F, \kappa_R, \delta)$,
+    `grip` (M,) the factor on the tire's $D$ in each stage, `terminal_speed` [m/s] (the
+    bound on the speed $|v|$ at $H$), `terminal_sideslip` $\sigma$ (the bound on
+    $|v_y|/v_x$ at $H$) and `terminal_heading` $\xi_{max}$ [rad] (on $|\xi(H)|$): without
+    them the last stages of a minimum-time plan throw the car sideways or point it off the
+    road, nothing after the horizon paying for it; `steer_rate` $\dot\delta_{max}$ [rad/s],
+    `steer_limit` [rad].
+    """
+
+    initial_state: Float[Array, " 8"] = array_field(default=(0.0,) * 8)
+    grip: Float[Array, " M"] | None = None
+    terminal_speed: Float[Array, ""] = array_field(default=SPEED_CAP)
+    steer_rate: Float[Array, ""] = array_field(default=1.0)
+    steer_limit: Float[Array, ""] = array_field(default=0.6)
+    terminal_sideslip: Float[Array, ""] = array_field(default=0.1)
+    terminal_heading: Float[Array, ""] = array_field(default=0.15)
+
+    def stage_vehicle(self, k) -> ReducedHalfCar:
+        """The planning car of stage ``k``: its tire's $D$ times `grip`[k]."""
+        if self.grip is None:
+            return self.vehicle
+        return eqx.tree_at(lambda v: v.tire.D, self.vehicle, self.vehicle.tire.D * self.grip[k])
+
+    def _segment(self, x, u, k):
+        veh = self.stage_vehicle(k)
+        return _rk4_steps(lambda X, uu, kap: spatial_rhs(veh, X, uu, kap), x, u, self.step,
+                          self.curvature[k])
+
+    def _node_constraints(self, X):
+        kF, kR, d = X[5], X[6], X[7]
+        VFx, _, VRx, _ = self.vehicle.axle_velocities(
+            jnp.concatenate([X[:1] * 0, X[:1] * 0, X[1:5]]), d)
+        return jnp.stack([VFx - SPEED_FLOOR, VRx - SPEED_FLOOR,
+                          kF - KAPPA_MIN, KAPPA_MAX - kF, kR - KAPPA_MIN, KAPPA_MAX - kR,
+                          self.steer_limit - d, d + self.steer_limit])
+
+    def _path(self, x, u, k, starts, end):
+        base = super()._path(x, u, k, starts, end)
+        n, xi, vx, vy = x[0], x[1], x[2], x[3]
+        kap = self.curvature[k][0, 0]
+        sdot = (vx * jnp.cos(xi) - vy * jnp.sin(xi)) / (1.0 - n * kap)
+        rate = u[2] * sdot
+        return jnp.concatenate([base, jnp.stack([self.steer_rate - rate,
+                                                 self.steer_rate + rate])])
+
+    def initial_equality(self, x):
+        return jnp.concatenate([x[8:9], x[:8] - self.initial_state])
+
+    def initial_inequality(self, x):
+        return jnp.zeros((0,))
+
+    def terminal_equality(self, x):
+        return jnp.zeros((0,))
+
+    def terminal_inequality(self, x):
+        vx, vy = x[2], x[3]
+        b = self.terminal_sideslip * vx
+        xi_max = self.terminal_heading
+        return jnp.concatenate([self._terminal_node(x), jnp.stack([
+            self.terminal_speed**2 - vx * vx - vy * vy, b - vy, b + vy, xi_max - x[1],
+            xi_max + x[1]])])
+
+
+RELAX_STAGES = 3
+"""Stages over which the corridor is widened to hold a start outside it (`horizon_problem`)."""
+
+
+def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
+                    horizon=30.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
+                    steer_limit=0.6, terminal_backoff=1.0) -> HorizonOCP:
+    r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
+    the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
+    and `vmap`, and every sample shares one program (the stage count is the length of
+    ``D_per_stage``).
+
+    Curvature at each stage's RK4 points, corridor $(-w_r + m, w_l - m)$ at the knots and
+    midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
+    much as the start lies outside it plus 5 cm, so that a start off the corridor stays
+    feasible), terminal bound $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with
+    $\beta$ = ``terminal_backoff``, `grip` = ``D_per_stage`` / the vehicle's $D$."""
+    D_per_stage = jnp.asarray(D_per_stage, float)
+    M = D_per_stage.shape[0]
+    h = jnp.asarray(horizon, float) / M
+    s_nodes = s0 + h * jnp.arange(M + 1)
+    s_mid = s_nodes[:-1] + 0.5 * h
+    kap = jnp.stack([table.curvature_at(s_nodes[:-1]), table.curvature_at(s_mid),
+                     table.curvature_at(s_nodes[1:])], -1)[:, None, :]
+    state8 = jnp.asarray(state8, float)
+    nodes = table.corridor_at(s_nodes, margin)
+    mids = table.corridor_at(s_mid, margin)
+    n0 = state8[0]
+    excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
+    excess = jnp.where(excess > 0, excess + 0.05, 0.0)
+    fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
+    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([-1.0, 1.0])
+    nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
+    v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
+    return HorizonOCP(
+        vehicle=vehicle, length=jnp.asarray(horizon, float), curvature=kap, corridor=nodes,
+        corridor_mid=mids[:, None, :], corridor_steps=jnp.zeros((M, 0, 2)),
+        start_lateral=jnp.zeros(2), end_lateral=jnp.zeros(2), start_speed=jnp.zeros(()),
+        end_speed=jnp.zeros(()), start_speed_fixed=False, end_speed_fixed=False,
+        num_stages=M, steps_per_stage=1, closed=False, objective="min-time",
+        rate_weight=rate_weight, initial_state=state8, grip=D_per_stage / vehicle.tire.D,
+        terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit)
+
+
+def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
+                  horizon=30.0, fraction=0.8):
+    r"""A starting guess of `horizon_problem` (JAX, as `speed_profile_guess`): the centre
+    line's speed limit $\sqrt{fD}\,v_1(s)$ capped by accelerating from the current speed
+    with $fDg$, $n$ decaying from the current offset to 0, $\xi = v_y = 0$, $r = v\kappa$,
+    kinematic steering $\arctan((\ell_F + \ell_R)\kappa)$, free-rolling slips, time by the
+    trapezoidal rule in $1/v$; the first knot is the current state."""
+    M = D_per_stage.shape[0]
+    h = horizon / M
+    s = s0 + h * jnp.arange(M + 1)
+    D = jnp.concatenate([D_per_stage, D_per_stage[-1:]])
+    g = vehicle.params.g
+    v_lim = jnp.sqrt(fraction * D) * table.speed_limit_at(s)
+    v_acc = jnp.sqrt(state8[2] ** 2 + 2.0 * fraction * D * g * (s - s0))
+    v = jnp.maximum(jnp.minimum(v_lim, v_acc), 2.0 * SPEED_FLOOR)
+    v = v.at[0].set(state8[2])
+    kap = table.curvature_at(s)
+    wb = vehicle.params.lF + vehicle.params.lR
+    delta = jnp.clip(jnp.arctan(wb * kap), -0.5, 0.5)
+    decay = jnp.exp(-(s - s0) / 5.0)
+    t = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * h * (1 / v[1:] + 1 / v[:-1]))])
+    z = jnp.zeros_like(s)
+    xs = jnp.stack([state8[0] * decay, state8[1] * decay, v, z, v * kap, z, z, delta, t], 1)
+    xs = xs.at[0, :8].set(state8)
+    us = jnp.diff(xs[:, 5:8], axis=0) / h
+    return xs, us
+
+
+def shift_plan(xs, us, distance, horizon):
+    r"""The plan (knots (M+1, 9), controls (M, 3)) on a grid moved forward by ``distance``
+    [m] (interpolated in $s$; past its end the last knot held, its time advanced at the
+    last speed), times restarted at 0."""
+    M = us.shape[0]
+    h = horizon / M
+    grid = h * jnp.arange(M + 1)
+    q = grid + distance
+    cols = jax.vmap(lambda c: jnp.interp(q, grid, c), in_axes=1, out_axes=1)(xs)
+    past = jnp.maximum(q - grid[-1], 0.0)
+    t = cols[:, 8] + past / jnp.maximum(xs[-1, 2], SPEED_FLOOR)
+    cols = cols.at[:, 8].set(t - t[0])
+    qm = q[:-1] + 0.5 * h
+    mid = grid[:-1] + 0.5 * h
+    us_new = jax.vmap(lambda c: jnp.interp(qm, mid, c, right=0.0), in_axes=1, out_axes=1)(us)
+    return cols, us_new
+
+
+# ---- the controller ---------------------------------------------------------------------
+
+
+def _default_car() -> ReducedHalfCar:
+    from ..optimal.primitives import rally_gravel_car
+
+    return rally_gravel_car()
+
+
+class HorizonState(eqx.Module):
+    """The driver between samples: arc length `s` of the last projection, the plan (`xs`,
+    `us`, starting at `s_plan`), the `inputs` $(\\kappa_F, \\kappa_R, \\delta)$ of the last
+    command, and its diagnostics: `iterations`, `converged`, `kkt` (the largest of the
+    residuals), `D` (M,) the planner's peak friction, `projection` $(s, n, \\xi)$."""
+
+    s: Float[Array, ""]
+    s_plan: Float[Array, ""]
+    xs: Float[Array, "M+1 9"]
+    us: Float[Array, "M 3"]
+    inputs: Float[Array, " 3"]
+    iterations: Array
+    converged: Array
+    kkt: Float[Array, ""]
+    D: Float[Array, " M"]
+    projection: Float[Array, " 3"]
+
+
+class RecedingHorizonDriver(AbstractDriveController):
+    r"""The receding-horizon driver of the module docstring.
+
+    **Fields:** `table` (`RoadTable`), `vehicle` (the planning `ReducedHalfCar` with a
+    `FrictionEllipseTire`; default `rally_gravel_car()`), `horizon` $H$ [m] (30),
+    `num_stages` $M$ (30, static), `margin` [m] (0.2), `rate_weight` $w$ (1e-4),
+    `terminal_backoff` $\beta$ (1), `mode` (static): 'rti' (`iterations` interior-point
+    passes per sample from the shifted plan, barrier `mu0`; the solution need not have
+    converged: real-time iteration) or 'converged' (to `tol`, at most `max_iterations`);
+    `friction` (static): 'nominal' (the planner's $D$ is `nominal_peak` everywhere),
+    'oracle' (the `table`'s `peak` column at the stages' midpoints: the true grip, known
+    ahead) or 'estimate' (the estimator's `GripEstimate.peak`, the smaller axle's, minus
+    `estimate_backoff` times its `peak_std`, uniform over the horizon; needs an estimator in
+    `simulate_drive`); `slip_gain` [N m] (torque per unit slip error), `lead` [s] (the
+    plan is read this far past the prediction: the actuators' lag), `steer_rate` [rad/s],
+    `steer_limit` [rad], `sample_time` [s] and `delay_samples` (static; the actuators'),
+    `init_iterations` (cap of the first solve).
+
+    The prediction over the delay assumes the plant's actuators: the command issued now
+    acts from the next sample; meanwhile the last command's slips and steering hold.
+    """
+
+    table: RoadTable
+    vehicle: ReducedHalfCar = eqx.field(default_factory=_default_car)
+    horizon: Float[Array, ""] = array_field(default=30.0)
+    num_stages: int = eqx.field(static=True, default=30)
+    margin: Float[Array, ""] = array_field(default=0.2)
+    rate_weight: Float[Array, ""] = array_field(default=1e-4)
+    terminal_backoff: Float[Array, ""] = array_field(default=1.0)
+    mode: str = eqx.field(static=True, default="rti")
+    iterations: int = eqx.field(static=True, default=4)
+    max_iterations: int = eqx.field(static=True, default=60)
+    init_iterations: int = eqx.field(static=True, default=300)
+    tol: float = eqx.field(static=True, default=1e-6)
+    mu0: Float[Array, ""] = array_field(default=1e-3)
+    friction: str = eqx.field(static=True, default="nominal")
+    nominal_peak: Float[Array, ""] = array_field(default=0.52)
+    estimate_backoff: Float[Array, ""] = array_field(default=1.0)
+    slip_gain: Float[Array, ""] = array_field(default=0.0)
+    lead: Float[Array, ""] = array_field(default=0.05)
+    steer_rate: Float[Array, ""] = array_field(default=1.0)
+    steer_limit: Float[Array, ""] = array_field(default=0.6)
+    sample_time: Float[Array, ""] = array_field(default=0.05)
+    delay_samples: int = eqx.field(static=True, default=1)
+
+    def __check_init__(self):
+        if self.mode not in ("rti", "converged"):
+            raise ValueError(f"RecedingHorizonDriver.mode must be 'rti' or 'converged', got "
+                             f"{self.mode!r}")
+        if self.friction not in ("nominal", "oracle", "estimate"):
+            raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
+                             f"'estimate', got {self.friction!r}")
+        if not isinstance(self.num_stages, int) or self.num_stages < 2:
+            raise ValueError(f"RecedingHorizonDriver.num_stages must be an integer >= 2, got "
+                             f"{self.num_stages}")
+        if not isinstance(self.iterations, int) or self.iterations < 2:
+            raise ValueError("RecedingHorizonDriver.iterations must be an integer >= 2 (the "
+                             f"last pass only evaluates), got {self.iterations}")
+        for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
+                     "terminal_backoff", "mu0"):
+            check_positive("RecedingHorizonDriver", name, getattr(self, name))
+
+    # ---- pieces -----------------------------------------------------------------------
+
+    def options(self, first: bool = False) -> IPOptions:
+        """The interior-point options of a sample (``first``: the first plan's)."""
+        if first:
+            return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
+                             log_size=8)
+        cap = self.iterations if self.mode == "rti" else self.max_iterations
+        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.mu0,
+                         log_size=8)
+
+    def planner_friction(self, s0, estimate) -> Float[Array, " M"]:
+        """The stages' peak friction $D_k$ for the horizon starting at ``s0``."""
+        M = self.num_stages
+        if self.friction == "nominal":
+            return jnp.full((M,), 1.0) * self.nominal_peak
+        if self.friction == "oracle":
+            h = self.horizon / M
+            return self.table.peak_at(s0 + h * (jnp.arange(M) + 0.5))
+        if estimate is None:
+            raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
+                             "estimator: pass estimator= to simulate_drive")
+        D = jnp.min(estimate.peak - self.estimate_backoff * estimate.peak_std)
+        return jnp.full((M,), 1.0) * jnp.clip(D, 0.05, 2.0)
+
+    def problem(self, s0, state8, D) -> HorizonOCP:
+        """`horizon_problem` with this driver's settings."""
+        return horizon_problem(self.table, self.vehicle, s0, state8, D, horizon=self.horizon,
+                               margin=self.margin, rate_weight=self.rate_weight,
+                               steer_rate=self.steer_rate, steer_limit=self.steer_limit,
+                               terminal_backoff=self.terminal_backoff)
+
+    def _frenet_rates(self, X5, inputs, s):
+        """Time derivative of $(s, n, \\xi, v_x, v_y, r)$ of the reduced car (eqs. 61-63)."""
+        n, xi, vx, vy, r = X5[0], X5[1], X5[2], X5[3], X5[4]
+        kap = self.table.curvature_at(s)
+        sdot = (vx * jnp.cos(xi) - vy * jnp.sin(xi)) / (1.0 - n * kap)
+        body = self.vehicle.f(jnp.stack([0.0 * n, 0.0 * n, xi, vx, vy, r]), inputs)[3:6]
+        return jnp.concatenate([jnp.stack([sdot, vx * jnp.sin(xi) + vy * jnp.cos(xi),
+                                           r - kap * sdot]), body])
+
+    def predict(self, s, X5, inputs, duration, steps: int = 2):
+        """$(s, n, \\xi, v_x, v_y, r)$ after ``duration`` [s] with constant ``inputs``
+        (classical RK4, ``steps`` steps)."""
+        y = jnp.concatenate([jnp.reshape(s, (1,)), X5])
+        dt = duration / steps
+
+        def f(y):
+            return self._frenet_rates(y[1:], inputs, y[0])
+
+        def step(y, _):
+            k1 = f(y)
+            k2 = f(y + 0.5 * dt * k1)
+            k3 = f(y + 0.5 * dt * k2)
+            k4 = f(y + dt * k3)
+            return y + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4), None
+
+        y, _ = jax.lax.scan(step, y, None, length=steps)
+        return y
+
+    def _solve(self, prob, xs0, us0, options) -> IPSolution:
+        sol = interior_point(prob, xs0, us0, options, throw=False)
+        ok = jnp.all(jnp.isfinite(sol.xs)) & jnp.all(jnp.isfinite(sol.us))
+        xs = jnp.where(ok, sol.xs, xs0)
+        us = jnp.where(ok, sol.us, us0)
+        return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
+
+    def _state(self, s, s_plan, sol, inputs, D, projection):
+        kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
+        return HorizonState(s=s, s_plan=s_plan, xs=sol.xs, us=sol.us, inputs=inputs,
+                            iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
+                            projection=projection)
+
+    def _measured_state(self, m: DriveMeasurement, s_guess):
+        s, n, xi = self.table.to_frenet(m.x, m.y, m.psi, s_guess)
+        return s, jnp.stack([n, xi, m.vx, m.vy, m.yaw_rate])
+
+    # ---- the controller protocol --------------------------------------------------------
+
+    def init(self, measurement: DriveMeasurement) -> HorizonState:
+        """The first plan: from the measured pose (projected near the table's start, or its
+        nearest sample), solved to convergence from `profile_guess` (at most
+        `init_iterations`)."""
+        m = measurement
+        d2 = (self.table.x - m.x) ** 2 + (self.table.y - m.y) ** 2
+        s_guess = self.table.s[jnp.argmin(d2)]
+        s, X5 = self._measured_state(m, s_guess)
+        inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
+        state8 = jnp.concatenate([X5, inputs])
+        if self.friction == "estimate":  # no data yet: the nominal friction
+            D = jnp.full((self.num_stages,), 1.0) * self.nominal_peak
+        else:
+            D = self.planner_friction(s, None)
+        xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
+        sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True))
+        return self._state(s, s, sol, inputs, D, jnp.concatenate([s[None], X5[:2]]))
+
+    def command(self, state: HorizonState, measurement: DriveMeasurement, estimate
+                ) -> tuple[HorizonState, Float[Array, " 3"]]:
+        m = measurement
+        s, X5 = self._measured_state(m, state.s)
+        T = self.sample_time
+        delay = self.delay_samples * T
+        y = self.predict(s, X5, state.inputs, delay) if self.delay_samples > 0 else \
+            jnp.concatenate([s[None], X5])
+        s_pred = y[0]
+        state8 = jnp.concatenate([y[1:], state.inputs])
+        D = self.planner_friction(s_pred, estimate)
+        xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
+        xs0 = xs0.at[0, :8].set(state8)
+        prob = self.problem(s_pred, state8, D)
+        sol = self._solve(prob, xs0, us0, self.options())
+        inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
+        # slip feedback: the slip commanded for now against the one measured
+        slip_meas = self.measured_slip(m)
+        torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
+        new = self._state(s, s_pred, sol, inputs, D, jnp.concatenate([s[None], X5[:2]]))
+        return new, jnp.concatenate([torques, inputs[2:]])
+
+    def measured_slip(self, m: DriveMeasurement):
+        r"""$\kappa_i = \omega_i r/V_{ix} - 1$ of both axles from the measured wheel speeds
+        and ground velocity ($V_{ix}$ floored at 1 m/s)."""
+        X6 = jnp.stack([0.0 * m.vx, 0.0 * m.vx, 0.0 * m.vx, m.vx, m.vy, m.yaw_rate])
+        VFx, _, VRx, _ = self.vehicle.axle_velocities(X6, m.delta)
+        V = jnp.maximum(jnp.stack([VFx, VRx]), SPEED_FLOOR)
+        return m.omega * self.vehicle.params.r / V - 1.0
+
+    def plan_command(self, xs, us, D0):
+        r"""The inputs $(\kappa_F, \kappa_R, \delta)$ of the plan `lead` seconds after its
+        start (interpolated in $s$) and the torques that realise them (eqs. 52-53:
+        $T_i = I_i\dot\omega_i + r f_{ix}$ with $\dot{(\cdot)} = \dot s\,d(\cdot)/ds$) on
+        the planning car with peak ``D0``."""
+        M = us.shape[0]
+        pos = jnp.interp(self.lead, xs[:, 8], jnp.arange(M + 1.0))
+        k = jnp.clip(jnp.floor(pos).astype(int), 0, M - 1)
+        w = pos - k
+        X = xs[k] + w * (xs[k + 1] - xs[k])
+        u = us[k]
+        veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
+        n, xi, vx, vy = X[0], X[1], X[2], X[3]
+        sdot = vx * jnp.cos(xi) - vy * jnp.sin(xi)  # on the centre line's scale (n small)
+        state6 = jnp.stack([0.0 * n, 0.0 * n, xi, vx, vy, X[4]])
+        _, _, T_F, T_R = veh.recover_torques(state6, X[5:8], u * sdot)
+        return X[5:8], jnp.stack([T_F, T_R])
+
+    def info(self, state: HorizonState) -> dict:
+        """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the planned horizon
+        as `plan_s`, `plan_n` (M+1,) and `plan_t`, the planner's `D` (M,), the projection
+        `s`, `n`, `xi`."""
+        M = self.num_stages
+        return dict(iterations=state.iterations, converged=state.converged, kkt=state.kkt,
+                    plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
+                    plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], D=state.D,
+                    s=state.projection[0], n=state.projection[1], xi=state.projection[2])
