@@ -405,51 +405,56 @@ DRIVE_FOOTPRINT = (4.2, 1.8)
 (the `rally_gravel` car: wheelbase 2.7 m plus overhangs)."""
 
 
-def drive_trace(road, run, plant, *, nominal_peak: float | None = None) -> dict:
+def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     r"""The arrays a drive's figure and animation draw, as numpy (leading axis: samples
     $1..N$ of `run`, a `vehsim.DriveRun` of `plant` on `road`):
 
     ``t``, ``x``, ``y``, ``psi``, ``speed`` (true), ``s``, ``n`` (Frenet coordinates of the
     centre of gravity on `road`), ``command`` and ``applied`` $(T_F, T_R, \delta)$ (N, 3),
-    ``scale_true`` $\lambda$ under the (front, rear) axle (N, 2), ``peak_true`` $=
-    \lambda\mu^*(1)$ (N, 2); with an estimator ``scale_est``, ``peak_est``, ``peak_std``
-    (N, 2); with a planner that reports them (``run.controller_info``), ``horizon_x``,
-    ``horizon_y`` (N, M) (the planned path converted from its $(s, n)$ to the plane) and
-    ``planner_D`` (N,) (the planned peak friction, the mean over the horizon where it
-    varies). `nominal_peak`: $\mu^*(1)$ of the plant's tire (default
-    `AxleGripEstimator().peak(1.0)`, the plant's default tire).
+    ``scale_true`` $\lambda$ under the (front, rear) axle (N, 2) and ``peak_true``
+    $\mu^*(\lambda)$ there (the plant tire's peak on that road,
+    `AxleGripEstimator.peak`; N, 2); with an estimator ``scale_est``, ``peak_est``,
+    ``peak_std`` (N, 2); with a planner that reports them (``run.controller_info``, as
+    `RecedingHorizonDriver.info`: ``plan_s``, ``plan_n`` (N, M + 1), ``D`` (N, M)),
+    ``horizon_x``, ``horizon_y`` (N, M + 1), the planned path converted from its
+    $(s, n)$ to the plane, and ``planner_D`` (N,), the planned peak friction (the mean over
+    the horizon where it varies). `upto`: only the first this many samples (e.g. up to the
+    end of the road).
     """
     import jax
 
-    if nominal_peak is None:
-        from .drive.estimator import AxleGripEstimator
+    from .drive.estimator import AxleGripEstimator
 
-        nominal_peak = float(AxleGripEstimator().peak(1.0))
+    if upto is not None:
+        run = jax.tree.map(lambda a: a[:upto], run)
+
     car = np.asarray(run.states.car)
     x, y, psi, vx, vy = (car[:, i] for i in range(5))
     s, n = road.to_frenet(x, y)
-    lam = np.stack([np.asarray(v) for v in jax.vmap(plant.grip_scales)(run.states.car)], -1)
+    lam_F, lam_R = jax.vmap(plant.grip_scales)(run.states.car)
+    lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
+    est = AxleGripEstimator(params=plant.params, tire=plant.tire)
+    peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
     out = {"t": np.asarray(run.states.t), "x": x, "y": y, "psi": psi,
            "speed": np.hypot(vx, vy), "s": s, "n": n, "command": np.asarray(run.commands),
            "applied": np.asarray(run.states.actuators.applied), "scale_true": lam,
-           "peak_true": nominal_peak * lam}
-    est = run.estimates
-    if est is not None:
-        out["scale_est"] = np.asarray(est.scale)
-        out["peak_est"] = np.asarray(est.peak)
-        out["peak_std"] = np.asarray(est.peak_std)
+           "peak_true": peak}
+    if run.estimates is not None:
+        out["scale_est"] = np.asarray(run.estimates.scale)
+        out["peak_est"] = np.asarray(run.estimates.peak)
+        out["peak_std"] = np.asarray(run.estimates.peak_std)
     out.update(_planned(road, getattr(run, "controller_info", None)))
     return out
 
 
 def _planned(road, info) -> dict:
     """The planned horizon in the plane and the planner's D from a controller's per-sample
-    diagnostics (a mapping with ``horizon_s``, ``horizon_n`` (N, M) and ``D`` (N,) or
+    diagnostics (a mapping with ``plan_s``, ``plan_n`` (N, M + 1) and ``D`` (N,) or
     (N, M)); what it lacks is left out."""
     if info is None or not hasattr(info, "get"):
         return {}
     out = {}
-    hs, hn = info.get("horizon_s"), info.get("horizon_n")
+    hs, hn = info.get("plan_s"), info.get("plan_n")
     if hs is not None and hn is not None:
         hx, hy = road.to_cartesian(np.asarray(hs), np.asarray(hn))
         out["horizon_x"], out["horizon_y"] = np.asarray(hx), np.asarray(hy)
@@ -497,23 +502,24 @@ def draw_grip_field(ax, road, grip, *, resolution: float | None = None,
     return im
 
 
-def drive_figure(road, run, plant, *, title: str = "", nominal_peak: float | None = None,
-                 footprint=DRIVE_FOOTPRINT, every: int | None = None,
-                 grip_vmax: float | None = None):
+def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT,
+                 every: int | None = None, grip_vmax: float | None = None,
+                 upto: int | None = None):
     r"""A drive at a glance (`vehsim drive`): left, the road (`CentrelineRoad`) with its grip
     field shaded (`draw_grip_field`), the path of the centre of gravity coloured by speed and
     the car's footprint every `every` samples (default about 25 along the drive); right,
     the speed along the road's arc length $s$; the peak friction: each axle's estimate
     (with a band of two standard deviations), the truth under it and the planner's $D$ where
     the controller reports one; the steering angle and the axle torques (command dashed,
-    applied solid) over time. `run`: a `vehsim.DriveRun` of `plant`; `nominal_peak` as in
-    `drive_trace`; `grip_vmax`: the grip scale shaded palest (`draw_grip_field`'s `vmax`,
-    e.g. the nominal road's, so that a road of less grip everywhere shows blue)."""
+    applied solid) over time. `run`: a `vehsim.DriveRun` of `plant` (`drive_trace`);
+    `grip_vmax`: the grip scale shaded palest (`draw_grip_field`'s `vmax`,
+    e.g. the nominal road's, so that a road of less grip everywhere shows blue); `upto`: draw
+    the first this many samples only (`drive_trace`)."""
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Polygon
 
-    tr = drive_trace(road, run, plant, nominal_peak=nominal_peak)
+    tr = drive_trace(road, run, plant, upto)
     fig = plt.figure(figsize=(13, 7.5))
     gs = fig.add_gridspec(4, 2, width_ratios=[1.3, 1.0])
     ax = fig.add_subplot(gs[:, 0])
@@ -576,9 +582,9 @@ def animation_frames(num_samples: int, every: int) -> list[int]:
 
 
 def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
-                    nominal_peak: float | None = None, footprint=DRIVE_FOOTPRINT,
+                    footprint=DRIVE_FOOTPRINT,
                     title: str = "", fps: float | None = None, window: float | None = None,
-                    grip_vmax: float | None = None) -> int:
+                    grip_vmax: float | None = None, upto: int | None = None) -> int:
     r"""An animation of a drive, written to `path` (``.gif``: matplotlib's `PillowWriter`,
     no external program; ``.mp4``: `FFMpegWriter`, needs ffmpeg): the road with its grip field
     shaded, the path so far, the car's footprint (a `footprint` = (length, width) [m]
@@ -587,8 +593,8 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
     against the truth under it, the planner's $D$). One frame per `every` samples
     (`animation_frames`), played in real time unless `fps` says otherwise, at `dpi`.
     `window` [m]: the view follows the car, this far from it each way (default: the whole
-    road); `grip_vmax` as in `drive_figure`. Written atomically; returns the number of
-    frames."""
+    road); `grip_vmax` and `upto` as in `drive_figure`. Written atomically; returns the
+    number of frames."""
     import tempfile
     from pathlib import Path
 
@@ -606,7 +612,7 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
     if suffix == ".mp4" and not animation.writers.is_available("ffmpeg"):
         raise ValueError("drive_animation: an .mp4 animation needs the ffmpeg program, which "
                          "was not found; write a .gif instead")
-    tr = drive_trace(road, run, plant, nominal_peak=nominal_peak)
+    tr = drive_trace(road, run, plant, upto)
     frames = animation_frames(len(tr["t"]), every)
     if fps is None:
         dt = float(np.median(np.diff(tr["t"]))) if len(tr["t"]) > 1 else 0.05

@@ -1,37 +1,22 @@
-"""What `vehsim drive` drives: the road, the plant on its grip, the controller and the
-estimator its options name, the drive and its measurements."""
+"""What `vehsim drive` drives: the scenario its options name (road, grip, plant, start), the
+controller and estimator, the drive itself and its outcome.
+
+The grip options are peaks relative to the nominal road's: ``--grip 0.8`` is a road whose
+peak friction is 0.8 x 0.52 (`vehsim.drive.scenarios.scale_for_peak` gives its scale,
+since the tire's peak is not proportional to the friction scale), as the ``minus20``
+scenario; ``--patch X,Y,R,0.5`` a patch of peak 0.26, as the ``icy`` one.
+"""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 
-@dataclasses.dataclass
-class Scenario:
-    """A drive to run: `plant` (`DrivePlant`), `controller`, `estimator` (None: none),
-    `state0` (`DriveState`), `num_samples`, the nominal road's grip scale `nominal_scale`
-    and peak friction `nominal_D`, and the tire's peak friction at scale 1,
-    `nominal_peak`."""
-
-    road: object
-    plant: object
-    controller: object
-    estimator: object
-    state0: object
-    num_samples: int
-    nominal_scale: float
-    nominal_D: float
-    nominal_peak: float
-
-    def m0(self, seed: int):
-        """The measurement before the first sample (as `simulate_drive` draws it)."""
-        import jax
-
-        from ..drive.plant import measure_drive
-
-        return measure_drive(self.plant, self.state0, jax.random.fold_in(
-            jax.random.key(seed), 0))
+START_SPEED = 8.0
+"""Start speed [m/s] of a road read from a file."""
+PLAN_STAGE_LENGTH = 2.0
+"""Stage length [m] of the nominal plan the tracking and open-loop drivers follow (at least
+40 stages)."""
 
 
 def road(args):
@@ -40,84 +25,138 @@ def road(args):
         from .._road_files import read_road
 
         return read_road(args.road_file, closed=args.closed)
-    from ..optimal.centreline import CentrelineRoad
+    from ..drive.scenarios import scenario_road
 
-    # stand-in shapes until the scenario roads exist
-    segments = {"corner90": [("straight", 20.0), ("arc", 8.0, 90.0), ("straight", 20.0)],
-                "uturn": [("straight", 20.0), ("arc", 8.0, 180.0), ("straight", 20.0)],
-                "sturn": [("straight", 15.0), ("arc", 10.0, 60.0), ("arc", 10.0, -60.0),
-                          ("straight", 15.0)],
-                "stage": [("straight", 30.0), ("arc", 30.0, 60.0), ("straight", 20.0),
-                          ("arc", 15.0, -90.0), ("straight", 30.0)]}[args.road]
-    return CentrelineRoad.from_segments(segments, 4.0, name=args.road)
+    return scenario_road(args.road)
 
 
-def grip_field(args, road, nominal_scale: float):
-    """`UniformGrip` at ``--grip`` times the nominal scale, or `GripPatches` on it."""
+def _field(args, road):
+    """The plant's grip field: the named conditions, or ``--grip`` with ``--patch``es."""
     import jax.numpy as jnp
 
     from ..drive.grip import GripPatches, UniformGrip
+    from ..drive.scenarios import BENCHMARK_PEAK, scale_for_peak, scenario_grip
 
-    base = args.grip * nominal_scale
+    if args.conditions is not None:
+        return scenario_grip(args.conditions, road).field
+    base = scale_for_peak(args.grip * BENCHMARK_PEAK)
     if not args.patch:
         return UniformGrip(scale=base)
-    p = jnp.asarray(args.patch, dtype=float)
-    return GripPatches(centres=p[:, :2], radii=p[:, 2], scales=p[:, 3] * nominal_scale,
-                       base=base)
+    p = [list(v) for v in args.patch]
+    return GripPatches(centres=jnp.asarray([v[:2] for v in p]),
+                       radii=jnp.asarray([v[2] for v in p]),
+                       scales=jnp.asarray([scale_for_peak(v[3] * BENCHMARK_PEAK) for v in p]),
+                       base=base, width=1.0)
 
 
-def scenario(args, road) -> Scenario:
+def scenario(args, road):
+    """The `DriveScenario` of the options: the road, its grip (with the true peak along the
+    centre line), the plant (sensors noisy or not), the start (the scenario's speed; a road
+    file's at `START_SPEED`) and the time budget (``--duration``, default the scenario's, or
+    a road file's length at 5 m/s plus 5 s)."""
+    import jax
     import jax.numpy as jnp
+    import numpy as np
 
     from ..drive.estimator import AxleGripEstimator
     from ..drive.plant import DrivePlant, init_drive
+    from ..drive.scenarios import (
+        START_SPEEDS,
+        TIME_BUDGETS,
+        DriveScenario,
+        ScenarioGrip,
+    )
     from ..drive.sensors import DriveSensors
-    from ..drive.simulate import PathFollower
 
-    nominal_D = 0.52
-    nominal_peak = float(AxleGripEstimator().peak(1.0))
-    nominal_scale = nominal_D / nominal_peak
-    plant = DrivePlant(grip=grip_field(args, road, nominal_scale),
-                       sensors=DriveSensors(noise_on=args.noise))
-    x0, y0 = (float(v) for v in road.position(0.0))
-    psi0 = float(road.heading(0.0))
-    state0 = init_drive(plant, vx=8.0, x=x0, y=y0, psi=psi0)
-    duration = args.duration if args.duration is not None else max(5.0, road.length / 6.0)
-    num = int(math.ceil(duration / 0.05 - 1e-9))
-    controller = PathFollower(curvature=0.0, torque=jnp.array([0.0, 100.0]))
-    estimator = AxleGripEstimator(prior_scale=nominal_scale) if args.controller == "rh" \
+    field = _field(args, road)
+    num = max(2, int(math.ceil(road.length / 0.25)) + 1)
+    s = np.linspace(0.0, road.length, num)
+    x, y = road.position(s)
+    est = AxleGripEstimator()
+    peak = jax.jit(jax.vmap(lambda xi, yi: est.peak(field.scale_at(xi, yi))))(
+        jnp.asarray(x), jnp.asarray(y))
+    name = args.conditions or "custom"
+    grip = ScenarioGrip(name=name, field=field, arc_length=jnp.asarray(s), peak=peak)
+    plant = DrivePlant(grip=field, sensors=DriveSensors(noise_on=args.noise))
+    v0 = START_SPEEDS.get(args.road, START_SPEED) if args.road else START_SPEED
+    budget = args.duration
+    if budget is None:
+        budget = TIME_BUDGETS[args.road] if args.road else road.length / 5.0 + 5.0
+    x0, y0 = road.position(0.0)
+    state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
+    T = float(plant.actuators.sample_time)
+    return DriveScenario(name=f"{road.name}/{name}", road=road, grip=grip, plant=plant,
+                         state0=state0, start_speed=v0,
+                         num_samples=int(math.ceil(budget / T - 1e-9)))
+
+
+def controller(args, sc):
+    """``(controller, estimator)`` of ``--controller`` (and ``--mode``) on the scenario `sc`:
+    the receding-horizon driver with the estimate (and `AxleGripEstimator` with the nominal
+    road as its prior), the nominal friction or the true grip along the horizon (the
+    oracle); or the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
+    import equinox as eqx
+
+    from ..drive.estimator import AxleGripEstimator
+    from ..drive.horizon import RecedingHorizonDriver, RoadTable
+    from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
+
+    if args.controller in ("tracking", "open-loop"):
+        from ..drive.baselines import (
+            PrimitiveTracker,
+            command_lead,
+            nominal_primitive,
+            open_loop_schedule,
+            primitive_reference,
+        )
+
+        stages = max(40, int(round(sc.road.length / PLAN_STAGE_LENGTH)))
+        ref = primitive_reference(nominal_primitive(sc, num_stages=stages))
+        act = sc.plant.actuators
+        if args.controller == "open-loop":
+            return open_loop_schedule(ref, act, sc.num_samples), None
+        return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
+    friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
+        args.controller]
+    table = RoadTable.from_road(sc.road, peak=BENCHMARK_PEAK)
+    if friction == "oracle":
+        table = eqx.tree_at(lambda t: t.peak, table, sc.grip.peak_at(table.s))
+    driver = RecedingHorizonDriver(table=table, mode=args.mode or "rti", friction=friction,
+                                   nominal_peak=BENCHMARK_PEAK)
+    estimator = AxleGripEstimator(prior_scale=nominal_scale()) if friction == "estimate" \
         else None
-    return Scenario(road, plant, controller, estimator, state0, num, nominal_scale, nominal_D,
-                    nominal_peak)
+    return driver, estimator
 
 
-def simulate(sc: Scenario, seed: int):
+def simulate(sc, driver, estimator, seed: int):
+    """The drive (one compiled scan), with the poses at every integration step."""
     import jax
 
     from ..drive.simulate import simulate_drive
 
     @jax.jit
     def run(key):
-        return simulate_drive(sc.plant, sc.controller, sc.state0, key, sc.num_samples,
-                              estimator=sc.estimator)
+        return simulate_drive(sc.plant, driver, sc.state0, key, sc.num_samples,
+                              estimator=estimator, substep_poses=True)
 
     return run(jax.random.key(seed))
 
 
-def metrics(sc: Scenario, run) -> dict:
-    """``drive_time`` [s] (the centre of gravity crossing the end, interpolated; None if it
-    did not), ``max_distance_off_road`` [m] and ``completed`` (crossed within 5 cm)."""
-    import numpy as np
+def first_measurement(sc, seed: int):
+    """The measurement before the first sample (as `simulate_drive` draws it)."""
+    import jax
 
-    car = np.asarray(run.states.car)
-    t = np.asarray(run.states.t)
-    s, _ = sc.road.to_frenet(car[:, 0], car[:, 1])
-    off = float(np.max(sc.road.distance_off_road(car[:, 0], car[:, 1])))
-    end = sc.road.length - 1e-6
-    crossed = np.nonzero(s >= end)[0]
-    drive_time = None
-    if crossed.size and crossed[0] > 0:
-        k = crossed[0]
-        drive_time = float(np.interp(end, [s[k - 1], s[k]], [t[k - 1], t[k]]))
-    return {"drive_time": drive_time, "max_distance_off_road": off,
-            "completed": drive_time is not None and off <= 0.05}
+    from ..drive.plant import measure_drive
+
+    return measure_drive(sc.plant, sc.state0, jax.random.fold_in(jax.random.key(seed), 0))
+
+
+def outcome(sc, run) -> dict:
+    """``drive_time`` [s] (None: never crossed the end gate), ``max_distance_off_road`` [m]
+    and ``completed`` (`drive_outcome` on the path at every integration step)."""
+    from ..drive.metrics import drive_outcome, drive_path
+
+    t, x, y = drive_path(run, sc.state0)
+    out = drive_outcome(sc.road, t, x, y)
+    return {"drive_time": out.time, "max_distance_off_road": out.max_off_road,
+            "completed": out.completed}

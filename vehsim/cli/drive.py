@@ -25,9 +25,10 @@ ROADS = ("corner90", "uturn", "sturn", "stage")
 CONTROLLERS = ("rh", "rh-nominal", "rh-oracle", "tracking", "open-loop")
 RH_CONTROLLERS = ("rh", "rh-nominal", "rh-oracle")
 MODES = ("rti", "converged")
+CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
 MAX_GRIP = 3.0
-"""The largest grip scale `--grip` and `--patch` take, relative to the nominal road."""
+"""The largest peak friction `--grip` and `--patch` take, relative to the nominal road's."""
 SAMPLE_TIME = 0.05
 """The control period [s] (the plant's actuators' default, 20 Hz)."""
 UNITS = {
@@ -41,7 +42,9 @@ UNITS = {
     "estimate.scale_std": "1", "planner_D.t": "s", "planner_D.D": "1", "truth.peak": "1",
     "trajectory.t": "s", "trajectory.x": "m", "trajectory.y": "m", "trajectory.psi": "rad",
     "trajectory.speed": "m/s", "trajectory.s": "m", "trajectory.n": "m",
-    "compute_time.samples": "1", "settings.seed": "1", "settings.frame_every": "1",
+    "compute_time.samples": "1", "start_speed": "m/s", "truth.t": "s", "truth.scale": "1",
+    "solver.iterations": "1", "solver.converged": "1 (true or false)",
+    "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
     "commands_replayed_max_difference": "N m or rad (the largest)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
@@ -50,7 +53,7 @@ UNITS = {
 
 def patch(text: str) -> tuple[float, float, float, float]:
     """``X,Y,RADIUS,SCALE``: an icy (or grippy) circular patch, centre [m], radius [m] > 0 and
-    grip scale in (0, `MAX_GRIP`] relative to the nominal road."""
+    peak friction SCALE in (0, `MAX_GRIP`] relative to the nominal road's."""
     rule = (f"must be X,Y,RADIUS,SCALE: four finite numbers, the centre [m], RADIUS > 0 m and "
             f"SCALE in (0, {MAX_GRIP:g}] (relative to the nominal road)")
     try:
@@ -85,12 +88,17 @@ def register(subparsers) -> None:
                             "point (--closed: a circuit)")
     p.add_argument("--closed", action="store_true",
                    help="with --road-file: the road is a circuit")
-    p.add_argument("--grip", type=number(0.0, MAX_GRIP, lower_open=True), default=1.0,
-                   help="the grip everywhere, relative to the nominal road (gravel, peak "
-                        f"friction 0.52), in (0, {MAX_GRIP:g}] (1; 0.8: 20 %% less)")
+    p.add_argument("--conditions", type=choice_of(CONDITIONS, "conditions"), default=None,
+                   help="a named grip scenario instead of --grip/--patch: nominal, minus20 "
+                        "(20 %% less grip everywhere), icy (a patch of half the grip on the "
+                        "main corner) or rising (60 %% of the grip at the start, all of it "
+                        "from a third of the road on); docs/driver.md")
+    p.add_argument("--grip", type=number(0.0, MAX_GRIP, lower_open=True), default=None,
+                   help="the peak friction everywhere, relative to the nominal road's (gravel, "
+                        f"0.52), in (0, {MAX_GRIP:g}] (default 1; 0.8: 20 %% less)")
     p.add_argument("--patch", type=patch, action="append", default=[], metavar="X,Y,R,SCALE",
-                   help="a circular patch of grip SCALE (relative to the nominal road) of "
-                        "radius R [m] centred at (X, Y) [m]; repeat for several")
+                   help="a circular patch of radius R [m] centred at (X, Y) [m] whose peak "
+                        "friction is SCALE times the nominal road's; repeat for several")
     p.add_argument("--controller", type=choice_of(CONTROLLERS, "controller"), default="rh",
                    help="rh: receding horizon with the grip estimate (default); rh-nominal: "
                         "with the nominal friction; rh-oracle: with the true grip along the "
@@ -119,6 +127,11 @@ def register(subparsers) -> None:
 
 def _check(args) -> None:
     """Checks between options (before anything is computed)."""
+    if args.conditions is not None and (args.grip is not None or args.patch):
+        raise ValueError(f"--conditions {args.conditions} names the grip; leave out --grip "
+                         "and --patch (or give those without --conditions)")
+    if args.grip is None:
+        args.grip = 1.0
     if args.closed and args.road_file is None:
         raise ValueError("--closed applies to --road-file (a scenario road knows its shape)")
     if args.mode is not None and args.controller not in RH_CONTROLLERS:
@@ -217,38 +230,46 @@ def _drive(args) -> int:
 
     road = setup.road(args)
     _patches_reach_road(road, args.patch)
-    scenario = setup.scenario(args, road)
+    rh = args.controller in RH_CONTROLLERS
+    grip = (f"conditions {args.conditions}" if args.conditions else f"grip {args.grip:g}"
+            + (f" with {len(args.patch)} patch(es)" if args.patch else ""))
+    sc = setup.scenario(args, road)
     print(f"vehsim drive {road.name}: a {road.length:.1f} m {'lap' if road.closed else 'road'}"
-          f", {args.controller}" + (f" ({args.mode or 'rti'})" if args.controller in
-                                    RH_CONTROLLERS else "")
-          + f", grip {args.grip:g}" + (f" with {len(args.patch)} patch(es)" if args.patch
-                                       else "")
-          + f", {scenario.num_samples} samples of {SAMPLE_TIME:g} s; compiling the drive "
-            "(a minute or more on 2 cores), then running it", file=sys.stderr, flush=True)
+          f", {args.controller}" + (f" ({args.mode or 'rti'})" if rh else "") + f", {grip}, "
+          f"{sc.num_samples} samples of {SAMPLE_TIME:g} s; "
+          + ("" if rh else "solving the nominal plan, then ")
+          + "compiling the drive (a minute or more on 2 cores), then running it",
+          file=sys.stderr, flush=True)
     import jax
     import numpy as np
 
     from .._io import save_figure, write_json
     from .._result_files import with_units
+    from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
     from ..plot import drive_animation, drive_figure, drive_trace
 
     t0 = time.perf_counter()
-    run = jax.block_until_ready(setup.simulate(scenario, args.seed))
+    driver, estimator = setup.controller(args, sc)
+    run = jax.block_until_ready(setup.simulate(sc, driver, estimator, args.seed))
     wall = time.perf_counter() - t0
-    print(f"drove in {wall:.1f} s (compile and run); timing the controller sample by sample",
-          file=sys.stderr, flush=True)
-    timing = controller_timing(scenario.controller, scenario.estimator, scenario.m0(args.seed),
+    print(f"drove in {wall:.1f} s (set-up, compilation and the drive); timing the "
+          "controller sample by sample", file=sys.stderr, flush=True)
+    timing = controller_timing(driver, estimator, setup.first_measurement(sc, args.seed),
                                run.measurements)
-    tr = drive_trace(road, run, scenario.plant, nominal_peak=scenario.nominal_peak)
-    metrics = setup.metrics(scenario, run)
+    result = setup.outcome(sc, run)
+    t = np.asarray(run.states.t)
+    upto = None if result["drive_time"] is None else int(
+        min(len(t), np.searchsorted(t, result["drive_time"]) + 1))
+    tr = drive_trace(road, run, sc.plant, upto)
+    info = run.controller_info
     rec = {
         "road": road.name, "length": road.length, "closed": road.closed,
-        "controller": args.controller,
-        "mode": args.mode or "rti" if args.controller in RH_CONTROLLERS else None,
-        "completed": metrics["completed"], "drive_time": metrics["drive_time"],
-        "max_distance_off_road": metrics["max_distance_off_road"],
-        "sample_time": SAMPLE_TIME, "duration": scenario.num_samples * SAMPLE_TIME,
-        "nominal_scale": scenario.nominal_scale, "nominal_D": scenario.nominal_D,
+        "controller": args.controller, "mode": (args.mode or "rti") if rh else None,
+        "completed": result["completed"], "drive_time": result["drive_time"],
+        "max_distance_off_road": result["max_distance_off_road"],
+        "sample_time": SAMPLE_TIME, "duration": sc.num_samples * SAMPLE_TIME,
+        "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
+        "nominal_scale": nominal_scale(),
         **timing_record(timing["times"], SAMPLE_TIME, timing["compile"]),
         "commands_replayed_max_difference": float(np.max(np.abs(
             timing["commands"] - np.asarray(run.commands)))),
@@ -256,10 +277,13 @@ def _drive(args) -> int:
             "t": tr["t"], "peak": tr["peak_est"], "peak_std": tr["peak_std"],
             "scale": tr["scale_est"], "scale_std": np.asarray(run.estimates.scale_std)},
         "planner_D": None if "planner_D" not in tr else {"t": tr["t"], "D": tr["planner_D"]},
-        "truth": {"peak": tr["peak_true"]},
+        "solver": None if not isinstance(info, dict) else {
+            k: np.asarray(info[k]) for k in ("iterations", "converged", "kkt") if k in info},
+        "truth": {"t": tr["t"], "peak": tr["peak_true"], "scale": tr["scale_true"]},
         "trajectory": {k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
-                     "grip": args.grip, "patches": [list(p) for p in args.patch],
+                     "conditions": args.conditions, "grip": args.grip,
+                     "patches": [list(p) for p in args.patch],
                      "controller": args.controller, "mode": args.mode, "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,
                      "animation": args.animation and (args.animation_format or "gif"),
@@ -268,25 +292,24 @@ def _drive(args) -> int:
     }
     out = Path(args.out)
     write_json(out / "drive.json", with_units(rec, UNITS))
-    status = ("completed in " + f"{metrics['drive_time']:.2f} s" if metrics["completed"]
-              else "not completed")
+    status = (f"completed in {result['drive_time']:.2f} s" if result["completed"] else
+              "crossed the end in " + f"{result['drive_time']:.2f} s" if result["drive_time"]
+              else "did not reach the end")
     title = (f"{road.name}, {args.controller}: {status}, off the road "
-             f"{100 * metrics['max_distance_off_road']:.1f} cm")
-    save_figure(drive_figure(road, run, scenario.plant, title=title,
-                             nominal_peak=scenario.nominal_peak,
-                             grip_vmax=scenario.nominal_scale), out / "drive.png")
+             f"{100 * result['max_distance_off_road']:.1f} cm")
+    save_figure(drive_figure(road, run, sc.plant, title=title, grip_vmax=nominal_scale(),
+                             upto=upto), out / "drive.png")
     written = ["drive.json", "drive.png"]
     if args.animation:
         name = f"drive.{args.animation_format or 'gif'}"
         print(f"drawing the animation ({name})", file=sys.stderr, flush=True)
         extent = max(np.ptp(tr["x"]), np.ptp(tr["y"]))
-        drive_animation(road, run, out / name, scenario.plant, every=args.frame_every,
-                        nominal_peak=scenario.nominal_peak, title=title,
-                        grip_vmax=scenario.nominal_scale,
-                        window=40.0 if extent > 120.0 else None)
+        drive_animation(road, run, out / name, sc.plant, every=args.frame_every, title=title,
+                        grip_vmax=nominal_scale(), window=40.0 if extent > 120.0 else None,
+                        upto=upto)
         written.append(name)
     ct = rec["compute_time"]
-    print(f"{status}, off the road {metrics['max_distance_off_road']:.3f} m"
+    print(f"{status}, off the road {result['max_distance_off_road']:.3f} m"
           + ("" if ct is None else f", controller {1e3 * ct['p50']:.2f} ms p50, "
              f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * SAMPLE_TIME:g} ms sample")
           + f"; wrote {', '.join(str(out / w) for w in written)}", file=sys.stderr)
