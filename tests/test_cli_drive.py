@@ -23,11 +23,12 @@ pytestmark = pytest.mark.xdist_group("drive")
 PNG = b"\x89PNG\r\n\x1a\n"
 GIF = (b"GIF87a", b"GIF89a")
 SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
-DURATION, EVERY = 1.5, 4
+DURATION, EVERY = 1.0, 4
 KEYS = {"road", "length", "closed", "controller", "mode", "completed", "drive_time",
-        "max_distance_off_road", "sample_time", "duration", "nominal_scale", "nominal_D",
-        "compute_time", "real_time_factor", "commands_replayed_max_difference", "estimate",
-        "planner_D", "truth", "trajectory", "settings", "wall_time_s", "units"}
+        "max_distance_off_road", "sample_time", "duration", "start_speed", "nominal_scale",
+        "nominal_D", "compute_time", "real_time_factor", "commands_replayed_max_difference",
+        "estimate", "planner_D", "solver", "truth", "trajectory", "settings", "wall_time_s",
+        "units"}
 
 
 def _run(argv, capsys):
@@ -45,34 +46,54 @@ def road_file(tmp_path_factory):
     return path
 
 
-@pytest.fixture(scope="module")
-def drive(road_file, tmp_path_factory):
-    """One short drive on the command line: (output folder, its record, stderr)."""
-    out = tmp_path_factory.mktemp("drive")
-    code = cli.main(["--no-compilation-cache", "drive", "--road-file", str(road_file),
-                     "--controller", "tracking", "--grip", "0.8", "--duration", str(DURATION),
-                     "--frame-every", str(EVERY), "--seed", "3", "--out", str(out)])
+def _drive(argv, out):
+    code = cli.main(["--no-compilation-cache", "drive", *map(str, argv), "--out", str(out)])
     assert code == 0
-    return out, json.loads((out / "drive.json").read_text())
+    return json.loads((out / "drive.json").read_text())
 
 
-def test_drive_writes_the_documented_record_figure_and_animation(drive):
-    out, rec = drive
+@pytest.fixture(scope="module")
+def rh_drive(tmp_path_factory):
+    """The receding-horizon driver with the estimate on the icy corner, for a second: (output
+    folder, record)."""
+    out = tmp_path_factory.mktemp("rh")
+    return out, _drive(["--road", "corner90", "--conditions", "icy", "--duration", DURATION,
+                        "--frame-every", EVERY, "--seed", 3], out)
+
+
+@pytest.fixture(scope="module")
+def tracking_drive(road_file, tmp_path_factory):
+    """The nominal plan tracked on a road file of 80 % of the nominal grip: (output folder,
+    record)."""
+    out = tmp_path_factory.mktemp("tracking")
+    return out, _drive(["--road-file", road_file, "--controller", "tracking", "--grip", 0.8,
+                        "--duration", 0.5, "--no-animation"], out)
+
+
+def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
+    out, rec = rh_drive
     assert set(rec) == KEYS
     n = round(DURATION / 0.05)
     assert len(rec["trajectory"]["t"]) == n and rec["duration"] == pytest.approx(DURATION)
-    assert rec["road"] == "bend" and rec["controller"] == "tracking" and rec["mode"] is None
-    assert rec["settings"]["seed"] == 3 and rec["settings"]["grip"] == 0.8
-    assert rec["estimate"] is None  # only the rh controller runs the estimator
+    assert rec["road"] == "corner90" and rec["controller"] == "rh" and rec["mode"] == "rti"
+    assert rec["settings"]["seed"] == 3 and rec["settings"]["conditions"] == "icy"
     for key in ("max_distance_off_road", "compute_time.p50", "compute_time.p99",
-                "trajectory.x"):
+                "trajectory.x", "estimate.peak", "planner_D.D", "truth.peak"):
         assert key in rec["units"], key
     ct = rec["compute_time"]
     assert ct["samples"] == n - 1 and 0 < ct["p50"] <= ct["p99"] <= ct["max"]
     assert rec["real_time_factor"] == pytest.approx(ct["p50"] / 0.05)
     # the controller compiled apart and run on the recorded measurements issued the commands
-    # that drove
-    assert rec["commands_replayed_max_difference"] == 0.0
+    # that drove (the same computation, compiled twice)
+    assert rec["commands_replayed_max_difference"] < 1e-6
+    est = np.asarray(rec["estimate"]["peak"])
+    std = np.asarray(rec["estimate"]["peak_std"])
+    assert est.shape == (n, 2) and np.all(std > 0)
+    # the planner's D is the estimate it was given (the one after the previous sample): the
+    # smaller axle's peak less one standard deviation
+    D = np.asarray(rec["planner_D"]["D"])
+    np.testing.assert_allclose(D[1:], np.min(est - std, axis=1)[:-1], rtol=1e-9)
+    assert len(rec["solver"]["iterations"]) == n
     assert (out / "drive.png").read_bytes()[:8] == PNG
     gif = out / "drive.gif"
     assert gif.read_bytes()[:6] in GIF
@@ -83,14 +104,19 @@ def test_drive_writes_the_documented_record_figure_and_animation(drive):
     assert sorted(p.name for p in out.iterdir()) == ["drive.gif", "drive.json", "drive.png"]
 
 
-def test_the_record_reports_the_grip_asked_for(drive):
-    """--grip 0.8 of the nominal road: the true peak under both axles is 0.8 D = 0.416 (the
-    nominal scale computed from the tire's peak, not typed)."""
-    _, rec = drive
+def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
+    """--grip 0.8 of the nominal road: the true peak under both axles is 0.8 x 0.52 = 0.416
+    (the scale solved for it, the peak not being proportional to it); no estimator, no
+    planner, no animation."""
+    out, rec = tracking_drive
+    assert set(rec) == KEYS
     peak = np.asarray(rec["truth"]["peak"])
-    assert peak.shape == (len(rec["trajectory"]["t"]), 2)
-    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-9)
-    assert rec["nominal_scale"] * float(vs.AxleGripEstimator().peak(1.0)) == pytest.approx(0.52)
+    assert peak.shape == (10, 2)
+    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
+    assert rec["nominal_D"] == 0.52 and rec["mode"] is None
+    assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
+    assert rec["commands_replayed_max_difference"] < 1e-9
+    assert sorted(p.name for p in out.iterdir()) == ["drive.json", "drive.png"]
 
 
 BAD = {
@@ -118,6 +144,11 @@ BAD = {
     "format without animation": (["--road", "corner90", "--no-animation",
                                   "--animation-format", "gif"], "--animation-format"),
     "no frames": (["--road", "corner90", "--frame-every", "0"], "--frame-every"),
+    "unknown conditions": (["--road", "corner90", "--conditions", "mud"], "--conditions"),
+    "conditions and grip": (["--road", "corner90", "--conditions", "icy", "--grip", "0.5"],
+                            "--conditions"),
+    "conditions and patch": (["--road", "corner90", "--conditions", "icy", "--patch",
+                              "9,9,2,0.5"], "--conditions"),
 }
 
 
@@ -191,33 +222,28 @@ def test_figure_footprints_sit_at_the_poses(small_run):
 
 
 def test_trace_truth_and_planned_horizon(small_run):
-    """The truth under each axle is the grip field at the axle's contact point times the
-    tire's peak; a planned horizon (s, n) is drawn at the road's c(s) + n N(s)."""
+    """The truth under each axle is the tire's peak on the grip field at that axle's contact
+    point (front: lF ahead of the centre of gravity along the heading); a planned horizon
+    (s, n) (`RecedingHorizonDriver.info`) is drawn at the road's c(s) + n N(s)."""
     road, plant, run = small_run
-    info = {"horizon_s": np.linspace(0, 20, 13 * 5).reshape(13, 5),
-            "horizon_n": np.full((13, 5), 0.7), "D": np.full((13, 5), 0.4)}
-    run = eqx_with_info(run, info)
-    tr = drive_trace(road, run, plant, nominal_peak=1.5)
+    M = 5
+    info = {"plan_s": np.linspace(0, 20, 13 * (M + 1)).reshape(13, M + 1),
+            "plan_n": np.full((13, M + 1), 0.7), "D": np.full((13, M), 0.4)}
+    run = vs.DriveRun(run.states, run.measurements, run.commands, run.estimates, run.final,
+                      controller_info=info)
+    tr = drive_trace(road, run, plant)
     car = np.asarray(run.states.car)
     lF = float(plant.params.lF)
     xF = car[:, 0] + lF * np.cos(car[:, 2])
     yF = car[:, 1] + lF * np.sin(car[:, 2])
-    np.testing.assert_allclose(tr["peak_true"][:, 0],
-                               1.5 * np.asarray(plant.grip.scale_at(xF, yF)), rtol=1e-12)
-    assert tr["peak_true"][:, 0].min() < 0.5 < 0.7 < tr["peak_true"][:, 0].max()  # the patch
-    s, n = info["horizon_s"], info["horizon_n"]
+    peak = jax.vmap(vs.AxleGripEstimator().peak)
+    np.testing.assert_allclose(tr["peak_true"][:, 0], peak(plant.grip.scale_at(xF, yF)),
+                               rtol=1e-12)
+    on_patch = float(peak(jnp.array([0.3]))[0])
+    assert tr["peak_true"][:, 0].min() < on_patch < tr["peak_true"][:, 0].max()  # the patch
+    s, n = info["plan_s"], info["plan_n"]
     cx, cy = road.position(s)
     th = road.heading(s)
     np.testing.assert_allclose(tr["horizon_x"], cx - n * np.sin(th), atol=1e-9)
     np.testing.assert_allclose(tr["horizon_y"], cy + n * np.cos(th), atol=1e-9)
     np.testing.assert_allclose(tr["planner_D"], 0.4)
-
-
-def eqx_with_info(run, info):
-    """`run` with `controller_info` (a plain object: the drive's record may not carry it)."""
-    class WithInfo:
-        def __init__(self, run, info):
-            self.__dict__.update({f: getattr(run, f) for f in
-                                  ("states", "measurements", "commands", "estimates", "final")})
-            self.controller_info = info
-    return WithInfo(run, info)
