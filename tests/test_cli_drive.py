@@ -215,7 +215,9 @@ def test_figure_footprints_sit_at_the_poses(small_run):
         np.testing.assert_allclose(corners.mean(axis=0), car[k, :2], atol=1e-9)
         long_side = corners[0] - corners[3]
         np.testing.assert_allclose(np.hypot(*long_side), 4.2, rtol=1e-12)
-        np.testing.assert_allclose(np.hypot(*(corners[0] - corners[1])), 1.8, rtol=1e-12)
+        short_side = corners[0] - corners[1]
+        np.testing.assert_allclose(np.hypot(*short_side), 1.8, rtol=1e-12)
+        assert abs(np.dot(long_side, short_side)) < 1e-9  # a rectangle
         np.testing.assert_allclose(np.arctan2(long_side[1], long_side[0]), car[k, 2],
                                    atol=1e-12)
     plt.close(fig)
