@@ -249,3 +249,6 @@ def test_trace_truth_and_planned_horizon(small_run):
     np.testing.assert_allclose(tr["horizon_x"], cx - n * np.sin(th), atol=1e-9)
     np.testing.assert_allclose(tr["horizon_y"], cy + n * np.cos(th), atol=1e-9)
     np.testing.assert_allclose(tr["planner_D"], 0.4)
+    head = drive_trace(road, run, plant, upto=5)  # up to the end gate, say
+    for key, value in head.items():
+        np.testing.assert_array_equal(value, tr[key][:5], err_msg=key)

@@ -425,25 +425,26 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
 
     from .drive.estimator import AxleGripEstimator
 
-    if upto is not None:
-        run = jax.tree.map(lambda a: a[:upto], run)
+    def cut(tree):  # the first `upto` samples of a per-sample record
+        return tree if upto is None else jax.tree.map(lambda a: a[:upto], tree)
 
-    car = np.asarray(run.states.car)
+    states, estimates = cut(run.states), cut(run.estimates)
+    car = np.asarray(states.car)
     x, y, psi, vx, vy = (car[:, i] for i in range(5))
     s, n = road.to_frenet(x, y)
-    lam_F, lam_R = jax.vmap(plant.grip_scales)(run.states.car)
+    lam_F, lam_R = jax.vmap(plant.grip_scales)(states.car)
     lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
     est = AxleGripEstimator(params=plant.params, tire=plant.tire)
     peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
-    out = {"t": np.asarray(run.states.t), "x": x, "y": y, "psi": psi,
-           "speed": np.hypot(vx, vy), "s": s, "n": n, "command": np.asarray(run.commands),
-           "applied": np.asarray(run.states.actuators.applied), "scale_true": lam,
+    out = {"t": np.asarray(states.t), "x": x, "y": y, "psi": psi,
+           "speed": np.hypot(vx, vy), "s": s, "n": n, "command": np.asarray(cut(run.commands)),
+           "applied": np.asarray(states.actuators.applied), "scale_true": lam,
            "peak_true": peak}
-    if run.estimates is not None:
-        out["scale_est"] = np.asarray(run.estimates.scale)
-        out["peak_est"] = np.asarray(run.estimates.peak)
-        out["peak_std"] = np.asarray(run.estimates.peak_std)
-    out.update(_planned(road, getattr(run, "controller_info", None)))
+    if estimates is not None:
+        out["scale_est"] = np.asarray(estimates.scale)
+        out["peak_est"] = np.asarray(estimates.peak)
+        out["peak_std"] = np.asarray(estimates.peak_std)
+    out.update(_planned(road, cut(getattr(run, "controller_info", None))))
     return out
 
 
