@@ -453,6 +453,29 @@ def shift_plan(xs, us, distance, horizon):
 # ---- the controller ---------------------------------------------------------------------
 
 
+REVERSE_MODE_MESSAGE = (
+    "RecedingHorizonDriver: reverse-mode differentiation (jax.grad, jax.vjp) cannot run "
+    "through the interior-point solve of each sample (a lax.while_loop); differentiate the "
+    "drive in forward mode instead (jax.jvp, jax.jacfwd)")
+
+
+def _refuse_transpose(*args):
+    raise TypeError(REVERSE_MODE_MESSAGE)
+
+
+@jax.custom_jvp
+def forward_only(x):
+    """The identity, differentiable in forward mode; its transpose (reverse mode) raises
+    `REVERSE_MODE_MESSAGE` instead of JAX's error from inside the solver."""
+    return x
+
+
+@forward_only.defjvp
+def _forward_only_jvp(primals, tangents):
+    (x,), (t,) = primals, tangents
+    return x, jax.custom_derivatives.linear_call(lambda _, tt: tt, _refuse_transpose, (), t)
+
+
 def _default_car() -> ReducedHalfCar:
     from ..optimal.primitives import rally_gravel_car
 
@@ -460,12 +483,15 @@ def _default_car() -> ReducedHalfCar:
 
 
 class HorizonState(eqx.Module):
-    """The driver between samples: arc length `s` of the last projection, the plan (`xs`,
+    """The driver between samples: arc length `s` of the last projection, the filtered
+    `position` $(x, y)$ and the measured ground `velocity` in the inertial frame, the plan (`xs`,
     `us`, starting at `s_plan`), the `inputs` $(\\kappa_F, \\kappa_R, \\delta)$ of the last
     command, and its diagnostics: `iterations`, `converged`, `kkt` (the largest of the
     residuals), `D` (M,) the planner's peak friction, `projection` $(s, n, \\xi)$."""
 
     s: Float[Array, ""]
+    position: Float[Array, " 2"]
+    velocity: Float[Array, " 2"]
     s_plan: Float[Array, ""]
     xs: Float[Array, "M+1 9"]
     us: Float[Array, "M 3"]
@@ -491,7 +517,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     ahead) or 'estimate' (the estimator's `GripEstimate.peak`, the smaller axle's, minus
     `estimate_backoff` times its `peak_std`, uniform over the horizon; needs an estimator in
     `simulate_drive`); `slip_gain` [N m] (torque per unit slip error), `lead` [s] (the
-    plan is read this far past the prediction: the actuators' lag), `steer_rate` [rad/s],
+    plan is read this far past the prediction: the actuators' lag), `position_gain` (the
+    weight of the measured position against dead reckoning, `filter_position`; 1: the
+    raw measurement), `steer_rate` [rad/s],
     `steer_limit` [rad], `sample_time` [s] and `delay_samples` (static; the actuators'),
     `init_iterations` (cap of the first solve).
 
@@ -517,6 +545,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     estimate_backoff: Float[Array, ""] = array_field(default=1.0)
     slip_gain: Float[Array, ""] = array_field(default=0.0)
     lead: Float[Array, ""] = array_field(default=0.05)
+    position_gain: Float[Array, ""] = array_field(default=0.1)
     steer_rate: Float[Array, ""] = array_field(default=1.0)
     steer_limit: Float[Array, ""] = array_field(default=0.6)
     sample_time: Float[Array, ""] = array_field(default=0.05)
@@ -602,19 +631,36 @@ class RecedingHorizonDriver(AbstractDriveController):
     def _solve(self, prob, xs0, us0, options) -> IPSolution:
         sol = interior_point(prob, xs0, us0, options, throw=False)
         ok = jnp.all(jnp.isfinite(sol.xs)) & jnp.all(jnp.isfinite(sol.us))
-        xs = jnp.where(ok, sol.xs, xs0)
-        us = jnp.where(ok, sol.us, us0)
+        xs = forward_only(jnp.where(ok, sol.xs, xs0))
+        us = forward_only(jnp.where(ok, sol.us, us0))
         return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
 
-    def _state(self, s, s_plan, sol, inputs, D, projection):
+    def _state(self, s, position, velocity, s_plan, sol, inputs, D, projection):
         kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
-        return HorizonState(s=s, s_plan=s_plan, xs=sol.xs, us=sol.us, inputs=inputs,
+        return HorizonState(s=s, position=position, velocity=velocity, s_plan=s_plan,
+                            xs=sol.xs, us=sol.us, inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
                             projection=projection)
 
-    def _measured_state(self, m: DriveMeasurement, s_guess):
-        s, n, xi = self.table.to_frenet(m.x, m.y, m.psi, s_guess)
+    def _measured_state(self, m: DriveMeasurement, position, s_guess):
+        s, n, xi = self.table.to_frenet(position[0], position[1], m.psi, s_guess)
         return s, jnp.stack([n, xi, m.vx, m.vy, m.yaw_rate])
+
+    @staticmethod
+    def _world_velocity(m: DriveMeasurement):
+        c, sn = jnp.cos(m.psi), jnp.sin(m.psi)
+        return jnp.stack([c * m.vx - sn * m.vy, sn * m.vx + c * m.vy])
+
+    def filter_position(self, state: HorizonState, m: DriveMeasurement):
+        r"""The position estimate: dead reckoning over the sample with the measured ground
+        velocities (trapezoidal rule), corrected toward the measured position by
+        `position_gain` $g$: $\hat p_k = \bar p + g(p_k - \bar p)$,
+        $\bar p = \hat p_{k-1} + \tfrac T2(v_{k-1} + v_k)$. Returns the position and
+        the velocity $v_k$ (inertial frame)."""
+        v = self._world_velocity(m)
+        pred = state.position + 0.5 * self.sample_time * (state.velocity + v)
+        p = pred + self.position_gain * (jnp.stack([m.x, m.y]) - pred)
+        return p, v
 
     # ---- the controller protocol --------------------------------------------------------
 
@@ -625,7 +671,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         m = measurement
         d2 = (self.table.x - m.x) ** 2 + (self.table.y - m.y) ** 2
         s_guess = self.table.s[jnp.argmin(d2)]
-        s, X5 = self._measured_state(m, s_guess)
+        position = jnp.stack([m.x, m.y])
+        s, X5 = self._measured_state(m, position, s_guess)
         inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
         state8 = jnp.concatenate([X5, inputs])
         if self.friction == "estimate":  # no data yet: the nominal friction
@@ -634,12 +681,14 @@ class RecedingHorizonDriver(AbstractDriveController):
             D = self.planner_friction(s, None)
         xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
         sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True))
-        return self._state(s, s, sol, inputs, D, jnp.concatenate([s[None], X5[:2]]))
+        return self._state(s, position, self._world_velocity(m), s, sol, inputs, D,
+                           jnp.concatenate([s[None], X5[:2]]))
 
     def command(self, state: HorizonState, measurement: DriveMeasurement, estimate
                 ) -> tuple[HorizonState, Float[Array, " 3"]]:
         m = measurement
-        s, X5 = self._measured_state(m, state.s)
+        position, velocity = self.filter_position(state, m)
+        s, X5 = self._measured_state(m, position, state.s)
         T = self.sample_time
         delay = self.delay_samples * T
         y = self.predict(s, X5, state.inputs, delay) if self.delay_samples > 0 else \
@@ -655,7 +704,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
         torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
-        new = self._state(s, s_pred, sol, inputs, D, jnp.concatenate([s[None], X5[:2]]))
+        new = self._state(s, position, velocity, s_pred, sol, inputs, D,
+                          jnp.concatenate([s[None], X5[:2]]))
         return new, jnp.concatenate([torques, inputs[2:]])
 
     def measured_slip(self, m: DriveMeasurement):
@@ -686,10 +736,11 @@ class RecedingHorizonDriver(AbstractDriveController):
 
     def info(self, state: HorizonState) -> dict:
         """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the planned horizon
-        as `plan_s`, `plan_n` (M+1,) and `plan_t`, the planner's `D` (M,), the projection
-        `s`, `n`, `xi`."""
+        as `plan_s`, `plan_n` (M+1,) and `plan_t`, its `start` (the predicted state the
+        plan starts from, (8,)), the planner's `D` (M,), the projection `s`, `n`, `xi`."""
         M = self.num_stages
         return dict(iterations=state.iterations, converged=state.converged, kkt=state.kkt,
                     plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
-                    plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], D=state.D,
+                    plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], start=state.xs[0, :8],
+                    D=state.D,
                     s=state.projection[0], n=state.projection[1], xi=state.projection[2])
