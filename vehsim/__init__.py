@@ -374,6 +374,15 @@ from .drive.actuators import (
     DriveActuatorState as DriveActuatorState,
     ideal_actuators as ideal_actuators,
 )
+from .drive.baselines import (
+    PrimitiveReference as PrimitiveReference,
+    PrimitiveTracker as PrimitiveTracker,
+    command_lead as command_lead,
+    nominal_primitive as nominal_primitive,
+    offline_bound as offline_bound,
+    open_loop_schedule as open_loop_schedule,
+    primitive_reference as primitive_reference,
+)
 from .drive.estimator import (
     AbstractGripEstimator as AbstractGripEstimator,
     AxleGripEstimator as AxleGripEstimator,
@@ -397,12 +406,33 @@ from .drive.horizon import (
     profile_guess as profile_guess,
     shift_plan as shift_plan,
 )
+from .drive.metrics import (
+    DriveOutcome as DriveOutcome,
+    EndGate as EndGate,
+    drive_outcome as drive_outcome,
+    drive_path as drive_path,
+    drive_time as drive_time,
+    max_distance_off_road as max_distance_off_road,
+    path_departure as path_departure,
+)
 from .drive.plant import (
     DrivePlant as DrivePlant,
     DriveState as DriveState,
     drive_step as drive_step,
     init_drive as init_drive,
     measure_drive as measure_drive,
+)
+from .drive.scenarios import (
+    DriveScenario as DriveScenario,
+    PatchedProfile as PatchedProfile,
+    ScenarioGrip as ScenarioGrip,
+    drive_scenario as drive_scenario,
+    main_corner as main_corner,
+    nominal_scale as nominal_scale,
+    plant_peak as plant_peak,
+    scale_for_peak as scale_for_peak,
+    scenario_grip as scenario_grip,
+    scenario_road as scenario_road,
 )
 from .drive.sensors import DriveMeasurement as DriveMeasurement, DriveSensors as DriveSensors
 from .drive.simulate import (

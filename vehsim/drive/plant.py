@@ -144,19 +144,24 @@ def measure_drive(plant: DrivePlant, state: DriveState, key,
     return measure(plant.sensors, key, state.t, truth, u[2], torque)
 
 
-def drive_step(plant: DrivePlant, state: DriveState, command, key
-               ) -> tuple[DriveState, DriveMeasurement]:
+def drive_step(plant: DrivePlant, state: DriveState, command, key, *,
+               substep_poses: bool = False):
     r"""One control sample: the command $(T_F, T_R, \delta)$ issued at sample $k$ goes
     through the actuators, the half-car is integrated over $[t_k, t_k + T]$ and the sensors
-    read it at $t_{k+1}$ with the noise of `key`. **Returns** ``(state, measurement)``."""
+    read it at $t_{k+1}$ with the noise of `key`. **Returns** ``(state, measurement)``; with
+    `substep_poses`, ``(state, measurement, poses)``, `poses` the centre of gravity's
+    $(x, y)$ [m] at the end of every integration step, $t_k + jT/$`substeps`,
+    $j = 1..$`substeps` (shape (substeps, 2); the last row is the new state's)."""
     act = plant.actuators
     T = act.sample_time
     act_state, target = actuator_target(act, state.actuators, state.k, command)
     u0 = state.actuators.applied
     car = plant.nominal_car
-    y1, _ = integrate_sample(_rates, state.car, (plant, u0, target, state.t), state.t, T,
-                             car.stiff_blocks, plant.substeps)
+    out = integrate_sample(_rates, state.car, (plant, u0, target, state.t), state.t, T,
+                           car.stiff_blocks, plant.substeps, save_substeps=substep_poses)
+    y1 = out[0]
     u1 = applied(act, u0, target, T)
     new = DriveState(state.k + 1, state.t + T, y1,
                      DriveActuatorState(act_state.buffer, target, u1))
-    return new, measure_drive(plant, new, key, mean_applied(act, u0, target)[:2])
+    m = measure_drive(plant, new, key, mean_applied(act, u0, target)[:2])
+    return (new, m, out[2][:, :2]) if substep_poses else (new, m)

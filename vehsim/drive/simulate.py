@@ -125,7 +125,9 @@ class DriveRun(eqx.Module):
     (`DriveState`), the `measurements`, the `commands` issued before each sample, the
     estimator's `estimates` (`GripEstimate`, None without an estimator); `final`: the plant
     state at the end; `controller_info`: the controller's `info(state)` after each command
-    (None for a controller without `info`)."""
+    (None for a controller without `info`); `poses`: the centre of gravity's $(x, y)$ at
+    every integration step (N, substeps, 2; None unless asked for,
+    `simulate_drive(..., substep_poses=True)`)."""
 
     states: DriveState
     measurements: DriveMeasurement
@@ -133,16 +135,20 @@ class DriveRun(eqx.Module):
     estimates: PyTree
     final: DriveState
     controller_info: PyTree = None
+    poses: PyTree = None
 
 
 def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state0: DriveState,
-                   key, num_samples: int, estimator=None) -> DriveRun:
+                   key, num_samples: int, estimator=None, *,
+                   substep_poses: bool = False) -> DriveRun:
     r"""`num_samples` control samples of `controller` driving `plant` from `state0`, the
     sensor noise of sample $k$ drawn from ``fold_in(key, k)`` (module docstring).
 
     `estimator`: an `AbstractGripEstimator` run on the measurements; the controller gets
     its `estimate` before each command. A controller with an `info(state)` method has it
-    recorded after each command (`DriveRun.controller_info`)."""
+    recorded after each command (`DriveRun.controller_info`). `substep_poses`: also record
+    the centre of gravity's pose at every integration step (`DriveRun.poses`,
+    `drive_step`)."""
     m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
     c0 = controller.init(m0)
     e0 = None if estimator is None else estimator.init(m0)
@@ -153,12 +159,14 @@ def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state
         estimate = None if estimator is None else estimator.estimate(es)
         cs, command = controller.command(cs, m, estimate)
         record = None if info is None else info(cs)
-        state, m = drive_step(plant, state, command, jax.random.fold_in(key, k + 1))
+        state, m, *poses = drive_step(plant, state, command, jax.random.fold_in(key, k + 1),
+                                      substep_poses=substep_poses)
         if estimator is not None:
             es = estimator.update(es, m)
             estimate = estimator.estimate(es)
-        return (state, m, cs, es), (state, m, command, estimate, record)
+        return (state, m, cs, es), (state, m, command, estimate, record,
+                                    poses[0] if poses else None)
 
-    (final, _, _, _), (states, ms, commands, estimates, infos) = jax.lax.scan(
+    (final, _, _, _), (states, ms, commands, estimates, infos, poses) = jax.lax.scan(
         sample, (state0, m0, c0, e0), jnp.arange(num_samples))
-    return DriveRun(states, ms, commands, estimates, final, infos)
+    return DriveRun(states, ms, commands, estimates, final, infos, poses)

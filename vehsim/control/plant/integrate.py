@@ -25,23 +25,28 @@ SUBSTEPS = 8
 """Integration steps per control sample."""
 
 
-def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBSTEPS):
+def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBSTEPS,
+                     save_substeps: bool = False):
     r"""Integrate $\dot y$ = `vector_field(t, y, args)` over $[t_0, t_0 + T]$ by `substeps`
     equal steps of `ROS34PW2`, implicit in the stiff `blocks` (index tuples of one length).
 
     **Returns:** ``(y1, result)``: the state at $t_0 + T$ and `RESULTS.nonfinite` if it is
-    not finite (else `successful`).
+    not finite (else `successful`); with `save_substeps`, ``(y1, result, ys)``, `ys` the
+    states at the end of every step, $t_0 + jT/$`substeps`, $j = 1..$`substeps` (the last
+    row is `y1`).
     """
     h = T / substeps
     solver, term = ROS34PW2(tuple(tuple(b) for b in blocks)), dfx.ODETerm(vector_field)
 
     def sub(y, j):
         t = t0 + j * h
-        return solver.step(term, t, t + h, y, args, None, False)[0], None
+        y = solver.step(term, t, t + h, y, args, None, False)[0]
+        return y, (y if save_substeps else None)
 
-    y1 = jax.lax.scan(sub, y0, jnp.arange(substeps))[0]
+    y1, ys = jax.lax.scan(sub, y0, jnp.arange(substeps))
     ok = jnp.all(jnp.isfinite(y1))
-    return y1, RESULTS.where(ok, RESULTS.successful, RESULTS.nonfinite)
+    result = RESULTS.where(ok, RESULTS.successful, RESULTS.nonfinite)
+    return (y1, result, ys) if save_substeps else (y1, result)
 
 
 def hermite(tau, T, p0, p1, d0, d1):

@@ -1,0 +1,276 @@
+"""The drive scenarios: roads x grips x drivers, and a Monte Carlo of noisy drives.
+
+For each road (corner90, uturn, sturn, stage) and grip (nominal, minus20, icy, rising) of
+`vehsim.drive_scenario`, each driver drives the plant (default actuators with delay, rate
+limit and lag; noisy sensors, seed ``--seed``) and is measured at the integrator's
+resolution (`vehsim.drive_outcome`): the time at the end gate, the largest distance off the
+road, completed (crossed, never more than 5 cm off). Drivers:
+
+- ``open-loop``: the nominal minimum-time drive (`nominal_primitive`, D = 0.52) replayed
+  as a command schedule (`open_loop_schedule`);
+- ``tracking``: the same reference tracked (`PrimitiveTracker`);
+- ``rh-nominal``, ``rh-oracle``, ``rh-estimate``: `RecedingHorizonDriver` with the
+  planner's friction fixed at 0.52, the true peak along the horizon (the table's peak
+  column), or the `AxleGripEstimator`'s (prior: the nominal scale);
+- ``bound``: the offline bound (`offline_bound`; time of the reduced model's minimum-time
+  drive on the true grip; departure: its path between the nodes).
+
+One JSON line per row goes to ``--out`` (default experiments/drive_scenarios_results.jsonl,
+appended), then a markdown table is printed. All roads share one number of samples (the
+longest budget) and one road-table size, so that each driver compiles once.
+
+``--monte-carlo SEEDS``: roads x grips x SEEDS noise seeds of one driver (``--mc-driver``,
+default tracking) in ONE jitted, vmapped call (plants, controllers, initial states and keys
+batched; the end-gate time and the departure computed in the same call, on the road
+tables, `path_departure`); prints the compile and run wall times and the completion
+rate, and checks the JAX departure against the exact NumPy one on a few drives.
+
+Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
+       [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
+       [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import vehsim as vs  # noqa: E402
+from vehsim.drive.horizon import BACK_EXTENSION, EXTENSION  # noqa: E402
+from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS  # noqa: E402
+
+
+DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate", "bound")
+OUT = Path(__file__).with_name("drive_scenarios_results.jsonl")
+SPACING = 0.1
+
+
+def common_sizes(roads) -> tuple[float, int]:
+    """The longest time budget [s] and the road-table size that fits every road."""
+    budget = max(TIME_BUDGETS[r] for r in roads)
+    points = max(int(math.ceil((vs.scenario_road(r).length + BACK_EXTENSION + EXTENSION)
+                               / SPACING)) + 1 for r in roads)
+    return budget, points
+
+
+def scenario(road, grip, budget, points):
+    return vs.drive_scenario(road, grip, time_budget=budget, table_points=points,
+                             table_spacing=SPACING)
+
+
+def make_driver(kind: str, sc, reference):
+    """``(controller, estimator)`` of driver `kind` on scenario `sc`."""
+    act = sc.plant.actuators
+    if kind == "open-loop":
+        return vs.open_loop_schedule(reference, act, sc.num_samples), None
+    if kind == "tracking":
+        return vs.PrimitiveTracker(reference=reference, lead=vs.command_lead(act)), None
+    friction = kind.split("-")[1]
+    driver = vs.RecedingHorizonDriver(table=sc.table, friction=friction,
+                                      sample_time=act.sample_time,
+                                      delay_samples=int(act.delay_samples()[0]))
+    estimator = (vs.AxleGripEstimator(prior_scale=vs.nominal_scale())
+                 if friction == "estimate" else None)
+    return driver, estimator
+
+
+@eqx.filter_jit
+def _drive(plant, controller, state0, key, estimator, num_samples):
+    return vs.simulate_drive(plant, controller, state0, key, num_samples, estimator,
+                             substep_poses=True)
+
+
+def run_one(kind, sc, reference, seed):
+    controller, estimator = make_driver(kind, sc, reference)
+    t0 = time.perf_counter()
+    run = _drive(sc.plant, controller, sc.state0, jax.random.key(seed), estimator,
+                 sc.num_samples)
+    jax.block_until_ready(run)
+    wall = time.perf_counter() - t0
+    t, x, y = vs.drive_path(run, sc.state0)
+    out = vs.drive_outcome(sc.road, t, x, y)
+    rec = dict(out.record(), wall_s=wall)
+    info = run.controller_info
+    if isinstance(info, dict) and "iterations" in info:
+        n = rec["time"] and int(min(len(t) - 1, math.ceil(rec["time"] / sc.sample_time)))
+        n = n or sc.num_samples
+        rec["planner"] = dict(
+            mean_iterations=float(np.mean(np.asarray(info["iterations"])[:n])),
+            converged_fraction=float(np.mean(np.asarray(info["converged"])[:n])),
+            max_kkt=float(np.max(np.asarray(info["kkt"])[:n])))
+    if run.estimates is not None:
+        rec["final_peak_estimate"] = np.asarray(run.estimates.peak[-1]).tolist()
+    return rec
+
+
+def bound_row(sc, cache):
+    prim, D, exact = vs.offline_bound(sc)
+    v = prim.violations()
+    return dict(time=float(prim.t_f) if bool(prim.solution.converged) else None,
+                max_off_road=v["corridor_between_nodes"],
+                completed=bool(prim.solution.converged), bound_D=D, bound_exact=exact)
+
+
+def table(rows) -> str:
+    lines = ["| road | grip | driver | time [s] | max off road [m] | completed |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        tm = "-" if r["time"] is None else f"{r['time']:.3f}"
+        extra = "" if r.get("bound_exact", True) else " (min grip)"
+        lines.append(f"| {r['road']} | {r['grip']} | {r['driver']} | {tm}{extra} | "
+                     f"{r['max_off_road']:.3f} | {'yes' if r['completed'] else 'no'} |")
+    return "\n".join(lines)
+
+
+def scenario_table(args):
+    budget, points = common_sizes(args.roads)
+    rows = []
+    with open(args.out, "a") as f:
+        for road in args.roads:
+            nominal = scenario(road, "nominal", budget, points)
+            t0 = time.perf_counter()
+            prim = vs.nominal_primitive(nominal)
+            print(f"# {road}: nominal primitive t_f = {float(prim.t_f):.3f} s "
+                  f"(converged {bool(prim.solution.converged)}, "
+                  f"{time.perf_counter() - t0:.1f} s)", flush=True)
+            reference = vs.primitive_reference(prim).padded(args.reference_rows)
+            for grip in args.grips:
+                sc = scenario(road, grip, budget, points)
+                for kind in args.drivers:
+                    t0 = time.perf_counter()
+                    rec = bound_row(sc, None) if kind == "bound" else run_one(
+                        kind, sc, reference, args.seed)
+                    rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
+                               num_samples=sc.num_samples, **rec)
+                    rec.setdefault("wall_s", time.perf_counter() - t0)
+                    rows.append(rec)
+                    f.write(json.dumps(rec) + "\n")
+                    f.flush()
+                    print(json.dumps(rec), flush=True)
+    print(table(rows))
+    return rows
+
+
+def stack(trees):
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+def monte_carlo(args):
+    budget, points = common_sizes(args.roads)
+    plants, ctrls, states, keys, tables, gates, meta = [], [], [], [], [], [], []
+    estimator = None
+    for road in args.roads:
+        nominal = scenario(road, "nominal", budget, points)
+        reference = vs.primitive_reference(vs.nominal_primitive(nominal)).padded(
+            args.reference_rows)
+        for grip in args.grips:
+            sc = scenario(road, grip, budget, points)
+            ctrl, estimator = make_driver(args.mc_driver, sc, reference)
+            for seed in range(args.monte_carlo):
+                plants.append(sc.plant)
+                ctrls.append(ctrl)
+                states.append(sc.state0)
+                keys.append(jax.random.key_data(jax.random.key(1000 + seed)))
+                tables.append(sc.table)
+                gates.append(vs.EndGate.of(sc.road))
+                meta.append((road, grip, seed, sc))
+    B = len(meta)
+    num_samples = meta[0][3].num_samples
+    batch = (stack(plants), stack(ctrls), stack(states), jnp.stack(keys), stack(tables),
+             stack(gates))
+
+    def one(plant, ctrl, state0, key, tbl, gate):
+        run = vs.simulate_drive(plant, ctrl, state0, jax.random.wrap_key_data(key),
+                                num_samples, estimator, substep_poses=True)
+        poses = run.poses
+        N, S = poses.shape[:2]
+        h = plant.actuators.sample_time / S
+        t = jnp.concatenate([state0.t[None], state0.t + h * jnp.arange(1, N * S + 1)])
+        x = jnp.concatenate([state0.car[:1], poses[..., 0].reshape(-1)])
+        y = jnp.concatenate([state0.car[1:2], poses[..., 1].reshape(-1)])
+        crossed, tc, i = gate.crossing(t, x, y)
+        off = vs.path_departure(tbl, poses[..., 0], poses[..., 1], i - 1)
+        return crossed, tc, off, poses
+
+    fn = eqx.filter_jit(jax.vmap(one))
+    t0 = time.perf_counter()
+    compiled = fn.lower(*batch).compile()
+    t_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    crossed, tc, off, poses = jax.block_until_ready(compiled(*batch))
+    t_run = time.perf_counter() - t0
+    crossed, tc, off = np.asarray(crossed), np.asarray(tc), np.asarray(off)
+    done = crossed & (off <= 0.05)
+    print(f"# Monte Carlo: {B} drives ({len(args.roads)} roads x {len(args.grips)} grips x "
+          f"{args.monte_carlo} seeds) of {num_samples} samples, driver {args.mc_driver}, one "
+          f"jitted vmapped call: compile {t_compile:.1f} s, run {t_run:.1f} s")
+    # the JAX departure against the exact NumPy one, on a few drives
+    check = []
+    for b in np.linspace(0, B - 1, min(B, 6)).astype(int):
+        sc = meta[b][3]
+        p = np.asarray(poses[b])
+        t = np.concatenate([[0.0], sc.sample_time / p.shape[1] * np.arange(1, p.size // 2 + 1)])
+        x = np.concatenate([[float(sc.state0.car[0])], p[..., 0].ravel()])
+        y = np.concatenate([[float(sc.state0.car[1])], p[..., 1].ravel()])
+        ref = vs.drive_outcome(sc.road, t, x, y)
+        check.append(abs(ref.max_off_road - float(off[b])))
+        print(f"#   check {meta[b][:3]}: JAX off {float(off[b]):.5f} m, NumPy "
+              f"{ref.max_off_road:.5f} m; time {float(tc[b]):.4f} / {ref.time}")
+    summary = dict(kind="monte-carlo", driver=args.mc_driver, drives=B,
+                   num_samples=num_samples, compile_s=t_compile, run_s=t_run,
+                   max_departure_check_error=float(max(check)), per_scenario={})
+    for road in args.roads:
+        for grip in args.grips:
+            m = np.array([(r == road) and (g == grip) for r, g, _, _ in meta])
+            summary["per_scenario"][f"{road}/{grip}"] = dict(
+                completed=float(np.mean(done[m])),
+                time_p50=float(np.median(tc[m & crossed])) if np.any(m & crossed) else None,
+                max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])))
+    print(json.dumps(summary))
+    with open(args.out, "a") as f:
+        f.write(json.dumps(summary) + "\n")
+    print("| road/grip | completed | time p50 [s] | max off p50 [m] | max off max [m] |")
+    print("|---|---|---|---|---|")
+    for k, v in summary["per_scenario"].items():
+        tm = "-" if v["time_p50"] is None else f"{v['time_p50']:.3f}"
+        print(f"| {k} | {v['completed']:.2f} | {tm} | {v['max_off_p50']:.3f} | "
+              f"{v['max_off_max']:.3f} |")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--roads", nargs="+", default=list(ROAD_NAMES), choices=ROAD_NAMES)
+    ap.add_argument("--grips", nargs="+", default=list(GRIP_NAMES), choices=GRIP_NAMES)
+    ap.add_argument("--drivers", nargs="+", default=list(DRIVERS), choices=DRIVERS)
+    ap.add_argument("--quick", action="store_true",
+                    help="corner90 only, grips nominal and minus20")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--reference-rows", type=int, default=160,
+                    help="rows of every reference table (padding; >= the primitives' nodes)")
+    ap.add_argument("--monte-carlo", type=int, default=0, metavar="SEEDS")
+    ap.add_argument("--mc-driver", default="tracking", choices=DRIVERS[:-1])
+    ap.add_argument("--mc-only", action="store_true")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.roads, args.grips = ["corner90"], ["nominal", "minus20"]
+    if not args.mc_only:
+        scenario_table(args)
+    if args.monte_carlo:
+        monte_carlo(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,194 @@
+r"""Baseline drivers of a scenario: the nominal minimum-time drive replayed open loop, and
+tracked; and the offline bound, the minimum-time drive on the true grip.
+
+**The reference** (`primitive_reference`). A `RoadPrimitive` (the reduced half-car of eqs.
+61-63 on the road, in arc length) gives at its nodes $s_k$ the time $t_k$, the pose, the body
+velocities and the inputs $(\kappa_F, \kappa_R, \delta)$, piecewise linear in $s$ with the
+rates $u_k = d(\kappa_F, \kappa_R, \delta)/ds$ of stage $k$. In time the rates are
+$u_k\dot s$, so the axle torques that realise the slips are, as in
+`vehsim.optimal.replay`, $T_i = I_i\dot\omega_i + rF_{ix}$ with
+$\omega_i = (1 + \kappa_i)V_{ix}/r$ (`ReducedHalfCar.recover_torques`, eqs. 52-53). Between
+the nodes every signal is linear in time (`PrimitiveReference.at`).
+
+**Open loop** (`open_loop_schedule`): the command of sample $k$ is the reference's
+$(T_F, T_R, \delta)$ at the middle of the sample it will act in, led by each channel's
+known delay (whole samples) and lag time constant (a first-order lag trails a ramp by
+$\tau$): $u_k = u_{ref}(t_k + d_jT + T/2 + \tau_j)$, a `CommandSchedule`.
+
+**Tracking** (`PrimitiveTracker`): the sampled-data version of `replay_tracking`'s law
+(`TrackingGains`) on the measurements: the same led feedforward plus the Stanley-type
+steering correction on the lateral and heading errors $e_y$, $e_\psi$ to the time-indexed
+reference, $\delta = \delta_{ff} - k_\psi e_\psi - \arctan(k_ye_y/(V + V_0))$; the axle
+torques' correction on the speed and along-track errors,
+$\Delta T_i = \tfrac12 m(k_v(V_{ref} - V) - k_se_s)r$; and slip tracking on the measured
+wheel speeds, $\Delta T_i = k_\omega I_i(\omega^{ref}_i - \omega_i)$,
+$\omega^{ref}_i = (1 + \kappa_i)V_{ix}/r$ from the measured velocities and steering.
+
+**Offline bound** (`offline_bound`): the minimum-time drive of the reduced model on the
+scenario's road from the drive's start, with the tire's peak $D$ set to the true grip's:
+exact for a uniform grip; for a grip that varies along the road, the smallest true peak
+on the road (a conservative stand-in for the per-stage friction, which makes the bound's
+time an upper estimate of the true optimum there).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._fields import array_field
+from .._math import wrap_angle
+from ..optimal.curvilinear import RoadPrimitive, road_primitive
+from ..optimal.primitives import rally_gravel_car
+from ..optimal.replay import TrackingGains
+from ..optimal.shooting import DELTA_MAX
+from ..vehicle.params import HalfCarParams, rally_gravel
+from ..vehicle.planar import axle_velocities
+from .actuators import DriveActuators
+from .scenarios import BENCHMARK_PEAK, DriveScenario
+from .sensors import DriveMeasurement
+from .simulate import AbstractDriveController, CommandSchedule
+
+
+_NAMES = ("x", "y", "psi", "vx", "vy", "yaw_rate", "kappa_F", "kappa_R", "delta",
+          "torque_F", "torque_R")
+
+
+class PrimitiveReference(eqx.Module):
+    r"""A minimum-time drive as functions of time: `table` (P, 11) at the times `time` (P,)
+    with the columns $x, y, \psi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, T_F, T_R$ (SI
+    units; module docstring); held at the ends. Rows past the drive's end repeat its last
+    (padding to a common length for batches)."""
+
+    time: Float[Array, " P"] = array_field()
+    table: Float[Array, "P 11"] = array_field()
+
+    def at(self, t) -> dict:
+        """The reference's signals at time `t` [s] (linear between rows), by name."""
+        row = jax.vmap(lambda col: jnp.interp(t, self.time, col), in_axes=1)(self.table)
+        return dict(zip(_NAMES, row))
+
+    @property
+    def duration(self):
+        """The drive's final time [s]."""
+        return self.time[-1]
+
+    def padded(self, rows: int) -> PrimitiveReference:
+        """The reference with `rows` rows (the last repeated, 1 ms apart in time)."""
+        P = self.time.shape[0]
+        if rows < P:
+            raise ValueError(f"PrimitiveReference.padded: rows must be >= {P}, got {rows}")
+        extra = jnp.arange(1, rows - P + 1) * 1e-3
+        return PrimitiveReference(
+            time=jnp.concatenate([self.time, self.time[-1] + extra]),
+            table=jnp.concatenate([self.table, jnp.tile(self.table[-1:], (rows - P, 1))]))
+
+
+@eqx.filter_jit
+def _torques(vehicle, states, inputs, rates_t):
+    return jax.vmap(vehicle.recover_torques)(states, inputs, rates_t)
+
+
+def primitive_reference(primitive: RoadPrimitive) -> PrimitiveReference:
+    """The reference of a car `RoadPrimitive` (one RK4 step per stage; module docstring)."""
+    prob = primitive.problem
+    if prob.steps_per_stage != 1:
+        raise ValueError("primitive_reference needs a primitive of one RK4 step per stage, got "
+                         f"steps_per_stage={prob.steps_per_stage}")
+    xs = np.asarray(primitive.solution.xs)[:, :9]
+    us = np.asarray(primitive.solution.us)
+    pose = primitive.cartesian()
+    s = pose["s"]
+    n, xi, vx, vy = xs[:, 0], xs[:, 1], xs[:, 2], xs[:, 3]
+    kappa = np.asarray(primitive.road.curvature(s), float)
+    sdot = (vx * np.cos(xi) - vy * np.sin(xi)) / (1.0 - n * kappa)
+    rates_s = np.concatenate([us, us[-1:]], axis=0)
+    rates_t = rates_s * sdot[:, None]
+    states = np.stack([pose["x"], pose["y"], pose["psi"], vx, vy, xs[:, 4]], axis=1)
+    _, _, TF, TR = (np.asarray(a) for a in _torques(prob.vehicle, jnp.asarray(states),
+                                                    jnp.asarray(xs[:, 5:8]),
+                                                    jnp.asarray(rates_t)))
+    table = np.concatenate([states, xs[:, 5:8], TF[:, None], TR[:, None]], axis=1)
+    return PrimitiveReference(time=jnp.asarray(xs[:, 8]), table=jnp.asarray(table))
+
+
+def command_lead(actuators: DriveActuators):
+    r"""Per channel, the time [s] a command is led by: the delay (whole samples) plus the
+    lag's time constant where they are on, plus half a sample (module docstring)."""
+    T = actuators.sample_time
+    delay = actuators.delay_samples() * T
+    lag = jnp.where(actuators.lag_on, actuators.time_constant, 0.0)
+    return delay + lag + 0.5 * T
+
+
+def _feedforward(reference: PrimitiveReference, t, lead):
+    cols = (9, 10, 8)  # T_F, T_R, delta
+    return jnp.stack([jnp.interp(t + lead[j], reference.time, reference.table[:, c])
+                      for j, c in enumerate(cols)])
+
+
+def open_loop_schedule(reference: PrimitiveReference, actuators: DriveActuators,
+                       num_samples: int) -> CommandSchedule:
+    """The open-loop replay of `reference` as `num_samples` commands (module docstring)."""
+    lead = command_lead(actuators)
+    ts = jnp.arange(num_samples) * actuators.sample_time
+    commands = jax.vmap(lambda t: _feedforward(reference, t, lead))(ts)
+    return CommandSchedule(commands=commands)
+
+
+class PrimitiveTracker(AbstractDriveController):
+    r"""Tracking of a `PrimitiveReference` from the measurements (module docstring).
+
+    **Fields:** `reference`, `gains` (`TrackingGains`), `lead` (3,) [s] (`command_lead`),
+    `params` (`HalfCarParams`, the nominal car: mass, wheel inertias and radius, axle
+    positions)."""
+
+    reference: PrimitiveReference
+    lead: Float[Array, " 3"] = array_field()
+    gains: TrackingGains = eqx.field(default_factory=TrackingGains)
+    params: HalfCarParams = eqx.field(default_factory=rally_gravel)
+
+    def init(self, measurement: DriveMeasurement):
+        return jnp.zeros(())
+
+    def command(self, state, m: DriveMeasurement, estimate):
+        g, p = self.gains, self.params
+        ref = self.reference.at(m.t)
+        ff = _feedforward(self.reference, m.t, self.lead)
+        kap_ff = jnp.stack([jnp.interp(m.t + self.lead[j], self.reference.time,
+                                       self.reference.table[:, 6 + j]) for j in range(2)])
+        cp, sp = jnp.cos(ref["psi"]), jnp.sin(ref["psi"])
+        dx, dy = m.x - ref["x"], m.y - ref["y"]
+        e_s, e_y = cp * dx + sp * dy, -sp * dx + cp * dy
+        e_psi = wrap_angle(m.psi - ref["psi"])
+        V, V_ref = m.speed, jnp.hypot(ref["vx"], ref["vy"])
+        delta = ff[2] - g.k_psi * e_psi - jnp.arctan(g.k_y * e_y / (V + g.V0))
+        delta = jnp.clip(delta, -DELTA_MAX, DELTA_MAX)
+        dF = p.m * (g.k_v * (V_ref - V) - g.k_s * e_s)
+        VFx, _, VRx, _ = axle_velocities(p, m.vx, m.vy, m.yaw_rate, m.delta)
+        om_ref = (1.0 + kap_ff) * jnp.stack([VFx, VRx]) / p.r
+        inertia = jnp.stack([p.Iw_F, p.Iw_R])
+        torque = ff[:2] + 0.5 * dF * p.r + g.k_omega * inertia * (om_ref - m.omega)
+        return state, jnp.concatenate([torque, delta[None]])
+
+
+def nominal_primitive(scenario: DriveScenario, D: float = BENCHMARK_PEAK, **kwargs
+                      ) -> RoadPrimitive:
+    """The minimum-time drive of the reduced model (`rally_gravel_car(D)`) on the scenario's
+    road from the drive's start (`DriveScenario.primitive_road`); `kwargs` go to
+    `road_primitive` (default ``num_stages`` 100, one per 2 m on the stage)."""
+    kwargs.setdefault("num_stages", max(100, int(round(scenario.road.length / 2.0))))
+    return road_primitive(scenario.primitive_road(), car=rally_gravel_car(D), throw=False,
+                          **kwargs)
+
+
+def offline_bound(scenario: DriveScenario, **kwargs) -> tuple[RoadPrimitive, float, bool]:
+    """The offline bound of the module docstring: ``(primitive, D, exact)``, `exact` False
+    where the grip varies along the road (the smallest true peak used)."""
+    peak = np.asarray(scenario.grip.peak)
+    exact = bool(np.ptp(peak) < 1e-6)
+    D = float(np.min(peak))
+    return nominal_primitive(scenario, D, **kwargs), D, exact

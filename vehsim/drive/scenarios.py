@@ -1,0 +1,348 @@
+r"""Named drive scenarios: a centre-line road, the grip on it, the plant and where it starts.
+
+**Roads** (`scenario_road`), all `vehsim.CentrelineRoad`s with full-width gates at both ends
+and the speed free there:
+
+- `corner90`, `uturn`, `sturn`: the benchmark corners of docs/maneuvers.md (report Table 4)
+  as roads of the benchmark's width, 2 m ($\pm 1$ m about the legs' centre lines), the legs'
+  centre lines joined by circular arcs of radius `BENCHMARK_ARC_RADIUS` (4 m; the boundary
+  folds at $|n\kappa| = 1$, here $1/4$). The start and end gates are the benchmark's: corner90
+  from $x = -5$ ($8 \le y \le 10$, heading 0) to $y = -5$ ($8 \le x \le 10$, heading
+  $-\pi/2$); uturn from $y = -5$ on the left leg ($-10 \le x \le -8$, heading $\pi/2$) to
+  $y = -5$ on the right leg, through the top leg $8 \le y \le 10$; sturn from $x = -14$
+  ($-10 \le y \le -8$) to $x = 14$ ($8 \le y \le 10$) through the connector
+  $-1 \le x \le 1$. The straight parts of the legs coincide with the benchmark's; at a corner
+  the road is the arc's annulus instead of the legs' square union: it reaches
+  $\sqrt2(R - 1) - (R - 1)$ = 1.24 m past the benchmark's inner corner point (along the
+  diagonal) and leaves out $\sqrt2(R + 1) - (R + 1)$ = 2.07 m of its outer corner, so
+  times are not comparable with the benchmark's.
+- `stage`: a gravel stage of 211 m, 4 m wide ($\pm 2$ m), with left and right corners of
+  radii 15-40 m and a 10 m hairpin (180 degrees), from the origin heading along $x$.
+
+**Grip** (`scenario_grip`): the plant's tire (`LumpedLuGre2D` with `lugre2d_bakker1987`) on a
+road of friction scale $\lambda$ (`vehsim.scale_friction`) has the peak friction
+$\mu^*(\lambda)$ = `AxleGripEstimator().peak(lambda)` (`plant_peak`; the largest steady-state
+friction in braking at 20 m/s): 1.1174 at $\lambda = 1$. The peak is *not* proportional to
+$\lambda$ (the lumped model's edge term $\kappa c$ does not scale): $\mu^*(\lambda)/\lambda$
+is 1.30 at $\lambda = 0.4$, 1.12 at 1, so $0.52/\mu^*(1) = 0.465$ would give a peak of 0.59.
+Each scenario is therefore given by its peaks, and its scales solve $\mu^*(\lambda) = $ the
+peak (`scale_for_peak`, bisection): $\lambda_0$ (`nominal_scale`, 0.400) has the benchmark's
+$D = 0.52$.
+
+- `nominal`: peak 0.52 everywhere;
+- `minus20`: peak $0.8 \times 0.52$ everywhere (a planner that assumes 0.52 overestimates
+  it by 25 %);
+- `icy`: a circular patch of peak $0.5 \times 0.52$ ($\tanh$ edge of 1 m, as
+  `GripPatches`) centred on the apex of the road's main corner (corner90's corner, the first
+  corner of uturn and sturn, the stage's hairpin), radius 3 m on the benchmark corners, 8 m
+  on the stage, on the nominal road;
+- `rising`: peak $0.6 \times 0.52$ at the start rising to 0.52 at a third of the road (a
+  `GripProfile` along the direction from the start to the end of the road, its stations
+  those of the start and of the centre line at $s = L/3$; on these roads the centre line
+  never comes back below that station, so the grip along it rises monotonically).
+
+Every scenario's field is a `PatchedProfile` (a two-station profile times one patch; a
+uniform road has equal stations' scales, no patch a factor of 1), so that the plants of all
+scenarios have one structure: one compilation serves them, and they batch in one `vmap`.
+`ScenarioGrip.peak` is the true peak $\mu^*(\lambda(c(s)))$ along the centre line (the
+oracle's friction and the offline bound's).
+
+**The drive** (`drive_scenario`): the `DrivePlant` on that grip (default actuators and
+sensors), starting on the centre of the start gate heading along the road at the stated
+`START_SPEEDS` (chosen so that the minimum-time drive starting there stays feasible on
+every grip scenario), with a time budget of `TIME_BUDGETS` seconds at the plant's 20 Hz.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._fields import array_field
+from .._math import safe_hypot
+from ..optimal.centreline import CentrelineRoad, Gate
+from .actuators import DriveActuators
+from .estimator import AxleGripEstimator
+from .grip import AbstractGripField, GripPatches, GripProfile
+from .horizon import RoadTable
+from .plant import DrivePlant, DriveState, init_drive
+from .sensors import DriveSensors
+
+
+BENCHMARK_PEAK = 0.52
+"""Peak friction $D$ of the benchmark's gravel (docs/maneuvers.md), the planner's nominal."""
+
+BENCHMARK_ARC_RADIUS = 4.0
+"""Radius [m] of the arcs that join the benchmark corners' legs."""
+
+BENCHMARK_WIDTH = 2.0
+"""Width [m] of the benchmark corners' roads (docs/maneuvers.md)."""
+
+STAGE_WIDTH = 4.0
+"""Width [m] of the rally stage."""
+
+_R = BENCHMARK_ARC_RADIUS
+_ROADS = {
+    # start point, start heading, segments, width, index of the main corner's segment,
+    # radius of the icy patch [m]
+    "corner90": ((-5.0, 9.0), 0.0,
+                 (("straight", 14.0 - _R), ("arc", _R, -90.0), ("straight", 14.0 - _R)),
+                 BENCHMARK_WIDTH, 1, 3.0),
+    "uturn": ((-9.0, -5.0), math.pi / 2,
+              (("straight", 14.0 - _R), ("arc", _R, -90.0), ("straight", 18.0 - 2 * _R),
+               ("arc", _R, -90.0), ("straight", 14.0 - _R)),
+              BENCHMARK_WIDTH, 1, 3.0),
+    "sturn": ((-14.0, -9.0), 0.0,
+              (("straight", 14.0 - _R), ("arc", _R, 90.0), ("straight", 18.0 - 2 * _R),
+               ("arc", _R, -90.0), ("straight", 14.0 - _R)),
+              BENCHMARK_WIDTH, 1, 3.0),
+    "stage": ((0.0, 0.0), 0.0,
+              (("straight", 20.0), ("arc", 30.0, 40.0), ("straight", 12.0),
+               ("arc", 20.0, -80.0), ("straight", 15.0), ("arc", 10.0, 180.0),
+               ("straight", 12.0), ("arc", 15.0, -110.0), ("straight", 12.0),
+               ("arc", 40.0, -30.0), ("straight", 10.0)),
+              STAGE_WIDTH, 5, 8.0),
+}
+
+ROAD_NAMES = tuple(_ROADS)
+"""The scenario roads."""
+
+GRIP_NAMES = ("nominal", "minus20", "icy", "rising")
+"""The grip scenarios."""
+
+START_SPEEDS = {"corner90": 8.0, "uturn": 7.0, "sturn": 7.0, "stage": 12.0}
+"""Speed [m/s] at the start gate of each road's drives."""
+
+TIME_BUDGETS = {"corner90": 6.0, "uturn": 9.0, "sturn": 9.0, "stage": 30.0}
+"""Time budget [s] of each road's drives."""
+
+MINUS20_PEAK = 0.8
+"""The `minus20` road's peak friction, a fraction of 0.52."""
+
+PATCH_PEAK = 0.5
+"""The icy patch's peak friction, a fraction of 0.52."""
+
+RISING_START = 0.6
+"""The rising grip's peak friction at the start, a fraction of 0.52."""
+
+
+def _check_name(kind: str, name, allowed) -> None:
+    if name not in allowed:
+        raise ValueError(f"unknown {kind} {name!r}; allowed: {', '.join(allowed)}")
+
+
+def scenario_road(name: str) -> CentrelineRoad:
+    """The scenario road called `name` (`ROAD_NAMES`: corner90, uturn, sturn, stage; module
+    docstring), gates at both ends (full width, speed free)."""
+    _check_name("road", name, ROAD_NAMES)
+    start, heading, segments, width, _, _ = _ROADS[name]
+    return CentrelineRoad.from_segments(list(segments), width, start_heading=heading,
+                                        start=start, name=name)
+
+
+def main_corner(name: str) -> tuple[float, float]:
+    """Arc lengths [m] where the main corner of road `name` begins and ends."""
+    _check_name("road", name, ROAD_NAMES)
+    _, _, segments, _, index, _ = _ROADS[name]
+    lengths = [seg[1] if seg[0] == "straight" else seg[1] * math.radians(abs(seg[2]))
+               for seg in segments]
+    s0 = float(sum(lengths[:index]))
+    return s0, s0 + float(lengths[index])
+
+
+def nominal_scale() -> float:
+    r"""$\lambda_0$: the plant tire's friction scale whose peak is the benchmark's
+    $D = 0.52$ (`scale_for_peak`)."""
+    return scale_for_peak(BENCHMARK_PEAK)
+
+
+@functools.lru_cache(maxsize=64)
+def scale_for_peak(peak: float) -> float:
+    r"""The friction scale $\lambda$ with $\mu^*(\lambda)$ = `peak` (`plant_peak`; bisection
+    to $10^{-12}$ relative on $[10^{-3}, 10]$, where $\mu^*$ increases)."""
+    peak = float(peak)
+    lo, hi = 1e-3, 10.0
+    if not (plant_peak(lo) < peak < plant_peak(hi)):
+        raise ValueError(f"scale_for_peak: peak must lie in ({plant_peak(lo):.4g}, "
+                         f"{plant_peak(hi):.4g}), got {peak:g}")
+    while hi - lo > 1e-12 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if plant_peak(mid) < peak else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+@eqx.filter_jit
+def _peak(estimator, scale):
+    return estimator.peak(scale)
+
+
+@functools.lru_cache(maxsize=64)
+def plant_peak(scale: float) -> float:
+    r"""$\mu^*(\lambda)$ of the plant's tire on a road of friction scale `scale`
+    (`AxleGripEstimator.peak`, whose assumed tire is the plant's)."""
+    return float(_peak(AxleGripEstimator(), jnp.asarray(float(scale))))
+
+
+class ScenarioGrip(eqx.Module):
+    r"""A grip scenario on a road: the plant's `field` ($\lambda(x, y)$), and the true peak
+    friction along the centre line, `peak` $= \mu^*(\lambda(c(s)))$ at the arc lengths
+    `arc_length` (uniform, at most 0.25 m apart); `name`."""
+
+    name: str = eqx.field(static=True)
+    field: AbstractGripField
+    arc_length: Float[Array, " K"]
+    peak: Float[Array, " K"]
+
+    def peak_at(self, s):
+        """The true peak friction at arc lengths `s` [m] (linear between the samples; JAX)."""
+        return jnp.interp(s, self.arc_length, self.peak)
+
+
+class PatchedProfile(AbstractGripField):
+    r"""A `GripProfile` $\lambda_p$ with circular patches that multiply it: $\lambda =
+    \lambda_p(x, y)\prod_i\bigl(1 + w_i(f_i - 1)\bigr)$, $w_i = \frac12\bigl(1 -
+    \tanh\frac{|p - c_i| - R_i}{w}\bigr)$ as in `GripPatches` (a factor $f_i = 1$ is no
+    patch). Every grip scenario is one of these with two stations and one patch, so that
+    plants of different scenarios batch in one `vmap` and share a compilation.
+
+    **Fields:** `profile` (`GripProfile`), `centres` [m] (N, 2), `radii` [m] (N,),
+    `factors` $f_i$ (N,), `width` $w$ [m] (1).
+    """
+
+    profile: GripProfile
+    centres: Float[Array, "N 2"] = array_field()
+    radii: Float[Array, " N"] = array_field()
+    factors: Float[Array, " N"] = array_field()
+    width: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        GripPatches(centres=self.centres, radii=self.radii, scales=self.factors,
+                    width=self.width)  # the same checks, with the patches' names
+
+    def scale_at(self, x, y):
+        lam = self.profile.scale_at(x, y)
+        for i in range(self.centres.shape[0]):
+            d = safe_hypot(x - self.centres[i, 0], y - self.centres[i, 1])
+            w = 0.5 * (1.0 - jnp.tanh((d - self.radii[i]) / self.width))
+            lam = lam * (1.0 + w * (self.factors[i] - 1.0))
+        return lam
+
+
+def _grip_field(name: str, road: CentrelineRoad) -> PatchedProfile:
+    lam0 = nominal_scale()
+    (x0, x1), (y0, y1) = road.position(np.array([0.0, road.length]))
+    direction = math.atan2(float(y1 - y0), float(x1 - x0))
+    xt, yt = road.position(road.length / 3.0)
+    third = ((float(xt) - float(x0)) * math.cos(direction)
+             + (float(yt) - float(y0)) * math.sin(direction))
+    s0, s1 = main_corner(road.name) if road.name in _ROADS else (0.0, road.length)
+    cx, cy = road.position(0.5 * (s0 + s1))
+    radius = _ROADS[road.name][5] if road.name in _ROADS else 3.0
+    start = end = lam0
+    factor = 1.0
+    if name == "minus20":
+        start = end = scale_for_peak(MINUS20_PEAK * BENCHMARK_PEAK)
+    elif name == "icy":
+        factor = scale_for_peak(PATCH_PEAK * BENCHMARK_PEAK) / lam0
+    elif name == "rising":
+        start = scale_for_peak(RISING_START * BENCHMARK_PEAK)
+    profile = GripProfile(stations=jnp.asarray([0.0, third]), scales=jnp.asarray([start, end]),
+                          origin=jnp.asarray([float(x0), float(y0)]), direction=direction)
+    return PatchedProfile(profile=profile, centres=jnp.asarray([[float(cx), float(cy)]]),
+                          radii=jnp.asarray([radius]), factors=jnp.asarray([factor]), width=1.0)
+
+
+def scenario_grip(name: str, road: CentrelineRoad) -> ScenarioGrip:
+    """The grip scenario `name` (`GRIP_NAMES`: nominal, minus20, icy, rising; module
+    docstring) on `road` (a scenario road: the icy patch sits on its main corner), with the
+    true peak friction along the centre line."""
+    _check_name("grip", name, GRIP_NAMES)
+    field = _grip_field(name, road)
+    num = max(2, int(math.ceil(road.length / 0.25)) + 1)
+    s = np.linspace(0.0, road.length, num)
+    x, y = road.position(s)
+    peak = _peaks_along(AxleGripEstimator(), field, jnp.asarray(x), jnp.asarray(y))
+    return ScenarioGrip(name=name, field=field, arc_length=jnp.asarray(s), peak=peak)
+
+
+@eqx.filter_jit
+def _peaks_along(estimator, field, x, y):
+    return jax.vmap(lambda xi, yi: estimator.peak(field.scale_at(xi, yi)))(x, y)
+
+
+class DriveScenario(eqx.Module):
+    r"""A drive to make: the `road` (`CentrelineRoad`, NumPy: keep it out of `jit`) and its
+    `table` (`RoadTable`, JAX, its `peak` column the true peak friction of the grip), its
+    `grip` (`ScenarioGrip`), the `plant` (`DrivePlant` on that grip), the initial plant
+    state `state0` (on the start gate's centre, heading along the road, at `start_speed`
+    [m/s], wheels rolling freely), and the time budget `num_samples` (control samples).
+    `name` is ``road/grip``."""
+
+    name: str = eqx.field(static=True)
+    road: CentrelineRoad
+    table: RoadTable
+    grip: ScenarioGrip
+    plant: DrivePlant
+    state0: DriveState
+    start_speed: float = eqx.field(static=True)
+    num_samples: int = eqx.field(static=True)
+
+    @property
+    def road_name(self) -> str:
+        return self.name.split("/")[0]
+
+    @property
+    def grip_name(self) -> str:
+        return self.grip.name
+
+    @property
+    def sample_time(self) -> float:
+        return float(self.plant.actuators.sample_time)
+
+    def primitive_road(self) -> CentrelineRoad:
+        """The road with its start gate fixed to the drive's start: the centre line
+        ($n = 0$) at `start_speed`, for minimum-time drives that start where the car does."""
+        return self.road.with_gates(Gate.at(self.road, 0.0, n_min=0.0, n_max=0.0,
+                                            speed=self.start_speed), self.road.end)
+
+
+def drive_scenario(road_name: str, grip_name: str = "nominal", *,
+                   actuators: DriveActuators | None = None,
+                   sensors: DriveSensors | None = None, start_speed: float | None = None,
+                   time_budget: float | None = None, substeps: int = 40,
+                   table_spacing: float = 0.1, table_points: int | None = None
+                   ) -> DriveScenario:
+    """The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
+    default `DriveActuators` and `DriveSensors` unless given, `substeps` integration steps
+    per sample, the start speed [m/s] (default `START_SPEEDS`) and the time budget [s]
+    (default `TIME_BUDGETS`); the road table at `table_spacing` [m] with `table_points`
+    samples (default just enough; more pad it, so that tables of different roads batch)."""
+    _check_name("road", road_name, ROAD_NAMES)
+    _check_name("grip", grip_name, GRIP_NAMES)
+    road = scenario_road(road_name)
+    grip = scenario_grip(grip_name, road)
+    v0 = START_SPEEDS[road_name] if start_speed is None else float(start_speed)
+    if not (math.isfinite(v0) and v0 > 0):
+        raise ValueError(f"drive_scenario: start_speed must be > 0 m/s, got {v0:g}")
+    budget = TIME_BUDGETS[road_name] if time_budget is None else float(time_budget)
+    if not (math.isfinite(budget) and budget > 0):
+        raise ValueError(f"drive_scenario: time_budget must be > 0 s, got {budget:g}")
+    plant = DrivePlant(grip=grip.field, substeps=substeps,
+                       actuators=DriveActuators() if actuators is None else actuators,
+                       sensors=DriveSensors() if sensors is None else sensors)
+    x0, y0 = road.position(0.0)
+    state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
+    table = RoadTable.from_road(road, table_spacing, table_points)
+    table = eqx.tree_at(lambda tb: tb.peak, table,
+                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    T = float(plant.actuators.sample_time)
+    return DriveScenario(name=f"{road_name}/{grip_name}", road=road, table=table, grip=grip,
+                         plant=plant,
+                         state0=state0, start_speed=v0,
+                         num_samples=int(math.ceil(budget / T - 1e-9)))
