@@ -50,15 +50,18 @@ def _field(args, road):
 
 
 def scenario(args, road):
-    """The `DriveScenario` of the options: the road, its grip (with the true peak along the
-    centre line), the plant (sensors noisy or not), the start (the scenario's speed; a road
-    file's at `START_SPEED`) and the time budget (``--duration``, default the scenario's, or
-    a road file's length at 5 m/s plus 5 s)."""
+    """The `DriveScenario` of the options: the road and its table (the peak column the true
+    peak friction), its grip (with the true peak along the centre line), the plant (sensors
+    noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
+    time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
+    plus 5 s)."""
+    import equinox as eqx
     import jax
     import jax.numpy as jnp
     import numpy as np
 
     from ..drive.estimator import AxleGripEstimator
+    from ..drive.horizon import RoadTable
     from ..drive.plant import DrivePlant, init_drive
     from ..drive.scenarios import (
         START_SPEEDS,
@@ -84,9 +87,12 @@ def scenario(args, road):
         budget = TIME_BUDGETS[args.road] if args.road else road.length / 5.0 + 5.0
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
+    table = RoadTable.from_road(road)
+    table = eqx.tree_at(lambda tb: tb.peak, table,
+                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
     T = float(plant.actuators.sample_time)
-    return DriveScenario(name=f"{road.name}/{name}", road=road, grip=grip, plant=plant,
-                         state0=state0, start_speed=v0,
+    return DriveScenario(name=f"{road.name}/{name}", road=road, table=table, grip=grip,
+                         plant=plant, state0=state0, start_speed=v0,
                          num_samples=int(math.ceil(budget / T - 1e-9)))
 
 
@@ -95,12 +101,11 @@ def controller(args, sc):
     the receding-horizon driver with the estimate (and `AxleGripEstimator` with the nominal
     road as its prior), the nominal friction or the true grip along the horizon (the
     oracle); or the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
-    import equinox as eqx
-
     from ..drive.estimator import AxleGripEstimator
-    from ..drive.horizon import RecedingHorizonDriver, RoadTable
+    from ..drive.horizon import RecedingHorizonDriver
     from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
 
+    act = sc.plant.actuators
     if args.controller in ("tracking", "open-loop"):
         from ..drive.baselines import (
             PrimitiveTracker,
@@ -112,17 +117,14 @@ def controller(args, sc):
 
         stages = max(40, int(round(sc.road.length / PLAN_STAGE_LENGTH)))
         ref = primitive_reference(nominal_primitive(sc, num_stages=stages))
-        act = sc.plant.actuators
         if args.controller == "open-loop":
             return open_loop_schedule(ref, act, sc.num_samples), None
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    table = RoadTable.from_road(sc.road, peak=BENCHMARK_PEAK)
-    if friction == "oracle":
-        table = eqx.tree_at(lambda t: t.peak, table, sc.grip.peak_at(table.s))
-    driver = RecedingHorizonDriver(table=table, mode=args.mode or "rti", friction=friction,
-                                   nominal_peak=BENCHMARK_PEAK)
+    driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
+                                   nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
+                                   delay_samples=int(act.delay_samples()[0]))
     estimator = AxleGripEstimator(prior_scale=nominal_scale()) if friction == "estimate" \
         else None
     return driver, estimator
