@@ -29,8 +29,6 @@ CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
 MAX_GRIP = 3.0
 """The largest peak friction `--grip` and `--patch` take, relative to the nominal road's."""
-SAMPLE_TIME = 0.05
-"""The control period [s] (the plant's actuators' default, 20 Hz)."""
 UNITS = {
     "drive_time": "s", "max_distance_off_road": "m", "duration": "s", "length": "m",
     "compute_time.p50": "s", "compute_time.p99": "s", "compute_time.max": "s",
@@ -166,15 +164,14 @@ def controller_timing(controller, estimator, m0, measurements, *, samples: int |
     command)`` compiled on its own (`jax.jit`), called for the drive's recorded
     `measurements` (a `DriveMeasurement` with a leading samples axis; `m0` the first one,
     before the drive) one by one, each call timed until its command is ready. The first
-    call, which compiles, is timed apart (``compile``).
+    sample (the controller's and the estimator's `init`, then the command) and the
+    compilations are timed apart (``compile``).
 
-    **Returns** ``{"commands": (N, 3), "times": (N,), "compile": s}``: the commands issued
+    **Returns** ``{"commands": (N, 3), "times": (N - 1,), "compile": s}``: the commands issued
     (those of the drive, sample for sample) and the times [s]; ``samples``: time only the
     first this many."""
     import jax
     import numpy as np
-
-    from ..drive.simulate import AbstractDriveController  # noqa: F401 (the interface used)
 
     n = int(jax.tree.leaves(measurements)[0].shape[0])
     n = n if samples is None else min(n, samples)
@@ -197,8 +194,8 @@ def controller_timing(controller, estimator, m0, measurements, *, samples: int |
 
     t0 = time.perf_counter()
     cs, es, command = jax.block_until_ready(first(m0))
-    compile_s = time.perf_counter() - t0
     step_compiled = step.lower(cs, es, m0).compile()
+    compile_s = time.perf_counter() - t0
     commands, times = [np.asarray(command)], []
     for k in range(n - 1):
         m = jax.tree.map(lambda a, k=k: a[k], measurements)
@@ -234,9 +231,10 @@ def _drive(args) -> int:
     grip = (f"conditions {args.conditions}" if args.conditions else f"grip {args.grip:g}"
             + (f" with {len(args.patch)} patch(es)" if args.patch else ""))
     sc = setup.scenario(args, road)
+    T = sc.sample_time
     print(f"vehsim drive {road.name}: a {road.length:.1f} m {'lap' if road.closed else 'road'}"
           f", {args.controller}" + (f" ({args.mode or 'rti'})" if rh else "") + f", {grip}, "
-          f"{sc.num_samples} samples of {SAMPLE_TIME:g} s; "
+          f"{sc.num_samples} samples of {T:g} s; "
           + ("" if rh else "solving the nominal plan, then ")
           + "compiling the drive (a minute or more on 2 cores), then running it",
           file=sys.stderr, flush=True)
@@ -267,10 +265,10 @@ def _drive(args) -> int:
         "controller": args.controller, "mode": (args.mode or "rti") if rh else None,
         "completed": result["completed"], "drive_time": result["drive_time"],
         "max_distance_off_road": result["max_distance_off_road"],
-        "sample_time": SAMPLE_TIME, "duration": sc.num_samples * SAMPLE_TIME,
+        "sample_time": T, "duration": sc.num_samples * T,
         "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
         "nominal_scale": nominal_scale(),
-        **timing_record(timing["times"], SAMPLE_TIME, timing["compile"]),
+        **timing_record(timing["times"], T, timing["compile"]),
         "commands_replayed_max_difference": float(np.max(np.abs(
             timing["commands"] - np.asarray(run.commands)))),
         "estimate": None if "peak_est" not in tr else {
@@ -311,6 +309,6 @@ def _drive(args) -> int:
     ct = rec["compute_time"]
     print(f"{status}, off the road {result['max_distance_off_road']:.3f} m"
           + ("" if ct is None else f", controller {1e3 * ct['p50']:.2f} ms p50, "
-             f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * SAMPLE_TIME:g} ms sample")
+             f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * T:g} ms sample")
           + f"; wrote {', '.join(str(out / w) for w in written)}", file=sys.stderr)
     return 0
