@@ -402,6 +402,7 @@ from .drive.horizon import (
     HorizonState as HorizonState,
     RecedingHorizonDriver as RecedingHorizonDriver,
     RoadTable as RoadTable,
+    fit_planner_tire as fit_planner_tire,
     horizon_problem as horizon_problem,
     profile_guess as profile_guess,
     shift_plan as shift_plan,

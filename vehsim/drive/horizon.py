@@ -365,7 +365,7 @@ RELAX_STAGES = 3
 
 
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
-                    horizon=30.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
+                    horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
@@ -405,7 +405,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
 
 
 def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
-                  horizon=30.0, fraction=0.8):
+                  horizon=60.0, fraction=0.8):
     r"""A starting guess of `horizon_problem` (JAX, as `speed_profile_guess`): the centre
     line's speed limit $\sqrt{fD}\,v_1(s)$ capped by accelerating from the current speed
     with $fDg$, $n$ decaying from the current offset to 0, $\xi = v_y = 0$, $r = v\kappa$,
@@ -448,6 +448,39 @@ def shift_plan(xs, us, distance, horizon):
     mid = grid[:-1] + 0.5 * h
     us_new = jax.vmap(lambda c: jnp.interp(qm, mid, c, right=0.0), in_axes=1, out_axes=1)(us)
     return cols, us_new
+
+
+def fit_planner_tire(D=0.52, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
+    r"""A `FrictionEllipseTire` of peak ``D`` whose shape fits the steady state of the
+    plant's LuGre tire: $B, C$ of $\sin(C\arctan(Bs))$ least-squares fitted to
+    $\mu_{ss}(s)/\max\mu_{ss}$ of ``tire`` (default the drive plant's `LumpedLuGre2D`
+    with `lugre2d_bakker1987`) on a road of friction scale ``scale`` at ``speed`` [m/s]
+    (`scaled_steady_state_mu`), in pure braking ($s = \kappa/(1 - \kappa)$ for the braking
+    slip $\kappa$ up to ``max_slip``) and pure side slip ($s = \tan\alpha$, $\alpha$ up
+    to ``max_slip`` rad) together. The LuGre curve peaks at a few per cent of slip and
+    falls off after it; the benchmark's gravel tire (B = 7, C = 1.6) peaks near 20 %, so a
+    planner with it asks for slips, and expects lateral forces, the plant does not
+    have."""
+    from scipy.optimize import least_squares
+
+    from ..tire.friction_ellipse import FrictionEllipseTire
+    from ..tire.lumped2d import LumpedLuGre2D
+    from ..tire.params import lugre2d_bakker1987
+    from .estimator import scaled_steady_state_mu
+
+    tire = LumpedLuGre2D(lugre2d_bakker1987()) if tire is None else tire
+    V = float(speed)
+    k = np.linspace(0.002, float(max_slip), 80)
+    vr = np.concatenate([np.stack([-k * V, 0 * k], 1), np.stack([0 * k, -V * np.tan(k)], 1)])
+    c = np.concatenate([(1 - k) * V, np.full_like(k, V)])
+    mu = jax.vmap(lambda v, cc: jnp.linalg.norm(scaled_steady_state_mu(tire, scale, v, cc)))(
+        jnp.asarray(vr), jnp.asarray(c))
+    mu = np.asarray(mu) / float(np.max(mu))
+    sl = np.concatenate([k / (1 - k), np.tan(k)])
+    fit = least_squares(lambda p: np.sin(p[1] * np.arctan(p[0] * sl)) - mu, [10.0, 1.5],
+                        bounds=([0.5, 1.0], [200.0, 1.99]))
+    B, C = (float(v) for v in fit.x)
+    return FrictionEllipseTire(B=B, C=C, D=D)
 
 
 # ---- the controller ---------------------------------------------------------------------
@@ -507,29 +540,37 @@ class RecedingHorizonDriver(AbstractDriveController):
     r"""The receding-horizon driver of the module docstring.
 
     **Fields:** `table` (`RoadTable`), `vehicle` (the planning `ReducedHalfCar` with a
-    `FrictionEllipseTire`; default `rally_gravel_car()`), `horizon` $H$ [m] (30),
-    `num_stages` $M$ (30, static), `margin` [m] (0.2), `rate_weight` $w$ (1e-4),
-    `terminal_backoff` $\beta$ (1), `mode` (static): 'rti' (`iterations` interior-point
-    passes per sample from the shifted plan, barrier `mu0`; the solution need not have
-    converged: real-time iteration) or 'converged' (to `tol`, at most `max_iterations`);
-    `friction` (static): 'nominal' (the planner's $D$ is `nominal_peak` everywhere),
-    'oracle' (the `table`'s `peak` column at the stages' midpoints: the true grip, known
-    ahead) or 'estimate' (the estimator's `GripEstimate.peak`, the smaller axle's, minus
-    `estimate_backoff` times its `peak_std`, uniform over the horizon; needs an estimator in
-    `simulate_drive`); `slip_gain` [N m] (torque per unit slip error), `lead` [s] (the
-    plan is read this far past the prediction: the actuators' lag), `position_gain` (the
-    weight of the measured position against dead reckoning, `filter_position`; 1: the
-    raw measurement), `steer_rate` [rad/s],
-    `steer_limit` [rad], `sample_time` [s] and `delay_samples` (static; the actuators'),
-    `init_iterations` (cap of the first solve).
+    `FrictionEllipseTire`; default `rally_gravel_car()`; `fit_planner_tire` gives a tire of
+    the plant's shape), `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
+    [m] (0.2), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
+    `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
+    sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
+    pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
+    `max_iterations`); `friction` (static): 'nominal' (the planner's $D$ is
+    `nominal_peak` everywhere), 'oracle' (the `table`'s `peak` column at the stages'
+    midpoints: the true grip, known ahead) or 'estimate' (the estimator's
+    `GripEstimate.peak`, the smaller axle's, minus `estimate_backoff` times its
+    `peak_std`, uniform over the horizon; needs an estimator in `simulate_drive`, and the
+    first plan uses `nominal_peak`); `slip_gain` [N m] (torque per unit slip error, 0:
+    feedforward only), `lead` [s] (the plan is read this far past the predicted state: the
+    actuators' lag), `position_gain` (the weight of the measured position against dead
+    reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
+    `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
+    (static; the actuators' delay), `init_iterations` (cap of the first solve).
 
-    The prediction over the delay assumes the plant's actuators: the command issued now
-    acts from the next sample; meanwhile the last command's slips and steering hold.
+    **Assumptions.** The prediction over the delay assumes the plant's actuators: the
+    command issued now acts from the next sample, and meanwhile the last command's slips
+    and steering hold. The planning model is the reduced car (quasi-static loads, slips as
+    inputs, no wheel or suspension dynamics) with a friction-ellipse tire; the torques
+    realise the planned slips only as far as the plant's tire agrees with the planner's.
+    The horizon must hold the braking before a corner and the corner itself (60 m at
+    12-15 m/s before a 15 m radius: with 30 m the plans cut inside early and braked to the
+    centre line's speed at their end).
     """
 
     table: RoadTable
     vehicle: ReducedHalfCar = eqx.field(default_factory=_default_car)
-    horizon: Float[Array, ""] = array_field(default=30.0)
+    horizon: Float[Array, ""] = array_field(default=60.0)
     num_stages: int = eqx.field(static=True, default=30)
     margin: Float[Array, ""] = array_field(default=0.2)
     rate_weight: Float[Array, ""] = array_field(default=1e-4)

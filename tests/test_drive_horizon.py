@@ -1,0 +1,205 @@
+"""The receding-horizon driver: its road table against the NumPy road, the drive against the
+offline primitive, warm starts, real-time iterations and derivatives of a drive."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+
+
+pytestmark = pytest.mark.xdist_group("drive")
+
+V0 = 12.0
+HORIZON = 60.0
+STAGES = 30
+MARGIN = 0.2
+
+
+# ---- the road table ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_road_table_matches_centreline_road(closed):
+    if closed:
+        road = vs.CentrelineRoad.from_segments(
+            [("straight", 10), ("arc", 8, 180), ("straight", 10), ("arc", 8, 180)], 3.0,
+            closed=True)
+    else:
+        road = vs.CentrelineRoad.from_segments(
+            [("straight", 10), ("arc", 10, 90), ("clothoid", 8, -0.05), ("straight", 5)],
+            (3.0, 2.0))
+    table = vs.RoadTable.from_road(road)
+    rng = np.random.default_rng(1)
+    s = rng.uniform(0.0, road.length, 300)
+    n = rng.uniform(-1.5, 1.5, 300)
+    x, y = road.to_cartesian(s, n)
+    xt, yt = jax.vmap(table.to_cartesian)(jnp.asarray(s), jnp.asarray(n))
+    assert np.max(np.hypot(x - xt, y - yt)) < 1e-4
+    psi = np.asarray(road.heading(s)) + rng.uniform(-0.5, 0.5, 300)
+    guess = s + rng.uniform(-3.0, 3.0, 300)
+    sf, nf, xif = jax.jit(jax.vmap(table.to_frenet))(jnp.asarray(x), jnp.asarray(y),
+                                                     jnp.asarray(psi), jnp.asarray(guess))
+    sr, nr = road.to_frenet(x, y)
+    ds = np.asarray(sf) - sr
+    if closed:
+        ds = (ds + road.length / 2) % road.length - road.length / 2
+    assert np.max(np.abs(ds)) < 1e-4 and np.max(np.abs(np.asarray(nf) - nr)) < 1e-4
+    xi = np.asarray(psi) - np.asarray(road.heading(sr))
+    assert np.max(np.abs(np.asarray(xif) - xi)) < 1e-3
+    np.testing.assert_allclose(np.asarray(table.curvature_at(jnp.asarray(s))),
+                               road.curvature(s), atol=2e-3)
+    lo_hi = np.asarray(table.corridor_at(jnp.asarray(s), 0.1))
+    np.testing.assert_allclose(lo_hi[:, 0], -road.width_right(s) + 0.1, atol=1e-9)
+    np.testing.assert_allclose(lo_hi[:, 1], road.width_left(s) - 0.1, atol=1e-9)
+    # the projection is differentiable: d n / d y is the normal's y component
+    dn = jax.grad(lambda yy: table.to_frenet(x[0], yy, psi[0], guess[0])[1])(y[0])
+    assert abs(float(dn) - np.cos(road.heading(sr[0]))) < 1e-3
+    if closed:
+        assert abs(float(table.wrap(road.length + 1.0)) - 1.0) < 1e-12
+    else:  # past the end: the straight extension of the end's heading and width
+        (xe, ye), th = road.position(road.length), road.heading(road.length)
+        xp, yp = table.to_cartesian(road.length + 10.0, 0.5)
+        assert abs(float(xp) - (xe + 10 * np.cos(th) - 0.5 * np.sin(th))) < 1e-9
+        assert abs(float(yp) - (ye + 10 * np.sin(th) + 0.5 * np.cos(th))) < 1e-9
+
+
+# ---- drives on a corner -----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def corner():
+    """The corner, the plant on the nominal grip (noise off), the planner's car (its tire
+    fitted to the plant's), the primitive, the table with the true grip."""
+    road = vs.CentrelineRoad.from_segments([("straight", 15), ("arc", 15, 90), ("straight", 15)],
+                                           4.0)
+    road = road.with_gates(vs.Gate.at(road, 0.0, n_min=0.0, n_max=0.0, speed=V0), None)
+    mu1 = float(vs.AxleGripEstimator().peak(1.0))
+    lam0 = 0.52 / mu1
+    plant = vs.DrivePlant(grip=vs.UniformGrip(scale=lam0),
+                          sensors=vs.DriveSensors(noise_on=False))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.fit_planner_tire(0.52, lam0))
+    # the primitive on the driver's corridor (the road less the margin on each side)
+    prim = vs.road_primitive(road, car=car, num_stages=100, margin=MARGIN)
+    table = vs.RoadTable.from_road(road).with_grip(plant.grip, mu1)
+    num = int(np.ceil(float(prim.t_f) / 0.05)) + 6
+    return dict(road=road, plant=plant, car=car, prim=prim, table=table, num=num)
+
+
+@eqx.filter_jit
+def _drive(plant, driver, state0, key, num):
+    return vs.simulate_drive(plant, driver, state0, key, num)
+
+
+def _driver(corner, **kw):
+    kw = dict(horizon=HORIZON, num_stages=STAGES, margin=MARGIN, friction="oracle") | kw
+    return vs.RecedingHorizonDriver(corner["table"], corner["car"], **kw)
+
+
+def _run(corner, driver):
+    plant = corner["plant"]
+    return _drive(plant, driver, vs.init_drive(plant, vx=V0), jax.random.key(0), corner["num"])
+
+
+def _reading(road, run):
+    """Drive time (the CG crossing s = L, interpolated) and the largest distance off the
+    road until then."""
+    car = np.asarray(run.states.car)
+    t = np.concatenate([[0.0], np.asarray(run.states.t)])
+    x = np.concatenate([[0.0], car[:, 0]])
+    y = np.concatenate([[0.0], car[:, 1]])
+    s, _ = road.to_frenet(x, y)
+    assert s[-1] >= road.length - 1e-9, "the drive did not reach the end"
+    i = int(np.argmax(s >= road.length - 1e-9))
+    tc = t[i - 1] + (road.length - s[i - 1]) / (s[i] - s[i - 1]) * (t[i] - t[i - 1])
+    return tc, float(np.max(road.distance_off_road(x[:i], y[:i])))
+
+
+@pytest.fixture(scope="module")
+def converged_run(corner):
+    driver = _driver(corner, mode="converged", max_iterations=40)
+    return driver, _run(corner, driver)
+
+
+def test_oracle_reproduces_primitive(corner, converged_run):
+    driver, run = converged_run
+    tc, off = _reading(corner["road"], run)
+    t_prim = float(corner["prim"].t_f)
+    assert abs(tc / t_prim - 1.0) < 0.02, (tc, t_prim)
+    assert off < 0.05
+    info = run.controller_info
+    assert info["plan_s"].shape == (corner["num"], STAGES + 1)
+    assert np.all(np.asarray(info["D"]) == pytest.approx(0.52, rel=1e-9))
+    assert np.mean(np.asarray(info["converged"])) > 0.9
+
+
+def test_warm_start_lowers_iterations(corner, converged_run):
+    """Per sample, the converged solve from the shifted plan against the one from the
+    speed-profile guess, on the same problems (the drive's); one compilation for all."""
+    driver, run = converged_run
+    info = jax.tree.map(np.asarray, run.controller_info)
+    samples = np.arange(2, corner["num"] - 2, 6)
+    table, car = corner["table"], corner["car"]
+
+    @eqx.debug.assert_max_traces(max_traces=1)
+    def cold(s0, state8, D):
+        prob = driver.problem(s0, state8, D)
+        xs0, us0 = vs.profile_guess(table, car, s0, state8, D, horizon=driver.horizon)
+        return vs.interior_point(prob, xs0, us0, driver.options(first=True), throw=False)
+
+    cold = jax.jit(cold)
+    iters = []
+    for k in samples:
+        sol = cold(info["plan_s"][k, 0], info["start"][k], info["D"][k])
+        iters.append(int(sol.iterations))
+    warm = int(np.sum(info["iterations"][samples]))
+    assert warm < 0.7 * sum(iters), (warm, iters)
+
+
+def test_rti_drives_the_road(corner, converged_run):
+    _, run = converged_run
+    t_conv, _ = _reading(corner["road"], run)
+    rti = _run(corner, _driver(corner, mode="rti", iterations=4))
+    t_rti, off = _reading(corner["road"], rti)
+    assert off < 0.05
+    assert abs(t_rti / t_conv - 1.0) < 0.03, (t_rti, t_conv)
+    assert np.all(np.asarray(rti.controller_info["iterations"]) <= 4)
+
+
+def test_reverse_mode_is_refused_with_the_mode_to_use(corner):
+    driver = _driver(corner, mode="rti", iterations=2, init_iterations=5)
+    plant = corner["plant"]
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=V0), jax.random.key(0))
+    state = driver.init(m0)
+
+    def steer(w):
+        d = eqx.tree_at(lambda d: d.rate_weight, driver, w)
+        return d.command(state, m0, None)[1][2]
+
+    with pytest.raises(TypeError, match="forward mode"):
+        jax.grad(steer)(1e-4)
+
+
+@pytest.mark.slow
+def test_drive_derivative_matches_finite_differences(corner):
+    """d(arc length reached after a short drive)/d(rate weight), forward mode, against
+    central differences of the same drives."""
+    plant = corner["plant"]
+    road = corner["road"]
+    state0 = vs.init_drive(plant, vx=V0)
+
+    def reached(log_w):
+        driver = _driver(corner, mode="rti", iterations=3, rate_weight=jnp.exp(log_w))
+        run = vs.simulate_drive(plant, driver, state0, jax.random.key(0), 12)
+        c = run.final.car
+        return driver.table.to_frenet(c[0], c[1], c[2], 12 * 0.05 * V0)[0]
+
+    w0 = jnp.log(1e-3)
+    _, d = jax.jit(lambda w: jax.jvp(reached, (w,), (jnp.ones(()),)))(w0)
+    f = jax.jit(reached)
+    h = 0.05
+    fd = (float(f(w0 + h)) - float(f(w0 - h))) / (2 * h)
+    assert road is not None
+    assert abs(float(d) - fd) <= 0.05 * abs(fd) + 1e-6, (float(d), fd)
