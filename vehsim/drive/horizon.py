@@ -391,7 +391,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
     fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
-    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([-1.0, 1.0])
+    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
     nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
     return HorizonOCP(
