@@ -182,7 +182,8 @@ class EstimateFollower(vs.AbstractDriveController):
         return jnp.zeros(())
 
     def command(self, state, m, estimate):
-        torque = 400.0 * estimate.peak + 10.0 * state
+        # the standard deviation grows at every update (forgetting), learning or not
+        torque = 400.0 * estimate.peak + 1000.0 * estimate.peak_std + 10.0 * state
         return state + 1.0, jnp.stack([torque[0], torque[1], 0.02 * jnp.sin(m.t) + 0.01 * m.y])
 
 
