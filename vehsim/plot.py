@@ -396,3 +396,272 @@ def path_on_road_figure(road, x, y, psi, speed, *, footprint=(4.2, 1.8), every: 
     ax.autoscale_view()
     fig.tight_layout()
     return fig
+
+
+# ---- a drive on a centre-line road (`vehsim drive`) ------------------------------------------
+
+DRIVE_FOOTPRINT = (4.2, 1.8)
+"""Length and width [m] of the car's footprint drawn by `drive_figure` and `drive_animation`
+(the `rally_gravel` car: wheelbase 2.7 m plus overhangs)."""
+
+
+def drive_trace(road, run, plant, upto: int | None = None) -> dict:
+    r"""The arrays a drive's figure and animation draw, as numpy (leading axis: samples
+    $1..N$ of `run`, a `vehsim.DriveRun` of `plant` on `road`):
+
+    ``t``, ``x``, ``y``, ``psi``, ``speed`` (true), ``s``, ``n`` (Frenet coordinates of the
+    centre of gravity on `road`), ``command`` and ``applied`` $(T_F, T_R, \delta)$ (N, 3),
+    ``scale_true`` $\lambda$ under the (front, rear) axle (N, 2) and ``peak_true``
+    $\mu^*(\lambda)$ there (the plant tire's peak on that road,
+    `AxleGripEstimator.peak`; N, 2); with an estimator ``scale_est``, ``peak_est``,
+    ``peak_std`` (N, 2); with a planner that reports them (``run.controller_info``, as
+    `RecedingHorizonDriver.info`: ``plan_s``, ``plan_n`` (N, M + 1), ``D`` (N, M)),
+    ``horizon_x``, ``horizon_y`` (N, M + 1), the planned path converted from its
+    $(s, n)$ to the plane, and ``planner_D`` (N,), the planned peak friction (the mean over
+    the horizon where it varies). `upto`: only the first this many samples (e.g. up to the
+    end of the road).
+    """
+    import jax
+
+    from .drive.estimator import AxleGripEstimator
+
+    def cut(tree):  # the first `upto` samples of a per-sample record
+        return tree if upto is None else jax.tree.map(lambda a: a[:upto], tree)
+
+    states, estimates = cut(run.states), cut(run.estimates)
+    car = np.asarray(states.car)
+    x, y, psi, vx, vy = (car[:, i] for i in range(5))
+    s, n = road.to_frenet(x, y)
+    lam_F, lam_R = jax.vmap(plant.grip_scales)(states.car)
+    lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
+    est = AxleGripEstimator(params=plant.params, tire=plant.tire)
+    peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
+    out = {"t": np.asarray(states.t), "x": x, "y": y, "psi": psi,
+           "speed": np.hypot(vx, vy), "s": s, "n": n, "command": np.asarray(cut(run.commands)),
+           "applied": np.asarray(states.actuators.applied), "scale_true": lam,
+           "peak_true": peak}
+    if estimates is not None:
+        out["scale_est"] = np.asarray(estimates.scale)
+        out["peak_est"] = np.asarray(estimates.peak)
+        out["peak_std"] = np.asarray(estimates.peak_std)
+    out.update(_planned(road, cut(getattr(run, "controller_info", None))))
+    return out
+
+
+def _planned(road, info) -> dict:
+    """The planned horizon in the plane and the planner's D from a controller's per-sample
+    diagnostics (a mapping with ``plan_s``, ``plan_n`` (N, M + 1) and ``D`` (N,) or
+    (N, M)); what it lacks is left out."""
+    if info is None or not hasattr(info, "get"):
+        return {}
+    out = {}
+    hs, hn = info.get("plan_s"), info.get("plan_n")
+    if hs is not None and hn is not None:
+        hx, hy = road.to_cartesian(np.asarray(hs), np.asarray(hn))
+        out["horizon_x"], out["horizon_y"] = np.asarray(hx), np.asarray(hy)
+    D = info.get("D")
+    if D is not None:
+        D = np.asarray(D, float)
+        out["planner_D"] = D if D.ndim == 1 else D.reshape(D.shape[0], -1).mean(axis=1)
+    return out
+
+
+def _footprint(x, y, psi, footprint):
+    """Corners (4, 2) of a ``(length, width)`` rectangle centred at (x, y), turned by psi."""
+    length, width = footprint
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
+    c, s = np.cos(psi), np.sin(psi)
+    return np.stack([x + c * half[:, 0] - s * half[:, 1], y + s * half[:, 0] + c * half[:, 1]],
+                    axis=-1)
+
+
+def draw_grip_field(ax, road, grip, *, resolution: float | None = None,
+                    vmax: float | None = None):
+    r"""Shade the friction scale $\lambda(x, y)$ of a grip field (`vehsim.AbstractGripField`)
+    on the road surface of a `CentrelineRoad` (clipped to it): pale at ``vmax`` (default the
+    largest scale on the grid) and above, a deeper blue the lower the scale; ``resolution``
+    [m] of the grid (default about 200 cells across the road's extent). Returns the image
+    (for a colour bar)."""
+    from matplotlib.patches import Polygon
+
+    left, right = road.boundaries(int(min(4000, max(200, road.length))))
+    outline = np.concatenate([left, right[::-1]])
+    lo, hi = outline.min(axis=0), outline.max(axis=0)
+    step = resolution or float(max(hi - lo)) / 200.0
+    gx = np.arange(lo[0], hi[0] + step, step)
+    gy = np.arange(lo[1], hi[1] + step, step)
+    X, Y = np.meshgrid(gx, gy)
+    lam = np.asarray(grip.scale_at(X, Y), float)
+    vmax = float(np.max(lam)) if vmax is None else vmax
+    im = ax.imshow(lam, origin="lower", extent=(gx[0] - step / 2, gx[-1] + step / 2,
+                                                gy[0] - step / 2, gy[-1] + step / 2),
+                   cmap="Blues_r", vmin=0.0, vmax=vmax, interpolation="bilinear",
+                   zorder=0.5, alpha=0.8)
+    clip = Polygon(outline, closed=True, facecolor="none", edgecolor="none")
+    ax.add_patch(clip)
+    im.set_clip_path(clip)
+    return im
+
+
+def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT,
+                 every: int | None = None, grip_vmax: float | None = None,
+                 upto: int | None = None):
+    r"""A drive at a glance (`vehsim drive`): left, the road (`CentrelineRoad`) with its grip
+    field shaded (`draw_grip_field`), the path of the centre of gravity coloured by speed and
+    the car's footprint every `every` samples (default about 25 along the drive); right,
+    the speed along the road's arc length $s$; the peak friction: each axle's estimate
+    (with a band of two standard deviations), the truth under it and the planner's $D$ where
+    the controller reports one; the steering angle and the axle torques (command dashed,
+    applied solid) over time. `run`: a `vehsim.DriveRun` of `plant` (`drive_trace`);
+    `grip_vmax`: the grip scale shaded palest (`draw_grip_field`'s `vmax`,
+    e.g. the nominal road's, so that a road of less grip everywhere shows blue); `upto`: draw
+    the first this many samples only (`drive_trace`)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon
+
+    tr = drive_trace(road, run, plant, upto)
+    fig = plt.figure(figsize=(13, 7.5))
+    gs = fig.add_gridspec(4, 2, width_ratios=[1.3, 1.0])
+    ax = fig.add_subplot(gs[:, 0])
+    draw_centreline_road(ax, road)
+    im = draw_grip_field(ax, road, plant.grip, vmax=grip_vmax)
+    fig.colorbar(im, ax=ax, label="grip scale lambda (friction x lambda)", shrink=0.6,
+                 location="bottom", pad=0.08)
+    pts = np.stack([tr["x"], tr["y"]], axis=-1)
+    lc = LineCollection(np.stack([pts[:-1], pts[1:]], axis=1), cmap="viridis", linewidths=2.0,
+                        zorder=3)
+    lc.set_array(0.5 * (tr["speed"][:-1] + tr["speed"][1:]))
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, label="speed [m/s]", shrink=0.6)
+    num = len(tr["t"])
+    every = max(1, (num - 1) // 24) if every is None else int(every)
+    for i in sorted(set(range(0, num, every)) | {num - 1}):
+        ax.add_patch(Polygon(_footprint(tr["x"][i], tr["y"][i], tr["psi"][i], footprint),
+                             closed=True, facecolor="none", edgecolor="tab:red", lw=0.7,
+                             zorder=4, gid="footprint"))
+    ax.set(xlabel="x [m]", ylabel="y [m]", title=title or road.name)
+    ax.autoscale_view()
+
+    a = fig.add_subplot(gs[0, 1])
+    a.plot(tr["s"], tr["speed"], "C0")
+    a.set(xlabel="s along the road [m]", ylabel="speed [m/s]")
+    a = fig.add_subplot(gs[1, 1])
+    t = tr["t"]
+    for j, axle in enumerate(("front", "rear")):
+        a.plot(t, tr["peak_true"][:, j], f"C{j}--", lw=0.9, label=f"truth {axle}")
+        if "peak_est" in tr:
+            m, sd = tr["peak_est"][:, j], tr["peak_std"][:, j]
+            a.fill_between(t, m - 2 * sd, m + 2 * sd, color=f"C{j}", alpha=0.15, lw=0)
+            a.plot(t, m, f"C{j}-", lw=1.2, label=f"estimate {axle}")
+    if "planner_D" in tr:
+        a.plot(t, tr["planner_D"], "k-", lw=1.0, label="planner D")
+    a.set(ylabel="peak friction")
+    a.legend(fontsize=7, ncol=2, loc="best")
+    a = fig.add_subplot(gs[2, 1], sharex=a)
+    a.plot(t, np.degrees(tr["command"][:, 2]), "C2--", lw=0.8, label="command")
+    a.plot(t, np.degrees(tr["applied"][:, 2]), "C2-", lw=1.2, label="applied")
+    a.set(ylabel="steering [deg]")
+    a.legend(fontsize=7)
+    a = fig.add_subplot(gs[3, 1], sharex=a)
+    for j, axle in enumerate(("front", "rear")):
+        a.plot(t, tr["command"][:, j], f"C{j}--", lw=0.8)
+        a.plot(t, tr["applied"][:, j], f"C{j}-", lw=1.2, label=f"T_{axle[0].upper()}")
+    a.set(xlabel="t [s]", ylabel="axle torque [N m]")
+    a.legend(fontsize=7)
+    for a in fig.axes[2:]:
+        if a.get_label() != "<colorbar>":
+            a.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def animation_frames(num_samples: int, every: int) -> list[int]:
+    """The samples (0-based) `drive_animation` draws: every `every`-th from the first, and
+    the last."""
+    return sorted(set(range(0, num_samples, every)) | {num_samples - 1})
+
+
+def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
+                    footprint=DRIVE_FOOTPRINT,
+                    title: str = "", fps: float | None = None, window: float | None = None,
+                    grip_vmax: float | None = None, upto: int | None = None) -> int:
+    r"""An animation of a drive, written to `path` (``.gif``: matplotlib's `PillowWriter`,
+    no external program; ``.mp4``: `FFMpegWriter`, needs ffmpeg): the road with its grip field
+    shaded, the path so far, the car's footprint (a `footprint` = (length, width) [m]
+    rectangle at the pose, turned by the heading), the planned horizon where the controller
+    reports one, and a panel of text (time, speed, each axle's estimated peak friction
+    against the truth under it, the planner's $D$). One frame per `every` samples
+    (`animation_frames`), played in real time unless `fps` says otherwise, at `dpi`.
+    `window` [m]: the view follows the car, this far from it each way (default: the whole
+    road); `grip_vmax` and `upto` as in `drive_figure`. Written atomically; returns the
+    number of frames."""
+    import tempfile
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+    from matplotlib import animation
+    from matplotlib.patches import Polygon
+
+    from ._io import write_atomic
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"drive_animation: the file name must end in .gif or .mp4, got "
+                         f"{str(path)!r}")
+    if suffix == ".mp4" and not animation.writers.is_available("ffmpeg"):
+        raise ValueError("drive_animation: an .mp4 animation needs the ffmpeg program, which "
+                         "was not found; write a .gif instead")
+    tr = drive_trace(road, run, plant, upto)
+    frames = animation_frames(len(tr["t"]), every)
+    if fps is None:
+        dt = float(np.median(np.diff(tr["t"]))) if len(tr["t"]) > 1 else 0.05
+        fps = 1.0 / (every * dt)
+    fig, ax = plt.subplots(figsize=(7, 6))
+    draw_centreline_road(ax, road)
+    draw_grip_field(ax, road, plant.grip, vmax=grip_vmax)
+    ax.set(xlabel="x [m]", ylabel="y [m]", title=title or road.name)
+    ax.autoscale_view()
+    if window is not None:
+        ax.set_adjustable("datalim")
+    (trail,) = ax.plot([], [], "-", color="tab:blue", lw=1.2, zorder=3)
+    (plan,) = ax.plot([], [], ".-", color="tab:orange", lw=1.0, ms=2, zorder=3,
+                      label="planned horizon")
+    car = Polygon(_footprint(tr["x"][0], tr["y"][0], tr["psi"][0], footprint), closed=True,
+                  facecolor="tab:red", edgecolor="k", lw=0.8, alpha=0.85, zorder=5)
+    ax.add_patch(car)
+    if "horizon_x" in tr:
+        ax.legend(loc="lower right", fontsize=7)
+    text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", ha="left", fontsize=8,
+                   family="monospace", zorder=6,
+                   bbox=dict(boxstyle="round", facecolor="white", alpha=0.85))
+    fig.tight_layout()
+
+    def draw(i):
+        trail.set_data(tr["x"][: i + 1], tr["y"][: i + 1])
+        car.set_xy(_footprint(tr["x"][i], tr["y"][i], tr["psi"][i], footprint))
+        if window is not None:
+            ax.set_xlim(tr["x"][i] - window, tr["x"][i] + window)
+            ax.set_ylim(tr["y"][i] - window, tr["y"][i] + window)
+        if "horizon_x" in tr:
+            plan.set_data(tr["horizon_x"][i], tr["horizon_y"][i])
+        lines = [f"t {tr['t'][i]:5.2f} s   v {tr['speed'][i]:5.1f} m/s",
+                 "peak mu  front  rear",
+                 f"truth    {tr['peak_true'][i, 0]:5.2f}  {tr['peak_true'][i, 1]:5.2f}"]
+        if "peak_est" in tr:
+            lines.append(f"estimate {tr['peak_est'][i, 0]:5.2f}  {tr['peak_est'][i, 1]:5.2f}")
+        if "planner_D" in tr:
+            lines.append(f"planner D {tr['planner_D'][i]:5.2f}")
+        text.set_text("\n".join(lines))
+        return trail, plan, car, text
+
+    anim = animation.FuncAnimation(fig, draw, frames=frames, blit=False, repeat=False)
+    writer = (animation.PillowWriter(fps=fps) if suffix == ".gif"
+              else animation.FFMpegWriter(fps=fps))
+    with tempfile.TemporaryDirectory() as work:
+        tmp = Path(work) / f"animation{suffix}"
+        anim.save(tmp, writer=writer, dpi=dpi)
+        write_atomic(path, tmp.read_bytes())
+    plt.close(fig)
+    return len(frames)

@@ -1,7 +1,7 @@
 """The ``vehsim`` command line (also ``python -m vehsim``).
 
 One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`, `estimate`,
-`tire`), each with ``register(subparsers)`` adding a parser whose ``func`` is called with the
+`tire`, `drive`), each with ``register(subparsers)`` adding a parser whose ``func`` is called with the
 parsed arguments.
 A `ValueError` or a missing file ends the command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
@@ -17,10 +17,10 @@ import argparse
 import gc
 import sys
 
-from . import brake, estimate, fit, optimise, reproduce, sweep, tire
+from . import brake, drive, estimate, fit, optimise, reproduce, sweep, tire
 
 
-COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire)
+COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire, drive)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,289 @@
+"""`vehsim drive`: a short drive writes the JSON with its documented fields and units, the
+figure and the animation (one frame per `--frame-every` samples, and the last), the
+controller timed sample by sample issues the drive's own commands, the truth the record
+reports is the grip the options ask for; every bad option ends with exit 2 naming it, no
+traceback and nothing written; the figure's footprints and the animation's frames are
+where the drive put them."""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+from vehsim import cli
+from vehsim.plot import animation_frames, drive_animation, drive_figure, drive_trace
+
+
+pytestmark = pytest.mark.xdist_group("drive")
+
+PNG = b"\x89PNG\r\n\x1a\n"
+GIF = (b"GIF87a", b"GIF89a")
+SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
+DURATION, EVERY = 1.0, 4
+KEYS = {"road", "length", "closed", "controller", "mode", "completed", "drive_time",
+        "max_distance_off_road", "sample_time", "duration", "start_speed", "nominal_scale",
+        "nominal_D", "compute_time", "real_time_factor", "commands_replayed_max_difference",
+        "estimate", "planner_D", "solver", "truth", "trajectory", "settings", "wall_time_s",
+        "units"}
+
+
+def _run(argv, capsys):
+    try:
+        code = cli.main(["--no-compilation-cache", *map(str, argv)])
+    except SystemExit as e:  # argparse's own errors
+        code = e.code
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def road_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("road") / "bend.csv"
+    vs.write_road(path, vs.CentrelineRoad.from_segments(SEGMENTS, 6.0, name="bend"))
+    return path
+
+
+def _drive(argv, out):
+    code = cli.main(["--no-compilation-cache", "drive", *map(str, argv), "--out", str(out)])
+    assert code == 0
+    return json.loads((out / "drive.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def rh_drive(tmp_path_factory):
+    """The receding-horizon driver with the estimate on the icy corner, for a second: (output
+    folder, record)."""
+    out = tmp_path_factory.mktemp("rh")
+    return out, _drive(["--road", "corner90", "--conditions", "icy", "--duration", DURATION,
+                        "--frame-every", EVERY, "--seed", 3], out)
+
+
+@pytest.fixture(scope="module")
+def tracking_drive(road_file, tmp_path_factory):
+    """The nominal plan tracked on a road file of 80 % of the nominal grip: (output folder,
+    record)."""
+    out = tmp_path_factory.mktemp("tracking")
+    return out, _drive(["--road-file", road_file, "--controller", "tracking", "--grip", 0.8,
+                        "--duration", 0.5, "--no-animation"], out)
+
+
+def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
+    out, rec = rh_drive
+    assert set(rec) == KEYS
+    n = round(DURATION / 0.05)
+    assert len(rec["trajectory"]["t"]) == n and rec["duration"] == pytest.approx(DURATION)
+    assert rec["road"] == "corner90" and rec["controller"] == "rh" and rec["mode"] == "rti"
+    assert rec["settings"]["seed"] == 3 and rec["settings"]["conditions"] == "icy"
+    for key in ("max_distance_off_road", "compute_time.p50", "compute_time.p99",
+                "trajectory.x", "estimate.peak", "planner_D.D", "truth.peak"):
+        assert key in rec["units"], key
+    ct = rec["compute_time"]
+    assert ct["samples"] == n - 1 and 0 < ct["p50"] <= ct["p99"] <= ct["max"]
+    assert rec["real_time_factor"] == pytest.approx(ct["p50"] / 0.05)
+    # the replay's commands (test_timing_replays_the_drive_commands for an exact check): the
+    # same computation compiled twice, equal to rounding, which the driver's unconverged
+    # interior-point iterations can amplify
+    assert np.all(np.isfinite(rec["commands_replayed_max_difference"]))
+    est = np.asarray(rec["estimate"]["peak"])
+    std = np.asarray(rec["estimate"]["peak_std"])
+    assert est.shape == (n, 2) and np.all(std > 0)
+    # the planner's D is the estimate it was given (the one after the previous sample): the
+    # smaller axle's peak less one standard deviation
+    D = np.asarray(rec["planner_D"]["D"])
+    np.testing.assert_allclose(D[1:], np.min(est - std, axis=1)[:-1], rtol=1e-9)
+    assert len(rec["solver"]["iterations"]) == n
+    assert (out / "drive.png").read_bytes()[:8] == PNG
+    gif = out / "drive.gif"
+    assert gif.read_bytes()[:6] in GIF
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.n_frames == len(animation_frames(n, EVERY)) == math.ceil(n / EVERY) + 1
+    assert sorted(p.name for p in out.iterdir()) == ["drive.gif", "drive.json", "drive.png"]
+
+
+def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
+    """--grip 0.8 of the nominal road: the true peak under both axles is 0.8 x 0.52 = 0.416
+    (the scale solved for it, the peak not being proportional to it); no estimator, no
+    planner, no animation."""
+    out, rec = tracking_drive
+    assert set(rec) == KEYS
+    peak = np.asarray(rec["truth"]["peak"])
+    assert peak.shape == (10, 2)
+    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
+    assert rec["nominal_D"] == 0.52 and rec["mode"] is None
+    assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
+    assert max(rec["commands_replayed_max_difference"]) < 1e-9
+    assert sorted(p.name for p in out.iterdir()) == ["drive.json", "drive.png"]
+
+
+BAD = {
+    "unknown road": (["--road", "moon"], "--road"),
+    "no road": ([], "--road"),
+    "closed without a file": (["--road", "corner90", "--closed"], "--closed"),
+    "missing road file": (["--road-file", "{tmp}/missing.csv"], "missing.csv"),
+    "zero grip": (["--road", "corner90", "--grip", "0"], "--grip"),
+    "nan grip": (["--road", "corner90", "--grip", "nan"], "--grip"),
+    "too much grip": (["--road", "corner90", "--grip", "4"], "--grip"),
+    "patch of three numbers": (["--road", "corner90", "--patch", "1,2,3"], "--patch"),
+    "patch of no radius": (["--road", "corner90", "--patch", "1,2,0,0.5"], "--patch"),
+    "patch of no grip": (["--road", "corner90", "--patch", "1,2,3,0"], "--patch"),
+    "patch not a number": (["--road", "corner90", "--patch", "1,a,3,0.5"], "--patch"),
+    "patch off the road": (["--road", "corner90", "--patch", "500,500,5,0.5"], "--patch"),
+    "unknown controller": (["--road", "corner90", "--controller", "pid"], "--controller"),
+    "unknown mode": (["--road", "corner90", "--mode", "fast"], "--mode"),
+    "mode without rh": (["--road", "corner90", "--controller", "tracking", "--mode", "rti"],
+                        "--mode"),
+    "negative seed": (["--road", "corner90", "--seed", "-1"], "--seed"),
+    "zero duration": (["--road", "corner90", "--duration", "0"], "--duration"),
+    "endless duration": (["--road", "corner90", "--duration", "inf"], "--duration"),
+    "unknown animation format": (["--road", "corner90", "--animation-format", "avi"],
+                                 "--animation-format"),
+    "format without animation": (["--road", "corner90", "--no-animation",
+                                  "--animation-format", "gif"], "--animation-format"),
+    "no frames": (["--road", "corner90", "--frame-every", "0"], "--frame-every"),
+    "unknown conditions": (["--road", "corner90", "--conditions", "mud"], "--conditions"),
+    "conditions and grip": (["--road", "corner90", "--conditions", "icy", "--grip", "0.5"],
+                            "--conditions"),
+    "conditions and patch": (["--road", "corner90", "--conditions", "icy", "--patch",
+                              "9,9,2,0.5"], "--conditions"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_option_exits_2_naming_it_and_writes_nothing(case, tmp_path, capsys, monkeypatch):
+    argv, option = BAD[case]
+    monkeypatch.chdir(tmp_path)
+    argv = ["drive", *(a.format(tmp=tmp_path) for a in argv), "--out", str(tmp_path / "out")]
+    code, err = _run(argv, capsys)
+    assert code == 2, err
+    assert option in err, err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.rglob("*")) == [], "a file was written"
+
+
+def test_mp4_without_ffmpeg_is_refused_before_driving(tmp_path, capsys, monkeypatch):
+    from matplotlib import animation
+
+    monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
+    code, err = _run(["drive", "--road", "corner90", "--animation-format", "mp4", "--out",
+                      tmp_path / "out"], capsys)
+    assert code == 2 and "--animation-format mp4" in err and "ffmpeg" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+class EstimateFollower(vs.AbstractDriveController):
+    """A test driver whose command depends on its state, the measurement and the estimate."""
+
+    def init(self, measurement):
+        return jnp.zeros(())
+
+    def command(self, state, m, estimate):
+        # the standard deviation grows at every update (forgetting), learning or not
+        torque = 400.0 * estimate.peak + 1000.0 * estimate.peak_std + 10.0 * state
+        return state + 1.0, jnp.stack([torque[0], torque[1], 0.02 * jnp.sin(m.t) + 0.01 * m.y])
+
+
+def test_timing_replays_the_drive_commands():
+    """The sample timed outside the scan (estimator update, estimate, command) issues the
+    drive's commands exactly, sample for sample, for a controller that reads its state, the
+    measurement and the estimate."""
+    from vehsim.cli.drive import controller_timing, timing_record
+
+    plant = vs.DrivePlant()
+    state0 = vs.init_drive(plant, vx=15.0)
+    key = jax.random.key(2)
+    est = vs.AxleGripEstimator()
+    run = jax.jit(lambda k: vs.simulate_drive(plant, EstimateFollower(), state0, k, 12,
+                                              estimator=est))(key)
+    m0 = vs.measure_drive(plant, state0, jax.random.fold_in(key, 0))
+    out = controller_timing(EstimateFollower(), est, m0, run.measurements)
+    np.testing.assert_allclose(out["commands"], np.asarray(run.commands), rtol=1e-12,
+                               atol=1e-12)
+    assert out["times"].shape == (11,) and np.all(out["times"] > 0)
+    rec = timing_record(out["times"], 0.05, out["compile"])
+    assert rec["compute_time"]["p50"] == pytest.approx(np.median(out["times"]))
+    assert rec["real_time_factor"] == pytest.approx(np.median(out["times"]) / 0.05)
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    """A drive of 13 samples on a bend with an icy patch, the estimator on."""
+    road = vs.CentrelineRoad.from_segments(SEGMENTS, 6.0, name="bend")
+    plant = vs.DrivePlant(grip=vs.GripPatches(centres=jnp.array([[8.0, 0.0]]),
+                                              radii=jnp.array([3.0]),
+                                              scales=jnp.array([0.2]), base=0.5))
+    driver = vs.PathFollower(curvature=1 / 25, torque=jnp.array([0.0, 200.0]))
+    run = jax.jit(lambda k: vs.simulate_drive(plant, driver, vs.init_drive(plant, vx=10.0), k,
+                                              13, estimator=vs.AxleGripEstimator()))(
+        jax.random.key(0))
+    return road, plant, run
+
+
+@pytest.mark.parametrize("every", [1, 4, 13])
+def test_animation_has_one_frame_per_subsample(small_run, tmp_path, every):
+    from PIL import Image
+
+    road, plant, run = small_run
+    path = tmp_path / "a.gif"
+    frames = drive_animation(road, run, path, plant, every=every, dpi=30)
+    expected = sorted(set(range(0, 13, every)) | {12})
+    assert animation_frames(13, every) == expected
+    with Image.open(path) as im:
+        assert frames == im.n_frames == len(expected)
+
+
+def test_figure_footprints_sit_at_the_poses(small_run):
+    """Each footprint drawn is a 4.2 m x 1.8 m rectangle centred on a sample's centre of
+    gravity, its long side along that sample's heading."""
+    import matplotlib.pyplot as plt
+
+    road, plant, run = small_run
+    fig = drive_figure(road, run, plant, every=3)
+    car = np.asarray(run.states.car)
+    feet = [p.get_xy()[:4] for a in fig.axes for p in a.patches if p.get_gid() == "footprint"]
+    assert len(feet) == len(range(0, 13, 3)) + (12 % 3 != 0)
+    for k, corners in zip(sorted(set(range(0, 13, 3)) | {12}), feet):
+        np.testing.assert_allclose(corners.mean(axis=0), car[k, :2], atol=1e-9)
+        long_side = corners[0] - corners[3]
+        np.testing.assert_allclose(np.hypot(*long_side), 4.2, rtol=1e-12)
+        short_side = corners[0] - corners[1]
+        np.testing.assert_allclose(np.hypot(*short_side), 1.8, rtol=1e-12)
+        assert abs(np.dot(long_side, short_side)) < 1e-9  # a rectangle
+        np.testing.assert_allclose(np.arctan2(long_side[1], long_side[0]), car[k, 2],
+                                   atol=1e-12)
+    plt.close(fig)
+
+
+def test_trace_truth_and_planned_horizon(small_run):
+    """The truth under each axle is the tire's peak on the grip field at that axle's contact
+    point (front: lF ahead of the centre of gravity along the heading); a planned horizon
+    (s, n) (`RecedingHorizonDriver.info`) is drawn at the road's c(s) + n N(s)."""
+    road, plant, run = small_run
+    M = 5
+    info = {"plan_s": np.linspace(0, 20, 13 * (M + 1)).reshape(13, M + 1),
+            "plan_n": np.full((13, M + 1), 0.7), "D": np.full((13, M), 0.4)}
+    run = vs.DriveRun(run.states, run.measurements, run.commands, run.estimates, run.final,
+                      controller_info=info)
+    tr = drive_trace(road, run, plant)
+    car = np.asarray(run.states.car)
+    lF = float(plant.params.lF)
+    xF = car[:, 0] + lF * np.cos(car[:, 2])
+    yF = car[:, 1] + lF * np.sin(car[:, 2])
+    peak = jax.vmap(vs.AxleGripEstimator().peak)
+    np.testing.assert_allclose(tr["peak_true"][:, 0], peak(plant.grip.scale_at(xF, yF)),
+                               rtol=1e-12)
+    on_patch = float(peak(jnp.array([0.3]))[0])
+    assert tr["peak_true"][:, 0].min() < on_patch < tr["peak_true"][:, 0].max()  # the patch
+    s, n = info["plan_s"], info["plan_n"]
+    cx, cy = road.position(s)
+    th = road.heading(s)
+    np.testing.assert_allclose(tr["horizon_x"], cx - n * np.sin(th), atol=1e-9)
+    np.testing.assert_allclose(tr["horizon_y"], cy + n * np.cos(th), atol=1e-9)
+    np.testing.assert_allclose(tr["planner_D"], 0.4)
+    head = drive_trace(road, run, plant, upto=5)  # up to the end gate, say
+    for key, value in head.items():
+        np.testing.assert_array_equal(value, tr[key][:5], err_msg=key)

@@ -1,0 +1,164 @@
+"""What `vehsim drive` drives: the scenario its options name (road, grip, plant, start), the
+controller and estimator, the drive itself and its outcome.
+
+The grip options are peaks relative to the nominal road's: ``--grip 0.8`` is a road whose
+peak friction is 0.8 x 0.52 (`vehsim.drive.scenarios.scale_for_peak` gives its scale,
+since the tire's peak is not proportional to the friction scale), as the ``minus20``
+scenario; ``--patch X,Y,R,0.5`` a patch of peak 0.26, as the ``icy`` one.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+START_SPEED = 8.0
+"""Start speed [m/s] of a road read from a file."""
+PLAN_STAGE_LENGTH = 2.0
+"""Stage length [m] of the nominal plan the tracking and open-loop drivers follow (at least
+40 stages)."""
+
+
+def road(args):
+    """The road of ``--road`` or ``--road-file`` (read and checked before anything compiles)."""
+    if args.road_file is not None:
+        from .._road_files import read_road
+
+        return read_road(args.road_file, closed=args.closed)
+    from ..drive.scenarios import scenario_road
+
+    return scenario_road(args.road)
+
+
+def _field(args, road):
+    """The plant's grip field: the named conditions, or ``--grip`` with ``--patch``es."""
+    import jax.numpy as jnp
+
+    from ..drive.grip import GripPatches, UniformGrip
+    from ..drive.scenarios import BENCHMARK_PEAK, scale_for_peak, scenario_grip
+
+    if args.conditions is not None:
+        return scenario_grip(args.conditions, road).field
+    base = scale_for_peak(args.grip * BENCHMARK_PEAK)
+    if not args.patch:
+        return UniformGrip(scale=base)
+    p = [list(v) for v in args.patch]
+    return GripPatches(centres=jnp.asarray([v[:2] for v in p]),
+                       radii=jnp.asarray([v[2] for v in p]),
+                       scales=jnp.asarray([scale_for_peak(v[3] * BENCHMARK_PEAK) for v in p]),
+                       base=base, width=1.0)
+
+
+def scenario(args, road):
+    """The `DriveScenario` of the options: the road and its table (the peak column the true
+    peak friction), its grip (with the true peak along the centre line), the plant (sensors
+    noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
+    time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
+    plus 5 s)."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ..drive.estimator import AxleGripEstimator
+    from ..drive.horizon import RoadTable
+    from ..drive.plant import DrivePlant, init_drive
+    from ..drive.scenarios import (
+        START_SPEEDS,
+        TIME_BUDGETS,
+        DriveScenario,
+        ScenarioGrip,
+    )
+    from ..drive.sensors import DriveSensors
+
+    field = _field(args, road)
+    num = max(2, int(math.ceil(road.length / 0.25)) + 1)
+    s = np.linspace(0.0, road.length, num)
+    x, y = road.position(s)
+    est = AxleGripEstimator()
+    peak = jax.jit(jax.vmap(lambda xi, yi: est.peak(field.scale_at(xi, yi))))(
+        jnp.asarray(x), jnp.asarray(y))
+    name = args.conditions or "custom"
+    grip = ScenarioGrip(name=name, field=field, arc_length=jnp.asarray(s), peak=peak)
+    plant = DrivePlant(grip=field, sensors=DriveSensors(noise_on=args.noise))
+    v0 = START_SPEEDS.get(args.road, START_SPEED) if args.road else START_SPEED
+    budget = args.duration
+    if budget is None:
+        budget = TIME_BUDGETS[args.road] if args.road else road.length / 5.0 + 5.0
+    x0, y0 = road.position(0.0)
+    state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
+    table = RoadTable.from_road(road)
+    table = eqx.tree_at(lambda tb: tb.peak, table,
+                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    T = float(plant.actuators.sample_time)
+    return DriveScenario(name=f"{road.name}/{name}", road=road, table=table, grip=grip,
+                         plant=plant, state0=state0, start_speed=v0,
+                         num_samples=int(math.ceil(budget / T - 1e-9)))
+
+
+def controller(args, sc):
+    """``(controller, estimator)`` of ``--controller`` (and ``--mode``) on the scenario `sc`:
+    the receding-horizon driver with the estimate (and `AxleGripEstimator` with the nominal
+    road as its prior), the nominal friction or the true grip along the horizon (the
+    oracle); or the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
+    from ..drive.estimator import AxleGripEstimator
+    from ..drive.horizon import RecedingHorizonDriver
+    from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
+
+    act = sc.plant.actuators
+    if args.controller in ("tracking", "open-loop"):
+        from ..drive.baselines import (
+            PrimitiveTracker,
+            command_lead,
+            nominal_primitive,
+            open_loop_schedule,
+            primitive_reference,
+        )
+
+        stages = max(40, int(round(sc.road.length / PLAN_STAGE_LENGTH)))
+        ref = primitive_reference(nominal_primitive(sc, num_stages=stages))
+        if args.controller == "open-loop":
+            return open_loop_schedule(ref, act, sc.num_samples), None
+        return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
+    friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
+        args.controller]
+    driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
+                                   nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
+                                   delay_samples=int(act.delay_samples()[0]))
+    estimator = AxleGripEstimator(prior_scale=nominal_scale()) if friction == "estimate" \
+        else None
+    return driver, estimator
+
+
+def simulate(sc, driver, estimator, seed: int):
+    """The drive (one compiled scan), with the poses at every integration step."""
+    import jax
+
+    from ..drive.simulate import simulate_drive
+
+    @jax.jit
+    def run(key):
+        return simulate_drive(sc.plant, driver, sc.state0, key, sc.num_samples,
+                              estimator=estimator, substep_poses=True)
+
+    return run(jax.random.key(seed))
+
+
+def first_measurement(sc, seed: int):
+    """The measurement before the first sample (as `simulate_drive` draws it)."""
+    import jax
+
+    from ..drive.plant import measure_drive
+
+    return measure_drive(sc.plant, sc.state0, jax.random.fold_in(jax.random.key(seed), 0))
+
+
+def outcome(sc, run) -> dict:
+    """``drive_time`` [s] (None: never crossed the end gate), ``max_distance_off_road`` [m]
+    and ``completed`` (`drive_outcome` on the path at every integration step)."""
+    from ..drive.metrics import drive_outcome, drive_path
+
+    t, x, y = drive_path(run, sc.state0)
+    out = drive_outcome(sc.road, t, x, y)
+    return {"drive_time": out.time, "max_distance_off_road": out.max_off_road,
+            "completed": out.completed}

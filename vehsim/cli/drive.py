@@ -1,0 +1,314 @@
+"""`vehsim drive`: the car driven along a road by a sampled controller on the move (the
+receding-horizon driver with grip estimation, or a baseline), on a road of uniform grip or
+with icy patches, written as ``drive.json`` (drive time, completion, distance off the road,
+the controller's compute time per sample, the grip estimate and the planner's friction over
+time, the settings), ``drive.png`` (`vehsim.plot.drive_figure`) and an animation
+``drive.gif`` (`vehsim.plot.drive_animation`).
+
+The compute time is measured here, above the simulation: after the drive (one compiled
+scan), the controller's sample (the estimator's update on the new measurement, then the
+command) is compiled on its own and run sample by sample on the drive's recorded
+measurements, each call timed to its result (`controller_timing`); it issues the drive's
+commands again, so that what is timed is what drove.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+
+ROADS = ("corner90", "uturn", "sturn", "stage")
+CONTROLLERS = ("rh", "rh-nominal", "rh-oracle", "tracking", "open-loop")
+RH_CONTROLLERS = ("rh", "rh-nominal", "rh-oracle")
+MODES = ("rti", "converged")
+CONDITIONS = ("nominal", "minus20", "icy", "rising")
+FORMATS = ("gif", "mp4")
+MAX_GRIP = 3.0
+"""The largest peak friction `--grip` and `--patch` take, relative to the nominal road's."""
+UNITS = {
+    "drive_time": "s", "max_distance_off_road": "m", "duration": "s", "length": "m",
+    "compute_time.p50": "s", "compute_time.p99": "s", "compute_time.max": "s",
+    "compute_time.mean": "s", "compute_time.compile": "s", "sample_time": "s",
+    "real_time_factor": "1 (controller time per sample / sample period, at the p50; < 1: "
+                        "faster than real time)",
+    "estimate.t": "s", "estimate.peak": "1 (peak friction mu*, per axle: front, rear)",
+    "estimate.peak_std": "1", "estimate.scale": "1 (grip scale lambda, per axle)",
+    "estimate.scale_std": "1", "planner_D.t": "s", "planner_D.D": "1", "truth.peak": "1",
+    "trajectory.t": "s", "trajectory.x": "m", "trajectory.y": "m", "trajectory.psi": "rad",
+    "trajectory.speed": "m/s", "trajectory.s": "m", "trajectory.n": "m",
+    "compute_time.samples": "1", "start_speed": "m/s", "truth.t": "s", "truth.scale": "1",
+    "solver.iterations": "1", "solver.converged": "1 (true or false)",
+    "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
+    "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
+    "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
+    "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
+}
+
+
+def patch(text: str) -> tuple[float, float, float, float]:
+    """``X,Y,RADIUS,SCALE``: an icy (or grippy) circular patch, centre [m], radius [m] > 0 and
+    peak friction SCALE in (0, `MAX_GRIP`] relative to the nominal road's."""
+    rule = (f"must be X,Y,RADIUS,SCALE: four finite numbers, the centre [m], RADIUS > 0 m and "
+            f"SCALE in (0, {MAX_GRIP:g}] (relative to the nominal road)")
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{rule}, got {text!r}") from None
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{rule}, got {text!r}")
+    x, y, radius, scale = values
+    if radius <= 0 or not 0 < scale <= MAX_GRIP:
+        raise argparse.ArgumentTypeError(f"{rule}, got {text!r}")
+    return values
+
+
+def register(subparsers) -> None:
+    from ._options import choice_of, integer, number
+
+    p = subparsers.add_parser(
+        "drive", help="drive a road on the move: the receding-horizon driver with grip "
+                      "estimation, or a baseline",
+        description="Drive the half car (noisy sensors, actuators with delay) along a road "
+                    "with a sampled controller and write drive.json (drive time, completion, "
+                    "distance off the road, compute time per sample, the grip estimate and "
+                    "the planner's friction over time, settings), drive.png and an animation "
+                    "drive.gif. See docs/driver.md.")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--road", type=choice_of(ROADS, "road"),
+                       help=f"a scenario road: {', '.join(ROADS)} (docs/driver.md)")
+    where.add_argument("--road-file", metavar="CSV",
+                       help="a road given by its centre line and widths (columns x_m, y_m, "
+                            "w_tr_right_m, w_tr_left_m; docs/roads.md), driven from its first "
+                            "point (--closed: a circuit)")
+    p.add_argument("--closed", action="store_true",
+                   help="with --road-file: the road is a circuit")
+    p.add_argument("--conditions", type=choice_of(CONDITIONS, "conditions"), default=None,
+                   help="a named grip scenario instead of --grip/--patch: nominal, minus20 "
+                        "(20 %% less grip everywhere), icy (a patch of half the grip on the "
+                        "main corner) or rising (60 %% of the grip at the start, all of it "
+                        "from a third of the road on); docs/driver.md")
+    p.add_argument("--grip", type=number(0.0, MAX_GRIP, lower_open=True), default=None,
+                   help="the peak friction everywhere, relative to the nominal road's (gravel, "
+                        f"0.52), in (0, {MAX_GRIP:g}] (default 1; 0.8: 20 %% less)")
+    p.add_argument("--patch", type=patch, action="append", default=[], metavar="X,Y,R,SCALE",
+                   help="a circular patch of radius R [m] centred at (X, Y) [m] whose peak "
+                        "friction is SCALE times the nominal road's; repeat for several")
+    p.add_argument("--controller", type=choice_of(CONTROLLERS, "controller"), default="rh",
+                   help="rh: receding horizon with the grip estimate (default); rh-nominal: "
+                        "with the nominal friction; rh-oracle: with the true grip along the "
+                        "horizon; tracking: the nominal plan tracked; open-loop: the nominal "
+                        "plan's inputs replayed")
+    p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
+                   help="with an rh controller: rti (a few interior-point iterations per "
+                        "sample, the default) or converged (to tolerance)")
+    p.add_argument("--seed", type=integer(0, 2**31 - 1), default=0,
+                   help="seed of the sensor noise (0)")
+    p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
+                   help="noisy sensors (default) or exact measurements")
+    p.add_argument("--duration", type=number(0.0, 600.0, lower_open=True, unit="s"),
+                   default=None,
+                   help="time budget of the drive [s] (default: the scenario's)")
+    p.add_argument("--out", default="results/drive", help="output folder")
+    p.add_argument("--no-animation", dest="animation", action="store_false",
+                   help="write no animation")
+    p.add_argument("--animation-format", type=choice_of(FORMATS, "animation format"),
+                   default=None,
+                   help="gif (default; no external program) or mp4 (needs ffmpeg)")
+    p.add_argument("--frame-every", type=integer(1, 100), default=2,
+                   help="one animation frame per this many samples (2)")
+    p.set_defaults(func=_drive)
+
+
+def _check(args) -> None:
+    """Checks between options (before anything is computed)."""
+    if args.conditions is not None and (args.grip is not None or args.patch):
+        raise ValueError(f"--conditions {args.conditions} names the grip; leave out --grip "
+                         "and --patch (or give those without --conditions)")
+    if args.grip is None:
+        args.grip = 1.0
+    if args.closed and args.road_file is None:
+        raise ValueError("--closed applies to --road-file (a scenario road knows its shape)")
+    if args.mode is not None and args.controller not in RH_CONTROLLERS:
+        raise ValueError(f"--mode applies to the receding-horizon controllers "
+                         f"({', '.join(RH_CONTROLLERS)}), not --controller {args.controller}")
+    if not args.animation and args.animation_format is not None:
+        raise ValueError("--animation-format applies to the animation; leave out "
+                         "--no-animation")
+    if args.animation and args.animation_format == "mp4":
+        from matplotlib import animation
+
+        if not animation.writers.is_available("ffmpeg"):
+            raise ValueError("--animation-format mp4 needs the ffmpeg program, which was not "
+                             "found; use --animation-format gif (no external program)")
+
+
+def _patches_reach_road(road, patches) -> None:
+    import numpy as np
+
+    for x, y, radius, scale in patches:
+        off = float(np.asarray(road.distance_off_road(x, y)))
+        if off >= radius:
+            raise ValueError(f"--patch {x:g},{y:g},{radius:g},{scale:g}: the patch lies "
+                             f"{off:.1f} m off the road (it must reach it: radius > "
+                             f"{off:.1f} m, or a centre on the road)")
+
+
+def controller_timing(controller, estimator, m0, measurements, *, samples: int | None = None
+                      ) -> dict:
+    r"""The controller's compute time per sample, measured outside the drive's scan: the
+    sample ``(update the estimator with the new measurement, take its estimate, issue the
+    command)`` compiled on its own (`jax.jit`), called for the drive's recorded
+    `measurements` (a `DriveMeasurement` with a leading samples axis; `m0` the first one,
+    before the drive) one by one, each call timed until its command is ready. The first
+    sample (the controller's and the estimator's `init`, then the command) and the
+    compilations are timed apart (``compile``).
+
+    **Returns** ``{"commands": (N, 3), "times": (N - 1,), "compile": s}``: the commands issued
+    (those of the drive, sample for sample) and the times [s]; ``samples``: time only the
+    first this many."""
+    import jax
+    import numpy as np
+
+    n = int(jax.tree.leaves(measurements)[0].shape[0])
+    n = n if samples is None else min(n, samples)
+
+    @jax.jit
+    def first(m):
+        es = None if estimator is None else estimator.init(m)
+        estimate = None if estimator is None else estimator.estimate(es)
+        cs, command = controller.command(controller.init(m), m, estimate)
+        return cs, es, command
+
+    @jax.jit
+    def step(cs, es, m):
+        estimate = None
+        if estimator is not None:
+            es = estimator.update(es, m)
+            estimate = estimator.estimate(es)
+        cs, command = controller.command(cs, m, estimate)
+        return cs, es, command
+
+    t0 = time.perf_counter()
+    cs, es, command = jax.block_until_ready(first(m0))
+    step_compiled = step.lower(cs, es, m0).compile()
+    compile_s = time.perf_counter() - t0
+    commands, times = [np.asarray(command)], []
+    for k in range(n - 1):
+        m = jax.tree.map(lambda a, k=k: a[k], measurements)
+        t0 = time.perf_counter()
+        cs, es, command = jax.block_until_ready(step_compiled(cs, es, m))
+        times.append(time.perf_counter() - t0)
+        commands.append(np.asarray(command))
+    return {"commands": np.stack(commands), "times": np.asarray(times), "compile": compile_s}
+
+
+def timing_record(times, sample_time: float, compile_s: float) -> dict:
+    """p50, p99, max and mean of the per-sample `times` [s], and the real-time factor
+    (p50 over the sample period)."""
+    import numpy as np
+
+    times = np.asarray(times, float)
+    if times.size == 0:
+        return {"compute_time": None, "real_time_factor": None}
+    p50, p99 = (float(v) for v in np.percentile(times, [50, 99]))
+    return {"compute_time": {"p50": p50, "p99": p99, "max": float(times.max()),
+                             "mean": float(times.mean()), "samples": int(times.size),
+                             "compile": compile_s},
+            "real_time_factor": p50 / sample_time}
+
+
+def _drive(args) -> int:
+    _check(args)
+    from . import _drive_setup as setup
+
+    road = setup.road(args)
+    _patches_reach_road(road, args.patch)
+    rh = args.controller in RH_CONTROLLERS
+    grip = (f"conditions {args.conditions}" if args.conditions else f"grip {args.grip:g}"
+            + (f" with {len(args.patch)} patch(es)" if args.patch else ""))
+    sc = setup.scenario(args, road)
+    T = sc.sample_time
+    print(f"vehsim drive {road.name}: a {road.length:.1f} m {'lap' if road.closed else 'road'}"
+          f", {args.controller}" + (f" ({args.mode or 'rti'})" if rh else "") + f", {grip}, "
+          f"{sc.num_samples} samples of {T:g} s; "
+          + ("" if rh else "solving the nominal plan, then ")
+          + "compiling the drive (a minute or more on 2 cores), then running it",
+          file=sys.stderr, flush=True)
+    import jax
+    import numpy as np
+
+    from .._io import save_figure, write_json
+    from .._result_files import with_units
+    from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
+    from ..plot import drive_animation, drive_figure, drive_trace
+
+    t0 = time.perf_counter()
+    driver, estimator = setup.controller(args, sc)
+    run = jax.block_until_ready(setup.simulate(sc, driver, estimator, args.seed))
+    wall = time.perf_counter() - t0
+    print(f"drove in {wall:.1f} s (set-up, compilation and the drive); timing the "
+          "controller sample by sample", file=sys.stderr, flush=True)
+    timing = controller_timing(driver, estimator, setup.first_measurement(sc, args.seed),
+                               run.measurements)
+    result = setup.outcome(sc, run)
+    t = np.asarray(run.states.t)
+    upto = None if result["drive_time"] is None else int(
+        min(len(t), np.searchsorted(t, result["drive_time"]) + 1))
+    tr = drive_trace(road, run, sc.plant, upto)
+    info = run.controller_info
+    rec = {
+        "road": road.name, "length": road.length, "closed": road.closed,
+        "controller": args.controller, "mode": (args.mode or "rti") if rh else None,
+        "completed": result["completed"], "drive_time": result["drive_time"],
+        "max_distance_off_road": result["max_distance_off_road"],
+        "sample_time": T, "duration": sc.num_samples * T,
+        "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
+        "nominal_scale": nominal_scale(),
+        **timing_record(timing["times"], T, timing["compile"]),
+        "commands_replayed_max_difference": np.max(np.abs(
+            timing["commands"] - np.asarray(run.commands)), axis=0),
+        "estimate": None if "peak_est" not in tr else {
+            "t": tr["t"], "peak": tr["peak_est"], "peak_std": tr["peak_std"],
+            "scale": tr["scale_est"], "scale_std": np.asarray(run.estimates.scale_std)},
+        "planner_D": None if "planner_D" not in tr else {"t": tr["t"], "D": tr["planner_D"]},
+        "solver": None if not isinstance(info, dict) else {
+            k: np.asarray(info[k]) for k in ("iterations", "converged", "kkt") if k in info},
+        "truth": {"t": tr["t"], "peak": tr["peak_true"], "scale": tr["scale_true"]},
+        "trajectory": {k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
+        "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
+                     "conditions": args.conditions, "grip": args.grip,
+                     "patches": [list(p) for p in args.patch],
+                     "controller": args.controller, "mode": args.mode, "seed": args.seed,
+                     "noise": args.noise, "duration": args.duration,
+                     "animation": args.animation and (args.animation_format or "gif"),
+                     "frame_every": args.frame_every},
+        "wall_time_s": wall,
+    }
+    out = Path(args.out)
+    write_json(out / "drive.json", with_units(rec, UNITS))
+    status = (f"completed in {result['drive_time']:.2f} s" if result["completed"] else
+              "crossed the end in " + f"{result['drive_time']:.2f} s" if result["drive_time"]
+              else "did not reach the end")
+    title = (f"{road.name}, {args.controller}: {status}, off the road "
+             f"{100 * result['max_distance_off_road']:.1f} cm")
+    save_figure(drive_figure(road, run, sc.plant, title=title, grip_vmax=nominal_scale(),
+                             upto=upto), out / "drive.png")
+    written = ["drive.json", "drive.png"]
+    if args.animation:
+        name = f"drive.{args.animation_format or 'gif'}"
+        print(f"drawing the animation ({name})", file=sys.stderr, flush=True)
+        extent = max(np.ptp(tr["x"]), np.ptp(tr["y"]))
+        drive_animation(road, run, out / name, sc.plant, every=args.frame_every, title=title,
+                        grip_vmax=nominal_scale(), window=40.0 if extent > 120.0 else None,
+                        upto=upto)
+        written.append(name)
+    ct = rec["compute_time"]
+    print(f"{status}, off the road {result['max_distance_off_road']:.3f} m"
+          + ("" if ct is None else f", controller {1e3 * ct['p50']:.2f} ms p50, "
+             f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * T:g} ms sample")
+          + f"; wrote {', '.join(str(out / w) for w in written)}", file=sys.stderr)
+    return 0
