@@ -493,8 +493,10 @@ def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
 
 REVERSE_MODE_MESSAGE = (
     "RecedingHorizonDriver: reverse-mode differentiation (jax.grad, jax.vjp) cannot run "
-    "through the interior-point solve of each sample (a lax.while_loop); differentiate the "
-    "drive in forward mode instead (jax.jvp, jax.jacfwd)")
+    "through the interior-point solve of each sample (a lax.while_loop); forward mode "
+    "(jax.jvp, jax.jacfwd) runs through it, but differentiates the solver's iterations, and "
+    "through a drive of real-time iterations its derivative did not match finite "
+    "differences")
 
 
 def _refuse_transpose(*args):
