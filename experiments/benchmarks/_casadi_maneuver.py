@@ -63,7 +63,7 @@ def _corridor(rd, x, y, eps):
 
 
 def body_model(D, vx, vy, r, kF, kR, d):
-    """The reduced half-car's body accelerations $(\dot v_x, \dot v_y, \dot r)$ and axle
+    r"""The reduced half-car's body accelerations $(\dot v_x, \dot v_y, \dot r)$ and axle
     speeds $(V_{Fx}, V_{Rx})$ at the inputs $(\kappa_F, \kappa_R, \delta)$, in CasADi (the
     formulas of docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
