@@ -52,6 +52,7 @@ from jaxtyping import Array, Float
 from .._checks import check_positive
 from .._fields import array_field
 from .._math import wrap_angle
+from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
     SPEED_CAP,
     CurvilinearManeuverOCP,
@@ -78,18 +79,6 @@ NEWTON_STEPS = 4
 
 
 # ---- the road as arrays -----------------------------------------------------------------
-
-
-def _hermite3(t, h, p0, m0, m1, p1):
-    """Cubic Hermite on t in [0, 1] (interval length h): value and first two s-derivatives."""
-    t2, t3 = t * t, t * t * t
-    v = ((2 * t3 - 3 * t2 + 1) * p0 + (t3 - 2 * t2 + t) * h * m0 + (-2 * t3 + 3 * t2) * p1
-         + (t3 - t2) * h * m1)
-    d = ((6 * t2 - 6 * t) * p0 + (3 * t2 - 4 * t + 1) * h * m0 + (-6 * t2 + 6 * t) * p1
-         + (3 * t2 - 2 * t) * h * m1) / h
-    dd = ((12 * t - 6) * p0 + (6 * t - 4) * h * m0 + (-12 * t + 6) * p1
-          + (6 * t - 2) * h * m1) / (h * h)
-    return v, d, dd
 
 
 class RoadTable(eqx.Module):

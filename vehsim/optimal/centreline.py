@@ -131,13 +131,16 @@ def _hermite5(t, h, p0, m0, a0, a1, m1, p1):
 
 
 def _hermite3(t, h, p0, m0, m1, p1):
-    """Cubic Hermite on t in [0, 1] (value and s-derivative)."""
+    """Cubic Hermite on t in [0, 1] (interval length h): value and first two s-derivatives
+    (NumPy or JAX arrays alike)."""
     t2, t3 = t * t, t * t * t
     v = ((2 * t3 - 3 * t2 + 1) * p0 + (t3 - 2 * t2 + t) * h * m0 + (-2 * t3 + 3 * t2) * p1
          + (t3 - t2) * h * m1)
     d = ((6 * t2 - 6 * t) * p0 + (3 * t2 - 4 * t + 1) * h * m0 + (-6 * t2 + 6 * t) * p1
          + (3 * t2 - 2 * t) * h * m1) / h
-    return v, d
+    dd = ((12 * t - 6) * p0 + (6 * t - 4) * h * m0 + (-12 * t + 6) * p1
+          + (6 * t - 2) * h * m1) / (h * h)
+    return v, d, dd
 
 
 class CentrelineRoad(eqx.Module):
@@ -220,7 +223,7 @@ class CentrelineRoad(eqx.Module):
         k, t, h = self._locate(s)
         t, h = t[..., None], h[..., None]
         return _hermite3(t, h, self.widths[k], self.width_slopes[k], self.width_slopes[k + 1],
-                         self.widths[k + 1])
+                         self.widths[k + 1])[:2]
 
     def width_left(self, s) -> np.ndarray:
         """Width $w_l(s) > 0$ [m] from the centre line to the left edge."""
