@@ -381,13 +381,9 @@ def path_on_road_figure(road, x, y, psi, speed, *, footprint=(4.2, 1.8), every: 
     lc.set_array(0.5 * (speed[:-1] + speed[1:]))
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed [m/s]", shrink=0.8)
-    length, width = footprint
-    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
     marks = sorted(set(range(0, n, every)) | {n - 1})
     for i in marks:
-        c, s = np.cos(psi[i]), np.sin(psi[i])
-        corners = np.stack([x[i] + c * half[:, 0] - s * half[:, 1],
-                            y[i] + s * half[:, 0] + c * half[:, 1]], axis=-1)
+        corners = _footprint(x[i], y[i], psi[i], footprint)
         ax.add_patch(Polygon(corners, closed=True, facecolor="none", edgecolor="tab:blue",
                              lw=0.8, zorder=4, gid="footprint"))
     ax.set_xlabel("x [m]")
