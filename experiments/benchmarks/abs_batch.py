@@ -373,6 +373,13 @@ def vehsim_inputs(seeds: int):
 def time_vehsim(scenarios, observers, keys, hw, repeats):
     ctrls = [controller(c) for c in CONTROLLERS]
 
+    return _timed(scenarios, ctrls, observers, keys, hw, repeats)
+
+
+def _timed(scenarios, ctrls, observers, keys, hw, repeats):
+    """The grid run once (compile and first call), then `repeats` times: ``(runs, first
+    call [s], walls [s], CPU times [s])``."""
+
     def call():
         out = simulate_braking_grid(scenarios, ctrls, observers, keys, hw, duration=DURATION)
         return jax.block_until_ready(out)
@@ -394,19 +401,7 @@ def time_peak_estimator(scenarios, keys, hw, repeats):
     call [s], median wall [s])``."""
     observers = stack([PeakEstimator()] * keys.shape[0])
     ctrls = [controller(c) for c in PEAK_CONTROLLERS]
-
-    def call():
-        out = simulate_braking_grid(scenarios, ctrls, observers, keys, hw, duration=DURATION)
-        return jax.block_until_ready(out)
-
-    t0 = time.perf_counter()
-    out = call()
-    first = time.perf_counter() - t0
-    walls = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        call()
-        walls.append(time.perf_counter() - t0)
+    out, first, walls, _ = _timed(scenarios, ctrls, observers, keys, hw, repeats)
     return out, first, float(np.median(walls))
 
 
