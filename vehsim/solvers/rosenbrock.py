@@ -92,6 +92,13 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
     - `blocks`: tuple of index tuples into the (flat, 1D) state, one per stiff block, all of
       the same length (e.g. `HalfCar.stiff_blocks`: each wheel speed with its tire's
       friction states). States in no block are integrated explicitly.
+    - `frozen_jacobian`: differentiate the step with $J$ held constant (default `False`:
+      the exact derivative of the step). The step's values are the same either way; its
+      derivative then leaves out $\partial J/\partial(t_0, y_0, \text{args})$, the
+      second derivatives of the vector field that differentiating the Jacobian costs (the
+      derivative of the W-method with that $J$ as its approximation, which a W-method
+      allows: it differs from the exact step's derivative by the step's sensitivity to its
+      Jacobian approximation, of the order of the local error).
 
     Order 3 with an embedded order-2 error estimate (use it with `diffrax.PIDController`);
     per step: one Jacobian-vector product per block column (all blocks at once), four
@@ -100,6 +107,7 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
     """
 
     blocks: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    frozen_jacobian: bool = eqx.field(static=True, default=False)
 
     term_structure: ClassVar = dfx.AbstractTerm
     interpolation_cls: ClassVar[Callable[..., dfx.ThirdOrderHermitePolynomialInterpolation]] = (
@@ -141,7 +149,15 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
         # of the stiff states, all columns); its stiff-by-stiff blocks (column j of every
         # block from one product) make W = I - gamma h J block-triangular
         del solver_state, made_jump
-        f0, lin = jax.linearize(lambda y: f(t0, y), y0)
+        if self.frozen_jacobian:
+            # the same J, as a constant of the derivatives: linearised at stopped inputs
+            t_j, y_j, args_j = jax.tree_util.tree_map(
+                lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a,
+                (t0, y0, args))
+            _, lin = jax.linearize(lambda y: terms.vf(t_j, y, args_j), y_j)
+            f0 = f(t0, y0)
+        else:
+            f0, lin = jax.linearize(lambda y: f(t0, y), y0)
         tangents = jnp.zeros((m, y0.shape[0]), y0.dtype)
         for j in range(m):
             tangents = tangents.at[j, idx[:, j]].set(1.0)

@@ -163,7 +163,7 @@ class FrictionObserver(AbstractFrictionEstimator):
         return self.model.belief(log_theta[None])
 
     def _predict(self, car: QuarterCar, hardware: BrakeHardware, substeps, v, omega, z, log_theta,
-                 torque0, target, t0, stamp):
+                 torque0, target, t0, stamp, frozen_jacobian=False):
         """Step 1: ``(omega(stamp), omega_k^-, z_k, v_k^-)`` of the copy at $\\hat\\theta =
         e^\\vartheta$ (the stamp clipped to the sample)."""
         car = eqx.tree_at(lambda c: c.tire, car, self.belief_at(log_theta))
@@ -171,7 +171,8 @@ class FrictionObserver(AbstractFrictionEstimator):
         args = (car, unravel, hardware, torque0, target, t0)
         T = hardware.sample_time
         block = (0, 1) + tuple(range(3, y.shape[0]))
-        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, (block,), substeps)
+        y1, _ = integrate_sample(_copy_rates, y, args, t0, T, (block,), substeps,
+                                 frozen_jacobian=frozen_jacobian)
         rate0, rate1 = _copy_rates(t0, y, args), _copy_rates(t0 + T, y1, args)
         tau = jnp.clip((stamp - t0) / T, 0.0, 1.0)
         at_stamp = hermite(tau, T, y[1], y1[1], rate0[1], rate1[1])
@@ -188,15 +189,8 @@ class FrictionObserver(AbstractFrictionEstimator):
         n = z_flat.shape[0]
         x = jnp.concatenate([state.omega[None], z_flat, state.v[None], state.log_theta[None]])
         d = jnp.concatenate([state.sensitivity, jnp.ones(1)])
-
-        def predict(x):
-            at_stamp, omega_end, z_end, v_end = self._predict(
-                car, hardware, substeps, x[n + 1], x[0], unravel(x[1:n + 1]), x[n + 2], torque0,
-                target, t0, stamp)
-            return jnp.concatenate([at_stamp[None], omega_end[None], ravel_pytree(z_end)[0],
-                                    v_end[None]])
-
-        out, d_out = jax.jvp(predict, (x,), (d,))
+        out, d_out = _predict_sensitivity(self, car, hardware, torque0, target, t0, stamp, x, d,
+                                          substeps=substeps, unravel=unravel)
         omega_m, omega_pred, z, v_pred = out[0], out[1], unravel(out[2:n + 2]), out[n + 2]
         d_omega, d_end, dz, dv = d_out[0], d_out[1], d_out[2:n + 2], d_out[n + 2]
         e = jnp.where(fresh, omega - omega_m, 0.0)
@@ -220,3 +214,44 @@ class FrictionObserver(AbstractFrictionEstimator):
         sensitivity = jnp.concatenate([((1.0 - L) * d_end)[None], dz,
                                        ((1.0 - self.speed_injection) * dv)[None]])
         return ObserverState(z, omega_hat, v_hat, log_theta, P, sensitivity, e, g)
+
+
+def _predict_along(observer, car, hardware, torque0, target, t0, stamp, x, d, *, substeps, unravel,
+                   frozen_jacobian):
+    """The copy's prediction from ``x = (omega, z, v, log_theta)`` and its directional
+    derivative along `d` (forward mode through the copy's integrator)."""
+    n = x.shape[0] - 3
+
+    def predict(x):
+        at_stamp, omega_end, z_end, v_end = observer._predict(
+            car, hardware, substeps, x[n + 1], x[0], unravel(x[1:n + 1]), x[n + 2], torque0,
+            target, t0, stamp, frozen_jacobian)
+        return jnp.concatenate([at_stamp[None], omega_end[None], ravel_pytree(z_end)[0],
+                                v_end[None]])
+
+    return jax.jvp(predict, (x,), (d,))
+
+
+@eqx.filter_custom_jvp
+def _predict_sensitivity(observer, car, hardware, torque0, target, t0, stamp, x, d, *, substeps,
+                         unravel):
+    """`_predict_along` with the exact derivative of the copy's steps (the values the observer
+    runs on); differentiated in turn, with each step's Jacobian held constant."""
+    return _predict_along(observer, car, hardware, torque0, target, t0, stamp, x, d,
+                          substeps=substeps, unravel=unravel, frozen_jacobian=False)
+
+
+@_predict_sensitivity.def_jvp
+def _predict_sensitivity_jvp(primals, tangents, *, substeps, unravel):
+    # the values exact; their derivative that of the steps with frozen Jacobians (the plant's
+    # derivative, `advance`): differentiating the Jacobian inside the sensitivity is a third
+    # derivative of the tire model, most of the reverse-mode program for a change of the
+    # derivative of the order of the steps' local error
+    out = _predict_sensitivity(*primals, substeps=substeps, unravel=unravel)
+    tangents = jax.tree_util.tree_map(
+        lambda p, t: jnp.zeros_like(p) if t is None and eqx.is_inexact_array(p) else t,
+        primals, tangents, is_leaf=lambda a: a is None)
+    _, t_out = eqx.filter_jvp(
+        lambda *p: _predict_along(*p, substeps=substeps, unravel=unravel, frozen_jacobian=True),
+        primals, tangents)
+    return out, t_out

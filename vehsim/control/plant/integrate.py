@@ -26,9 +26,11 @@ SUBSTEPS = 8
 
 
 def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBSTEPS,
-                     save_substeps: bool = False):
+                     save_substeps: bool = False, frozen_jacobian: bool = False):
     r"""Integrate $\dot y$ = `vector_field(t, y, args)` over $[t_0, t_0 + T]$ by `substeps`
-    equal steps of `ROS34PW2`, implicit in the stiff `blocks` (index tuples of one length).
+    equal steps of `ROS34PW2`, implicit in the stiff `blocks` (index tuples of one length);
+    with `frozen_jacobian`, derivatives hold each step's Jacobian constant
+    (`ROS34PW2.frozen_jacobian`: the same values, a cheaper derivative).
 
     **Returns:** ``(y1, result)``: the state at $t_0 + T$ and `RESULTS.nonfinite` if it is
     not finite (else `successful`); with `save_substeps`, ``(y1, result, ys)``, `ys` the
@@ -36,7 +38,8 @@ def integrate_sample(vector_field, y0, args, t0, T, blocks, substeps: int = SUBS
     row is `y1`).
     """
     h = T / substeps
-    solver, term = ROS34PW2(tuple(tuple(b) for b in blocks)), dfx.ODETerm(vector_field)
+    solver = ROS34PW2(tuple(tuple(b) for b in blocks), frozen_jacobian)
+    term = dfx.ODETerm(vector_field)
 
     def sub(y, j):
         t = t0 + j * h
