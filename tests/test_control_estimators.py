@@ -220,3 +220,46 @@ def test_peak_estimator_leaves_the_old_road_after_a_change():
     mu_true = np.asarray(jax.vmap(lambda v: peak_braking(slippery, v, 0.3)[1])(s["v"][after]))
     assert after.sum() > 20
     np.testing.assert_allclose(np.asarray(states.peak_mu)[after], mu_true, rtol=0.1)
+
+
+def test_observer_update_exact_sensitivity_and_derivative_with_frozen_jacobians():
+    # the observer's regressor is the exact derivative of its copy's steps (central
+    # differences of the prediction agree to 1e-7); the update's own derivative holds the
+    # steps' Jacobians constant (as the plant's does): forward = reverse, off central
+    # differences of the update by the steps' sensitivity to their Jacobians (measured: at
+    # most 9e-4 of each output's largest derivative, 1e-4 typical; the exact derivative
+    # agrees to 1e-7)
+    scenario, observer = braking_scenario("dry_asphalt", 30.0)
+    car = scenario.car
+    st0 = observer.init(jnp.asarray(29.0 / car.radius), jnp.asarray(30.0))
+
+    def update(p):  # p = (target torque [kN m], log theta, wheel speed [rad/s])
+        st = eqx.tree_at(lambda s: (s.log_theta, s.omega), st0, (p[1], p[2]))
+        return observer.update(st, car, HARDWARE, 8, jnp.asarray(29.9), jnp.asarray(95.0),
+                               0.0025, True, 800.0, 1000.0 * p[0], 0.0)
+
+    def flat(p):
+        return jnp.concatenate([jnp.atleast_1d(a) for a in jax.tree_util.tree_leaves(update(p))])
+
+    p = jnp.array([1.2, float(st0.log_theta), 29.0 / float(car.radius)])
+    st = eqx.filter_jit(update)(p)
+
+    def omega_end(log_theta):
+        return float(observer._predict(car, HARDWARE, 8, st0.v, p[2], st0.z, log_theta, 800.0,
+                                       1200.0, 0.0, 0.0025)[1])
+
+    eps = 1e-5
+    fd = (omega_end(p[1] + eps) - omega_end(p[1] - eps)) / (2 * eps)
+    L = float(observer.injection)
+    assert abs(fd) > 1e-3
+    assert float(st.sensitivity[0]) / (1 - L) == pytest.approx(fd, rel=1e-7)
+
+    fwd = np.asarray(eqx.filter_jit(jax.jacfwd(flat))(p))
+    rev = np.asarray(eqx.filter_jit(jax.jacrev(flat))(p))
+    np.testing.assert_allclose(rev, fwd, rtol=1e-9, atol=1e-12 * np.max(np.abs(fwd)))
+    f, h = eqx.filter_jit(flat), np.array([1e-4, 1e-5, 1e-4])
+    cd = np.stack([(np.asarray(f(p + h[i] * e)) - np.asarray(f(p - h[i] * e))) / (2 * h[i])
+                   for i, e in enumerate(np.eye(3))], axis=-1)
+    scale = np.max(np.abs(cd), axis=1, keepdims=True) + 1e-12
+    assert np.max(np.abs(cd)) > 1e-3 and np.all(np.isfinite(fwd))
+    np.testing.assert_allclose(fwd / scale, cd / scale, atol=2e-3)
