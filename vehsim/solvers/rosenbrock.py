@@ -149,15 +149,13 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
         # of the stiff states, all columns); its stiff-by-stiff blocks (column j of every
         # block from one product) make W = I - gamma h J block-triangular
         del solver_state, made_jump
+        f0, lin = jax.linearize(lambda y: f(t0, y), y0)
         if self.frozen_jacobian:
-            # the same J, as a constant of the derivatives: linearised at stopped inputs
-            t_j, y_j, args_j = jax.tree_util.tree_map(
-                lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a,
-                (t0, y0, args))
-            _, lin = jax.linearize(lambda y: terms.vf(t_j, y, args_j), y_j)
-            f0 = f(t0, y0)
-        else:
-            f0, lin = jax.linearize(lambda y: f(t0, y), y0)
+            # the same linear map (the same operations on the same values), its residuals
+            # (the linearisation point's intermediates) constants of the derivatives
+            lin_fn, residuals = jax.closure_convert(lin, y0)
+            residuals = [jax.lax.stop_gradient(r) for r in residuals]
+            lin = lambda v: lin_fn(v, *residuals)  # noqa: E731
         tangents = jnp.zeros((m, y0.shape[0]), y0.dtype)
         for j in range(m):
             tangents = tangents.at[j, idx[:, j]].set(1.0)
