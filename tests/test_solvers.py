@@ -136,13 +136,47 @@ def _vf_a(t, y, a):  # _vf with a parameter in every rate (derivatives through a
                       -50.0 * a * (y[2] - jnp.cos(t)) + y[0]])
 
 
-def _one_step(frozen, h):
-    solver = ROS34PW2(((0, 1, 2),), frozen_jacobian=frozen)
+def _one_step(frozen, h, blocks=((2,),)):
+    solver = ROS34PW2(blocks, frozen_jacobian=frozen)
 
     def step(x):  # x = (y0, a)
         return solver.step(dfx.ODETerm(_vf_a), 0.1, 0.1 + h, x[:3], x[3], None, False)[0]
 
     return step
+
+
+def _w_step(J, stiff, h):
+    # the scheme of vehsim.solvers.rosenbrock with a given J (rows of the stiff states S):
+    # off S k_i = h f_i, on S (I - gamma h J_SS) k_i = h f_i + h J_S.(g_i + gamma k_i off S)
+    from vehsim.solvers.rosenbrock import _A, _B, _C, _G, _GAMMA
+    S = np.asarray(stiff)
+    N = np.setdiff1d(np.arange(3), S)
+    W = jnp.eye(len(S)) - _GAMMA * h * J[np.ix_(S, S)]
+
+    def step(x):
+        y0, a, ks = x[:3], x[3], []
+        for i in range(4):
+            fi = _vf_a(0.1 + _C[i] * h, y0 + sum(_A[i, j] * ks[j] for j in range(i)), a)
+            g = sum((_G[i, j] * ks[j] for j in range(i)), start=jnp.zeros(3))
+            k = jnp.zeros(3).at[N].set(h * fi[N])
+            rhs = h * fi[S] + h * J[S] @ (g + _GAMMA * k)
+            ks.append(k.at[S].set(jnp.linalg.solve(W, rhs)))
+        return y0 + sum(_B[i] * ks[i] for i in range(4))
+
+    return step
+
+
+@pytest.mark.parametrize("stiff", [(0, 1, 2), (2,)])
+def test_frozen_jacobian_derivative_is_the_w_methods_with_that_jacobian(stiff):
+    # an independent W-method step with J = df/dy at the point as a constant matrix: same
+    # values, and its derivative is the frozen step's
+    x, h = jnp.array([1.0, 0.5, 0.2, 1.3]), 5e-3
+    J = np.asarray(jax.jacfwd(lambda y: _vf_a(0.1, y, x[3]))(x[:3]))
+    ref = _w_step(jnp.asarray(J), stiff, h)
+    frozen = _one_step(True, h, (tuple(stiff),))
+    np.testing.assert_allclose(np.asarray(frozen(x)), np.asarray(ref(x)), rtol=1e-14)
+    np.testing.assert_allclose(np.asarray(jax.jacrev(frozen)(x)), np.asarray(jax.jacfwd(ref)(x)),
+                               rtol=1e-11, atol=1e-14)
 
 
 def test_frozen_jacobian_same_values_reverse_equals_forward_derivative_within_local_error():
