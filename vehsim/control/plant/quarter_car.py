@@ -140,7 +140,8 @@ def _vector_field(t, y, args):
 def advance(scenario: BrakingScenario, hardware: BrakeHardware, y, enc: EncoderState, t_sample,
             torque0, target, substeps: int):
     """Integrate the plant over one sample from `t_sample` under the brake torque that
-    starts at `torque0` and lags towards `target`, counting tone-wheel edges.
+    starts at `torque0` and lags towards `target`, counting tone-wheel edges; derivatives
+    hold the steps' Jacobians constant (`ROS34PW2.frozen_jacobian`, docs/differentiating.md).
 
     **Returns:** the state and the encoder state at the next sample, and the solve's
     result.
