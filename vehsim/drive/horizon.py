@@ -50,7 +50,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_positive
-from .._fields import array_field
+from .._fields import array_field, float_array
 from .._math import wrap_angle
 from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
@@ -564,7 +564,18 @@ class RecedingHorizonDriver(AbstractDriveController):
     actuators' lag), `position_gain` (the weight of the measured position against dead
     reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
     `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
-    (static; the actuators' delay), `init_iterations` (cap of the first solve).
+    (static; the actuators' delay), `init_iterations` (cap of the first solve),
+    `warm_start` (static): 'primal' (the shifted plan; the multipliers start afresh, the
+    least-squares estimate) or 'primal-dual' (also the previous plan's multipliers, shifted
+    by `shift_multipliers`, where that plan converged: `interior_point`'s
+    ``multipliers``); default None: 'primal-dual' in 'converged' mode, 'primal' in 'rti'
+    mode; `mu0` the first barrier of a sample's solve (default None: `barrier`).
+
+    **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
+    function theorem at the solution returned (`interior_point` with ``implicit``): a
+    drive's derivatives in forward and reverse mode are those of its converged plans (and
+    only as good as their convergence). In 'rti' mode a plan is a few iterations, not a
+    solution: derivatives raise `RTI_DERIVATIVE_MESSAGE`.
 
     **Assumptions.** The prediction over the delay assumes the plant's actuators: the
     command issued now acts from the next sample, and meanwhile the last command's slips
@@ -585,10 +596,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     terminal_backoff: Float[Array, ""] = array_field(default=1.0)
     mode: str = eqx.field(static=True, default="rti")
     iterations: int = eqx.field(static=True, default=4)
-    max_iterations: int = eqx.field(static=True, default=60)
+    max_iterations: int = eqx.field(static=True, default=100)
     init_iterations: int = eqx.field(static=True, default=300)
     tol: float = eqx.field(static=True, default=1e-6)
-    mu0: Float[Array, ""] = array_field(default=1e-3)
+    mu0: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
     friction: str = eqx.field(static=True, default="nominal")
     nominal_peak: Float[Array, ""] = array_field(default=0.52)
     estimate_backoff: Float[Array, ""] = array_field(default=1.0)
@@ -599,12 +611,15 @@ class RecedingHorizonDriver(AbstractDriveController):
     steer_limit: Float[Array, ""] = array_field(default=0.6)
     sample_time: Float[Array, ""] = array_field(default=0.05)
     delay_samples: int = eqx.field(static=True, default=1)
-    warm_start: str = eqx.field(static=True, default="primal")
+    warm_start: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
             raise ValueError(f"RecedingHorizonDriver.mode must be 'rti' or 'converged', got "
                              f"{self.mode!r}")
+        if self.warm_start not in (None, "primal", "primal-dual"):
+            raise ValueError("RecedingHorizonDriver.warm_start must be 'primal' or "
+                             f"'primal-dual', got {self.warm_start!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")
@@ -616,7 +631,25 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
                      "terminal_backoff", "mu0"):
-            check_positive("RecedingHorizonDriver", name, getattr(self, name))
+            if getattr(self, name) is not None:
+                check_positive("RecedingHorizonDriver", name, getattr(self, name))
+
+    @property
+    def warm_duals(self) -> bool:
+        """Whether the solves start from the previous plan's multipliers (`warm_start`;
+        default: in 'converged' mode)."""
+        if self.warm_start is None:
+            return self.mode == "converged"
+        return self.warm_start == "primal-dual"
+
+    @property
+    def barrier(self):
+        """The first barrier of a sample's solve: `mu0`, by default $10^{-3}$ in 'rti'
+        mode and $10^{-4}$ in 'converged' mode (with the multipliers warm-started a larger
+        barrier pushes the active inequalities' slacks off the previous solution)."""
+        if self.mu0 is not None:
+            return self.mu0
+        return jnp.asarray(1e-4 if self.warm_duals else 1e-3)
 
     # ---- pieces -----------------------------------------------------------------------
 
@@ -626,7 +659,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
                              log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
-        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.mu0,
+        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
                          log_size=8)
 
     def planner_friction(self, s0, estimate) -> Float[Array, " M"]:
@@ -759,7 +792,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         xs0 = xs0.at[0, :8].set(state8)
         prob = self.problem(s_pred, state8, D)
         duals = None
-        if self.warm_start == "primal-dual":
+        if self.warm_duals:
             lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
                                            s_pred - state.s_plan, self.horizon)
             # a plan that did not converge has no multipliers to trust: the cold start
@@ -800,11 +833,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         return X[5:8], jnp.stack([T_F, T_R])
 
     def info(self, state: HorizonState) -> dict:
-        """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the planned horizon
+        """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the plan (`xs`, `us`)
+        and its multipliers (`lam`, `nu`, `z`), the planned horizon
         as `plan_s`, `plan_n` (M+1,) and `plan_t`, its `start` (the predicted state the
         plan starts from, (8,)), the planner's `D` (M,), the projection `s`, `n`, `xi`."""
         M = self.num_stages
         return dict(iterations=state.iterations, converged=state.converged, kkt=state.kkt,
+                    xs=state.xs, us=state.us, lam=state.lam, nu=state.nu, z=state.z,
                     plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
                     plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], start=state.xs[0, :8],
                     D=state.D,

@@ -54,10 +54,9 @@ def solution_tangent(prob, tprob, it: Iterate, hessian: str = "forward-over-reve
     w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -it.lam * mk.lam, it.nu * mk.eq,
                          -it.z * mk.g], 1)
     dyn, static = eqx.partition(prob, eqx.is_inexact_array)
-    tdyn = jax.tree.map(lambda p, t: p if p is None else jnp.zeros_like(p) if t is None else t,
-                        dyn,
-                        eqx.filter(tprob, eqx.is_inexact_array, replace=None),
-                        is_leaf=lambda x: x is None)
+    tdyn = jax.tree.map(
+        lambda p, t: None if p is None else jnp.zeros_like(p) if t is None
+        else jnp.asarray(t, p.dtype), dyn, tprob, is_leaf=lambda x: x is None)
     _, (dgrad, dv) = jax.jvp(
         lambda p: _stage_lagrangian(eqx.combine(p, static), lay, it.ys, w), (dyn,), (tdyn,))
     _, dF, de, dg = lay.split(dv)
