@@ -525,7 +525,8 @@ class HorizonState(eqx.Module):
     `position` $(x, y)$ and the measured ground `velocity` in the inertial frame, the plan
     (`xs`, `us`, starting at `s_plan`; its multipliers `lam`, `nu`, `z`), the `inputs`
     $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
-    `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's peak friction, `projection` $(s, n, \\xi)$."""
+    `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
+    peak friction, `projection` $(s, n, \\xi)$."""
 
     s: Float[Array, ""]
     position: Float[Array, " 2"]
