@@ -139,28 +139,29 @@ def test_drive_reading():
 
 @pytest.fixture(scope="module")
 def converged_run(corner):
-    driver = _driver(corner, mode="converged", max_iterations=40)
+    driver = _driver(corner, mode="converged")
     return driver, _run(corner, driver)
 
 
 @pytest.mark.slow  # a drive: one compilation of a few minutes
 def test_oracle_reproduces_primitive(corner, converged_run):
-    """The oracle driver (converged mode) against the offline primitive of its planning
-    car on the same corridor. The goal is 2 %; measured 3.3 % (4.642 s against 4.495 s)
-    with no departure, so the bound here is 4 %: a regression test of the drive, not yet
-    the goal."""
+    """The oracle driver (converged mode: the multipliers warm-started, at most 100
+    iterations) against the offline primitive of its planning car on the same corridor,
+    within the goal of 2 % (measured +1.2 %: 4.550 s against 4.495 s), never off the road;
+    95 % of its solves converge (all but the first three, after a first plan that did not
+    converge, and two more)."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
     t_prim = float(corner["prim"].t_f)
     print("oracle drive", tc, "primitive", t_prim, "off", off,
           "iterations", np.asarray(run.controller_info["iterations"]).tolist())
-    assert abs(tc / t_prim - 1.0) < 0.04, (tc, t_prim)
+    assert abs(tc / t_prim - 1.0) < 0.02, (tc, t_prim)
     assert off < 0.05
     info = run.controller_info
     assert info["plan_s"].shape == (corner["num"], STAGES + 1)
     assert np.all(np.asarray(info["D"]) == pytest.approx(float(corner["car"].tire.D), rel=1e-9))
-    # the converged mode reaches its cap on most samples (31 % converged): see docs/drive.md
-    assert np.all(np.asarray(info["iterations"]) <= 40)
+    assert np.all(np.asarray(info["iterations"]) <= driver.max_iterations)
+    assert np.mean(np.asarray(info["converged"])) >= 0.9
 
 
 @pytest.mark.slow  # a drive: one compilation of a few minutes
@@ -221,9 +222,10 @@ def test_rti_drives_the_road(corner, converged_run):
     rti = _run(corner, _driver(corner, mode="rti", iterations=4))
     t_rti, off = _reading(corner["road"], rti)
     assert off < 0.05
-    # measured: 4.944 s against 4.642 s (+6.5 %; 4.821 s, +3.9 %, compiled with XLA's
-    # default flags: real-time iterations are sensitive to rounding); 8 iterations: 5.029 s
-    assert abs(t_rti / t_conv - 1.0) < 0.08, (t_rti, t_conv)
+    # measured: 4.944 s against the converged mode's 4.550 s (+8.7 %; 4.821 s compiled
+    # with XLA's default flags: real-time iterations are sensitive to rounding);
+    # 8 iterations: 5.029 s
+    assert abs(t_rti / t_conv - 1.0) < 0.11, (t_rti, t_conv)
     assert np.all(np.asarray(rti.controller_info["iterations"]) <= 4)
 
 
@@ -243,3 +245,54 @@ def test_rti_derivatives_are_refused_naming_converged_mode(corner):
         jax.grad(steer)(1e-4)
     with pytest.raises(TypeError, match="mode='converged'"):
         jax.jvp(steer, (1e-4,), (1.0,))
+
+
+@pytest.fixture(scope="module")
+def gentle():
+    """A short drive on a gentle corner (20 m straight, 45 deg of 30 m radius, 4 m wide) at
+    10 m/s: a converged-mode driver with a short horizon (30 m, 10 stages) whose every
+    plan converges, six samples; ``drive(param, value)`` is the program of the drive and
+    its forward-mode derivative in that driver field, ``(x, y)`` of the car at the end."""
+    road = vs.CentrelineRoad.from_segments([("straight", 20), ("arc", 30, 45),
+                                            ("straight", 20)], 4.0)
+    mu1 = float(vs.AxleGripEstimator().peak(1.0))
+    lam0 = 0.52 / mu1
+    plant = vs.DrivePlant(grip=vs.UniformGrip(scale=lam0),
+                          sensors=vs.DriveSensors(noise_on=False))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(),
+                            tire=vs.fit_planner_tire(0.52, lam0, speed=12.0))
+    table = vs.RoadTable.from_road(road, extension=40.0).with_grip(plant.grip, mu1)
+    driver = vs.RecedingHorizonDriver(table, car, horizon=30.0, num_stages=10, margin=MARGIN,
+                                      friction="oracle", mode="converged", tol=1e-9)
+    state0 = vs.init_drive(plant, vx=10.0)
+
+    def end(w, param):
+        d = eqx.tree_at(lambda d: getattr(d, param), driver, w)
+        run = vs.simulate_drive(plant, d, state0, jax.random.key(0), 6)
+        return run.states.car[-1, :2], run.controller_info["converged"]
+
+    @eqx.filter_jit
+    def drive(w, param):
+        (xy, conv), (dxy, _) = jax.jvp(lambda v: end(v, param), (w,), (jnp.ones(()),))
+        return xy, dxy, conv
+
+    return dict(driver=driver, end=end, drive=drive)
+
+
+@pytest.mark.slow  # the forward-mode derivative of a drive: one compilation of minutes
+def test_drive_derivative_matches_finite_differences(gentle):
+    """d(x, y)/d(terminal_backoff) of the car's position after six converged-mode samples
+    by forward mode (the plans differentiated by the implicit function theorem) against
+    central differences of the same program's values at two steps (the differences agree
+    with each other: the solves' tolerance, 1e-9, is far below the steps' effect)."""
+    w = jnp.asarray(1.0)
+    _, dxy, conv = gentle["drive"](w, "terminal_backoff")
+    assert np.all(np.asarray(conv))  # every plan converged: the derivative is the drive's
+    fd = []
+    for h in (1e-3, 2.5e-4):
+        plus, minus = (np.asarray(gentle["drive"](w + e, "terminal_backoff")[0])
+                       for e in (h, -h))
+        fd.append((plus - minus) / (2 * h))
+    print("forward mode", np.asarray(dxy), "central differences", fd)
+    np.testing.assert_allclose(fd[0], fd[1], rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(dxy), fd[1], rtol=1e-3, atol=1e-6)
