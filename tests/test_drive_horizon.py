@@ -229,24 +229,6 @@ def test_rti_drives_the_road(corner, converged_run):
     assert np.all(np.asarray(rti.controller_info["iterations"]) <= 4)
 
 
-def test_rti_derivatives_are_refused_naming_converged_mode(corner):
-    """A real-time iteration's plan is not a solution: derivatives through it, forward or
-    reverse, raise (naming the converged mode) instead of returning a wrong number."""
-    driver = _driver(corner, mode="rti", iterations=2, init_iterations=5)
-    plant = corner["plant"]
-    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=V0), jax.random.key(0))
-    state = driver.init(m0)
-
-    def steer(w):
-        d = eqx.tree_at(lambda d: d.rate_weight, driver, w)
-        return d.command(state, m0, None)[1][2]
-
-    with pytest.raises(TypeError, match="mode='converged'"):
-        jax.grad(steer)(1e-4)
-    with pytest.raises(TypeError, match="mode='converged'"):
-        jax.jvp(steer, (1e-4,), (1.0,))
-
-
 @pytest.fixture(scope="module")
 def gentle():
     """A short drive on a gentle corner (20 m straight, 45 deg of 30 m radius, 4 m wide) at
@@ -276,7 +258,7 @@ def gentle():
         (xy, conv), (dxy, _) = jax.jvp(lambda v: end(v, param), (w,), (jnp.ones(()),))
         return xy, dxy, conv
 
-    return dict(driver=driver, end=end, drive=drive)
+    return dict(driver=driver, end=end, drive=drive, plant=plant, table=table, car=car)
 
 
 @pytest.mark.slow  # the forward-mode derivative of a drive: one compilation of minutes
@@ -296,3 +278,23 @@ def test_drive_derivative_matches_finite_differences(gentle):
     print("forward mode", np.asarray(dxy), "central differences", fd)
     np.testing.assert_allclose(fd[0], fd[1], rtol=1e-3, atol=1e-6)
     np.testing.assert_allclose(np.asarray(dxy), fd[1], rtol=1e-3, atol=1e-6)
+
+
+def test_rti_derivatives_are_refused_naming_converged_mode(gentle):
+    """A real-time iteration's plan is not a solution: derivatives through it, forward or
+    reverse, raise (naming the converged mode) instead of returning a wrong number."""
+    driver = vs.RecedingHorizonDriver(gentle["table"], gentle["car"], horizon=30.0,
+                                      num_stages=10, mode="rti", iterations=2,
+                                      init_iterations=5)
+    plant = gentle["plant"]
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
+    state = driver.init(m0)
+
+    def steer(w):
+        d = eqx.tree_at(lambda d: d.rate_weight, driver, w)
+        return d.command(state, m0, None)[1][2]
+
+    with pytest.raises(TypeError, match="mode='converged'"):
+        jax.grad(steer)(1e-4)
+    with pytest.raises(TypeError, match="mode='converged'"):
+        jax.jvp(steer, (1e-4,), (1.0,))

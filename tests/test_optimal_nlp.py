@@ -435,6 +435,35 @@ def test_implicit_derivatives_of_the_optimum_are_the_closed_form(bang_bang):
                                rtol=1e-6)
 
 
+class EffortRestToRest(RestToRest):
+    """`RestToRest` with an effort cost rho h |u|^2 per stage: the parameter enters the
+    Lagrangian's gradient (no closed form: central differences)."""
+
+    rho: jax.Array = eqx.field(converter=jnp.asarray, default=0.05)
+
+    def stage_cost(self, x, u, k):
+        return self.rho * x[4] / self.num_stages * (u @ u)
+
+
+def test_implicit_derivative_of_a_cost_parameter_matches_finite_differences():
+    M = 12
+    xs0, us0 = _guess(M)
+    opts = IPOptions(tol=1e-11, constr_tol=1e-11)
+
+    def t_final(rho):
+        p = EffortRestToRest(num_stages=M, rho=rho)
+        return interior_point(p, xs0, us0, opts, implicit=True).xs[-1, 4]
+
+    rho = jnp.asarray(0.05)
+    forward = float(jax.jvp(t_final, (rho,), (1.0,))[1])
+    f = jax.jit(t_final)
+    fd = [float(f(rho + h) - f(rho - h)) / (2 * h) for h in (1e-4, 2.5e-5)]
+    assert abs(forward) > 0.1  # the effort slows the optimum down
+    assert fd[0] == pytest.approx(fd[1], rel=1e-5)
+    assert forward == pytest.approx(fd[1], rel=1e-5)
+    assert float(jax.grad(t_final)(rho)) == pytest.approx(forward, rel=1e-9)
+
+
 def test_warm_start_of_the_multipliers(bang_bang):
     """From an optimum with its multipliers the solve has nothing left to do; a perturbed
     problem from them converges; z = 0 (no warm start for this problem) is the cold start
