@@ -445,6 +445,7 @@ def shift_multipliers(lam, nu, z, distance, horizon):
     inequalities) interpolated at the moved stage midpoints (past the end the last stage's
     held), the last knot's row (terminal inequalities) and ``nu`` (the initial state's
     equalities) kept."""
+    lam, z = jnp.asarray(lam), jnp.asarray(z)
     M = lam.shape[0] - 1
     h = horizon / M
     mid = h * (jnp.arange(M) + 0.5)
