@@ -17,7 +17,9 @@ at a regular solution). The parameter derivatives are one forward-mode pass over
 functions and the vector-Jacobian product of the stage Lagrangian. The solve is a
 `lax.custom_linear_solve` of the symmetric KKT matrix, so the tangent is linear and
 transposable: reverse mode runs too. The guess (and warm-start multipliers) get no
-derivative: a converged solution does not depend on them.
+derivative: a converged solution does not depend on them. Where the solve did not converge
+the tangent is NaN (near a solution, with the barrier not yet small, the theorem gave
+derivatives far from the finite differences).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ..._results import RESULTS
 from .derivatives import stage_derivatives
 from .kkt import Iterate, _condensed_system, _refined_solve, _regularised_solve, _split_step
 from .problem import stage_function, stage_layout
@@ -94,6 +97,9 @@ def _implicit_solve_jvp(primals, tangents, *, solve):
     lay = stage_layout(prob)
     it = Iterate(ys=lay.join(sol.xs, sol.us), s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
     t = solution_tangent(prob, tprob, it)
+    # at an iterate that did not converge the theorem does not apply: NaN, not a wrong number
+    ok = sol.result == RESULTS.successful
+    t = jax.tree.map(lambda a: jnp.where(ok, a, jnp.nan), t)
     tsol = jax.tree.map(lambda _: None, sol)
     tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s), tsol,
                        (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s),
