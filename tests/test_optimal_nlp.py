@@ -413,3 +413,69 @@ def test_one_rk4_step_without_the_loop_is_the_looped_step():
     assert not np.allclose(np.asarray(end), np.asarray(x))  # the step moves the state
     np.testing.assert_allclose(np.asarray(jax.jacfwd(lambda y: one(y)[0])(x)),
                                np.asarray(jax.jacfwd(first_of_two)(x)), rtol=1e-12, atol=1e-12)
+
+
+def test_implicit_derivatives_of_the_optimum_are_the_closed_form(bang_bang):
+    """``implicit=True``: d t_f / d(L, amax) of t_f = 2 sqrt(L / amax) by the implicit
+    function theorem at the returned optimum, forward mode and reverse mode (which cannot
+    run through the iteration loop), against the closed form 1/sqrt(L amax) and
+    -sqrt(L) / amax^1.5."""
+    prob, _ = bang_bang
+    xs0, us0 = _guess(prob.num_stages)
+
+    def t_final(L, amax):
+        p = eqx.tree_at(lambda q: (q.L, q.amax), prob, (L, amax))
+        return interior_point(p, xs0, us0, implicit=True).xs[-1, 4]
+
+    L, a = jnp.asarray(10.0), jnp.asarray(5.0)
+    exact = np.array([1.0 / np.sqrt(10.0 * 5.0), -np.sqrt(10.0) / 5.0**1.5])
+    forward = [jax.jvp(t_final, (L, a), t)[1] for t in ((1.0, 0.0), (0.0, 1.0))]
+    np.testing.assert_allclose(np.asarray(forward), exact, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(jax.grad(t_final, argnums=(0, 1))(L, a)), exact,
+                               rtol=1e-6)
+
+
+class EffortRestToRest(RestToRest):
+    """`RestToRest` with an effort cost rho h |u|^2 per stage: the parameter enters the
+    Lagrangian's gradient (no closed form: central differences)."""
+
+    rho: jax.Array = eqx.field(converter=jnp.asarray, default=0.05)
+
+    def stage_cost(self, x, u, k):
+        return self.rho * x[4] / self.num_stages * (u @ u)
+
+
+def test_implicit_derivative_of_a_cost_parameter_matches_finite_differences():
+    M = 12
+    xs0, us0 = _guess(M)
+    opts = IPOptions(tol=1e-11, constr_tol=1e-11)
+
+    def t_final(rho):
+        p = EffortRestToRest(num_stages=M, rho=rho)
+        return interior_point(p, xs0, us0, opts, implicit=True).xs[-1, 4]
+
+    rho = jnp.asarray(0.05)
+    forward = float(jax.jvp(t_final, (rho,), (1.0,))[1])
+    f = jax.jit(t_final)
+    fd = [float(f(rho + h) - f(rho - h)) / (2 * h) for h in (1e-4, 2.5e-5)]
+    assert abs(forward) > 0.1  # the effort slows the optimum down
+    assert fd[0] == pytest.approx(fd[1], rel=1e-5)
+    assert forward == pytest.approx(fd[1], rel=1e-5)
+    assert float(jax.grad(t_final)(rho)) == pytest.approx(forward, rel=1e-9)
+
+
+def test_warm_start_of_the_multipliers(bang_bang):
+    """From an optimum with its multipliers the solve has nothing left to do; a perturbed
+    problem from them converges; z = 0 (no warm start for this problem) is the cold start
+    (to rounding: another program)."""
+    prob, sol = bang_bang
+    duals = (sol.lam, sol.nu, sol.z)
+    again = interior_point(prob, sol.xs, sol.us, IPOptions(mu0=1e-9), multipliers=duals)
+    assert int(again.iterations) <= 1
+    longer = eqx.tree_at(lambda q: q.L, prob, jnp.asarray(10.5))
+    warm = interior_point(longer, sol.xs, sol.us, IPOptions(mu0=1e-5), multipliers=duals)
+    assert float(warm.xs[-1, 4]) == pytest.approx(2 * np.sqrt(10.5 / 5.0), abs=1e-6)
+    xs0, us0 = _guess(prob.num_stages)
+    cold = interior_point(prob, xs0, us0, multipliers=(sol.lam, sol.nu, 0.0 * sol.z))
+    np.testing.assert_allclose(np.asarray(cold.xs), np.asarray(sol.xs), rtol=0, atol=1e-12)
+    assert int(cold.iterations) == int(sol.iterations)

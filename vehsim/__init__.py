@@ -405,6 +405,7 @@ from .drive.horizon import (
     fit_planner_tire as fit_planner_tire,
     horizon_problem as horizon_problem,
     profile_guess as profile_guess,
+    shift_multipliers as shift_multipliers,
     shift_plan as shift_plan,
 )
 from .drive.metrics import (

@@ -102,7 +102,7 @@ class DompcDriver:
             rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
             terminal_sideslip=float(ocp.terminal_sideslip),
             terminal_heading=float(ocp.terminal_heading), tol=d.tol,
-            max_iter=d.max_iterations, mu_init=float(d.mu0))
+            max_iter=d.max_iterations, mu_init=float(d.barrier))
 
         def prepare(s_prev, position, velocity, inputs, m):
             position, velocity = d.filter_position(

@@ -50,7 +50,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_positive
-from .._fields import array_field
+from .._fields import array_field, float_array
 from .._math import wrap_angle
 from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
@@ -439,6 +439,22 @@ def shift_plan(xs, us, distance, horizon):
     return cols, us_new
 
 
+def shift_multipliers(lam, nu, z, distance, horizon):
+    r"""The multipliers of a plan (`IPSolution`'s ``lam`` (M+1, nx), ``nu``, ``z`` (M+1,
+    ng)) on the grid of `shift_plan`: the stages' rows ($k < M$: defects, path
+    inequalities) interpolated at the moved stage midpoints (past the end the last stage's
+    held), the last knot's row (terminal inequalities) and ``nu`` (the initial state's
+    equalities) kept."""
+    lam, z = jnp.asarray(lam), jnp.asarray(z)
+    M = lam.shape[0] - 1
+    h = horizon / M
+    mid = h * (jnp.arange(M) + 0.5)
+    q = mid + distance
+    move = lambda a: a.at[:M].set(jax.vmap(lambda c: jnp.interp(q, mid, c), in_axes=1,
+                                           out_axes=1)(a[:M]))
+    return move(lam), nu, move(z)
+
+
 def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
     r"""A `FrictionEllipseTire` of the plant tire's steady state: $B, C$ of
     $\sin(C\arctan(Bs))$ least-squares fitted to $\mu_{ss}(s)/\max\mu_{ss}$ of ``tire``
@@ -480,29 +496,23 @@ def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
 # ---- the controller ---------------------------------------------------------------------
 
 
-REVERSE_MODE_MESSAGE = (
-    "RecedingHorizonDriver: reverse-mode differentiation (jax.grad, jax.vjp) cannot run "
-    "through the interior-point solve of each sample (a lax.while_loop); forward mode "
-    "(jax.jvp, jax.jacfwd) runs through it, but differentiates the solver's iterations, and "
-    "through a drive of real-time iterations its derivative did not match finite "
-    "differences")
-
-
-def _refuse_transpose(*args):
-    raise TypeError(REVERSE_MODE_MESSAGE)
+RTI_DERIVATIVE_MESSAGE = (
+    "RecedingHorizonDriver(mode='rti'): derivatives of a drive (jax.jvp, jax.grad) are not "
+    "available in real-time-iteration mode: its plans are a few interior-point iterations, "
+    "not solutions, so neither differentiating the iterations nor the implicit function "
+    "theorem gives the derivative of the drive; use mode='converged', whose plans are "
+    "differentiated by the implicit function theorem")
 
 
 @jax.custom_jvp
-def forward_only(x):
-    """The identity, differentiable in forward mode; its transpose (reverse mode) raises
-    `REVERSE_MODE_MESSAGE` instead of JAX's error from inside the solver."""
+def no_derivative(x):
+    """The identity; differentiating it (either mode) raises `RTI_DERIVATIVE_MESSAGE`."""
     return x
 
 
-@forward_only.defjvp
-def _forward_only_jvp(primals, tangents):
-    (x,), (t,) = primals, tangents
-    return x, jax.custom_derivatives.linear_call(lambda _, tt: tt, _refuse_transpose, (), t)
+@no_derivative.defjvp
+def _no_derivative_jvp(primals, tangents):
+    raise TypeError(RTI_DERIVATIVE_MESSAGE)
 
 
 def _default_car() -> ReducedHalfCar:
@@ -513,10 +523,11 @@ def _default_car() -> ReducedHalfCar:
 
 class HorizonState(eqx.Module):
     """The driver between samples: arc length `s` of the last projection, the filtered
-    `position` $(x, y)$ and the measured ground `velocity` in the inertial frame, the plan (`xs`,
-    `us`, starting at `s_plan`), the `inputs` $(\\kappa_F, \\kappa_R, \\delta)$ of the last
-    command, and its diagnostics: `iterations`, `converged`, `kkt` (the largest of the
-    residuals), `D` (M,) the planner's peak friction, `projection` $(s, n, \\xi)$."""
+    `position` $(x, y)$ and the measured ground `velocity` in the inertial frame, the plan
+    (`xs`, `us`, starting at `s_plan`; its multipliers `lam`, `nu`, `z`), the `inputs`
+    $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
+    `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
+    peak friction, `projection` $(s, n, \\xi)$."""
 
     s: Float[Array, ""]
     position: Float[Array, " 2"]
@@ -524,6 +535,9 @@ class HorizonState(eqx.Module):
     s_plan: Float[Array, ""]
     xs: Float[Array, "M+1 9"]
     us: Float[Array, "M 3"]
+    lam: Float[Array, "M+1 9"]
+    nu: Array
+    z: Array
     inputs: Float[Array, " 3"]
     iterations: Array
     converged: Array
@@ -552,7 +566,18 @@ class RecedingHorizonDriver(AbstractDriveController):
     actuators' lag), `position_gain` (the weight of the measured position against dead
     reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
     `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
-    (static; the actuators' delay), `init_iterations` (cap of the first solve).
+    (static; the actuators' delay), `init_iterations` (cap of the first solve),
+    `warm_start` (static): 'primal' (the shifted plan; the multipliers start afresh, the
+    least-squares estimate) or 'primal-dual' (also the previous plan's multipliers, shifted
+    by `shift_multipliers`, where that plan converged: `interior_point`'s
+    ``multipliers``); default None: 'primal-dual' in 'converged' mode, 'primal' in 'rti'
+    mode; `mu0` the first barrier of a sample's solve (default None: `barrier`).
+
+    **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
+    function theorem at the solution returned (`interior_point` with ``implicit``): a
+    drive's derivatives in forward and reverse mode are those of its converged plans (and
+    only as good as their convergence). In 'rti' mode a plan is a few iterations, not a
+    solution: derivatives raise `RTI_DERIVATIVE_MESSAGE`.
 
     **Assumptions.** The prediction over the delay assumes the plant's actuators: the
     command issued now acts from the next sample, and meanwhile the last command's slips
@@ -573,10 +598,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     terminal_backoff: Float[Array, ""] = array_field(default=1.0)
     mode: str = eqx.field(static=True, default="rti")
     iterations: int = eqx.field(static=True, default=4)
-    max_iterations: int = eqx.field(static=True, default=60)
+    max_iterations: int = eqx.field(static=True, default=100)
     init_iterations: int = eqx.field(static=True, default=300)
     tol: float = eqx.field(static=True, default=1e-6)
-    mu0: Float[Array, ""] = array_field(default=1e-3)
+    mu0: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
     friction: str = eqx.field(static=True, default="nominal")
     nominal_peak: Float[Array, ""] = array_field(default=0.52)
     estimate_backoff: Float[Array, ""] = array_field(default=1.0)
@@ -587,11 +613,15 @@ class RecedingHorizonDriver(AbstractDriveController):
     steer_limit: Float[Array, ""] = array_field(default=0.6)
     sample_time: Float[Array, ""] = array_field(default=0.05)
     delay_samples: int = eqx.field(static=True, default=1)
+    warm_start: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
             raise ValueError(f"RecedingHorizonDriver.mode must be 'rti' or 'converged', got "
                              f"{self.mode!r}")
+        if self.warm_start not in (None, "primal", "primal-dual"):
+            raise ValueError("RecedingHorizonDriver.warm_start must be 'primal' or "
+                             f"'primal-dual', got {self.warm_start!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")
@@ -603,7 +633,25 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
                      "terminal_backoff", "mu0"):
-            check_positive("RecedingHorizonDriver", name, getattr(self, name))
+            if getattr(self, name) is not None:
+                check_positive("RecedingHorizonDriver", name, getattr(self, name))
+
+    @property
+    def warm_duals(self) -> bool:
+        """Whether the solves start from the previous plan's multipliers (`warm_start`;
+        default: in 'converged' mode)."""
+        if self.warm_start is None:
+            return self.mode == "converged"
+        return self.warm_start == "primal-dual"
+
+    @property
+    def barrier(self):
+        """The first barrier of a sample's solve: `mu0`, by default $10^{-3}$ in 'rti'
+        mode and $10^{-4}$ in 'converged' mode (with the multipliers warm-started a larger
+        barrier pushes the active inequalities' slacks off the previous solution)."""
+        if self.mu0 is not None:
+            return self.mu0
+        return jnp.asarray(1e-4 if self.warm_duals else 1e-3)
 
     # ---- pieces -----------------------------------------------------------------------
 
@@ -613,7 +661,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
                              log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
-        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.mu0,
+        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
                          log_size=8)
 
     def planner_friction(self, s0, estimate) -> Float[Array, " M"]:
@@ -665,17 +713,25 @@ class RecedingHorizonDriver(AbstractDriveController):
         y, _ = jax.lax.scan(step, y, None, length=steps)
         return y
 
-    def _solve(self, prob, xs0, us0, options) -> IPSolution:
-        sol = interior_point(prob, xs0, us0, options, throw=False)
+    def _solve(self, prob, xs0, us0, options, multipliers=None, first=False) -> IPSolution:
+        """The plan (the guess kept where the solve broke down). A converged-mode plan
+        (and the first, solved to convergence) is differentiated by the implicit function
+        theorem (`interior_point`'s ``implicit``); a real-time iteration's refuses
+        derivatives (`RTI_DERIVATIVE_MESSAGE`)."""
+        implicit = first or self.mode == "converged"
+        sol = interior_point(prob, xs0, us0, options, throw=False, multipliers=multipliers,
+                             implicit=implicit)
         ok = jnp.all(jnp.isfinite(sol.xs)) & jnp.all(jnp.isfinite(sol.us))
-        xs = forward_only(jnp.where(ok, sol.xs, xs0))
-        us = forward_only(jnp.where(ok, sol.us, us0))
+        guard = (lambda a: a) if implicit else no_derivative
+        xs = guard(jnp.where(ok, sol.xs, xs0))
+        us = guard(jnp.where(ok, sol.us, us0))
         return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
 
     def _state(self, s, position, velocity, s_plan, sol, inputs, D, projection):
         kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
         return HorizonState(s=s, position=position, velocity=velocity, s_plan=s_plan,
-                            xs=sol.xs, us=sol.us, inputs=inputs,
+                            xs=sol.xs, us=sol.us, lam=sol.lam, nu=sol.nu, z=sol.z,
+                            inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
                             projection=projection)
 
@@ -717,7 +773,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         else:
             D = self.planner_friction(s, None)
         xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
-        sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True))
+        sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True),
+                          first=True)
         return self._state(s, position, self._world_velocity(m), s, sol, inputs, D,
                            jnp.concatenate([s[None], X5[:2]]))
 
@@ -736,7 +793,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
         xs0 = xs0.at[0, :8].set(state8)
         prob = self.problem(s_pred, state8, D)
-        sol = self._solve(prob, xs0, us0, self.options())
+        duals = None
+        if self.warm_duals:
+            lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
+                                           s_pred - state.s_plan, self.horizon)
+            # a plan that did not converge has no multipliers to trust: the cold start
+            duals = lam, nu, jnp.where(state.converged, z, 0.0)
+        sol = self._solve(prob, xs0, us0, self.options(), duals)
         inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
@@ -772,11 +835,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         return X[5:8], jnp.stack([T_F, T_R])
 
     def info(self, state: HorizonState) -> dict:
-        """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the planned horizon
+        """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the plan (`xs`, `us`)
+        and its multipliers (`lam`, `nu`, `z`), the planned horizon
         as `plan_s`, `plan_n` (M+1,) and `plan_t`, its `start` (the predicted state the
         plan starts from, (8,)), the planner's `D` (M,), the projection `s`, `n`, `xi`."""
         M = self.num_stages
         return dict(iterations=state.iterations, converged=state.converged, kkt=state.kkt,
+                    xs=state.xs, us=state.us, lam=state.lam, nu=state.nu, z=state.z,
                     plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
                     plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], start=state.xs[0, :8],
                     D=state.D,

@@ -43,6 +43,7 @@ from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_values
+from .implicit import implicit_solve
 from .kkt import (
     Iterate,
     NewtonStep,
@@ -136,7 +137,8 @@ class IPSolution(eqx.Module):
     inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations`` or
     ``nonfinite``), ``iterations``, the final ``objective`` and residuals (``inf_pr``: max
     constraint violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
-    complementarity), and the iteration ``log`` (`IPLog`)."""
+    complementarity), the iteration ``log`` (`IPLog`) and the slacks ``s`` of the
+    inequalities (shaped as ``z``)."""
 
     xs: Float[Array, "M+1 nx"]
     us: Float[Array, "M nu"]
@@ -150,6 +152,7 @@ class IPSolution(eqx.Module):
     inf_du: Float[Array, ""]
     compl: Float[Array, ""]
     log: IPLog
+    s: Array | None = None
 
     @property
     def converged(self):
@@ -188,16 +191,32 @@ def interior_point(
     options: IPOptions | None = None,
     *,
     throw: bool = True,
+    multipliers: tuple[Array, Array, Array] | None = None,
+    implicit: bool = False,
 ) -> IPSolution:
     """Solve ``prob`` from the guess (``xs0``, ``us0``) by the structured interior-point method.
 
     **Arguments:** ``prob`` (an `AbstractStagewiseNLP`), the initial knots (M+1, nx) and
     controls (M, nu), ``options`` (`IPOptions`; default ``IPOptions()``), ``throw``: raise
-    unless the solve converged (``False`` for batches: check ``result``).
+    unless the solve converged (``False`` for batches: check ``result``), ``multipliers``:
+    a warm start of the multipliers ``(lam, nu, z)``, shaped as `IPSolution`'s (e.g. a
+    previous solution's, shifted), used as they are instead of the least-squares estimate
+    (`_initial_state`; default None: the cold start of the module docstring),
+    ``implicit``: differentiate the solution in ``prob``'s arrays by the implicit function
+    theorem at the iterate returned (`implicit_solve`; forward and reverse mode, none in the
+    guess) instead of through the iterations (forward mode only, and the derivative of the
+    iterations, not of the solution).
 
     **Returns:** an `IPSolution`.
     """
-    return solver_of(_solve)(prob, xs0, us0, options, throw=throw)
+    if implicit:
+        return implicit_solve(prob, (xs0, us0, options, multipliers),
+                              solve=functools.partial(_solve_guess, throw=throw))
+    return solver_of(_solve)(prob, xs0, us0, options, throw=throw, multipliers=multipliers)
+
+
+def _solve_guess(prob, xs0, us0, options, multipliers, *, throw):
+    return solver_of(_solve)(prob, xs0, us0, options, throw=throw, multipliers=multipliers)
 
 
 def compile_interior_point(
@@ -225,9 +244,14 @@ def solver_of(program: Callable, default_options: IPOptions | None = None):
     an equivalent loaded program): the arguments made canonical (`solve_arguments`), the
     iteration log printed if ``options.verbose``, and the error raised if ``throw``."""
 
-    def solve(prob, xs0, us0, options=default_options, *, throw=True) -> IPSolution:
+    def solve(prob, xs0, us0, options=default_options, *, throw=True,
+              multipliers=None) -> IPSolution:
         options = IPOptions() if options is None else options
-        sol = program(*solve_arguments(prob, xs0, us0, options))
+        args = solve_arguments(prob, xs0, us0, options)
+        if multipliers is None:
+            sol = program(*args)
+        else:
+            sol = program(*args, tuple(_floats(m) for m in multipliers))
         _report(sol, options)
         return _raise_if_failed(sol) if throw else sol
 
@@ -268,7 +292,7 @@ def solution_tree():
                 factorisations=a, trials=a)
     return jax.tree.structure(IPSolution(
         xs=a, us=a, lam=a, nu=a, z=a, result=RESULTS.successful, iterations=a, objective=a,
-        inf_pr=a, inf_du=a, compl=a, log=log))
+        inf_pr=a, inf_du=a, compl=a, log=log, s=a))
 
 
 def print_iteration_log(sol: IPSolution, file=None) -> None:
@@ -319,12 +343,13 @@ def _raise_if_failed(sol: IPSolution) -> IPSolution:
 
 
 @eqx.filter_jit
-def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions) -> IPSolution:
+def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
+           multipliers=None) -> IPSolution:
     lay = stage_layout(prob)
     state = jax.lax.while_loop(
         lambda st: (~st.done) & (st.iteration < options.max_iter),
         lambda st: _iteration(prob, lay, options, st),
-        _initial_state(prob, lay, xs0, us0, options),
+        _initial_state(prob, lay, xs0, us0, options, multipliers),
     )
     it = state.iterate
     # the residuals were evaluated at the returned iterate (no step is taken on the last pass)
@@ -332,28 +357,47 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions) -> IPSoluti
         xs=it.ys[:, : lay.nx], us=it.ys[:-1, lay.nx :], lam=it.lam, nu=it.nu, z=it.z,
         result=state.result, iterations=state.iteration, objective=state.objective,
         inf_pr=state.residuals.inf_pr, inf_du=state.residuals.inf_du,
-        compl=state.residuals.compl, log=state.log,
+        compl=state.residuals.compl, log=state.log, s=it.s,
     )
 
 
-def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions) -> IPState:
+def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
+                   multipliers=None) -> IPState:
     """Slacks $s = \\max(g, \\min(10^{-2}, 10\\mu_0))$ on the inequalities in use, $z = 1$
     or $\\mu_0 / s$ (``bound_multiplier_init``), zero defect and equality multipliers (the
-    first pass replaces them by their least-squares estimate, ``multiplier_init``)."""
-    mg = lay.masks().g
+    first pass replaces them by their least-squares estimate, ``multiplier_init``).
+
+    With ``multipliers`` $(\\lambda, \\nu, \\bar z)$ (a warm start): those $\\lambda$,
+    $\\nu$ (no least-squares pass), $s = \\max(g, \\min(10^{-2}, \\mu_0/\\bar z))$ and
+    $z = \\max(\\bar z, \\mu_0/s)$, so $s z \\ge \\mu_0$: an active inequality keeps a
+    small slack and its multiplier, an inactive one its slack $g$ and $z \\approx \\mu_0/g$;
+    the cold start where $\\bar z$ is not positive on every inequality (e.g. zeros: no warm
+    start for this problem of a batch) or a multiplier is not finite."""
+    mk = lay.masks()
+    mg = mk.g
     ys = lay.join(xs0, us0)
     _, c0, e0, g0 = stage_values(prob, lay, ys)
     mu0 = options.mu0
     s = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, 10.0 * mu0)), 1.0)
     z = jnp.where(mg > 0, 1.0 if options.bound_multiplier_init == "constant" else mu0 / s, 0.0)
-    iterate = Iterate(ys=ys, s=s, z=z, lam=jnp.zeros((lay.M + 1, lay.nx)),
-                      nu=jnp.zeros((lay.M + 1, lay.ne)))
+    lam, nu = jnp.zeros((lay.M + 1, lay.nx)), jnp.zeros((lay.M + 1, lay.ne))
+    warm = jnp.asarray(False)
+    if multipliers is not None:
+        lam_w, nu_w, z_w = multipliers
+        warm = (jnp.all((z_w > 0) | (mg == 0)) & jnp.all(jnp.isfinite(z_w))
+                & jnp.all(jnp.isfinite(lam_w)) & jnp.all(jnp.isfinite(nu_w)))
+        z_w = jnp.where(mg > 0, jnp.maximum(z_w, 1e-300), 1.0)
+        s_w = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, mu0 / z_w)), 1.0)
+        z_w = jnp.where(mg > 0, jnp.maximum(z_w, mu0 / s_w), 0.0)
+        s, z, lam, nu = (jnp.where(warm, w, c) for w, c in (
+            (s_w, s), (z_w, z), (lam_w * mk.lam, lam), (nu_w * mk.eq, nu)))
+    iterate = Iterate(ys=ys, s=s, z=z, lam=lam, nu=nu)
     inf = jnp.asarray(jnp.inf)
     state = IPState(
         iterate=iterate, mu=jnp.asarray(mu0), delta_last=jnp.asarray(0.0),
         filter=Filter.initial(constraint_violation(c0, e0, g0, s, mg)),
         iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
-        multipliers_ready=jnp.asarray(options.multiplier_init == "zero"),
+        multipliers_ready=jnp.asarray(options.multiplier_init == "zero") | warm,
         objective=jnp.asarray(jnp.nan),
         residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),

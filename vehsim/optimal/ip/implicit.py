@@ -1,0 +1,108 @@
+r"""Derivatives of a solution by the implicit function theorem.
+
+At the returned iterate $w = (y, s, z, \lambda, \nu)$ the barrier problem's KKT residual
+$R(w, \theta) = (\nabla_y\mathcal L,\ c,\ e,\ g - s,\ Sz - \mu e)$ vanishes (to the
+solver's tolerance), so for a problem whose parameters $\theta$ (the array fields of the
+`AbstractStagewiseNLP`) move by $\dot\theta$ the solution moves by
+$\dot w = -(\partial_w R)^{-1}\,\partial_\theta R\,\dot\theta$. $\partial_w R$ is the
+matrix of the solver's Newton step at that iterate; eliminating $(\dot s, \dot z)$ as the
+step does ($\dot s = J_g\dot y + \dot g$, $\dot z = -\Sigma\dot s$) leaves the condensed
+system of `kkt` with the right-hand side
+
+$$-\big(\partial_\theta\nabla_y\mathcal L\,\dot\theta + J_g^T\Sigma\,\partial_\theta g\,
+\dot\theta,\ \ \partial_\theta c\,\dot\theta,\ \ \partial_\theta e\,\dot\theta\big),$$
+
+factored by the same Riccati recursion (with the inertia correction's regularisation, none
+at a regular solution). The parameter derivatives are one forward-mode pass over the stage
+functions and the vector-Jacobian product of the stage Lagrangian. The solve is a
+`lax.custom_linear_solve` of the symmetric KKT matrix, so the tangent is linear and
+transposable: reverse mode runs too. The guess (and warm-start multipliers) get no
+derivative: a converged solution does not depend on them. Where the solve did not converge
+the tangent is NaN (near a solution, with the barrier not yet small, the theorem gave
+derivatives far from the finite differences).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ..._results import RESULTS
+from .derivatives import stage_derivatives
+from .kkt import Iterate, _condensed_system, _refined_solve, _regularised_solve, _split_step
+from .problem import stage_function, stage_layout
+
+
+def _stage_lagrangian(prob, lay, ys, w):
+    """Per stage: the gradient in $y_k$ of $w_k\\cdot v_k(y_k)$ and the stage vector $v_k$."""
+    vec = stage_function(prob, lay)
+
+    def one(y, k, wk):
+        v, pullback = jax.vjp(lambda yy: vec(yy, k), y)
+        return pullback(wk)[0], v
+
+    return jax.vmap(one)(ys, jnp.arange(lay.M + 1), w)
+
+
+def solution_tangent(prob, tprob, it: Iterate, hessian: str = "forward-over-reverse"):
+    r"""The tangent $(\dot y, \dot s, \dot z, \dot\lambda, \dot\nu)$ (an `Iterate`) of the
+    solution ``it`` of ``prob`` for the problem's tangent ``tprob`` (its inexact-array
+    leaves, None where zero), by the implicit function theorem (module docstring)."""
+    lay = stage_layout(prob)
+    mk = lay.masks()
+    it = jax.lax.stop_gradient(it)
+    d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, hessian)
+    d = jax.lax.stop_gradient(d)
+    w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -it.lam * mk.lam, it.nu * mk.eq,
+                         -it.z * mk.g], 1)
+    dyn, static = eqx.partition(prob, eqx.is_inexact_array)
+    tdyn = jax.tree.map(
+        lambda p, t: None if p is None else jnp.zeros_like(p) if t is None
+        else jnp.asarray(t, p.dtype), dyn, tprob, is_leaf=lambda x: x is None)
+    _, (dgrad, dv) = jax.jvp(
+        lambda p: _stage_lagrangian(eqx.combine(p, static), lay, it.ys, w), (dyn,), (tdyn,))
+    _, dF, de, dg = lay.split(dv)
+    dc = jnp.concatenate([-dF[:-1], jnp.zeros((1, lay.nx))], 0)
+    de, dg = de * mk.eq, dg * mk.g
+    sg = jnp.where(mk.g > 0, it.s, 1.0)
+    Sigma = jnp.where(mk.g > 0, it.z / sg, 0.0)
+    ry = -(dgrad + jnp.einsum("kij,ki->kj", d.Jg, Sigma * dg)) * mk.y
+    rhs = jnp.concatenate([ry, -dc, -de], axis=1)
+    # the matrix of the solver's step at this iterate (its inertia correction, on values)
+    _, W0 = _condensed_system(lay, it, d, 0.0)
+    corr = _regularised_solve(lay, W0, d, jnp.zeros_like(rhs), jnp.asarray(0.0))
+    K, F = corr.matrix, corr.factor
+    sol = jax.lax.custom_linear_solve(
+        K.matvec, rhs, lambda _, b: _refined_solve(F, K, b), symmetric=True)
+    dy, ds, dlam, dnu = _split_step(lay, d, sol, dg, 0.0)
+    dz = -Sigma * ds * mk.g
+    return Iterate(ys=dy, s=ds, z=dz, lam=dlam, nu=dnu)
+
+
+@eqx.filter_custom_jvp
+def implicit_solve(prob, guess, *, solve):
+    """``solve(prob, *guess)`` (an `IPSolution`), differentiated in ``prob`` by
+    `solution_tangent` at the solution returned and not at all in ``guess``."""
+    return solve(prob, *guess)
+
+
+@implicit_solve.def_jvp
+def _implicit_solve_jvp(primals, tangents, *, solve):
+    prob, guess = primals
+    tprob, _ = tangents
+    sol = implicit_solve(prob, guess, solve=solve)
+    if tprob is None or not jax.tree.leaves(tprob):
+        return sol, None
+    lay = stage_layout(prob)
+    it = Iterate(ys=lay.join(sol.xs, sol.us), s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
+    t = solution_tangent(prob, tprob, it)
+    # at an iterate that did not converge the theorem does not apply: NaN, not a wrong number
+    ok = sol.result == RESULTS.successful
+    t = jax.tree.map(lambda a: jnp.where(ok, a, jnp.nan), t)
+    tsol = jax.tree.map(lambda _: None, sol)
+    tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s), tsol,
+                       (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s),
+                       is_leaf=lambda x: x is None)
+    return sol, tsol
+
