@@ -55,7 +55,6 @@ def scenario(args, road):
     noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
     time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
     plus 5 s)."""
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -88,8 +87,7 @@ def scenario(args, road):
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road)
-    table = eqx.tree_at(lambda tb: tb.peak, table,
-                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    table = table.with_grip(grip.field)
     T = float(plant.actuators.sample_time)
     return DriveScenario(name=f"{road.name}/{name}", road=road, table=table, grip=grip,
                          plant=plant, state0=state0, start_speed=v0,

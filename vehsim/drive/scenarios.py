@@ -339,8 +339,7 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road, table_spacing, table_points)
-    table = eqx.tree_at(lambda tb: tb.peak, table,
-                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    table = table.with_grip(grip.field)
     T = float(plant.actuators.sample_time)
     return DriveScenario(name=f"{road_name}/{grip_name}", road=road, table=table, grip=grip,
                          plant=plant,
