@@ -50,8 +50,8 @@ def _field(args, road):
 
 
 def scenario(args, road):
-    """The `DriveScenario` of the options: the road and its table (the peak column the true
-    peak friction), its grip (with the true peak along the centre line), the plant (sensors
+    """The `DriveScenario` of the options: the road and its table (the scale column the true
+    friction scale), its grip (with the true peak along the centre line), the plant (sensors
     noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
     time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
     plus 5 s)."""
