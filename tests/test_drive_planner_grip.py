@@ -165,3 +165,12 @@ def test_a_sample_plans_with_the_shifted_plans_speeds():
     assert np.ptp(V) > 0.5  # the plan's speeds differ along the horizon
     np.testing.assert_allclose(np.asarray(new.D), peak_by_scan(lam(float(new.s_plan)), V),
                                rtol=2e-3)
+
+
+def test_bad_peak_settings_are_refused_by_name(table):
+    with pytest.raises(ValueError, match="peak_speed"):
+        _driver(table, "nominal", peak_speed=-1.0)
+    with pytest.raises(TypeError, match="plant_tire"):
+        _driver(table, "nominal", plant_tire=vs.fit_planner_tire(0.52))
+    with pytest.raises(ValueError, match="reference_speed"):
+        _driver(table, "nominal", reference_speed=0.0)
