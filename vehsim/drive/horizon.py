@@ -686,10 +686,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         return jnp.full((M,), float(self.peak_speed))
 
     def nominal_friction(self, speeds) -> Float[Array, " M"]:
-        """$D_k$ of the nominal road (whose peak at `reference_speed` is `nominal_peak`) at
-        the stages' ``speeds`` [m/s] (`peak_speed` overrides them)."""
+        r"""$D_k$ of the nominal road (whose peak at `reference_speed` $V_0$ is
+        `nominal_peak` $D_0$) at the stages' ``speeds`` [m/s] (`peak_speed` overrides
+        them): $D_0\,\mu^*(\lambda_0, V_k)/\mu^*(\lambda_0, V_0)$, $\lambda_0$ =
+        `scale_of_peak` of $D_0$ (so $D_0$ exactly at $V_0$)."""
         lam = scale_of_peak(self.plant_tire, self.nominal_peak, self.reference_speed)
-        return self._peaks(lam, self._stage_speed(speeds))
+        ref = peak_friction(self.plant_tire, lam, self.reference_speed)
+        return self.nominal_peak * self._peaks(lam, self._stage_speed(speeds)) / ref
 
     def planner_friction(self, s0, estimate, speeds) -> Float[Array, " M"]:
         """The stages' peak friction $D_k$ for the horizon starting at ``s0``, the stages
