@@ -691,8 +691,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         them): $D_0\,\mu^*(\lambda_0, V_k)/\mu^*(\lambda_0, V_0)$, $\lambda_0$ =
         `scale_of_peak` of $D_0$ (so $D_0$ exactly at $V_0$)."""
         lam = scale_of_peak(self.plant_tire, self.nominal_peak, self.reference_speed)
-        ref = peak_friction(self.plant_tire, lam, self.reference_speed)
-        return self.nominal_peak * self._peaks(lam, self._stage_speed(speeds)) / ref
+        V = self._stage_speed(speeds)
+        # the reference in the same vectorised call as the stages: the same rounding, so
+        # the ratio is exactly 1 at the reference speed however the drive is compiled
+        peaks = self._peaks(lam, jnp.concatenate([V, jnp.reshape(self.reference_speed, (1,))]))
+        return self.nominal_peak * peaks[:-1] / peaks[-1]
 
     def planner_friction(self, s0, estimate, speeds) -> Float[Array, " M"]:
         """The stages' peak friction $D_k$ for the horizon starting at ``s0``, the stages
