@@ -9,9 +9,11 @@ road, completed (crossed, never more than 5 cm off). Drivers:
 - ``open-loop``: the nominal minimum-time drive (`nominal_primitive`, D = 0.52) replayed
   as a command schedule (`open_loop_schedule`);
 - ``tracking``: the same reference tracked (`PrimitiveTracker`);
-- ``rh-nominal``, ``rh-oracle``, ``rh-estimate``: `RecedingHorizonDriver` with the
-  planner's friction fixed at 0.52, the true peak along the horizon (the table's peak
-  column), or the `AxleGripEstimator`'s (prior: the nominal scale);
+- ``rh-nominal``, ``rh-oracle``, ``rh-estimate``: `RecedingHorizonDriver` planning on the
+  nominal road (peak 0.52 at 20 m/s), the true road along the horizon (the table's scale
+  column), or the `AxleGripEstimator`'s (prior: the nominal scale), each stage with that
+  road's peak at the stage's planned speed; a driver with an estimator also records the
+  estimate and the planner's D at the main corner's apex (``apex``);
 - ``bound``: the offline bound (`offline_bound`; time of the reduced model's minimum-time
   drive on the true grip; departure: its path between the nodes).
 
@@ -52,7 +54,7 @@ import numpy as np  # noqa: E402
 
 import vehsim as vs  # noqa: E402
 from vehsim.drive.horizon import BACK_EXTENSION, EXTENSION  # noqa: E402
-from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS  # noqa: E402
+from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS, main_corner  # noqa: E402
 
 
 DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate", "bound")
@@ -121,6 +123,14 @@ def run_one(kind, sc, reference, seed):
             max_kkt=float(np.max(np.asarray(info["kkt"])[:n])))
     if run.estimates is not None:
         rec["final_peak_estimate"] = np.asarray(run.estimates.peak[-1]).tolist()
+        if isinstance(info, dict) and "s" in info:  # at the main corner's apex
+            s0, s1 = main_corner(sc.road_name)
+            i = int(np.argmax(np.asarray(info["s"]) >= 0.5 * (s0 + s1)))
+            rec["apex"] = dict(t=float(np.asarray(run.measurements.t)[i]),
+                               peak_estimate=np.asarray(run.estimates.peak[i]).tolist(),
+                               scale_estimate=np.asarray(run.estimates.scale[i]).tolist(),
+                               planner_D_first=float(np.asarray(info["D"])[i, 0]),
+                               planner_D_min=float(np.min(np.asarray(info["D"])[i])))
     return rec
 
 

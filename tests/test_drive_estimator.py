@@ -90,3 +90,29 @@ def test_tracks_a_change_of_grip(drive):
     np.testing.assert_allclose(scale[before], 1.0, rtol=0.25)
     assert x[-5] - 1.4 > 30.0  # the rear axle is well onto the new road for the last samples
     np.testing.assert_allclose(scale[-5:], 0.5, rtol=0.1)
+
+
+def test_counts_a_sample_by_the_peak_at_its_speed():
+    """A steady corner at 4 m/s on the nominal road (peak 0.52 at 20 m/s, 0.65 at 4 m/s): an
+    axle using 0.29 (more than half the peak at 20 m/s, less than half of it at 4 m/s) is
+    not counted, one using 0.36 is."""
+    lam0 = vs.nominal_scale()
+    est = vs.AxleGripEstimator(prior_scale=lam0)
+    p, V, g = est.params, 4.0, 9.81
+    assert 0.29 > 0.5 * float(est.peak(lam0)) and 0.36 > 0.5 * float(est.peak(lam0, V)) > 0.29
+
+    def sample(t, mu):
+        return vs.DriveMeasurement(
+            t=jnp.asarray(t), omega=jnp.full(2, V / p.r), yaw_rate=jnp.asarray(mu * g / V),
+            ax=jnp.asarray(0.0), ay=jnp.asarray(mu * g), vx=jnp.asarray(V), vy=jnp.asarray(0.0),
+            x=jnp.asarray(0.0), y=jnp.asarray(0.0), psi=jnp.asarray(0.0),
+            delta=jnp.asarray(0.02), torque=jnp.zeros(2))
+
+    for mu, counted in ((0.29, False), (0.36, True)):
+        state = est.update(est.init(sample(0.0, mu)), sample(0.05, mu))
+        used = np.asarray(state.mu_used)
+        if counted:
+            np.testing.assert_allclose(used, mu, rtol=0.02)
+            assert np.all(np.asarray(state.gain) != 0.0)
+        else:
+            assert np.all(used == 0.0) and np.all(np.asarray(state.gain) == 0.0)

@@ -388,6 +388,8 @@ from .drive.estimator import (
     AxleGripEstimator as AxleGripEstimator,
     AxleGripState as AxleGripState,
     GripEstimate as GripEstimate,
+    peak_friction as peak_friction,
+    scale_of_peak as scale_of_peak,
     scaled_steady_state_mu as scaled_steady_state_mu,
 )
 from .drive.grip import (

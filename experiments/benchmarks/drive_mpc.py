@@ -111,7 +111,7 @@ class DompcDriver:
             y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
                 if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
             state8 = jnp.concatenate([y[1:], inputs])
-            D = d.planner_friction(y[0], None)
+            D = d.planner_friction(y[0], None, jnp.hypot(y[3], y[4]))
             prob = d.problem(y[0], state8, D)
             return s, position, velocity, y[0], state8, D, (
                 prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
@@ -149,7 +149,7 @@ class DompcDriver:
         inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
         s, X5 = d._measured_state(m, jnp.stack([m.x, m.y]), s_guess)
         state8 = jnp.concatenate([X5, inputs])
-        D = d.planner_friction(s, None)
+        D = d.planner_friction(s, None, jnp.hypot(X5[2], X5[3]))
         prob = d.problem(s, state8, D)
         guess = profile_guess(d.table, d.vehicle, s, state8, D, horizon=d.horizon)
         return s, inputs, state8, prob, guess
@@ -274,7 +274,8 @@ def main(argv=None):
                   grip="nominal", seed=args.seed, samples_budget=num_samples)
     results = {}
     for mode in args.modes.split(","):
-        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes)
+        # the stages' peaks at 20 m/s: D = 0.52 everywhere, as the do-mpc problem states it
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, peak_speed=20.0, **sizes)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()

@@ -50,12 +50,11 @@ def _field(args, road):
 
 
 def scenario(args, road):
-    """The `DriveScenario` of the options: the road and its table (the peak column the true
-    peak friction), its grip (with the true peak along the centre line), the plant (sensors
+    """The `DriveScenario` of the options: the road and its table (the scale column the true
+    friction scale), its grip (with the true peak along the centre line), the plant (sensors
     noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
     time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
     plus 5 s)."""
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -88,8 +87,7 @@ def scenario(args, road):
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road)
-    table = eqx.tree_at(lambda tb: tb.peak, table,
-                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    table = table.with_grip(grip.field)
     T = float(plant.actuators.sample_time)
     return DriveScenario(name=f"{road.name}/{name}", road=road, table=table, grip=grip,
                          plant=plant, state0=state0, start_speed=v0,

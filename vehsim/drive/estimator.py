@@ -39,22 +39,35 @@ innovations far larger than the covariance expects once $P$ has shrunk: a CUSUM 
 on the normalised innovation squared $\nu = e^2/(H^2P^- + R)$, $g \leftarrow \max(0, g +
 \nu - \delta)$, raises $P^-$ to $P_0$ when $g > h$ and restarts (covariance resetting, as
 `FrictionObserver` does), so the estimate leaves the old road within a few informative
-samples instead of at the pace of forgetting. The estimate is $\lambda$ with
-the standard deviation $\lambda\sqrt P$, and the peak friction $\mu^*(\lambda)$: the
-largest $\mu_{ss}$ of the assumed tire in pure braking slip at `reference_speed`, with its
-standard deviation $|\partial\mu^*/\partial\vartheta|\sqrt P$.
+samples instead of at the pace of forgetting.
+
+**What it estimates.** The road condition $\lambda$ (equivalently $\theta = 1/\lambda$),
+with the standard deviation $\lambda\sqrt P$; the measurements at every speed inform the
+same $\lambda$, since the model is evaluated at the sample's own relative velocity. The
+peak friction is a function of $\lambda$ *and* of the speed (`peak_friction`: the LuGre
+friction rises as the sliding speed falls, eq. 21; on the road whose peak is 0.52 at
+20 m/s it is 0.56 at 12 m/s, 0.65 at 4 m/s): the estimate reports it at `reference_speed`
+(`GripEstimate.peak`, with the standard deviation $|\partial\mu^*/\partial\vartheta|
+\sqrt P$), and a user of the estimate at another speed evaluates $\mu^*(\lambda, V)$
+(`RecedingHorizonDriver` does, at each stage's planned speed).
 
 **Excitation.** The data say something about the peak only where the friction used
 approaches it: at small slip all roads share the slope (eq. 19; $\bar z \approx
 v_r/(\kappa c)$, independent of $\lambda$), so $H \approx 0$ and the gain vanishes by
 itself; $H$ grows to about $\mu_{ss}$ as the slip nears and passes the peak (braking or
 driving pulses, a slalom or a corner near the limit). The filter takes a sample in only
-where the axle uses at least `min_utilisation` of the estimated peak: below, the model's
-slip comes from noisy velocities and is biased upwards (the norm of a noise), so that
-small-slip data, informative or not, would pull the estimate down. **Without excitation** (straight,
-constant speed; slips small) the estimate holds its prior or last value, and its variance
-grows by forgetting up to $P_{max}$ (the belief widens to the cap, never further); below
-`min_speed` nothing is measured (the slip is ill-defined) and the same holds. **Blind
+where the axle uses at least `min_utilisation` of the estimated peak at the sample's speed
+($\mu_i \ge u_{min}\mu^*(\lambda, \bar V)$, $\bar V$ the mean of its two ends' speeds,
+at least `min_speed`): below, the model's slip comes from noisy velocities and is biased
+upwards (the norm of a noise), so that small-slip data, informative or not, would pull the
+estimate down. So it **needs** an axle using at least half of its peak: braking or driving
+near the limit, or cornering near it. **Without excitation** (straight, constant speed;
+slips small; or a driver that keeps well below the peak) the estimate holds its prior or
+last value, and its variance grows by forgetting up to $P_{max}$ (the belief widens to the
+cap, never further): it does not drift, but it does not learn that the road is better than
+believed either, and a driver that plans with the lower edge of the belief then stays
+slower than the road allows; below `min_speed` nothing is measured (the slip is
+ill-defined) and the same holds. **Blind
 spots:** a tire whose shape differs from the assumed one is read as the best-fitting
 $\lambda$ of the wrong shape (biased); the loads follow the suspension's
 dynamics only as far as the nominal suspension and the measured $a_x$ describe them
@@ -126,6 +139,53 @@ def scaled_steady_state_mu(tire: LumpedLuGre2D, scale, v_r, c):
     return t.params.sigma0 * zb + t.params.sigma2 * v_r
 
 
+REFERENCE_SPEED = 20.0
+"""Speed [m/s] at which a peak friction is stated when no speed is named: the estimator's
+reported `GripEstimate.peak`, the scenarios' grips, the driver's `nominal_peak`."""
+
+
+def peak_friction(tire: LumpedLuGre2D, scale, speed):
+    r"""$\mu^*(\lambda, V)$: the largest steady-state friction $\|\mu_{ss}\|$
+    (`scaled_steady_state_mu`) of `tire` on a road of friction scale $\lambda$ = `scale` in
+    pure braking at the ground speed $V$ = `speed` [m/s] ($v_r = (-\kappa V, 0)$, $c = (1 -
+    \kappa)V$; $\kappa$ from 0 to 1 in 96 points, the largest refined by a parabola).
+
+    The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
+    peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
+    0.65 at 4 m/s; and it is not proportional to $\lambda$ (the edge term $\kappa c$ of
+    the lumped model does not scale)."""
+    V = speed
+    kappa = jnp.linspace(0.0, 1.0, 97)[1:]
+
+    def mu_at(kap):
+        v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
+        return safe_norm(scaled_steady_state_mu(tire, scale, v_r, (1.0 - kap) * V))
+
+    mus = jax.vmap(mu_at)(kappa)
+    i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)
+    a, b, cc = mus[i - 1], mus[i], mus[i + 1]
+    den = a - 2 * b + cc
+    shift = jnp.clip(safe_div(0.5 * (a - cc), den), -1.0, 1.0)
+    return b - 0.25 * (a - cc) * shift
+
+
+def scale_of_peak(tire: LumpedLuGre2D, peak, speed=REFERENCE_SPEED, steps: int = 60):
+    r"""The friction scale $\lambda$ with $\mu^*(\lambda, V)$ = `peak` (`peak_friction`
+    at $V$ = `speed` [m/s]): bisection on $\log\lambda \in [\log 10^{-3}, \log 10]$, where
+    $\mu^*$ increases, `steps` halvings (60: to rounding). JAX; a peak outside
+    $(\mu^*(10^{-3}), \mu^*(10))$ gives the nearer end."""
+    def step(bounds, _):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        below = peak_friction(tire, jnp.exp(mid), speed) < peak
+        return (jnp.where(below, mid, lo), jnp.where(below, hi, mid)), None
+
+    lo = jnp.log(1e-3) + 0.0 * peak
+    hi = jnp.log(10.0) + 0.0 * peak
+    (lo, hi), _ = jax.lax.scan(step, (lo, hi), None, length=steps)
+    return jnp.exp(0.5 * (lo + hi))
+
+
 class AxleGripState(eqx.Module):
     r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
     heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
@@ -153,10 +213,10 @@ class AxleGripEstimator(AbstractGripEstimator):
     `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
     (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
     `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
-    at least this fraction of the estimated peak), `omega_eps` [rad/s] (the plant's brake
+    at least this fraction of the estimated peak at its speed), `omega_eps` [rad/s] (the plant's brake
     smoothing, 0.5), the change detector's
     `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
-    `reference_speed` [m/s] of the reported peak (20), `dynamic_loads` (True: the
+    `reference_speed` [m/s] of the reported peak (`REFERENCE_SPEED`, 20), `dynamic_loads` (True: the
     suspension's loads; False: quasi-static), `load_substeps` (10).
     """
 
@@ -175,7 +235,7 @@ class AxleGripEstimator(AbstractGripEstimator):
     omega_eps: Float[Array, ""] = array_field(default=0.5)
     change_drift: Float[Array, ""] = array_field(default=10.0)
     change_threshold: Float[Array, ""] = array_field(default=80.0)
-    reference_speed: Float[Array, ""] = array_field(default=20.0)
+    reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
     dynamic_loads: bool = eqx.field(static=True, default=True)
     load_substeps: int = eqx.field(static=True, default=10)
 
@@ -283,7 +343,8 @@ class AxleGripEstimator(AbstractGripEstimator):
         mu, slip, v_r, c = self.utilised_friction(state.last, m, Fz)
         h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (state.log_scale,),
                        (jnp.ones(2),))
-        peak = jax.vmap(lambda th: self.peak(jnp.exp(th)))(state.log_scale)
+        speed = jnp.maximum(0.5 * (m.speed + state.last.speed), self.min_speed)
+        peak = jax.vmap(lambda th: self.peak(jnp.exp(th), speed))(state.log_scale)
         valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
             m.t > state.last.t) & (mu >= self.min_utilisation * peak)
         # a braked wheel near lock: its brake torque is not what it transmits (tanh model
@@ -306,22 +367,10 @@ class AxleGripEstimator(AbstractGripEstimator):
         P = (1.0 - K * H) * P
         return AxleGripState(log_scale, P, m, susp, jnp.where(valid, mu, 0.0), h, slip, K, g)
 
-    def peak(self, scale):
-        r"""$\mu^*(\lambda)$: the assumed tire's largest $\mu_{ss}$ in pure braking slip
-        (0 to 1, 96 points, refined by a parabola) at `reference_speed`."""
-        V = self.reference_speed
-        kappa = jnp.linspace(0.0, 1.0, 97)[1:]
-
-        def mu_at(kap):
-            v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
-            return safe_norm(scaled_steady_state_mu(self.tire, scale, v_r, (1.0 - kap) * V))
-
-        mus = jax.vmap(mu_at)(kappa)
-        i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)
-        a, b, cc = mus[i - 1], mus[i], mus[i + 1]
-        den = a - 2 * b + cc
-        shift = jnp.clip(safe_div(0.5 * (a - cc), den), -1.0, 1.0)
-        return b - 0.25 * (a - cc) * shift
+    def peak(self, scale, speed=None):
+        r"""$\mu^*(\lambda, V)$ of the assumed tire (`peak_friction`) at the speed `speed`
+        [m/s] (default `reference_speed`)."""
+        return peak_friction(self.tire, scale, self.reference_speed if speed is None else speed)
 
     def estimate(self, state: AxleGripState) -> GripEstimate:
         lam = jnp.exp(state.log_scale)

@@ -5,7 +5,9 @@ half-car plant (eqs. 49-60).
 **The road as arrays.** `RoadTable` samples a centre-line road at a fixed spacing $\Delta$:
 arc length $s_j$, centre point $c(s_j)$, heading $\theta(s_j)$, curvature $\kappa(s_j)$,
 widths $w_l, w_r$, the friction-limited speed $v_1(s)$ of unit peak friction
-(`speed_profile` with $D = 1$) and a peak friction $D(s)$ along the road. Between samples
+(`speed_profile` with $D = 1$) and the road's friction scale $\lambda(s)$ (the grip field on
+the centre line; its peak friction at a speed $V$ is $\mu^*(\lambda(s), V)$,
+`peak_friction`). Between samples
 the centre line is the cubic Hermite interpolant of the points and unit tangents
 ($C^1$, error $O(\Delta^4\kappa^3)$), the other columns are linear. An open road is extended
 by straights of its end widths before its start and past its end (a horizon may reach
@@ -28,7 +30,8 @@ $\hat X$ the current (predicted) state, the corridor at the knots and the stages
 midpoints, the speed floor and slip and steering bounds at the knots, and the terminal
 bound: the friction-limited speed profile scales exactly with $\sqrt D$, so a plan that
 ends below it can always brake for what lies beyond the horizon. Stage $k$'s tire has the
-peak $D_k$ = `grip`$_k\cdot D$ (the per-stage friction of the planner).
+peak $D_k$ = `grip`$_k\cdot D$ (the per-stage friction of the planner: the peak of the
+road it believes in at the speed it plans that stage at, `RecedingHorizonDriver`).
 
 **The controller** (`RecedingHorizonDriver`) per sample: project the measured pose, predict
 it over the actuator delay with the reduced model and the inputs already on their way,
@@ -62,7 +65,10 @@ from ..optimal.curvilinear import (
 )
 from ..optimal.ip import IPOptions, IPSolution, interior_point
 from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
+from ..tire.lumped2d import LumpedLuGre2D
+from ..tire.params import lugre2d_bakker1987
 from ..vehicle.reduced import ReducedHalfCar
+from .estimator import REFERENCE_SPEED, peak_friction, scale_of_peak
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController
 
@@ -81,6 +87,10 @@ NEWTON_STEPS = 4
 # ---- the road as arrays -----------------------------------------------------------------
 
 
+def _plant_tire() -> LumpedLuGre2D:
+    return LumpedLuGre2D(lugre2d_bakker1987())
+
+
 class RoadTable(eqx.Module):
     r"""A centre-line road sampled at a fixed spacing (module docstring), as arrays.
 
@@ -88,9 +98,10 @@ class RoadTable(eqx.Module):
     roads: $-$`BACK_EXTENSION`), `spacing` $\Delta$ [m], `length` $L$ [m] (an array, so
     tables of different roads of the same `num_points` batch in one `vmap`), the columns `s`,
     `x`, `y`, `heading` (unwrapped), `curvature`, `width_left`, `width_right`,
-    `speed_limit` ($v_1$: `speed_profile` with $D = 1$ and all the friction), `peak` (the
-    peak friction $D(s)$ along the road: the true grip for the planner's oracle, see
-    `with_grip`); `closed` and `search_points` (static).
+    `speed_limit` ($v_1$: `speed_profile` with $D = 1$ and all the friction), `scale` (the
+    friction scale $\lambda(s)$ of the road along the centre line: the true grip for the
+    planner's oracle, see `with_grip` and `peak_at`); `closed` and `search_points`
+    (static).
 
     The interpolated centre line is within $10^{-4}$ m of the road's at the default spacing
     of 0.1 m where the curvature jumps (joined segments; $O(\Delta^2\,|[\kappa]|)$), far
@@ -111,18 +122,18 @@ class RoadTable(eqx.Module):
     width_left: Float[Array, " N"]
     width_right: Float[Array, " N"]
     speed_limit: Float[Array, " N"]
-    peak: Float[Array, " N"]
+    scale: Float[Array, " N"]
     closed: bool = eqx.field(static=True, default=False)
     search_points: int = eqx.field(static=True, default=16)
 
     @classmethod
     def from_road(cls, road, spacing: float = 0.1, num_points: int | None = None, *,
-                  peak: float = 0.52, extension: float = EXTENSION) -> RoadTable:
+                  scale: float = 1.0, extension: float = EXTENSION) -> RoadTable:
         """The table of ``road`` (a `CentrelineRoad`) at ``spacing`` [m] (a closed road:
         the nearest spacing that divides its length). ``num_points``: the number of samples
         (default: just enough); more pad the table (an open road's end straight grows, a
-        closed road repeats its last sample), fewer are refused. ``peak``: the constant
-        peak friction column (`with_grip` sets a varying one); ``extension`` [m]: the
+        closed road repeats its last sample), fewer are refused. ``scale``: the constant
+        friction scale column (`with_grip` sets a varying one); ``extension`` [m]: the
         straight past an open road's end (at least the horizon)."""
         spacing = float(spacing)
         if not (math.isfinite(spacing) and spacing > 0):
@@ -166,15 +177,16 @@ class RoadTable(eqx.Module):
         col = lambda a: jnp.asarray(np.asarray(a, float))
         return cls(start=col(start), spacing=col(spacing), length=col(L), s=col(s), x=col(x),
                    y=col(y), heading=col(th), curvature=col(kap), width_left=col(wl),
-                   width_right=col(wr), speed_limit=col(v), peak=col(np.full(N, peak)),
+                   width_right=col(wr), speed_limit=col(v), scale=col(np.full(N, scale)),
                    closed=closed, search_points=int(math.ceil(SEARCH_DISTANCE / spacing)))
 
-    def with_grip(self, grip, peak_at_unit_scale) -> RoadTable:
-        r"""The table with `peak` $= \mu^*(1)\,\lambda(c(s))$: a grip field
-        (`AbstractGripField`) read on the centre line times the tire's peak friction at
-        scale 1 (e.g. `AxleGripEstimator().peak(1.0)`)."""
+    def with_grip(self, grip) -> RoadTable:
+        r"""The table with `scale` $= \lambda(c(s))$: the grip field `grip`
+        (`AbstractGripField`) read on the centre line. The peak friction follows from it at
+        a speed (`peak_at`): it is neither proportional to $\lambda$ nor independent of the
+        speed."""
         lam = jax.vmap(grip.scale_at)(self.x, self.y)
-        return eqx.tree_at(lambda t: t.peak, self, peak_at_unit_scale * lam)
+        return eqx.tree_at(lambda t: t.scale, self, lam)
 
     @property
     def num_points(self) -> int:
@@ -225,9 +237,19 @@ class RoadTable(eqx.Module):
         """$v_1(s)$ [m/s]: the friction-limited speed at unit peak friction."""
         return self._linear(self.speed_limit, s)
 
-    def peak_at(self, s):
-        """The peak friction $D(s)$ of the `peak` column."""
-        return self._linear(self.peak, s)
+    def scale_at(self, s):
+        r"""The road's friction scale $\lambda(s)$ (linear between samples)."""
+        return self._linear(self.scale, s)
+
+    def peak_at(self, s, speed, tire=None):
+        r"""The road's peak friction $\mu^*(\lambda(s), V)$ at arc length(s) `s` [m] and the
+        ground speed(s) $V$ = `speed` [m/s] (`peak_friction` of `tire`, default the drive
+        plant's `LumpedLuGre2D` with `lugre2d_bakker1987`)."""
+        tire = _plant_tire() if tire is None else tire
+        lam = self.scale_at(s)
+        lam, V = jnp.broadcast_arrays(lam, jnp.asarray(speed, float))
+        peaks = jax.vmap(lambda la, v: peak_friction(tire, la, v))(lam.ravel(), V.ravel())
+        return peaks.reshape(lam.shape)
 
     def corridor_at(self, s, margin=0.0):
         """Bounds (lower, upper) on $n$ [m]: $(-w_r + m, w_l - m)$, stacked on the last axis."""
@@ -556,12 +578,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
-    `max_iterations`); `friction` (static): 'nominal' (the planner's $D$ is
-    `nominal_peak` everywhere), 'oracle' (the `table`'s `peak` column at the stages'
-    midpoints: the true grip, known ahead) or 'estimate' (the estimator's
-    `GripEstimate.peak`, the smaller axle's, minus `estimate_backoff` times its
-    `peak_std`, uniform over the horizon; needs an estimator in `simulate_drive`, and the
-    first plan uses `nominal_peak`); `slip_gain` [N m] (torque per unit slip error, 0:
+    `max_iterations`); `friction` (static): 'nominal' (the nominal
+    road, whose peak at `reference_speed` is `nominal_peak`, 0.52), 'oracle' (the
+    `table`'s friction scale at the stages' midpoints: the true grip, known ahead) or
+    'estimate' (the estimator's belief, its lower edge by `estimate_backoff` standard
+    deviations; needs an estimator in `simulate_drive`, and the first plan uses the nominal
+    road), each at the stages' speeds (below); `slip_gain` [N m] (torque per unit slip error, 0:
     feedforward only), `lead` [s] (the plan is read this far past the predicted state: the
     actuators' lag), `position_gain` (the weight of the measured position against dead
     reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
@@ -571,7 +593,27 @@ class RecedingHorizonDriver(AbstractDriveController):
     least-squares estimate) or 'primal-dual' (also the previous plan's multipliers, shifted
     by `shift_multipliers`, where that plan converged: `interior_point`'s
     ``multipliers``); default None: 'primal-dual' in 'converged' mode, 'primal' in 'rti'
-    mode; `mu0` the first barrier of a sample's solve (default None: `barrier`).
+    mode; `mu0` the first barrier of a sample's solve (default None: `barrier`);
+    `plant_tire` (the `LumpedLuGre2D` whose peak `peak_friction` turns a friction scale into
+    $D$; default the drive plant's), `reference_speed` [m/s] (the speed `nominal_peak` is
+    stated at; `REFERENCE_SPEED`, 20), `peak_speed` (static; None: each stage's planned
+    speed, below; a number [m/s]: that speed for every stage, a planner whose $D$ does not
+    depend on its speed).
+
+    **The stages' peak friction.** All three modes believe in a road, a friction scale
+    $\lambda$ (the nominal one, the true one ahead, the estimated one), and plan stage $k$
+    with that road's peak at the speed they drive it at, $D_k = \mu^*(\lambda, V_k)$
+    (`peak_friction` of `plant_tire`): the LuGre peak rises as the speed falls (eq. 21;
+    0.52 at 20 m/s, 0.65 at 4 m/s on the nominal road), and the corners are driven far
+    below the speed the grips are stated at. $V_k$ is the speed $|v|$ at the stage's
+    midpoint of the previous plan shifted to the new start (`stage_speeds`; the first plan:
+    the current speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
+    `reference_speed` is `nominal_peak`; 'oracle': the `table`'s `scale` at the stage's
+    midpoint; 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
+    \partial\vartheta|\,\sigma_a$ with the estimate's $\lambda_a$ (`GripEstimate.scale`)
+    and $\sigma_a$ = `scale_std`/`scale` the standard deviation of $\vartheta = \log
+    \lambda_a$, $\beta$ = `estimate_backoff`, the smaller axle's, clipped to [0.05, 2] (at
+    $V_k$ = `reference_speed`: `GripEstimate.peak` less $\beta$ `peak_std`).
 
     **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
     function theorem at the solution returned (`interior_point` with ``implicit``): a
@@ -614,6 +656,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     sample_time: Float[Array, ""] = array_field(default=0.05)
     delay_samples: int = eqx.field(static=True, default=1)
     warm_start: str | None = eqx.field(static=True, default=None)
+    plant_tire: LumpedLuGre2D = eqx.field(default_factory=_plant_tire)
+    reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
+    peak_speed: float | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -632,9 +677,16 @@ class RecedingHorizonDriver(AbstractDriveController):
             raise ValueError("RecedingHorizonDriver.iterations must be an integer >= 2 (the "
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
-                     "terminal_backoff", "mu0"):
+                     "terminal_backoff", "mu0", "reference_speed"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
+        if not isinstance(self.plant_tire, LumpedLuGre2D):
+            raise TypeError("RecedingHorizonDriver.plant_tire must be a LumpedLuGre2D, got "
+                            f"{type(self.plant_tire).__name__}")
+        if self.peak_speed is not None and not (math.isfinite(self.peak_speed)
+                                                and self.peak_speed > 0):
+            raise ValueError("RecedingHorizonDriver.peak_speed must be None or a speed > 0 "
+                             f"m/s, got {self.peak_speed}")
 
     @property
     def warm_duals(self) -> bool:
@@ -664,19 +716,60 @@ class RecedingHorizonDriver(AbstractDriveController):
         return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
                          log_size=8)
 
-    def planner_friction(self, s0, estimate) -> Float[Array, " M"]:
-        """The stages' peak friction $D_k$ for the horizon starting at ``s0``."""
+    def stage_speeds(self, xs) -> Float[Array, " M"]:
+        """The speed $|v|$ [m/s] at the stages' midpoints of the plan ``xs`` (M+1, 9): the
+        mean of its knots', at least 1 m/s."""
+        v = jnp.hypot(xs[:, 2], xs[:, 3])
+        return jnp.maximum(0.5 * (v[:-1] + v[1:]), SPEED_FLOOR)
+
+    def _peaks(self, scale, speeds):
+        r"""$\mu^*$ of `plant_tire` at the scale(s) and speeds (M,)."""
+        scale, speeds = jnp.broadcast_arrays(scale, speeds)
+        return jax.vmap(lambda lam, v: peak_friction(self.plant_tire, lam, v))(scale, speeds)
+
+    def _stage_speed(self, speeds):
         M = self.num_stages
+        if self.peak_speed is None:
+            return jnp.maximum(jnp.broadcast_to(jnp.asarray(speeds, float), (M,)), SPEED_FLOOR)
+        return jnp.full((M,), float(self.peak_speed))
+
+    def nominal_friction(self, speeds) -> Float[Array, " M"]:
+        r"""$D_k$ of the nominal road (whose peak at `reference_speed` $V_0$ is
+        `nominal_peak` $D_0$) at the stages' ``speeds`` [m/s] (`peak_speed` overrides
+        them): $D_0\,\mu^*(\lambda_0, V_k)/\mu^*(\lambda_0, V_0)$, $\lambda_0$ =
+        `scale_of_peak` of $D_0$ (so $D_0$ exactly at $V_0$)."""
+        lam = scale_of_peak(self.plant_tire, self.nominal_peak, self.reference_speed)
+        V = self._stage_speed(speeds)
+        # the reference in the same vectorised call as the stages: the same rounding, so
+        # the ratio is exactly 1 at the reference speed however the drive is compiled
+        peaks = self._peaks(lam, jnp.concatenate([V, jnp.reshape(self.reference_speed, (1,))]))
+        return self.nominal_peak * peaks[:-1] / peaks[-1]
+
+    def planner_friction(self, s0, estimate, speeds) -> Float[Array, " M"]:
+        """The stages' peak friction $D_k$ for the horizon starting at ``s0``, the stages
+        driven at ``speeds`` [m/s] (M,) (class docstring; `peak_speed` overrides them)."""
+        M = self.num_stages
+        V = self._stage_speed(speeds)
         if self.friction == "nominal":
-            return jnp.full((M,), 1.0) * self.nominal_peak
+            return self.nominal_friction(V)
         if self.friction == "oracle":
             h = self.horizon / M
-            return self.table.peak_at(s0 + h * (jnp.arange(M) + 0.5))
+            return self._peaks(self.table.scale_at(s0 + h * (jnp.arange(M) + 0.5)), V)
         if estimate is None:
             raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
                              "estimator: pass estimator= to simulate_drive")
-        D = jnp.min(estimate.peak - self.estimate_backoff * estimate.peak_std)
-        return jnp.full((M,), 1.0) * jnp.clip(D, 0.05, 2.0)
+        theta = jnp.log(estimate.scale)
+        sigma = estimate.scale_std / estimate.scale
+
+        def axle(th, sd):
+            def stage(v):
+                p, dp = jax.jvp(lambda t: peak_friction(self.plant_tire, jnp.exp(t), v),
+                                (th,), (jnp.ones_like(th),))
+                return p - self.estimate_backoff * jnp.abs(dp) * sd
+            return jax.vmap(stage)(V)
+
+        D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
+        return jnp.clip(D, 0.05, 2.0)
 
     def problem(self, s0, state8, D) -> HorizonOCP:
         """`horizon_problem` with this driver's settings."""
@@ -768,10 +861,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         s, X5 = self._measured_state(m, position, s_guess)
         inputs = jnp.stack([0.0 * m.delta, 0.0 * m.delta, m.delta])
         state8 = jnp.concatenate([X5, inputs])
-        if self.friction == "estimate":  # no data yet: the nominal friction
-            D = jnp.full((self.num_stages,), 1.0) * self.nominal_peak
+        V = jnp.hypot(X5[2], X5[3])  # no plan yet: the current speed for every stage
+        if self.friction == "estimate":  # no data yet: the nominal road
+            D = self.nominal_friction(V)
         else:
-            D = self.planner_friction(s, None)
+            D = self.planner_friction(s, None, V)
         xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
         sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True),
                           first=True)
@@ -789,9 +883,9 @@ class RecedingHorizonDriver(AbstractDriveController):
             jnp.concatenate([s[None], X5])
         s_pred = y[0]
         state8 = jnp.concatenate([y[1:], state.inputs])
-        D = self.planner_friction(s_pred, estimate)
         xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
         xs0 = xs0.at[0, :8].set(state8)
+        D = self.planner_friction(s_pred, estimate, self.stage_speeds(xs0))
         prob = self.problem(s_pred, state8, D)
         duals = None
         if self.warm_duals:

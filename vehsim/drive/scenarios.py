@@ -41,11 +41,18 @@ $D = 0.52$.
   those of the start and of the centre line at $s = L/3$; on these roads the centre line
   never comes back below that station, so the grip along it rises monotonically).
 
+All these peaks are stated at 20 m/s (`REFERENCE_SPEED`, the estimator's
+`reference_speed`): the LuGre peak rises as the speed falls (eq. 21), so at the corners'
+speeds of 3-8 m/s the same roads have peaks 15-25 % higher (the nominal road: 0.60 at
+8 m/s, 0.65 at 4 m/s; `peak_friction`). The drivers plan with the peak at the speed they
+drive (`RecedingHorizonDriver`).
+
 Every scenario's field is a `PatchedProfile` (a two-station profile times one patch; a
 uniform road has equal stations' scales, no patch a factor of 1), so that the plants of all
 scenarios have one structure: one compilation serves them, and they batch in one `vmap`.
-`ScenarioGrip.peak` is the true peak $\mu^*(\lambda(c(s)))$ along the centre line (the
-oracle's friction and the offline bound's).
+`ScenarioGrip.peak` is the true peak $\mu^*(\lambda(c(s)))$ at 20 m/s along the centre
+line (the offline bound's friction); the oracle driver reads the scale (the table's
+`scale` column) and takes its peak at each stage's speed.
 
 **The drive** (`drive_scenario`): the `DrivePlant` on that grip (default actuators and
 sensors), starting on the centre of the start gate heading along the road at the stated
@@ -278,7 +285,7 @@ def _peaks_along(estimator, field, x, y):
 
 class DriveScenario(eqx.Module):
     r"""A drive to make: the `road` (`CentrelineRoad`, NumPy: keep it out of `jit`) and its
-    `table` (`RoadTable`, JAX, its `peak` column the true peak friction of the grip), its
+    `table` (`RoadTable`, JAX, its `scale` column the grip's friction scale), its
     `grip` (`ScenarioGrip`), the `plant` (`DrivePlant` on that grip), the initial plant
     state `state0` (on the start gate's centre, heading along the road, at `start_speed`
     [m/s], wheels rolling freely), and the time budget `num_samples` (control samples).
@@ -339,8 +346,7 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road, table_spacing, table_points)
-    table = eqx.tree_at(lambda tb: tb.peak, table,
-                        grip.peak_at(jnp.clip(table.s, 0.0, road.length)))
+    table = table.with_grip(grip.field)
     T = float(plant.actuators.sample_time)
     return DriveScenario(name=f"{road_name}/{grip_name}", road=road, table=table, grip=grip,
                          plant=plant,

@@ -1,0 +1,176 @@
+"""The planner's friction: each stage's D is the believed road's peak at the speed the plan
+drives that stage (nominal, oracle, estimate), and the road table's peak is the tire's true
+peak, not the peak at scale 1 times the scale. The peaks are checked against a dense slip
+scan of the plant tire's steady state written here (no grid, no parabola)."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+
+
+pytestmark = pytest.mark.xdist_group("drive")
+
+TIRE = vs.DrivePlant().tire
+ROAD = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 8.0, 90.0),
+                                        ("straight", 10.0)], 4.0)
+
+
+@jax.jit
+def _scan(scale, speed):
+    """The largest braking steady-state friction over slips 1e-4 .. 0.6 (60001 points)."""
+    kap = jnp.linspace(1e-4, 0.6, 60001)
+
+    def mu(k):
+        v_r = jnp.stack([-k * speed, 0.0 * k])
+        return jnp.linalg.norm(vs.scaled_steady_state_mu(TIRE, scale, v_r, (1.0 - k) * speed))
+
+    return jnp.max(jax.vmap(mu)(kap))
+
+
+def peak_by_scan(scale, speed):
+    return np.vectorize(lambda a, b: float(_scan(a, b)))(scale, speed)
+
+
+@pytest.fixture(scope="module")
+def table():
+    return vs.RoadTable.from_road(ROAD)
+
+
+def test_peak_depends_on_the_speed():
+    """The Stribeck rise (eq. 21): the nominal road's peak is 0.52 at 20 m/s, 0.65 at 4."""
+    lam0 = vs.nominal_scale()
+    assert peak_by_scan(lam0, 20.0) == pytest.approx(0.52, rel=1e-3)
+    assert peak_by_scan(lam0, 4.0) == pytest.approx(0.654, abs=0.005)
+    for V in (3.0, 8.0, 20.0):
+        assert float(vs.peak_friction(TIRE, lam0, V)) == pytest.approx(peak_by_scan(lam0, V),
+                                                                       rel=1e-3)
+    assert float(vs.scale_of_peak(TIRE, 0.52)) == pytest.approx(lam0, rel=1e-9)
+
+
+def test_with_grip_gives_the_tires_true_peak(table):
+    """`with_grip` keeps the field's scale on the centre line; the peak at a speed is the
+    tire's, which is not the peak at scale 1 times the scale (14 % off at 0.4)."""
+    field = vs.GripProfile(stations=jnp.array([0.0, 15.0]), scales=jnp.array([0.4, 1.0]))
+    tg = table.with_grip(field)
+    np.testing.assert_allclose(np.asarray(tg.scale),
+                               np.asarray(jax.vmap(field.scale_at)(table.x, table.y)),
+                               rtol=1e-12)
+    mu1 = peak_by_scan(1.0, 20.0)
+    for lam in (0.4, 0.7, 1.0):
+        t = table.with_grip(vs.UniformGrip(scale=lam))
+        s = jnp.array([0.0, 12.0, 25.0])
+        got = np.asarray(t.peak_at(s, 20.0))
+        np.testing.assert_allclose(got, peak_by_scan(lam, 20.0), rtol=1e-3)
+        np.testing.assert_allclose(np.asarray(t.peak_at(s, jnp.array([4.0, 8.0, 12.0]))),
+                                   peak_by_scan(lam, np.array([4.0, 8.0, 12.0])), rtol=1e-3)
+        if lam < 1.0:
+            assert abs(got[0] / (mu1 * lam) - 1.0) > 0.04  # the old contract's error
+
+
+SPEEDS = jnp.array([3.0, 5.0, 8.0, 12.0, 16.0, 20.0])
+
+
+def _driver(table, friction, **kw):
+    return vs.RecedingHorizonDriver(table=table, friction=friction, num_stages=6,
+                                    horizon=24.0, **kw)
+
+
+def test_nominal_and_oracle_plan_with_the_peak_at_each_stages_speed(table):
+    lam0 = vs.nominal_scale()  # the scenarios' bisection, at 20 m/s
+    D = np.asarray(_driver(table, "nominal").planner_friction(0.0, None, SPEEDS))
+    np.testing.assert_allclose(D, peak_by_scan(lam0, SPEEDS), rtol=1e-3)
+    assert D[-1] == pytest.approx(0.52, rel=1e-3) and D[0] > 0.6
+    # a fixed speed for every stage: the nominal peak there
+    fixed = _driver(table, "nominal", peak_speed=20.0).planner_friction(0.0, None, SPEEDS)
+    np.testing.assert_array_equal(np.asarray(fixed), 0.52)  # exactly: the old constant D
+    # the oracle: the table's scale at each stage's midpoint (4 m stages from s0 = 2)
+    field = vs.GripProfile(stations=jnp.array([0.0, 30.0]), scales=jnp.array([0.3, 0.6]))
+    oracle = _driver(table.with_grip(field), "oracle")
+    D = np.asarray(oracle.planner_friction(2.0, None, SPEEDS))
+    x, y = ROAD.position(2.0 + 4.0 * (np.arange(6) + 0.5))
+    lam = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
+    np.testing.assert_allclose(D, peak_by_scan(lam, SPEEDS), rtol=2e-3)
+
+
+@pytest.fixture(scope="module")
+def estimate():
+    """An estimate of two different axles, from the estimator (its reported peak at 20 m/s)."""
+    est = vs.AxleGripEstimator()
+    plant = vs.DrivePlant()
+    state = est.init(vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0)))
+    state = eqx.tree_at(lambda s: (s.log_scale, s.variance), state,
+                        (jnp.log(jnp.array([0.45, 0.38])), jnp.array([0.01, 0.04])))
+    return est.estimate(state)
+
+
+def test_estimate_plans_with_the_estimated_roads_peak_at_each_stages_speed(table, estimate):
+    lam = np.asarray(estimate.scale)
+    # without the backoff: the smaller axle's peak at each stage's speed
+    D = np.asarray(_driver(table, "estimate", estimate_backoff=0.0).planner_friction(
+        0.0, estimate, SPEEDS))
+    np.testing.assert_allclose(D, np.minimum(peak_by_scan(lam[0], SPEEDS),
+                                             peak_by_scan(lam[1], SPEEDS)), rtol=1e-3)
+    # with it: the peak at the belief's lower edge, to first order in log(scale)'s std
+    driver = _driver(table, "estimate")
+    D = np.asarray(driver.planner_friction(0.0, estimate, SPEEDS))
+    sd = np.asarray(estimate.scale_std / estimate.scale)
+    h = 0.02
+    lower = [peak_by_scan(lam[a], SPEEDS)
+             - sd[a] * np.abs(peak_by_scan(lam[a] * np.exp(h), SPEEDS)
+                              - peak_by_scan(lam[a] * np.exp(-h), SPEEDS)) / (2 * h)
+             for a in range(2)]
+    np.testing.assert_allclose(D, np.minimum(*lower), rtol=5e-3)
+    # at the reference speed: the estimate's reported peak less its standard deviation
+    at20 = driver.planner_friction(0.0, estimate, jnp.full(6, 20.0))
+    np.testing.assert_allclose(np.asarray(at20),
+                               float(jnp.min(estimate.peak - estimate.peak_std)), rtol=1e-9)
+    with pytest.raises(ValueError, match="needs a grip estimator"):
+        driver.planner_friction(0.0, None, SPEEDS)
+
+
+def test_stage_speeds_are_the_plans_midpoint_speeds(table):
+    xs = jnp.zeros((7, 9)).at[:, 2].set(jnp.arange(7.0) * 2.0).at[:, 3].set(0.5)
+    v = np.hypot(np.arange(7.0) * 2.0, 0.5)
+    got = np.asarray(_driver(table, "nominal").stage_speeds(xs))
+    np.testing.assert_allclose(got, np.maximum(0.5 * (v[:-1] + v[1:]), 1.0), rtol=1e-12)
+
+
+def test_a_sample_plans_with_the_shifted_plans_speeds():
+    """`init` plans every stage at the current speed; `command` at the previous plan's speeds,
+    shifted to the new start: its D is the true road's peak at those speeds."""
+    field = vs.GripProfile(stations=jnp.array([0.0, 20.0]), scales=jnp.array([0.5, 0.3]))
+    tbl = vs.RoadTable.from_road(ROAD, extension=30.0).with_grip(field)
+    driver = vs.RecedingHorizonDriver(table=tbl, friction="oracle", num_stages=6,
+                                      horizon=24.0, iterations=2, init_iterations=3)
+    plant = vs.DrivePlant(grip=field, sensors=vs.DriveSensors(noise_on=False))
+    s0 = vs.init_drive(plant, vx=9.0)
+    m0 = vs.measure_drive(plant, s0, jax.random.key(0))
+    state = eqx.filter_jit(lambda d, m: d.init(m))(driver, m0)
+    h = 4.0
+    mid = lambda s: s + h * (np.arange(6) + 0.5)  # noqa: E731
+    lam = lambda s: np.asarray(tbl.scale_at(jnp.asarray(mid(s))))  # noqa: E731
+    np.testing.assert_allclose(np.asarray(state.D),
+                               peak_by_scan(lam(float(state.s_plan)), 9.0), rtol=2e-3)
+    # the next sample: 5 m further at lower speed, the plan shifted by the distance
+    m1 = eqx.tree_at(lambda m: (m.x, m.vx, m.t), m0, (m0.x + 5.0, 7.0 + 0 * m0.vx, m0.t + 0.05))
+    new, _ = eqx.filter_jit(lambda d, st, m: d.command(st, m, None))(driver, state, m1)
+    xs0, _ = vs.shift_plan(state.xs, state.us, new.s_plan - state.s_plan, 24.0)
+    xs0 = xs0.at[0, :8].set(new.xs[0, :8])  # the predicted state (held by the solve)
+    v = np.hypot(np.asarray(xs0[:, 2]), np.asarray(xs0[:, 3]))
+    V = 0.5 * (v[:-1] + v[1:])
+    assert np.ptp(V) > 0.5  # the plan's speeds differ along the horizon
+    np.testing.assert_allclose(np.asarray(new.D), peak_by_scan(lam(float(new.s_plan)), V),
+                               rtol=2e-3)
+
+
+def test_bad_peak_settings_are_refused_by_name(table):
+    with pytest.raises(ValueError, match="peak_speed"):
+        _driver(table, "nominal", peak_speed=-1.0)
+    with pytest.raises(TypeError, match="plant_tire"):
+        _driver(table, "nominal", plant_tire=vs.fit_planner_tire(0.52))
+    with pytest.raises(ValueError, match="reference_speed"):
+        _driver(table, "nominal", reference_speed=0.0)
