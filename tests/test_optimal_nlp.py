@@ -434,6 +434,15 @@ def test_implicit_derivatives_of_the_optimum_are_the_closed_form(bang_bang):
     np.testing.assert_allclose(np.asarray(jax.grad(t_final, argnums=(0, 1))(L, a)), exact,
                                rtol=1e-6)
 
+    # a solve stopped short of the optimum has no implicit derivative: NaN, both modes
+    def t_capped(L):
+        p = eqx.tree_at(lambda q: q.L, prob, L)
+        return interior_point(p, xs0, us0, IPOptions(max_iter=3), throw=False,
+                              implicit=True).xs[-1, 4]
+
+    assert np.isnan(float(jax.jvp(t_capped, (L,), (1.0,))[1]))
+    assert np.isnan(float(jax.grad(t_capped)(L)))
+
 
 class EffortRestToRest(RestToRest):
     """`RestToRest` with an effort cost rho h |u|^2 per stage: the parameter enters the

@@ -97,9 +97,10 @@ def _implicit_solve_jvp(primals, tangents, *, solve):
     lay = stage_layout(prob)
     it = Iterate(ys=lay.join(sol.xs, sol.us), s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
     t = solution_tangent(prob, tprob, it)
-    # at an iterate that did not converge the theorem does not apply: NaN, not a wrong number
-    ok = sol.result == RESULTS.successful
-    t = jax.tree.map(lambda a: jnp.where(ok, a, jnp.nan), t)
+    # at an iterate that did not converge the theorem does not apply: NaN, not a wrong number;
+    # a product (not a select, whose transpose would give reverse mode zeros there)
+    flag = jnp.where(sol.result == RESULTS.successful, 1.0, jnp.nan)
+    t = jax.tree.map(lambda a: a * flag, t)
     tsol = jax.tree.map(lambda _: None, sol)
     tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s), tsol,
                        (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s),
