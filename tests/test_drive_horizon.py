@@ -275,8 +275,8 @@ def test_drive_derivative_matches_finite_differences(gentle):
     differences of the same program's values at two steps, 1 % and 0.5 % of the weight
     (measured: forward mode (-0.00792444, -0.00255186), differences (-0.00792443,
     -0.00255761) and (-0.00792439, -0.00255758): the derivative is the converged plans'
-    at their tolerance, 2e-3 off in y). At the default weight, 1e-4, the weight moves the
-    car by 3e-7 m over the drive, below what plans solved to 1e-6 can resolve; and with the
+    at their tolerance, 2e-3 off in y). At the default weight, 1e-4, a step of 1e-5 moves
+    the car by about 1.5e-7 m, below what plans solved to 1e-6 can resolve; and with the
     stages' peaks at their planned speeds (`peak_speed` None) the drive's position varies
     by about 1e-4 m between neighbouring weights (the differences at two steps disagree),
     so the driver here plans with the peaks at 20 m/s."""
