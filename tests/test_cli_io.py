@@ -205,3 +205,20 @@ def test_brake_figure_marks_the_change_and_clips_a_spiking_estimate():
     assert figure_title(args) == ("controller 'estimate' (beside a locked wheel), realistic "
                                   "hardware: dry_asphalt, changing to ice at 20 m (dash-dot "
                                   "line), from 30 m/s")
+
+
+@pytest.mark.parametrize("flags", [("--no-compilation-cache",), ()])
+def test_a_command_in_process_leaves_the_callers_cache_settings(tmp_path, capsys, flags):
+    """`cli.main` switches JAX's compilation cache on or off for its command only: a caller
+    in the same process (a notebook, the tests, whose cache is on) finds its settings as it
+    left them, whether the command finished or was refused."""
+    from vehsim._compilation import CACHE_SETTINGS
+
+    before = {name: getattr(jax.config, name) for name in CACHE_SETTINGS}
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,3,3\n10,0,-1,3\n20,0,3,3\n"
+                   "30,0,3,3\n")
+    code = cli.main([*flags, "optimise", "--road-file", str(bad), "--out",
+                     str(tmp_path / "out")])
+    assert code == 2 and "w_tr_right_m must be > 0" in capsys.readouterr().err
+    assert {name: getattr(jax.config, name) for name in CACHE_SETTINGS} == before

@@ -40,6 +40,7 @@ other.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -108,6 +109,26 @@ def enable_compilation_cache(path: str | os.PathLike | None = None,
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+CACHE_SETTINGS = ("jax_enable_compilation_cache", "jax_compilation_cache_dir",
+                  "jax_persistent_cache_min_compile_time_secs",
+                  "jax_persistent_cache_min_entry_size_bytes")
+"""The JAX settings `enable_compilation_cache` and `command_line_cache` change."""
+
+
+@contextlib.contextmanager
+def cache_settings_restored():
+    """Run the body, then put `CACHE_SETTINGS` back as they were: a command run in the
+    same process as other work (`vehsim.cli.main` from a notebook or a test) leaves the
+    caller's cache as it found it."""
+    saved = {name: getattr(jax.config, name) for name in CACHE_SETTINGS}
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if getattr(jax.config, name) != value:
+                jax.config.update(name, value)
 
 
 NO_CACHE_VARIABLE = "VEHSIM_NO_COMPILATION_CACHE"

@@ -47,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import jax
 
-    from .._compilation import command_line_cache
+    from .._compilation import cache_settings_restored, command_line_cache
     from ..progress import set_default
 
     jax.config.update("jax_enable_x64", True)
@@ -55,16 +55,18 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # bad input (status 2, argparse's message), --help, --version
         return int(e.code or 0)
-    args.cache_dir = command_line_cache(args.no_compilation_cache)
     args.argv = list(sys.argv[1:] if argv is None else argv)
-    library_default = set_default(not args.no_progress)
-    try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"vehsim: error: {e}", file=sys.stderr)
-        return 2
-    finally:
-        set_default(library_default)
+    # in-process callers (a notebook, a test) get their cache settings and progress back
+    with cache_settings_restored():
+        args.cache_dir = command_line_cache(args.no_compilation_cache)
+        library_default = set_default(not args.no_progress)
+        try:
+            return int(args.func(args) or 0)
+        except (ValueError, FileNotFoundError) as e:
+            print(f"vehsim: error: {e}", file=sys.stderr)
+            return 2
+        finally:
+            set_default(library_default)
 
 
 def run() -> None:
