@@ -302,13 +302,17 @@ def test_rti_derivatives_are_refused_naming_converged_mode(gentle):
                                       init_iterations=5)
     plant = gentle["plant"]
     m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
-    state = driver.init(m0)
+    state = eqx.filter_eval_shape(driver.init, m0)  # a state of the right structure
 
-    def steer(w):
+    def steer(w, state):
         d = eqx.tree_at(lambda d: d.rate_weight, driver, w)
         return d.command(state, m0, None)[1][2]
 
+    # refused while tracing (only shapes: nothing is run or compiled)
     with pytest.raises(TypeError, match="mode='converged'"):
-        jax.grad(steer)(1e-4)
+        jax.eval_shape(jax.grad(steer), 1e-4, state)
     with pytest.raises(TypeError, match="mode='converged'"):
-        jax.jvp(steer, (1e-4,), (1.0,))
+        jax.eval_shape(lambda w, st: jax.jvp(lambda v: steer(v, st), (w,), (1.0,)), 1e-4,
+                       state)
+    # while the values themselves trace
+    assert jax.eval_shape(steer, 1e-4, state).shape == ()
