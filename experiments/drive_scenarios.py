@@ -92,7 +92,7 @@ def make_driver(kind: str, sc, reference):
     driver = vs.RecedingHorizonDriver(table=sc.table, friction=friction,
                                       sample_time=act.sample_time,
                                       delay_samples=int(act.delay_samples()[0]))
-    estimator = (vs.AxleGripEstimator(prior_scale=vs.nominal_scale())
+    estimator = (vs.driver_estimator()
                  if friction == "estimate" else None)
     return driver, estimator
 

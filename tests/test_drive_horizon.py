@@ -316,3 +316,66 @@ def test_rti_derivatives_are_refused_naming_converged_mode(gentle):
                        state)
     # while the values themselves trace
     assert jax.eval_shape(steer, 1e-4, state).shape == ()
+
+
+# ---- the slip bound ----------------------------------------------------------------------
+
+
+def test_axle_slips_are_the_friction_ellipse_tires_combined_slip():
+    """`axle_slips` against the tire's forces: the friction ellipse's force is
+    $D\\sin(C\\arctan(Bs))F_z$ (`ReducedHalfCar.signals`), inverted for $s$ below the peak; and
+    the slip constraint has the sign of limit - slip."""
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    B, C, D = (float(getattr(car.tire, k)) for k in "BCD")
+    prob = vs.horizon_problem(vs.RoadTable.from_road(vs.CentrelineRoad.from_segments(
+        [("straight", 30.0)], 4.0)), car, 0.0, jnp.zeros(8).at[2].set(10.0), jnp.full(4, D),
+        horizon=20.0)
+    rng = np.random.default_rng(0)
+    for _ in range(8):
+        X = np.array([0.1, rng.uniform(-0.1, 0.1), rng.uniform(5, 15), rng.uniform(-0.4, 0.4),
+                      rng.uniform(-0.3, 0.3), rng.uniform(-0.06, 0.06), rng.uniform(-0.06, 0.06),
+                      rng.uniform(-0.05, 0.05), 0.0])
+        sig = car.signals(jnp.concatenate([jnp.zeros(2), jnp.asarray(X[1:5])]),
+                          jnp.asarray(X[5:8]))
+        for axle, i in (("F", 0), ("R", 1)):
+            mu = float(jnp.hypot(sig[f"Fx_{axle}"], sig[f"Fy_{axle}"]) / sig[f"Fz_{axle}"])
+            s_force = np.tan(np.arcsin(mu / D) / C) / B
+            s = float(vs.axle_slips(car, jnp.asarray(X))[i])
+            assert s < 0.2  # below the peak (0.214), where the inversion holds
+            assert s == pytest.approx(s_force, rel=1e-6)
+            for limit in (0.8 * s, 1.2 * s):
+                c = float(prob._slip_constraints(jnp.asarray(X), limit)[i])
+                assert np.sign(c) == np.sign(limit - s)
+
+
+@pytest.mark.slow  # two horizon solves: one compilation each
+def test_slip_limit_bounds_the_plans_slips_and_holds_a_drifting_start():
+    """A horizon into a 15 m corner from a drifting start (side slip 0.3 rad): with
+    `slip_limit` 0.15 every knot past the widened first stages keeps both axles' combined
+    slip within 0.15, and the plan still converges from a start above the bound; without
+    it the minimum-time plan uses more slip."""
+    road = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 15.0, 90.0),
+                                            ("straight", 20.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    state8 = jnp.array([0.0, 0.0, 10.0, 3.0, 0.0, 0.0, 0.0, 0.0])
+    D = jnp.full(12, 0.52)
+    slips = {}
+
+    @eqx.filter_jit
+    def plan(limit):
+        prob = vs.horizon_problem(table, car, 0.0, state8, D, horizon=36.0, slip_limit=limit)
+        xs0, us0 = vs.profile_guess(table, car, 0.0, state8, D, horizon=36.0)
+        sol = vs.interior_point(prob, xs0, us0, vs.IPOptions(max_iter=300), throw=False)
+        return sol, jax.vmap(lambda X: vs.axle_slips(car, X))(sol.xs)
+
+    for limit in (None, 0.15):
+        sol, s = plan(limit)
+        assert bool(sol.converged), limit
+        slips[limit] = np.asarray(s)
+    start = float(np.max(slips[0.15][0]))
+    print("start slip", start, "max slip bounded", np.max(slips[0.15][3:]), "free",
+          np.max(slips[None]))
+    assert start > 0.2  # the start is above the bound: widened, and feasible
+    assert np.max(slips[0.15][3:-1]) <= 0.15 + 1e-6
+    assert np.max(slips[None][3:-1]) > 0.17

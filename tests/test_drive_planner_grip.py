@@ -114,8 +114,9 @@ def test_estimate_plans_with_the_estimated_roads_peak_at_each_stages_speed(table
         0.0, estimate, SPEEDS))
     np.testing.assert_allclose(D, np.minimum(peak_by_scan(lam[0], SPEEDS),
                                              peak_by_scan(lam[1], SPEEDS)), rtol=1e-3)
-    # with it: the peak at the belief's lower edge, to first order in log(scale)'s std
-    driver = _driver(table, "estimate")
+    # with one standard deviation of backoff: the peak at the belief's lower edge, to
+    # first order in log(scale)'s std
+    driver = _driver(table, "estimate", estimate_backoff=1.0)
     D = np.asarray(driver.planner_friction(0.0, estimate, SPEEDS))
     sd = np.asarray(estimate.scale_std / estimate.scale)
     h = 0.02
@@ -174,3 +175,29 @@ def test_bad_peak_settings_are_refused_by_name(table):
         _driver(table, "nominal", plant_tire=vs.fit_planner_tire(0.52))
     with pytest.raises(ValueError, match="reference_speed"):
         _driver(table, "nominal", reference_speed=0.0)
+
+
+def test_planner_car_has_the_plants_steady_state_shape():
+    """`planner_car`: the rally-gravel car whose tire's normalised curve
+    $\\sin(C\\arctan(Bs))$ follows the plant's steady state $\\mu_{ss}/\\max\\mu_{ss}$ (the
+    plant's tire on the nominal road, at 12 m/s, in pure braking) within 0.25 (measured
+    0.232: one $B, C$ for braking and side slip together, and the LuGre curve falls off
+    faster after its peak than $C < 2$ allows), where the benchmark's tire ($B = 7$,
+    $C = 1.6$, peaking near 20 % slip) is off by 0.67; the peak is the one asked for."""
+    from vehsim.drive.estimator import scaled_steady_state_mu
+    from vehsim.tire.params import lugre2d_bakker1987
+
+    car = vs.planner_car(0.4)
+    assert float(car.tire.D) == 0.4 and car.params == vs.rally_gravel()
+    tire, lam, V = vs.LumpedLuGre2D(lugre2d_bakker1987()), vs.nominal_scale(), 12.0
+    kappa = np.linspace(0.01, 0.5, 50)
+    mu = np.array([float(jnp.linalg.norm(scaled_steady_state_mu(
+        tire, lam, jnp.array([-k * V, 0.0]), (1 - k) * V))) for k in kappa])
+    mu = mu / mu.max()
+    s = kappa / (1 - kappa)
+    shape = lambda B, C: np.sin(C * np.arctan(B * s))  # noqa: E731
+    fitted = shape(float(car.tire.B), float(car.tire.C))
+    print("planner tire", float(car.tire.B), float(car.tire.C),
+          "misfit", np.max(np.abs(fitted - mu)), "benchmark's", np.max(np.abs(shape(7, 1.6) - mu)))
+    assert np.max(np.abs(fitted - mu)) < 0.25
+    assert np.max(np.abs(shape(7.0, 1.6) - mu)) > 0.6

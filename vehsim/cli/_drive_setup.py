@@ -96,12 +96,11 @@ def scenario(args, road):
 
 def controller(args, sc):
     """``(controller, estimator)`` of ``--controller`` (and ``--mode``) on the scenario `sc`:
-    the receding-horizon driver with the estimate (and `AxleGripEstimator` with the nominal
-    road as its prior), the nominal friction or the true grip along the horizon (the
-    oracle); or the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
-    from ..drive.estimator import AxleGripEstimator
+    the receding-horizon driver with the estimate (`driver_estimator`: the nominal road as
+    its prior), the nominal friction or the true grip along the horizon (the oracle); or
+    the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
     from ..drive.horizon import RecedingHorizonDriver
-    from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
+    from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator
 
     act = sc.plant.actuators
     if args.controller in ("tracking", "open-loop"):
@@ -123,8 +122,7 @@ def controller(args, sc):
     driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
                                    delay_samples=int(act.delay_samples()[0]))
-    estimator = AxleGripEstimator(prior_scale=nominal_scale()) if friction == "estimate" \
-        else None
+    estimator = driver_estimator() if friction == "estimate" else None
     return driver, estimator
 
 

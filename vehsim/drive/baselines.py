@@ -24,13 +24,15 @@ $\Delta T_i = \tfrac12 m(k_v(V_{ref} - V) - k_se_s)r$; and slip tracking on the 
 wheel speeds, $\Delta T_i = k_\omega I_i(\omega^{ref}_i - \omega_i)$,
 $\omega^{ref}_i = (1 + \kappa_i)V_{ix}/r$ from the measured velocities and steering.
 
-**Offline bound** (`offline_bound`): the minimum-time drive of the reduced model on the
-scenario's road from the drive's start, with the tire's peak $D$ the true grip's: one $D$
-on a uniform grip; on a grip that varies along the road, each stage's own (the arc-length
-problem with a per-stage friction, `horizon_problem` over the whole road), solved from the
-drive at the smallest peak (feasible for it, and slower: the fallback where the per-stage
-solve fails). The per-stage problem ends with the horizon problem's terminal bounds
-($|v_y| \le 0.1v_x$, $|\xi| \le 0.15$ rad) instead of the gate's $\xi = r = \dot n = 0$.
+**Offline bound** (`offline_bound`): the minimum-time drive of the receding-horizon
+driver's planning model (the reduced half car, `rally_gravel_car`) on the scenario's
+road from the drive's start, every stage with the true road's peak at the speed the drive
+passes it, as the driver plans (the arc-length problem with a per-stage friction,
+`horizon_problem` over the whole road; a fixed point in the speeds, solved from the drive
+with the smallest peak at 20 m/s, feasible and slower: the fallback where a solve fails).
+It ends with the horizon problem's terminal bounds ($|v_y| \le 0.1v_x$, $|\xi| \le 0.15$
+rad) instead of the gate's $\xi = r = \dot n = 0$. The nominal primitive the replays follow
+(`nominal_primitive`) is the same car's with one peak, 0.52.
 """
 
 from __future__ import annotations
@@ -51,7 +53,8 @@ from ..optimal.shooting import DELTA_MAX
 from ..vehicle.params import HalfCarParams, rally_gravel
 from ..vehicle.planar import axle_velocities
 from .actuators import DriveActuators
-from .horizon import horizon_problem
+from .estimator import peak_friction
+from .horizon import _plant_tire, horizon_problem
 from .scenarios import BENCHMARK_PEAK, DriveScenario
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController, CommandSchedule
@@ -181,36 +184,73 @@ class PrimitiveTracker(AbstractDriveController):
 
 def nominal_primitive(scenario: DriveScenario, D: float = BENCHMARK_PEAK, **kwargs
                       ) -> RoadPrimitive:
-    """The minimum-time drive of the reduced model (`rally_gravel_car(D)`) on the scenario's
-    road from the drive's start (`DriveScenario.primitive_road`); `kwargs` go to
-    `road_primitive` (default ``num_stages`` 100, one per 2 m on the stage)."""
+    """The minimum-time drive of the reduced model (`rally_gravel_car(D)`, the
+    receding-horizon driver's default planning car) with one peak $D$ on the scenario's road
+    from the drive's start (`DriveScenario.primitive_road`); `kwargs` go to `road_primitive`
+    (default ``num_stages`` 100, one per 2 m on the stage)."""
     kwargs.setdefault("num_stages", max(100, int(round(scenario.road.length / 2.0))))
     return road_primitive(scenario.primitive_road(), car=rally_gravel_car(D), throw=False,
                           **kwargs)
 
 
-def offline_bound(scenario: DriveScenario, **kwargs) -> tuple[RoadPrimitive, float, bool]:
-    """The offline bound of the module docstring: ``(primitive, D, exact)``. On a uniform
-    grip the minimum-time drive with $D$ = the true peak (`nominal_primitive`); on a grip
-    that varies along the road, the drive with the per-stage peak (`horizon_problem` over
-    the whole road, margin 0, the steering rate free, each stage's $D$ the true peak at its
-    midpoint), solved from the drive at the smallest peak $D$ (feasible for it); `exact` is
-    False where that solve did not converge and the smallest-peak drive is returned."""
+BOUND_ROUNDS = 6
+"""Most solves of `offline_bound`'s fixed point in the stages' speeds."""
+
+
+def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwargs
+                  ) -> tuple[RoadPrimitive, float, bool]:
+    r"""The offline bound of the module docstring: ``(primitive, D, exact)``, $D$ the
+    smallest stage peak. The minimum-time drive of the driver's default planning car
+    (`rally_gravel_car`; its $D$ set per stage) over the whole road
+    (`horizon_problem`, margin 0, the steering rate free) with each stage's peak the true
+    road's at the speed the drive passes it, $D_k = \mu^*(\lambda(s_k), V_k)$
+    (`peak_friction` of the plant's tire, $\lambda$ the table's scale at the stage's
+    midpoint, $V_k$ the drive's speed there): a fixed point, solved from the drive with one
+    peak, the smallest at 20 m/s (`nominal_primitive`; feasible, and slower), then again
+    with the peaks at the last drive's speeds (or half or a quarter of the way to them
+    where the whole step fails), until they change by less than 0.1 % (at most ``rounds``
+    solves; on the scenarios 3-4). `exact` is False where no step converged or the peaks
+    still moved: the last converged drive is returned (the one-peak drive if none)."""
     peak = np.asarray(scenario.grip.peak)
     D = float(np.min(peak))
     floor = nominal_primitive(scenario, D, **kwargs)
-    if np.ptp(peak) < 1e-6:
-        return floor, D, True
     prob0 = floor.problem
     M = prob0.num_stages
     L = float(scenario.road.length)
-    mid = (np.arange(M) + 0.5) * L / M
-    D_stage = scenario.grip.peak_at(jnp.asarray(mid))
+    lam = scenario.table.scale_at(jnp.asarray((np.arange(M) + 0.5) * L / M))
+    tire = _plant_tire()
+    peaks = jax.jit(jax.vmap(lambda la, v: peak_friction(tire, la, v)))
+    car = rally_gravel_car(BENCHMARK_PEAK)
+
+    @eqx.filter_jit
+    def solve(xs0, us0, D_stage):
+        prob = horizon_problem(scenario.table, car, 0.0, xs0[0, :8], D_stage, horizon=L,
+                               margin=0.0, rate_weight=prob0.rate_weight, steer_rate=1e3,
+                               steer_limit=DELTA_MAX)
+        # from a solution nearby: a small first barrier keeps its active set
+        options = IPOptions(max_iter=500, mu0=1e-3)
+        return prob, interior_point(prob, xs0, us0, options, throw=False)
+
+    best, exact = floor, True
     xs, us = floor.solution.xs, floor.solution.us
-    prob = horizon_problem(scenario.table, rally_gravel_car(BENCHMARK_PEAK), 0.0, xs[0, :8],
-                           D_stage, horizon=L, margin=0.0, rate_weight=prob0.rate_weight,
-                           steer_rate=1e3, steer_limit=DELTA_MAX)
-    sol = interior_point(prob, xs, us, IPOptions(max_iter=500), throw=False)
-    if not bool(sol.converged):
-        return floor, D, False
-    return RoadPrimitive(problem=prob, solution=sol, road=floor.road), D, True
+    D_stage = jnp.full((M,), D)
+    for _ in range(int(rounds)):
+        v = jnp.hypot(xs[:, 2], xs[:, 3])
+        target = peaks(lam, jnp.maximum(0.5 * (v[:-1] + v[1:]), 1.0))
+        if best is not floor and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
+            break
+        for step in (1.0, 0.5, 0.25):  # the whole way to the new peaks, else part of it
+            trial = D_stage + step * (target - D_stage)
+            prob, sol = solve(xs, us, trial)
+            if bool(sol.converged):
+                break
+        if not bool(sol.converged):
+            exact = False
+            break
+        D_stage = trial
+        best = RoadPrimitive(problem=prob, solution=sol, road=floor.road)
+        xs, us = sol.xs, sol.us
+    else:
+        exact = False  # the peaks still moving after `rounds` solves
+    exact = exact and best is not floor  # (the floor solve itself may not converge)
+    return best, float(jnp.min(D_stage)), exact

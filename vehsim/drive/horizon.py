@@ -44,6 +44,7 @@ the slip error measured from the wheel speeds and the ground velocity.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import equinox as eqx
@@ -302,6 +303,21 @@ class RoadTable(eqx.Module):
 # ---- the horizon problem ------------------------------------------------------------------
 
 
+def _slip_parts(vehicle: ReducedHalfCar, X):
+    VFx, VFy, VRx, VRy = vehicle.axle_velocities(
+        jnp.concatenate([X[:1] * 0, X[:1] * 0, X[1:5]]), X[7])
+    return X[5:7], jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy])
+
+
+def axle_slips(vehicle: ReducedHalfCar, X) -> Float[Array, " 2"]:
+    r"""The combined slip $s_i = \sqrt{\kappa_i^2 + \tan^2\alpha_i}/(1 + \kappa_i)$ of
+    each axle of the knot ``X`` $(n, \xi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, ...)$
+    (the friction-ellipse tire's, `FrictionEllipseTire`; $\tan\alpha_i = V_{iy}/V_{ix}$ in
+    the wheel frame)."""
+    k, Vx, Vy = _slip_parts(vehicle, X)
+    return jnp.sqrt(k * k + (Vy / Vx) ** 2) / (1.0 + k)
+
+
 class HorizonOCP(CurvilinearManeuverOCP):
     r"""The horizon problem of the module docstring: `CurvilinearManeuverOCP` on a window of
     length `length` $H$ with the initial state fixed, the steering-rate bound, the
@@ -314,7 +330,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
     $|v_y|/v_x$ at $H$) and `terminal_heading` $\xi_{max}$ [rad] (on $|\xi(H)|$): without
     them the last stages of a minimum-time plan throw the car sideways or point it off the
     road, nothing after the horizon paying for it; `steer_rate` $\dot\delta_{max}$ [rad/s],
-    `steer_limit` [rad].
+    `steer_limit` [rad]; `slip_limit` (M,) or None: the bound on each axle's combined slip
+    (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
+    agrees with the plant's).
     """
 
     initial_state: Float[Array, " 8"] = array_field(default=(0.0,) * 8)
@@ -324,6 +342,13 @@ class HorizonOCP(CurvilinearManeuverOCP):
     steer_limit: Float[Array, ""] = array_field(default=0.6)
     terminal_sideslip: Float[Array, ""] = array_field(default=0.1)
     terminal_heading: Float[Array, ""] = array_field(default=0.15)
+    slip_limit: Float[Array, " M"] | None = None
+
+    def _slip_constraints(self, X, limit):
+        r"""`axle_slips` $\le$ ``limit`` for both axles, as the polynomial
+        $\ell^2(1 + \kappa_i)^2V_{ix}^2 - \kappa_i^2V_{ix}^2 - V_{iy}^2 \ge 0$."""
+        k, Vx, Vy = _slip_parts(self.vehicle, X)
+        return (limit * (1.0 + k)) ** 2 * Vx * Vx - k * k * Vx * Vx - Vy * Vy
 
     def stage_vehicle(self, k) -> ReducedHalfCar:
         """The planning car of stage ``k``: its tire's $D$ times `grip`[k]."""
@@ -350,8 +375,10 @@ class HorizonOCP(CurvilinearManeuverOCP):
         kap = self.curvature[k][0, 0]
         sdot = (vx * jnp.cos(xi) - vy * jnp.sin(xi)) / (1.0 - n * kap)
         rate = u[2] * sdot
+        slips = (jnp.zeros((0,)) if self.slip_limit is None
+                 else self._slip_constraints(x, self.slip_limit[k]))
         return jnp.concatenate([base, jnp.stack([self.steer_rate - rate,
-                                                 self.steer_rate + rate])])
+                                                 self.steer_rate + rate]), slips])
 
     def initial_equality(self, x):
         return jnp.concatenate([x[8:9], x[:8] - self.initial_state])
@@ -377,7 +404,7 @@ RELAX_STAGES = 3
 
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
-                    steer_limit=0.6, terminal_backoff=1.0) -> HorizonOCP:
+                    steer_limit=0.6, terminal_backoff=1.0, slip_limit=None) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
@@ -387,7 +414,10 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
     much as the start lies outside it plus 5 cm, so that a start off the corridor stays
     feasible), terminal bound $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with
-    $\beta$ = ``terminal_backoff``, `grip` = ``D_per_stage`` / the vehicle's $D$."""
+    $\beta$ = ``terminal_backoff``, `grip` = ``D_per_stage`` / the vehicle's $D$;
+    ``slip_limit`` (None: no bound) the bound on the axles' combined slip, widened over the
+    first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it plus
+    0.02."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -405,6 +435,11 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
     nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
+    slips = None
+    if slip_limit is not None:
+        limit = jnp.asarray(slip_limit, float)
+        over = jnp.maximum(jnp.max(axle_slips(vehicle, state8)) + 0.02 - limit, 0.0)
+        slips = limit + over * fade(s_nodes[:-1])
     return HorizonOCP(
         vehicle=vehicle, length=jnp.asarray(horizon, float), curvature=kap, corridor=nodes,
         corridor_mid=mids[:, None, :], corridor_steps=jnp.zeros((M, 0, 2)),
@@ -412,7 +447,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         end_speed=jnp.zeros(()), start_speed_fixed=False, end_speed_fixed=False,
         num_stages=M, steps_per_stage=1, closed=False, objective="min-time",
         rate_weight=rate_weight, initial_state=state8, grip=D_per_stage / vehicle.tire.D,
-        terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit)
+        terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
+        slip_limit=slips)
 
 
 def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
@@ -537,6 +573,41 @@ def _no_derivative_jvp(primals, tangents):
     raise TypeError(RTI_DERIVATIVE_MESSAGE)
 
 
+PLANNER_FIT_SPEED = 12.0
+"""Speed [m/s] at which `planner_car` fits its tire's shape to the plant's steady state (the
+speeds of the scenarios' corners and their approaches)."""
+
+
+@functools.cache
+def _planner_shape(peak: float, speed: float) -> tuple[float, float]:
+    lam = float(scale_of_peak(_plant_tire(), peak, REFERENCE_SPEED))
+    tire = fit_planner_tire(peak, lam, speed=speed)
+    return float(tire.B), float(tire.C)
+
+
+def planner_car(D=0.52, *, nominal_peak: float = 0.52,
+                speed: float = PLANNER_FIT_SPEED) -> ReducedHalfCar:
+    r"""The receding-horizon driver's planning car: the benchmark's rally-gravel reduced
+    half car (`rally_gravel`) with a `FrictionEllipseTire` of the drive plant's shape,
+    $B, C$ of `fit_planner_tire` on the road whose peak at `REFERENCE_SPEED` is
+    ``nominal_peak`` (its scale by `scale_of_peak`), at ``speed`` [m/s], and peak ``D``
+    (the driver sets each stage's $D_k$ itself). The fit is done once per
+    (``nominal_peak``, ``speed``).
+
+    The benchmark's gravel tire ($B = 7$, $C = 1.6$, `rally_gravel_car`) peaks near 20 %
+    slip; the plant's LuGre tire at 5-6 % and falls off after it. Planned with the former,
+    the driver's plans drift at slip angles where the plant has lost much of its lateral
+    force. With this car the driver keeps corner90 on the road, but its stiff tire ($B$
+    about 33) makes the horizon problems harder: in real-time iteration the drives of the
+    uturn and sturn leave the road by metres, and in converged mode few of the uturn's
+    solves converge (docs/driver.md). It is therefore not the default."""
+    from ..tire.friction_ellipse import FrictionEllipseTire
+    from ..vehicle.params import rally_gravel
+
+    B, C = _planner_shape(float(nominal_peak), float(speed))
+    return ReducedHalfCar(params=rally_gravel(), tire=FrictionEllipseTire(B=B, C=C, D=D))
+
+
 def _default_car() -> ReducedHalfCar:
     from ..optimal.primitives import rally_gravel_car
 
@@ -572,8 +643,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     r"""The receding-horizon driver of the module docstring.
 
     **Fields:** `table` (`RoadTable`), `vehicle` (the planning `ReducedHalfCar` with a
-    `FrictionEllipseTire`; default `rally_gravel_car()`; `fit_planner_tire` gives a tire of
-    the plant's shape), `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
+    `FrictionEllipseTire`; default `rally_gravel_car()`; `planner_car()` has a tire of the
+    plant's shape),
+    `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
     [m] (0.2), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
@@ -581,9 +653,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     `max_iterations`); `friction` (static): 'nominal' (the nominal
     road, whose peak at `reference_speed` is `nominal_peak`, 0.52), 'oracle' (the
     `table`'s friction scale at the stages' midpoints: the true grip, known ahead) or
-    'estimate' (the estimator's belief, its lower edge by `estimate_backoff` standard
-    deviations; needs an estimator in `simulate_drive`, and the first plan uses the nominal
-    road), each at the stages' speeds (below); `slip_gain` [N m] (torque per unit slip error, 0:
+    'estimate' (the estimator's belief, less `estimate_backoff` standard deviations
+    (default 0: the estimate itself; planning below the plant's grip also misleads the
+    torque recovery, and measured drives left the road more often, docs/driver.md);
+    needs an estimator in `simulate_drive`, and the first plan uses the nominal road),
+    each at the stages' speeds (below); `slip_gain` [N m] (torque per unit slip error, 0:
     feedforward only), `lead` [s] (the plan is read this far past the predicted state: the
     actuators' lag), `position_gain` (the weight of the measured position against dead
     reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
@@ -598,7 +672,15 @@ class RecedingHorizonDriver(AbstractDriveController):
     $D$; default the drive plant's), `reference_speed` [m/s] (the speed `nominal_peak` is
     stated at; `REFERENCE_SPEED`, 20), `peak_speed` (static; None: each stage's planned
     speed, below; a number [m/s]: that speed for every stage, a planner whose $D$ does not
-    depend on its speed).
+    depend on its speed), `slip_limit` (0.15; None: no bound) the bound on each axle's
+    combined slip in the plans (`horizon_problem`).
+
+    **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
+    most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
+    slips of 0.6, side slip near 50 degrees on corner90), where the plant's LuGre tire,
+    peaking at 5-6 % slip, has lost much of its force: the car ran wide by 0.2-0.4 m. At
+    0.15 the planner's tire still has 96 % of its peak and the plans stay where the two
+    tires agree (docs/driver.md has the measurements).
 
     **The stages' peak friction.** All three modes believe in a road, a friction scale
     $\lambda$ (the nominal one, the true one ahead, the estimated one), and plan stage $k$
@@ -647,7 +729,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=None, converter=lambda x: None if x is None else float_array(x))
     friction: str = eqx.field(static=True, default="nominal")
     nominal_peak: Float[Array, ""] = array_field(default=0.52)
-    estimate_backoff: Float[Array, ""] = array_field(default=1.0)
+    estimate_backoff: Float[Array, ""] = array_field(default=0.0)
     slip_gain: Float[Array, ""] = array_field(default=0.0)
     lead: Float[Array, ""] = array_field(default=0.05)
     position_gain: Float[Array, ""] = array_field(default=0.1)
@@ -659,6 +741,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     plant_tire: LumpedLuGre2D = eqx.field(default_factory=_plant_tire)
     reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
     peak_speed: float | None = eqx.field(static=True, default=None)
+    slip_limit: Float[Array, ""] | None = eqx.field(
+        default=0.15, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -677,7 +761,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             raise ValueError("RecedingHorizonDriver.iterations must be an integer >= 2 (the "
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
-                     "terminal_backoff", "mu0", "reference_speed"):
+                     "terminal_backoff", "mu0", "reference_speed", "slip_limit"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
         if not isinstance(self.plant_tire, LumpedLuGre2D):
@@ -776,7 +860,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         return horizon_problem(self.table, self.vehicle, s0, state8, D, horizon=self.horizon,
                                margin=self.margin, rate_weight=self.rate_weight,
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
-                               terminal_backoff=self.terminal_backoff)
+                               terminal_backoff=self.terminal_backoff,
+                               slip_limit=self.slip_limit)
 
     def _frenet_rates(self, X5, inputs, s):
         """Time derivative of $(s, n, \\xi, v_x, v_y, r)$ of the reduced car (eqs. 61-63)."""
