@@ -91,9 +91,9 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
     std = np.asarray(rec["estimate"]["peak_std"])
     assert est.shape == (n, 2) and np.all(std > 0)
     # the planner's D (its mean over the stages) is the estimate it was given (the one after
-    # the previous sample), the smaller axle's lower edge, at the stages' speeds: below the
-    # reported peak's 20 m/s on this corner, so above the reported peak less one standard
-    # deviation, and at least 1 m/s, so below the peak there
+    # the previous sample), the smaller axle's, at the stages' speeds: below the reported
+    # peak's 20 m/s on this corner, so above the reported peak (and its lower edge), and at
+    # least 1 m/s, so below the peak there
     D = np.asarray(rec["planner_D"]["D"])
     assert np.all(D[1:] > np.min(est - std, axis=1)[:-1])
     tire = vs.DrivePlant().tire

@@ -3,7 +3,8 @@
 Both controllers solve the same horizon problem per sample (`vehsim.HorizonOCP`: the
 reduced half-car in arc length over H m in M stages, one RK4 step per stage, the corridor
 with its margin at the knots and the stages' midpoints, the node constraints, the steering
-rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h) and
+rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h;
+the driver's bound on the axles' combined slip is off, ``slip_limit=None``) and
 drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "nominal")`
 (the `DrivePlant` with the lumped 2D LuGre tires on the gravel whose peak friction is the
 planner's D = 0.52, the actuators' delay, rate limit and lag, the sensors' noise of the same
@@ -274,8 +275,10 @@ def main(argv=None):
                   grip="nominal", seed=args.seed, samples_budget=num_samples)
     results = {}
     for mode in args.modes.split(","):
-        # the stages' peaks at 20 m/s: D = 0.52 everywhere, as the do-mpc problem states it
-        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, peak_speed=20.0, **sizes)
+        # the stages' peaks at 20 m/s: D = 0.52 everywhere, as the do-mpc problem states it;
+        # no slip bound (the do-mpc problem has none)
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, peak_speed=20.0,
+                                              slip_limit=None, **sizes)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()
