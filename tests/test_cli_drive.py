@@ -18,7 +18,9 @@ from vehsim import cli
 from vehsim.plot import animation_frames, drive_animation, drive_figure, drive_trace
 
 
-pytestmark = pytest.mark.xdist_group("drive")
+# its own worker group: its drives are the command line's programs, which no other drive test
+# compiles, so sharing the drive tests' worker only lengthens that worker
+pytestmark = pytest.mark.xdist_group("drive_cli")
 
 PNG = b"\x89PNG\r\n\x1a\n"
 GIF = (b"GIF87a", b"GIF89a")
