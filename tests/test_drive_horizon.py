@@ -379,3 +379,21 @@ def test_slip_limit_bounds_the_plans_slips_and_holds_a_drifting_start():
     assert start > 0.2  # the start is above the bound: widened, and feasible
     assert np.max(slips[0.15][3:-1]) <= 0.15 + 1e-6
     assert np.max(slips[None][3:-1]) > 0.17
+
+
+def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():
+    """Rolling straight (no slip, no side slip) the combined slip is 0, a square root's
+    kink: the bound's widening at the start (`horizon_problem`) has a finite derivative in
+    both modes there (NaN would poison a converged-mode drive's implicit derivatives)."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 30.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+
+    def limit(v):
+        state8 = jnp.zeros(8).at[2].set(v)
+        prob = vs.horizon_problem(table, car, 0.0, state8, jnp.full(4, 0.52), horizon=20.0,
+                                  slip_limit=0.15)
+        return jnp.sum(prob.slip_limit) + jnp.sum(vs.axle_slips(car, state8))
+
+    assert float(limit(10.0)) == pytest.approx(0.6)
+    assert np.isfinite(float(jax.grad(limit)(10.0)))
+    assert np.isfinite(float(jax.jvp(limit, (10.0,), (1.0,))[1]))

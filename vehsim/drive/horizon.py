@@ -55,7 +55,7 @@ from jaxtyping import Array, Float
 
 from .._checks import check_positive
 from .._fields import array_field, float_array
-from .._math import wrap_angle
+from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
     SPEED_CAP,
@@ -315,7 +315,7 @@ def axle_slips(vehicle: ReducedHalfCar, X) -> Float[Array, " 2"]:
     (the friction-ellipse tire's, `FrictionEllipseTire`; $\tan\alpha_i = V_{iy}/V_{ix}$ in
     the wheel frame)."""
     k, Vx, Vy = _slip_parts(vehicle, X)
-    return jnp.sqrt(k * k + (Vy / Vx) ** 2) / (1.0 + k)
+    return safe_hypot(k, Vy / Vx) / (1.0 + k)  # a zero gradient, not NaN, rolling straight
 
 
 class HorizonOCP(CurvilinearManeuverOCP):
