@@ -53,8 +53,7 @@ from ..optimal.shooting import DELTA_MAX
 from ..vehicle.params import HalfCarParams, rally_gravel
 from ..vehicle.planar import axle_velocities
 from .actuators import DriveActuators
-from .estimator import peak_friction
-from .horizon import _plant_tire, horizon_problem
+from .horizon import horizon_problem, stage_speeds
 from .scenarios import BENCHMARK_PEAK, DriveScenario
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController, CommandSchedule
@@ -217,9 +216,8 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwar
     prob0 = floor.problem
     M = prob0.num_stages
     L = float(scenario.road.length)
-    lam = scenario.table.scale_at(jnp.asarray((np.arange(M) + 0.5) * L / M))
-    tire = _plant_tire()
-    peaks = jax.jit(jax.vmap(lambda la, v: peak_friction(tire, la, v)))
+    mid = jnp.asarray((np.arange(M) + 0.5) * L / M)
+    peaks = eqx.filter_jit(lambda table, xs: table.peak_at(mid, stage_speeds(xs)))
     car = rally_gravel_car(BENCHMARK_PEAK)
 
     @eqx.filter_jit
@@ -235,8 +233,7 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwar
     xs, us = floor.solution.xs, floor.solution.us
     D_stage = jnp.full((M,), D)
     for _ in range(int(rounds)):
-        v = jnp.hypot(xs[:, 2], xs[:, 3])
-        target = peaks(lam, jnp.maximum(0.5 * (v[:-1] + v[1:]), 1.0))
+        target = peaks(scenario.table, xs)
         if best is not floor and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
             break
         for step in (1.0, 0.5, 0.25):  # the whole way to the new peaks, else part of it

@@ -479,6 +479,13 @@ def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_s
     return xs, us
 
 
+def stage_speeds(xs) -> Float[Array, " M"]:
+    """The speed $|v|$ [m/s] at the stages' midpoints of the plan ``xs`` (M+1, 9): the mean
+    of its knots', at least 1 m/s."""
+    v = jnp.hypot(xs[:, 2], xs[:, 3])
+    return jnp.maximum(0.5 * (v[:-1] + v[1:]), SPEED_FLOOR)
+
+
 def shift_plan(xs, us, distance, horizon):
     r"""The plan (knots (M+1, 9), controls (M, 3)) on a grid moved forward by ``distance``
     [m] (interpolated in $s$; past its end the last knot held, its time advanced at the
@@ -801,10 +808,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                          log_size=8)
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
-        """The speed $|v|$ [m/s] at the stages' midpoints of the plan ``xs`` (M+1, 9): the
-        mean of its knots', at least 1 m/s."""
-        v = jnp.hypot(xs[:, 2], xs[:, 3])
-        return jnp.maximum(0.5 * (v[:-1] + v[1:]), SPEED_FLOOR)
+        """`stage_speeds` of the plan ``xs``."""
+        return stage_speeds(xs)
 
     def _peaks(self, scale, speeds):
         r"""$\mu^*$ of `plant_tire` at the scale(s) and speeds (M,)."""
