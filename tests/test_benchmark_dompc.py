@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vehsim.drive.horizon import axle_slips
 from vehsim.optimal.curvilinear import _rk4_steps, spatial_rhs
 from vehsim.optimal.primitives import rally_gravel_car
 
@@ -48,3 +49,20 @@ def test_casadi_horizon_model_is_spatial_rhs():
                             jnp.asarray(u), h, jnp.asarray(k)[None])
         np.testing.assert_allclose(np.asarray(step).ravel(), np.asarray(ref),
                                    rtol=1e-10, atol=1e-12)
+
+
+def test_casadi_slip_bound_is_the_drivers():
+    """do-mpc's slip rows (`slip_excess`, <= 0 inside) are vehsim's combined slip
+    (`axle_slips`) bound: $(1 + \\kappa_i)^2V_{ix}^2(s_i^2 - \\ell^2)$ with vehsim's axle
+    velocities, at random states and bounds, so both controllers bound the same slip."""
+    X, _, _, D = _random_points(np.random.default_rng(1), 16)
+    limits = np.random.default_rng(2).uniform(0.05, 0.4, 16)
+    for x, d, lim in zip(X, D, limits):
+        car = rally_gravel_car(float(d))
+        xj = jnp.asarray(x)
+        VFx, _, VRx, _ = car.axle_velocities(jnp.concatenate([xj[:2] * 0, xj[1:5]]), xj[7])
+        s = np.asarray(axle_slips(car, xj))
+        Vx, k = np.array([VFx, VRx]), x[5:7]
+        got = np.array([float(e) for e in _dompc_driver.slip_excess(ca.DM(x), lim)])
+        np.testing.assert_allclose(got, (1 + k) ** 2 * Vx**2 * (s**2 - lim**2), rtol=1e-10,
+                                   atol=1e-10)

@@ -62,15 +62,22 @@ def _corridor(rd, x, y, eps):
     return cons
 
 
+def axle_velocities(vx, vy, r, d):
+    r"""$(V_{Fx}, V_{Fy}, V_{Rx}, V_{Ry})$: the axle centres' velocities in the wheel frames
+    (CasADi; the front's rotated by $-\delta$)."""
+    lF, lR = 1.3, 1.4
+    VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
+    VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
+    return VFx, VFy, vx, vy - lR * r
+
+
 def body_model(D, vx, vy, r, kF, kR, d):
     r"""The reduced half-car's body accelerations $(\dot v_x, \dot v_y, \dot r)$ and axle
     speeds $(V_{Fx}, V_{Rx})$ at the inputs $(\kappa_F, \kappa_R, \delta)$, in CasADi (the
     formulas of docs/maneuvers.md)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
     B, C = 7.0, 1.6
-    VFx = vx * ca.cos(d) + (vy + lF * r) * ca.sin(d)
-    VFy = -vx * ca.sin(d) + (vy + lF * r) * ca.cos(d)
-    VRx, VRy = vx, vy - lR * r
+    VFx, VFy, VRx, VRy = axle_velocities(vx, vy, r, d)
 
     def mu(kappa, Vx, Vy):
         sx = -kappa / (1 + kappa)

@@ -9,13 +9,16 @@ $u = d(\kappa_F, \kappa_R, \delta)/ds$. Everything that moves with the car's sta
 is a time-varying parameter (tvp) of each stage $k$: the curvature at the stage's RK4 points
 (``kap0``, ``kap1``, ``kap2``), the per-stage grip multiplier of the tire's $D$ (``grip``),
 the corridor at the node and at the stage's midpoint (``n_lo``, ``n_hi``, ``mid_lo``,
-``mid_hi``) and, on the last stage only (``last`` = 1), the corridor at the end node and the
+``mid_hi``), the bound on the axles' combined slip (``slip_max``, widened at a sliding start
+as vehsim's) and, on the last stage only (``last`` = 1), the corridor at the end node and the
 terminal speed bound (``end_lo``, ``end_hi``, ``speed_max``).
 
 Constraints (as `HorizonOCP`): the corridor at every node and at each stage's midpoint on the
 cubic Hermite interpolant of $n$ (as `CurvilinearManeuverOCP`), the axle speeds above the
 floor, the slips and the steering angle in their boxes, the steering rate
-$|u_\delta \dot s| \le$ the actuator's rate, and at $s_0 + H$ the corridor, the axle speeds,
+$|u_\delta \dot s| \le$ the actuator's rate, each axle's combined slip
+$\sqrt{\kappa_i^2 + (V_{iy}/V_{ix})^2}/(1 + \kappa_i) \le$ ``slip_max`` as vehsim's polynomial
+$\kappa_i^2V_{ix}^2 + V_{iy}^2 - \ell^2(1 + \kappa_i)^2V_{ix}^2 \le 0$, and at $s_0 + H$ the corridor, the axle speeds,
 the speed $|v| \le$ ``speed_max`` ($\beta\sqrt{D}\,v_1(s_0 + H)$), the sideslip
 $|v_y| \le \sigma v_x$ and the heading $|\xi| \le \xi_{max}$. Objective
 $t(H) + w\sum_k h|u_k|^2$.
@@ -33,13 +36,13 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-from _casadi_maneuver import body_model
+from _casadi_maneuver import axle_velocities, body_model
 
 
 STATES = ("n", "xi", "vx", "vy", "r", "kappa_F", "kappa_R", "delta", "t")
 INPUTS = ("rate_kappa_F", "rate_kappa_R", "rate_delta")
 TVP = ("kap0", "kap1", "kap2", "grip", "n_lo", "n_hi", "mid_lo", "mid_hi", "last",
-       "end_lo", "end_hi", "speed_max")
+       "end_lo", "end_hi", "speed_max", "slip_max")
 LF = 1.3
 """Distance [m] from the centre of gravity to the front axle (as `body_model`'s)."""
 FREE = 1e3
@@ -68,6 +71,14 @@ def rk4_step(X, v, kap, D, h):
     k3 = f(X + 0.5 * h * k2, kap[1])
     k4 = f(X + h * k3, kap[2])
     return X + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def slip_excess(X, limit):
+    r"""Both axles' $\kappa_i^2V_{ix}^2 + V_{iy}^2 - \ell^2(1 + \kappa_i)^2V_{ix}^2$ at the
+    state ``X`` (CasADi; $\le 0$: the combined slip within ``limit`` $\ell$)."""
+    VFx, VFy, VRx, VRy = axle_velocities(X[2], X[3], X[4], X[7])
+    return [k**2 * Vx**2 + Vy**2 - (limit * (1 + k)) ** 2 * Vx**2
+            for k, Vx, Vy in ((X[5], VFx, VFy), (X[6], VRx, VRy))]
 
 
 def horizon_model(H: float, M: int, D: float):
@@ -160,6 +171,8 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
         "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
         "floor_F": lim["SPEED_FLOOR"] - axles[0], "floor_R": lim["SPEED_FLOOR"] - axles[1],
         "steer_hi": v[2] * sdot - steer_rate, "steer_lo": -v[2] * sdot - steer_rate,
+        "slip_F": slip_excess(X, p["slip_max"])[0],
+        "slip_R": slip_excess(X, p["slip_max"])[1],
         # the end node, on the last stage only (elsewhere -FREE: never binds)
         "end_lo": last * (p["end_lo"] - n1) - (1 - last) * FREE,
         "end_hi": last * (n1 - p["end_hi"]) - (1 - last) * FREE,
@@ -189,11 +202,12 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     return mpc, set_horizon
 
 
-def tvp_table(curvature, grip, corridor, corridor_mid, speed_max) -> np.ndarray:
+def tvp_table(curvature, grip, corridor, corridor_mid, speed_max, slip_max=None) -> np.ndarray:
     """The (M + 1, len(TVP)) tvp rows of a sample from the horizon's arrays: ``curvature``
     (M, 3) at each stage's RK4 points, ``grip`` (M,), ``corridor`` (M + 1, 2) lower/upper n
     at the nodes, ``corridor_mid`` (M, 2) at the midpoints, ``speed_max`` the terminal
-    speed bound (the row M repeats row M - 1: do-mpc reads it only for the terminal cost)."""
+    speed bound, ``slip_max`` (M,) the slip bound of each stage's first knot (None: `FREE`,
+    no bound) (the row M repeats row M - 1: do-mpc reads it only for the terminal cost)."""
     kap = np.asarray(curvature, float)
     M = kap.shape[0]
     t = np.zeros((M + 1, len(TVP)))
@@ -204,6 +218,7 @@ def tvp_table(curvature, grip, corridor, corridor_mid, speed_max) -> np.ndarray:
     t[M - 1, 8] = 1.0
     t[:M, 9:11] = np.asarray(corridor, float)[M]
     t[:M, 11] = speed_max
+    t[:M, 12] = FREE if slip_max is None else np.asarray(slip_max, float)
     t[M] = t[M - 1]
     return t
 

@@ -3,8 +3,9 @@
 Both controllers solve the same horizon problem per sample (`vehsim.HorizonOCP`: the
 reduced half-car in arc length over H m in M stages, one RK4 step per stage, the corridor
 with its margin at the knots and the stages' midpoints, the node constraints, the steering
-rate, the terminal speed, sideslip and heading bounds, objective t(H) + w sum |u|^2 h;
-the driver's bound on the axles' combined slip is off, ``slip_limit=None``) and
+rate, the terminal speed, sideslip and heading bounds, the bound on the axles' combined
+slip, each stage's peak friction at the speed the previous plan drives it at, objective
+t(H) + w sum |u|^2 h; ``--no-slip-limit``: the driver's bound off in both) and
 drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "nominal")`
 (the `DrivePlant` with the lumped 2D LuGre tires on the gravel whose peak friction is the
 planner's D = 0.52, the actuators' delay, rate limit and lag, the sensors' noise of the same
@@ -79,6 +80,13 @@ def percentiles(times):
             "samples": int(t.size)}
 
 
+def arrays(prob):
+    """The arrays of the `HorizonOCP` ``prob`` that do-mpc's tvp table is made of
+    (`_dompc_driver.tvp_table`)."""
+    return (prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
+            prob.terminal_speed, prob.slip_limit)
+
+
 # ---- the do-mpc controller ----------------------------------------------------------------
 
 
@@ -105,18 +113,17 @@ class DompcDriver:
             terminal_heading=float(ocp.terminal_heading), tol=d.tol,
             max_iter=d.max_iterations, mu_init=float(d.barrier))
 
-        def prepare(s_prev, position, velocity, inputs, m):
+        def prepare(s_prev, position, velocity, inputs, m, xs, us, s_plan):
             position, velocity = d.filter_position(
                 SimpleNamespace(position=position, velocity=velocity), m)
             s, X5 = d._measured_state(m, position, s_prev)
             y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
                 if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
             state8 = jnp.concatenate([y[1:], inputs])
-            D = d.planner_friction(y[0], None, jnp.hypot(y[3], y[4]))
-            prob = d.problem(y[0], state8, D)
-            return s, position, velocity, y[0], state8, D, (
-                prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
-                prob.terminal_speed)
+            xs0, us0 = shift_plan(xs, us, y[0] - s_plan, d.horizon)
+            D = d.planner_friction(y[0], None, d.stage_speeds(xs0))
+            return s, position, velocity, y[0], state8, D, arrays(d.problem(y[0], state8, D)), (
+                xs0, us0)
 
         def finish(xs, us, D0, inputs_prev, m):
             inputs, torques = d.plan_command(xs, us, D0)
@@ -125,7 +132,6 @@ class DompcDriver:
 
         self._prepare = jax.jit(prepare)
         self._finish = jax.jit(finish)
-        self._shift = jax.jit(lambda xs, us, dist: shift_plan(xs, us, dist, d.horizon))
         self.make_step_times = []
         self.iterations = []
         self.success = []
@@ -160,10 +166,8 @@ class DompcDriver:
         calls of ``max_iter`` iterations; untimed, as vehsim's `init`)."""
         s, inputs, state8, prob, (xs0, us0) = self.first_problem(m)
         _dompc_driver.set_guess(self.mpc, xs0, us0)
-        arrays = (prob.curvature[:, 0], prob.grip, prob.corridor, prob.corridor_mid[:, 0],
-                  prob.terminal_speed)
         for _ in range(5):
-            xs, us = self._solve(state8, arrays)
+            xs, us = self._solve(state8, arrays(prob))
             if self.success[-1]:
                 break
         self.make_step_times.clear()
@@ -171,22 +175,20 @@ class DompcDriver:
         self.success.clear()
         # compile the jitted pieces now (vehsim's command is compiled before its loop too)
         position, velocity = jnp.stack([m.x, m.y]), self.driver._world_velocity(m)
-        jax.block_until_ready(self._prepare(s, position, velocity, inputs, m))
+        jax.block_until_ready(self._prepare(s, position, velocity, inputs, m, jnp.asarray(xs),
+                                            jnp.asarray(us), s))
         jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
                                            inputs, m))
-        if self.shift:
-            jax.block_until_ready(self._shift(jnp.asarray(xs), jnp.asarray(us), 0.0))
         return {"s": s, "position": position, "velocity": velocity, "s_plan": s,
                 "inputs": inputs, "xs": xs, "us": us}
 
     def command(self, cs, m):
-        s, position, velocity, s_pred, state8, D, arrays = self._prepare(
-            cs["s"], cs["position"], cs["velocity"], cs["inputs"], m)
+        s, position, velocity, s_pred, state8, D, data, (xs0, us0) = self._prepare(
+            cs["s"], cs["position"], cs["velocity"], cs["inputs"], m, jnp.asarray(cs["xs"]),
+            jnp.asarray(cs["us"]), cs["s_plan"])
         if self.shift:
-            xs0, us0 = self._shift(jnp.asarray(cs["xs"]), jnp.asarray(cs["us"]),
-                                   s_pred - cs["s_plan"])
             _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
-        xs, us = self._solve(state8, arrays)
+        xs, us = self._solve(state8, data)
         inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
         return {"s": s, "position": position, "velocity": velocity, "s_plan": s_pred,
                 "inputs": inputs, "xs": xs, "us": us}, command
@@ -249,6 +251,8 @@ def main(argv=None):
     ap.add_argument("--shift", action="store_true",
                     help="warm-start do-mpc from its plan shifted by the distance travelled "
                          "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
+    ap.add_argument("--no-slip-limit", action="store_true",
+                    help="plan without the bound on the axles' combined slip (both drivers)")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file")
     args = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
@@ -268,17 +272,16 @@ def main(argv=None):
 
     sizes = {k: v for k, v in (("horizon", args.horizon), ("num_stages", args.stages))
              if v is not None}
+    bound = {"slip_limit": None} if args.no_slip_limit else {}
     probe = vehsim.RecedingHorizonDriver(table=table, **sizes)
     H, M = float(probe.horizon), probe.num_stages
     common = dict(road=args.road, horizon_m=H, stages=M,
                   sample_time_s=SAMPLE_TIME, initial_speed=float(sc.start_speed),
-                  grip="nominal", seed=args.seed, samples_budget=num_samples)
+                  grip="nominal", seed=args.seed, samples_budget=num_samples,
+                  slip_limit=None if args.no_slip_limit else float(probe.slip_limit))
     results = {}
     for mode in args.modes.split(","):
-        # the stages' peaks at 20 m/s: D = 0.52 everywhere, as the do-mpc problem states it;
-        # no slip bound (the do-mpc problem has none)
-        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, peak_speed=20.0,
-                                              slip_limit=None, **sizes)
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes, **bound)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()
