@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import vehsim as vs
+from vehsim.drive.horizon import RELAX_STAGES
 
 
 pytestmark = pytest.mark.xdist_group("drive")
@@ -399,3 +400,22 @@ def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():
     assert float(limit(10.0)) == pytest.approx(0.6)
     assert np.isfinite(float(jax.grad(limit)(10.0)))
     assert np.isfinite(float(jax.jvp(limit, (10.0,), (1.0,))[1]))
+
+
+def test_slip_bound_widening_contracts_towards_the_bound():
+    """A start sliding above the bound (combined slip $s_0$ > 0.15): the fixed first knot
+    gets $s_0$ + 0.02, the next `RELAX_STAGES` - 1 knots the bound plus the excess fading
+    linearly, the rest the bound; every later knot's bound is below $s_0$, so a start read
+    from the last plan cannot creep the bound upwards sample after sample."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    state8 = jnp.array([0.0, 0.0, 10.0, 1.5, 0.0, 0.2, 0.1, 0.0])
+    s0 = float(jnp.max(vs.axle_slips(car, state8)))
+    assert s0 > 0.2
+    prob = vs.horizon_problem(table, car, 0.0, state8, jnp.full(6, 0.52), horizon=30.0,
+                              slip_limit=0.15)
+    fade = 1.0 - np.arange(6) / RELAX_STAGES
+    expect = 0.15 + (s0 - 0.15) * np.clip(fade, 0.0, 1.0)
+    expect[0] += 0.02
+    np.testing.assert_allclose(np.asarray(prob.slip_limit), expect, rtol=1e-12)
+    assert np.all(np.asarray(prob.slip_limit)[1:] < s0)

@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_positive
+from .._checks import check_positive, check_range
 from .._fields import array_field, float_array
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
@@ -416,8 +416,10 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     feasible), terminal bound $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with
     $\beta$ = ``terminal_backoff``, `grip` = ``D_per_stage`` / the vehicle's $D$;
     ``slip_limit`` (None: no bound) the bound on the axles' combined slip, widened over the
-    first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it plus
-    0.02."""
+    first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it (plus
+    0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
+    start, read from the last plan between its first two knots, crept up to the bound
+    plus twice the slack)."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -438,8 +440,9 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     slips = None
     if slip_limit is not None:
         limit = jnp.asarray(slip_limit, float)
-        over = jnp.maximum(jnp.max(axle_slips(vehicle, state8)) + 0.02 - limit, 0.0)
-        slips = limit + over * fade(s_nodes[:-1])
+        over = jnp.maximum(jnp.max(axle_slips(vehicle, state8)) - limit, 0.0)
+        slack = jnp.where(jnp.arange(M) == 0, jnp.where(over > 0, 0.02, 0.0), 0.0)
+        slips = limit + over * fade(s_nodes[:-1]) + slack
     return HorizonOCP(
         vehicle=vehicle, length=jnp.asarray(horizon, float), curvature=kap, corridor=nodes,
         corridor_mid=mids[:, None, :], corridor_steps=jnp.zeros((M, 0, 2)),
@@ -680,7 +683,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     stated at; `REFERENCE_SPEED`, 20), `peak_speed` (static; None: each stage's planned
     speed, below; a number [m/s]: that speed for every stage, a planner whose $D$ does not
     depend on its speed), `slip_limit` (0.15; None: no bound) the bound on each axle's
-    combined slip in the plans (`horizon_problem`).
+    combined slip in the plans (`horizon_problem`), `peak_fraction` (in (0, 1]; 1) the
+    fraction of the believed peak the plans use (a margin for what the planning model gets
+    wrong: the plant's force at the planned slips, the loads' dynamics).
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -750,6 +755,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     peak_speed: float | None = eqx.field(static=True, default=None)
     slip_limit: Float[Array, ""] | None = eqx.field(
         default=0.15, converter=lambda x: None if x is None else float_array(x))
+    peak_fraction: Float[Array, ""] = array_field(default=1.0)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -771,6 +777,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                      "terminal_backoff", "mu0", "reference_speed", "slip_limit"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
+        check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
+                    upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
             raise TypeError("RecedingHorizonDriver.plant_tire must be a LumpedLuGre2D, got "
                             f"{type(self.plant_tire).__name__}")
@@ -836,7 +844,11 @@ class RecedingHorizonDriver(AbstractDriveController):
 
     def planner_friction(self, s0, estimate, speeds) -> Float[Array, " M"]:
         """The stages' peak friction $D_k$ for the horizon starting at ``s0``, the stages
-        driven at ``speeds`` [m/s] (M,) (class docstring; `peak_speed` overrides them)."""
+        driven at ``speeds`` [m/s] (M,) (class docstring; `peak_speed` overrides them):
+        `peak_fraction` of the believed peak."""
+        return self.peak_fraction * self._believed_peaks(s0, estimate, speeds)
+
+    def _believed_peaks(self, s0, estimate, speeds):
         M = self.num_stages
         V = self._stage_speed(speeds)
         if self.friction == "nominal":
