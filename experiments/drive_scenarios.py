@@ -91,7 +91,8 @@ def make_driver(kind: str, sc, reference):
     friction = kind.split("-")[1]
     driver = vs.RecedingHorizonDriver(table=sc.table, friction=friction,
                                       sample_time=act.sample_time,
-                                      delay_samples=int(act.delay_samples()[0]))
+                                      delay_samples=int(act.delay_samples()[0]),
+                                      **vs.driver_settings(sc.road.name))
     estimator = (vs.driver_estimator()
                  if friction == "estimate" else None)
     return driver, estimator
@@ -175,6 +176,8 @@ def scenario_table(args):
                         kind, sc, reference, args.seed)
                     rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
                                num_samples=sc.num_samples, **rec)
+                    if kind.startswith("rh-"):
+                        rec["driver_settings"] = vs.driver_settings(road)
                     rec.setdefault("wall_s", time.perf_counter() - t0)
                     rows.append(rec)
                     f.write(json.dumps(rec) + "\n")

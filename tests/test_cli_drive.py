@@ -295,3 +295,22 @@ def test_trace_truth_and_planned_horizon(small_run):
     head = drive_trace(road, run, plant, upto=5)  # up to the end gate, say
     for key, value in head.items():
         np.testing.assert_array_equal(value, tr[key][:5], err_msg=key)
+
+
+@pytest.mark.parametrize("road, expect", [("stage", vs.FAST_ROAD_DRIVER), ("sturn", {})])
+def test_drive_builds_the_scenarios_driver_settings(road, expect):
+    """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
+    passes and a margin on the fast stage, the defaults on the corners), built without
+    compiling anything."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import _check
+
+    args = cli.build_parser().parse_args(["drive", "--road", road])
+    _check(args)
+    sc = setup.scenario(args, setup.road(args))
+    driver, estimator = setup.controller(args, sc)
+    default = vs.RecedingHorizonDriver(table=sc.table)
+    want = {"iterations": default.iterations, "peak_fraction": 1.0} | expect
+    assert driver.iterations == want["iterations"]
+    assert float(driver.peak_fraction) == want["peak_fraction"]
+    assert estimator is not None  # the default controller: the estimate

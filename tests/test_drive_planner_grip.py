@@ -94,6 +94,10 @@ def test_nominal_and_oracle_plan_with_the_peak_at_each_stages_speed(table):
     x, y = ROAD.position(2.0 + 4.0 * (np.arange(6) + 0.5))
     lam = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
     np.testing.assert_allclose(D, peak_by_scan(lam, SPEEDS), rtol=2e-3)
+    # `peak_fraction`: that fraction of the believed peak, stage by stage
+    tight = _driver(table.with_grip(field), "oracle", peak_fraction=0.9)
+    np.testing.assert_allclose(np.asarray(tight.planner_friction(2.0, None, SPEEDS)), 0.9 * D,
+                               rtol=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -429,11 +429,13 @@ from .drive.plant import (
     measure_drive as measure_drive,
 )
 from .drive.scenarios import (
+    FAST_ROAD_DRIVER as FAST_ROAD_DRIVER,
     DriveScenario as DriveScenario,
     PatchedProfile as PatchedProfile,
     ScenarioGrip as ScenarioGrip,
     drive_scenario as drive_scenario,
     driver_estimator as driver_estimator,
+    driver_settings as driver_settings,
     main_corner as main_corner,
     nominal_scale as nominal_scale,
     plant_peak as plant_peak,

@@ -100,7 +100,7 @@ def controller(args, sc):
     its prior), the nominal friction or the true grip along the horizon (the oracle); or
     the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
     from ..drive.horizon import RecedingHorizonDriver
-    from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator
+    from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator, driver_settings
 
     act = sc.plant.actuators
     if args.controller in ("tracking", "open-loop"):
@@ -121,7 +121,8 @@ def controller(args, sc):
         args.controller]
     driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
-                                   delay_samples=int(act.delay_samples()[0]))
+                                   delay_samples=int(act.delay_samples()[0]),
+                                   **driver_settings(None if args.road_file else args.road))
     estimator = driver_estimator() if friction == "estimate" else None
     return driver, estimator
 
