@@ -116,3 +116,21 @@ def test_counts_a_sample_by_the_peak_at_its_speed():
             assert np.all(np.asarray(state.gain) != 0.0)
         else:
             assert np.all(used == 0.0) and np.all(np.asarray(state.gain) == 0.0)
+
+
+def test_sliding_samples_teach_a_road_below_the_gate(drive):
+    """A prior of twice the road's grip and a gate of 70 % of the believed peak: braking
+    pulses sized for the believed road slide the wheels, and the axles never use 70 % of
+    the believed peak, so the gate alone learns nothing; counting the samples whose slip
+    passes `sliding_slip` (0.1) takes the estimate to the road."""
+    road, pulses = _road(0.5), _pulses(-3500.0)
+    gated = drive(road, pulses, vs.AxleGripEstimator(min_utilisation=0.7))
+    np.testing.assert_allclose(np.asarray(gated.estimates.scale), 1.0, atol=1e-6)
+    sliding = drive(road, pulses, vs.AxleGripEstimator(min_utilisation=0.7, sliding_slip=0.1))
+    scale = np.asarray(sliding.estimates.scale)
+    np.testing.assert_allclose(scale[-5:], 0.5, rtol=0.15)
+    # on the road it believes, the sliding samples do not bias it
+    right = drive(_road(1.0), pulses, vs.AxleGripEstimator(min_utilisation=0.7,
+                                                           sliding_slip=0.1))
+    late = np.asarray(right.measurements.t) >= 1.5
+    np.testing.assert_allclose(np.asarray(right.estimates.scale)[late], 1.0, rtol=0.15)

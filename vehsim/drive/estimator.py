@@ -61,7 +61,10 @@ where the axle uses at least `min_utilisation` of the estimated peak at the samp
 at least `min_speed`): below, the model's slip comes from noisy velocities and is biased
 upwards (the norm of a noise), so that small-slip data, informative or not, would pull the
 estimate down. So it **needs** an axle using at least half of its peak: braking or driving
-near the limit, or cornering near it. **Without excitation** (straight, constant speed;
+near the limit, or cornering near it. A road much worse than believed never gives that
+fraction of the believed peak; with `sliding_slip` set, a sample also counts where the
+axle slides (combined slip at least `sliding_slip`, far past the peak's few percent, where
+the noise's upward bias of the slip is small against the slip itself). **Without excitation** (straight, constant speed;
 slips small; or a driver that keeps well below the peak) the estimate holds its prior or
 last value, and its variance grows by forgetting up to $P_{max}$ (the belief widens to the
 cap, never further): it does not drift, but it does not learn that the road is better than
@@ -88,7 +91,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_positive, check_range
-from .._fields import array_field
+from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_norm
 from ..tire.lugre2d import decay_rates
 from ..tire.lumped2d import LumpedLuGre2D
@@ -213,7 +216,11 @@ class AxleGripEstimator(AbstractGripEstimator):
     `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
     (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
     `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
-    at least this fraction of the estimated peak at its speed), `omega_eps` [rad/s] (the plant's brake
+    at least this fraction of the estimated peak at its speed), `sliding_slip` (None: off;
+    a number: a sample also counts where the axle's combined slip $\|v_r\|/\|V\|$ is at
+    least this, sliding far past the peak's few percent, whatever friction it uses: on a
+    road much worse than believed the axles never reach the gate, but they slide),
+    `omega_eps` [rad/s] (the plant's brake
     smoothing, 0.5), the change detector's
     `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
     `reference_speed` [m/s] of the reported peak (`REFERENCE_SPEED`, 20), `dynamic_loads` (True: the
@@ -232,6 +239,8 @@ class AxleGripEstimator(AbstractGripEstimator):
     scale_max: Float[Array, ""] = array_field(default=3.0)
     min_speed: Float[Array, ""] = array_field(default=3.0)
     min_utilisation: Float[Array, ""] = array_field(default=0.5)
+    sliding_slip: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
     omega_eps: Float[Array, ""] = array_field(default=0.5)
     change_drift: Float[Array, ""] = array_field(default=10.0)
     change_threshold: Float[Array, ""] = array_field(default=80.0)
@@ -248,6 +257,8 @@ class AxleGripEstimator(AbstractGripEstimator):
                      "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
                      "omega_eps", "change_drift", "change_threshold", "reference_speed"):
             check_positive(owner, name, getattr(self, name))
+        if self.sliding_slip is not None:
+            check_positive(owner, "sliding_slip", self.sliding_slip)
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
 
@@ -345,8 +356,11 @@ class AxleGripEstimator(AbstractGripEstimator):
                        (jnp.ones(2),))
         speed = jnp.maximum(0.5 * (m.speed + state.last.speed), self.min_speed)
         peak = jax.vmap(lambda th: self.peak(jnp.exp(th), speed))(state.log_scale)
+        informative = mu >= self.min_utilisation * peak
+        if self.sliding_slip is not None:  # or sliding far past the believed peak's slip
+            informative = informative | (slip >= self.sliding_slip)
         valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
-            m.t > state.last.t) & (mu >= self.min_utilisation * peak)
+            m.t > state.last.t) & informative
         # a braked wheel near lock: its brake torque is not what it transmits (tanh model
         # within the wheel-speed noise of its lock speed): no force measured
         locked = jnp.minimum(jnp.abs(state.last.omega), jnp.abs(m.omega)) < 5 * self.omega_eps
