@@ -313,4 +313,5 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect):
     want = {"iterations": default.iterations, "peak_fraction": 1.0} | expect
     assert driver.iterations == want["iterations"]
     assert float(driver.peak_fraction) == want["peak_fraction"]
-    assert estimator is not None  # the default controller: the estimate
+    # the default controller: the estimate, with the scenarios' gate and sliding samples
+    assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
