@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vehsim.drive.horizon import axle_slips
+from vehsim.drive.horizon import _slip_parts, axle_slips
 from vehsim.optimal.curvilinear import _rk4_steps, spatial_rhs
 from vehsim.optimal.primitives import rally_gravel_car
 
@@ -59,10 +59,8 @@ def test_casadi_slip_bound_is_the_drivers():
     limits = np.random.default_rng(2).uniform(0.05, 0.4, 16)
     for x, d, lim in zip(X, D, limits):
         car = rally_gravel_car(float(d))
-        xj = jnp.asarray(x)
-        VFx, _, VRx, _ = car.axle_velocities(jnp.concatenate([xj[:2] * 0, xj[1:5]]), xj[7])
-        s = np.asarray(axle_slips(car, xj))
-        Vx, k = np.array([VFx, VRx]), x[5:7]
+        k, Vx, _ = (np.asarray(a) for a in _slip_parts(car, jnp.asarray(x)))
+        s = np.asarray(axle_slips(car, jnp.asarray(x)))
         got = np.array([float(e) for e in _dompc_driver.slip_excess(ca.DM(x), lim)])
         np.testing.assert_allclose(got, (1 + k) ** 2 * Vx**2 * (s**2 - lim**2), rtol=1e-10,
                                    atol=1e-10)

@@ -166,13 +166,13 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     n_mid = 0.5 * (n0 + n1) + h / 8 * (slope(X, p["kap0"]) - slope(nxt, p["kap2"]))
     _, axles1, _ = spatial_rate(nxt, v, p["kap2"], 1.0)
     last = p["last"]
+    slips = slip_excess(X, p["slip_max"])
     cons = {  # name: expression <= 0
         "node_lo": p["n_lo"] - n0, "node_hi": n0 - p["n_hi"],
         "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
         "floor_F": lim["SPEED_FLOOR"] - axles[0], "floor_R": lim["SPEED_FLOOR"] - axles[1],
         "steer_hi": v[2] * sdot - steer_rate, "steer_lo": -v[2] * sdot - steer_rate,
-        "slip_F": slip_excess(X, p["slip_max"])[0],
-        "slip_R": slip_excess(X, p["slip_max"])[1],
+        "slip_F": slips[0], "slip_R": slips[1],
         # the end node, on the last stage only (elsewhere -FREE: never binds)
         "end_lo": last * (p["end_lo"] - n1) - (1 - last) * FREE,
         "end_hi": last * (n1 - p["end_hi"]) - (1 - last) * FREE,

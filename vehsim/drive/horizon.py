@@ -441,8 +441,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     if slip_limit is not None:
         limit = jnp.asarray(slip_limit, float)
         over = jnp.maximum(jnp.max(axle_slips(vehicle, state8)) - limit, 0.0)
-        slack = jnp.where(jnp.arange(M) == 0, jnp.where(over > 0, 0.02, 0.0), 0.0)
-        slips = limit + over * fade(s_nodes[:-1]) + slack
+        slips = (limit + over * fade(s_nodes[:-1])).at[0].add(jnp.where(over > 0, 0.02, 0.0))
     return HorizonOCP(
         vehicle=vehicle, length=jnp.asarray(horizon, float), curvature=kap, corridor=nodes,
         corridor_mid=mids[:, None, :], corridor_steps=jnp.zeros((M, 0, 2)),
