@@ -419,3 +419,17 @@ def test_slip_bound_widening_contracts_towards_the_bound():
     expect[0] += 0.02
     np.testing.assert_allclose(np.asarray(prob.slip_limit), expect, rtol=1e-12)
     assert np.all(np.asarray(prob.slip_limit)[1:] < s0)
+
+
+def test_driver_passes_its_hessian_update_to_the_sample_solves():
+    """`RecedingHorizonDriver.hessian_update` reaches the options of every sample's solve
+    (not the first plan's, solved to convergence by Newton's method) and an unknown value is
+    refused naming the field."""
+    road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 4.0)
+    table = vs.RoadTable.from_road(road)
+    frozen = vs.RecedingHorizonDriver(table, hessian_update="first")
+    assert frozen.options().hessian_update == "first"
+    assert frozen.options(first=True).hessian_update == "every"
+    assert vs.RecedingHorizonDriver(table).options().hessian_update == "every"
+    with pytest.raises(ValueError, match="RecedingHorizonDriver.hessian_update must be"):
+        vs.RecedingHorizonDriver(table, hessian_update="never")

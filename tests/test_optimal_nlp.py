@@ -386,6 +386,49 @@ def test_stage_hessians_are_the_blocks_of_the_whole_lagrangian_hessian():
                                    rtol=0, atol=1e-8 * scale, err_msg=hessian)
 
 
+def test_stage_jacobians_are_those_of_the_full_derivatives():
+    """`stage_jacobians` (values and Jacobians, no Hessian) gives the values and Jacobians
+    of `stage_derivatives` at a random point of the maneuver NLP, and a zero Hessian."""
+    from vehsim.optimal.ip.derivatives import stage_derivatives, stage_jacobians
+    from vehsim.optimal.ip.problem import stage_layout
+    from vehsim.optimal.primitives import rally_gravel_car
+    from vehsim.optimal.roads import road
+    from vehsim.optimal.shooting import ManeuverOCP
+
+    M = 3
+    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=M,
+                       steps_per_stage=2)
+    lay = stage_layout(prob)
+    mk = lay.masks()
+    k1, k2, k3, k4 = jax.random.split(jax.random.PRNGKey(3), 4)
+    base = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, 0.08, 0.1, 3.5, 0.5, -0.2, 0.3])
+    ys = (base[None] + 0.1 * jax.random.normal(k1, (M + 1, lay.ny))) * mk.y
+    lam = jax.random.normal(k2, (M + 1, lay.nx)) * mk.lam
+    nu = jax.random.normal(k3, (M + 1, lay.ne)) * mk.eq
+    z = jnp.abs(jax.random.normal(k4, (M + 1, lay.ng))) * mk.g
+    full = eqx.filter_jit(stage_derivatives)(prob, lay, ys, lam, nu, z)
+    jac = eqx.filter_jit(stage_jacobians)(prob, lay, ys)
+    for name in ("objective", "c", "e", "g", "grad_f", "A", "Je", "Jg"):
+        want = np.asarray(getattr(full, name))
+        assert np.max(np.abs(want)) > 0, name
+        np.testing.assert_allclose(np.asarray(getattr(jac, name)), want, rtol=1e-12,
+                                   atol=1e-12 * np.max(np.abs(want)), err_msg=name)
+    assert np.max(np.abs(np.asarray(full.H))) > 1.0 and not np.any(np.asarray(jac.H))
+
+
+def test_frozen_hessian_reaches_the_same_optimum_linearly(bang_bang):
+    """``hessian_update='first'`` keeps the first pass's Hessian: the fixed point is still
+    the KKT point (the analytic bang-bang time), in more passes than Newton's; it refuses
+    an unknown update."""
+    prob, sol = bang_bang
+    frozen = interior_point(prob, *_guess(prob.num_stages),
+                            IPOptions(hessian_update="first", max_iter=300))
+    assert float(frozen.xs[-1, 4]) == pytest.approx(2 * np.sqrt(10.0 / 5.0), abs=1e-6)
+    assert int(frozen.iterations) > int(sol.iterations)
+    with pytest.raises(ValueError, match="IPOptions.hessian_update must be one of"):
+        IPOptions(hessian_update="never")
+
+
 def test_one_rk4_step_without_the_loop_is_the_looped_step():
     """A segment of one RK4 step skips the loop over steps: its end state and Jacobian equal
     the first step of a looped two-step segment (to rounding)."""

@@ -684,7 +684,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     depend on its speed), `slip_limit` (0.15; None: no bound) the bound on each axle's
     combined slip in the plans (`horizon_problem`), `peak_fraction` (in (0, 1]; 1) the
     fraction of the believed peak the plans use (a margin for what the planning model gets
-    wrong: the plant's force at the planned slips, the loads' dynamics).
+    wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
+    (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
+    sample's first step's Hessian kept for its later passes, which then cost about a third).
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -755,6 +757,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     slip_limit: Float[Array, ""] | None = eqx.field(
         default=0.15, converter=lambda x: None if x is None else float_array(x))
     peak_fraction: Float[Array, ""] = array_field(default=1.0)
+    hessian_update: str = eqx.field(static=True, default="every")
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -763,6 +766,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.warm_start not in (None, "primal", "primal-dual"):
             raise ValueError("RecedingHorizonDriver.warm_start must be 'primal' or "
                              f"'primal-dual', got {self.warm_start!r}")
+        if self.hessian_update not in ("every", "first"):
+            raise ValueError("RecedingHorizonDriver.hessian_update must be 'every' or 'first', "
+                             f"got {self.hessian_update!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")
@@ -812,7 +818,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                              log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
         return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
-                         log_size=8)
+                         log_size=8, hessian_update=self.hessian_update)
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
         """`stage_speeds` of the plan ``xs``."""

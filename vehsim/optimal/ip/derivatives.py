@@ -77,6 +77,32 @@ def _forward_over_reverse(vec, y, k, w):
     return V, J, H
 
 
+def stage_jacobians(
+    prob: AbstractStagewiseNLP, lay: StageLayout, ys: Float[Array, "M+1 ny"]
+) -> StageDerivatives:
+    """Values and Jacobians of every stage, no Hessian (``H`` zero): one forward pass with
+    $n_y$ tangents per stage, about a fifth of `stage_derivatives`. Enough for the KKT
+    residuals and the least-squares multipliers, which do not involve the Hessian."""
+    masks = lay.masks()
+    vec = stage_function(prob, lay)
+
+    def one(y, k):
+        return jax.jacfwd(lambda yy: (vec(yy, k), vec(yy, k)), has_aux=True)(y)
+
+    J, V = jax.vmap(one)(ys, jnp.arange(lay.M + 1))
+    return _assemble(lay, masks, ys, V, J, jnp.zeros((lay.M + 1, lay.ny, lay.ny)))
+
+
+def _assemble(lay: StageLayout, masks, ys, V, J, H) -> StageDerivatives:
+    f, F, e, g = lay.split(V)
+    _, J_F, J_e, J_g = lay.split(J)
+    return StageDerivatives(
+        objective=jnp.sum(f), c=_defects(lay, ys, F), e=e * masks.eq, g=g, grad_f=J[:, 0],
+        A=J_F * masks.lam[:, :, None], Je=J_e * masks.eq[:, :, None],
+        Jg=J_g * masks.g[:, :, None], H=H,
+    )
+
+
 def stage_derivatives(
     prob: AbstractStagewiseNLP,
     lay: StageLayout,
@@ -100,11 +126,4 @@ def stage_derivatives(
         H = jnp.einsum("ko,koij->kij", w, T)
     else:
         V, J, H = jax.vmap(lambda y, k, ww: _forward_over_reverse(vec, y, k, ww))(ys, ks, w)
-    H = 0.5 * (H + jnp.swapaxes(H, 1, 2))
-    f, F, e, g = lay.split(V)
-    _, J_F, J_e, J_g = lay.split(J)
-    return StageDerivatives(
-        objective=jnp.sum(f), c=_defects(lay, ys, F), e=e * masks.eq, g=g, grad_f=J[:, 0],
-        A=J_F * masks.lam[:, :, None], Je=J_e * masks.eq[:, :, None],
-        Jg=J_g * masks.g[:, :, None], H=H,
-    )
+    return _assemble(lay, masks, ys, V, J, 0.5 * (H + jnp.swapaxes(H, 1, 2)))

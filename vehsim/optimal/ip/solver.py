@@ -42,7 +42,7 @@ from ..._checks import is_concrete
 from ..._fields import array_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
-from .derivatives import stage_derivatives, stage_values
+from .derivatives import stage_derivatives, stage_jacobians, stage_values
 from .implicit import implicit_solve
 from .kkt import (
     Iterate,
@@ -73,7 +73,12 @@ class IPOptions(eqx.Module):
     largest constraint violation at convergence; ``max_iter``; ``log_size``: length of the
     iteration log; ``hessian``: 'forward-over-reverse' (the Hessian of the weighted stage
     Lagrangian only; the default) or 'forward-over-forward' (every per-output Hessian, then
-    weighted); ``mu0``: initial barrier (small for warm starts); ``multiplier_init``:
+    weighted); ``hessian_update``: 'every' (the Hessian of the Lagrangian at every
+    iterate: Newton's method) or 'first' (the Hessian of the first step kept for the
+    later passes, whose values and Jacobians are fresh: the limit is still a KKT point,
+    reached linearly rather than quadratically, and such a pass costs about a third; for
+    real-time iterations of a few passes from a close warm start); ``mu0``: initial
+    barrier (small for warm starts); ``multiplier_init``:
     'least-squares' (the defect and equality multipliers that minimise the first Lagrangian
     gradient, IPOPT's default) or 'zero'; ``bound_multiplier_init``: 'constant' ($z = 1$,
     IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
@@ -88,6 +93,7 @@ class IPOptions(eqx.Module):
     max_iter: Int[Array, ""] = int_field(default=300)
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
+    hessian_update: str = eqx.field(static=True, default="every")
     mu0: Float[Array, ""] = array_field(default=0.1)
     multiplier_init: str = eqx.field(static=True, default="least-squares")
     bound_multiplier_init: str = eqx.field(static=True, default="mu-based")
@@ -97,7 +103,8 @@ class IPOptions(eqx.Module):
     def __check_init__(self):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
                               ("bound_multiplier_init", ("constant", "mu-based")),
-                              ("hessian", ("forward-over-reverse", "forward-over-forward"))):
+                              ("hessian", ("forward-over-reverse", "forward-over-forward")),
+                              ("hessian_update", ("every", "first"))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
@@ -166,12 +173,14 @@ class IPSolution(eqx.Module):
 
 
 class IPState(eqx.Module):
-    """The loop state: the ``iterate``, barrier ``mu``, the last nonzero regularisation
+    """The loop state: the ``iterate``, the stage Lagrangian ``hessian`` of the last pass
+    that took it (kept by ``hessian_update='first'``), barrier ``mu``, the last nonzero regularisation
     ``delta_last``, the line-search ``filter``, the ``iteration`` count, ``done``, the
     ``result`` so far, and the ``objective`` and ``residuals`` at the iterate (from the last
     pass), with the ``log``."""
 
     iterate: Iterate
+    hessian: Float[Array, "M+1 ny ny"]
     mu: Float[Array, ""]
     delta_last: Float[Array, ""]
     filter: Filter
@@ -346,10 +355,17 @@ def _raise_if_failed(sol: IPSolution) -> IPSolution:
 def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
            multipliers=None) -> IPSolution:
     lay = stage_layout(prob)
+    state = _initial_state(prob, lay, xs0, us0, options, multipliers)
+    if options.hessian_update == "first":
+        # the passes until the first step take the Hessian (a least-squares start's setup
+        # pass, then the first step), the later ones keep it: Jacobians only
+        taking = lambda st: (~st.done) & (st.iteration < options.max_iter) & (st.iteration == 0)
+        state = jax.lax.while_loop(taking, lambda st: _iteration(prob, lay, options, st), state)
     state = jax.lax.while_loop(
         lambda st: (~st.done) & (st.iteration < options.max_iter),
-        lambda st: _iteration(prob, lay, options, st),
-        _initial_state(prob, lay, xs0, us0, options, multipliers),
+        lambda st: _iteration(prob, lay, options, st,
+                              frozen=options.hessian_update == "first"),
+        state,
     )
     it = state.iterate
     # the residuals were evaluated at the returned iterate (no step is taken on the last pass)
@@ -394,7 +410,8 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
     iterate = Iterate(ys=ys, s=s, z=z, lam=lam, nu=nu)
     inf = jnp.asarray(jnp.inf)
     state = IPState(
-        iterate=iterate, mu=jnp.asarray(mu0), delta_last=jnp.asarray(0.0),
+        iterate=iterate, hessian=jnp.zeros((lay.M + 1, lay.ny, lay.ny)), mu=jnp.asarray(mu0),
+        delta_last=jnp.asarray(0.0),
         filter=Filter.initial(constraint_violation(c0, e0, g0, s, mg)),
         iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
         multipliers_ready=jnp.asarray(options.multiplier_init == "zero") | warm,
@@ -406,13 +423,18 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
     return strong(state)
 
 
-def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
+def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
+               frozen: bool = False) -> IPState:
     """One pass: test convergence at the iterate, update the barrier, step. The first pass
     of a least-squares start only sets the multipliers (the same derivatives and KKT
-    factorisation, no step, not counted)."""
+    factorisation, no step, not counted). ``frozen``: the Hessian of the state, only the
+    values and Jacobians evaluated."""
     it = st.iterate
     setup = ~st.multipliers_ready
-    d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
+    if frozen:
+        d = eqx.tree_at(lambda d: d.H, stage_jacobians(prob, lay, it.ys), st.hessian)
+    else:
+        d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
     res = kkt_residuals(lay, it, d)
     converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol) & ~setup
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
@@ -446,7 +468,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPSta
     hold = converged | ~finite | (st.iteration == options.max_iter - 1) & ~setup
     return IPState(
         iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
-        mu=mu, delta_last=jnp.where((step.delta > 0) & ~setup, step.delta, st.delta_last),
+        hessian=d.H, mu=mu, delta_last=jnp.where((step.delta > 0) & ~setup, step.delta, st.delta_last),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
         iteration=st.iteration + jnp.where(converged | setup, 0, 1), done=converged | ~finite,
         result=RESULTS.where(converged, RESULTS.successful,
