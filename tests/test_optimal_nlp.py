@@ -531,3 +531,28 @@ def test_warm_start_of_the_multipliers(bang_bang):
     cold = interior_point(prob, xs0, us0, multipliers=(sol.lam, sol.nu, 0.0 * sol.z))
     np.testing.assert_allclose(np.asarray(cold.xs), np.asarray(sol.xs), rtol=0, atol=1e-12)
     assert int(cold.iterations) == int(sol.iterations)
+
+
+def test_a_step_without_newton_direction_reestimates_the_multipliers(bang_bang, monkeypatch):
+    """A pass whose inertia correction needed more than `DELTA_RESET` (forced here: the
+    Newton step reports 1e10) leaves the next pass to re-estimate the defect and equality
+    multipliers by least squares, with the regularisation restarted; an ordinary pass
+    does neither."""
+    from vehsim.optimal.ip import solver
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, _ = bang_bang
+    lay = stage_layout(prob)
+    opts = IPOptions()
+    st = solver._initial_state(prob, lay, *_guess(prob.num_stages), opts)
+    st = solver._iteration(prob, lay, opts, st)  # the least-squares setup pass
+    assert bool(st.multipliers_ready)
+    ordinary = solver._iteration(prob, lay, opts, st)
+    assert bool(ordinary.multipliers_ready) and float(ordinary.delta_last) < solver.DELTA_RESET
+    newton = solver.newton_step
+    monkeypatch.setattr(solver, "newton_step", lambda *a, **k: eqx.tree_at(
+        lambda n: n.delta, newton(*a, **k), jnp.asarray(1e10)))
+    forced = solver._iteration(prob, lay, opts, st)
+    assert not bool(forced.multipliers_ready) and float(forced.delta_last) == 0.0
+    again = solver._iteration(prob, lay, opts, forced)  # the setup pass: no step counted
+    assert int(again.iteration) == int(forced.iteration)

@@ -817,8 +817,10 @@ class RecedingHorizonDriver(AbstractDriveController):
             return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
                              log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
+        # a real-time iteration does a fixed work per sample: no uncounted re-estimates
         return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
-                         log_size=8, hessian_update=self.hessian_update)
+                         log_size=8, hessian_update=self.hessian_update,
+                         reestimate_multipliers=self.mode == "converged")
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
         """`stage_speeds` of the plan ``xs``."""

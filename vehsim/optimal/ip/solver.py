@@ -54,7 +54,13 @@ from .kkt import (
     newton_step,
     second_order_correction,
 )
-from .linesearch import Filter, constraint_violation, filter_line_search, fraction_to_boundary
+from .linesearch import (
+    MAX_TRIALS,
+    Filter,
+    constraint_violation,
+    filter_line_search,
+    fraction_to_boundary,
+)
 from .problem import AbstractStagewiseNLP, StageLayout, stage_layout
 
 
@@ -64,6 +70,9 @@ TAU_MIN = 0.99
 """Smallest fraction-to-boundary parameter $\\tau$."""
 MU_DECREASE, MU_POWER, MU_TEST = 0.2, 1.5, 10.0
 """Barrier update: $\\mu \\leftarrow \\min(0.2\\mu, \\mu^{1.5})$ once $E_\\mu \\le 10\\mu$."""
+DELTA_RESET = 1e8
+"""A step that needed a larger primal regularisation (or a failed line search) re-estimates
+the defect and equality multipliers by least squares on the next pass."""
 INITIAL_SLACK = 1e-2
 """Initial slacks are at least $\\min(10^{-2}, 10\\mu_0)$."""
 
@@ -78,7 +87,11 @@ class IPOptions(eqx.Module):
     later passes, whose values and Jacobians are fresh: the limit is still a KKT point,
     reached linearly rather than quadratically, and such a pass costs about a third; for
     real-time iterations of a few passes from a close warm start); ``mu0``: initial
-    barrier (small for warm starts); ``multiplier_init``:
+    barrier (small for warm starts); ``reestimate_multipliers``: after a pass whose line
+    search failed or whose regularisation exceeded `DELTA_RESET` (multipliers running
+    away), the next pass re-estimates $(\\lambda, \\nu)$ by least squares (one more
+    factorisation, not counted as an iteration; off for a fixed work per solve);
+    ``multiplier_init``:
     'least-squares' (the defect and equality multipliers that minimise the first Lagrangian
     gradient, IPOPT's default) or 'zero'; ``bound_multiplier_init``: 'constant' ($z = 1$,
     IPOPT's default) or 'mu-based' ($z = \\mu_0 / s$, on the central path; the default);
@@ -94,6 +107,7 @@ class IPOptions(eqx.Module):
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
     hessian_update: str = eqx.field(static=True, default="every")
+    reestimate_multipliers: bool = eqx.field(static=True, default=True)
     mu0: Float[Array, ""] = array_field(default=0.1)
     multiplier_init: str = eqx.field(static=True, default="least-squares")
     bound_multiplier_init: str = eqx.field(static=True, default="mu-based")
@@ -464,16 +478,22 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
             _print_row, st.iteration, d.objective, res.inf_pr, res.inf_du, mu, alpha,
             step.delta, n_trials))
     finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
+    # runaway multipliers: the line search failed, or the inertia correction needed a
+    # regularisation that leaves no Newton step; estimate (lambda, nu) afresh next pass
+    reset = ~setup & ((n_trials >= MAX_TRIALS) | (step.delta > DELTA_RESET))
+    reset = reset & options.reestimate_multipliers
     # keep the iterate whose residuals are reported when the loop ends on this pass
     hold = converged | ~finite | (st.iteration == options.max_iter - 1) & ~setup
     return IPState(
         iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
-        hessian=d.H, mu=mu, delta_last=jnp.where((step.delta > 0) & ~setup, step.delta, st.delta_last),
+        hessian=d.H, mu=mu,
+        delta_last=jnp.where(reset, 0.0, jnp.where((step.delta > 0) & ~setup, step.delta,
+                                                   st.delta_last)),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
         iteration=st.iteration + jnp.where(converged | setup, 0, 1), done=converged | ~finite,
         result=RESULTS.where(converged, RESULTS.successful,
                              RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
-        multipliers_ready=jnp.asarray(True), objective=d.objective, residuals=res, log=log,
+        multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective, residuals=res, log=log,
     )
 
 
