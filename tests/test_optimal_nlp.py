@@ -344,6 +344,27 @@ def test_barrier_decreases_several_times_while_the_iterate_allows():
     assert float(mu) == 0.1 and not bool(changed)
 
 
+def _random_maneuver_point(M, seed):
+    """The corner90 maneuver NLP of ``M`` stages (two RK4 steps each), its layout, and a
+    random point ``ys`` with random multipliers ``lam``, ``nu`` and positive ``z``."""
+    from vehsim.optimal.ip.problem import stage_layout
+    from vehsim.optimal.primitives import rally_gravel_car
+    from vehsim.optimal.roads import road
+    from vehsim.optimal.shooting import ManeuverOCP
+
+    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=M,
+                       steps_per_stage=2)
+    lay = stage_layout(prob)
+    mk = lay.masks()
+    k1, k2, k3, k4 = jax.random.split(jax.random.PRNGKey(seed), 4)
+    base = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, 0.08, 0.1, 3.5, 0.5, -0.2, 0.3])
+    ys = (base[None] + 0.1 * jax.random.normal(k1, (M + 1, lay.ny))) * mk.y
+    lam = jax.random.normal(k2, (M + 1, lay.nx)) * mk.lam
+    nu = jax.random.normal(k3, (M + 1, lay.ne)) * mk.eq
+    z = jnp.abs(jax.random.normal(k4, (M + 1, lay.ng))) * mk.g
+    return prob, lay, ys, lam, nu, z
+
+
 def test_stage_hessians_are_the_blocks_of_the_whole_lagrangian_hessian():
     """Every function of the maneuver NLP depends on one stage, so the Hessian of the whole
     Lagrangian $f + \\lambda \\cdot c + \\nu \\cdot e - z \\cdot g$ (jax.hessian of the
@@ -351,22 +372,10 @@ def test_stage_hessians_are_the_blocks_of_the_whole_lagrangian_hessian():
     `stage_derivatives` (both of its Hessian modes), at a random point and random multipliers, two RK4 steps per stage
     (nodes inside the segment)."""
     from vehsim.optimal.ip.derivatives import stage_derivatives, stage_values
-    from vehsim.optimal.ip.problem import stage_layout
-    from vehsim.optimal.primitives import rally_gravel_car
-    from vehsim.optimal.roads import road
-    from vehsim.optimal.shooting import ManeuverOCP
 
     M = 2
-    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=M,
-                       steps_per_stage=2)
-    lay = stage_layout(prob)
+    prob, lay, ys, lam, nu, z = _random_maneuver_point(M, 7)
     mk = lay.masks()
-    k1, k2, k3, k4 = jax.random.split(jax.random.PRNGKey(7), 4)
-    base = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, 0.08, 0.1, 3.5, 0.5, -0.2, 0.3])
-    ys = (base[None] + 0.1 * jax.random.normal(k1, (M + 1, lay.ny))) * mk.y
-    lam = jax.random.normal(k2, (M + 1, lay.nx)) * mk.lam
-    nu = jax.random.normal(k3, (M + 1, lay.ne)) * mk.eq
-    z = jnp.abs(jax.random.normal(k4, (M + 1, lay.ng))) * mk.g
 
     def lagrangian(y):
         f, c, e, g = stage_values(prob, lay, y)
@@ -390,22 +399,8 @@ def test_stage_jacobians_are_those_of_the_full_derivatives():
     """`stage_jacobians` (values and Jacobians, no Hessian) gives the values and Jacobians
     of `stage_derivatives` at a random point of the maneuver NLP, and a zero Hessian."""
     from vehsim.optimal.ip.derivatives import stage_derivatives, stage_jacobians
-    from vehsim.optimal.ip.problem import stage_layout
-    from vehsim.optimal.primitives import rally_gravel_car
-    from vehsim.optimal.roads import road
-    from vehsim.optimal.shooting import ManeuverOCP
 
-    M = 3
-    prob = ManeuverOCP(vehicle=rally_gravel_car(), road=road("corner90"), num_stages=M,
-                       steps_per_stage=2)
-    lay = stage_layout(prob)
-    mk = lay.masks()
-    k1, k2, k3, k4 = jax.random.split(jax.random.PRNGKey(3), 4)
-    base = jnp.array([2.0, 5.0, 0.1, 8.0, 0.3, 0.2, 0.05, 0.08, 0.1, 3.5, 0.5, -0.2, 0.3])
-    ys = (base[None] + 0.1 * jax.random.normal(k1, (M + 1, lay.ny))) * mk.y
-    lam = jax.random.normal(k2, (M + 1, lay.nx)) * mk.lam
-    nu = jax.random.normal(k3, (M + 1, lay.ne)) * mk.eq
-    z = jnp.abs(jax.random.normal(k4, (M + 1, lay.ng))) * mk.g
+    prob, lay, ys, lam, nu, z = _random_maneuver_point(3, 3)
     full = eqx.filter_jit(stage_derivatives)(prob, lay, ys, lam, nu, z)
     jac = eqx.filter_jit(stage_jacobians)(prob, lay, ys)
     for name in ("objective", "c", "e", "g", "grad_f", "A", "Je", "Jg"):
