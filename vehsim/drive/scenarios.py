@@ -175,9 +175,9 @@ def driver_settings(name: str | None) -> dict:
     With the defaults (4 passes, the whole peak) the plans at those speeds are still far
     from converged (KKT residual 10-500) and the car, weaving across the road, spun in the
     20 m corner with every friction; even converged plans at the whole peak left the road
-    (the planning model's tire is not the plant's). With these settings the oracle and the
-    estimate reached the end on 3 noise seeds, 0-0.16 m off (docs/driver.md). The
-    corners keep the defaults: there the whole peak and 4 passes complete."""
+    (the planning model's tire is not the plant's); these settings keep the oracle and the
+    estimate on it (the measurements: docs/driver.md). The corners keep the defaults:
+    there the whole peak and 4 passes complete."""
     return dict(FAST_ROAD_DRIVER) if name == "stage" else {}
 
 
@@ -201,10 +201,7 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK) -> AxleGripEstimator:
     completed with 0.7, docs/driver.md). The price: a road much worse than believed is
     learnt only once an axle uses 70 % of the *believed* peak, which a road of less than
     70 % of it never gives; there the axles slide, and the samples where an axle's combined
-    slip reaches 10 % count too. Measured on the scenarios (seed 0, docs/driver.md): the
-    rising grip on sturn then completes (before 0.28 m off), on uturn and the stage it
-    reaches the end 0.23 and 0.07 m off (before 7.7 and 7.1 m); the icy patch is still
-    left (1.9-26 m), and the cells that completed before still do, unchanged."""
+    slip reaches 10 % count too (their effect on the scenarios: docs/driver.md)."""
     return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
                              min_utilisation=DRIVER_MIN_UTILISATION,
                              sliding_slip=DRIVER_SLIDING_SLIP)

@@ -87,7 +87,11 @@ def stage_jacobians(
     vec = stage_function(prob, lay)
 
     def one(y, k):
-        return jax.jacfwd(lambda yy: (vec(yy, k), vec(yy, k)), has_aux=True)(y)
+        def value_twice(yy):  # the value as the aux output: one evaluation
+            v = vec(yy, k)
+            return v, v
+
+        return jax.jacfwd(value_twice, has_aux=True)(y)
 
     J, V = jax.vmap(one)(ys, jnp.arange(lay.M + 1))
     return _assemble(lay, masks, ys, V, J, jnp.zeros((lay.M + 1, lay.ny, lay.ny)))
