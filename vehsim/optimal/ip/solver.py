@@ -2,8 +2,8 @@ r"""The interior-point loop: options, solution, state, and `interior_point`.
 
 The start: slacks $s = \max(g, 10^{-2})$, $z = \mu_0 / s$ (on the central path), and the
 defect and equality multipliers $(\lambda, \nu)$ that minimise the first Lagrangian gradient
-(IPOPT's least-squares estimate, from the KKT system with $W = I$: one pass of the same
-factorisation before the first iteration; ``multiplier_init`` and
+(IPOPT's least-squares estimate, from the KKT system with $W = I$: values, Jacobians and
+one factorisation before the first iteration; ``multiplier_init`` and
 ``bound_multiplier_init`` of `IPOptions` select the alternatives, docs/performance.md
 compares them).
 
@@ -22,7 +22,8 @@ One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
 5. the step, with $z$ kept within a factor $\kappa_\Sigma$ of $\mu S^{-1}$.
 
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
-together.
+together. A solve that reaches ``max_iter`` ends with a pass that takes no step: it tests
+convergence at the iterate returned, from values and Jacobians only (no Hessian).
 """
 
 from __future__ import annotations
@@ -370,19 +371,23 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
            multipliers=None) -> IPSolution:
     lay = stage_layout(prob)
     state = _initial_state(prob, lay, xs0, us0, options, multipliers)
+    # every pass but the last takes a step (or re-estimates the multipliers); the last only
+    # evaluates the residuals at the iterate returned, which needs no Hessian
+    stepping = lambda st: (~st.done) & ((st.iteration < options.max_iter - 1)
+                                        | ~st.multipliers_ready)
     if options.hessian_update == "first":
-        # the passes until the first step take the Hessian (a least-squares start's setup
-        # pass, then the first step), the later ones keep it: Jacobians only
-        taking = lambda st: (~st.done) & (st.iteration < options.max_iter) & (st.iteration == 0)
-        state = jax.lax.while_loop(taking, lambda st: _iteration(prob, lay, options, st), state)
+        # the passes until the first step take the Hessian, the later ones keep it
+        state = jax.lax.while_loop(lambda st: stepping(st) & (st.iteration == 0),
+                                   lambda st: _iteration(prob, lay, options, st), state)
     state = jax.lax.while_loop(
-        lambda st: (~st.done) & (st.iteration < options.max_iter),
+        stepping,
         lambda st: _iteration(prob, lay, options, st,
                               frozen=options.hessian_update == "first"),
         state,
     )
+    state = jax.lax.cond(state.done, lambda st: st,
+                         lambda st: _final_evaluation(prob, lay, options, st), state)
     it = state.iterate
-    # the residuals were evaluated at the returned iterate (no step is taken on the last pass)
     return IPSolution(
         xs=it.ys[:, : lay.nx], us=it.ys[:-1, lay.nx :], lam=it.lam, nu=it.nu, z=it.z,
         result=state.result, iterations=state.iteration, objective=state.objective,
@@ -394,8 +399,9 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
 def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
                    multipliers=None) -> IPState:
     """Slacks $s = \\max(g, \\min(10^{-2}, 10\\mu_0))$ on the inequalities in use, $z = 1$
-    or $\\mu_0 / s$ (``bound_multiplier_init``), zero defect and equality multipliers (the
-    first pass replaces them by their least-squares estimate, ``multiplier_init``).
+    or $\\mu_0 / s$ (``bound_multiplier_init``), and the defect and equality multipliers of
+    ``multiplier_init``: zero, or their least-squares estimate at that $z$
+    (`_least_squares_multipliers`).
 
     With ``multipliers`` $(\\lambda, \\nu, \\bar z)$ (a warm start): those $\\lambda$,
     $\\nu$ (no least-squares pass), $s = \\max(g, \\min(10^{-2}, \\mu_0/\\bar z))$ and
@@ -419,6 +425,12 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         z_w = jnp.where(mg > 0, jnp.maximum(z_w, 1e-300), 1.0)
         s_w = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, mu0 / z_w)), 1.0)
         z_w = jnp.where(mg > 0, jnp.maximum(z_w, mu0 / s_w), 0.0)
+    if options.multiplier_init == "least-squares":
+        cold = Iterate(ys=ys, s=s, z=z, lam=lam, nu=nu)
+        least_squares = lambda: _least_squares_multipliers(lay, cold, prob, mu0)
+        lam, nu = (least_squares() if multipliers is None
+                   else jax.lax.cond(warm, lambda: (lam, nu), least_squares))
+    if multipliers is not None:
         s, z, lam, nu = (jnp.where(warm, w, c) for w, c in (
             (s_w, s), (z_w, z), (lam_w * mk.lam, lam), (nu_w * mk.eq, nu)))
     iterate = Iterate(ys=ys, s=s, z=z, lam=lam, nu=nu)
@@ -428,13 +440,21 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         delta_last=jnp.asarray(0.0),
         filter=Filter.initial(constraint_violation(c0, e0, g0, s, mg)),
         iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
-        multipliers_ready=jnp.asarray(options.multiplier_init == "zero") | warm,
+        multipliers_ready=jnp.asarray(True),
         objective=jnp.asarray(jnp.nan),
         residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),
         log=IPLog.empty(options.log_size),
     )
     return strong(state)
+
+
+def _least_squares_multipliers(lay: StageLayout, it: Iterate, prob, mu):
+    """IPOPT's least-squares estimate of $(\\lambda, \\nu)$ at ``it`` (`newton_step` with
+    ``least_squares``: the KKT system with $W = I$, so values and Jacobians only), capped."""
+    d = stage_jacobians(prob, lay, it.ys)
+    step = newton_step(lay, it, d, mu, jnp.asarray(0.0), least_squares=True)
+    return capped_multipliers(step.dlam, step.dnu)
 
 
 def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
@@ -473,7 +493,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
                         inf_du=res.inf_du, mu=mu, alpha=alpha, regularisation=step.delta,
                         factorisations=step.factorisations, trials=n_trials)
-    if options.live:  # the line of this pass, on the host as it happens (not the setup pass)
+    if options.live:  # the line of this pass, on the host as it happens (not a setup pass)
         jax.lax.cond(setup, lambda: None, lambda: jax.debug.callback(
             _print_row, st.iteration, d.objective, res.inf_pr, res.inf_du, mu, alpha,
             step.delta, n_trials))
@@ -483,7 +503,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     reset = ~setup & ((n_trials >= MAX_TRIALS) | (step.delta > DELTA_RESET))
     reset = reset & options.reestimate_multipliers
     # keep the iterate whose residuals are reported when the loop ends on this pass
-    hold = converged | ~finite | (st.iteration == options.max_iter - 1) & ~setup
+    hold = converged | ~finite
     return IPState(
         iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
         hessian=d.H, mu=mu,
@@ -495,6 +515,30 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                              RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective, residuals=res, log=log,
     )
+
+
+def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
+    """The last pass of a solve that reached ``max_iter``: the residuals and the convergence
+    test at the iterate returned, from values and Jacobians only (no step is taken, so no
+    Hessian is needed); logged as a pass with no step (``alpha`` 0)."""
+    it = st.iterate
+    d = stage_jacobians(prob, lay, it.ys)
+    res = kkt_residuals(lay, it, d)
+    converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol)
+    zero = jnp.asarray(0.0)
+    log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
+                        inf_du=res.inf_du, mu=st.mu, alpha=zero, regularisation=zero,
+                        factorisations=jnp.asarray(0), trials=jnp.asarray(0))
+    if options.live:
+        jax.debug.callback(_print_row, st.iteration, d.objective, res.inf_pr, res.inf_du,
+                           st.mu, zero, zero, 0)
+    finite = jnp.isfinite(res.error) & jnp.isfinite(d.objective)
+    return eqx.tree_at(
+        lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
+        (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
+         RESULTS.where(converged, RESULTS.successful,
+                       RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
+         d.objective, res, log))
 
 
 def _barrier_update(error_mu, mu, tol):
