@@ -15,7 +15,9 @@ seed, the scenario's start speed and time budget).
   passes per sample in 'rti' mode and 90 % of the peak, which do-mpc's problem gets too
   through the stages' grip) (its jitted ``command``: projection, prediction over the
   actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
-  with ``block_until_ready`` in a Python loop.
+  with ``block_until_ready`` in a Python loop; in 'converged' mode, in 'rti' mode, and in
+  'rti' mode with the first pass's Hessian kept for the sample's later passes
+  (``hessian_update='first'``, reported as 'vehsim-rti-frozen').
 - do-mpc (`_dompc_driver`): the problem as do-mpc's discrete model with the arc length as
   the independent variable (``t_step`` = H/M; the same RK4 stage map, so the same
   transcription), the road's data along the horizon as time-varying parameters set from the
@@ -249,7 +251,9 @@ def main(argv=None):
                     help="horizon H [m] (default: the driver's)")
     ap.add_argument("--stages", type=int, default=None,
                     help="stages M (default: the driver's)")
-    ap.add_argument("--modes", default="converged,rti", help="vehsim modes to run")
+    ap.add_argument("--modes", default="converged,rti,rti-frozen",
+                    help="vehsim modes to run: converged, rti, rti-frozen (rti with the "
+                         "first pass's Hessian kept: hessian_update='first')")
     ap.add_argument("--shift", action="store_true",
                     help="warm-start do-mpc from its plan shifted by the distance travelled "
                          "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
@@ -284,8 +288,12 @@ def main(argv=None):
                   driver_settings=vehsim.driver_settings(args.road))
     results = {}
     for mode in args.modes.split(","):
-        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes, **bound,
-                                              **vehsim.driver_settings(args.road))
+        if mode not in ("converged", "rti", "rti-frozen"):
+            raise SystemExit(f"--modes: {mode!r} is not one of converged, rti, rti-frozen")
+        frozen = {"hessian_update": "first"} if mode == "rti-frozen" else {}
+        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode.split("-")[0], **sizes,
+                                              **bound, **vehsim.driver_settings(args.road),
+                                              **frozen)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()
