@@ -15,7 +15,7 @@ from vehsim.optimal.ip import (
 )
 from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
 from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve
-from vehsim.optimal.ip.solver import _solve, canonical_options
+from vehsim.optimal.ip.solver import _least_squares_multipliers, _solve, canonical_options
 
 
 class RestToRest(AbstractStagewiseNLP):
@@ -319,6 +319,34 @@ def test_least_squares_multipliers_at_the_optimum_are_its_multipliers(bang_bang)
     np.testing.assert_allclose(np.asarray(step.dnu), np.asarray(sol.nu * mk.eq), atol=1e-6)
     # the primal part is the least-squares residual: zero at a KKT point
     assert float(jnp.max(jnp.abs(step.dy))) < 1e-6
+    # the solver's start evaluates it from values and Jacobians only: the same multipliers
+    lam, nu = _least_squares_multipliers(lay, it, prob, 0.1)
+    np.testing.assert_allclose(np.asarray(lam), np.asarray(sol.lam * mk.lam), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(nu), np.asarray(sol.nu * mk.eq), atol=1e-6)
+
+
+def test_a_capped_solve_reports_the_residuals_of_the_iterate_it_returns(bang_bang):
+    # the last pass of a capped solve takes no step and skips the Hessian: its residuals
+    # are those of the full derivatives at the returned iterate, and it is logged unstepped
+    from vehsim.optimal.ip.derivatives import stage_derivatives
+    from vehsim.optimal.ip.kkt import Iterate, kkt_residuals
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, _ = bang_bang
+    lay = stage_layout(prob)
+    xs0, us0 = _guess(prob.num_stages)
+    sol = interior_point(prob, xs0, us0, IPOptions(max_iter=4), throw=False)
+    ys = lay.join(sol.xs, sol.us)
+    it = Iterate(ys=ys, s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
+    d = stage_derivatives(prob, lay, ys, it.lam, it.nu, it.z)
+    res = kkt_residuals(lay, it, d)
+    assert int(sol.iterations) == 4 and not sol.converged
+    for name in ("inf_pr", "inf_du", "compl"):
+        assert float(getattr(sol, name)) == pytest.approx(float(getattr(res, name)),
+                                                          rel=1e-12, abs=1e-14)
+    assert float(sol.objective) == pytest.approx(float(d.objective), rel=1e-14)
+    assert float(sol.log.alpha[3]) == 0.0 and float(sol.log.alpha[2]) > 0.0
+    assert np.isnan(float(sol.log.alpha[4]))
 
 
 def test_zero_and_least_squares_starts_reach_the_same_optimum(bang_bang):
