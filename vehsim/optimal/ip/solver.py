@@ -191,8 +191,9 @@ class IPState(eqx.Module):
     """The loop state: the ``iterate``, the stage Lagrangian ``hessian`` of the last pass
     that took it (kept by ``hessian_update='first'``), barrier ``mu``, the last nonzero regularisation
     ``delta_last``, the line-search ``filter``, the ``iteration`` count, ``done``, the
-    ``result`` so far, and the ``objective`` and ``residuals`` at the iterate (from the last
-    pass), with the ``log``."""
+    ``result`` so far, whether the defect and equality multipliers are ``multipliers_ready``
+    (false after runaway multipliers: the next pass re-estimates them), and the
+    ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``."""
 
     iterate: Iterate
     hessian: Float[Array, "M+1 ny ny"]
@@ -459,10 +460,10 @@ def _least_squares_multipliers(lay: StageLayout, it: Iterate, prob, mu):
 
 def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                frozen: bool = False) -> IPState:
-    """One pass: test convergence at the iterate, update the barrier, step. The first pass
-    of a least-squares start only sets the multipliers (the same derivatives and KKT
-    factorisation, no step, not counted). ``frozen``: the Hessian of the state, only the
-    values and Jacobians evaluated."""
+    """One pass: test convergence at the iterate, update the barrier, step. A pass after
+    runaway multipliers (not ``multipliers_ready``) only re-estimates them by least squares
+    (the same derivatives and KKT factorisation, no step, not counted). ``frozen``: the
+    Hessian of the state, only the values and Jacobians evaluated."""
     it = st.iterate
     setup = ~st.multipliers_ready
     if frozen:
