@@ -320,7 +320,7 @@ def test_least_squares_multipliers_at_the_optimum_are_its_multipliers(bang_bang)
     # the primal part is the least-squares residual: zero at a KKT point
     assert float(jnp.max(jnp.abs(step.dy))) < 1e-6
     # the solver's start evaluates it from values and Jacobians only: the same multipliers
-    lam, nu = _least_squares_multipliers(lay, it, prob, 0.1)
+    lam, nu = _least_squares_multipliers(prob, lay, it, 0.1)
     np.testing.assert_allclose(np.asarray(lam), np.asarray(sol.lam * mk.lam), atol=1e-6)
     np.testing.assert_allclose(np.asarray(nu), np.asarray(sol.nu * mk.eq), atol=1e-6)
 

@@ -428,7 +428,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         z_w = jnp.where(mg > 0, jnp.maximum(z_w, mu0 / s_w), 0.0)
     if options.multiplier_init == "least-squares":
         cold = Iterate(ys=ys, s=s, z=z, lam=lam, nu=nu)
-        least_squares = lambda: _least_squares_multipliers(lay, cold, prob, mu0)
+        least_squares = lambda: _least_squares_multipliers(prob, lay, cold, mu0)
         lam, nu = (least_squares() if multipliers is None
                    else jax.lax.cond(warm, lambda: (lam, nu), least_squares))
     if multipliers is not None:
@@ -450,7 +450,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
     return strong(state)
 
 
-def _least_squares_multipliers(lay: StageLayout, it: Iterate, prob, mu):
+def _least_squares_multipliers(prob, lay: StageLayout, it: Iterate, mu):
     """IPOPT's least-squares estimate of $(\\lambda, \\nu)$ at ``it`` (`newton_step` with
     ``least_squares``: the KKT system with $W = I$, so values and Jacobians only), capped."""
     d = stage_jacobians(prob, lay, it.ys)
@@ -471,7 +471,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     else:
         d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
     res = kkt_residuals(lay, it, d)
-    converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol) & ~setup
+    converged = _converged(res, options) & ~setup
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
     mu, mu_changed = jnp.where(setup, st.mu, mu), mu_changed & ~setup
@@ -512,10 +512,19 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                                                    st.delta_last)),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
         iteration=st.iteration + jnp.where(converged | setup, 0, 1), done=converged | ~finite,
-        result=RESULTS.where(converged, RESULTS.successful,
-                             RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
+        result=_outcome(converged, finite),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective, residuals=res, log=log,
     )
+
+
+def _converged(res, options: IPOptions):
+    """The convergence test: scaled KKT error within ``tol``, violation within ``constr_tol``."""
+    return (res.error <= options.tol) & (res.inf_pr <= options.constr_tol)
+
+
+def _outcome(converged, finite) -> RESULTS:
+    return RESULTS.where(converged, RESULTS.successful,
+                         RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite))
 
 
 def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
@@ -525,7 +534,7 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
     it = st.iterate
     d = stage_jacobians(prob, lay, it.ys)
     res = kkt_residuals(lay, it, d)
-    converged = (res.error <= options.tol) & (res.inf_pr <= options.constr_tol)
+    converged = _converged(res, options)
     zero = jnp.asarray(0.0)
     log = st.log.record(st.iteration, objective=d.objective, inf_pr=res.inf_pr,
                         inf_du=res.inf_du, mu=st.mu, alpha=zero, regularisation=zero,
@@ -537,8 +546,7 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
     return eqx.tree_at(
         lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
-         RESULTS.where(converged, RESULTS.successful,
-                       RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite)),
+         _outcome(converged, finite),
          d.objective, res, log))
 
 
