@@ -9,6 +9,7 @@ others. It is a fresh temporary folder, removed at the end, unless ``VEHSIM_TEST
 names one to keep (then later runs reuse it)."""
 
 import atexit
+import gc
 import os
 import shutil
 import tempfile
@@ -69,3 +70,14 @@ def pytest_runtest_makereport(item, call):
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else report.longrepr
         report.outcome = "failed"
         report.longrepr = f"skipped under CI (CI=true), which must run every test: {reason}"
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """After each test module, JAX's in-memory caches are dropped (`jax.clear_caches`): a
+    worker that kept every program the suite compiled grew past 10 GB and its XLA compiler
+    failed late in the run. A program a later module needs again is loaded from the run's
+    compilation cache on disk (above), not compiled again."""
+    yield
+    jax.clear_caches()
+    gc.collect()
