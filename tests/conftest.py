@@ -12,6 +12,7 @@ import atexit
 import gc
 import os
 import shutil
+import sys
 import tempfile
 
 import pytest
@@ -81,3 +82,5 @@ def _release_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+    # CasADi's native libraries stay out of the test processes (tests/_isolated.py)
+    assert "casadi" not in sys.modules, "a test module imported casadi: use tests/_isolated.py"

@@ -6,16 +6,21 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-import pytest
+from _isolated import in_subprocess, require_casadi
 
 from vehsim.drive.horizon import _slip_parts, axle_slips
 from vehsim.optimal.curvilinear import _rk4_steps, spatial_rhs
 from vehsim.optimal.primitives import rally_gravel_car
 
 
-ca = pytest.importorskip("casadi")
-sys.path.insert(0, str(Path(__file__).parent.parent / "experiments" / "benchmarks"))
-import _dompc_driver  # noqa: E402
+def _peer():
+    """CasADi and the benchmark's do-mpc driver module (in the spawned process only)."""
+    import casadi
+
+    sys.path.insert(0, str(Path(__file__).parent.parent / "experiments" / "benchmarks"))
+    import _dompc_driver
+
+    return casadi, _dompc_driver
 
 
 def _random_points(rng, count):
@@ -34,6 +39,20 @@ def test_casadi_horizon_model_is_spatial_rhs():
     `rally_gravel_car(D)` at random states, rates, curvatures and frictions, and one
     `rk4_step` equals vehsim's RK4 stage map with the curvature at the step's start,
     middle and end (the do-mpc model's discrete dynamics)."""
+    require_casadi()
+    in_subprocess(_check_horizon_model)
+
+
+def test_casadi_slip_bound_is_the_drivers():
+    """do-mpc's slip rows (`slip_excess`, <= 0 inside) are vehsim's combined slip
+    (`axle_slips`) bound: $(1 + \\kappa_i)^2V_{ix}^2(s_i^2 - \\ell^2)$ with vehsim's axle
+    velocities, at random states and bounds, so both controllers bound the same slip."""
+    require_casadi()
+    in_subprocess(_check_slip_bound)
+
+
+def _check_horizon_model():
+    ca, _dompc_driver = _peer()
     X, v, kap, D = _random_points(np.random.default_rng(0), 16)
     h = 1.0
     for x, u, k, d in zip(X, v, kap, D):
@@ -51,10 +70,8 @@ def test_casadi_horizon_model_is_spatial_rhs():
                                    rtol=1e-10, atol=1e-12)
 
 
-def test_casadi_slip_bound_is_the_drivers():
-    """do-mpc's slip rows (`slip_excess`, <= 0 inside) are vehsim's combined slip
-    (`axle_slips`) bound: $(1 + \\kappa_i)^2V_{ix}^2(s_i^2 - \\ell^2)$ with vehsim's axle
-    velocities, at random states and bounds, so both controllers bound the same slip."""
+def _check_slip_bound():
+    ca, _dompc_driver = _peer()
     X, _, _, D = _random_points(np.random.default_rng(1), 16)
     limits = np.random.default_rng(2).uniform(0.05, 0.4, 16)
     for x, d, lim in zip(X, D, limits):

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _isolated import in_subprocess, require_casadi
 from optimal_cache import M, corner90_min_time
 
 from vehsim import result_name
@@ -86,6 +87,12 @@ def _ipopt_benchmark():
     return module
 
 
+def _ipopt_solve(road, objective, num_stages, xs0, us0, tf_max):
+    """The IPOPT solve from the given start, in the spawned process (tests/_isolated.py)."""
+    return _ipopt_benchmark().ipopt_solve(roads.road(road), objective, 0.52, num_stages,
+                                          jnp.asarray(xs0), jnp.asarray(us0), tf_max=tf_max)
+
+
 def _against_ipopt(prim, road, objective, tf_max=4.0, start=None):
     """IPOPT from the centreline guess (or `start`, knots and controls); returns (vehsim,
     IPOPT) t_f or exit speed and IPOPT's knots."""
@@ -93,8 +100,9 @@ def _against_ipopt(prim, road, objective, tf_max=4.0, start=None):
         else start
     if objective == "max-exit" and start is None:
         xs0 = xs0.at[:, IDX_TF].set(jnp.minimum(xs0[:, IDX_TF], 0.98 * tf_max))
-    ip = _ipopt_benchmark().ipopt_solve(roads.road(road), objective, 0.52, M, xs0, us0,
-                                        tf_max=tf_max)
+    require_casadi()
+    ip = in_subprocess(_ipopt_solve, road, objective, M, np.asarray(xs0), np.asarray(us0),
+                       tf_max)
     assert ip["ok"], ip["status"]
     value = ((lambda x: x[-1, IDX_TF]) if objective == "min-time"
              else (lambda x: math.hypot(x[-1, 3], x[-1, 4])))
