@@ -9,21 +9,16 @@ an assertion raised there fails the test here with its message."""
 
 import importlib.util
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor
 
 import pytest
 
 
 def _configure():
-    # the environment (XLA_FLAGS, the compilation cache, two CPU devices) is inherited;
-    # these are the suite's `jax.config` settings (tests/conftest.py)
-    import jax
-
-    jax.config.update("jax_num_cpu_devices", 2)
-    jax.config.update("jax_compilation_cache_dir", os.environ["VEHSIM_TEST_JAX_CACHE"])
-    jax.config.update("jax_enable_x64", True)
-    jax.config.update("jax_numpy_rank_promotion", "raise")
+    # the suite's own set-up (tests/conftest.py: XLA flags, x64, rank promotion, two CPU
+    # devices, the run's compilation cache, which the environment already names), run by
+    # importing it: tests/ is on the spawned process's path, as on its parent's
+    importlib.import_module("conftest")
 
 
 def require_casadi():
