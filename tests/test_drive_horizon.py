@@ -154,7 +154,9 @@ def converged_run(corner):
 def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     """The driver (converged mode: the multipliers warm-started, at most 100 iterations; D
     fixed at its car's) against the offline primitive of its planning car on the same
-    corridor: measured +1.8 % under the tests' compilation flags (4.576 s against 4.495 s).
+    corridor: measured +2.0 % under the tests' compilation flags (4.585 s against 4.495 s;
+    +1.2 % with the first plan solved apart, and up to +5.8 % after a change of the first
+    command alone: the drive is sensitive to its solves' starts and rounding).
     Never off the road."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
@@ -166,7 +168,11 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     info = run.controller_info
     assert info["plan_s"].shape == (corner["num"], STAGES + 1)
     assert np.all(np.asarray(info["D"]) == pytest.approx(float(corner["car"].tire.D), rel=1e-9))
-    assert np.all(np.asarray(info["iterations"]) <= driver.max_iterations)
+    # the first sample's plan is the cold first plan (at most init_iterations), the others
+    # warm starts (at most max_iterations)
+    iterations = np.asarray(info["iterations"])
+    assert iterations[0] <= driver.init_iterations
+    assert np.all(iterations[1:] <= driver.max_iterations)
     assert np.mean(np.asarray(info["converged"])) >= 0.4
     # the first plans converge: without the multipliers' re-estimate after a failed line
     # search the cold first plan ran away (300 iterations, KKT residual 1e28), and so did
@@ -238,7 +244,11 @@ def test_rti_drives_the_road(corner, converged_run):
     # with XLA's default flags: real-time iterations are sensitive to rounding);
     # 8 iterations: 5.029 s
     assert abs(t_rti / t_conv - 1.0) < 0.11, (t_rti, t_conv)
-    assert np.all(np.asarray(rti.controller_info["iterations"]) <= 4)
+    # a real-time iteration's fixed work per sample after the first plan, which the first
+    # sample solves to convergence from the cold start (more than the 4 passes)
+    iterations = np.asarray(rti.controller_info["iterations"])
+    assert np.all(iterations[1:] <= 4)
+    assert iterations[0] > 4 and bool(rti.controller_info["converged"][0])
 
 
 @pytest.fixture(scope="module")
@@ -441,3 +451,36 @@ def test_driver_passes_its_hessian_update_to_the_sample_solves():
     assert vs.RecedingHorizonDriver(table, mode="converged").options().reestimate_multipliers
     with pytest.raises(ValueError, match="RecedingHorizonDriver.hessian_update must be"):
         vs.RecedingHorizonDriver(table, hessian_update="never")
+
+
+def _has_loop(f, *args) -> bool:
+    """Whether the program of ``f`` holds a `while` loop (its printed jaxpr shows the
+    nested ones too)."""
+    return "while[" in str(jax.make_jaxpr(f)(*args))
+
+
+def test_first_plan_is_the_first_commands_solve():
+    """A drive holds one interior-point solve: `init` leaves the first plan to the first
+    command (no loop traced in it; the state says no plan yet), whose options are then the
+    first plan's (a cold start to convergence, the first barrier 0.1, the multipliers'
+    re-estimate) from the same program as a later sample's. With ``hessian_update='first'``
+    the first plan, by Newton's method, is solved in `init`."""
+    road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
+    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
+    assert not _has_loop(driver.init, m0)
+    state = driver.init(m0)
+    assert not bool(state.planned) and not bool(state.converged)
+    first, later = driver.options(jnp.asarray(True)), driver.options(jnp.asarray(False))
+    cold, sample = driver.options(first=True), driver.options()
+    for got, want in ((first, cold), (later, sample)):
+        assert int(got.max_iter) == int(want.max_iter)
+        assert float(got.mu0) == float(want.mu0)
+        assert bool(got.reestimate_multipliers) == bool(want.reestimate_multipliers)
+    assert (int(cold.max_iter), float(cold.mu0)) == (300, 0.1)
+    assert (int(sample.max_iter), float(sample.mu0)) == (4, 1e-3)
+    frozen = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4,
+                                      hessian_update="first")
+    assert _has_loop(frozen.init, m0)

@@ -51,7 +51,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from .._checks import check_positive, check_range
 from .._fields import array_field, float_array
@@ -65,6 +65,7 @@ from ..optimal.curvilinear import (
     speed_profile,
 )
 from ..optimal.ip import IPOptions, IPSolution, interior_point
+from ..optimal.ip.problem import stage_layout
 from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
 from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.params import lugre2d_bakker1987
@@ -629,7 +630,8 @@ class HorizonState(eqx.Module):
     (`xs`, `us`, starting at `s_plan`; its multipliers `lam`, `nu`, `z`), the `inputs`
     $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
     `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
-    peak friction, `projection` $(s, n, \\xi)$."""
+    peak friction, `projection` $(s, n, \\xi)$; `planned`: whether a plan has been solved
+    (False after `RecedingHorizonDriver.init`, whose first plan the first command solves)."""
 
     s: Float[Array, ""]
     position: Float[Array, " 2"]
@@ -646,6 +648,7 @@ class HorizonState(eqx.Module):
     kkt: Float[Array, ""]
     D: Float[Array, " M"]
     projection: Float[Array, " 3"]
+    planned: Bool[Array, ""]
 
 
 class RecedingHorizonDriver(AbstractDriveController):
@@ -665,13 +668,13 @@ class RecedingHorizonDriver(AbstractDriveController):
     'estimate' (the estimator's belief, less `estimate_backoff` standard deviations
     (default 0: the estimate itself; planning below the plant's grip also misleads the
     torque recovery, and measured drives left the road more often, docs/driver.md);
-    needs an estimator in `simulate_drive`, and the first plan uses the nominal road),
+    needs an estimator in `simulate_drive`; the first plan uses its prior),
     each at the stages' speeds (below); `slip_gain` [N m] (torque per unit slip error, 0:
     feedforward only), `lead` [s] (the plan is read this far past the predicted state: the
     actuators' lag), `position_gain` (the weight of the measured position against dead
     reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
     `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
-    (static; the actuators' delay), `init_iterations` (cap of the first solve),
+    (static; the actuators' delay), `init_iterations` (cap of the first plan's solve),
     `warm_start` (static): 'primal' (the shifted plan; the multipliers start afresh, the
     least-squares estimate) or 'primal-dual' (also the previous plan's multipliers, shifted
     by `shift_multipliers`, where that plan converged: `interior_point`'s
@@ -702,7 +705,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     0.52 at 20 m/s, 0.65 at 4 m/s on the nominal road), and the corners are driven far
     below the speed the grips are stated at. $V_k$ is the speed $|v|$ at the stage's
     midpoint of the previous plan shifted to the new start (`stage_speeds`; the first plan:
-    the current speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
+    the predicted speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
     `reference_speed` is `nominal_peak`; 'oracle': the `table`'s `scale` at the stage's
     midpoint; 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
     \partial\vartheta|\,\sigma_a$ with the estimate's $\lambda_a$ (`GripEstimate.scale`)
@@ -811,16 +814,21 @@ class RecedingHorizonDriver(AbstractDriveController):
 
     # ---- pieces -----------------------------------------------------------------------
 
-    def options(self, first: bool = False) -> IPOptions:
-        """The interior-point options of a sample (``first``: the first plan's)."""
-        if first:
+    def options(self, first=False) -> IPOptions:
+        """The interior-point options of a sample; ``first`` (a boolean, or a boolean
+        array: one program for both): the first plan's, a cold start solved to convergence
+        (at most `init_iterations`, IPOPT's first barrier 0.1, the multipliers'
+        re-estimate on) by Newton's method (a Hessian every pass)."""
+        if isinstance(first, bool) and first:
             return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
                              log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
+        cold = IPOptions()
         # a real-time iteration does a fixed work per sample: no uncounted re-estimates
-        return IPOptions(max_iter=cap, tol=self.tol, constr_tol=self.tol, mu0=self.barrier,
+        return IPOptions(max_iter=jnp.where(first, self.init_iterations, cap), tol=self.tol,
+                         constr_tol=self.tol, mu0=jnp.where(first, cold.mu0, self.barrier),
                          log_size=8, hessian_update=self.hessian_update,
-                         reestimate_multipliers=self.mode == "converged")
+                         reestimate_multipliers=first | (self.mode == "converged"))
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
         """`stage_speeds` of the plan ``xs``."""
@@ -935,7 +943,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                             xs=sol.xs, us=sol.us, lam=sol.lam, nu=sol.nu, z=sol.z,
                             inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
-                            projection=projection)
+                            projection=projection, planned=jnp.asarray(True))
 
     def _measured_state(self, m: DriveMeasurement, position, s_guess):
         s, n, xi = self.table.to_frenet(position[0], position[1], m.psi, s_guess)
@@ -960,9 +968,14 @@ class RecedingHorizonDriver(AbstractDriveController):
     # ---- the controller protocol --------------------------------------------------------
 
     def init(self, measurement: DriveMeasurement) -> HorizonState:
-        """The first plan: from the measured pose (projected near the table's start, or its
-        nearest sample), solved to convergence from `profile_guess` (at most
-        `init_iterations`)."""
+        """The state before the first sample, from the measured pose (projected near the
+        table's start, or its nearest sample). The first plan is the first command's solve
+        from that projection (not the state predicted over the delay), a cold start from
+        `profile_guess` solved to convergence (at most `init_iterations`; `options` with
+        ``first``), so that a drive holds one interior-point solve, not two. With
+        ``hessian_update='first'`` (whose sample solves keep their first Hessian) it is
+        solved here, by Newton's method, and the first command re-solves it at the
+        predicted state."""
         m = measurement
         d2 = (self.table.x - m.x) ** 2 + (self.table.y - m.y) ** 2
         s_guess = self.table.s[jnp.argmin(d2)]
@@ -976,10 +989,20 @@ class RecedingHorizonDriver(AbstractDriveController):
         else:
             D = self.planner_friction(s, None, V)
         xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
-        sol = self._solve(self.problem(s, state8, D), xs0, us0, self.options(first=True),
-                          first=True)
-        return self._state(s, position, self._world_velocity(m), s, sol, inputs, D,
-                           jnp.concatenate([s[None], X5[:2]]))
+        prob = self.problem(s, state8, D)
+        projection = jnp.concatenate([s[None], X5[:2]])
+        if self.hessian_update == "first":
+            sol = self._solve(prob, xs0, us0, self.options(first=True), first=True)
+            return self._state(s, position, self._world_velocity(m), s, sol, inputs, D,
+                               projection)
+        masks = stage_layout(prob).masks()
+        inf = jnp.asarray(jnp.inf)
+        return HorizonState(s=s, position=position, velocity=self._world_velocity(m),
+                            s_plan=s, xs=xs0, us=us0, lam=jnp.zeros_like(xs0),
+                            nu=jnp.zeros(masks.eq.shape), z=jnp.zeros(masks.g.shape),
+                            inputs=inputs, iterations=jnp.asarray(0),
+                            converged=jnp.asarray(False), kkt=inf, D=D,
+                            projection=projection, planned=jnp.asarray(False))
 
     def command(self, state: HorizonState, measurement: DriveMeasurement, estimate
                 ) -> tuple[HorizonState, Float[Array, " 3"]]:
@@ -990,11 +1013,21 @@ class RecedingHorizonDriver(AbstractDriveController):
         delay = self.delay_samples * T
         y = self.predict(s, X5, state.inputs, delay) if self.delay_samples > 0 else \
             jnp.concatenate([s[None], X5])
-        s_pred = y[0]
-        state8 = jnp.concatenate([y[1:], state.inputs])
+        # the first plan (no plan yet) starts where `init` projected the measurement (as
+        # `hessian_update='first'`'s, solved there), every stage at the measured speed, from
+        # the cold start; a later one at the state predicted over the delay
+        first = ~state.planned
+        measured8 = jnp.concatenate([state.projection[1:], jnp.stack([m.vx, m.vy, m.yaw_rate]),
+                                     state.inputs])
+        s_pred = jnp.where(first, state.s, y[0])
+        state8 = jnp.where(first, measured8, jnp.concatenate([y[1:], state.inputs]))
         xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
         xs0 = xs0.at[0, :8].set(state8)
-        D = self.planner_friction(s_pred, estimate, self.stage_speeds(xs0))
+        speeds = jnp.where(first, jnp.hypot(m.vx, m.vy), self.stage_speeds(xs0))
+        D = self.planner_friction(s_pred, estimate, speeds)
+        guess = profile_guess(self.table, self.vehicle, s_pred, state8, D,
+                              horizon=self.horizon)
+        xs0, us0 = (jnp.where(first, g, w) for g, w in zip(guess, (xs0, us0)))
         prob = self.problem(s_pred, state8, D)
         duals = None
         if self.warm_duals:
@@ -1002,7 +1035,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                                            s_pred - state.s_plan, self.horizon)
             # a plan that did not converge has no multipliers to trust: the cold start
             duals = lam, nu, jnp.where(state.converged, z, 0.0)
-        sol = self._solve(prob, xs0, us0, self.options(), duals)
+        sol = self._solve(prob, xs0, us0, self.options(first), duals)
         inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)

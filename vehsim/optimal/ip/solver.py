@@ -37,10 +37,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from ..._checks import is_concrete
-from ..._fields import array_field, int_field
+from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
 from .derivatives import stage_derivatives, stage_jacobians, stage_values
@@ -91,7 +91,8 @@ class IPOptions(eqx.Module):
     barrier (small for warm starts); ``reestimate_multipliers``: after a pass whose line
     search failed or whose regularisation exceeded `DELTA_RESET` (multipliers running
     away), the next pass re-estimates $(\\lambda, \\nu)$ by least squares (one more
-    factorisation, not counted as an iteration; off for a fixed work per solve);
+    factorisation, not counted as an iteration; off for a fixed work per solve; an array,
+    so one program serves both);
     ``multiplier_init``:
     'least-squares' (the defect and equality multipliers that minimise the first Lagrangian
     gradient, IPOPT's default) or 'zero'; ``bound_multiplier_init``: 'constant' ($z = 1$,
@@ -108,7 +109,7 @@ class IPOptions(eqx.Module):
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
     hessian_update: str = eqx.field(static=True, default="every")
-    reestimate_multipliers: bool = eqx.field(static=True, default=True)
+    reestimate_multipliers: Bool[Array, ""] = bool_field(default=True)
     mu0: Float[Array, ""] = array_field(default=0.1)
     multiplier_init: str = eqx.field(static=True, default="least-squares")
     bound_multiplier_init: str = eqx.field(static=True, default="mu-based")
@@ -295,7 +296,9 @@ def canonical_options(options: IPOptions) -> IPOptions:
     compiles the same program as one built after) and ``verbose`` off (the log is printed
     on the host when the solve returns)."""
     return dataclasses.replace(options, max_iter=jnp.asarray(options.max_iter, dtype=int),
-                               mu0=jnp.asarray(options.mu0, dtype=float), verbose=False)
+                               mu0=jnp.asarray(options.mu0, dtype=float),
+                               reestimate_multipliers=jnp.asarray(
+                                   options.reestimate_multipliers, dtype=bool), verbose=False)
 
 
 def _floats(x) -> Array:
