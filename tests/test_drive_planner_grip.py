@@ -145,8 +145,9 @@ def test_stage_speeds_are_the_plans_midpoint_speeds(table):
 
 
 def test_a_sample_plans_with_the_shifted_plans_speeds():
-    """`init` plans every stage at the current speed; `command` at the previous plan's speeds,
-    shifted to the new start: its D is the true road's peak at those speeds."""
+    """The first plan (the first command's, from `init`'s projection) plans every stage at
+    the measured speed; a later command at the previous plan's speeds, shifted to the new
+    start: its D is the true road's peak at those speeds."""
     field = vs.GripProfile(stations=jnp.array([0.0, 20.0]), scales=jnp.array([0.5, 0.3]))
     tbl = vs.RoadTable.from_road(ROAD, extension=30.0).with_grip(field)
     driver = vs.RecedingHorizonDriver(table=tbl, friction="oracle", num_stages=6,
@@ -155,15 +156,19 @@ def test_a_sample_plans_with_the_shifted_plans_speeds():
     s0 = vs.init_drive(plant, vx=9.0)
     m0 = vs.measure_drive(plant, s0, jax.random.key(0))
     state = eqx.filter_jit(lambda d, m: d.init(m))(driver, m0)
+    command = eqx.filter_jit(lambda d, st, m: d.command(st, m, None))
+    first, _ = command(driver, state, m0)
     h = 4.0
     mid = lambda s: s + h * (np.arange(6) + 0.5)  # noqa: E731
     lam = lambda s: np.asarray(tbl.scale_at(jnp.asarray(mid(s))))  # noqa: E731
-    np.testing.assert_allclose(np.asarray(state.D),
-                               peak_by_scan(lam(float(state.s_plan)), 9.0), rtol=2e-3)
+    assert float(first.s_plan) == float(state.s)  # where init projected the measurement
+    for st in (state, first):
+        np.testing.assert_allclose(np.asarray(st.D), peak_by_scan(lam(float(st.s_plan)), 9.0),
+                                   rtol=2e-3)
     # the next sample: 5 m further at lower speed, the plan shifted by the distance
     m1 = eqx.tree_at(lambda m: (m.x, m.vx, m.t), m0, (m0.x + 5.0, 7.0 + 0 * m0.vx, m0.t + 0.05))
-    new, _ = eqx.filter_jit(lambda d, st, m: d.command(st, m, None))(driver, state, m1)
-    xs0, _ = vs.shift_plan(state.xs, state.us, new.s_plan - state.s_plan, 24.0)
+    new, _ = command(driver, first, m1)
+    xs0, _ = vs.shift_plan(first.xs, first.us, new.s_plan - first.s_plan, 24.0)
     xs0 = xs0.at[0, :8].set(new.xs[0, :8])  # the predicted state (held by the solve)
     v = np.hypot(np.asarray(xs0[:, 2]), np.asarray(xs0[:, 3]))
     V = 0.5 * (v[:-1] + v[1:])
