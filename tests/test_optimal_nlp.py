@@ -559,8 +559,8 @@ def test_warm_start_of_the_multipliers(bang_bang):
 def test_a_step_without_newton_direction_reestimates_the_multipliers(bang_bang, monkeypatch):
     """A pass whose inertia correction needed more than `DELTA_RESET` (forced here: the
     Newton step reports 1e10) leaves the next pass to re-estimate the defect and equality
-    multipliers by least squares, with the regularisation restarted; an ordinary pass
-    does neither."""
+    multipliers by least squares, with the regularisation restarted, unless
+    ``reestimate_multipliers`` is off; an ordinary pass does neither."""
     from vehsim.optimal.ip import solver
     from vehsim.optimal.ip.problem import stage_layout
 
@@ -579,3 +579,7 @@ def test_a_step_without_newton_direction_reestimates_the_multipliers(bang_bang, 
     assert not bool(forced.multipliers_ready) and float(forced.delta_last) == 0.0
     again = solver._iteration(prob, lay, opts, forced)  # the setup pass: no step counted
     assert int(again.iteration) == int(forced.iteration)
+    # switched off (an array: one program serves both), the same pass leaves the
+    # multipliers to the Newton steps
+    off = solver._iteration(prob, lay, IPOptions(reestimate_multipliers=jnp.asarray(False)), st)
+    assert bool(off.multipliers_ready) and int(off.iteration) == int(st.iteration) + 1
