@@ -705,7 +705,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     0.52 at 20 m/s, 0.65 at 4 m/s on the nominal road), and the corners are driven far
     below the speed the grips are stated at. $V_k$ is the speed $|v|$ at the stage's
     midpoint of the previous plan shifted to the new start (`stage_speeds`; the first plan:
-    the predicted speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
+    the measured speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
     `reference_speed` is `nominal_peak`; 'oracle': the `table`'s `scale` at the stage's
     midpoint; 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
     \partial\vartheta|\,\sigma_a$ with the estimate's $\lambda_a$ (`GripEstimate.scale`)
