@@ -819,15 +819,14 @@ class RecedingHorizonDriver(AbstractDriveController):
         array: one program for both): the first plan's, a cold start solved to convergence
         (at most `init_iterations`, IPOPT's first barrier 0.1, the multipliers'
         re-estimate on) by Newton's method (a Hessian every pass)."""
-        if isinstance(first, bool) and first:
-            return IPOptions(max_iter=self.init_iterations, tol=self.tol, constr_tol=self.tol,
-                             log_size=8)
         cap = self.iterations if self.mode == "rti" else self.max_iterations
-        cold = IPOptions()
+        # the first plan alone (a Python True: `init`'s, with hessian_update='first') is
+        # solved by Newton's method whatever the samples' Hessian update
+        update = "every" if first is True else self.hessian_update
         # a real-time iteration does a fixed work per sample: no uncounted re-estimates
         return IPOptions(max_iter=jnp.where(first, self.init_iterations, cap), tol=self.tol,
-                         constr_tol=self.tol, mu0=jnp.where(first, cold.mu0, self.barrier),
-                         log_size=8, hessian_update=self.hessian_update,
+                         constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
+                         log_size=8, hessian_update=update,
                          reestimate_multipliers=first | (self.mode == "converged"))
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
