@@ -484,3 +484,31 @@ def test_first_plan_is_the_first_commands_solve():
     frozen = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4,
                                       hessian_update="first")
     assert _has_loop(frozen.init, m0)
+
+
+def test_position_estimate_reckons_over_the_time_between_measurements():
+    """The first command sees `init`'s measurement: its position estimate is that
+    measurement (no time has passed), not one dead-reckoned a sample ahead. A sample later,
+    with the car where the measured velocities carry it and GNSS reading the same, the
+    estimate is that position exactly (the trapezoidal rule is exact at constant velocity);
+    with GNSS off by e, it moves by `position_gain` e."""
+    road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=12.0, y=0.5, psi=0.1),
+                          jax.random.key(0))
+    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
+    state = driver.init(m0)
+    p0, v0 = driver.filter_position(state, m0)
+    np.testing.assert_allclose(p0, [m0.x, m0.y], atol=1e-12)
+    T = float(driver.sample_time)
+    moved = np.asarray([m0.x, m0.y]) + T * np.asarray(v0)
+    m1 = eqx.tree_at(lambda m: (m.t, m.x, m.y), m0,
+                     (m0.t + T, jnp.asarray(moved[0]), jnp.asarray(moved[1])))
+    state = eqx.tree_at(lambda s: (s.position, s.velocity), state, (p0, v0))
+    p1, _ = driver.filter_position(state, m1)
+    np.testing.assert_allclose(p1, moved, atol=1e-12)
+    off = eqx.tree_at(lambda m: m.x, m1, m1.x + 1.0)
+    p2, _ = driver.filter_position(state, off)
+    np.testing.assert_allclose(p2 - p1, [float(driver.position_gain), 0.0], atol=1e-12)
+    assert np.hypot(*(moved - [m0.x, m0.y])) > 0.5  # a sample's travel, not a rounding

@@ -625,14 +625,16 @@ def _default_car() -> ReducedHalfCar:
 
 
 class HorizonState(eqx.Module):
-    """The driver between samples: arc length `s` of the last projection, the filtered
-    `position` $(x, y)$ and the measured ground `velocity` in the inertial frame, the plan
+    """The driver between samples: the time `t` of the last measurement, arc length `s` of
+    its projection, the filtered `position` $(x, y)$ and the measured ground `velocity` in
+    the inertial frame, the plan
     (`xs`, `us`, starting at `s_plan`; its multipliers `lam`, `nu`, `z`), the `inputs`
     $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
     `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
     peak friction, `projection` $(s, n, \\xi)$; `planned`: whether a plan has been solved
     (False after `RecedingHorizonDriver.init`, whose first plan the first command solves)."""
 
+    t: Float[Array, ""]
     s: Float[Array, ""]
     position: Float[Array, " 2"]
     velocity: Float[Array, " 2"]
@@ -936,9 +938,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         us = guard(jnp.where(ok, sol.us, us0))
         return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
 
-    def _state(self, s, position, velocity, s_plan, sol, inputs, D, projection):
+    def _state(self, t, s, position, velocity, s_plan, sol, inputs, D, projection):
         kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
-        return HorizonState(s=s, position=position, velocity=velocity, s_plan=s_plan,
+        return HorizonState(t=t, s=s, position=position, velocity=velocity, s_plan=s_plan,
                             xs=sol.xs, us=sol.us, lam=sol.lam, nu=sol.nu, z=sol.z,
                             inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
@@ -954,13 +956,15 @@ class RecedingHorizonDriver(AbstractDriveController):
         return jnp.stack([c * m.vx - sn * m.vy, sn * m.vx + c * m.vy])
 
     def filter_position(self, state: HorizonState, m: DriveMeasurement):
-        r"""The position estimate: dead reckoning over the sample with the measured ground
-        velocities (trapezoidal rule), corrected toward the measured position by
-        `position_gain` $g$: $\hat p_k = \bar p + g(p_k - \bar p)$,
-        $\bar p = \hat p_{k-1} + \tfrac T2(v_{k-1} + v_k)$. Returns the position and
-        the velocity $v_k$ (inertial frame)."""
+        r"""The position estimate: dead reckoning over the time since the last measurement
+        with the measured ground velocities (trapezoidal rule), corrected toward the
+        measured position by `position_gain` $g$: $\hat p_k = \bar p + g(p_k - \bar p)$,
+        $\bar p = \hat p_{k-1} + \tfrac{\Delta t}2(v_{k-1} + v_k)$,
+        $\Delta t = t_k - t_{k-1}$ (the sample period; zero for the first command, which
+        sees `init`'s measurement, so the estimate starts at the measured position).
+        Returns the position and the velocity $v_k$ (inertial frame)."""
         v = self._world_velocity(m)
-        pred = state.position + 0.5 * self.sample_time * (state.velocity + v)
+        pred = state.position + 0.5 * (m.t - state.t) * (state.velocity + v)
         p = pred + self.position_gain * (jnp.stack([m.x, m.y]) - pred)
         return p, v
 
@@ -992,11 +996,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         projection = jnp.concatenate([s[None], X5[:2]])
         if self.hessian_update == "first":
             sol = self._solve(prob, xs0, us0, self.options(first=True), first=True)
-            return self._state(s, position, self._world_velocity(m), s, sol, inputs, D,
+            return self._state(m.t, s, position, self._world_velocity(m), s, sol, inputs, D,
                                projection)
         masks = stage_layout(prob).masks()
         inf = jnp.asarray(jnp.inf)
-        return HorizonState(s=s, position=position, velocity=self._world_velocity(m),
+        return HorizonState(t=m.t, s=s, position=position, velocity=self._world_velocity(m),
                             s_plan=s, xs=xs0, us=us0, lam=jnp.zeros_like(xs0),
                             nu=jnp.zeros(masks.eq.shape), z=jnp.zeros(masks.g.shape),
                             inputs=inputs, iterations=jnp.asarray(0),
@@ -1039,7 +1043,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
         torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
-        new = self._state(s, position, velocity, s_pred, sol, inputs, D,
+        new = self._state(m.t, s, position, velocity, s_pred, sol, inputs, D,
                           jnp.concatenate([s[None], X5[:2]]))
         return new, jnp.concatenate([torques, inputs[2:]])
 
