@@ -435,14 +435,17 @@ def test_slip_bound_widening_contracts_towards_the_bound():
 
 def test_driver_passes_its_hessian_update_to_the_sample_solves():
     """`RecedingHorizonDriver.hessian_update` reaches the options of every sample's solve
-    (not the first plan's, solved to convergence by Newton's method), an unknown value is
-    refused naming the field, and the multipliers' re-estimate is on where the solves run
-    to convergence."""
+    (the first plan's, solved to convergence, takes a fresh Hessian every step: Newton's
+    method), an unknown value is refused naming the field, and the multipliers' re-estimate
+    is on where the solves run to convergence."""
     road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 4.0)
     table = vs.RoadTable.from_road(road)
     frozen = vs.RecedingHorizonDriver(table, hessian_update="first")
     assert frozen.options().hessian_update == "first"
-    assert frozen.options(first=True).hessian_update == "every"
+    assert int(frozen.options().fresh_hessian_steps) == 1
+    cold = frozen.options(first=True)
+    assert cold.hessian_update == "first"
+    assert int(cold.fresh_hessian_steps) >= int(cold.max_iter) == 300
     assert vs.RecedingHorizonDriver(table).options().hessian_update == "every"
     # the multipliers' re-estimate (an uncounted pass) in the converged solves only: a
     # real-time iteration's work per sample stays fixed
@@ -463,8 +466,8 @@ def test_first_plan_is_the_first_commands_solve():
     """A drive holds one interior-point solve: `init` leaves the first plan to the first
     command (no loop traced in it; the state says no plan yet), whose options are then the
     first plan's (a cold start to convergence, the first barrier 0.1, the multipliers'
-    re-estimate) from the same program as a later sample's. With ``hessian_update='first'``
-    the first plan, by Newton's method, is solved in `init`."""
+    re-estimate, a fresh Hessian every step) from the same program as a later sample's,
+    with ``hessian_update='first'`` too."""
     road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
     table = vs.RoadTable.from_road(road, extension=40.0)
     plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
@@ -479,11 +482,13 @@ def test_first_plan_is_the_first_commands_solve():
         assert int(got.max_iter) == int(want.max_iter)
         assert float(got.mu0) == float(want.mu0)
         assert bool(got.reestimate_multipliers) == bool(want.reestimate_multipliers)
+        assert int(got.fresh_hessian_steps) == int(want.fresh_hessian_steps)
     assert (int(cold.max_iter), float(cold.mu0)) == (300, 0.1)
     assert (int(sample.max_iter), float(sample.mu0)) == (4, 1e-3)
     frozen = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4,
                                       hessian_update="first")
-    assert _has_loop(frozen.init, m0)
+    assert not _has_loop(frozen.init, m0)
+    assert not bool(frozen.init(m0).planned)
 
 
 def test_position_estimate_reckons_over_the_time_between_measurements():

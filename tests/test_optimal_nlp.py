@@ -441,15 +441,23 @@ def test_stage_jacobians_are_those_of_the_full_derivatives():
 
 def test_frozen_hessian_reaches_the_same_optimum_linearly(bang_bang):
     """``hessian_update='first'`` keeps the first pass's Hessian: the fixed point is still
-    the KKT point (the analytic bang-bang time), in more passes than Newton's; it refuses
-    an unknown update."""
+    the KKT point (the analytic bang-bang time), in more passes than Newton's; with
+    ``fresh_hessian_steps`` as many as the cap (an array: the same program) it is Newton's
+    solve, step for step; it refuses an unknown update."""
     prob, sol = bang_bang
-    frozen = interior_point(prob, *_guess(prob.num_stages),
-                            IPOptions(hessian_update="first", max_iter=300))
+    solve = eqx.filter_jit(lambda steps: interior_point(
+        prob, *_guess(prob.num_stages),
+        IPOptions(hessian_update="first", max_iter=300, fresh_hessian_steps=steps)))
+    frozen = solve(jnp.asarray(1))
     assert float(frozen.xs[-1, 4]) == pytest.approx(2 * np.sqrt(10.0 / 5.0), abs=1e-6)
     assert int(frozen.iterations) > int(sol.iterations)
+    newton = solve(jnp.asarray(300))
+    assert int(newton.iterations) == int(sol.iterations)
+    np.testing.assert_allclose(newton.xs, sol.xs, rtol=1e-12, atol=1e-12)
     with pytest.raises(ValueError, match="IPOptions.hessian_update must be one of"):
         IPOptions(hessian_update="never")
+    with pytest.raises(ValueError, match="IPOptions.fresh_hessian_steps"):
+        IPOptions(hessian_update="first", fresh_hessian_steps=0)
 
 
 def test_one_rk4_step_without_the_loop_is_the_looped_step():

@@ -820,15 +820,14 @@ class RecedingHorizonDriver(AbstractDriveController):
         """The interior-point options of a sample; ``first`` (a boolean, or a boolean
         array: one program for both): the first plan's, a cold start solved to convergence
         (at most `init_iterations`, IPOPT's first barrier 0.1, the multipliers'
-        re-estimate on) by Newton's method (a Hessian every pass)."""
+        re-estimate on) by Newton's method (a fresh Hessian every step, whatever
+        `hessian_update`)."""
         cap = self.iterations if self.mode == "rti" else self.max_iterations
-        # the first plan alone (a Python True: `init`'s, with hessian_update='first') is
-        # solved by Newton's method whatever the samples' Hessian update
-        update = "every" if first is True else self.hessian_update
         # a real-time iteration does a fixed work per sample: no uncounted re-estimates
         return IPOptions(max_iter=jnp.where(first, self.init_iterations, cap), tol=self.tol,
                          constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
-                         log_size=8, hessian_update=update,
+                         log_size=8, hessian_update=self.hessian_update,
+                         fresh_hessian_steps=jnp.where(first, self.init_iterations, 1),
                          reestimate_multipliers=first | (self.mode == "converged"))
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
@@ -924,12 +923,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         y, _ = jax.lax.scan(step, y, None, length=steps)
         return y
 
-    def _solve(self, prob, xs0, us0, options, multipliers=None, first=False) -> IPSolution:
-        """The plan (the guess kept where the solve broke down). A converged-mode plan
-        (and the first, solved to convergence) is differentiated by the implicit function
-        theorem (`interior_point`'s ``implicit``); a real-time iteration's refuses
-        derivatives (`RTI_DERIVATIVE_MESSAGE`)."""
-        implicit = first or self.mode == "converged"
+    def _solve(self, prob, xs0, us0, options, multipliers=None) -> IPSolution:
+        """The plan (the guess kept where the solve broke down). A converged-mode plan is
+        differentiated by the implicit function theorem (`interior_point`'s ``implicit``);
+        a real-time iteration's refuses derivatives (`RTI_DERIVATIVE_MESSAGE`)."""
+        implicit = self.mode == "converged"
         sol = interior_point(prob, xs0, us0, options, throw=False, multipliers=multipliers,
                              implicit=implicit)
         ok = jnp.all(jnp.isfinite(sol.xs)) & jnp.all(jnp.isfinite(sol.us))
@@ -975,10 +973,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         table's start, or its nearest sample). The first plan is the first command's solve
         from that projection (not the state predicted over the delay), a cold start from
         `profile_guess` solved to convergence (at most `init_iterations`; `options` with
-        ``first``), so that a drive holds one interior-point solve, not two. With
-        ``hessian_update='first'`` (whose sample solves keep their first Hessian) it is
-        solved here, by Newton's method, and the first command re-solves it at the
-        predicted state."""
+        ``first``), so that a drive holds one interior-point solve, not two."""
         m = measurement
         d2 = (self.table.x - m.x) ** 2 + (self.table.y - m.y) ** 2
         s_guess = self.table.s[jnp.argmin(d2)]
@@ -994,10 +989,6 @@ class RecedingHorizonDriver(AbstractDriveController):
         xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
         prob = self.problem(s, state8, D)
         projection = jnp.concatenate([s[None], X5[:2]])
-        if self.hessian_update == "first":
-            sol = self._solve(prob, xs0, us0, self.options(first=True), first=True)
-            return self._state(m.t, s, position, self._world_velocity(m), s, sol, inputs, D,
-                               projection)
         masks = stage_layout(prob).masks()
         inf = jnp.asarray(jnp.inf)
         return HorizonState(t=m.t, s=s, position=position, velocity=self._world_velocity(m),
@@ -1016,9 +1007,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         delay = self.delay_samples * T
         y = self.predict(s, X5, state.inputs, delay) if self.delay_samples > 0 else \
             jnp.concatenate([s[None], X5])
-        # the first plan (no plan yet) starts where `init` projected the measurement (as
-        # `hessian_update='first'`'s, solved there), every stage at the measured speed, from
-        # the cold start; a later one at the state predicted over the delay
+        # the first plan (no plan yet) starts where `init` projected the measurement, every
+        # stage at the measured speed, from the cold start; a later one at the state
+        # predicted over the delay
         first = ~state.planned
         measured8 = jnp.concatenate([state.projection[1:], jnp.stack([m.vx, m.vy, m.yaw_rate]),
                                      state.inputs])

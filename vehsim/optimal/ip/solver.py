@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..._checks import is_concrete
+from ..._checks import check_positive, is_concrete
 from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
@@ -87,7 +87,10 @@ class IPOptions(eqx.Module):
     iterate: Newton's method) or 'first' (the Hessian of the first step kept for the
     later passes, whose values and Jacobians are fresh: the limit is still a KKT point,
     reached linearly rather than quadratically, and such a pass costs about a third; for
-    real-time iterations of a few passes from a close warm start); ``mu0``: initial
+    real-time iterations of a few passes from a close warm start);
+    ``fresh_hessian_steps``: with 'first', the steps that take a fresh Hessian before it
+    is kept (1; an array, so that a solve by Newton's method, ``max_iter`` of them, and a
+    frozen one are one program); ``mu0``: initial
     barrier (small for warm starts); ``reestimate_multipliers``: after a pass whose line
     search failed or whose regularisation exceeded `DELTA_RESET` (multipliers running
     away), the next pass re-estimates $(\\lambda, \\nu)$ by least squares (one more
@@ -109,6 +112,7 @@ class IPOptions(eqx.Module):
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
     hessian_update: str = eqx.field(static=True, default="every")
+    fresh_hessian_steps: Int[Array, ""] = int_field(default=1)
     reestimate_multipliers: Bool[Array, ""] = bool_field(default=True)
     mu0: Float[Array, ""] = array_field(default=0.1)
     multiplier_init: str = eqx.field(static=True, default="least-squares")
@@ -124,6 +128,7 @@ class IPOptions(eqx.Module):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
+        check_positive("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps)
 
 
 class IPLog(eqx.Module):
@@ -296,6 +301,8 @@ def canonical_options(options: IPOptions) -> IPOptions:
     compiles the same program as one built after) and ``verbose`` off (the log is printed
     on the host when the solve returns)."""
     return dataclasses.replace(options, max_iter=jnp.asarray(options.max_iter, dtype=int),
+                               fresh_hessian_steps=jnp.asarray(options.fresh_hessian_steps,
+                                                               dtype=int),
                                mu0=jnp.asarray(options.mu0, dtype=float),
                                reestimate_multipliers=jnp.asarray(
                                    options.reestimate_multipliers, dtype=bool), verbose=False)
@@ -380,8 +387,10 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
     stepping = lambda st: (~st.done) & ((st.iteration < options.max_iter - 1)
                                         | ~st.multipliers_ready)
     if options.hessian_update == "first":
-        # the passes until the first step take the Hessian, the later ones keep it
-        state = jax.lax.while_loop(lambda st: stepping(st) & (st.iteration == 0),
+        # the passes until `fresh_hessian_steps` steps are taken take the Hessian, the
+        # later ones keep it
+        state = jax.lax.while_loop(lambda st: stepping(st)
+                                   & (st.iteration < options.fresh_hessian_steps),
                                    lambda st: _iteration(prob, lay, options, st), state)
     state = jax.lax.while_loop(
         stepping,
