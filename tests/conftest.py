@@ -18,12 +18,15 @@ import tempfile
 import pytest
 
 
-# LLVM's backend optimisation off: the suite is bound by XLA compile time, not run time
-# (docs/performance.md). Added to the user's XLA_FLAGS (kept), unless they set it themselves;
-# benchmarks and `vehsim reproduce` keep XLA's default.
+# LLVM's backend optimisation and its expensive passes off: the suite is bound by XLA
+# compile time, not run time (docs/performance.md). Added to the user's XLA_FLAGS (kept),
+# each unless they set it themselves; benchmarks and `vehsim reproduce` keep XLA's default.
 _flags = os.environ.get("XLA_FLAGS", "")
-if "--xla_backend_optimization_level" not in _flags:
-    os.environ["XLA_FLAGS"] = f"{_flags} --xla_backend_optimization_level=0".strip()
+for _flag, _value in (("--xla_backend_optimization_level", "0"),
+                      ("--xla_llvm_disable_expensive_passes", "true")):
+    if _flag not in _flags:
+        _flags = f"{_flags} {_flag}={_value}".strip()
+os.environ["XLA_FLAGS"] = _flags
 
 if not os.environ.get("VEHSIM_TEST_JAX_CACHE"):  # the first process of the run (not a worker)
     os.environ["VEHSIM_TEST_JAX_CACHE"] = tempfile.mkdtemp(prefix="vehsim-test-jax-cache-")
