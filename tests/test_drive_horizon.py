@@ -154,16 +154,16 @@ def converged_run(corner):
 def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     """The driver (converged mode: the multipliers warm-started, at most 100 iterations; D
     fixed at its car's) against the offline primitive of its planning car on the same
-    corridor: measured +2.0 % under the tests' compilation flags (4.585 s against 4.495 s;
-    +1.2 % with the first plan solved apart, and up to +5.8 % after a change of the first
-    command alone: the drive is sensitive to its solves' starts and rounding).
-    Never off the road."""
+    corridor, within 2 %: measured +0.8 % (4.530 s against 4.495 s; 98 % of the samples'
+    solves converged). The drive is sensitive to its solves' starts: +2.0 % while the
+    position estimate started a sample ahead of the car, up to +5.8 % after a change of the
+    first command alone. Never off the road."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
     t_prim = float(corner["prim"].t_f)
     print("oracle drive", tc, "primitive", t_prim, "off", off,
           "iterations", np.asarray(run.controller_info["iterations"]).tolist())
-    assert abs(tc / t_prim - 1.0) < 0.025, (tc, t_prim)
+    assert abs(tc / t_prim - 1.0) < 0.02, (tc, t_prim)
     assert off < 0.05
     info = run.controller_info
     assert info["plan_s"].shape == (corner["num"], STAGES + 1)
@@ -173,7 +173,7 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     iterations = np.asarray(info["iterations"])
     assert iterations[0] <= driver.init_iterations
     assert np.all(iterations[1:] <= driver.max_iterations)
-    assert np.mean(np.asarray(info["converged"])) >= 0.4
+    assert np.mean(np.asarray(info["converged"])) >= 0.9
     # the first plans converge: without the multipliers' re-estimate after a failed line
     # search the cold first plan ran away (300 iterations, KKT residual 1e28), and so did
     # the first warm-started samples
@@ -237,18 +237,18 @@ def test_warm_start_lowers_iterations(corner, converged_run):
 def test_rti_drives_the_road(corner, converged_run):
     _, run = converged_run
     t_conv, _ = _reading(corner["road"], run)
-    rti = _run(corner, _driver(corner, mode="rti", iterations=4))
+    rti = _run(corner, _driver(corner, mode="rti", iterations=6))
     t_rti, off = _reading(corner["road"], rti)
     assert off < 0.05
-    # measured: 4.944 s against the converged mode's 4.550 s (+8.7 %; 4.821 s compiled
-    # with XLA's default flags: real-time iterations are sensitive to rounding);
-    # 8 iterations: 5.029 s
-    assert abs(t_rti / t_conv - 1.0) < 0.11, (t_rti, t_conv)
+    # measured: 4.611 s against the converged mode's 4.530 s (+1.8 %); 8 passes: 4.543 s.
+    # 4 passes cut this corner's apex by 0.11 m: their plans there are far from feasible
+    # (KKT errors of 10-2000) on this road, planned without the slip bound
+    assert abs(t_rti / t_conv - 1.0) < 0.05, (t_rti, t_conv)
     # a real-time iteration's fixed work per sample after the first plan, which the first
-    # sample solves to convergence from the cold start (more than the 4 passes)
+    # sample solves to convergence from the cold start (more than the 6 passes)
     iterations = np.asarray(rti.controller_info["iterations"])
-    assert np.all(iterations[1:] <= 4)
-    assert iterations[0] > 4 and bool(rti.controller_info["converged"][0])
+    assert np.all(iterations[1:] <= 6)
+    assert iterations[0] > 6 and bool(rti.controller_info["converged"][0])
 
 
 @pytest.fixture(scope="module")
