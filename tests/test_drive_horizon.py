@@ -462,15 +462,21 @@ def _has_loop(f, *args) -> bool:
     return "while[" in str(jax.make_jaxpr(f)(*args))
 
 
+def _straight_and_quiet_plant():
+    """A 40 m straight's table and a plant without sensor noise: the driver's state
+    functions, without a drive."""
+    road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    return table, vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+
+
 def test_first_plan_is_the_first_commands_solve():
     """A drive holds one interior-point solve: `init` leaves the first plan to the first
     command (no loop traced in it; the state says no plan yet), whose options are then the
     first plan's (a cold start to convergence, the first barrier 0.1, the multipliers'
     re-estimate, a fresh Hessian every step) from the same program as a later sample's,
     with ``hessian_update='first'`` too."""
-    road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
-    table = vs.RoadTable.from_road(road, extension=40.0)
-    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    table, plant = _straight_and_quiet_plant()
     m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
     driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
     assert not _has_loop(driver.init, m0)
@@ -497,9 +503,7 @@ def test_position_estimate_reckons_over_the_time_between_measurements():
     with the car where the measured velocities carry it and GNSS reading the same, the
     estimate is that position exactly (the trapezoidal rule is exact at constant velocity);
     with GNSS off by e, it moves by `position_gain` e."""
-    road = vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0)
-    table = vs.RoadTable.from_road(road, extension=40.0)
-    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    table, plant = _straight_and_quiet_plant()
     m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=12.0, y=0.5, psi=0.1),
                           jax.random.key(0))
     driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
