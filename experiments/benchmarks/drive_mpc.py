@@ -122,17 +122,19 @@ class DompcDriver:
             terminal_heading=float(ocp.terminal_heading), tol=d.tol,
             max_iter=d.max_iterations, mu_init=float(d.barrier))
 
-        def prepare(s_prev, position, velocity, inputs, m, xs, us, s_plan):
-            position, velocity = d.filter_position(
-                SimpleNamespace(position=position, velocity=velocity), m)
+        def prepare(s_prev, t_prev, position, position_var, velocity, inputs, m, xs, us,
+                    s_plan):
+            position, position_var, velocity = d.filter_position(
+                SimpleNamespace(t=t_prev, position=position, position_var=position_var,
+                                velocity=velocity), m)
             s, X5 = d._measured_state(m, position, s_prev)
             y = d.predict(s, X5, inputs, d.delay_samples * d.sample_time) \
                 if d.delay_samples > 0 else jnp.concatenate([s[None], X5])
             state8 = jnp.concatenate([y[1:], inputs])
             xs0, us0 = shift_plan(xs, us, y[0] - s_plan, d.horizon)
             D = d.planner_friction(y[0], None, d.stage_speeds(xs0))
-            return s, position, velocity, y[0], state8, D, arrays(d.problem(y[0], state8, D)), (
-                xs0, us0)
+            return (s, position, position_var, velocity, y[0], state8, D,
+                    arrays(d.problem(y[0], state8, D)), (xs0, us0))
 
         def finish(xs, us, D0, inputs_prev, m):
             inputs, torques = d.plan_command(xs, us, D0)
@@ -184,23 +186,26 @@ class DompcDriver:
         self.success.clear()
         # compile the jitted pieces now (vehsim's command is compiled before its loop too)
         position, velocity = jnp.stack([m.x, m.y]), self.driver._world_velocity(m)
-        jax.block_until_ready(self._prepare(s, position, velocity, inputs, m, jnp.asarray(xs),
-                                            jnp.asarray(us), s))
+        position_var = self.driver.position_std ** 2
+        jax.block_until_ready(self._prepare(s, m.t, position, position_var, velocity, inputs, m,
+                                            jnp.asarray(xs), jnp.asarray(us), s))
         jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
                                            inputs, m))
-        return {"s": s, "position": position, "velocity": velocity, "s_plan": s,
-                "inputs": inputs, "xs": xs, "us": us}
+        return {"s": s, "t": m.t, "position": position, "position_var": position_var,
+                "velocity": velocity, "s_plan": s, "inputs": inputs, "xs": xs, "us": us}
 
     def command(self, cs, m):
-        s, position, velocity, s_pred, state8, D, data, (xs0, us0) = self._prepare(
-            cs["s"], cs["position"], cs["velocity"], cs["inputs"], m, jnp.asarray(cs["xs"]),
-            jnp.asarray(cs["us"]), cs["s_plan"])
+        s, position, position_var, velocity, s_pred, state8, D, data, (xs0, us0) = \
+            self._prepare(cs["s"], cs["t"], cs["position"], cs["position_var"],
+                          cs["velocity"], cs["inputs"], m, jnp.asarray(cs["xs"]),
+                          jnp.asarray(cs["us"]), cs["s_plan"])
         if self.shift:
             _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
         xs, us = self._solve(state8, data)
         inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
-        return {"s": s, "position": position, "velocity": velocity, "s_plan": s_pred,
-                "inputs": inputs, "xs": xs, "us": us}, command
+        return {"s": s, "t": m.t, "position": position, "position_var": position_var,
+                "velocity": velocity, "s_plan": s_pred, "inputs": inputs, "xs": xs,
+                "us": us}, command
 
 
 # ---- the closed loop ----------------------------------------------------------------------

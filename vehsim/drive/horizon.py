@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_positive, check_range
+from .._checks import check_nonnegative, check_positive, check_range
 from .._fields import array_field, float_array
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
@@ -626,8 +626,8 @@ def _default_car() -> ReducedHalfCar:
 
 class HorizonState(eqx.Module):
     """The driver between samples: the time `t` of the last measurement, arc length `s` of
-    its projection, the filtered `position` $(x, y)$ and the measured ground `velocity` in
-    the inertial frame, the plan
+    its projection, the filtered `position` $(x, y)$, its error variance `position_var`
+    [m^2] (per axis) and the measured ground `velocity` in the inertial frame, the plan
     (`xs`, `us`, starting at `s_plan`; its multipliers `lam`, `nu`, `z`), the `inputs`
     $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
     `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
@@ -637,6 +637,7 @@ class HorizonState(eqx.Module):
     t: Float[Array, ""]
     s: Float[Array, ""]
     position: Float[Array, " 2"]
+    position_var: Float[Array, ""]
     velocity: Float[Array, " 2"]
     s_plan: Float[Array, ""]
     xs: Float[Array, "M+1 9"]
@@ -673,8 +674,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     needs an estimator in `simulate_drive`; the first plan uses its prior),
     each at the stages' speeds (below); `slip_gain` [N m] (torque per unit slip error, 0:
     feedforward only), `lead` [s] (the plan is read this far past the predicted state: the
-    actuators' lag), `position_gain` (the weight of the measured position against dead
-    reckoning, `filter_position`; 1: the raw measurement), `steer_rate` [rad/s] and
+    actuators' lag), `position_std` [m] and `velocity_std` [m/s] (the standard deviations
+    the position filter assumes for a GNSS fix and for each axis of the measured velocity
+    over ground, `filter_position`; 0.3 and 0.1), `steer_rate` [rad/s] and
     `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
     (static; the actuators' delay), `init_iterations` (cap of the first plan's solve),
     `warm_start` (static): 'primal' (the shifted plan; the multipliers start afresh, the
@@ -750,7 +752,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     estimate_backoff: Float[Array, ""] = array_field(default=0.0)
     slip_gain: Float[Array, ""] = array_field(default=0.0)
     lead: Float[Array, ""] = array_field(default=0.05)
-    position_gain: Float[Array, ""] = array_field(default=0.1)
+    position_std: Float[Array, ""] = array_field(default=0.3)
+    velocity_std: Float[Array, ""] = array_field(default=0.1)
     steer_rate: Float[Array, ""] = array_field(default=1.0)
     steer_limit: Float[Array, ""] = array_field(default=0.6)
     sample_time: Float[Array, ""] = array_field(default=0.05)
@@ -784,9 +787,11 @@ class RecedingHorizonDriver(AbstractDriveController):
             raise ValueError("RecedingHorizonDriver.iterations must be an integer >= 2 (the "
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
-                     "terminal_backoff", "mu0", "reference_speed", "slip_limit"):
+                     "terminal_backoff", "mu0", "reference_speed", "slip_limit",
+                     "position_std"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
+        check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
                     upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
@@ -936,9 +941,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         us = guard(jnp.where(ok, sol.us, us0))
         return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
 
-    def _state(self, t, s, position, velocity, s_plan, sol, inputs, D, projection):
+    def _state(self, t, s, position, position_var, velocity, s_plan, sol, inputs, D,
+               projection):
         kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
-        return HorizonState(t=t, s=s, position=position, velocity=velocity, s_plan=s_plan,
+        return HorizonState(t=t, s=s, position=position, position_var=position_var,
+                            velocity=velocity, s_plan=s_plan,
                             xs=sol.xs, us=sol.us, lam=sol.lam, nu=sol.nu, z=sol.z,
                             inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
@@ -954,17 +961,25 @@ class RecedingHorizonDriver(AbstractDriveController):
         return jnp.stack([c * m.vx - sn * m.vy, sn * m.vx + c * m.vy])
 
     def filter_position(self, state: HorizonState, m: DriveMeasurement):
-        r"""The position estimate: dead reckoning over the time since the last measurement
-        with the measured ground velocities (trapezoidal rule), corrected toward the
-        measured position by `position_gain` $g$: $\hat p_k = \bar p + g(p_k - \bar p)$,
-        $\bar p = \hat p_{k-1} + \tfrac{\Delta t}2(v_{k-1} + v_k)$,
-        $\Delta t = t_k - t_{k-1}$ (the sample period; zero for the first command, which
-        sees `init`'s measurement, so the estimate starts at the measured position).
-        Returns the position and the velocity $v_k$ (inertial frame)."""
+        r"""The position estimate: a Kalman filter per axis whose model is dead reckoning
+        with the measured ground velocities (trapezoidal rule) and whose measurement is the
+        GNSS fix. Over $\Delta t = t_k - t_{k-1}$,
+        $\bar p = \hat p_{k-1} + \tfrac{\Delta t}2(v_{k-1} + v_k)$ with variance
+        $\bar P = P_{k-1} + (\Delta t\,\sigma_v)^2$; the fix $p_k$ corrects it with the
+        gain $K = \bar P/(\bar P + \sigma_p^2)$: $\hat p_k = \bar p + K(p_k - \bar p)$,
+        $P_k = (1 - K)\bar P$ ($\sigma_p$ = `position_std`, $\sigma_v$ = `velocity_std`).
+        The filter starts at the first fix with $P = \sigma_p^2$, and the first command,
+        which sees `init`'s measurement again ($\Delta t = 0$), does not count it twice.
+        The gain falls from 1/2 to about $\Delta t\,\sigma_v/\sigma_p$ (0.017 at 20 Hz
+        with the defaults): the early fixes are averaged, the later ones mostly filtered.
+        Returns the position, its variance and the velocity $v_k$ (inertial frame)."""
         v = self._world_velocity(m)
-        pred = state.position + 0.5 * (m.t - state.t) * (state.velocity + v)
-        p = pred + self.position_gain * (jnp.stack([m.x, m.y]) - pred)
-        return p, v
+        dt = m.t - state.t
+        pred = state.position + 0.5 * dt * (state.velocity + v)
+        P = state.position_var + (dt * self.velocity_std) ** 2
+        K = jnp.where(dt > 0, P / (P + self.position_std ** 2), 0.0)
+        p = pred + K * (jnp.stack([m.x, m.y]) - pred)
+        return p, (1.0 - K) * P, v
 
     # ---- the controller protocol --------------------------------------------------------
 
@@ -990,18 +1005,22 @@ class RecedingHorizonDriver(AbstractDriveController):
         prob = self.problem(s, state8, D)
         projection = jnp.concatenate([s[None], X5[:2]])
         masks = stage_layout(prob).masks()
-        inf = jnp.asarray(jnp.inf)
-        return HorizonState(t=m.t, s=s, position=position, velocity=self._world_velocity(m),
+        # typed as `command`'s state (no weak types), so a jitted command that is given
+        # `init`'s state and then its own compiles once
+        inf = jnp.full((), jnp.inf, dtype=float)
+        return HorizonState(t=m.t, s=s, position=position,
+                            position_var=self.position_std ** 2 + 0.0 * m.x,
+                            velocity=self._world_velocity(m),
                             s_plan=s, xs=xs0, us=us0, lam=jnp.zeros_like(xs0),
                             nu=jnp.zeros(masks.eq.shape), z=jnp.zeros(masks.g.shape),
-                            inputs=inputs, iterations=jnp.asarray(0),
+                            inputs=inputs, iterations=jnp.zeros((), dtype=int),
                             converged=jnp.asarray(False), kkt=inf, D=D,
                             projection=projection, planned=jnp.asarray(False))
 
     def command(self, state: HorizonState, measurement: DriveMeasurement, estimate
                 ) -> tuple[HorizonState, Float[Array, " 3"]]:
         m = measurement
-        position, velocity = self.filter_position(state, m)
+        position, position_var, velocity = self.filter_position(state, m)
         s, X5 = self._measured_state(m, position, state.s)
         T = self.sample_time
         delay = self.delay_samples * T
@@ -1034,7 +1053,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
         torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
-        new = self._state(m.t, s, position, velocity, s_pred, sol, inputs, D,
+        new = self._state(m.t, s, position, position_var, velocity, s_pred, sol, inputs, D,
                           jnp.concatenate([s[None], X5[:2]]))
         return new, jnp.concatenate([torques, inputs[2:]])
 
