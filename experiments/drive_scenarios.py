@@ -15,7 +15,10 @@ road, completed (crossed, never more than 5 cm off). Drivers:
   road's peak at the stage's planned speed; a driver with an estimator also records the
   estimate and the planner's D at the main corner's apex (``apex``);
 - ``bound``: the offline bound (`offline_bound`; time of the reduced model's minimum-time
-  drive on the true grip; departure: its path between the nodes).
+  drive on the true grip; departure: its path between the nodes);
+- ``bound-driver``: the same bound under the receding-horizon driver's own constraints
+  (its corridor margin, slip bound, steering rate and peak fraction on that road:
+  `offline_bound` with ``driver``), what those constraints cost before any estimation.
 
 One JSON line per row goes to ``--out`` (default experiments/drive_scenarios_results.jsonl,
 appended), then a markdown table is printed. The benchmark corners share one number of
@@ -57,7 +60,8 @@ from vehsim.drive.horizon import BACK_EXTENSION, EXTENSION  # noqa: E402
 from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS, main_corner  # noqa: E402
 
 
-DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate", "bound")
+DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate", "bound",
+           "bound-driver")
 OUT = Path(__file__).with_name("drive_scenarios_results.jsonl")
 SPACING = 0.1
 
@@ -135,8 +139,8 @@ def run_one(kind, sc, reference, seed):
     return rec
 
 
-def bound_row(sc, cache):
-    prim, D, exact = vs.offline_bound(sc)
+def bound_row(sc, driver=None):
+    prim, D, exact = vs.offline_bound(sc, driver=driver)
     v = prim.violations()
     return dict(time=float(prim.t_f) if bool(prim.solution.converged) else None,
                 max_off_road=v["corridor_between_nodes"],
@@ -172,11 +176,15 @@ def scenario_table(args):
                 sc = scenario(road, grip, budget, points)
                 for kind in args.drivers:
                     t0 = time.perf_counter()
-                    rec = bound_row(sc, None) if kind == "bound" else run_one(
-                        kind, sc, reference, args.seed)
+                    if kind == "bound":
+                        rec = bound_row(sc)
+                    elif kind == "bound-driver":
+                        rec = bound_row(sc, make_driver("rh-oracle", sc, None)[0])
+                    else:
+                        rec = run_one(kind, sc, reference, args.seed)
                     rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
                                num_samples=sc.num_samples, **rec)
-                    if kind.startswith("rh-"):
+                    if kind.startswith("rh-") or kind == "bound-driver":
                         rec["driver_settings"] = vs.driver_settings(road)
                     rec.setdefault("wall_s", time.perf_counter() - t0)
                     rows.append(rec)
@@ -287,7 +295,7 @@ def main(argv=None):
     ap.add_argument("--reference-rows", type=int, default=160,
                     help="rows of every reference table (padding; >= the primitives' nodes)")
     ap.add_argument("--monte-carlo", type=int, default=0, metavar="SEEDS")
-    ap.add_argument("--mc-driver", default="tracking", choices=DRIVERS[:-1])
+    ap.add_argument("--mc-driver", default="tracking", choices=DRIVERS[:-2])
     ap.add_argument("--mc-only", action="store_true")
     args = ap.parse_args(argv)
     if args.quick:

@@ -311,3 +311,39 @@ def test_open_loop_replay_follows_the_primitive_on_its_road_and_not_on_less_grip
     # with 20 % less grip the same commands leave the road by metres and never arrive
     assert deviation("minus20") > 3.0
     assert out["minus20"][2].max_off_road > 3.0 and not out["minus20"][2].completed
+
+
+@pytest.mark.slow  # two fixed points of whole-road solves, about a minute
+def test_bound_under_the_drivers_constraints_keeps_them(replay):
+    """`offline_bound` with a driver: the minimum-time drive under the receding-horizon
+    driver's corridor margin, slip bound and steering rate keeps each of them where the
+    horizon problem bounds them,
+    where the unconstrained bound breaks at least one, and costs time: it lies between the
+    bound and the bound plus 10 % (measured on corner90: +4.3 %)."""
+    sc = replay[2]["nominal"][0]
+    driver = vs.RecedingHorizonDriver(table=sc.table)
+    free, _, exact_free = vs.offline_bound(sc)
+    bound, D, exact = vs.offline_bound(sc, driver=driver)
+    assert exact and exact_free and bool(bound.solution.converged)
+    assert float(free.t_f) * 1.01 < float(bound.t_f) < float(free.t_f) * 1.10
+
+    def worst(prim):
+        """The largest excess over the margin, the slip bound and the steering rate."""
+        xs, us = np.asarray(prim.solution.xs), np.asarray(prim.solution.us)
+        M = us.shape[0]
+        s = np.linspace(0.0, float(sc.road.length), M + 1)
+        lo, hi = np.asarray(sc.table.corridor_at(jnp.asarray(s), float(driver.margin))).T
+        n, xi, vx, vy = xs[:, 0], xs[:, 1], xs[:, 2], xs[:, 3]
+        corridor = np.max(np.maximum(lo - n, n - hi))
+        slips = np.asarray(jax.vmap(lambda X: vs.axle_slips(driver.vehicle, X))(
+            jnp.asarray(xs)))
+        kap = np.asarray(sc.table.curvature_at(jnp.asarray(s)))
+        sdot = (vx * np.cos(xi) - vy * np.sin(xi)) / (1.0 - n * kap)
+        rate = np.abs(us[:, 2] * sdot[:-1])
+        # the slip and steering-rate rows are path constraints: at each stage's first knot
+        # (the first too: the driver's bound starts rolling)
+        return (corridor, np.max(slips[:-1]) - float(driver.slip_limit),
+                np.max(rate) - float(driver.steer_rate))
+
+    assert max(worst(free)) > 0.01
+    assert max(worst(bound)) < 1e-6, worst(bound)

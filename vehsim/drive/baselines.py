@@ -196,8 +196,8 @@ BOUND_ROUNDS = 6
 """Most solves of `offline_bound`'s fixed point in the stages' speeds."""
 
 
-def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwargs
-                  ) -> tuple[RoadPrimitive, float, bool]:
+def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver=None,
+                  **kwargs) -> tuple[RoadPrimitive, float, bool]:
     r"""The offline bound of the module docstring: ``(primitive, D, exact)``, $D$ the
     smallest stage peak. The minimum-time drive of the driver's default planning car
     (`rally_gravel_car`; its $D$ set per stage) over the whole road
@@ -209,7 +209,14 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwar
     with the peaks at the last drive's speeds (or half or a quarter of the way to them
     where the whole step fails), until they change by less than 0.1 % (at most ``rounds``
     solves; on the scenarios 3-4). `exact` is False where no step converged or the peaks
-    still moved: the last converged drive is returned (the one-peak drive if none)."""
+    still moved: the last converged drive is returned (the one-peak drive if none).
+
+    ``driver`` (a `RecedingHorizonDriver`; None: the bound above): the bound under that
+    driver's own constraints, its corridor `margin`, `slip_limit`, `steer_rate` and
+    `steer_limit`, and `peak_fraction` of each stage's peak, from the drive's start with the
+    wheels rolling and the steering straight (as the driver's first plan): the fixed point
+    continued from the unconstrained bound. It parts the driver's distance to the bound into what its
+    safety constraints cost and what driving closed loop on an unknown road costs."""
     peak = np.asarray(scenario.grip.peak)
     D = float(np.min(peak))
     floor = nominal_primitive(scenario, D, **kwargs)
@@ -221,33 +228,52 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, **kwar
     car = rally_gravel_car(BENCHMARK_PEAK)
 
     @eqx.filter_jit
-    def solve(xs0, us0, D_stage):
-        prob = horizon_problem(scenario.table, car, 0.0, xs0[0, :8], D_stage, horizon=L,
-                               margin=0.0, rate_weight=prob0.rate_weight, steer_rate=1e3,
-                               steer_limit=DELTA_MAX)
+    def solve(xs0, us0, D_stage, limits):
+        prob = horizon_problem(scenario.table, car, 0.0, xs0[0, :8],
+                               limits["peak_fraction"] * D_stage, horizon=L,
+                               rate_weight=prob0.rate_weight, margin=limits["margin"],
+                               steer_rate=limits["steer_rate"],
+                               steer_limit=limits["steer_limit"],
+                               slip_limit=limits["slip_limit"])
         # from a solution nearby: a small first barrier keeps its active set
         options = IPOptions(max_iter=500, mu0=1e-3)
         return prob, interior_point(prob, xs0, us0, options, throw=False)
 
-    best, exact = floor, True
-    xs, us = floor.solution.xs, floor.solution.us
-    D_stage = jnp.full((M,), D)
-    for _ in range(int(rounds)):
-        target = peaks(scenario.table, xs)
-        if best is not floor and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
-            break
-        for step in (1.0, 0.5, 0.25):  # the whole way to the new peaks, else part of it
-            trial = D_stage + step * (target - D_stage)
-            prob, sol = solve(xs, us, trial)
-            if bool(sol.converged):
+    def fixed_point(start, D_stage, limits, xs=None):
+        """The fixed point from the drive `start` (solved again at least once; from `xs`
+        where given)."""
+        best, exact = start, True
+        xs, us = start.solution.xs if xs is None else xs, start.solution.us
+        for _ in range(int(rounds)):
+            target = peaks(scenario.table, xs)
+            if best is not start and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
                 break
-        if not bool(sol.converged):
-            exact = False
-            break
-        D_stage = trial
-        best = RoadPrimitive(problem=prob, solution=sol, road=floor.road)
-        xs, us = sol.xs, sol.us
-    else:
-        exact = False  # the peaks still moving after `rounds` solves
-    exact = exact and best is not floor  # (the floor solve itself may not converge)
+            for step in (1.0, 0.5, 0.25):  # the whole way to the new peaks, else part of it
+                trial = D_stage + step * (target - D_stage)
+                prob, sol = solve(xs, us, trial, limits)
+                if bool(sol.converged):
+                    break
+            if not bool(sol.converged):
+                exact = False
+                break
+            D_stage = trial
+            best = RoadPrimitive(problem=prob, solution=sol, road=floor.road)
+            xs, us = sol.xs, sol.us
+        else:
+            exact = False  # the peaks still moving after `rounds` solves
+        return best, D_stage, exact and best is not start
+
+    free = dict(margin=0.0, steer_rate=1e3, steer_limit=DELTA_MAX, slip_limit=None,
+                peak_fraction=1.0)
+    # (the floor solve itself may not converge: not exact)
+    best, D_stage, exact = fixed_point(floor, jnp.full((M,), D), free)
+    if driver is not None:
+        limits = dict(margin=driver.margin, steer_rate=driver.steer_rate,
+                      steer_limit=driver.steer_limit, slip_limit=driver.slip_limit,
+                      peak_fraction=driver.peak_fraction)
+        # from the drive's start as the driver plans it: wheels rolling, steering straight
+        # (the free bound's start inputs are its optimum's, past the slip bound)
+        xs = best.solution.xs.at[0, 5:8].set(0.0)
+        best, D_stage, exact_driver = fixed_point(best, D_stage, limits, xs)
+        exact = exact and exact_driver
     return best, float(jnp.min(D_stage)), exact
