@@ -215,8 +215,9 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
     driver's own constraints, its corridor `margin`, `slip_limit`, `steer_rate` and
     `steer_limit`, and `peak_fraction` of each stage's peak, from the drive's start with the
     wheels rolling and the steering straight (as the driver's first plan): the fixed point
-    continued from the unconstrained bound. It parts the driver's distance to the bound into what its
-    safety constraints cost and what driving closed loop on an unknown road costs."""
+    continued from the unconstrained bound. It parts the driver's distance to the bound
+    into what its safety constraints cost and what driving closed loop on an unknown road
+    costs."""
     peak = np.asarray(scenario.grip.peak)
     D = float(np.min(peak))
     floor = nominal_primitive(scenario, D, **kwargs)
