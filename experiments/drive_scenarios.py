@@ -32,15 +32,21 @@ tables, `path_departure`); prints the compile and run wall times and the complet
 rate, and checks the JAX departure against the exact NumPy one on a few drives (equal
 while the car stays within a metre of the road; a car metres off loses the local
 projection and the JAX value is then no distance, but completion agrees).
+``--previews M ...`` (with ``--mc-driver rh-oracle``): the oracle that knows the grip only
+M metres ahead of the car (`RecedingHorizonDriver.preview`; 0: the grip under the car, at
+once), each preview more members of the same batch: how far ahead a driver must know the
+grip to keep the road.
 
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
-       [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]]
+       [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
+       [--previews 0 5 inf]]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import time
@@ -201,6 +207,7 @@ def stack(trees):
 
 def monte_carlo(args):
     budget, points = common_sizes(args.roads)
+    previews = args.previews or [None]
     plants, ctrls, states, keys, tables, gates, meta = [], [], [], [], [], [], []
     estimator = None
     for road in args.roads:
@@ -210,14 +217,17 @@ def monte_carlo(args):
         for grip in args.grips:
             sc = scenario(road, grip, budget, points)
             ctrl, estimator = make_driver(args.mc_driver, sc, reference)
-            for seed in range(args.monte_carlo):
-                plants.append(sc.plant)
-                ctrls.append(ctrl)
-                states.append(sc.state0)
-                keys.append(jax.random.key_data(jax.random.key(1000 + seed)))
-                tables.append(sc.table)
-                gates.append(vs.EndGate.of(sc.road))
-                meta.append((road, grip, seed, sc))
+            for preview in previews:
+                if preview is not None:
+                    ctrl = eqx.tree_at(lambda c: c.preview, ctrl, jnp.asarray(preview))
+                for seed in range(args.monte_carlo):
+                    plants.append(sc.plant)
+                    ctrls.append(ctrl)
+                    states.append(sc.state0)
+                    keys.append(jax.random.key_data(jax.random.key(1000 + seed)))
+                    tables.append(sc.table)
+                    gates.append(vs.EndGate.of(sc.road))
+                    meta.append((road, grip, seed, sc, preview))
     B = len(meta)
     num_samples = meta[0][3].num_samples
     batch = (stack(plants), stack(ctrls), stack(states), jnp.stack(keys), stack(tables),
@@ -265,10 +275,14 @@ def monte_carlo(args):
     summary = dict(kind="monte-carlo", driver=args.mc_driver, drives=B,
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
                    departure_checks=check, per_scenario={})
+    if args.previews:
+        summary["previews_m"] = args.previews
     for road in args.roads:
-        for grip in args.grips:
-            m = np.array([(r == road) and (g == grip) for r, g, _, _ in meta])
-            summary["per_scenario"][f"{road}/{grip}"] = dict(
+        for grip, preview in itertools.product(args.grips, previews):
+            m = np.array([(r == road) and (g == grip) and (p == preview)
+                          for r, g, _, _, p in meta])
+            name = f"{road}/{grip}" + ("" if preview is None else f"/preview {preview:g} m")
+            summary["per_scenario"][name] = dict(
                 completed=float(np.mean(done[m])),
                 time_p50=float(np.median(tc[m & crossed])) if np.any(m & crossed) else None,
                 max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])))
@@ -297,7 +311,14 @@ def main(argv=None):
     ap.add_argument("--monte-carlo", type=int, default=0, metavar="SEEDS")
     ap.add_argument("--mc-driver", default="tracking", choices=DRIVERS[:-2])
     ap.add_argument("--mc-only", action="store_true")
+    ap.add_argument("--previews", nargs="+", type=float, metavar="M",
+                    help="Monte Carlo of rh-oracle only: also over these previews [m] "
+                         "(`RecedingHorizonDriver.preview`; inf: the whole horizon)")
     args = ap.parse_args(argv)
+    if args.previews and args.mc_driver != "rh-oracle":
+        ap.error("--previews needs --mc-driver rh-oracle (the oracle's preview of the grip)")
+    if args.previews and any(not p >= 0 for p in args.previews):
+        ap.error("--previews must be >= 0 m (inf allowed)")
     if args.quick:
         args.roads, args.grips = ["corner90"], ["nominal", "minus20"]
     if not args.mc_only:

@@ -94,6 +94,19 @@ def test_nominal_and_oracle_plan_with_the_peak_at_each_stages_speed(table):
     x, y = ROAD.position(2.0 + 4.0 * (np.arange(6) + 0.5))
     lam = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
     np.testing.assert_allclose(D, peak_by_scan(lam, SPEEDS), rtol=2e-3)
+    # a preview of 9 m from s0 = 2: the stages whose midpoints lie beyond s = 11 (stages
+    # 3-5) believe the scale seen there, the nearer ones their own; 0: the car's scale
+    mids = 2.0 + 4.0 * (np.arange(6) + 0.5)
+    for p, seen in ((9.0, np.minimum(mids, 11.0)), (0.0, np.full(6, 2.0))):
+        short = eqx.tree_at(lambda d: d.preview, oracle, jnp.asarray(p))
+        x, y = ROAD.position(seen)
+        lam_p = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
+        D_p = np.asarray(short.planner_friction(2.0, None, SPEEDS))
+        np.testing.assert_allclose(D_p, peak_by_scan(lam_p, SPEEDS), rtol=2e-3)
+        hidden = seen < mids  # the grip rises along this road: less is believed there
+        assert np.all(D_p[hidden] < 0.99 * D[hidden]) and np.all(D_p[~hidden] == D[~hidden])
+    with pytest.raises(ValueError, match="preview must lie in"):
+        _driver(table, "oracle", preview=-1.0)
     # `peak_fraction`: that fraction of the believed peak, stage by stage
     tight = _driver(table.with_grip(field), "oracle", peak_fraction=0.9)
     np.testing.assert_allclose(np.asarray(tight.planner_friction(2.0, None, SPEEDS)), 0.9 * D,

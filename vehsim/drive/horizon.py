@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_nonnegative, check_positive, check_range
+from .._checks import check_nonnegative, check_positive, check_range, is_concrete, plain
 from .._fields import array_field, float_array
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
@@ -667,7 +667,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
     `max_iterations`); `friction` (static): 'nominal' (the nominal
     road, whose peak at `reference_speed` is `nominal_peak`, 0.52), 'oracle' (the
-    `table`'s friction scale at the stages' midpoints: the true grip, known ahead) or
+    `table`'s friction scale at the stages' midpoints: the true grip, known ahead as far as
+    `preview` [m], default inf) or
     'estimate' (the estimator's belief, less `estimate_backoff` standard deviations
     (default 0: the estimate itself; planning below the plant's grip also misleads the
     torque recovery, and measured drives left the road more often, docs/driver.md);
@@ -693,7 +694,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     fraction of the believed peak the plans use (a margin for what the planning model gets
     wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
     (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
-    sample's first step's Hessian kept for its later passes, which then cost about a third).
+    sample's first step's Hessian kept for its later passes, which then cost about a third),
+    `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -711,7 +713,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     midpoint of the previous plan shifted to the new start (`stage_speeds`; the first plan:
     the measured speed), at least 1 m/s. 'nominal': $\lambda$ the road whose peak at
     `reference_speed` is `nominal_peak`; 'oracle': the `table`'s `scale` at the stage's
-    midpoint; 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
+    midpoint $s_k$, or at $s_0$ + `preview` where that is nearer (the road beyond the
+    preview believed to go on as last seen: `preview` = 0 is an estimator that knows the
+    grip under the car at once and nothing ahead); 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
     \partial\vartheta|\,\sigma_a$ with the estimate's $\lambda_a$ (`GripEstimate.scale`)
     and $\sigma_a$ = `scale_std`/`scale` the standard deviation of $\vartheta = \log
     \lambda_a$, $\beta$ = `estimate_backoff`, the smaller axle's, clipped to [0.05, 2] (at
@@ -766,6 +770,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=0.15, converter=lambda x: None if x is None else float_array(x))
     peak_fraction: Float[Array, ""] = array_field(default=1.0)
     hessian_update: str = eqx.field(static=True, default="every")
+    preview: Float[Array, ""] = array_field(default=math.inf)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -792,6 +797,10 @@ class RecedingHorizonDriver(AbstractDriveController):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
+        preview = np.asarray(self.preview, float) if is_concrete(self.preview) else None
+        if preview is not None and not np.all(preview >= 0):  # inf allowed: the whole road
+            raise ValueError("RecedingHorizonDriver.preview must lie in [0, inf] m, got "
+                             f"{plain(preview)}")
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
                     upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
@@ -875,7 +884,8 @@ class RecedingHorizonDriver(AbstractDriveController):
             return self.nominal_friction(V)
         if self.friction == "oracle":
             h = self.horizon / M
-            return self._peaks(self.table.scale_at(s0 + h * (jnp.arange(M) + 0.5)), V)
+            seen = jnp.minimum(s0 + h * (jnp.arange(M) + 0.5), s0 + self.preview)
+            return self._peaks(self.table.scale_at(seen), V)
         if estimate is None:
             raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
                              "estimator: pass estimator= to simulate_drive")
