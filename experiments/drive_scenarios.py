@@ -276,7 +276,7 @@ def monte_carlo(args):
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
                    departure_checks=check, per_scenario={})
     if args.previews:
-        summary["previews_m"] = args.previews
+        summary["previews_m"] = [p if math.isfinite(p) else "inf" for p in args.previews]
     for road in args.roads:
         for grip, preview in itertools.product(args.grips, previews):
             m = np.array([(r == road) and (g == grip) and (p == preview)
