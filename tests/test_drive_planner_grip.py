@@ -107,6 +107,8 @@ def test_nominal_and_oracle_plan_with_the_peak_at_each_stages_speed(table):
         assert np.all(D_p[hidden] < 0.99 * D[hidden]) and np.all(D_p[~hidden] == D[~hidden])
     with pytest.raises(ValueError, match="preview must lie in"):
         _driver(table, "oracle", preview=-1.0)
+    with pytest.raises(ValueError, match="'estimate' has no preview"):
+        _driver(table, "estimate", preview=5.0)
     # `peak_fraction`: that fraction of the believed peak, stage by stage
     tight = _driver(table.with_grip(field), "oracle", peak_fraction=0.9)
     np.testing.assert_allclose(np.asarray(tight.planner_friction(2.0, None, SPEEDS)), 0.9 * D,

@@ -266,10 +266,10 @@ class RoadTable(eqx.Module):
 
     def to_frenet(self, x, y, psi, s_guess):
         r"""$(s, n, \xi)$ of the pose $(x, y, \psi)$: the nearest of the samples within
-        `SEARCH_DISTANCE` of ``s_guess`` (`search_points` on each side), then `NEWTON_STEPS` Newton steps on
-        $f(s) = (p - c(s))\cdot c'(s) = 0$ ($f' = |c'|^2 - (p - c)\cdot c''$, floored at
-        0.1, steps within $\pm\Delta$); $n = (p - c(s))\cdot N(s)$, $\xi = \psi - \theta(s)$
-        in $(-\pi, \pi]$. On a closed road $s$ is not wrapped: it stays continuous with
+        `SEARCH_DISTANCE` of ``s_guess`` (`search_points` on each side), then `NEWTON_STEPS`
+        Newton steps on $f(s) = (p - c(s))\cdot c'(s) = 0$ ($f' = |c'|^2 - (p - c)\cdot
+        c''$, floored at 0.1, steps within $\pm\Delta$); $n = (p - c(s))\cdot N(s)$, $\xi =
+        \psi - \theta(s)$ in $(-\pi, \pi]$. On a closed road $s$ is not wrapped: it stays continuous with
         ``s_guess`` (counting laps). Differentiable in the pose (the search only picks the
         starting sample)."""
         h = self.spacing
@@ -715,11 +715,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     `reference_speed` is `nominal_peak`; 'oracle': the `table`'s `scale` at the stage's
     midpoint $s_k$, or at $s_0$ + `preview` where that is nearer (the road beyond the
     preview believed to go on as last seen: `preview` = 0 is an estimator that knows the
-    grip under the car at once and nothing ahead); 'estimate': per axle $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/
-    \partial\vartheta|\,\sigma_a$ with the estimate's $\lambda_a$ (`GripEstimate.scale`)
-    and $\sigma_a$ = `scale_std`/`scale` the standard deviation of $\vartheta = \log
-    \lambda_a$, $\beta$ = `estimate_backoff`, the smaller axle's, clipped to [0.05, 2] (at
-    $V_k$ = `reference_speed`: `GripEstimate.peak` less $\beta$ `peak_std`).
+    grip under the car at once and nothing ahead); 'estimate': per axle
+    $\mu^*(\lambda_a, V_k) - \beta\,|\partial\mu^*/\partial\vartheta|\,\sigma_a$ with the
+    estimate's $\lambda_a$ (`GripEstimate.scale`) and $\sigma_a$ = `scale_std`/`scale` the
+    standard deviation of $\vartheta = \log \lambda_a$, $\beta$ = `estimate_backoff`, the
+    smaller axle's, clipped to [0.05, 2] (at $V_k$ = `reference_speed`: `GripEstimate.peak`
+    less $\beta$ `peak_std`).
 
     **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
     function theorem at the solution returned (`interior_point` with ``implicit``): a
@@ -801,6 +802,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         if preview is not None and not np.all(preview >= 0):  # inf allowed: the whole road
             raise ValueError("RecedingHorizonDriver.preview must lie in [0, inf] m, got "
                              f"{plain(preview)}")
+        if preview is not None and np.any(np.isfinite(preview)) and self.friction != "oracle":
+            raise ValueError("RecedingHorizonDriver.preview limits what the 'oracle' knows; "
+                             f"friction={self.friction!r} has no preview (leave it inf)")
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
                     upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
