@@ -269,9 +269,9 @@ class RoadTable(eqx.Module):
         `SEARCH_DISTANCE` of ``s_guess`` (`search_points` on each side), then `NEWTON_STEPS`
         Newton steps on $f(s) = (p - c(s))\cdot c'(s) = 0$ ($f' = |c'|^2 - (p - c)\cdot
         c''$, floored at 0.1, steps within $\pm\Delta$); $n = (p - c(s))\cdot N(s)$, $\xi =
-        \psi - \theta(s)$ in $(-\pi, \pi]$. On a closed road $s$ is not wrapped: it stays continuous with
-        ``s_guess`` (counting laps). Differentiable in the pose (the search only picks the
-        starting sample)."""
+        \psi - \theta(s)$ in $(-\pi, \pi]$. On a closed road $s$ is not wrapped: it stays
+        continuous with ``s_guess`` (counting laps). Differentiable in the pose (the search
+        only picks the starting sample)."""
         h = self.spacing
         offsets = jnp.arange(-self.search_points, self.search_points + 1)
         base = jnp.round((s_guess - self.start) / h)
