@@ -145,6 +145,9 @@ BAD = {
     "unknown mode": (["--road", "corner90", "--mode", "fast"], "--mode"),
     "mode without rh": (["--road", "corner90", "--controller", "tracking", "--mode", "rti"],
                         "--mode"),
+    "preview without oracle": (["--road", "corner90", "--preview", "5"], "--preview"),
+    "negative preview": (["--road", "corner90", "--controller", "rh-oracle", "--preview",
+                          "-1"], "--preview"),
     "negative seed": (["--road", "corner90", "--seed", "-1"], "--seed"),
     "zero duration": (["--road", "corner90", "--duration", "0"], "--duration"),
     "endless duration": (["--road", "corner90", "--duration", "inf"], "--duration"),
@@ -315,3 +318,18 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect):
     assert float(driver.peak_fraction) == want["peak_fraction"]
     # the default controller: the estimate, with the scenarios' gate and sliding samples
     assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
+
+
+@pytest.mark.parametrize("given, preview", [([], math.inf), (["--preview", "10"], 10.0),
+                                            (["--preview", "0"], 0.0)])
+def test_drive_gives_the_oracle_its_preview(given, preview):
+    """``--preview`` reaches the oracle's `RecedingHorizonDriver.preview` (default: the whole
+    horizon), built without compiling anything."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import _check
+
+    args = cli.build_parser().parse_args(["drive", "--road", "sturn", "--controller",
+                                          "rh-oracle", *given])
+    _check(args)
+    driver, _ = setup.controller(args, setup.scenario(args, setup.road(args)))
+    assert driver.friction == "oracle" and float(driver.preview) == preview

@@ -97,7 +97,8 @@ def scenario(args, road):
 def controller(args, sc):
     """``(controller, estimator)`` of ``--controller`` (and ``--mode``) on the scenario `sc`:
     the receding-horizon driver with the estimate (`driver_estimator`: the nominal road as
-    its prior), the nominal friction or the true grip along the horizon (the oracle); or
+    its prior), the nominal friction or the true grip along the horizon (the oracle, as
+    far ahead as ``--preview``); or
     the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
     from ..drive.horizon import RecedingHorizonDriver
     from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator, driver_settings
@@ -122,7 +123,9 @@ def controller(args, sc):
     driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
                                    delay_samples=int(act.delay_samples()[0]),
-                                   **driver_settings(None if args.road_file else args.road))
+                                   **driver_settings(None if args.road_file else args.road),
+                                   **({} if getattr(args, "preview", None) is None
+                                      else {"preview": args.preview}))
     estimator = driver_estimator() if friction == "estimate" else None
     return driver, estimator
 

@@ -46,6 +46,7 @@ UNITS = {
     "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
+    "settings.preview": "m (how far ahead the oracle knows the grip; null: the whole horizon)",
 }
 
 
@@ -102,6 +103,11 @@ def register(subparsers) -> None:
                         "with the nominal friction; rh-oracle: with the true grip along the "
                         "horizon; tracking: the nominal plan tracked; open-loop: the nominal "
                         "plan's inputs replayed")
+    p.add_argument("--preview", type=number(0.0, None, unit="m", allow_inf=True),
+                   default=None, metavar="M",
+                   help="with --controller rh-oracle: how far ahead of the car [m] the "
+                        "oracle knows the grip (beyond, the grip last seen; 0: the grip "
+                        "under the car at once); default: the whole horizon")
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
@@ -135,6 +141,9 @@ def _check(args) -> None:
     if args.mode is not None and args.controller not in RH_CONTROLLERS:
         raise ValueError(f"--mode applies to the receding-horizon controllers "
                          f"({', '.join(RH_CONTROLLERS)}), not --controller {args.controller}")
+    if args.preview is not None and args.controller != "rh-oracle":
+        raise ValueError("--preview limits what the oracle knows: it applies to --controller "
+                         f"rh-oracle, not --controller {args.controller}")
     if not args.animation and args.animation_format is not None:
         raise ValueError("--animation-format applies to the animation; leave out "
                          "--no-animation")
@@ -282,7 +291,9 @@ def _drive(args) -> int:
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
-                     "controller": args.controller, "mode": args.mode, "seed": args.seed,
+                     "controller": args.controller, "mode": args.mode,
+                     "preview": (None if args.preview is None or math.isinf(args.preview)
+                                 else args.preview), "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,
                      "animation": args.animation and (args.animation_format or "gif"),
                      "frame_every": args.frame_every},
