@@ -331,8 +331,10 @@ def main(argv=None):
              converged_fraction=round(float(conv.mean()), 3),
              init_and_compile_s=round(t_init, 2), command_compile_s=round(t_compile, 2), **res)
 
-    # do-mpc, with the converged-mode driver's settings (same tolerance and iteration cap)
-    driver, _, p_v = results.get("converged", next(iter(results.values())))
+    # do-mpc, with the converged-mode driver's settings (its tolerance, iteration cap and
+    # first barrier: IPOPT's mu_init), whichever vehsim modes were run
+    driver = vehsim.RecedingHorizonDriver(table=table, mode="converged", **sizes, **bound,
+                                          **vehsim.driver_settings(args.road))
     t0 = time.perf_counter()
     dm = DompcDriver(driver, shift=args.shift)
     t_setup = time.perf_counter() - t0
