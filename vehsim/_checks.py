@@ -49,17 +49,20 @@ def check_range(
     upper: float = math.inf,
     lower_open: bool = False,
     upper_open: bool = False,
+    allow_inf: bool = False,
 ) -> None:
-    """Raise ``ValueError`` naming the field and the allowed range if ``x`` is outside it."""
+    """Raise ``ValueError`` naming the field and the allowed range if ``x`` is outside it;
+    `allow_inf`: an infinite upper end of the range is a value (NaN is never one)."""
     v = _values(x)
     if v is None:
         return
-    check_finite(owner, name, x)
+    if not allow_inf:
+        check_finite(owner, name, x)
     lo_ok = np.all(v > lower) if lower_open else np.all(v >= lower)
     hi_ok = np.all(v < upper) if upper_open else np.all(v <= upper)
     if not (lo_ok and hi_ok):
         lb = "(" if lower_open or lower == -math.inf else "["
-        ub = ")" if upper_open or upper == math.inf else "]"
+        ub = ")" if upper_open or (upper == math.inf and not allow_inf) else "]"
         raise ValueError(
             f"{owner}.{name} must lie in {lb}{lower:g}, {upper:g}{ub}, got {plain(v)}"
         )

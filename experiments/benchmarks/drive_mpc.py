@@ -296,14 +296,19 @@ def main(argv=None):
                   grip="nominal", seed=args.seed, samples_budget=num_samples,
                   slip_limit=None if args.no_slip_limit else float(probe.slip_limit),
                   driver_settings=vehsim.driver_settings(args.road))
+
+    def planning_driver(mode, **extra):
+        """The driver of vehsim's `mode` ('converged' or 'rti') with the benchmark's sizes,
+        slip bound and the road's settings: every reading, and do-mpc's, from this one."""
+        return vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes, **bound,
+                                            **vehsim.driver_settings(args.road), **extra)
+
     results = {}
     for mode in args.modes.split(","):
         if mode not in ("converged", "rti", "rti-frozen"):
             raise SystemExit(f"--modes: {mode!r} is not one of converged, rti, rti-frozen")
         frozen = {"hessian_update": "first"} if mode == "rti-frozen" else {}
-        driver = vehsim.RecedingHorizonDriver(table=table, mode=mode.split("-")[0], **sizes,
-                                              **bound, **vehsim.driver_settings(args.road),
-                                              **frozen)
+        driver = planning_driver(mode.split("-")[0], **frozen)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))
         t0 = time.perf_counter()
@@ -333,8 +338,7 @@ def main(argv=None):
 
     # do-mpc, with the converged-mode driver's settings (its tolerance, iteration cap and
     # first barrier: IPOPT's mu_init), whichever vehsim modes were run
-    driver = vehsim.RecedingHorizonDriver(table=table, mode="converged", **sizes, **bound,
-                                          **vehsim.driver_settings(args.road))
+    driver = planning_driver("converged")
     t0 = time.perf_counter()
     dm = DompcDriver(driver, shift=args.shift)
     t_setup = time.perf_counter() - t0

@@ -124,7 +124,7 @@ def controller(args, sc):
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
                                    delay_samples=int(act.delay_samples()[0]),
                                    **driver_settings(None if args.road_file else args.road),
-                                   **({} if getattr(args, "preview", None) is None
+                                   **({} if args.preview is None
                                       else {"preview": args.preview}))
     estimator = driver_estimator() if friction == "estimate" else None
     return driver, estimator

@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_nonnegative, check_positive, check_range, is_concrete, plain
+from .._checks import check_nonnegative, check_positive, check_range, is_concrete
 from .._fields import array_field, float_array
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
@@ -798,11 +798,10 @@ class RecedingHorizonDriver(AbstractDriveController):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
-        preview = np.asarray(self.preview, float) if is_concrete(self.preview) else None
-        if preview is not None and not np.all(preview >= 0):  # inf allowed: the whole road
-            raise ValueError("RecedingHorizonDriver.preview must lie in [0, inf] m, got "
-                             f"{plain(preview)}")
-        if preview is not None and np.any(np.isfinite(preview)) and self.friction != "oracle":
+        check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
+                    allow_inf=True)  # inf: the whole horizon
+        if (is_concrete(self.preview) and np.any(np.isfinite(self.preview))
+                and self.friction != "oracle"):
             raise ValueError("RecedingHorizonDriver.preview limits what the 'oracle' knows; "
                              f"friction={self.friction!r} has no preview (leave it inf)")
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
