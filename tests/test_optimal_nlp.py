@@ -460,6 +460,37 @@ def test_frozen_hessian_reaches_the_same_optimum_linearly(bang_bang):
         IPOptions(hessian_update="first", fresh_hessian_steps=0)
 
 
+def test_kept_hessian_starts_the_inertia_correction_from_the_last_regularisation():
+    """A Newton pass tries $\\delta = 0$ first, then `DELTA_FIRST` growing a hundredfold
+    (IPOPT's sequence); a pass that keeps the Hessian of a pass that needed a regularisation
+    starts from that one over `DELTA_DECREASE` (the same curvature fails $\\delta = 0$
+    again), growing eightfold: its $\\delta$ is $\\delta_{i-1}/3 \\cdot 8^{f_i - 1}$
+    after $f_i$ factorisations, one fewer than from 0. On a minimum-time horizon problem
+    (a corner, whose Hessian needs a regularisation at every pass)."""
+    import vehsim as vs
+    from vehsim.drive.horizon import profile_guess
+    from vehsim.optimal.ip.kkt import DELTA_DECREASE, DELTA_FIRST, DELTA_GROWTH, DELTA_GROWTH_FIRST
+
+    road = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 15, 90),
+                                            ("straight", 20.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    driver = vs.RecedingHorizonDriver(table, horizon=30.0, num_stages=6)
+    x8, D = jnp.array([0.5, 0.05, 12.0, 0.0, 0.0, 0.0, 0.0, 0.0]), jnp.full((6,), 0.52)
+    prob = driver.problem(2.0, x8, D)
+    sol = interior_point(prob, *profile_guess(table, driver.vehicle, 2.0, x8, D, horizon=30.0),
+                         IPOptions(hessian_update="first", max_iter=40, log_size=40, mu0=0.1),
+                         throw=False)
+    assert int(sol.iterations) == 40 and not bool(sol.converged)  # 39 steps, then the residuals
+    f = np.asarray(sol.log.factorisations[:39])
+    reg = np.asarray(sol.log.regularisation[:39])
+    assert f[0] >= 2  # the first (Newton) pass: 0, then 1e-4, 1e-2, ...
+    assert reg[0] == pytest.approx(DELTA_FIRST * DELTA_GROWTH_FIRST ** (f[0] - 2), rel=1e-12)
+    assert np.all(reg > 0)
+    np.testing.assert_allclose(reg[1:], reg[:-1] / DELTA_DECREASE * DELTA_GROWTH ** (f[1:] - 1),
+                               rtol=1e-12)
+    assert np.sum(f[1:] == 1) >= 10  # most kept-Hessian passes factor once
+
+
 def test_one_rk4_step_without_the_loop_is_the_looped_step():
     """A segment of one RK4 step skips the loop over steps: its end state and Jacobian equal
     the first step of a looped two-step segment (to rounding)."""

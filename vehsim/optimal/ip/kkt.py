@@ -250,10 +250,10 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
 
 
 def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
-                       delta_last) -> InertiaCorrection:
-    """Inertia correction: $\\delta = 0$ first, then `DELTA_FIRST` (or the last $\\delta$ over
-    `DELTA_DECREASE`), growing until `checked_solve` accepts (at most `MAX_FACTORISATIONS`);
-    the final loop state."""
+                       delta_last, try_zero=True) -> InertiaCorrection:
+    """Inertia correction: $\\delta = 0$ first (unless ``try_zero`` is false), then
+    `DELTA_FIRST` (or the last $\\delta$ over `DELTA_DECREASE`), growing until
+    `checked_solve` accepts (at most `MAX_FACTORISATIONS`); the final loop state."""
     d_first = jnp.where(
         delta_last == 0.0, DELTA_FIRST, jnp.maximum(DELTA_MIN, delta_last / DELTA_DECREASE)
     )
@@ -264,7 +264,8 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
 
     def body(st: InertiaCorrection) -> InertiaCorrection:
         n = st.factorisations
-        delta = jnp.where(n == 0, 0.0, jnp.where(n == 1, d_first, st.delta * growth))
+        i = n + jnp.where(try_zero, 0, 1)  # the place in the sequence 0, d_first, ...
+        delta = jnp.where(i == 0, 0.0, jnp.where(i == 1, d_first, st.delta * growth))
         K = kkt_matrix(lay, W0, d, delta)
         sol, ok, F = checked_solve(lay, K, rhs)
         return InertiaCorrection(delta=delta, solution=sol, ok=ok, factorisations=n + 1,
@@ -280,9 +281,11 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last,
-                least_squares=False) -> NewtonStep:
+                least_squares=False, try_zero=True) -> NewtonStep:
     """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
-    regularisation that gives the right inertia (``delta_last``: the previous one).
+    regularisation that gives the right inertia (``delta_last``: the previous one;
+    ``try_zero``: a traced flag, false to start from ``delta_last`` over `DELTA_DECREASE`
+    where $\\delta = 0$ is known to fail).
 
     Where ``least_squares`` (a traced flag), the same factorisation solves the system of
     `_least_squares_system` instead: ``dlam``, ``dnu`` are then the least-squares
@@ -293,7 +296,7 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     rhs = jnp.where(least_squares, rhs_ls, rhs)
     W0 = jnp.where(least_squares, W_ls, W0)
     delta_last = jnp.where(least_squares, 0.0, delta_last)
-    corrected = _regularised_solve(lay, W0, d, rhs, delta_last)
+    corrected = _regularised_solve(lay, W0, d, rhs, delta_last, try_zero | least_squares)
     dy, ds, dlam, dnu = _split_step(lay, d, corrected.solution, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)

@@ -195,8 +195,9 @@ class IPSolution(eqx.Module):
 
 class IPState(eqx.Module):
     """The loop state: the ``iterate``, the stage Lagrangian ``hessian`` of the last pass
-    that took it (kept by ``hessian_update='first'``), barrier ``mu``, the last nonzero regularisation
-    ``delta_last``, the line-search ``filter``, the ``iteration`` count, ``done``, the
+    that took it (kept by ``hessian_update='first'``), barrier ``mu``, the last nonzero
+    regularisation ``delta_last`` and that of the last step, ``delta_step`` (0 where none
+    was needed), the line-search ``filter``, the ``iteration`` count, ``done``, the
     ``result`` so far, whether the defect and equality multipliers are ``multipliers_ready``
     (false after runaway multipliers: the next pass re-estimates them), and the
     ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``."""
@@ -205,6 +206,7 @@ class IPState(eqx.Module):
     hessian: Float[Array, "M+1 ny ny"]
     mu: Float[Array, ""]
     delta_last: Float[Array, ""]
+    delta_step: Float[Array, ""]
     filter: Filter
     iteration: Int[Array, ""]
     done: Array
@@ -450,7 +452,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
     inf = jnp.asarray(jnp.inf)
     state = IPState(
         iterate=iterate, hessian=jnp.zeros((lay.M + 1, lay.ny, lay.ny)), mu=jnp.asarray(mu0),
-        delta_last=jnp.asarray(0.0),
+        delta_last=jnp.asarray(0.0), delta_step=jnp.asarray(0.0),
         filter=Filter.initial(constraint_violation(c0, e0, g0, s, mg)),
         iteration=jnp.asarray(0), done=jnp.asarray(False), result=RESULTS.ip_max_iterations,
         multipliers_ready=jnp.asarray(True),
@@ -487,7 +489,10 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
     mu, mu_changed = jnp.where(setup, st.mu, mu), mu_changed & ~setup
-    step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup)
+    # a kept Hessian whose last step needed a regularisation needs one again (only the
+    # barrier's curvature changed): the correction starts from the last one, not from 0
+    try_zero = ~(frozen & (st.delta_step > 0) & (st.delta_last > 0))
+    step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup, try_zero=try_zero)
     tau = jnp.maximum(TAU_MIN, 1.0 - mu)
     mg = lay.masks().g
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
@@ -522,6 +527,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
         hessian=d.H, mu=mu,
         delta_last=jnp.where(reset, 0.0, jnp.where((step.delta > 0) & ~setup, step.delta,
                                                    st.delta_last)),
+        delta_step=jnp.where(setup, st.delta_step, step.delta),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
         iteration=st.iteration + jnp.where(converged | setup, 0, 1), done=converged | ~finite,
         result=_outcome(converged, finite),
