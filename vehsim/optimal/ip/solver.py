@@ -87,7 +87,8 @@ class IPOptions(eqx.Module):
     iterate: Newton's method) or 'first' (the Hessian of the first step kept for the
     later passes, whose values and Jacobians are fresh: the limit is still a KKT point,
     reached linearly rather than quadratically, and such a pass costs about a third; for
-    real-time iterations of a few passes from a close warm start);
+    real-time iterations of a few passes from a close warm start; a kept Hessian that
+    needed a regularisation starts the next pass's inertia correction from it, not from 0);
     ``fresh_hessian_steps``: with 'first', the steps that take a fresh Hessian before it
     is kept (1; an array, so that a solve by Newton's method, ``max_iter`` of them, and a
     frozen one are one program); ``mu0``: initial
