@@ -22,8 +22,10 @@ import pytest
 # compile time, not run time (docs/performance.md). Added to the user's XLA_FLAGS (kept),
 # each unless they set it themselves; benchmarks and `vehsim reproduce` keep XLA's default.
 _flags = os.environ.get("XLA_FLAGS", "")
-for _flag, _value in (("--xla_backend_optimization_level", "0"),
-                      ("--xla_llvm_disable_expensive_passes", "true")):
+_FAST_COMPILE = (("--xla_backend_optimization_level", "0", 2),
+                 ("--xla_llvm_disable_expensive_passes", "true", False))
+"""Each flag of the suite's fast compilation, its value here and XLA's default."""
+for _flag, _value, _ in _FAST_COMPILE:
     if _flag not in _flags:
         _flags = f"{_flags} {_flag}={_value}".strip()
 os.environ["XLA_FLAGS"] = _flags
@@ -58,6 +60,14 @@ jax.config.update("jax_num_cpu_devices", 2)
 jax.config.update("jax_compilation_cache_dir", os.environ["VEHSIM_TEST_JAX_CACHE"])
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+@pytest.fixture(scope="session")
+def default_codegen() -> dict:
+    """``compiler_options`` that undo the suite's fast compilation for one program (XLA's
+    default code generation), for a test whose result depends on rounding, such as a
+    closed loop of converged solves."""
+    return {flag.lstrip("-"): default for flag, _, default in _FAST_COMPILE}
 
 
 def in_ci() -> bool:

@@ -73,7 +73,7 @@ def test_road_table_matches_centreline_road(closed):
 
 
 @pytest.fixture(scope="module")
-def corner():
+def corner(default_codegen):
     """The corner, the plant (noise off) on the road of scale 0.52/mu*(1) (its peak 0.59 at
     20 m/s, 0.65 at 12 m/s: more than the planner believes), the planner's car (its tire's
     shape fitted to the plant's steady state at 12 m/s, the corner's speeds; the peak the
@@ -93,19 +93,11 @@ def corner():
     prim = vs.road_primitive(road, car=car, num_stages=100, margin=MARGIN, fraction=0.6)
     table = vs.RoadTable.from_road(road).with_grip(plant.grip)
     num = int(np.ceil(1.12 * float(prim.t_f) / 0.05))
-    return dict(road=road, plant=plant, car=car, prim=prim, table=table, num=num)
+    return dict(road=road, plant=plant, car=car, prim=prim, table=table, num=num,
+                codegen=default_codegen)
 
 
-# XLA's default code generation for the corner's drives, not the suite's fast-compiling
-# one (tests/conftest.py): a closed loop of converged solves amplifies rounding, and with
-# LLVM's optimisation off the cold first plan converged elsewhere on some CPUs (279 against
-# 339 iterations from identical inputs; then half the samples' solves at their cap). The
-# drive is then the one a user compiles: the same to the last digit across machines.
-DEFAULT_CODEGEN = {"xla_backend_optimization_level": 2,
-                   "xla_llvm_disable_expensive_passes": False}
-
-
-def _drive(plant, driver, state0, key, num):
+def _drive(plant, driver, state0, key, num, compiler_options):
     params, static = eqx.partition((plant, driver), eqx.is_array)
 
     def drive(params, state0, key):
@@ -113,7 +105,7 @@ def _drive(plant, driver, state0, key, num):
         return vs.simulate_drive(plant, driver, state0, key, num)
 
     program = jax.jit(drive).lower(params, state0, key).compile(
-        compiler_options=DEFAULT_CODEGEN)
+        compiler_options=compiler_options)
     return program(params, state0, key)
 
 
@@ -127,7 +119,13 @@ def _driver(corner, **kw):
 
 def _run(corner, driver):
     plant = corner["plant"]
-    return _drive(plant, driver, vs.init_drive(plant, vx=V0), jax.random.key(0), corner["num"])
+    # XLA's default code generation, not the suite's fast-compiling one: a closed loop of
+    # converged solves amplifies rounding, and with LLVM's optimisation off the cold first
+    # plan converged elsewhere on some CPUs (279 against 339 iterations from identical
+    # inputs; then half the samples' solves at their cap). The drive is then the one a
+    # user compiles: the same to the last digit across machines.
+    return _drive(plant, driver, vs.init_drive(plant, vx=V0), jax.random.key(0), corner["num"],
+                  corner["codegen"])
 
 
 def _reading(road, run):

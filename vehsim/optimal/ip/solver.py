@@ -490,8 +490,8 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
     mu, mu_changed = jnp.where(setup, st.mu, mu), mu_changed & ~setup
-    # a kept Hessian whose last step needed a regularisation needs one again (only the
-    # barrier's curvature changed): the correction starts from the last one, not from 0
+    # a kept Hessian whose last step needed a regularisation almost surely needs one again
+    # (only the barrier's curvature changed): the correction starts from it, not from 0
     try_zero = ~(frozen & (st.delta_step > 0) & (st.delta_last > 0))
     step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup, try_zero=try_zero)
     tau = jnp.maximum(TAU_MIN, 1.0 - mu)
