@@ -14,7 +14,7 @@ from vehsim.optimal.ip import (
     interior_point,
 )
 from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
-from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve
+from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve, spd_inverse
 from vehsim.optimal.ip.solver import _least_squares_multipliers, _solve, canonical_options
 
 
@@ -207,11 +207,12 @@ def test_iteration_limit_reports_result_and_residuals(bang_bang):
 
 def _random_kkt(rng, M, nx, nu, ne, definite):
     """A random KKT matrix of the stage structure: W symmetric (positive definite with
-    graded eigenvalues if `definite`, else indefinite), defects exact (d_lambda = 0, the
-    padded last knot -1), boundary equalities at -1e-3 (eigenvalues far above rounding)."""
+    graded eigenvalues if `definite`, else indefinite and shifted down by 1e4, past the
+    equality rows' 1e3 J_e^T J_e), defects exact (d_lambda = 0, the padded last knot -1),
+    boundary equalities at -1e-3 (eigenvalues far above rounding)."""
     ny = nx + nu
     W = rng.normal(size=(M + 1, ny, ny))
-    W = W @ W.transpose(0, 2, 1) if definite else W + W.transpose(0, 2, 1)
+    W = W @ W.transpose(0, 2, 1) if definite else W + W.transpose(0, 2, 1) - 1e4 * np.eye(ny)
     W = W + np.diag(np.logspace(-3, 4, ny)) if definite else W
     A = rng.normal(size=(M + 1, nx, ny))
     A[-1] = 0.0
@@ -221,12 +222,14 @@ def _random_kkt(rng, M, nx, nu, ne, definite):
         M + 1, ne, ny))), dl=jnp.asarray(dl), de=jnp.full((M + 1, ne), -1e-3))
 
 
+@pytest.mark.parametrize("nu", [1, 2, 3, 4])
 @pytest.mark.parametrize("definite", [True, False])
-def test_riccati_solve_and_inertia_match_the_dense_matrix(definite):
+def test_riccati_solve_and_inertia_match_the_dense_matrix(definite, nu):
     # the dense matrix from the structured product (unit vectors), solved by LAPACK; the
     # Riccati factor exists exactly when the matrix has one negative eigenvalue per
-    # multiplier row and none zero (Sylvester)
-    nx, nu, ne, M = 3, 2, 2, 4
+    # multiplier row and none zero (Sylvester); every closed-form size of the control
+    # blocks' inverse and the Cholesky fallback beyond
+    nx, ne, M = 3, 2, 4
     nb = 2 * nx + nu + ne
     rng = np.random.default_rng(1)
     K = _random_kkt(rng, M, nx, nu, ne, definite)
@@ -246,6 +249,28 @@ def test_riccati_solve_and_inertia_match_the_dense_matrix(definite):
         np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-6, atol=1e-9)
     else:
         assert not right_inertia
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_spd_inverse_matches_lapack_and_tells_definiteness(n):
+    # against numpy's inverse and eigenvalues: graded positive definite matrices (diagonal
+    # over seven decades, entries up to 1e30), indefinite ones, a semidefinite one, NaN
+    rng = np.random.default_rng(n)
+    for trial in range(20):
+        B = rng.normal(size=(n, n))
+        D = np.diag(np.logspace(-3, 4, n)[rng.permutation(n)])
+        scale = 1e30 if trial == 0 else 1.0
+        Q = scale * (D @ B @ B.T @ D + 1e-3 * np.eye(n))
+        inv, ok = spd_inverse(jnp.asarray(Q))
+        assert bool(ok)
+        np.testing.assert_allclose(np.asarray(inv) @ Q, np.eye(n), atol=1e-8)
+        S = B + B.T
+        S_definite = bool(np.all(np.linalg.eigvalsh(S) > 0))
+        assert bool(spd_inverse(jnp.asarray(S))[1]) == S_definite
+    assert not bool(spd_inverse(-jnp.eye(n))[1])
+    assert not bool(spd_inverse(jnp.ones((n, n)).at[0, 0].set(0.0))[1])  # a zero pivot
+    assert bool(spd_inverse(jnp.ones((n, n)))[1]) == (n == 1)  # singular for n > 1
+    assert not bool(spd_inverse(jnp.full((n, n), jnp.nan))[1])
 
 
 TRACES = []
