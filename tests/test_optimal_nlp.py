@@ -14,7 +14,13 @@ from vehsim.optimal.ip import (
     interior_point,
 )
 from vehsim.optimal.ip.block_tridiagonal import KKTMatrix
-from vehsim.optimal.ip.riccati import riccati_factor, riccati_solve, spd_inverse
+from vehsim.optimal.ip.riccati import (
+    _chol_ok,
+    _cholesky,
+    _solve_lower,
+    riccati_factor,
+    riccati_solve,
+)
 from vehsim.optimal.ip.solver import _least_squares_multipliers, _solve, canonical_options
 
 
@@ -251,26 +257,26 @@ def test_riccati_solve_and_inertia_match_the_dense_matrix(definite, nu):
         assert not right_inertia
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
-def test_spd_inverse_matches_lapack_and_tells_definiteness(n):
-    # against numpy's inverse and eigenvalues: graded positive definite matrices (diagonal
-    # over seven decades, entries up to 1e30), indefinite ones, a semidefinite one, NaN
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
+def test_unrolled_cholesky_and_triangular_solves_match_lapack(n):
+    # against numpy and scipy (LAPACK): graded positive definite matrices (diagonal over
+    # seven decades), and an indefinite matrix has no factor; n = 5 is LAPACK itself
+    import scipy.linalg
+
     rng = np.random.default_rng(n)
-    for trial in range(20):
+    for _ in range(10):
         B = rng.normal(size=(n, n))
         D = np.diag(np.logspace(-3, 4, n)[rng.permutation(n)])
-        scale = 1e30 if trial == 0 else 1.0
-        Q = scale * (D @ B @ B.T @ D + 1e-3 * np.eye(n))
-        inv, ok = spd_inverse(jnp.asarray(Q))
-        assert bool(ok)
-        np.testing.assert_allclose(np.asarray(inv) @ Q, np.eye(n), atol=1e-8)
-        S = B + B.T
-        S_definite = bool(np.all(np.linalg.eigvalsh(S) > 0))
-        assert bool(spd_inverse(jnp.asarray(S))[1]) == S_definite
-    assert not bool(spd_inverse(-jnp.eye(n))[1])
-    assert not bool(spd_inverse(jnp.ones((n, n)).at[0, 0].set(0.0))[1])  # a zero pivot
-    assert bool(spd_inverse(jnp.ones((n, n)))[1]) == (n == 1)  # singular for n > 1
-    assert not bool(spd_inverse(jnp.full((n, n), jnp.nan))[1])
+        Q = D @ B @ B.T @ D + 1e-3 * np.eye(n)
+        L = np.asarray(_cholesky(jnp.asarray(Q)))
+        np.testing.assert_allclose(L, np.linalg.cholesky(Q), rtol=1e-10, atol=1e-12 * L.max())
+        b = rng.normal(size=(n, 4))
+        for transposed in (False, True):
+            x = np.asarray(_solve_lower(jnp.asarray(L), jnp.asarray(b), transposed))
+            ref = scipy.linalg.solve_triangular(L, b, lower=True, trans=int(transposed))
+            np.testing.assert_allclose(x, ref, rtol=1e-10)
+    S = np.diag(np.r_[np.ones(n - 1), -1.0])
+    assert not bool(_chol_ok(_cholesky(jnp.asarray(S))))
 
 
 TRACES = []

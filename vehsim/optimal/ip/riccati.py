@@ -13,17 +13,16 @@ negative), the pairs $\begin{pmatrix} P_{k+1} & I \\ I & 0 \end{pmatrix}$ ($n_x$
 and $n_x$ negative eigenvalues whatever $P_{k+1}$), $Q_{uu,k}$ and $P_0$: by Sylvester's law
 the matrix has exactly one negative eigenvalue per multiplier row, the inertia that the
 interior point asks for, if and only if every $Q_{uu,k}$ and $P_0$ is positive definite, that
-is if and only if their leading principal minors are positive (Sylvester's criterion). Each
-stage costs a few small matrix products and the inverse of $Q_{uu}$ (an eigen-decomposition
-of every $(2n_x + n_u + n_e)$ pivot is not needed).
+is if and only if their Cholesky factors exist. Each stage costs a few small matrix products
+and a Cholesky factor of size $n_u$ (an eigen-decomposition of every $(2n_x + n_u + n_e)$
+pivot is not needed).
 
 The blocks are a few rows wide, so a stage's cost is the number of operations it dispatches,
-not their arithmetic: the products are written as broadcast products and sums, and for
-$n_u \le 3$ the inverse of $Q_{uu}$ is its adjugate over its determinant (after a diagonal
-scaling), the minors the same polynomials. A stage then compiles to fused loops only, in
-about 60 % of the time of LAPACK's Cholesky factor and triangular solves and BLAS products on
-blocks this small ($n_x = 9$, $n_u = 3$); for $n_u > 3$ a Cholesky factor gives the inverse
-and the test.
+not their arithmetic: the products are written as broadcast products and sums, and the
+Cholesky factor of $Q_{uu}$ and its triangular solves are unrolled into scalar arithmetic
+(the same algorithm as LAPACK's, so the same rounding behaviour). A stage then compiles to
+fused loops only, in about 60 % of the time of LAPACK's and BLAS's calls on blocks this
+small ($n_x = 9$, $n_u = 3$).
 """
 
 from __future__ import annotations
@@ -37,12 +36,11 @@ from .block_tridiagonal import KKTMatrix
 
 
 class RiccatiFactor(eqx.Module):
-    """The factor of a `KKTMatrix`: inverses ``Quu_inv`` of $Q_{uu,k}$, feedback gains
+    """The factor of a `KKTMatrix`: Cholesky factors ``L`` of $Q_{uu,k}$, feedback gains
     ``G`` $= Q_{uu}^{-1} Q_{ux}$, cost-to-go matrices ``P`` ($P_{k+1}$ for knot $k$), the
-    Cholesky factor ``L0`` of $P_0$, and ``ok``: every $Q_{uu,k}$ and $P_0$ is positive
-    definite (right inertia)."""
+    Cholesky factor ``L0`` of $P_0$, and ``ok``: every factor exists (right inertia)."""
 
-    Quu_inv: Float[Array, "M+1 nu nu"]
+    L: Float[Array, "M+1 nu nu"]
     G: Float[Array, "M+1 nu nx"]
     P: Float[Array, "M+1 nx nx"]
     L0: Float[Array, "nx nx"]
@@ -73,34 +71,40 @@ def _chol_ok(L) -> Array:
     return jnp.all(jnp.isfinite(L)) & jnp.all(jnp.diagonal(L, axis1=-2, axis2=-1) > 0)
 
 
-def spd_inverse(Q: Float[Array, "n n"]) -> tuple[Array, Array]:
-    r"""$(Q^{-1}, \text{positive definite})$ of a small symmetric ``Q``.
+UNROLLED_MAX = 4
+"""The largest control block whose Cholesky factor and triangular solves are unrolled into
+elementwise arithmetic (LAPACK beyond)."""
 
-    For $n \le 3$: $\tilde Q = DQD$ with $D = \operatorname{diag}(Q)^{-1/2}$ (unit
-    diagonal, no overflow), the inverse $D \operatorname{adj}(\tilde Q) D / \det\tilde Q$,
-    and Sylvester's criterion (every leading principal minor positive). For $n > 3$, a
-    Cholesky factor. False for a matrix that is not positive definite or not finite."""
+
+def _cholesky(Q: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    """The lower Cholesky factor of a small symmetric ``Q`` (Cholesky-Banachiewicz, unrolled
+    for $n \le$ `UNROLLED_MAX`); NaN on a pivot that is not positive, as LAPACK's."""
     n = Q.shape[0]
-    if n > 3:
-        L = jnp.linalg.cholesky(Q)
-        return jax.scipy.linalg.cho_solve((L, True), jnp.eye(n, dtype=Q.dtype)), _chol_ok(L)
-    diag = jnp.sum(Q * jnp.eye(n, dtype=Q.dtype), axis=1)
-    positive = diag > 0
-    d = jnp.where(positive, jax.lax.rsqrt(jnp.where(positive, diag, 1.0)), 1.0)
-    a = Q * d[:, None] * d[None, :]
-    if n == 1:
-        cof, lead = jnp.ones_like(a), positive[0]
-    elif n == 2:  # cofactors (a11, -a10; -a01, a00)
-        cof, lead = a[::-1, ::-1] * jnp.array([[1.0, -1.0], [-1.0, 1.0]]), positive[0]
-    else:  # cyclic indices give the 3x3 cofactors with their signs
-        def r(m, i, j):  # m[(k + i) % 3, (l + j) % 3]
-            return jnp.roll(m, (-i, -j), axis=(0, 1))
+    if n > UNROLLED_MAX:
+        return jnp.linalg.cholesky(Q)
+    L = [[None] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1):
+            s = Q[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.zeros((), Q.dtype))
+            L[i][j] = jnp.sqrt(s) if i == j else s / L[j][j]
+    zero = jnp.zeros((), Q.dtype)
+    return jnp.stack([jnp.stack([L[i][j] if j <= i else zero for j in range(n)])
+                      for i in range(n)])
 
-        cof = r(a, 1, 1) * r(a, 2, 2) - r(a, 1, 2) * r(a, 2, 1)
-        lead = positive[0] & (cof[2, 2] > 0)
-    det = jnp.sum(a[0] * cof[0])
-    ok = lead & (det > 0) & jnp.isfinite(det)
-    return cof.T * (d[:, None] * d[None, :]) / det, ok
+
+def _solve_lower(L, b, transposed=False):
+    """$L^{-1} b$, or $L^{-T} b$ where ``transposed``, for a lower triangular ``L``
+    (substitution, unrolled for $n \le$ `UNROLLED_MAX`); ``b`` a vector or a matrix."""
+    n = L.shape[0]
+    if n > UNROLLED_MAX:
+        return jax.scipy.linalg.solve_triangular(L, b, lower=True, trans=int(transposed))
+    x = [None] * n
+    for i in (reversed(range(n)) if transposed else range(n)):
+        ks = range(i + 1, n) if transposed else range(i)
+        s = b[i] - sum(((L[k, i] if transposed else L[i, k]) * x[k] for k in ks),
+                       jnp.zeros_like(b[i]))
+        x[i] = s / L[i, i]
+    return jnp.stack(x)
 
 
 def riccati_factor(K: KKTMatrix) -> RiccatiFactor:
@@ -112,16 +116,16 @@ def riccati_factor(K: KKTMatrix) -> RiccatiFactor:
         Q = W + _tmm(A, _mm(P_next, A)) - _tmm(Je / de[:, None], Je)
         Q = 0.5 * (Q + Q.T)
         Qxx, Qux, Quu = Q[:nx, :nx], Q[nx:, :nx], Q[nx:, nx:]
-        Quu_inv, ok = spd_inverse(Quu)
-        G = _mm(Quu_inv, Qux)
-        P = Qxx - _tmm(Qux, G)
-        return 0.5 * (P + P.T), (Quu_inv, G, P_next, ok)
+        L = _cholesky(Quu)
+        V = _solve_lower(L, Qux)  # L^{-1} Q_ux
+        G = _solve_lower(L, V, transposed=True)
+        P = Qxx - _tmm(V, V)
+        return 0.5 * (P + P.T), (L, G, P_next)
 
-    P0, (Quu_inv, G, P, ok) = jax.lax.scan(step, jnp.zeros((nx, nx)),
-                                           (K.W, K.A, K.Je, K.de), reverse=True)
+    P0, (L, G, P) = jax.lax.scan(step, jnp.zeros((nx, nx)), (K.W, K.A, K.Je, K.de),
+                                 reverse=True)
     L0 = jnp.linalg.cholesky(P0)
-    return RiccatiFactor(Quu_inv=Quu_inv, G=G, P=P, L0=L0,
-                         ok=jnp.all(ok) & jnp.all(jnp.isfinite(G)) & _chol_ok(L0))
+    return RiccatiFactor(L=L, G=G, P=P, L0=L0, ok=_chol_ok(L) & _chol_ok(L0))
 
 
 def riccati_solve(F: RiccatiFactor, K: KKTMatrix,
@@ -131,15 +135,14 @@ def riccati_solve(F: RiccatiFactor, K: KKTMatrix,
     ry, rl, rn = K.split(rhs)
 
     def backward(p_next, blk):
-        r, s, t, A, Je, de, P_next, Quu_inv, G = blk
+        r, s, t, A, Je, de, P_next, L, G = blk
         q = r - _tmv(Je, t / de) + _tmv(A, p_next - _mv(P_next, s))
-        lu = _mv(Quu_inv, q[nx:])
+        lu = _solve_lower(L, _solve_lower(L, q[nx:]), transposed=True)
         p = q[:nx] - _tmv(G, q[nx:])
         return p, (lu, p)
 
     p0, (lu, p) = jax.lax.scan(backward, jnp.zeros((nx,)),
-                               (ry, rl, rn, K.A, K.Je, K.de, F.P, F.Quu_inv, F.G),
-                               reverse=True)
+                               (ry, rl, rn, K.A, K.Je, K.de, F.P, F.L, F.G), reverse=True)
     dx0 = jax.scipy.linalg.cho_solve((F.L0, True), p0)
 
     def forward(dx, blk):
