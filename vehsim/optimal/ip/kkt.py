@@ -238,13 +238,17 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
     solve misses it. A factor of the wrong inertia is not used for a solve."""
     F = riccati_factor(K)
 
-    def solve(_):
+    def refine(sol, res):
+        sol = sol + riccati_solve(F, K, res)
+        return sol, _backward_error_ok(K, sol, rhs)[0]
+
+    def solve():
         sol = riccati_solve(F, K, rhs)
         accurate, res = _backward_error_ok(K, sol, rhs)
-        return jax.lax.cond(accurate, lambda: sol, lambda: sol + riccati_solve(F, K, res))
+        return jax.lax.cond(accurate, lambda: (sol, accurate), lambda: refine(sol, res))
 
-    sol = jax.lax.cond(F.ok, solve, lambda _: jnp.zeros_like(rhs), None)
-    accurate, _ = _backward_error_ok(K, sol, rhs)
+    sol, accurate = jax.lax.cond(
+        F.ok, solve, lambda: (jnp.zeros_like(rhs), jnp.asarray(False)))
     ok = F.ok & accurate & jnp.all(jnp.isfinite(sol))
     return sol, ok, F
 
