@@ -1,5 +1,7 @@
 """The structured interior-point solver on problems with known answers."""
 
+import re
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -213,12 +215,14 @@ def test_iteration_limit_reports_result_and_residuals(bang_bang):
 
 def _random_kkt(rng, M, nx, nu, ne, definite):
     """A random KKT matrix of the stage structure: W symmetric (positive definite with
-    graded eigenvalues if `definite`, else indefinite and shifted down by 1e4, past the
-    equality rows' 1e3 J_e^T J_e), defects exact (d_lambda = 0, the padded last knot -1),
+    graded eigenvalues if `definite`, else indefinite: its control block shifted down by
+    1e4, past the equality rows' 1e3 J_e^T J_e, and its state block up by as much, so that
+    the control blocks' factors fail and P_0's exists), defects exact (d_lambda = 0, the padded last knot -1),
     boundary equalities at -1e-3 (eigenvalues far above rounding)."""
     ny = nx + nu
     W = rng.normal(size=(M + 1, ny, ny))
-    W = W @ W.transpose(0, 2, 1) if definite else W + W.transpose(0, 2, 1) - 1e4 * np.eye(ny)
+    shift = np.diag(np.r_[np.full(nx, 1e4), np.full(nu, -1e4)])  # x-block up, u-block down
+    W = W @ W.transpose(0, 2, 1) if definite else W + W.transpose(0, 2, 1) + shift
     W = W + np.diag(np.logspace(-3, 4, ny)) if definite else W
     A = rng.normal(size=(M + 1, nx, ny))
     A[-1] = 0.0
@@ -277,6 +281,22 @@ def test_unrolled_cholesky_and_triangular_solves_match_lapack(n):
             np.testing.assert_allclose(x, ref, rtol=1e-10)
     S = np.diag(np.r_[np.ones(n - 1), -1.0])
     assert not bool(_chol_ok(_cholesky(jnp.asarray(S))))
+
+
+def test_riccati_step_compiles_without_lapack_or_blas_calls():
+    # the recursion's speed on small blocks rests on every stage being fused arithmetic: no
+    # LAPACK (Cholesky, triangular solve) or BLAS call inside the scans; P_0's factor and
+    # solve, once per factorisation, are LAPACK's
+    K = _random_kkt(np.random.default_rng(0), 4, 3, 3, 2, True)
+    rhs = jnp.ones((5, 2 * 3 + 3 + 2))
+    hlo = jax.jit(lambda K, b: riccati_solve(riccati_factor(K), K, b)).lower(
+        K, rhs).compile().as_text()
+    bodies = re.findall(r"^%\S*region\S* \(.*?^\}", hlo, re.M | re.S)
+    loops = [b for b in bodies if "dynamic-update-slice" in b]
+    assert len(loops) >= 3  # the factor's scan and the solve's two
+    for body in loops:
+        assert "custom-call" not in body and " dot(" not in body
+    assert "lapack" in hlo  # P_0
 
 
 TRACES = []
