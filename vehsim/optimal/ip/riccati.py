@@ -76,7 +76,7 @@ elementwise arithmetic (LAPACK beyond)."""
 
 
 def _cholesky(Q: Float[Array, "n n"]) -> Float[Array, "n n"]:
-    """The lower Cholesky factor of a small symmetric ``Q`` (Cholesky-Banachiewicz, unrolled
+    r"""The lower Cholesky factor of a small symmetric ``Q`` (Cholesky-Banachiewicz, unrolled
     for $n \le$ `UNROLLED_MAX`); NaN on a pivot that is not positive, as LAPACK's."""
     n = Q.shape[0]
     if n > UNROLLED_MAX:
@@ -92,7 +92,7 @@ def _cholesky(Q: Float[Array, "n n"]) -> Float[Array, "n n"]:
 
 
 def _solve_lower(L, b, transposed=False):
-    """$L^{-1} b$, or $L^{-T} b$ where ``transposed``, for a lower triangular ``L``
+    r"""$L^{-1} b$, or $L^{-T} b$ where ``transposed``, for a lower triangular ``L``
     (substitution, unrolled for $n \le$ `UNROLLED_MAX`); ``b`` a vector or a matrix."""
     n = L.shape[0]
     if n > UNROLLED_MAX:
