@@ -1,6 +1,7 @@
 """The structured interior-point solver on problems with known answers."""
 
 import re
+import types
 
 import equinox as eqx
 import jax
@@ -259,6 +260,44 @@ def test_riccati_solve_and_inertia_match_the_dense_matrix(definite, nu):
         np.testing.assert_allclose(sol.reshape(-1), ref, rtol=1e-6, atol=1e-9)
     else:
         assert not right_inertia
+
+
+def test_checked_solve_refines_an_inaccurate_solve_and_rejects_one_refinement_cannot_mend(
+        monkeypatch):
+    # checked_solve's three outcomes on one factor of the right inertia: a first solve within
+    # the backward-error tolerance is used; one that misses it (made inaccurate on purpose
+    # here, a relative error of 1e-4: backward error 3e-8 against the tolerance 1e-10) is
+    # mended by one step of iterative refinement (3e-12); a solve still above the tolerance
+    # after that step is rejected (ok false), though its factor exists
+    from vehsim.optimal.ip import kkt
+
+    nx, nu, ne, M = 3, 2, 2, 4
+    nb = 2 * nx + nu + ne
+    rng = np.random.default_rng(3)
+    K = _random_kkt(rng, M, nx, nu, ne, True)
+    rhs = jnp.asarray(rng.normal(size=(M + 1, nb)))
+    lay = types.SimpleNamespace()  # checked_solve does not read the layout
+    dense = np.stack([np.asarray(K.matvec(jnp.asarray(e.reshape(M + 1, nb)))).reshape(-1)
+                      for e in np.eye((M + 1) * nb)], axis=1)
+    ref = np.linalg.solve(dense, np.asarray(rhs).reshape(-1))
+
+    sol, ok, F = kkt.checked_solve(lay, K, rhs)
+    assert bool(F.ok) and bool(ok)
+    np.testing.assert_allclose(np.asarray(sol).reshape(-1), ref, rtol=1e-8, atol=1e-10)
+
+    exact_solve = kkt.riccati_solve
+    monkeypatch.setattr(kkt, "riccati_solve", lambda F, K, b: exact_solve(F, K, b) * (1 + 1e-4))
+    first = np.asarray(kkt.riccati_solve(F, K, rhs))
+    assert not bool(kkt._backward_error_ok(K, jnp.asarray(first), rhs)[0])  # misses the tol
+    sol, ok, _ = kkt.checked_solve(lay, K, rhs)
+    assert bool(ok)
+    err = np.max(np.abs(np.asarray(sol).reshape(-1) - ref))
+    assert err < 1e-3 * np.max(np.abs(first.reshape(-1) - ref))  # the refined solution
+
+    monkeypatch.setattr(kkt, "BACKWARD_ERROR_TOL", 0.0)  # no solve in floating point meets it
+    sol, ok, F = kkt.checked_solve(lay, K, rhs)
+    assert bool(F.ok) and not bool(ok)
+    assert np.all(np.isfinite(np.asarray(sol)))
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
