@@ -203,8 +203,7 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
 def test_warm_start_lowers_iterations(corner, converged_run):
     """Per sample, on the drive's problems (one compilation for all): the solve from the
     previous plan shifted by the distance travelled (the driver's warm start, rebuilt here
-    from the recorded plans) against the speed-profile guess; the same plan not shifted and
-    shifted the wrong way are printed."""
+    from the recorded plans) against the speed-profile guess."""
     driver, run = converged_run
     info = jax.tree.map(np.asarray, run.controller_info)
     samples = np.arange(10, corner["num"] - 10, 6)
@@ -215,9 +214,9 @@ def test_warm_start_lowers_iterations(corner, converged_run):
         prob = driver.problem(s0, state8, D)
         return vs.interior_point(prob, xs0, us0, options, throw=False, multipliers=duals)
 
-    def shifted(k, sign):
+    def shifted(k):
         j = k - 1
-        dist = sign * (info["plan_s"][k, 0] - info["plan_s"][j, 0])
+        dist = info["plan_s"][k, 0] - info["plan_s"][j, 0]
         xs0, us0 = vs.shift_plan(info["xs"][j], info["us"][j], dist, H)
         lam, nu, z = vs.shift_multipliers(info["lam"][j], info["nu"][j], info["z"][j], dist, H)
         # the driver's rule: multipliers only where the previous plan converged
@@ -228,26 +227,24 @@ def test_warm_start_lowers_iterations(corner, converged_run):
     k = samples
     args = (info["plan_s"][k, 0], info["start"][k], info["D"][k])
     batch = jax.jit(jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, 0, None)))
-    iters = {}
-    for name, sign in (("warm", 1.0), ("unshifted", 0.0), ("backwards", -1.0)):
-        xs0, us0, duals = jax.tree.map(lambda *a: jnp.stack(a),
-                                       *[shifted(i, sign) for i in k])
-        sol = batch(*args, xs0, us0, duals, driver.options())
-        iters[name] = np.asarray(sol.iterations)
+    xs0, us0, duals = jax.tree.map(lambda *a: jnp.stack(a), *[shifted(i) for i in k])
+    iters = {"warm": np.asarray(batch(*args, xs0, us0, duals, driver.options()).iterations)}
     cold = [vs.profile_guess(table, car, *(a[i] for a in args), horizon=H)
             for i in range(len(k))]
     xs0, us0 = (jnp.stack(a) for a in zip(*cold))
     no_duals = jax.tree.map(lambda a: 0.0 * a, duals)
-    iters["cold"] = np.asarray(batch(*args, xs0, us0, no_duals,
-                                     driver.options(first=True)).iterations)
+    # the cold starts at the samples' cap too (alone they take 100-600 iterations): the
+    # comparison is of iterations within one cap, and the batch runs to its slowest member
+    cold_options = eqx.tree_at(lambda o: o.max_iter, driver.options(first=True),
+                               driver.options().max_iter)
+    iters["cold"] = np.asarray(batch(*args, xs0, us0, no_duals, cold_options).iterations)
     print("iterations per sample:", {n: v.tolist() for n, v in iters.items()},
           "drive", info["iterations"][k].tolist())
-    warm = np.sum(iters["warm"])
-    # Not asserted: the shifted plan against the unshifted and the backwards-shifted one.
+    # Not compared: the shifted plan against the unshifted and the backwards-shifted one.
     # Under the tests' code generator the solves are sensitive to rounding and mostly reach
     # the cap, and these did not rank as they should (measured sums 1027 shifted, 1040
     # unshifted, 1104 backwards; the drive's own 1282 on the same problems).
-    assert warm < 0.5 * np.sum(iters["cold"]), iters
+    assert np.sum(iters["warm"]) < 0.5 * np.sum(iters["cold"]), iters
 
 
 @pytest.mark.slow  # a drive: one compilation of a few minutes
