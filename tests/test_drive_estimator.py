@@ -134,3 +134,37 @@ def test_sliding_samples_teach_a_road_below_the_gate(drive):
                                                            sliding_slip=0.1))
     late = np.asarray(right.measurements.t) >= 1.5
     np.testing.assert_allclose(np.asarray(right.estimates.scale)[late], 1.0, rtol=0.15)
+
+
+def test_a_surface_map_carries_the_estimate_onto_another_surface(drive):
+    """A road of grip 0.6 that halves at x = 32-33 m, braking pulses sized for it, the prior
+    1. With the road's map relative to its start (`RelativeGrip`: 1, then 0.5; how the
+    surfaces compare, not their level) the estimator learns the level on the first surface
+    exactly as the plain one does (the map is 1 there) and carries it onto the second as
+    each axle reaches it, per axle; the plain one, told nothing, still believes the first
+    surface when both axles have left it (and learns the second later, if at all). A
+    uniform map changes nothing: with its multiplier's prior and bounds divided by the
+    map's value, the same estimates to rounding."""
+    road, pulses = _road(0.6, 0.3, stations=(32.0, 33.0)), _pulses(-2100.0)
+    plain = drive(road, pulses)
+    mapped = drive(road, pulses, vs.AxleGripEstimator(surface=vs.RelativeGrip(road, 0.6)))
+    p = vs.AxleGripEstimator().params
+    t = np.asarray(mapped.measurements.t)
+    x = np.asarray(mapped.states.car[:, 0])
+    np.testing.assert_array_equal(x, np.asarray(plain.states.car[:, 0]))  # the same drive
+    sp, sm = np.asarray(plain.estimates.scale), np.asarray(mapped.estimates.scale)
+    first = (t > 1.0) & (x + p.lF < 32.0)
+    assert first.sum() >= 10
+    np.testing.assert_allclose(sm[first], sp[first], rtol=1e-12)
+    np.testing.assert_allclose(sm[first], 0.6, rtol=0.05)
+    front_only = (x + p.lF > 33.0) & (x - p.lR < 32.0)
+    assert front_only.sum() >= 2
+    np.testing.assert_allclose(sm[front_only, 0], 0.3, rtol=0.05)
+    np.testing.assert_allclose(sm[front_only, 1], 0.6, rtol=0.05)
+    second = x - p.lR > 33.5
+    assert second.sum() >= 10
+    np.testing.assert_allclose(sm[second], 0.3, rtol=0.05)
+    assert np.all(sp[second][:3] > 0.45)  # without the map: the first surface's belief
+    uniform = drive(road, pulses, vs.AxleGripEstimator(
+        surface=vs.UniformGrip(0.5), prior_scale=2.0, scale_min=0.2, scale_max=6.0))
+    np.testing.assert_allclose(np.asarray(uniform.estimates.scale), sp, rtol=1e-12)

@@ -396,6 +396,7 @@ from .drive.grip import (
     AbstractGripField as AbstractGripField,
     GripPatches as GripPatches,
     GripProfile as GripProfile,
+    RelativeGrip as RelativeGrip,
     UniformGrip as UniformGrip,
     scale_friction as scale_friction,
 )

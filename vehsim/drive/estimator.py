@@ -41,6 +41,17 @@ on the normalised innovation squared $\nu = e^2/(H^2P^- + R)$, $g \leftarrow \ma
 `FrictionObserver` does), so the estimate leaves the old road within a few informative
 samples instead of at the pace of forgetting.
 
+**A map of the surface.** With `surface` (an `AbstractGripField` $r(x, y)$: the road's
+grip *relative* to some reference, as a co-driver's pace notes or a camera's surface
+classification give it, not its level) the filter estimates the road-wide multiplier $c$
+of $\lambda(p) = c\,r(p)$ instead: $\vartheta = \log c$, and the model above is evaluated
+at $\lambda = c\,\bar r_i$, $\log\bar r_i$ the mean of $\log r$ at axle $i$'s contact
+point (the pose measured, `params`' $\ell_F$, $\ell_R$) at the sample's two ends. What is
+learnt on one surface then carries over to the others by the map's ratios, and the
+estimate reports $\lambda = c\,r$ at the last measured contact points: the grip under the
+car at once when it crosses onto another surface, where without a map it lags until the
+new surface excites the filter.
+
 **What it estimates.** The road condition $\lambda$ (equivalently $\theta = 1/\lambda$),
 with the standard deviation $\lambda\sqrt P$; the measurements at every speed inform the
 same $\lambda$, since the model is evaluated at the sample's own relative velocity. The
@@ -98,7 +109,7 @@ from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.params import lugre2d_bakker1987
 from ..vehicle.params import HalfCarParams, rally_gravel
 from ..vehicle.planar import axle_velocities
-from .grip import scale_friction
+from .grip import AbstractGripField, scale_friction
 from .sensors import DriveMeasurement
 
 
@@ -224,7 +235,9 @@ class AxleGripEstimator(AbstractGripEstimator):
     smoothing, 0.5), the change detector's
     `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
     `reference_speed` [m/s] of the reported peak (`REFERENCE_SPEED`, 20), `dynamic_loads` (True: the
-    suspension's loads; False: quasi-static), `load_substeps` (10).
+    suspension's loads; False: quasi-static), `load_substeps` (10), `surface` (None, or an
+    `AbstractGripField`: the map of the road's relative grip of the module docstring;
+    `prior_scale`, `scale_min` and `scale_max` are then those of the multiplier $c$).
     """
 
     params: HalfCarParams = eqx.field(default_factory=rally_gravel)
@@ -247,12 +260,16 @@ class AxleGripEstimator(AbstractGripEstimator):
     reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
     dynamic_loads: bool = eqx.field(static=True, default=True)
     load_substeps: int = eqx.field(static=True, default=10)
+    surface: AbstractGripField | None = None
 
     def __check_init__(self):
         owner = "AxleGripEstimator"
         if not isinstance(self.tire, LumpedLuGre2D):
             raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
                             f"{type(self.tire).__name__}")
+        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
+            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
+                            f"of the road's relative grip), got {type(self.surface).__name__}")
         for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
                      "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
                      "omega_eps", "change_drift", "change_threshold", "reference_speed"):
@@ -339,6 +356,16 @@ class AxleGripEstimator(AbstractGripEstimator):
         slip = safe_norm(v_r) / jnp.maximum(safe_norm(V), self.min_speed)
         return mu, slip, v_r, c
 
+    def log_surface(self, m: DriveMeasurement) -> Float[Array, " 2"]:
+        r"""$\log r$ of `surface` at the front and rear contact points of the pose in `m`
+        (0 without a map)."""
+        if self.surface is None:
+            return jnp.zeros(2) + 0.0 * m.x
+        p = self.params
+        c, s = jnp.cos(m.psi), jnp.sin(m.psi)
+        return jnp.log(jnp.stack([self.surface.scale_at(m.x + p.lF * c, m.y + p.lF * s),
+                                  self.surface.scale_at(m.x - p.lR * c, m.y - p.lR * s)]))
+
     def model_mu(self, log_scale, v_r, c):
         r"""$\mu_{ss}$ of the assumed tire at $\lambda = e^\vartheta$ per axle."""
         def one(th, vr, cc):
@@ -352,10 +379,11 @@ class AxleGripEstimator(AbstractGripEstimator):
         else:
             Fz, susp = None, state.suspension
         mu, slip, v_r, c = self.utilised_friction(state.last, m, Fz)
-        h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (state.log_scale,),
-                       (jnp.ones(2),))
+        # the road under the axles over the sample: c r, r the map's (1 without one)
+        log_road = state.log_scale + 0.5 * (self.log_surface(state.last) + self.log_surface(m))
+        h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (log_road,), (jnp.ones(2),))
         speed = jnp.maximum(0.5 * (m.speed + state.last.speed), self.min_speed)
-        peak = jax.vmap(lambda th: self.peak(jnp.exp(th), speed))(state.log_scale)
+        peak = jax.vmap(lambda th: self.peak(jnp.exp(th), speed))(log_road)
         informative = mu >= self.min_utilisation * peak
         if self.sliding_slip is not None:  # or sliding far past the believed peak's slip
             informative = informative | (slip >= self.sliding_slip)
@@ -387,18 +415,22 @@ class AxleGripEstimator(AbstractGripEstimator):
         return peak_friction(self.tire, scale, self.reference_speed if speed is None else speed)
 
     def estimate(self, state: AxleGripState) -> GripEstimate:
-        lam = jnp.exp(state.log_scale)
+        r"""The belief about the road under the axles at the last measurement: $\lambda$
+        (with a map, $c\,r$ there) and its peak at `reference_speed`."""
+        log_road = state.log_scale + self.log_surface(state.last)
+        lam = jnp.exp(log_road)
         std = jnp.sqrt(state.variance)
         peak, dpeak = jax.vmap(lambda th: jax.jvp(lambda t: self.peak(jnp.exp(t)), (th,),
-                                                  (jnp.ones(()),)))(state.log_scale)
+                                                  (jnp.ones(()),)))(log_road)
         return GripEstimate(lam, lam * std, peak, jnp.abs(dpeak) * std)
 
     def signals(self, state: AxleGripState) -> dict:
         """`scale_F`, `scale_R` ($\\lambda$), `log_scale_variance_F`, `_R`, `mu_used_F`,
         `_R`, `mu_model_F`, `_R`, `slip_F`, `_R`."""
         out = {}
+        log_road = state.log_scale + self.log_surface(state.last)
         for i, axle in enumerate("FR"):
-            out[f"scale_{axle}"] = jnp.exp(state.log_scale[i])
+            out[f"scale_{axle}"] = jnp.exp(log_road[i])
             out[f"log_scale_variance_{axle}"] = state.variance[i]
             out[f"mu_used_{axle}"] = state.mu_used[i]
             out[f"mu_model_{axle}"] = state.mu_model[i]

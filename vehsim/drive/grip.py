@@ -135,6 +135,23 @@ class GripProfile(AbstractGripField):
         return lam
 
 
+class RelativeGrip(AbstractGripField):
+    r"""The field `field` relative to the friction scale `reference`: $r = \lambda /
+    \lambda_{ref}$. A map of how the road's surfaces compare that says nothing of their
+    level, as pace notes or a camera's surface classification give it
+    (`AxleGripEstimator.surface`; along the centre line, `RoadTable.with_grip` for
+    `RecedingHorizonDriver.surface_map`)."""
+
+    field: AbstractGripField
+    reference: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        check_positive("RelativeGrip", "reference", self.reference)
+
+    def scale_at(self, x, y):
+        return self.field.scale_at(x, y) / self.reference
+
+
 def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     r"""`tire` on a road of friction scale $\lambda$ = `scale`: its friction coefficients
     times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$), the
