@@ -152,6 +152,39 @@ def test_estimate_plans_with_the_estimated_roads_peak_at_each_stages_speed(table
         driver.planner_friction(0.0, None, SPEEDS)
 
 
+def test_estimate_with_a_surface_map_carries_it_along_the_maps_ratios(table, estimate):
+    """`surface_map`: the table's scale is a map of the relative grip (here the rising field
+    above, relative to 0.3: 1 to 2), stage k believes the estimate times r(s_k)/r(s0). With
+    the estimate equal to the grip under the car, that is the oracle's plan, preview and
+    all; the map alone (any level) says nothing of the level."""
+    field = vs.GripProfile(stations=jnp.array([0.0, 30.0]), scales=jnp.array([0.3, 0.6]))
+    relative = table.with_grip(vs.RelativeGrip(field, 0.3))
+    mapped = _driver(relative, "estimate", estimate_backoff=0.0, surface_map=True)
+    D = np.asarray(mapped.planner_friction(2.0, estimate, SPEEDS))
+    x, y = ROAD.position(np.r_[2.0, 2.0 + 4.0 * (np.arange(6) + 0.5)])
+    r = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
+    lam = np.asarray(estimate.scale)
+    np.testing.assert_allclose(D, np.minimum(peak_by_scan(lam[0] * r[1:] / r[0], SPEEDS),
+                                             peak_by_scan(lam[1] * r[1:] / r[0], SPEEDS)),
+                               rtol=2e-3)
+    # the same map at another level (relative to 0.6): the same plan
+    other = eqx.tree_at(lambda d: d.table, mapped,
+                        table.with_grip(vs.RelativeGrip(field, 0.6)))
+    np.testing.assert_allclose(np.asarray(other.planner_friction(2.0, estimate, SPEEDS)), D,
+                               rtol=1e-9)
+    truth = table.with_grip(field)
+    under = eqx.tree_at(lambda e: e.scale, estimate, jnp.full(2, truth.scale_at(2.0)))
+    oracle = _driver(truth, "oracle")
+    for p in (np.inf, 9.0, 0.0):
+        seen = eqx.tree_at(lambda d: d.preview, mapped, jnp.asarray(p))
+        knows = eqx.tree_at(lambda d: d.preview, oracle, jnp.asarray(p))
+        np.testing.assert_allclose(np.asarray(seen.planner_friction(2.0, under, SPEEDS)),
+                                   np.asarray(knows.planner_friction(2.0, None, SPEEDS)),
+                                   rtol=1e-9)
+    with pytest.raises(ValueError, match="surface_map .* needs friction='estimate'"):
+        _driver(table, "oracle", surface_map=True)
+
+
 def test_stage_speeds_are_the_plans_midpoint_speeds(table):
     xs = jnp.zeros((7, 9)).at[:, 2].set(jnp.arange(7.0) * 2.0).at[:, 3].set(0.5)
     v = np.hypot(np.arange(7.0) * 2.0, 0.5)

@@ -695,7 +695,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
     (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
     sample's first step's Hessian kept for its later passes, which then cost about a third),
-    `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip.
+    `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip (or, with
+    `surface_map`, the estimate the surface); `surface_map` (static; False) with
+    'estimate': the `table`'s `scale` column is a map of the road's *relative* grip (pace
+    notes, a camera's surface classification; below).
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -720,7 +723,13 @@ class RecedingHorizonDriver(AbstractDriveController):
     estimate's $\lambda_a$ (`GripEstimate.scale`) and $\sigma_a$ = `scale_std`/`scale` the
     standard deviation of $\vartheta = \log \lambda_a$, $\beta$ = `estimate_backoff`, the
     smaller axle's, clipped to [0.05, 2] (at $V_k$ = `reference_speed`: `GripEstimate.peak`
-    less $\beta$ `peak_std`).
+    less $\beta$ `peak_std`). With `surface_map`, stage $k$ believes
+    $\lambda_a\,r(\bar s_k)/r(s_0)$ instead: the estimate, which holds for the surface under
+    the car, carried to the stage's surface by the ratio of the map $r$ (the table's
+    `scale` column at the stage's midpoint $\bar s_k$, or at $s_0$ + `preview` where that is
+    nearer, as the oracle). The map states how the surfaces compare, the estimate how much
+    grip there is: give the estimator the same map (`AxleGripEstimator.surface`), so that
+    its $\lambda_a$ is that of the surface under the car as soon as the car reaches it.
 
     **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
     function theorem at the solution returned (`interior_point` with ``implicit``): a
@@ -772,6 +781,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     peak_fraction: Float[Array, ""] = array_field(default=1.0)
     hessian_update: str = eqx.field(static=True, default="every")
     preview: Float[Array, ""] = array_field(default=math.inf)
+    surface_map: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -800,9 +810,14 @@ class RecedingHorizonDriver(AbstractDriveController):
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
         check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
                     allow_inf=True)  # inf: the whole horizon
+        if self.surface_map and self.friction != "estimate":
+            raise ValueError("RecedingHorizonDriver.surface_map carries the estimate along a "
+                             "map of the relative grip: it needs friction='estimate', got "
+                             f"{self.friction!r}")
         if (is_concrete(self.preview) and np.any(np.isfinite(self.preview))
-                and self.friction != "oracle"):
-            raise ValueError("RecedingHorizonDriver.preview limits what the 'oracle' knows; "
+                and self.friction != "oracle" and not self.surface_map):
+            raise ValueError("RecedingHorizonDriver.preview limits what the 'oracle' (or the "
+                             "estimate with surface_map=True) knows ahead; "
                              f"friction={self.friction!r} has no preview (leave it inf)")
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
                     upper=1.0, lower_open=True)
@@ -885,22 +900,26 @@ class RecedingHorizonDriver(AbstractDriveController):
         V = self._stage_speed(speeds)
         if self.friction == "nominal":
             return self.nominal_friction(V)
+        h = self.horizon / M
+        seen = jnp.minimum(s0 + h * (jnp.arange(M) + 0.5), s0 + self.preview)
         if self.friction == "oracle":
-            h = self.horizon / M
-            seen = jnp.minimum(s0 + h * (jnp.arange(M) + 0.5), s0 + self.preview)
             return self._peaks(self.table.scale_at(seen), V)
         if estimate is None:
             raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
                              "estimator: pass estimator= to simulate_drive")
         theta = jnp.log(estimate.scale)
         sigma = estimate.scale_std / estimate.scale
+        if self.surface_map:  # the estimate carried along the map's ratios
+            ratio = jnp.log(self.table.scale_at(seen)) - jnp.log(self.table.scale_at(s0))
+        else:
+            ratio = jnp.zeros(M)
 
         def axle(th, sd):
-            def stage(v):
+            def stage(v, r):
                 p, dp = jax.jvp(lambda t: peak_friction(self.plant_tire, jnp.exp(t), v),
-                                (th,), (jnp.ones_like(th),))
+                                (th + r,), (jnp.ones_like(th),))
                 return p - self.estimate_backoff * jnp.abs(dp) * sd
-            return jax.vmap(stage)(V)
+            return jax.vmap(stage)(V, ratio)
 
         D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
         return jnp.clip(D, 0.05, 2.0)

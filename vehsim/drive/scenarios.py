@@ -76,7 +76,7 @@ from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from .actuators import DriveActuators
 from .estimator import AxleGripEstimator, scale_of_peak
-from .grip import AbstractGripField, GripPatches, GripProfile
+from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
 from .horizon import RoadTable
 from .plant import DrivePlant, DriveState, init_drive
 from .sensors import DriveSensors
@@ -188,7 +188,8 @@ DRIVER_SLIDING_SLIP = 0.1
 """`AxleGripEstimator.sliding_slip` of `driver_estimator`."""
 
 
-def driver_estimator(prior_peak: float = BENCHMARK_PEAK) -> AxleGripEstimator:
+def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
+                     surface: AbstractGripField | None = None) -> AxleGripEstimator:
     r"""The grip estimator of the receding-horizon driver's scenarios: `AxleGripEstimator`
     with the prior of the road whose peak at 20 m/s is ``prior_peak`` (`scale_for_peak`)
     and `min_utilisation` = `DRIVER_MIN_UTILISATION` (0.7, the estimator's default 0.5)
@@ -201,10 +202,13 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK) -> AxleGripEstimator:
     completed with 0.7, docs/driver.md). The price: a road much worse than believed is
     learnt only once an axle uses 70 % of the *believed* peak, which a road of less than
     70 % of it never gives; there the axles slide, and the samples where an axle's combined
-    slip reaches 10 % count too (their effect on the scenarios: docs/driver.md)."""
+    slip reaches 10 % count too (their effect on the scenarios: docs/driver.md).
+
+    ``surface``: the map of the road's relative grip (`AxleGripEstimator.surface`, e.g.
+    `DriveScenario.surface_map`), 1 where the drive starts so that the prior holds there."""
     return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
                              min_utilisation=DRIVER_MIN_UTILISATION,
-                             sliding_slip=DRIVER_SLIDING_SLIP)
+                             sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
 
 
 def nominal_scale() -> float:
@@ -351,6 +355,14 @@ class DriveScenario(eqx.Module):
     @property
     def road_name(self) -> str:
         return self.name.split("/")[0]
+
+    def surface_map(self) -> RelativeGrip:
+        """The map of the road's relative grip that a co-driver's pace notes would give:
+        the plant's grip field relative to its value where the car starts (1 there), so
+        that it tells how the surfaces along the road compare and nothing of their level
+        (uniform on the nominal and minus20 roads; the patch's ratio on the icy one)."""
+        x, y = self.state0.car[0], self.state0.car[1]
+        return RelativeGrip(self.grip.field, self.grip.field.scale_at(x, y))
 
     @property
     def grip_name(self) -> str:
