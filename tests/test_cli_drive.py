@@ -146,6 +146,8 @@ BAD = {
     "mode without rh": (["--road", "corner90", "--controller", "tracking", "--mode", "rti"],
                         "--mode"),
     "preview without oracle": (["--road", "corner90", "--preview", "5"], "--preview"),
+    "pace notes without rh": (["--road", "corner90", "--controller", "rh-oracle",
+                               "--pace-notes"], "--pace-notes"),
     "negative preview": (["--road", "corner90", "--controller", "rh-oracle", "--preview",
                           "-1"], "--preview"),
     "negative seed": (["--road", "corner90", "--seed", "-1"], "--seed"),
@@ -333,3 +335,28 @@ def test_drive_gives_the_oracle_its_preview(given, preview):
     _check(args)
     driver, _ = setup.controller(args, setup.scenario(args, setup.road(args)))
     assert driver.friction == "oracle" and float(driver.preview) == preview
+
+
+def test_drive_gives_the_estimate_pace_notes():
+    """``--pace-notes`` (with ``--preview``): the driver plans with the estimate carried
+    along the map of the relative grip (`DriveScenario.surface_map`, 1 at the start), and the
+    estimator reads the same map; without it neither has one."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import _check
+
+    given = ["drive", "--road", "sturn", "--conditions", "icy"]
+    args = cli.build_parser().parse_args([*given, "--pace-notes", "--preview", "10"])
+    _check(args)
+    sc = setup.scenario(args, setup.road(args))
+    driver, estimator = setup.controller(args, sc)
+    assert driver.friction == "estimate" and driver.surface_map
+    assert float(driver.preview) == 10.0
+    truth = np.asarray(sc.table.scale)
+    # (1 where the car starts: within the patch edge's tanh tail of the table's first point)
+    np.testing.assert_allclose(np.asarray(driver.table.scale), truth / truth[0], rtol=1e-6)
+    assert truth.min() < 0.6 * truth[0]  # the patch: the map says how it compares
+    assert isinstance(estimator.surface, vs.RelativeGrip)
+    args = cli.build_parser().parse_args(given)
+    _check(args)
+    driver, estimator = setup.controller(args, setup.scenario(args, setup.road(args)))
+    assert not driver.surface_map and estimator.surface is None

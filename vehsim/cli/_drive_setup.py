@@ -97,8 +97,9 @@ def scenario(args, road):
 def controller(args, sc):
     """``(controller, estimator)`` of ``--controller`` (and ``--mode``) on the scenario `sc`:
     the receding-horizon driver with the estimate (`driver_estimator`: the nominal road as
-    its prior), the nominal friction or the true grip along the horizon (the oracle, as
-    far ahead as ``--preview``); or
+    its prior; with ``--pace-notes`` the map of the relative grip, `surface_map`, for both),
+    the nominal friction or the true grip along the horizon (the oracle, as far ahead as
+    ``--preview``); or
     the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
     from ..drive.horizon import RecedingHorizonDriver
     from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator, driver_settings
@@ -120,13 +121,16 @@ def controller(args, sc):
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    driver = RecedingHorizonDriver(table=sc.table, mode=args.mode or "rti", friction=friction,
+    notes = sc.surface_map() if getattr(args, "pace_notes", False) else None
+    driver = RecedingHorizonDriver(table=sc.table if notes is None else sc.table.with_grip(notes),
+                                   mode=args.mode or "rti", friction=friction,
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
                                    delay_samples=int(act.delay_samples()[0]),
+                                   surface_map=notes is not None,
                                    **driver_settings(None if args.road_file else args.road),
                                    **({} if args.preview is None
                                       else {"preview": args.preview}))
-    estimator = driver_estimator() if friction == "estimate" else None
+    estimator = driver_estimator(surface=notes) if friction == "estimate" else None
     return driver, estimator
 
 

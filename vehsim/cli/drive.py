@@ -46,7 +46,8 @@ UNITS = {
     "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
-    "settings.preview": "m (how far ahead the oracle knows the grip; null: the whole horizon)",
+    "settings.preview": "m (how far ahead the oracle knows the grip, or the pace notes the "
+                        "surface; null: the whole horizon)",
 }
 
 
@@ -107,7 +108,12 @@ def register(subparsers) -> None:
                    default=None, metavar="M",
                    help="with --controller rh-oracle: how far ahead of the car [m] the "
                         "oracle knows the grip (beyond, the grip last seen; 0: the grip "
-                        "under the car at once); default: the whole horizon")
+                        "under the car at once), with --pace-notes the surface; default: "
+                        "the whole horizon")
+    p.add_argument("--pace-notes", action="store_true",
+                   help="with --controller rh: the driver and its estimator know how the "
+                        "road's surfaces compare (the grip relative to the start, as pace "
+                        "notes give it), not their level; --preview limits how far ahead")
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
@@ -141,9 +147,13 @@ def _check(args) -> None:
     if args.mode is not None and args.controller not in RH_CONTROLLERS:
         raise ValueError(f"--mode applies to the receding-horizon controllers "
                          f"({', '.join(RH_CONTROLLERS)}), not --controller {args.controller}")
-    if args.preview is not None and args.controller != "rh-oracle":
-        raise ValueError("--preview limits what the oracle knows: it applies to --controller "
-                         f"rh-oracle, not --controller {args.controller}")
+    if args.pace_notes and args.controller != "rh":
+        raise ValueError("--pace-notes carries the grip estimate along the road: it applies "
+                         f"to --controller rh, not --controller {args.controller}")
+    if args.preview is not None and not (args.controller == "rh-oracle" or args.pace_notes):
+        raise ValueError("--preview limits what the oracle (or the pace notes) know ahead: it "
+                         "applies to --controller rh-oracle or --pace-notes, not --controller "
+                         f"{args.controller}")
     if not args.animation and args.animation_format is not None:
         raise ValueError("--animation-format applies to the animation; leave out "
                          "--no-animation")
@@ -291,7 +301,8 @@ def _drive(args) -> int:
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
-                     "controller": args.controller, "mode": args.mode,
+                     "controller": args.controller, "pace_notes": args.pace_notes,
+                     "mode": args.mode,
                      "preview": (None if args.preview is None or math.isinf(args.preview)
                                  else args.preview), "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,
