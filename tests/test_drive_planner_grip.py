@@ -181,6 +181,12 @@ def test_estimate_with_a_surface_map_carries_it_along_the_maps_ratios(table, est
         np.testing.assert_allclose(np.asarray(seen.planner_friction(2.0, under, SPEEDS)),
                                    np.asarray(knows.planner_friction(2.0, None, SPEEDS)),
                                    rtol=1e-9)
+    # no preview: the surface under the car everywhere, the estimate itself
+    plain = _driver(table, "estimate", estimate_backoff=0.0)
+    blind = eqx.tree_at(lambda d: d.preview, mapped, jnp.asarray(0.0))
+    np.testing.assert_allclose(np.asarray(blind.planner_friction(2.0, estimate, SPEEDS)),
+                               np.asarray(plain.planner_friction(2.0, estimate, SPEEDS)),
+                               rtol=1e-12)
     with pytest.raises(ValueError, match="surface_map .* needs friction='estimate'"):
         _driver(table, "oracle", surface_map=True)
 
