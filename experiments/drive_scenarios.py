@@ -14,6 +14,10 @@ road, completed (crossed, never more than 5 cm off). Drivers:
   column), or the `AxleGripEstimator`'s (prior: the nominal scale), each stage with that
   road's peak at the stage's planned speed; a driver with an estimator also records the
   estimate and the planner's D at the main corner's apex (``apex``);
+- ``rh-estimate-map``: ``rh-estimate`` with a map of the road's relative grip
+  (`DriveScenario.surface_map`: pace notes, which say how the surfaces compare and nothing
+  of their level) for the estimator (`AxleGripEstimator.surface`) and the planner
+  (`RecedingHorizonDriver.surface_map`, the map along the whole horizon);
 - ``bound``: the offline bound (`offline_bound`; time of the reduced model's minimum-time
   drive on the true grip; departure: its path between the nodes);
 - ``bound-driver``: the same bound under the receding-horizon driver's own constraints
@@ -40,7 +44,10 @@ grip to keep the road.
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
        [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
-       [--previews 0 5 inf]]
+       [--previews 0 5 inf]] [--driver-settings JSON]
+
+``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
+`driver_settings`'s, on every road (recorded with each row).
 """
 
 from __future__ import annotations
@@ -66,10 +73,19 @@ from vehsim.drive.horizon import BACK_EXTENSION, EXTENSION  # noqa: E402
 from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS, main_corner  # noqa: E402
 
 
-DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate", "bound",
-           "bound-driver")
+DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate",
+           "rh-estimate-map", "bound", "bound-driver")
 OUT = Path(__file__).with_name("drive_scenarios_results.jsonl")
 SPACING = 0.1
+SETTINGS: dict = {}
+"""`RecedingHorizonDriver` settings over `driver_settings`'s on every road
+(``--driver-settings``)."""
+
+
+def settings_for(road: str) -> dict:
+    """The receding-horizon drivers' settings on ``road``: `driver_settings`, then
+    `SETTINGS`."""
+    return vs.driver_settings(road) | SETTINGS
 
 
 def size_group(road: str, roads) -> list[str]:
@@ -99,11 +115,14 @@ def make_driver(kind: str, sc, reference):
     if kind == "tracking":
         return vs.PrimitiveTracker(reference=reference, lead=vs.command_lead(act)), None
     friction = kind.split("-")[1]
-    driver = vs.RecedingHorizonDriver(table=sc.table, friction=friction,
+    surface = sc.surface_map() if kind == "rh-estimate-map" else None
+    table = sc.table if surface is None else sc.table.with_grip(surface)
+    driver = vs.RecedingHorizonDriver(table=table, friction=friction,
                                       sample_time=act.sample_time,
                                       delay_samples=int(act.delay_samples()[0]),
-                                      **vs.driver_settings(sc.road.name))
-    estimator = (vs.driver_estimator()
+                                      surface_map=surface is not None,
+                                      **settings_for(sc.road.name))
+    estimator = (vs.driver_estimator(surface=surface)
                  if friction == "estimate" else None)
     return driver, estimator
 
@@ -191,7 +210,7 @@ def scenario_table(args):
                     rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
                                num_samples=sc.num_samples, **rec)
                     if kind.startswith("rh-") or kind == "bound-driver":
-                        rec["driver_settings"] = vs.driver_settings(road)
+                        rec["driver_settings"] = settings_for(road)
                     rec.setdefault("wall_s", time.perf_counter() - t0)
                     rows.append(rec)
                     f.write(json.dumps(rec) + "\n")
@@ -208,8 +227,7 @@ def stack(trees):
 def monte_carlo(args):
     budget, points = common_sizes(args.roads)
     previews = args.previews or [None]
-    plants, ctrls, states, keys, tables, gates, meta = [], [], [], [], [], [], []
-    estimator = None
+    plants, ctrls, states, keys, tables, gates, meta, ests = [], [], [], [], [], [], [], []
     for road in args.roads:
         nominal = scenario(road, "nominal", budget, points)
         reference = vs.primitive_reference(vs.nominal_primitive(nominal)).padded(
@@ -227,13 +245,18 @@ def monte_carlo(args):
                     keys.append(jax.random.key_data(jax.random.key(1000 + seed)))
                     tables.append(sc.table)
                     gates.append(vs.EndGate.of(sc.road))
+                    ests.append(estimator)
                     meta.append((road, grip, seed, sc, preview))
     B = len(meta)
     num_samples = meta[0][3].num_samples
+    # the estimators differ between roads only by their surface maps: batched where they
+    # have one, else the one estimator is a constant of the program
+    mapped = ests[0] is not None and ests[0].surface is not None
     batch = (stack(plants), stack(ctrls), stack(states), jnp.stack(keys), stack(tables),
-             stack(gates))
+             stack(gates), stack(ests) if mapped else None)
 
-    def one(plant, ctrl, state0, key, tbl, gate):
+    def one(plant, ctrl, state0, key, tbl, gate, est):
+        estimator = est if mapped else ests[0]
         run = vs.simulate_drive(plant, ctrl, state0, jax.random.wrap_key_data(key),
                                 num_samples, estimator, substep_poses=True)
         poses = run.poses
@@ -275,6 +298,8 @@ def monte_carlo(args):
     summary = dict(kind="monte-carlo", driver=args.mc_driver, drives=B,
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
                    departure_checks=check, per_scenario={})
+    if args.mc_driver.startswith("rh-"):
+        summary["driver_settings"] = {r: settings_for(r) for r in args.roads}
     if args.previews:
         summary["previews_m"] = [p if math.isfinite(p) else "inf" for p in args.previews]
     for road in args.roads:
@@ -314,7 +339,13 @@ def main(argv=None):
     ap.add_argument("--previews", nargs="+", type=float, metavar="M",
                     help="Monte Carlo of rh-oracle only: also over these previews [m] "
                          "(`RecedingHorizonDriver.preview`; inf: the whole horizon)")
+    ap.add_argument("--driver-settings", type=json.loads, default={}, metavar="JSON",
+                    help="RecedingHorizonDriver settings over driver_settings' on every road, "
+                         'e.g. \'{"iterations": 8, "hessian_update": "first"}\'')
     args = ap.parse_args(argv)
+    if not isinstance(args.driver_settings, dict):
+        ap.error("--driver-settings must be a JSON object of RecedingHorizonDriver fields")
+    SETTINGS.update(args.driver_settings)
     if args.previews and args.mc_driver != "rh-oracle":
         ap.error("--previews needs --mc-driver rh-oracle (the oracle's preview of the grip)")
     if args.previews and any(not p >= 0 for p in args.previews):
