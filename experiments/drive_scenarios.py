@@ -53,6 +53,7 @@ Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import math
@@ -343,8 +344,10 @@ def main(argv=None):
                     help="RecedingHorizonDriver settings over driver_settings' on every road, "
                          'e.g. \'{"iterations": 8, "hessian_update": "first"}\'')
     args = ap.parse_args(argv)
-    if not isinstance(args.driver_settings, dict):
-        ap.error("--driver-settings must be a JSON object of RecedingHorizonDriver fields")
+    fields = {f.name for f in dataclasses.fields(vs.RecedingHorizonDriver)} - {"table"}
+    if not isinstance(args.driver_settings, dict) or not set(args.driver_settings) <= fields:
+        ap.error("--driver-settings must be a JSON object of RecedingHorizonDriver fields ("
+                 + ", ".join(sorted(fields)) + f"), got {args.driver_settings!r}")
     SETTINGS.update(args.driver_settings)
     if args.previews and args.mc_driver != "rh-oracle":
         ap.error("--previews needs --mc-driver rh-oracle (the oracle's preview of the grip)")
