@@ -315,7 +315,8 @@ def _drive(args) -> int:
     status = (f"completed in {result['drive_time']:.2f} s" if result["completed"] else
               "crossed the end in " + f"{result['drive_time']:.2f} s" if result["drive_time"]
               else "did not reach the end")
-    title = (f"{road.name}, {args.controller}: {status}, off the road "
+    who = args.controller + (" with pace notes" if args.pace_notes else "")
+    title = (f"{road.name}, {who}: {status}, off the road "
              f"{100 * result['max_distance_off_road']:.1f} cm")
     save_figure(drive_figure(road, run, sc.plant, title=title, grip_vmax=nominal_scale(),
                              upto=upto), out / "drive.png")
