@@ -121,7 +121,7 @@ def controller(args, sc):
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    notes = sc.surface_map() if getattr(args, "pace_notes", False) else None
+    notes = sc.surface_map() if args.pace_notes else None
     driver = RecedingHorizonDriver(table=sc.table if notes is None else sc.table.with_grip(notes),
                                    mode=args.mode or "rti", friction=friction,
                                    nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
