@@ -352,10 +352,24 @@ def test_drive_gives_the_estimate_pace_notes():
     assert driver.friction == "estimate" and driver.surface_map
     assert float(driver.preview) == 10.0
     truth = np.asarray(sc.table.scale)
-    # (1 where the car starts: within the patch edge's tanh tail of the table's first point)
-    np.testing.assert_allclose(np.asarray(driver.table.scale), truth / truth[0], rtol=1e-6)
+    # (relative to the best surface, the gravel around the patch)
+    np.testing.assert_allclose(np.asarray(driver.table.scale), truth / truth.max(), rtol=1e-6)
     assert truth.min() < 0.6 * truth[0]  # the patch: the map says how it compares
     assert isinstance(estimator.surface, vs.RelativeGrip)
+    assert float(estimator.surface.reference) == pytest.approx(truth.max(), rel=1e-6)
+    # The rising road: warnings only, the slippery start below the grip further on, so the
+    # prior (the nominal road) times the map is the true grip where the car starts.
+    args = cli.build_parser().parse_args(["drive", "--road", "sturn", "--conditions",
+                                          "rising", "--pace-notes"])
+    _check(args)
+    sc = setup.scenario(args, setup.road(args))
+    driver, estimator = setup.controller(args, sc)
+    notes = np.asarray(driver.table.scale)
+    assert notes.max() == pytest.approx(1.0, rel=1e-6)
+    x0, y0 = sc.state0.car[0], sc.state0.car[1]
+    assert float(estimator.prior_scale * estimator.surface.scale_at(x0, y0)) == pytest.approx(
+        float(sc.grip.field.scale_at(x0, y0)), rel=1e-6)
+    assert float(estimator.surface.scale_at(x0, y0)) < 0.6
     args = cli.build_parser().parse_args(given)
     _check(args)
     driver, estimator = setup.controller(args, setup.scenario(args, setup.road(args)))

@@ -358,11 +358,15 @@ class DriveScenario(eqx.Module):
 
     def surface_map(self) -> RelativeGrip:
         """The map of the road's relative grip that a co-driver's pace notes would give:
-        the plant's grip field relative to its value where the car starts (1 there), so
-        that it tells how the surfaces along the road compare and nothing of their level
-        (uniform on the nominal and minus20 roads; the patch's ratio on the icy one)."""
-        x, y = self.state0.car[0], self.state0.car[1]
-        return RelativeGrip(self.grip.field, self.grip.field.scale_at(x, y))
+        the plant's grip field relative to the best surface along the centre line, so that
+        every ratio is at most 1 and the map is a list of warnings (where the road is worse,
+        and by how much) that says nothing of the grip's level: uniform on the nominal and
+        minus20 roads, the patch's ratio on the icy one, 0.6 rising to 1 on the rising one.
+        The estimator's prior then describes the road's best surface, and the map lowers it
+        where the notes warn."""
+        x, y = self.road.position(np.asarray(self.grip.arc_length))
+        scale = np.asarray(self.grip.field.scale_at(jnp.asarray(x), jnp.asarray(y)))
+        return RelativeGrip(self.grip.field, float(np.max(scale)))
 
     @property
     def grip_name(self) -> str:
