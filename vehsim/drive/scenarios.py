@@ -205,7 +205,8 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
     slip reaches 10 % count too (their effect on the scenarios: docs/driver.md).
 
     ``surface``: the map of the road's relative grip (`AxleGripEstimator.surface`, e.g.
-    `DriveScenario.surface_map`), 1 where the drive starts so that the prior holds there."""
+    `DriveScenario.surface_map`), relative to the surface the prior describes (the scenarios'
+    maps: the road's best surface, so that the map only warns)."""
     return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
                              min_utilisation=DRIVER_MIN_UTILISATION,
                              sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
