@@ -44,7 +44,7 @@ grip to keep the road.
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
        [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
-       [--previews 0 5 inf]] [--driver-settings JSON]
+       [--previews 0 5 inf] [--mc-first-seed 0]] [--driver-settings JSON]
 
 ``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
 `driver_settings`'s, on every road (recorded with each row).
@@ -243,7 +243,7 @@ def monte_carlo(args):
                     plants.append(sc.plant)
                     ctrls.append(ctrl)
                     states.append(sc.state0)
-                    keys.append(jax.random.key_data(jax.random.key(1000 + seed)))
+                    keys.append(jax.random.key_data(jax.random.key(1000 + args.mc_first_seed + seed)))
                     tables.append(sc.table)
                     gates.append(vs.EndGate.of(sc.road))
                     ests.append(estimator)
@@ -298,7 +298,8 @@ def monte_carlo(args):
               f"{ref.max_off_road:.5f} m; time {float(tc[b]):.4f} / {ref.time}")
     summary = dict(kind="monte-carlo", driver=args.mc_driver, drives=B,
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
-                   departure_checks=check, per_scenario={})
+                   departure_checks=check, per_scenario={},
+                   seeds=[args.mc_first_seed, args.mc_first_seed + args.monte_carlo - 1])
     if args.mc_driver.startswith("rh-"):
         summary["driver_settings"] = {r: settings_for(r) for r in args.roads}
     if args.previews:
@@ -337,6 +338,8 @@ def main(argv=None):
     ap.add_argument("--monte-carlo", type=int, default=0, metavar="SEEDS")
     ap.add_argument("--mc-driver", default="tracking", choices=DRIVERS[:-2])
     ap.add_argument("--mc-only", action="store_true")
+    ap.add_argument("--mc-first-seed", type=int, default=0, metavar="K",
+                    help="the Monte Carlo's seeds are K, K+1, ... (another sample of seeds)")
     ap.add_argument("--previews", nargs="+", type=float, metavar="M",
                     help="Monte Carlo of rh-oracle only: also over these previews [m] "
                          "(`RecedingHorizonDriver.preview`; inf: the whole horizon)")

@@ -302,11 +302,12 @@ def test_trace_truth_and_planned_horizon(small_run):
         np.testing.assert_array_equal(value, tr[key][:5], err_msg=key)
 
 
-@pytest.mark.parametrize("road, expect", [("stage", vs.FAST_ROAD_DRIVER), ("sturn", {})])
+@pytest.mark.parametrize("road, expect", [("stage", vs.FAST_ROAD_DRIVER),
+                                          ("sturn", vs.CORNER_DRIVER)])
 def test_drive_builds_the_scenarios_driver_settings(road, expect):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
-    passes and a margin on the fast stage, the defaults on the corners), built without
-    compiling anything."""
+    passes and a friction margin on the fast stage, a wider corridor margin on the
+    corners), built without compiling anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
@@ -315,9 +316,12 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect):
     sc = setup.scenario(args, setup.road(args))
     driver, estimator = setup.controller(args, sc)
     default = vs.RecedingHorizonDriver(table=sc.table)
-    want = {"iterations": default.iterations, "peak_fraction": 1.0} | expect
+    want = {"iterations": default.iterations, "peak_fraction": 1.0,
+            "margin": float(default.margin)} | expect
     assert driver.iterations == want["iterations"]
     assert float(driver.peak_fraction) == want["peak_fraction"]
+    assert float(driver.margin) == want["margin"]
+    assert want["margin"] == (0.3 if road == "sturn" else 0.2)
     # the default controller: the estimate, with the scenarios' gate and sliding samples
     assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
 

@@ -430,6 +430,7 @@ from .drive.plant import (
     measure_drive as measure_drive,
 )
 from .drive.scenarios import (
+    CORNER_DRIVER as CORNER_DRIVER,
     FAST_ROAD_DRIVER as FAST_ROAD_DRIVER,
     DriveScenario as DriveScenario,
     PatchedProfile as PatchedProfile,
