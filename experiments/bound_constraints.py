@@ -1,0 +1,72 @@
+"""What each of the receding-horizon driver's constraints costs against the offline bound.
+
+For each road (nominal grip), `vehsim.offline_bound` solves the free bound (no corridor
+margin, no slip bound, the steering rate free) and then the same bound under a
+`RecedingHorizonDriver` of the scenarios (`driver_settings`) with only some of its
+constraints kept, the others switched off:
+
+- ``all``: the driver's margin, slip bound and steering rate and limit;
+- ``margin``: only the corridor margin; ``slip``: only the slip bound; ``steer``: only the
+  steering rate and limit;
+- ``all, margin M``: all of them, with the margin ``--margin`` M instead.
+
+One JSON line per bound (time [s], whether the fixed point converged, and the fraction
+above the free bound) goes to stdout.
+
+Usage: PYTHONPATH=. python experiments/bound_constraints.py [--roads corner90 uturn sturn]
+       [--margin 0.1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import vehsim as vs  # noqa: E402
+from vehsim.drive.scenarios import ROAD_NAMES  # noqa: E402
+from vehsim.optimal.shooting import DELTA_MAX  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--roads", nargs="+", default=["corner90", "uturn", "sturn"],
+                    choices=ROAD_NAMES)
+    ap.add_argument("--margin", type=float, default=0.1,
+                    help="the margin [m] of the last variant, with the other constraints")
+    args = ap.parse_args()
+    off = dict(margin=0.0, slip_limit=None, steer_rate=1e3, steer_limit=DELTA_MAX)
+    variants = {
+        "all": {},
+        "margin": {k: v for k, v in off.items() if k != "margin"},
+        "slip": {k: v for k, v in off.items() if k != "slip_limit"},
+        "steer": dict(margin=0.0, slip_limit=None),
+        f"all, margin {args.margin:g}": dict(margin=args.margin),
+    }
+    for road in args.roads:
+        sc = vs.drive_scenario(road, "nominal")
+        act = sc.plant.actuators
+        prim, _, exact = vs.offline_bound(sc)
+        free = float(prim.t_f)
+        print(json.dumps(dict(road=road, variant="free", time=free, exact=exact)), flush=True)
+        for name, over in variants.items():
+            settings = vs.driver_settings(road) | over
+            driver = vs.RecedingHorizonDriver(table=sc.table, friction="oracle",
+                                              sample_time=act.sample_time,
+                                              delay_samples=int(act.delay_samples()[0]),
+                                              **settings)
+            prim, _, exact = vs.offline_bound(sc, driver=driver)
+            t = float(prim.t_f)
+            print(json.dumps(dict(road=road, variant=name, time=t, exact=exact,
+                                  above_free=t / free - 1.0,
+                                  margin=float(driver.margin),
+                                  slip_limit=None if driver.slip_limit is None
+                                  else float(driver.slip_limit))), flush=True)
+
+
+if __name__ == "__main__":
+    main()
