@@ -376,7 +376,7 @@ class DriveScenario(eqx.Module):
         the plant's grip field relative to the best surface along the centre line, so that
         every ratio is at most 1 and the map is a list of warnings (where the road is worse,
         and by how much) that says nothing of the grip's level: uniform on the nominal and
-        minus20 roads, the patch's ratio on the icy one, 0.6 rising to 1 on the rising one.
+        minus20 roads, the patch's ratio on the icy one, 0.55 rising to 1 on the rising one.
         The estimator's prior then describes the road's best surface, and the map lowers it
         where the notes warn."""
         x, y = self.road.position(np.asarray(self.grip.arc_length))
