@@ -11,7 +11,8 @@ constraints kept, the others switched off:
 - ``all, margin M``: all of them, with the margin ``--margin`` M instead.
 
 One JSON line per bound (time [s], whether the fixed point converged, and the fraction
-above the free bound) goes to stdout.
+above the free bound) goes to stdout; the measured lines are in
+experiments/bound_constraints_results.jsonl (docs/drive.md, "Baselines").
 
 Usage: PYTHONPATH=. python experiments/bound_constraints.py [--roads corner90 uturn sturn]
        [--margin 0.1]
