@@ -45,21 +45,18 @@ def main():
         "all": {},
         "margin": {k: v for k, v in off.items() if k != "margin"},
         "slip": {k: v for k, v in off.items() if k != "slip_limit"},
-        "steer": dict(margin=0.0, slip_limit=None),
+        "steer": {k: v for k, v in off.items() if k not in ("steer_rate", "steer_limit")},
         f"all, margin {args.margin:g}": dict(margin=args.margin),
     }
     for road in args.roads:
         sc = vs.drive_scenario(road, "nominal")
-        act = sc.plant.actuators
         prim, _, exact = vs.offline_bound(sc)
         free = float(prim.t_f)
         print(json.dumps(dict(road=road, variant="free", time=free, exact=exact)), flush=True)
         for name, over in variants.items():
-            settings = vs.driver_settings(road) | over
-            driver = vs.RecedingHorizonDriver(table=sc.table, friction="oracle",
-                                              sample_time=act.sample_time,
-                                              delay_samples=int(act.delay_samples()[0]),
-                                              **settings)
+            # (`offline_bound` reads only the driver's constraints)
+            driver = vs.RecedingHorizonDriver(table=sc.table,
+                                              **(vs.driver_settings(road) | over))
             prim, _, exact = vs.offline_bound(sc, driver=driver)
             t = float(prim.t_f)
             print(json.dumps(dict(road=road, variant=name, time=t, exact=exact,
