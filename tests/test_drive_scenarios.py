@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import vehsim as vs
+from vehsim.drive import baselines
 from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES
 from vehsim.optimal.roads import road as benchmark_road
 from vehsim.tire.params import lugre2d_bakker1987
@@ -314,7 +315,7 @@ def test_open_loop_replay_follows_the_primitive_on_its_road_and_not_on_less_grip
 
 
 @pytest.mark.slow  # two fixed points of whole-road solves, about a minute
-def test_bound_under_the_drivers_constraints_keeps_them(replay):
+def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
     """`offline_bound` with a driver: the minimum-time drive under the receding-horizon
     driver's corridor margin, slip bound and steering rate keeps each of them where the
     horizon problem bounds them,
@@ -347,3 +348,15 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay):
 
     assert max(worst(free)) > 0.01
     assert max(worst(bound)) < 1e-6, worst(bound)
+
+    # another margin is one more fixed point of the same compiled solve (every number of
+    # the problem an array: a long sweep of bounds neither recompiles nor fills the
+    # process with programs), and a wider corridor margin costs time
+    traces = []
+    original = baselines.horizon_problem
+    monkeypatch.setattr(baselines, "horizon_problem",
+                        lambda *a, **k: traces.append(k["margin"]) or original(*a, **k))
+    wider, _, exact_wider = vs.offline_bound(
+        sc, driver=vs.RecedingHorizonDriver(table=sc.table, margin=0.3))
+    assert traces == [] and exact_wider
+    assert float(wider.t_f) > float(bound.t_f) * 1.005

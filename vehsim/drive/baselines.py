@@ -196,6 +196,26 @@ BOUND_ROUNDS = 6
 """Most solves of `offline_bound`'s fixed point in the stages' speeds."""
 
 
+@eqx.filter_jit
+def _stage_peaks(table, mid, xs):
+    """The road's peak at the stages' midpoints ``mid`` and the plan ``xs``'s speeds there."""
+    return table.peak_at(mid, stage_speeds(xs))
+
+
+@eqx.filter_jit
+def _bound_solve(table, car, length, rate_weight, xs0, us0, D_stage, limits):
+    """One solve of `offline_bound`: the whole road's `horizon_problem` from ``xs0``, every
+    number an array (one program per road shape and slip bound's presence, whatever the
+    grip, the constraints or the scenario)."""
+    prob = horizon_problem(table, car, 0.0, xs0[0, :8], limits["peak_fraction"] * D_stage,
+                           horizon=length, rate_weight=rate_weight, margin=limits["margin"],
+                           steer_rate=limits["steer_rate"], steer_limit=limits["steer_limit"],
+                           slip_limit=limits["slip_limit"])
+    # from a solution nearby: a small first barrier keeps its active set
+    options = IPOptions(max_iter=500, mu0=1e-3)
+    return prob, interior_point(prob, xs0, us0, options, throw=False)
+
+
 def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver=None,
                   **kwargs) -> tuple[RoadPrimitive, float, bool]:
     r"""The offline bound of the module docstring: ``(primitive, D, exact)``, $D$ the
@@ -225,20 +245,13 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
     M = prob0.num_stages
     L = float(scenario.road.length)
     mid = jnp.asarray((np.arange(M) + 0.5) * L / M)
-    peaks = eqx.filter_jit(lambda table, xs: table.peak_at(mid, stage_speeds(xs)))
     car = rally_gravel_car(BENCHMARK_PEAK)
+    length, rate_weight = jnp.asarray(L, float), jnp.asarray(prob0.rate_weight, float)
 
-    @eqx.filter_jit
     def solve(xs0, us0, D_stage, limits):
-        prob = horizon_problem(scenario.table, car, 0.0, xs0[0, :8],
-                               limits["peak_fraction"] * D_stage, horizon=L,
-                               rate_weight=prob0.rate_weight, margin=limits["margin"],
-                               steer_rate=limits["steer_rate"],
-                               steer_limit=limits["steer_limit"],
-                               slip_limit=limits["slip_limit"])
-        # from a solution nearby: a small first barrier keeps its active set
-        options = IPOptions(max_iter=500, mu0=1e-3)
-        return prob, interior_point(prob, xs0, us0, options, throw=False)
+        limits = {k: None if v is None else jnp.asarray(v, float) for k, v in limits.items()}
+        return _bound_solve(scenario.table, car, length, rate_weight, xs0, us0, D_stage,
+                            limits)
 
     def fixed_point(start, D_stage, limits, xs=None):
         """The fixed point from the drive `start` (solved again at least once; from `xs`
@@ -246,7 +259,7 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
         best, exact = start, True
         xs, us = start.solution.xs if xs is None else xs, start.solution.us
         for _ in range(int(rounds)):
-            target = peaks(scenario.table, xs)
+            target = _stage_peaks(scenario.table, mid, xs)
             if best is not start and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
                 break
             for step in (1.0, 0.5, 0.25):  # the whole way to the new peaks, else part of it
