@@ -184,7 +184,7 @@ def driver_settings(name: str | None) -> dict:
       tire is not the plant's); these settings keep the oracle and the estimate on it. And
       the corners' corridor margin, 0.3 m: over 16 noise seeds on the four grips the
       estimate with pace notes completed 47 of 64 stages against 25 with the default 0.2 m,
-      0.5-0.8 % slower.
+      0.1-0.8 % slower.
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
       margin of 0.3 m. At the default 0.2 m the car at the road's limit ran 5-30 cm past the
       planned path's margin often enough to fail a third of the drives; over 16 noise seeds
