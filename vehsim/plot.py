@@ -551,7 +551,7 @@ def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT
             a.fill_between(t, m - 2 * sd, m + 2 * sd, color=f"C{j}", alpha=0.15, lw=0)
             a.plot(t, m, f"C{j}-", lw=1.2, label=f"estimate {axle}")
     if "planner_D" in tr:
-        a.plot(t, tr["planner_D"], "k-", lw=1.0, label="planner D")
+        a.plot(t, tr["planner_D"], "k-", lw=1.0, label="planner D, horizon mean")
     a.set(ylabel="peak friction")
     a.legend(fontsize=7, ncol=2, loc="best")
     a = fig.add_subplot(gs[2, 1], sharex=a)
