@@ -115,17 +115,8 @@ def make_driver(kind: str, sc, reference):
         return vs.open_loop_schedule(reference, act, sc.num_samples), None
     if kind == "tracking":
         return vs.PrimitiveTracker(reference=reference, lead=vs.command_lead(act)), None
-    friction = kind.split("-")[1]
-    surface = sc.surface_map() if kind == "rh-estimate-map" else None
-    table = sc.table if surface is None else sc.table.with_grip(surface)
-    driver = vs.RecedingHorizonDriver(table=table, friction=friction,
-                                      sample_time=act.sample_time,
-                                      delay_samples=int(act.delay_samples()[0]),
-                                      surface_map=surface is not None,
-                                      **settings_for(sc.road.name))
-    estimator = (vs.driver_estimator(surface=surface)
-                 if friction == "estimate" else None)
-    return driver, estimator
+    return vs.scenario_driver(sc, kind.split("-")[1], pace_notes=kind == "rh-estimate-map",
+                              **settings_for(sc.road.name))
 
 
 @eqx.filter_jit

@@ -442,6 +442,7 @@ from .drive.scenarios import (
     nominal_scale as nominal_scale,
     plant_peak as plant_peak,
     scale_for_peak as scale_for_peak,
+    scenario_driver as scenario_driver,
     scenario_grip as scenario_grip,
     scenario_road as scenario_road,
 )

@@ -648,7 +648,7 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
         if "peak_est" in tr:
             lines.append(f"estimate {tr['peak_est'][i, 0]:5.2f}  {tr['peak_est'][i, 1]:5.2f}")
         if "planner_D" in tr:
-            lines.append(f"planner D {tr['planner_D'][i]:5.2f}")
+            lines.append(f"planner D (horizon mean) {tr['planner_D'][i]:5.2f}")
         text.set_text("\n".join(lines))
         return trail, plan, car, text
 

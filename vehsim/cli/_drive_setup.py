@@ -101,8 +101,7 @@ def controller(args, sc):
     the nominal friction or the true grip along the horizon (the oracle, as far ahead as
     ``--preview``); or
     the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
-    from ..drive.horizon import RecedingHorizonDriver
-    from ..drive.scenarios import BENCHMARK_PEAK, driver_estimator, driver_settings
+    from ..drive.scenarios import driver_settings, scenario_driver
 
     act = sc.plant.actuators
     if args.controller in ("tracking", "open-loop"):
@@ -121,17 +120,11 @@ def controller(args, sc):
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    notes = sc.surface_map() if args.pace_notes else None
-    driver = RecedingHorizonDriver(table=sc.table if notes is None else sc.table.with_grip(notes),
-                                   mode=args.mode or "rti", friction=friction,
-                                   nominal_peak=BENCHMARK_PEAK, sample_time=act.sample_time,
-                                   delay_samples=int(act.delay_samples()[0]),
-                                   surface_map=notes is not None,
-                                   **driver_settings(None if args.road_file else args.road),
-                                   **({} if args.preview is None
-                                      else {"preview": args.preview}))
-    estimator = driver_estimator(surface=notes) if friction == "estimate" else None
-    return driver, estimator
+    settings = driver_settings(None if args.road_file else args.road)
+    if args.preview is not None:
+        settings["preview"] = args.preview
+    return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
+                           **settings)
 
 
 def simulate(sc, driver, estimator, seed: int):

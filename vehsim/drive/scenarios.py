@@ -77,7 +77,7 @@ from ..optimal.centreline import CentrelineRoad, Gate
 from .actuators import DriveActuators
 from .estimator import AxleGripEstimator, scale_of_peak
 from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
-from .horizon import RoadTable
+from .horizon import RecedingHorizonDriver, RoadTable
 from .plant import DrivePlant, DriveState, init_drive
 from .sensors import DriveSensors
 
@@ -227,6 +227,30 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
     return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
                              min_utilisation=DRIVER_MIN_UTILISATION,
                              sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
+
+
+def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
+                    pace_notes: bool = False, **settings
+                    ) -> tuple[RecedingHorizonDriver, AxleGripEstimator | None]:
+    r"""``(driver, estimator)``: the `RecedingHorizonDriver` of ``scenario`` with the
+    planner's ``friction`` ("estimate", "nominal" or "oracle"), paced to the plant's
+    actuators (their `sample_time` and the steering's delay in whole samples), and for
+    "estimate" its estimator (`driver_estimator`; None otherwise).
+
+    ``pace_notes``: the driver and the estimator share `DriveScenario.surface_map` (the
+    driver's table carries it as its `scale` column, `RecedingHorizonDriver.surface_map`).
+    ``settings``: further `RecedingHorizonDriver` fields, e.g. ``driver_settings(road)``
+    (not applied here: a road from a file named like a scenario's is not that road)."""
+    _check_name("friction", friction, ("estimate", "nominal", "oracle"))
+    notes = scenario.surface_map() if pace_notes else None
+    act = scenario.plant.actuators
+    table = scenario.table if notes is None else scenario.table.with_grip(notes)
+    driver = RecedingHorizonDriver(table=table, friction=friction,
+                                   sample_time=act.sample_time,
+                                   delay_samples=int(act.delay_samples()[0]),
+                                   surface_map=notes is not None, **settings)
+    estimator = driver_estimator(surface=notes) if friction == "estimate" else None
+    return driver, estimator
 
 
 def nominal_scale() -> float:
