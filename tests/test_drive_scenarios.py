@@ -4,6 +4,7 @@ minimum-time drive."""
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -154,6 +155,28 @@ def test_uniform_and_rising_grips_have_their_peaks_along_the_road(roads, grips, 
 
 
 # ---- measurements --------------------------------------------------------------------------
+
+
+def test_scenario_driver_is_paced_to_the_plant_and_shares_the_pace_notes():
+    """`scenario_driver`: the driver samples at the actuators' period and knows their delay
+    in whole samples; with pace notes its table's `scale` column and the estimator's map
+    are the scenario's relative grip (1 on the best surface, below 0.6 on the icy patch);
+    only the estimating driver has an estimator; an unknown friction is refused."""
+    act = vs.DriveActuators(sample_time=0.04, delay=(0.08, 0.08, 0.08))
+    sc = vs.drive_scenario("sturn", "icy", actuators=act)
+    driver, estimator = vs.scenario_driver(sc, pace_notes=True, margin=0.25)
+    assert float(driver.sample_time) == 0.04 and int(driver.delay_samples) == 2
+    assert float(driver.margin) == 0.25 and driver.surface_map and driver.friction == "estimate"
+    notes = sc.surface_map()
+    assert eqx.tree_equal(estimator.surface, notes)
+    scale = np.asarray(driver.table.scale)
+    np.testing.assert_allclose(scale, np.asarray(sc.table.with_grip(notes).scale))
+    assert np.max(scale) == pytest.approx(1.0) and 0.3 < np.min(scale) < 0.6
+    plain, none = vs.scenario_driver(sc, "oracle")
+    assert none is None and not plain.surface_map
+    np.testing.assert_array_equal(np.asarray(plain.table.scale), np.asarray(sc.table.scale))
+    with pytest.raises(ValueError, match="friction 'guess'; allowed: estimate, nominal, oracle"):
+        vs.scenario_driver(sc, "guess")
 
 
 def test_drive_time_interpolates_the_gate_crossing():
