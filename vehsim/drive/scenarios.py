@@ -234,7 +234,8 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
                     ) -> tuple[RecedingHorizonDriver, AxleGripEstimator | None]:
     r"""``(driver, estimator)``: the `RecedingHorizonDriver` of ``scenario`` with the
     planner's ``friction`` ("estimate", "nominal" or "oracle"), paced to the plant's
-    actuators (their `sample_time` and the steering's delay in whole samples), and for
+    actuators (their `sample_time`, and their delay in whole samples: the driver predicts
+    over one delay, the first channel's; the scenarios delay all three alike), and for
     "estimate" its estimator (`driver_estimator`; None otherwise).
 
     ``pace_notes``: the driver and the estimator share `DriveScenario.surface_map` (the
