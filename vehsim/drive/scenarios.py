@@ -163,11 +163,12 @@ def main_corner(name: str) -> tuple[float, float]:
     return s0, s0 + float(lengths[index])
 
 
-FAST_ROAD_DRIVER = {"iterations": 8, "peak_fraction": 0.9, "margin": 0.3}
-"""`RecedingHorizonDriver` settings of `driver_settings` on the stage."""
-
 CORNER_DRIVER = {"margin": 0.3}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
+
+FAST_ROAD_DRIVER = CORNER_DRIVER | {"iterations": 8, "peak_fraction": 0.9}
+"""`RecedingHorizonDriver` settings of `driver_settings` on the stage: the corners' margin,
+more passes and a friction margin."""
 
 _CORNERS = ("corner90", "uturn", "sturn")
 
