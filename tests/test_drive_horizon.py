@@ -589,3 +589,28 @@ def test_init_state_is_typed_as_the_commands():
                                 jax.tree.leaves(after)):
             assert (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type), (
                 mode, jax.tree_util.keystr(path), a, b)
+
+
+def test_margin_narrows_with_the_planned_grip():
+    """`margin_grip_power` $p$: the corridor at knot $k$ is the road less
+    $m\\min(1, g_k)^p$, $g_k = D_k/D$ (the last stage's at the end knot, each stage's at its
+    midpoint), full where the grip is the planning car's or more; $p = 0$ is the constant
+    margin exactly, and the driver passes its setting to its plans."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    state8 = jnp.zeros(8).at[2].set(10.0)
+    D = jnp.array([0.13, 0.26, 0.52, 0.78])
+    g = np.minimum(np.asarray(D) / float(car.tire.D), 1.0)
+    prob = vs.horizon_problem(table, car, 0.0, state8, D, horizon=20.0, margin=0.4,
+                              margin_grip_power=0.5)
+    expect = 2.0 - 0.4 * np.sqrt(np.append(g, g[-1]))
+    np.testing.assert_allclose(np.asarray(prob.corridor), np.stack([-expect, expect], -1),
+                               rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(prob.corridor_mid)[:, 0, 1], 2.0 - 0.4 * np.sqrt(g),
+                               rtol=1e-12)
+    flat = vs.horizon_problem(table, car, 0.0, state8, D, horizon=20.0, margin=0.4)
+    assert np.all(np.asarray(flat.corridor) == np.array([-1.6, 1.6]))
+    driver = vs.RecedingHorizonDriver(table=table, vehicle=car, horizon=20.0, num_stages=4,
+                                      margin=0.4, margin_grip_power=0.5)
+    np.testing.assert_array_equal(np.asarray(driver.problem(0.0, state8, D).corridor),
+                                  np.asarray(prob.corridor))

@@ -210,7 +210,8 @@ def _bound_solve(table, car, length, rate_weight, xs0, us0, D_stage, limits):
     prob = horizon_problem(table, car, 0.0, xs0[0, :8], limits["peak_fraction"] * D_stage,
                            horizon=length, rate_weight=rate_weight, margin=limits["margin"],
                            steer_rate=limits["steer_rate"], steer_limit=limits["steer_limit"],
-                           slip_limit=limits["slip_limit"])
+                           slip_limit=limits["slip_limit"],
+                           margin_grip_power=limits["margin_grip_power"])
     # from a solution nearby: a small first barrier keeps its active set
     options = IPOptions(max_iter=500, mu0=1e-3)
     return prob, interior_point(prob, xs0, us0, options, throw=False)
@@ -232,8 +233,8 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
     still moved: the last converged drive is returned (the one-peak drive if none).
 
     ``driver`` (a `RecedingHorizonDriver`; None: the bound above): the bound under that
-    driver's own constraints, its corridor `margin`, `slip_limit`, `steer_rate` and
-    `steer_limit`, and `peak_fraction` of each stage's peak, from the drive's start with the
+    driver's own constraints, its corridor `margin` (and `margin_grip_power`), `slip_limit`,
+    `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, from the drive's start with the
     wheels rolling and the steering straight (as the driver's first plan): the fixed point
     continued from the unconstrained bound. It parts the driver's distance to the bound
     into what its safety constraints cost and what driving closed loop on an unknown road
@@ -277,12 +278,13 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
             exact = False  # the peaks still moving after `rounds` solves
         return best, D_stage, exact and best is not start
 
-    free = dict(margin=0.0, steer_rate=1e3, steer_limit=DELTA_MAX, slip_limit=None,
-                peak_fraction=1.0)
+    free = dict(margin=0.0, margin_grip_power=0.0, steer_rate=1e3, steer_limit=DELTA_MAX,
+                slip_limit=None, peak_fraction=1.0)
     # (the floor solve itself may not converge: not exact)
     best, D_stage, exact = fixed_point(floor, jnp.full((M,), D), free)
     if driver is not None:
-        limits = dict(margin=driver.margin, steer_rate=driver.steer_rate,
+        limits = dict(margin=driver.margin, margin_grip_power=driver.margin_grip_power,
+                      steer_rate=driver.steer_rate,
                       steer_limit=driver.steer_limit, slip_limit=driver.slip_limit,
                       peak_fraction=driver.peak_fraction)
         # from the drive's start as the driver plans it: wheels rolling, steering straight

@@ -405,17 +405,24 @@ RELAX_STAGES = 3
 
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
-                    steer_limit=0.6, terminal_backoff=1.0, slip_limit=None) -> HorizonOCP:
+                    steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
+                    margin_grip_power=0.0) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
     ``D_per_stage``).
 
-    Curvature at each stage's RK4 points, corridor $(-w_r + m, w_l - m)$ at the knots and
-    midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
+    Curvature at each stage's RK4 points, corridor $(-w_r + m_k, w_l - m_k)$ at the knots
+    and midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
     much as the start lies outside it plus 5 cm, so that a start off the corridor stays
-    feasible), terminal bound $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with
-    $\beta$ = ``terminal_backoff``, `grip` = ``D_per_stage`` / the vehicle's $D$;
+    feasible), $m_k = m \min(1, g_k)^p$ with $m$ = ``margin``, $p$ = ``margin_grip_power``
+    (0: the same margin everywhere) and $g_k$ the stage's `grip` below (the last stage's at
+    the end knot). How far the car strays from its plan within a sample grows with the
+    lateral force the planning model gets wrong, a fraction of the grip it plans with, and
+    with the speed, which scales as $\sqrt{g}$: $p$ = 1 or 1/2 narrows the margin on a
+    slippery surface, where the road's width is what lets the car through; terminal bound
+    $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with $\beta$ = ``terminal_backoff``,
+    `grip` = ``D_per_stage`` / the vehicle's $D$;
     ``slip_limit`` (None: no bound) the bound on the axles' combined slip, widened over the
     first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it (plus
     0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
@@ -429,8 +436,11 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     kap = jnp.stack([table.curvature_at(s_nodes[:-1]), table.curvature_at(s_mid),
                      table.curvature_at(s_nodes[1:])], -1)[:, None, :]
     state8 = jnp.asarray(state8, float)
-    nodes = table.corridor_at(s_nodes, margin)
-    mids = table.corridor_at(s_mid, margin)
+    grip = D_per_stage / vehicle.tire.D
+    power = jnp.asarray(margin_grip_power, float)
+    scaled = jnp.asarray(margin, float) * jnp.minimum(grip, 1.0) ** power
+    nodes = table.corridor_at(s_nodes, jnp.concatenate([scaled, scaled[-1:]]))
+    mids = table.corridor_at(s_mid, scaled)
     n0 = state8[0]
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
@@ -449,7 +459,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         start_lateral=jnp.zeros(2), end_lateral=jnp.zeros(2), start_speed=jnp.zeros(()),
         end_speed=jnp.zeros(()), start_speed_fixed=False, end_speed_fixed=False,
         num_stages=M, steps_per_stage=1, closed=False, objective="min-time",
-        rate_weight=rate_weight, initial_state=state8, grip=D_per_stage / vehicle.tire.D,
+        rate_weight=rate_weight, initial_state=state8, grip=grip,
         terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
         slip_limit=slips)
 
@@ -661,7 +671,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     `FrictionEllipseTire`; default `rally_gravel_car()`; `planner_car()` has a tire of the
     plant's shape),
     `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
-    [m] (0.2), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
+    [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
+    the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
+    `horizon_problem`), `rate_weight` $w$
+    (1e-4), `terminal_backoff` $\beta$ (1);
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
@@ -752,6 +765,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     horizon: Float[Array, ""] = array_field(default=60.0)
     num_stages: int = eqx.field(static=True, default=30)
     margin: Float[Array, ""] = array_field(default=0.2)
+    margin_grip_power: Float[Array, ""] = array_field(default=0.0)
     rate_weight: Float[Array, ""] = array_field(default=1e-4)
     terminal_backoff: Float[Array, ""] = array_field(default=1.0)
     mode: str = eqx.field(static=True, default="rti")
@@ -930,7 +944,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                                margin=self.margin, rate_weight=self.rate_weight,
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
                                terminal_backoff=self.terminal_backoff,
-                               slip_limit=self.slip_limit)
+                               slip_limit=self.slip_limit,
+                               margin_grip_power=self.margin_grip_power)
 
     def _frenet_rates(self, X5, inputs, s):
         """Time derivative of $(s, n, \\xi, v_x, v_y, r)$ of the reduced car (eqs. 61-63)."""
