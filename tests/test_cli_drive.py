@@ -307,7 +307,8 @@ def test_trace_truth_and_planned_horizon(small_run):
 def test_drive_builds_the_scenarios_driver_settings(road, expect):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
     passes and a friction margin on the fast stage, a corridor margin wider than the
-    driver's default on the stage and the corners), built without compiling anything."""
+    driver's default on the stage and the corners, narrowing with the grip on the corners),
+    built without compiling anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
@@ -317,11 +318,16 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect):
     driver, estimator = setup.controller(args, sc)
     default = vs.RecedingHorizonDriver(table=sc.table)
     want = {"iterations": default.iterations, "peak_fraction": 1.0,
-            "margin": float(default.margin)} | expect
+            "margin": float(default.margin),
+            "margin_grip_power": float(default.margin_grip_power)} | expect
     assert driver.iterations == want["iterations"]
     assert float(driver.peak_fraction) == want["peak_fraction"]
     assert float(driver.margin) == want["margin"]
-    assert want["margin"] == 0.3 > float(default.margin)
+    assert float(driver.margin_grip_power) == want["margin_grip_power"]
+    assert want["margin"] >= 0.3 > float(default.margin)
+    # the corners' margin narrows with the grip (0.4 m on gravel, 0.21-0.23 m on the icy
+    # patch), the stage's does not
+    assert want["margin_grip_power"] == (1.0 if road == "sturn" else 0.0)
     # the default controller: the estimate, with the scenarios' gate and sliding samples
     assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
 

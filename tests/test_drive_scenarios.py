@@ -380,6 +380,15 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
     monkeypatch.setattr(baselines, "horizon_problem",
                         lambda *a, **k: traces.append(k["margin"]) or original(*a, **k))
     wider, _, exact_wider = vs.offline_bound(
-        sc, driver=vs.RecedingHorizonDriver(table=sc.table, margin=0.3))
+        sc, driver=vs.RecedingHorizonDriver(table=sc.table, margin=0.3, margin_grip_power=1.0,
+                                            peak_fraction=0.9))
     assert traces == [] and exact_wider
     assert float(wider.t_f) > float(bound.t_f) * 1.005
+    # the margin narrowed where the planned grip (90 % of the peak) is below the car's:
+    # near the end, where the drive is fastest (by 3.6 mm: the corridor is compared exactly)
+    g = np.minimum(np.asarray(wider.problem.grip), 1.0)
+    assert np.min(g) < 0.995
+    s = np.linspace(0.0, float(sc.road.length), g.size + 1)
+    lo, hi = np.asarray(sc.table.corridor_at(jnp.asarray(s), 0.3 * np.append(g, g[-1]))).T
+    np.testing.assert_allclose(np.asarray(wider.problem.corridor), np.stack([lo, hi], -1),
+                               rtol=1e-12, atol=1e-12)
