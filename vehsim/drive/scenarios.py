@@ -194,8 +194,8 @@ def driver_settings(name: str | None) -> dict:
       everywhere lost the icy apex, which asks for the road's width. Over 16 noise seeds
       on the four grips, the estimate with pace notes completed 171 of 192 drives, against
       129 at 0.2 m, 152 at 0.3 m and 155 at 0.4 m everywhere (the icy ones 37 of 48,
-      against 27 and 21 at 0.3 m and 0.4 m), 1.6-1.9 % slower than at 0.3 m on the nominal
-      corners.
+      against 27 and 21 at 0.3 m and 0.4 m), the median nominal drives 0.6-1.8 % slower
+      than at 0.3 m.
 
     The measurements: docs/driver.md."""
     if name == "stage":
