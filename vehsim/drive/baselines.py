@@ -234,8 +234,9 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
 
     ``driver`` (a `RecedingHorizonDriver`; None: the bound above): the bound under that
     driver's own constraints, its corridor `margin` (and `margin_grip_power`), `slip_limit`,
-    `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, from the drive's start with the
-    wheels rolling and the steering straight (as the driver's first plan): the fixed point
+    `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, from the
+    drive's start with the wheels rolling and the steering straight (as the driver's first
+    plan): the fixed point
     continued from the unconstrained bound. It parts the driver's distance to the bound
     into what its safety constraints cost and what driving closed loop on an unknown road
     costs."""

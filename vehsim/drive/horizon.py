@@ -673,8 +673,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
-    `horizon_problem`), `rate_weight` $w$
-    (1e-4), `terminal_backoff` $\beta$ (1);
+    `horizon_problem`), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
