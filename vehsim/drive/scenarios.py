@@ -185,7 +185,8 @@ def driver_settings(name: str | None) -> dict:
       tire is not the plant's); these settings keep the oracle and the estimate on it. And
       a corridor margin of 0.3 m: over 16 noise seeds on the four grips the estimate with
       pace notes completed 47 of 64 stages against 25 with the default 0.2 m, 0.1-0.8 %
-      slower.
+      slower (the corners' margin, narrowing with the grip, completed the same 24 of 32 on
+      seeds 0-7, 0.2-0.6 % slower).
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
       margin of 0.4 m that narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: 0.21-0.23 m on the icy patch, 0.34-0.38 m at 20 % less
