@@ -236,8 +236,7 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
     driver's own constraints, its corridor `margin` (and `margin_grip_power`), `slip_limit`,
     `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, from the
     drive's start with the wheels rolling and the steering straight (as the driver's first
-    plan): the fixed point
-    continued from the unconstrained bound. It parts the driver's distance to the bound
+    plan): the fixed point continued from the unconstrained bound. It parts the driver's distance to the bound
     into what its safety constraints cost and what driving closed loop on an unknown road
     costs."""
     peak = np.asarray(scenario.grip.peak)
@@ -284,10 +283,7 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
     # (the floor solve itself may not converge: not exact)
     best, D_stage, exact = fixed_point(floor, jnp.full((M,), D), free)
     if driver is not None:
-        limits = dict(margin=driver.margin, margin_grip_power=driver.margin_grip_power,
-                      steer_rate=driver.steer_rate,
-                      steer_limit=driver.steer_limit, slip_limit=driver.slip_limit,
-                      peak_fraction=driver.peak_fraction)
+        limits = {name: getattr(driver, name) for name in free}  # the same constraints
         # from the drive's start as the driver plans it: wheels rolling, steering straight
         # (the free bound's start inputs are its optimum's, past the slip bound)
         xs = best.solution.xs.at[0, 5:8].set(0.0)
