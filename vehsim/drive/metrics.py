@@ -18,16 +18,18 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   every point is off the open road's end). Poses that the Frenet frame already places on
   the road (Newton's stationary point $p = c(s) + nN(s)$ with $0 < s < L$ and
   $|n| \le w(s)$ proves it, whichever centre-line point it found) skip the exact test.
-- **Departure in JAX** (`path_departure`, for batches of drives): the poses projected onto
-  a `RoadTable` one sample's poses at a time (`RoadTable.to_frenet`, a local search and
-  Newton from the last arc length), and $\max(n - w_l(s), -w_r(s) - n, 0)$: the exact
-  distance off a road of constant width while the projection is the nearest centre-line
-  point and the pose lies within the road's reach (the road is then the set of points
-  within $w$ of its centre line), up to the table's interpolation error ($10^{-4}$ m). A
-  car that leaves the road by more than the projection's search distance (4 m) loses it:
-  the value is then no distance at all (larger or smaller than the true one), but the
-  path passed every smaller distance at the integrator's resolution while it was
-  tracked, so a departure beyond `DEPARTURE_LIMIT` is always seen.
+- **Departure in JAX** (`path_departure`, for batches of drives): each pose projected onto
+  a `RoadTable` (`RoadTable.to_frenet`: the nearest sample within its search distance,
+  then Newton), starting from the nearest of every `search_points`-th sample of the whole
+  table (every 4 m at the default spacing, so that the local searches tile the table), and
+  $\max(n - w_l(s), -w_r(s) - n, 0)$: the exact distance off a road of constant width
+  (the set of points within $w$ of its centre line), up to the table's interpolation
+  error ($10^{-4}$ m), wherever the car is. Two exceptions, both metres off the road: a
+  pose nearly as far from another part of the road as from the nearest one (between two
+  legs of a hairpin) may read more, by less than the distance from the nearest point to
+  its coarse sample (2 m); and the table extends an open road past its ends, so a pose
+  beyond the start or end line reads its distance from that extension, less than the
+  exact one. A departure beyond `DEPARTURE_LIMIT` is always seen.
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
@@ -179,22 +181,26 @@ def drive_outcome(road: CentrelineRoad, t, x, y, tolerance: float = GATE_TOLERAN
                         completed=bool(crossed and off <= limit))
 
 
-def path_departure(table, x, y, upto, s_start=0.0):
+def path_departure(table, x, y, upto):
     r"""The largest distance off the road (module docstring, JAX) of the poses `x`, `y`
     (shape (N, S): N samples of S poses each, in order) whose flat index is at most `upto`
     (the pose before the end-gate crossing; `EndGate.crossing`'s index minus one, as the
-    path there starts with the start pose), projected onto `table` (a `RoadTable`) a
-    sample's poses at a time, each from the last arc length of the sample before (from
-    `s_start` for the first)."""
+    path there starts with the start pose), projected onto `table` (a `RoadTable`) each
+    from the nearest of every `search_points`-th sample of the whole table, a sample's
+    poses at a time."""
     N, S = x.shape
+    stride = table.search_points
+    coarse_s, coarse_x, coarse_y = (a[::stride] for a in (table.s, table.x, table.y))
 
-    def sample(s, xy):
+    def sample(_, xy):
         xs, ys, idx = xy
-        ss, ns, _ = jax.vmap(lambda px, py: table.to_frenet(px, py, 0.0 * px, s))(xs, ys)
+        d2 = (xs[:, None] - coarse_x[None]) ** 2 + (ys[:, None] - coarse_y[None]) ** 2
+        guess = coarse_s[jnp.argmin(d2, axis=1)]
+        ss, ns, _ = jax.vmap(table.to_frenet)(xs, ys, 0.0 * xs, guess)
         lo_hi = table.corridor_at(ss)
         off = jnp.maximum(jnp.maximum(ns - lo_hi[:, 1], lo_hi[:, 0] - ns), 0.0)
-        return ss[-1], jnp.max(jnp.where(idx <= upto, off, 0.0))
+        return None, jnp.max(jnp.where(idx <= upto, off, 0.0))
 
     idx = jnp.arange(N * S).reshape(N, S)
-    _, offs = jax.lax.scan(sample, jnp.asarray(s_start, float), (x, y, idx))
+    _, offs = jax.lax.scan(sample, None, (x, y, idx))
     return jnp.max(offs)
