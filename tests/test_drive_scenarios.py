@@ -258,19 +258,26 @@ def test_jax_departure_agrees_with_the_exact_one(roads):
 
 @pytest.mark.parametrize("name", ["corner90", "uturn"])
 def test_jax_departure_is_exact_metres_off_the_road(name):
-    """Poses scattered up to 10 m either side of the corner and the hairpin, each measured
-    alone (no path to follow): the JAX departure is the exact distance off the road to
-    the table's interpolation error (measured: 4e-5 m at most over 300 poses each), however
-    far the pose is from where the road was last seen."""
+    """Poses scattered over the road's bounding box widened by 12 m (past its ends, inside
+    the hairpin, far off), each measured alone (no path to follow): the JAX departure is
+    the exact distance off the road region to the table's interpolation error (measured:
+    3e-5 m at most over 600 poses each), however far the pose is from where the road was
+    last seen and past the start and end lines, where the table extends the road and the
+    road does not."""
     sc = vs.drive_scenario(name)
-    rng = np.random.default_rng(0)
-    s = rng.uniform(0.5, sc.road.length - 0.5, 300)
-    x, y = sc.road.to_cartesian(s, rng.uniform(-10.0, 10.0, 300))
+    road = sc.road
+    cx, cy = road.to_cartesian(np.linspace(0.0, road.length, 2000), np.zeros(2000))
+    rng = np.random.default_rng(1)
+    x = rng.uniform(cx.min() - 12.0, cx.max() + 12.0, 600)
+    y = rng.uniform(cy.min() - 12.0, cy.max() + 12.0, 600)
     alone = jax.jit(jax.vmap(lambda a, b: vs.path_departure(sc.table, a[None, None],
                                                             b[None, None], 0)))
     got = np.asarray(alone(jnp.asarray(x), jnp.asarray(y)))
-    exact = sc.road.distance_off_road(x, y)
-    assert np.sum(exact > 4.0) > 50
+    exact = road.distance_off_road(x, y)
+    assert np.sum(exact > 4.0) > 300 and np.sum(exact == 0.0) > 10
+    # poses past the ends: nearer the start or end line than the rest of the centre line
+    d = np.hypot(x[:, None] - cx[None], y[:, None] - cy[None])
+    assert np.sum(np.isin(np.argmin(d, axis=1), [0, 1999])) > 50
     np.testing.assert_allclose(got, exact, atol=2e-4)
 
 

@@ -20,16 +20,15 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   $|n| \le w(s)$ proves it, whichever centre-line point it found) skip the exact test.
 - **Departure in JAX** (`path_departure`, for batches of drives): each pose projected onto
   a `RoadTable` (`RoadTable.to_frenet`: the nearest sample within its search distance,
-  then Newton), starting from the nearest of every `search_points`-th sample of the whole
-  table (every 4 m at the default spacing, so that the local searches tile the table), and
-  $\max(n - w_l(s), -w_r(s) - n, 0)$: the exact distance off a road of constant width
-  (the set of points within $w$ of its centre line), up to the table's interpolation
-  error ($10^{-4}$ m), wherever the car is. Two exceptions, both metres off the road: a
-  pose nearly as far from another part of the road as from the nearest one (between two
-  legs of a hairpin) may read more, by less than the distance from the nearest point to
-  its coarse sample (2 m); and the table extends an open road past its ends, so a pose
-  beyond the start or end line reads its distance from that extension, less than the
-  exact one. A departure beyond `DEPARTURE_LIMIT` is always seen.
+  then Newton), starting from the nearest of every `search_points`-th sample of the road and
+  its ends (every 4 m at the default spacing, so that the local searches tile it; not the
+  table's extensions past an open road's ends), then $\max(n - w_l(s), -w_r(s) - n, 0)$, or past
+  an open road's start or end line the distance from that line. On a road of constant
+  widths this is the exact distance off the road region wherever the car is, up to the
+  table's interpolation error ($10^{-4}$ m). One exception, metres off the road: a pose
+  nearly as far from another part of the road as from the nearest one (between two legs
+  of a hairpin) may read more, by less than the distance from the nearest point to its
+  coarse sample (2 m).
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
@@ -186,19 +185,33 @@ def path_departure(table, x, y, upto):
     (shape (N, S): N samples of S poses each, in order) whose flat index is at most `upto`
     (the pose before the end-gate crossing; `EndGate.crossing`'s index minus one, as the
     path there starts with the start pose), projected onto `table` (a `RoadTable`) each
-    from the nearest of every `search_points`-th sample of the whole table, a sample's
-    poses at a time."""
+    from the nearest of every `search_points`-th sample of the road and its ends (not of
+    the table's extensions), a sample's poses at a time."""
     N, S = x.shape
-    stride = table.search_points
-    coarse_s, coarse_x, coarse_y = (a[::stride] for a in (table.s, table.x, table.y))
+    coarse_s = table.s[::table.search_points]
+    if not table.closed:  # the road's ends, where the table's extensions (not road) begin
+        coarse_s = jnp.concatenate([coarse_s, jnp.stack([0.0 * table.length, table.length])])
+    coarse_x, coarse_y = table.position(coarse_s)
+    on_road = (jnp.ones(coarse_s.shape, bool) if table.closed
+               else (coarse_s >= 0.0) & (coarse_s <= table.length))
 
     def sample(_, xy):
         xs, ys, idx = xy
         d2 = (xs[:, None] - coarse_x[None]) ** 2 + (ys[:, None] - coarse_y[None]) ** 2
-        guess = coarse_s[jnp.argmin(d2, axis=1)]
-        ss, ns, _ = jax.vmap(table.to_frenet)(xs, ys, 0.0 * xs, guess)
+        guess = coarse_s[jnp.argmin(jnp.where(on_road[None], d2, jnp.inf), axis=1)]
+        ss, _, _ = jax.vmap(table.to_frenet)(xs, ys, 0.0 * xs, guess)
+        beyond = jnp.zeros(ss.shape, bool)
+        if not table.closed:  # past an end: the distance from its line (a segment)
+            beyond = (ss < 0.0) | (ss > table.length)
+            ss = jnp.clip(ss, 0.0, table.length)
+        (px, py), heading = table.position(ss), table.heading_at(ss)
+        rx, ry = xs - px, ys - py
+        along = rx * jnp.cos(heading) + ry * jnp.sin(heading)
+        n = ry * jnp.cos(heading) - rx * jnp.sin(heading)
         lo_hi = table.corridor_at(ss)
-        off = jnp.maximum(jnp.maximum(ns - lo_hi[:, 1], lo_hi[:, 0] - ns), 0.0)
+        lateral = jnp.maximum(jnp.maximum(n - lo_hi[:, 1], lo_hi[:, 0] - n), 0.0)
+        off = jnp.where(beyond, jnp.sqrt(jnp.where(beyond, along ** 2 + lateral ** 2, 1.0)),
+                        lateral)
         return None, jnp.max(jnp.where(idx <= upto, off, 0.0))
 
     idx = jnp.arange(N * S).reshape(N, S)
