@@ -34,8 +34,7 @@ default tracking) in ONE jitted, vmapped call (plants, controllers, initial stat
 batched; the end-gate time and the departure computed in the same call, on the road
 tables, `path_departure`); prints the compile and run wall times and the completion
 rate, and checks the JAX departure against the exact NumPy one on a few drives (equal to
-the table's interpolation error, except where the car went past an open road's ends,
-metres off).
+the table's interpolation error).
 ``--previews M ...`` (with ``--mc-driver rh-oracle``): the oracle that knows the grip only
 M metres ahead of the car (`RecedingHorizonDriver.preview`; 0: the grip under the car, at
 once), each preview more members of the same batch: how far ahead a driver must know the
