@@ -20,15 +20,15 @@ poses $(x, y)$ at every integrator step (`simulate_drive(..., substep_poses=True
   $|n| \le w(s)$ proves it, whichever centre-line point it found) skip the exact test.
 - **Departure in JAX** (`path_departure`, for batches of drives): each pose projected onto
   a `RoadTable` (`RoadTable.to_frenet`: the nearest sample within its search distance,
-  then Newton), starting from the nearest of every `search_points`-th sample of the road and
-  its ends (every 4 m at the default spacing, so that the local searches tile it; not the
-  table's extensions past an open road's ends), then $\max(n - w_l(s), -w_r(s) - n, 0)$, or past
-  an open road's start or end line the distance from that line. On a road of constant
-  widths this is the exact distance off the road region wherever the car is, up to the
-  table's interpolation error ($10^{-4}$ m). One exception, metres off the road: a pose
-  nearly as far from another part of the road as from the nearest one (between two legs
-  of a hairpin) may read more, by less than the distance from the nearest point to its
-  coarse sample (2 m).
+  then Newton), starting from the nearest of every `search_points`-th sample of the road
+  and its ends (every 4 m at the default spacing, so that the local searches tile it; not
+  the table's extensions past an open road's ends), then
+  $\max(n - w_l(s), -w_r(s) - n, 0)$, or past an open road's start or end line the
+  distance from that line. On a road of constant widths this is the exact distance off the
+  road region wherever the car is, up to the table's interpolation error ($10^{-4}$ m).
+  One exception, metres off the road: a pose nearly as far from another part of the road
+  as from the nearest one (between two legs of a hairpin) may read more, by less than the
+  distance from the nearest point to its coarse sample (2 m).
 - **Completed** (`drive_outcome`): crossed within the run, never more than
   `DEPARTURE_LIMIT` (5 cm) off the road.
 """
