@@ -514,6 +514,41 @@ def test_first_plan_is_the_first_commands_solve():
     assert not bool(frozen.init(m0).planned)
 
 
+def test_a_lost_plan_is_planned_again_from_the_cold_start():
+    """A sample whose last plan's residual is past `replan_kkt` solves from `profile_guess`
+    with the first plan's options and converges, to a plan that does not depend on the lost
+    one (two different wrecks, the same plan); with the default (inf) the same lost plan
+    gets the real-time iteration's few passes from the shifted wreck, and stays lost. A
+    plan below the threshold is not re-planned."""
+    table, plant = _straight_and_quiet_plant()
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
+
+    @eqx.filter_jit
+    def step(driver, state, m):
+        return driver.command(state, m, None)[0]
+
+    keep = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
+    replan = eqx.tree_at(lambda d: d.replan_kkt, keep, jnp.asarray(100.0))
+    planned = step(keep, keep.init(m0), m0)
+    assert bool(planned.converged) and int(planned.iterations) > keep.iterations
+    # the plan lost: swerving across the road, its residual past the threshold
+    wreck = planned.xs.at[:, 0].set(jnp.array([0.0, 1.5, -1.5, 1.5, -1.5]))
+    lost = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(1e3)))
+    again = step(replan, lost, m0)
+    stays = step(keep, lost, m0)
+    print("replanned", int(again.iterations), float(again.kkt), "kept", int(stays.iterations),
+          float(stays.kkt))
+    assert bool(again.converged) and int(again.iterations) > keep.iterations
+    assert not bool(stays.converged) and int(stays.iterations) == keep.iterations
+    other = eqx.tree_at(lambda s: s.xs, lost, wreck.at[:, 0].multiply(-0.5))
+    np.testing.assert_allclose(np.asarray(step(replan, other, m0).xs), np.asarray(again.xs),
+                               atol=1e-9)
+    assert np.max(np.abs(np.asarray(step(keep, other, m0).xs - stays.xs))) > 1e-3
+    # below the threshold the shifted plan is kept (the few passes of a sample)
+    fine = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(50.0)))
+    assert int(step(replan, fine, m0).iterations) == keep.iterations
+
+
 def test_position_estimate_reckons_over_the_time_between_measurements():
     """The first command sees `init`'s measurement: its position estimate is that
     measurement with the GNSS variance (no time has passed, the fix is not counted twice),

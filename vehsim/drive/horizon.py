@@ -795,6 +795,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     hessian_update: str = eqx.field(static=True, default="every")
     preview: Float[Array, ""] = array_field(default=math.inf)
     surface_map: bool = eqx.field(static=True, default=False)
+    replan_kkt: Float[Array, ""] = array_field(default=math.inf)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -1076,25 +1077,27 @@ class RecedingHorizonDriver(AbstractDriveController):
         # stage at the measured speed, from the cold start; a later one at the state
         # predicted over the delay
         first = ~state.planned
+        # a plan lost (its residual past `replan_kkt`) is planned again from the cold start
+        cold = first | (state.kkt > self.replan_kkt)
         measured8 = jnp.concatenate([state.projection[1:], jnp.stack([m.vx, m.vy, m.yaw_rate]),
                                      state.inputs])
         s_pred = jnp.where(first, state.s, y[0])
         state8 = jnp.where(first, measured8, jnp.concatenate([y[1:], state.inputs]))
         xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
         xs0 = xs0.at[0, :8].set(state8)
-        speeds = jnp.where(first, jnp.hypot(m.vx, m.vy), self.stage_speeds(xs0))
+        speeds = jnp.where(cold, jnp.hypot(state8[2], state8[3]), self.stage_speeds(xs0))
         D = self.planner_friction(s_pred, estimate, speeds)
         guess = profile_guess(self.table, self.vehicle, s_pred, state8, D,
                               horizon=self.horizon)
-        xs0, us0 = (jnp.where(first, g, w) for g, w in zip(guess, (xs0, us0)))
+        xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
         prob = self.problem(s_pred, state8, D)
         duals = None
         if self.warm_duals:
             lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
                                            s_pred - state.s_plan, self.horizon)
             # a plan that did not converge has no multipliers to trust: the cold start
-            duals = lam, nu, jnp.where(state.converged, z, 0.0)
-        sol = self._solve(prob, xs0, us0, self.options(first), duals)
+            duals = lam, nu, jnp.where(state.converged & ~cold, z, 0.0)
+        sol = self._solve(prob, xs0, us0, self.options(cold), duals)
         inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
