@@ -547,6 +547,9 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
     # below the threshold the shifted plan is kept (the few passes of a sample)
     fine = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(50.0)))
     assert int(step(replan, fine, m0).iterations) == keep.iterations
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match=r"replan_kkt must lie in \(0, inf\]"):
+            vs.RecedingHorizonDriver(table, replan_kkt=bad)
 
 
 def test_position_estimate_reckons_over_the_time_between_measurements():

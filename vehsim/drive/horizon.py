@@ -710,7 +710,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip (or, with
     `surface_map`, the estimate the surface); `surface_map` (static; False) with
     'estimate': the `table`'s `scale` column is a map of the road's *relative* grip (pace
-    notes, a camera's surface classification; below).
+    notes, a camera's surface classification; below); `replan_kkt` (inf: never) the KKT
+    residual of a sample's plan past which the next sample plans again from the cold start
+    (`profile_guess`, every stage at the predicted speed, the first plan's options), not
+    from the shifted plan: a real-time iteration that lost its plan (infeasible at the
+    friction limit, its residual climbing) otherwise keeps following it.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -824,6 +828,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
         check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
                     allow_inf=True)  # inf: the whole horizon
+        check_range("RecedingHorizonDriver", "replan_kkt", self.replan_kkt, lower=0.0,
+                    lower_open=True, allow_inf=True)  # inf: never
         if self.surface_map and self.friction != "estimate":
             raise ValueError("RecedingHorizonDriver.surface_map carries the estimate along a "
                              "map of the relative grip: it needs friction='estimate', got "
