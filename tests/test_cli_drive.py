@@ -303,16 +303,19 @@ def test_trace_truth_and_planned_horizon(small_run):
 
 
 @pytest.mark.parametrize("road, expect", [("stage", vs.FAST_ROAD_DRIVER),
-                                          ("sturn", vs.CORNER_DRIVER)])
-def test_drive_builds_the_scenarios_driver_settings(road, expect):
+                                          ("sturn", vs.CORNER_DRIVER),
+                                          ("file", vs.FILE_ROAD_DRIVER)])
+def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
-    passes and a friction margin on the fast stage, a corridor margin wider than the
-    driver's default on the stage and the corners, narrowing with the grip on the corners),
-    built without compiling anything."""
+    passes and a friction margin on the fast stage and a road from a file, a corridor
+    margin wider than the driver's default on all of them, narrowing with the grip on the
+    corners; on a road from a file a lower terminal speed bound and a lost plan planned
+    again), built without compiling anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
-    args = cli.build_parser().parse_args(["drive", "--road", road])
+    where = ["--road-file", str(road_file)] if road == "file" else ["--road", road]
+    args = cli.build_parser().parse_args(["drive", *where])
     _check(args)
     sc = setup.scenario(args, setup.road(args))
     driver, estimator = setup.controller(args, sc)
@@ -325,6 +328,9 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect):
     assert float(driver.margin) == want["margin"]
     assert float(driver.margin_grip_power) == want["margin_grip_power"]
     assert want["margin"] >= 0.3 > float(default.margin)
+    for name in ("terminal_backoff", "replan_kkt"):  # the defaults but on a file's road
+        assert float(getattr(driver, name)) == float(expect.get(name, getattr(default, name)))
+    assert (float(driver.replan_kkt) < math.inf) == (road == "file")
     # the corners' margin narrows with the grip (0.4 m on gravel, 0.21-0.23 m on the icy
     # patch), the stage's does not
     assert want["margin_grip_power"] == (1.0 if road == "sturn" else 0.0)

@@ -432,6 +432,7 @@ from .drive.plant import (
 from .drive.scenarios import (
     CORNER_DRIVER as CORNER_DRIVER,
     FAST_ROAD_DRIVER as FAST_ROAD_DRIVER,
+    FILE_ROAD_DRIVER as FILE_ROAD_DRIVER,
     DriveScenario as DriveScenario,
     PatchedProfile as PatchedProfile,
     ScenarioGrip as ScenarioGrip,
