@@ -517,9 +517,9 @@ def test_first_plan_is_the_first_commands_solve():
 def test_a_lost_plan_is_planned_again_from_the_cold_start():
     """A sample whose last plan's residual is past `replan_kkt` solves from `profile_guess`
     with the first plan's options and converges, to a plan that does not depend on the lost
-    one (two different wrecks, the same plan); with the default (inf) the same lost plan
-    gets the real-time iteration's few passes from the shifted wreck, and stays lost. A
-    plan below the threshold is not re-planned."""
+    one (two different wrecks, the same plan), in at most `replan_iterations` passes; with
+    the default (inf) the same lost plan gets the real-time iteration's few passes from the
+    shifted wreck, and stays lost. A plan below the threshold is not re-planned."""
     table, plant = _straight_and_quiet_plant()
     m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
 
@@ -550,9 +550,15 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
     # below the threshold the shifted plan is kept (the few passes of a sample)
     fine = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(50.0)))
     assert int(step(replan, fine, m0).iterations) == keep.iterations
+    # a re-plan's passes capped below what it needs: it stops there, unconverged
+    capped = step(eqx.tree_at(lambda d: d.replan_iterations, replan, jnp.asarray(5)), lost, m0)
+    assert int(capped.iterations) == 5 < int(again.iterations) and not bool(capped.converged)
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match=r"replan_kkt must lie in \(0, inf\]"):
             vs.RecedingHorizonDriver(table, replan_kkt=bad)
+    for bad, message in ((0, r"must lie in \[1, inf\)"), (2.5, "must be an integer")):
+        with pytest.raises(ValueError, match=f"replan_iterations {message}"):
+            vs.RecedingHorizonDriver(table, replan_iterations=bad)
 
 
 def test_position_estimate_reckons_over_the_time_between_measurements():

@@ -51,10 +51,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
-from .._fields import array_field, float_array
+from .._fields import array_field, float_array, int_field
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
@@ -714,7 +714,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     residual of a sample's plan past which the next sample plans again from the cold start
     (`profile_guess`, every stage at the predicted speed, the first plan's options), not
     from the shifted plan: a real-time iteration that lost its plan (infeasible at the
-    friction limit, its residual climbing) otherwise keeps following it.
+    friction limit, its residual climbing) otherwise keeps following it;
+    `replan_iterations` (300) the cap of such a re-plan's passes (a re-plan stopped there
+    is used as it stands, as a real-time iteration's plan is).
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -800,6 +802,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     preview: Float[Array, ""] = array_field(default=math.inf)
     surface_map: bool = eqx.field(static=True, default=False)
     replan_kkt: Float[Array, ""] = array_field(default=math.inf)
+    replan_iterations: Int[Array, ""] = int_field(default=300)
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -830,6 +833,11 @@ class RecedingHorizonDriver(AbstractDriveController):
                     allow_inf=True)  # inf: the whole horizon
         check_range("RecedingHorizonDriver", "replan_kkt", self.replan_kkt, lower=0.0,
                     lower_open=True, allow_inf=True)  # inf: never
+        if not jnp.issubdtype(jnp.result_type(self.replan_iterations), jnp.integer):
+            raise ValueError("RecedingHorizonDriver.replan_iterations must be an integer >= 1, "
+                             f"got {self.replan_iterations}")
+        check_range("RecedingHorizonDriver", "replan_iterations", self.replan_iterations,
+                    lower=1.0)
         if self.surface_map and self.friction != "estimate":
             raise ValueError("RecedingHorizonDriver.surface_map carries the estimate along a "
                              "map of the relative grip: it needs friction='estimate', got "
@@ -868,15 +876,18 @@ class RecedingHorizonDriver(AbstractDriveController):
 
     # ---- pieces -----------------------------------------------------------------------
 
-    def options(self, first=False) -> IPOptions:
+    def options(self, first=False, replan=False) -> IPOptions:
         """The interior-point options of a sample; ``first`` (a boolean, or a boolean
         array: one program for both): the first plan's, a cold start solved to convergence
         (at most `init_iterations`, IPOPT's first barrier 0.1, the multipliers'
         re-estimate on) by Newton's method (a fresh Hessian every step, whatever
-        `hessian_update`)."""
+        `hessian_update`); ``replan``: a lost plan's re-plan, the same at most
+        `replan_iterations`."""
         cap = self.iterations if self.mode == "rti" else self.max_iterations
+        cold_cap = jnp.where(replan, self.replan_iterations, self.init_iterations)
+        first = first | replan
         # a real-time iteration does a fixed work per sample: no uncounted re-estimates
-        return IPOptions(max_iter=jnp.where(first, self.init_iterations, cap), tol=self.tol,
+        return IPOptions(max_iter=jnp.where(first, cold_cap, cap), tol=self.tol,
                          constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
                          log_size=8, hessian_update=self.hessian_update,
                          fresh_hessian_steps=jnp.where(first, self.init_iterations, 1),
@@ -1103,7 +1114,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                                            s_pred - state.s_plan, self.horizon)
             # a plan that did not converge has no multipliers to trust: the cold start
             duals = lam, nu, jnp.where(state.converged & ~cold, z, 0.0)
-        sol = self._solve(prob, xs0, us0, self.options(cold), duals)
+        sol = self._solve(prob, xs0, us0, self.options(first, cold & ~first), duals)
         inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)

@@ -171,7 +171,7 @@ FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 8, "peak_fraction": 0.9}
 more passes and a friction margin."""
 
 FILE_ROAD_DRIVER = {"margin": 0.5, "iterations": 8, "peak_fraction": 0.9,
-                    "terminal_backoff": 0.85, "replan_kkt": 100.0}
+                    "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40}
 """`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: the stage's
 passes and friction margin, a wider corridor margin, a lower terminal speed bound and a lost
 plan planned again from the cold start (measured on the shipped circuit)."""
