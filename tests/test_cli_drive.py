@@ -328,7 +328,7 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     assert float(driver.margin) == want["margin"]
     assert float(driver.margin_grip_power) == want["margin_grip_power"]
     assert want["margin"] >= 0.3 > float(default.margin)
-    for name in ("terminal_backoff", "replan_kkt"):  # the defaults but on a file's road
+    for name in ("terminal_backoff", "replan_kkt", "replan_iterations"):  # but on a file
         assert float(getattr(driver, name)) == float(expect.get(name, getattr(default, name)))
     assert (float(driver.replan_kkt) < math.inf) == (road == "file")
     # the corners' margin narrows with the grip (0.4 m on gravel, 0.21-0.23 m on the icy

@@ -174,7 +174,8 @@ FILE_ROAD_DRIVER = {"margin": 0.5, "iterations": 8, "peak_fraction": 0.9,
                     "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40}
 """`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: the stage's
 passes and friction margin, a wider corridor margin, a lower terminal speed bound and a lost
-plan planned again from the cold start (measured on the shipped circuit)."""
+plan planned again from the cold start in at most 40 passes (measured on the shipped
+circuit)."""
 
 _CORNERS = ("corner90", "uturn", "sturn")
 
@@ -207,11 +208,13 @@ def driver_settings(name: str | None) -> dict:
       measured on the shipped circuit (Oschersleben: 3.7 km, about 11 m wide, straights
       driven at 35-47 m/s): the stage's passes and friction margin, a corridor margin of
       0.5 m, the terminal speed bound at 85 % (`terminal_backoff`) and a plan whose KKT
-      residual passes 100 planned again from the cold start (`replan_kkt`). With the
-      defaults the car left the road 344 m in, at 34 m/s: its plans' residual past 1e3,
-      the real-time iteration followed a stale plan off the road. With these it lapped
-      in 164 s on two noise seeds, but 2.9 and 3.7 m off the road on the way: the driver
-      does not yet complete that circuit (docs/driver.md).
+      residual passes 100 planned again from the cold start (`replan_kkt`) in at most 40
+      passes (`replan_iterations`). With the defaults the car left the road 344 m in, at
+      34 m/s: its plans' residual past 1e3, the real-time iteration followed a stale plan
+      off the road. With these it lapped in 163.1 s never off the road on noise seed 0,
+      and in 164.7 s but 1.02 m off once on seed 1 (re-plans of up to 300 passes: 2.9 and
+      3.7 m off): the driver does not yet complete that circuit reliably
+      (docs/driver.md).
 
     The measurements: docs/driver.md."""
     if name == "stage":
