@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad
 
 
@@ -210,8 +211,7 @@ def path_departure(table, x, y, upto):
         n = ry * jnp.cos(heading) - rx * jnp.sin(heading)
         lo_hi = table.corridor_at(ss)
         lateral = jnp.maximum(jnp.maximum(n - lo_hi[:, 1], lo_hi[:, 0] - n), 0.0)
-        off = jnp.where(beyond, jnp.sqrt(jnp.where(beyond, along ** 2 + lateral ** 2, 1.0)),
-                        lateral)
+        off = jnp.where(beyond, safe_hypot(along, lateral), lateral)
         return None, jnp.max(jnp.where(idx <= upto, off, 0.0))
 
     idx = jnp.arange(N * S).reshape(N, S)
