@@ -62,7 +62,8 @@ def drive(settings: dict, seed: int, duration: float) -> dict:
     if i_off.size:
         i = int(i_off[0])
         k = min(int(t[i] / sc.sample_time), len(s_car) - 1)
-        v = np.hypot(np.asarray(run.states.car)[k, 3], np.asarray(run.states.car)[k, 4])
+        car = np.asarray(run.states.car)
+        v = np.hypot(car[k, 3], car[k, 4])
         first = {"t": float(t[i]), "s": float(s_car[k]), "speed": float(v)}
     kkt, its = info["kkt"], info["iterations"]
     cold = its > driver.iterations
