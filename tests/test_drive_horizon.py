@@ -413,6 +413,58 @@ def test_slip_limit_bounds_the_plans_slips_and_holds_a_drifting_start():
     assert np.max(slips[None][3:-1]) > 0.17
 
 
+@pytest.mark.slow  # two horizon programs (hard, soft): one compilation each
+def test_soft_corridor_is_exact_where_the_hard_one_holds_and_plans_where_it_does_not():
+    """`corridor_penalty`: from a start the hard corridor can hold, the soft problem's plan
+    is the hard one's (no slack; the penalty is exact); from a start at the corridor's edge
+    heading out at 0.35 rad, where the hard problem has no plan (the interior point does not
+    converge), the soft one converges to a plan whose slacks cover its departure at every
+    stage, and a smaller penalty buys time with more departure, in the same program."""
+    road = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 15.0, 90.0),
+                                            ("straight", 20.0)], 4.0)
+    table = vs.RoadTable.from_road(road, extension=40.0)
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    D = jnp.full(12, 0.52)
+
+    @eqx.filter_jit
+    def plan(state8, penalty):
+        prob = vs.horizon_problem(table, car, 0.0, state8, D, horizon=36.0, slip_limit=0.15,
+                                  corridor_penalty=penalty)
+        xs0, us0 = vs.profile_guess(table, car, 0.0, state8, D, horizon=36.0)
+        if penalty is not None:
+            us0 = jnp.concatenate([us0, jnp.zeros((12, 1))], 1)
+        sol = vs.interior_point(prob, xs0, us0, vs.IPOptions(max_iter=300), throw=False)
+        n, lo_hi = sol.xs[:, 0], prob.corridor
+        return sol, jnp.maximum(jnp.maximum(lo_hi[:, 0] - n, n - lo_hi[:, 1]), 0.0)
+
+    easy = jnp.array([0.0, 0.0, 10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    hard, _ = plan(easy, None)
+    soft, _ = plan(easy, jnp.asarray(10.0))
+    assert bool(hard.converged) and bool(soft.converged)
+    assert soft.us.shape == (12, 4) and hard.us.shape == (12, 3)
+    assert float(jnp.max(soft.us[:, 3])) < 1e-7
+    np.testing.assert_allclose(soft.xs, hard.xs, atol=1e-6)
+    np.testing.assert_allclose(soft.us[:, :3], hard.us, atol=1e-5)
+
+    out = jnp.array([1.6, 0.35, 16.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    lost, _ = plan(out, None)
+    assert not bool(lost.converged)
+    times = {}
+    for penalty in (10.0, 1.0):
+        sol, off = plan(out, jnp.asarray(penalty))
+        sigma, off = np.asarray(sol.us[:, 3]), np.asarray(off)
+        print("penalty", penalty, "iterations", int(sol.iterations), "time",
+              float(sol.xs[-1, 8]), "departure", off.max(), "slack", sigma.sum())
+        assert bool(sol.converged)
+        assert off.max() > 1.0  # the plan leaves the corridor: there is no plan inside
+        assert np.all(sigma >= -1e-8) and np.all(off[:-1] <= sigma + 1e-6)
+        assert off[-1] <= 1e-6  # the end knot's corridor is hard
+        times[penalty] = (float(sol.xs[-1, 8]), sigma.sum())
+    assert times[1.0][0] < times[10.0][0] - 0.1 and times[1.0][1] > times[10.0][1]
+    with pytest.raises(ValueError, match="corridor_penalty"):
+        vs.RecedingHorizonDriver(table, corridor_penalty=0.0)
+
+
 def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():
     """Rolling straight (no slip, no side slip) the combined slip is 0, a square root's
     kink: the bound's widening at the start (`horizon_problem`) has a finite derivative in

@@ -333,7 +333,18 @@ class HorizonOCP(CurvilinearManeuverOCP):
     road, nothing after the horizon paying for it; `steer_rate` $\dot\delta_{max}$ [rad/s],
     `steer_limit` [rad]; `slip_limit` (M,) or None: the bound on each axle's combined slip
     (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
-    agrees with the plant's).
+    agrees with the plant's); `corridor_penalty` $\rho$ [s/m] or None (hard corridor): a
+    soft corridor, below.
+
+    **The soft corridor.** With $\rho$ the controls gain a slack $\sigma_k \ge 0$
+    ($u = (d(\kappa_F, \kappa_R, \delta)/ds, \sigma)$, `control_size` 4), the corridor at
+    stage $k$'s first knot and midpoint becomes $-w_r + m - \sigma_k \le n \le w_l - m +
+    \sigma_k$ and the objective gains $\rho\sum_k\sigma_k$ (the end knot's corridor stays
+    hard). The penalty is exact: where the hard problem has a solution whose corridor
+    multipliers are below $\rho$, it is the soft problem's, with $\sigma = 0$; where it has
+    none (a start a few tenths of a metre wide of its plan at the friction limit), the soft
+    problem still has one, the plan that leaves the corridor by the least total distance,
+    instead of an interior point with nothing to converge to.
     """
 
     initial_state: Float[Array, " 8"] = array_field(default=(0.0,) * 8)
@@ -344,6 +355,13 @@ class HorizonOCP(CurvilinearManeuverOCP):
     terminal_sideslip: Float[Array, ""] = array_field(default=0.1)
     terminal_heading: Float[Array, ""] = array_field(default=0.15)
     slip_limit: Float[Array, " M"] | None = None
+    corridor_penalty: Float[Array, ""] | None = None
+
+    def __check_init__(self):
+        if self.control_size != (3 if self.corridor_penalty is None else 4):
+            raise ValueError("HorizonOCP.control_size must be 3 with a hard corridor and 4 "
+                             "(the slack) with corridor_penalty; build it with "
+                             "horizon_problem")
 
     def _slip_constraints(self, X, limit):
         r"""`axle_slips` $\le$ ``limit`` for both axles, as the polynomial
@@ -359,8 +377,18 @@ class HorizonOCP(CurvilinearManeuverOCP):
 
     def _segment(self, x, u, k):
         veh = self.stage_vehicle(k)
-        return _rk4_steps(lambda X, uu, kap: spatial_rhs(veh, X, uu, kap), x, u, self.step,
-                          self.curvature[k])
+        return _rk4_steps(lambda X, uu, kap: spatial_rhs(veh, X, uu, kap), x, u[:3],
+                          self.step, self.curvature[k])
+
+    def _rhs(self, X, u, kappa):
+        return spatial_rhs(self.vehicle, X, u[:3], kappa)
+
+    def stage_cost(self, x, u, k):
+        rates = u[:3]
+        cost = self.rate_weight * self.length / self.num_stages * jnp.sum(rates * rates)
+        if self.corridor_penalty is None:
+            return cost
+        return cost + self.corridor_penalty * u[3]
 
     def _node_constraints(self, X):
         kF, kR, d = X[5], X[6], X[7]
@@ -372,6 +400,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
 
     def _path(self, x, u, k, starts, end):
         base = super()._path(x, u, k, starts, end)
+        if self.corridor_penalty is not None:  # the corridor's rows: 2 per node, 2 per mid
+            base = jnp.concatenate([base[:4 * self.steps_per_stage] + u[3],
+                                    base[4 * self.steps_per_stage:], u[3:4]])
         n, xi, vx, vy = x[0], x[1], x[2], x[3]
         kap = self.curvature[k][0, 0]
         sdot = (vx * jnp.cos(xi) - vy * jnp.sin(xi)) / (1.0 - n * kap)
@@ -406,7 +437,7 @@ RELAX_STAGES = 3
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
-                    margin_grip_power=0.0) -> HorizonOCP:
+                    margin_grip_power=0.0, corridor_penalty=None) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
@@ -427,7 +458,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it (plus
     0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
     start, read from the last plan between its first two knots, crept up to the bound
-    plus twice the slack)."""
+    plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
+    soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -461,7 +493,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         num_stages=M, steps_per_stage=1, closed=False, objective="min-time",
         rate_weight=rate_weight, initial_state=state8, grip=grip,
         terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
-        slip_limit=slips)
+        slip_limit=slips, corridor_penalty=None if corridor_penalty is None else
+        jnp.asarray(corridor_penalty, float), control_size=3 if corridor_penalty is None else 4)
 
 
 def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
@@ -500,7 +533,7 @@ def stage_speeds(xs) -> Float[Array, " M"]:
 
 
 def shift_plan(xs, us, distance, horizon):
-    r"""The plan (knots (M+1, 9), controls (M, 3)) on a grid moved forward by ``distance``
+    r"""The plan (knots (M+1, 9), controls (M, $n_u$)) on a grid moved forward by ``distance``
     [m] (interpolated in $s$; past its end the last knot held, its time advanced at the
     last speed), times restarted at 0."""
     M = us.shape[0]
@@ -651,7 +684,7 @@ class HorizonState(eqx.Module):
     velocity: Float[Array, " 2"]
     s_plan: Float[Array, ""]
     xs: Float[Array, "M+1 9"]
-    us: Float[Array, "M 3"]
+    us: Float[Array, "M nu"]
     lam: Float[Array, "M+1 9"]
     nu: Array
     z: Array
@@ -716,7 +749,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     from the shifted plan: a real-time iteration that lost its plan (infeasible at the
     friction limit, its residual climbing) otherwise keeps following it;
     `replan_iterations` (300) the cap of such a re-plan's passes (a re-plan stopped there
-    is used as it stands, as a real-time iteration's plan is).
+    is used as it stands, as a real-time iteration's plan is); `corridor_penalty` $\rho$
+    [s/m] (None: a hard corridor) the plans' soft corridor (`HorizonOCP`): a plan may leave
+    the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
+    which no plan keeps inside it still has a plan, the one that leaves it least.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -803,6 +839,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     surface_map: bool = eqx.field(static=True, default=False)
     replan_kkt: Float[Array, ""] = array_field(default=math.inf)
     replan_iterations: Int[Array, ""] = int_field(default=300)
+    corridor_penalty: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
         if self.mode not in ("rti", "converged"):
@@ -825,7 +863,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
                      "terminal_backoff", "mu0", "reference_speed", "slip_limit",
-                     "position_std"):
+                     "position_std", "corridor_penalty"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
@@ -962,7 +1000,16 @@ class RecedingHorizonDriver(AbstractDriveController):
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
                                terminal_backoff=self.terminal_backoff,
                                slip_limit=self.slip_limit,
-                               margin_grip_power=self.margin_grip_power)
+                               margin_grip_power=self.margin_grip_power,
+                               corridor_penalty=self.corridor_penalty)
+
+    def cold_guess(self, s0, state8, D):
+        """`profile_guess` with this driver's horizon (and a zero slack with
+        `corridor_penalty`)."""
+        xs, us = profile_guess(self.table, self.vehicle, s0, state8, D, horizon=self.horizon)
+        if self.corridor_penalty is not None:
+            us = jnp.concatenate([us, jnp.zeros_like(us[:, :1])], 1)
+        return xs, us
 
     def _frenet_rates(self, X5, inputs, s):
         """Time derivative of $(s, n, \\xi, v_x, v_y, r)$ of the reduced car (eqs. 61-63)."""
@@ -1065,7 +1112,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             D = self.nominal_friction(V)
         else:
             D = self.planner_friction(s, None, V)
-        xs0, us0 = profile_guess(self.table, self.vehicle, s, state8, D, horizon=self.horizon)
+        xs0, us0 = self.cold_guess(s, state8, D)
         prob = self.problem(s, state8, D)
         projection = jnp.concatenate([s[None], X5[:2]])
         masks = stage_layout(prob).masks()
@@ -1104,8 +1151,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         xs0 = xs0.at[0, :8].set(state8)
         speeds = jnp.where(cold, jnp.hypot(state8[2], state8[3]), self.stage_speeds(xs0))
         D = self.planner_friction(s_pred, estimate, speeds)
-        guess = profile_guess(self.table, self.vehicle, s_pred, state8, D,
-                              horizon=self.horizon)
+        guess = self.cold_guess(s_pred, state8, D)
         xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
         prob = self.problem(s_pred, state8, D)
         duals = None
@@ -1141,7 +1187,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         k = jnp.clip(jnp.floor(pos).astype(int), 0, M - 1)
         w = pos - k
         X = xs[k] + w * (xs[k + 1] - xs[k])
-        u = us[k]
+        u = us[k, :3]  # the rates (a soft corridor's slack is the last control)
         veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
         n, xi, vx, vy = X[0], X[1], X[2], X[3]
         sdot = vx * jnp.cos(xi) - vy * jnp.sin(xi)  # on the centre line's scale (n small)
