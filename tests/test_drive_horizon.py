@@ -461,6 +461,19 @@ def test_soft_corridor_is_exact_where_the_hard_one_holds_and_plans_where_it_does
         assert off[-1] <= 1e-6  # the end knot's corridor is hard
         times[penalty] = (float(sol.xs[-1, 8]), sigma.sum())
     assert times[1.0][0] < times[10.0][0] - 0.1 and times[1.0][1] > times[10.0][1]
+    # the driver: its problem and cold start carry the slack, its command reads the rates
+    hard_driver = vs.RecedingHorizonDriver(table, vehicle=car, horizon=36.0, num_stages=12)
+    driver = vs.RecedingHorizonDriver(table, vehicle=car, horizon=36.0, num_stages=12,
+                                      corridor_penalty=10.0)
+    assert float(driver.problem(0.0, out, D).corridor_penalty) == 10.0
+    assert hard_driver.problem(0.0, out, D).corridor_penalty is None
+    xs0, us0 = driver.cold_guess(0.0, out, D)
+    assert us0.shape == (12, 4) and not np.any(np.asarray(us0[:, 3]))
+    np.testing.assert_array_equal(us0[:, :3], hard_driver.cold_guess(0.0, out, D)[1])
+    sol, _ = plan(out, jnp.asarray(1.0))
+    for got, want in zip(driver.plan_command(sol.xs, sol.us, 0.52),
+                         hard_driver.plan_command(sol.xs, sol.us[:, :3], 0.52)):
+        np.testing.assert_array_equal(got, want)
     with pytest.raises(ValueError, match="corridor_penalty"):
         vs.RecedingHorizonDriver(table, corridor_penalty=0.0)
 
