@@ -309,8 +309,8 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
     passes and a friction margin on the fast stage and a road from a file, a corridor
     margin wider than the driver's default on all of them, narrowing with the grip on the
-    corners; on a road from a file a lower terminal speed bound and a lost plan planned
-    again), built without compiling anything."""
+    corners; on a road from a file a lower terminal speed bound, a lost plan planned
+    again, a tighter slip bound and a soft corridor), built without compiling anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
@@ -328,9 +328,15 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     assert float(driver.margin) == want["margin"]
     assert float(driver.margin_grip_power) == want["margin_grip_power"]
     assert want["margin"] >= 0.3 > float(default.margin)
-    for name in ("terminal_backoff", "replan_kkt", "replan_iterations"):  # but on a file
+    for name in ("terminal_backoff", "replan_kkt", "replan_iterations", "slip_limit"):
+        # the defaults but on a file
         assert float(getattr(driver, name)) == float(expect.get(name, getattr(default, name)))
     assert (float(driver.replan_kkt) < math.inf) == (road == "file")
+    assert (float(driver.slip_limit) < float(default.slip_limit)) == (road == "file")
+    # a soft corridor on a road from a file only
+    assert (driver.corridor_penalty is None) == (road != "file")
+    if road == "file":
+        assert float(driver.corridor_penalty) == expect["corridor_penalty"] > 0
     # the corners' margin narrows with the grip (0.4 m on gravel, 0.21-0.23 m on the icy
     # patch), the stage's does not
     assert want["margin_grip_power"] == (1.0 if road == "sturn" else 0.0)
