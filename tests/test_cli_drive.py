@@ -249,6 +249,41 @@ def test_animation_has_one_frame_per_subsample(small_run, tmp_path, every):
         assert frames == im.n_frames == len(expected)
 
 
+def test_windowed_animation_follows_the_car_without_warnings(small_run, tmp_path, caplog,
+                                                             monkeypatch):
+    """With ``window`` each frame's view is the square of that half-width centred on the
+    car, drawn to scale, and matplotlib logs nothing (a data-limited aspect with both
+    limits fixed logged a warning per frame)."""
+    import logging
+
+    import matplotlib.axes
+
+    road, plant, run = small_run
+    car = np.asarray(run.states.car)
+    views = []
+    draw = matplotlib.axes.Axes.draw
+
+    def record(ax, renderer):
+        draw(ax, renderer)
+        views.append((ax.get_xlim(), ax.get_ylim(), ax.get_data_ratio()))
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "draw", record)
+    with caplog.at_level(logging.WARNING):
+        frames = drive_animation(road, run, tmp_path / "w.gif", plant, every=4, window=15.0,
+                                 dpi=30)
+    assert not [r for r in caplog.records if r.name.startswith("matplotlib")]
+    shown = animation_frames(13, 4)
+    assert frames == len(shown)
+    # every view drawn (matplotlib draws some frames more than once) is a square of
+    # half-width 15 m on the car at a frame written, and every frame's car has one
+    centres = set()
+    for xlim, ylim, ratio in views:
+        assert np.diff(xlim)[0] == pytest.approx(30.0) and np.diff(ylim)[0] == pytest.approx(30.0)
+        assert ratio == pytest.approx(1.0)
+        centres.add((round(float(np.mean(xlim)), 9), round(float(np.mean(ylim)), 9)))
+    assert centres == {(round(float(car[k, 0]), 9), round(float(car[k, 1]), 9)) for k in shown}
+
+
 def test_figure_footprints_sit_at_the_poses(small_run):
     """Each footprint drawn is a 4.2 m x 1.8 m rectangle centred on a sample's centre of
     gravity, its long side along that sample's heading."""

@@ -619,8 +619,8 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
     draw_grip_field(ax, road, plant.grip, vmax=grip_vmax)
     ax.set(xlabel="x [m]", ylabel="y [m]", title=title or road.name)
     ax.autoscale_view()
-    if window is not None:
-        ax.set_adjustable("datalim")
+    if window is not None:  # a square view to scale: the axes box, not the limits, adjusts
+        ax.set_aspect("equal", adjustable="box")
     (trail,) = ax.plot([], [], "-", color="tab:blue", lw=1.2, zorder=3)
     (plan,) = ax.plot([], [], ".-", color="tab:orange", lw=1.0, ms=2, zorder=3,
                       label="planned horizon")
