@@ -626,6 +626,20 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
             vs.RecedingHorizonDriver(table, replan_iterations=bad)
 
 
+def test_driver_refuses_float32():
+    """Built with float64 off, the driver says so and how to switch it on (its plans do not
+    converge in float32, and a drive would go on without them)."""
+    table, _ = _straight_and_quiet_plant()
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ValueError, match=r"needs float64: call jax.config.update\("
+                                             r"'jax_enable_x64', True\)"):
+            vs.RecedingHorizonDriver(table)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    vs.RecedingHorizonDriver(table)  # and with it on, it builds
+
+
 def test_position_estimate_reckons_over_the_time_between_measurements():
     """The first command sees `init`'s measurement: its position estimate is that
     measurement with the GNSS variance (no time has passed, the fix is not counted twice),

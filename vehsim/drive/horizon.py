@@ -791,7 +791,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     only as good as their convergence). In 'rti' mode a plan is a few iterations, not a
     solution: derivatives raise `RTI_DERIVATIVE_MESSAGE`.
 
-    **Assumptions.** The prediction over the delay assumes the plant's actuators: the
+    **Assumptions.** Float64 (`jax_enable_x64`; the driver refuses to be built without
+    it: in float32 its plans do not converge). The prediction over the delay assumes the
+    plant's actuators: the
     command issued now acts from the next sample, and meanwhile the last command's slips
     and steering hold. The planning model is the reduced car (quasi-static loads, slips as
     inputs, no wheel or suspension dynamics) with a friction-ellipse tire; the torques
@@ -843,6 +845,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=None, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
+        if not jax.config.jax_enable_x64:
+            raise ValueError(
+                "RecedingHorizonDriver needs float64: call jax.config.update("
+                "'jax_enable_x64', True) before building it. In float32 its horizon problems "
+                "do not converge (the first plan's residual stays near 1) and the car drives "
+                "on without a plan")
         if self.mode not in ("rti", "converged"):
             raise ValueError(f"RecedingHorizonDriver.mode must be 'rti' or 'converged', got "
                              f"{self.mode!r}")
