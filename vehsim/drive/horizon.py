@@ -793,9 +793,8 @@ class RecedingHorizonDriver(AbstractDriveController):
 
     **Assumptions.** Float64 (`jax_enable_x64`; the driver refuses to be built without
     it: in float32 its plans do not converge). The prediction over the delay assumes the
-    plant's actuators: the
-    command issued now acts from the next sample, and meanwhile the last command's slips
-    and steering hold. The planning model is the reduced car (quasi-static loads, slips as
+    plant's actuators: the command issued now acts from the next sample, and meanwhile the
+    last command's slips and steering hold. The planning model is the reduced car (quasi-static loads, slips as
     inputs, no wheel or suspension dynamics) with a friction-ellipse tire; the torques
     realise the planned slips only as far as the plant's tire agrees with the planner's.
     The horizon must hold the braking before a corner and the corner itself (60 m at
