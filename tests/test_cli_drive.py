@@ -15,7 +15,8 @@ import pytest
 
 import vehsim as vs
 from vehsim import cli
-from vehsim.plot import animation_frames, drive_animation, drive_figure, drive_trace
+from vehsim.plot import (animation_frames, drive_animation, drive_figure, drive_trace,
+                         frame_every_for)
 
 
 # its own worker group: its drives are the command line's programs, which no other drive test
@@ -126,6 +127,8 @@ def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
     assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
     assert max(rec["commands_replayed_max_difference"]) < 1e-9
     assert sorted(p.name for p in out.iterdir()) == ["drive.json", "drive.png"]
+    # the frame step not given: the default for a drive this short, recorded as used
+    assert rec["settings"]["frame_every"] == 2
 
 
 BAD = {
@@ -200,10 +203,11 @@ class EstimateFollower(vs.AbstractDriveController):
         return state + 1.0, jnp.stack([torque[0], torque[1], 0.02 * jnp.sin(m.t) + 0.01 * m.y])
 
 
-def test_timing_replays_the_drive_commands():
+def test_timing_replays_the_drive_commands(capsys):
     """The sample timed outside the scan (estimator update, estimate, command) issues the
     drive's commands exactly, sample for sample, for a controller that reads its state, the
-    measurement and the estimate."""
+    measurement and the estimate; with progress on (the command line's default) it reports
+    the samples timed."""
     from vehsim.cli.drive import controller_timing, timing_record
 
     plant = vs.DrivePlant()
@@ -213,7 +217,12 @@ def test_timing_replays_the_drive_commands():
     run = jax.jit(lambda k: vs.simulate_drive(plant, EstimateFollower(), state0, k, 12,
                                               estimator=est))(key)
     m0 = vs.measure_drive(plant, state0, jax.random.fold_in(key, 0))
-    out = controller_timing(EstimateFollower(), est, m0, run.measurements)
+    before = vs.progress.set_default(True)
+    try:
+        out = controller_timing(EstimateFollower(), est, m0, run.measurements)
+    finally:
+        vs.progress.set_default(before)
+    assert "timing the controller: 100% (11/11 samples)" in capsys.readouterr().err
     np.testing.assert_allclose(out["commands"], np.asarray(run.commands), rtol=1e-12,
                                atol=1e-12)
     assert out["times"].shape == (11,) and np.all(out["times"] > 0)
@@ -247,6 +256,28 @@ def test_animation_has_one_frame_per_subsample(small_run, tmp_path, every):
     assert animation_frames(13, every) == expected
     with Image.open(path) as im:
         assert frames == im.n_frames == len(expected)
+
+
+@pytest.mark.parametrize("num_samples, every", [(13, 2), (1199, 2), (1200, 3), (4000, 7),
+                                                (4000, 9), (24000, 41)])
+def test_long_drives_get_at_most_600_frames(num_samples, every):
+    """`frame_every_for`: the frame step asked for (2) where it gives at most 600 frames, the
+    least step that does on a longer drive (a 200 s drive at 20 Hz: every 7th sample), and a
+    larger step asked for as it is."""
+    asked = 9 if every == 9 else 2
+    got = frame_every_for(num_samples, asked)
+    assert got == every
+    assert len(animation_frames(num_samples, got)) <= 600
+    if got > asked:  # the least such step
+        assert len(animation_frames(num_samples, got - 1)) > 600
+
+
+def test_animation_reports_each_frame_drawn(small_run, tmp_path):
+    road, plant, run = small_run
+    calls = []
+    frames = drive_animation(road, run, tmp_path / "p.gif", plant, every=4, dpi=30,
+                             progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(k, frames) for k in range(1, frames + 1)]
 
 
 def test_windowed_animation_follows_the_car_without_warnings(small_run, tmp_path, caplog,

@@ -6,6 +6,7 @@ Model code never draws: these functions take results (arrays, `Primitive`, `Repl
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -572,6 +573,17 @@ def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT
     return fig
 
 
+MAX_ANIMATION_FRAMES = 600
+"""The most frames `frame_every_for` gives an animation (a 200 s drive at 20 Hz: every 7th
+sample; drawing 2000 frames took about 6 minutes and wrote 23 MB)."""
+
+
+def frame_every_for(num_samples: int, every: int = 2) -> int:
+    """One frame per `every` samples, or per more where that would draw more than
+    `MAX_ANIMATION_FRAMES` frames (`animation_frames` adds the last sample)."""
+    return max(int(every), math.ceil((int(num_samples) - 1) / (MAX_ANIMATION_FRAMES - 1)))
+
+
 def animation_frames(num_samples: int, every: int) -> list[int]:
     """The samples (0-based) `drive_animation` draws: every `every`-th from the first, and
     the last."""
@@ -581,7 +593,8 @@ def animation_frames(num_samples: int, every: int) -> list[int]:
 def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
                     footprint=DRIVE_FOOTPRINT,
                     title: str = "", fps: float | None = None, window: float | None = None,
-                    grip_vmax: float | None = None, upto: int | None = None) -> int:
+                    grip_vmax: float | None = None, upto: int | None = None,
+                    progress=None) -> int:
     r"""An animation of a drive, written to `path` (``.gif``: matplotlib's `PillowWriter`,
     no external program; ``.mp4``: `FFMpegWriter`, needs ffmpeg): the road with its grip field
     shaded, the path so far, the car's footprint (a `footprint` = (length, width) [m]
@@ -590,8 +603,9 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
     against the truth under it, the planner's $D$). One frame per `every` samples
     (`animation_frames`), played in real time unless `fps` says otherwise, at `dpi`.
     `window` [m]: the view follows the car, this far from it each way (default: the whole
-    road); `grip_vmax` and `upto` as in `drive_figure`. Written atomically; returns the
-    number of frames."""
+    road); `grip_vmax` and `upto` as in `drive_figure`; `progress` (None, or a callable
+    ``progress(done, total)`` called after each frame is drawn). Written atomically;
+    returns the number of frames."""
     import tempfile
     from pathlib import Path
 
@@ -657,7 +671,8 @@ def drive_animation(road, run, path, plant, *, every: int = 2, dpi: int = 80,
               else animation.FFMpegWriter(fps=fps))
     with tempfile.TemporaryDirectory() as work:
         tmp = Path(work) / f"animation{suffix}"
-        anim.save(tmp, writer=writer, dpi=dpi)
+        report = None if progress is None else (lambda i, n: progress(i + 1, n))
+        anim.save(tmp, writer=writer, dpi=dpi, progress_callback=report)
         write_atomic(path, tmp.read_bytes())
     plt.close(fig)
     return len(frames)

@@ -130,8 +130,9 @@ def register(subparsers) -> None:
     p.add_argument("--animation-format", type=choice_of(FORMATS, "animation format"),
                    default=None,
                    help="gif (default; no external program) or mp4 (needs ffmpeg)")
-    p.add_argument("--frame-every", type=integer(1, 100), default=2,
-                   help="one animation frame per this many samples (2)")
+    p.add_argument("--frame-every", type=integer(1, 100), default=None,
+                   help="one animation frame per this many samples (default 2, more on a "
+                        "long drive: at most 600 frames)")
     p.set_defaults(func=_drive)
 
 
@@ -216,13 +217,24 @@ def controller_timing(controller, estimator, m0, measurements, *, samples: int |
     step_compiled = step.lower(cs, es, m0).compile()
     compile_s = time.perf_counter() - t0
     commands, times = [np.asarray(command)], []
-    for k in range(n - 1):
-        m = jax.tree.map(lambda a, k=k: a[k], measurements)
-        t0 = time.perf_counter()
-        cs, es, command = jax.block_until_ready(step_compiled(cs, es, m))
-        times.append(time.perf_counter() - t0)
-        commands.append(np.asarray(command))
+    with _progress("timing the controller", n - 1, "samples") as bar:
+        for k in range(n - 1):
+            m = jax.tree.map(lambda a, k=k: a[k], measurements)
+            t0 = time.perf_counter()
+            cs, es, command = jax.block_until_ready(step_compiled(cs, es, m))
+            times.append(time.perf_counter() - t0)
+            commands.append(np.asarray(command))
+            if bar is not None:
+                bar.advance(1)
     return {"commands": np.stack(commands), "times": np.asarray(times), "compile": compile_s}
+
+
+def _progress(label: str, total: int, unit: str):
+    """A host-side `ProgressBar` on stderr where progress is on (the command line's
+    default; ``vehsim --no-progress`` turns it off), else a block yielding None."""
+    from ..progress import progress_bar, resolve
+
+    return progress_bar(label, total, unit, enabled=resolve(None))
 
 
 def timing_record(times, sample_time: float, compile_s: float) -> dict:
@@ -263,7 +275,8 @@ def _drive(args) -> int:
     from .._io import save_figure, write_json
     from .._result_files import with_units
     from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
-    from ..plot import drive_animation, drive_figure, drive_trace
+    from ..plot import (animation_frames, drive_animation, drive_figure, drive_trace,
+                        frame_every_for)
 
     t0 = time.perf_counter()
     driver, estimator = setup.controller(args, sc)
@@ -278,6 +291,7 @@ def _drive(args) -> int:
     upto = None if result["drive_time"] is None else int(
         min(len(t), np.searchsorted(t, result["drive_time"]) + 1))
     tr = drive_trace(road, run, sc.plant, upto)
+    every = args.frame_every or frame_every_for(len(tr["t"]))
     info = run.controller_info
     rec = {
         "road": road.name, "length": road.length, "closed": road.closed,
@@ -307,7 +321,7 @@ def _drive(args) -> int:
                                  else args.preview), "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,
                      "animation": args.animation and (args.animation_format or "gif"),
-                     "frame_every": args.frame_every},
+                     "frame_every": every},
         "wall_time_s": wall,
     }
     out = Path(args.out)
@@ -325,9 +339,12 @@ def _drive(args) -> int:
         name = f"drive.{args.animation_format or 'gif'}"
         print(f"drawing the animation ({name})", file=sys.stderr, flush=True)
         extent = max(np.ptp(tr["x"]), np.ptp(tr["y"]))
-        drive_animation(road, run, out / name, sc.plant, every=args.frame_every, title=title,
-                        grip_vmax=nominal_scale(), window=40.0 if extent > 120.0 else None,
-                        upto=upto)
+        with _progress(f"drawing {name}", len(animation_frames(len(tr["t"]), every)),
+                       "frames") as bar:
+            drive_animation(road, run, out / name, sc.plant, every=every, title=title,
+                            grip_vmax=nominal_scale(), window=40.0 if extent > 120.0 else None,
+                            upto=upto, progress=None if bar is None else
+                            (lambda done, total: bar.reach(done)))
         written.append(name)
     ct = rec["compute_time"]
     print(f"{status}, off the road {result['max_distance_off_road']:.3f} m"
