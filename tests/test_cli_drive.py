@@ -15,8 +15,13 @@ import pytest
 
 import vehsim as vs
 from vehsim import cli
-from vehsim.plot import (animation_frames, drive_animation, drive_figure, drive_trace,
-                         frame_every_for)
+from vehsim.plot import (
+    animation_frames,
+    drive_animation,
+    drive_figure,
+    drive_trace,
+    frame_every_for,
+)
 
 
 # its own worker group: its drives are the command line's programs, which no other drive test

@@ -275,8 +275,7 @@ def _drive(args) -> int:
     from .._io import save_figure, write_json
     from .._result_files import with_units
     from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
-    from ..plot import (animation_frames, drive_animation, drive_figure, drive_trace,
-                        frame_every_for)
+    from ..plot import animation_frames, drive_animation, drive_figure, drive_trace, frame_every_for
 
     t0 = time.perf_counter()
     driver, estimator = setup.controller(args, sc)
