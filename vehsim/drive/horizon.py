@@ -380,12 +380,11 @@ class HorizonOCP(CurvilinearManeuverOCP):
         return _rk4_steps(lambda X, uu, kap: spatial_rhs(veh, X, uu, kap), x, u[:3],
                           self.step, self.curvature[k])
 
-    def _rhs(self, X, u, kappa):
-        return spatial_rhs(self.vehicle, X, u[:3], kappa)
+    def _rhs(self, X, u, kappa):  # the rates only: a soft corridor's slack is the last control
+        return super()._rhs(X, u[:3], kappa)
 
     def stage_cost(self, x, u, k):
-        rates = u[:3]
-        cost = self.rate_weight * self.length / self.num_stages * jnp.sum(rates * rates)
+        cost = super().stage_cost(x, u[:3], k)
         if self.corridor_penalty is None:
             return cost
         return cost + self.corridor_penalty * u[3]
