@@ -589,16 +589,19 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
     m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
 
     @eqx.filter_jit
+    @eqx.debug.assert_max_traces(max_traces=1)  # the first state's types are the commands'
     def step(driver, state, m):
         return driver.command(state, m, None)[0]
 
     keep = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
-    replan = eqx.tree_at(lambda d: d.replan_kkt, keep, jnp.asarray(100.0))
+    # every value below is given its dtype (not a weakly typed Python number), as the
+    # driver's own fields are: one program of `step` serves every call of the test
+    replan = eqx.tree_at(lambda d: d.replan_kkt, keep, jnp.asarray(100.0, dtype=float))
     planned = step(keep, keep.init(m0), m0)
     assert bool(planned.converged) and int(planned.iterations) > keep.iterations
     # the plan lost: swerving across the road, its residual past the threshold
     wreck = planned.xs.at[:, 0].set(jnp.array([0.0, 1.5, -1.5, 1.5, -1.5]))
-    lost = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(1e3)))
+    lost = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(1e3, dtype=float)))
     again = step(replan, lost, m0)
     stays = step(keep, lost, m0)
     print("replanned", int(again.iterations), float(again.kkt), "kept", int(stays.iterations),
@@ -613,10 +616,11 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
     np.testing.assert_array_equal(np.asarray(redo.xs), np.asarray(again.xs))
     assert np.max(np.abs(np.asarray(step(keep, other, m0).xs - stays.xs))) > 1e-3
     # below the threshold the shifted plan is kept (the few passes of a sample)
-    fine = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(50.0)))
+    fine = eqx.tree_at(lambda s: (s.xs, s.kkt), planned, (wreck, jnp.asarray(50.0, dtype=float)))
     assert int(step(replan, fine, m0).iterations) == keep.iterations
     # a re-plan's passes capped below what it needs: it stops there, unconverged
-    capped = step(eqx.tree_at(lambda d: d.replan_iterations, replan, jnp.asarray(5)), lost, m0)
+    capped = step(eqx.tree_at(lambda d: d.replan_iterations, replan, jnp.asarray(5, dtype=int)),
+                  lost, m0)
     assert int(capped.iterations) == 5 < int(again.iterations) and not bool(capped.converged)
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match=r"replan_kkt must lie in \(0, inf\]"):
