@@ -594,7 +594,7 @@ def test_a_lost_plan_is_planned_again_from_the_cold_start():
         return driver.command(state, m, None)[0]
 
     keep = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
-    # every value below is given its dtype (not a weakly typed Python number), as the
+    # every value below is given its dtype (not a weakly typed array of a Python number), as the
     # driver's own fields are: one program of `step` serves every call of the test
     replan = eqx.tree_at(lambda d: d.replan_kkt, keep, jnp.asarray(100.0, dtype=float))
     planned = step(keep, keep.init(m0), m0)
