@@ -165,22 +165,28 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
         stiff = np.zeros(y0.shape[0], bool)
         stiff[idx.ravel()] = True
 
-        ks = []
-        for i in range(4):
-            if i == 0:
-                fi = f0
-            else:
-                yi = y0 + sum(_A[i, j] * ks[j] for j in range(i) if _A[i, j] != 0.0)
-                fi = f(t0 + _C[i] * h, yi)
+        # stages 2-4 as one loop (its body, and so the vector field, traced once rather than
+        # three times: a smaller program, the same operations in the same order on each
+        # stage's values); the first stage's f is f0, evaluated with the linearisation
+        a, gam, c = jnp.asarray(_A), jnp.asarray(_G), jnp.asarray(_C)
+
+        def stage_k(ks, i, fi):
             rhs = h * fi
             # W k = rhs + h J g, g = sum_j gamma_ij k_j; off the blocks k = h f; on them
             # (I - gamma h J_ss) k_s = h f_s + h J_s (g + gamma k_n)
             k_n = jnp.where(stiff, 0.0, rhs)
-            g = sum((_G[i, j] * ks[j] for j in range(i)), start=jnp.zeros_like(y0))
+            g = sum((gam[i, j] * ks[j] for j in range(4)), start=jnp.zeros_like(y0))
             corr = lin(jnp.where(stiff, 0.0, g) + _GAMMA * k_n)[idx]
             corr = corr + jnp.einsum("bij,bj->bi", J, g[idx])
             k_s = solve_small(W, rhs[idx] + h * corr)
-            ks.append(k_n.at[idx].set(k_s))
+            return ks.at[i].set(k_n.at[idx].set(k_s))
+
+        def stage(ks, i):
+            yi = y0 + sum(a[i, j] * ks[j] for j in range(4))
+            return stage_k(ks, i, f(t0 + c[i] * h, yi)), None
+
+        ks = stage_k(jnp.zeros((4,) + y0.shape, y0.dtype), 0, f0)
+        ks, _ = jax.lax.scan(stage, ks, jnp.arange(1, 4))
         y1 = y0 + sum(_B[i] * ks[i] for i in range(4))
         y_error = sum((_B[i] - _B_HAT[i]) * ks[i] for i in range(4))
         f1 = f(t1, y1)
