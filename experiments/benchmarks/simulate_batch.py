@@ -126,7 +126,7 @@ KINKS = (T_STEER, T_STEER + RISE, T_BRAKE, T_BRAKE + RISE)
 
 def vehsim_solver(name):
     """`Tsit5` (explicit) or `ROS34PW2` on the car's stiff wheel-tire blocks."""
-    return dfx.Tsit5() if name == "Tsit5" else ROS34PW2(CAR.stiff_blocks)
+    return dfx.Tsit5() if name == "Tsit5" else ROS34PW2(CAR.stiff_blocks, unroll_stages=True)
 
 
 def vehsim_final(member, rtol, solver="Tsit5", progress_meter=None):

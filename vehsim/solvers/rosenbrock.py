@@ -99,6 +99,11 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
       derivative of the W-method with that $J$ as its approximation, which a W-method
       allows: it differs from the exact step's derivative by the step's sensitivity to its
       Jacobian approximation, of the order of the local error).
+    - `unroll_stages`: stages 2-4 written out in sequence rather than as one loop (default
+      `False`). The values are the same; the loop traces the vector field and its
+      linearisation once instead of three times, so programs compile faster (forward-mode
+      derivatives of closed loops by a fifth to a quarter), while batches of adaptive
+      solves run about 7 % faster unrolled (docs/performance.md).
 
     Order 3 with an embedded order-2 error estimate (use it with `diffrax.PIDController`);
     per step: one Jacobian-vector product per block column (all blocks at once), four
@@ -108,6 +113,7 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
 
     blocks: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     frozen_jacobian: bool = eqx.field(static=True, default=False)
+    unroll_stages: bool = eqx.field(static=True, default=False)
 
     term_structure: ClassVar = dfx.AbstractTerm
     interpolation_cls: ClassVar[Callable[..., dfx.ThirdOrderHermitePolynomialInterpolation]] = (
@@ -166,8 +172,8 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
         stiff[idx.ravel()] = True
 
         # stages 2-4 as one loop (its body, and so the vector field, traced once rather than
-        # three times: a smaller program, the same operations in the same order on each
-        # stage's values); the first stage's f is f0, evaluated with the linearisation
+        # three times: a smaller program, the same operations on each stage's values;
+        # `unroll_stages` writes it out); the first stage's f is f0, from the linearisation
         a, gam, c = jnp.asarray(_A), jnp.asarray(_G), jnp.asarray(_C)
 
         def stage_k(ks, i, fi):
@@ -186,7 +192,7 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
             return stage_k(ks, i, f(t0 + c[i] * h, yi)), None
 
         ks = stage_k(jnp.zeros((4,) + y0.shape, y0.dtype), 0, f0)
-        ks, _ = jax.lax.scan(stage, ks, jnp.arange(1, 4))
+        ks, _ = jax.lax.scan(stage, ks, jnp.arange(1, 4), unroll=self.unroll_stages)
         y1 = y0 + sum(_B[i] * ks[i] for i in range(4))
         y_error = sum((_B[i] - _B_HAT[i]) * ks[i] for i in range(4))
         f1 = f(t1, y1)
