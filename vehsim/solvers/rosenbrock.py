@@ -100,10 +100,10 @@ class ROS34PW2(dfx.AbstractAdaptiveSolver):
       allows: it differs from the exact step's derivative by the step's sensitivity to its
       Jacobian approximation, of the order of the local error).
     - `unroll_stages`: stages 2-4 written out in sequence rather than as one loop (default
-      `False`). The values are the same; the loop traces the vector field and its
-      linearisation once instead of three times, so programs compile faster (the
-      forward-mode derivative of a short closed-loop drive by 17-28 %), while batches of
-      adaptive solves run about 7 % faster unrolled (docs/performance.md).
+      `False`). The values are the same; as a loop, the vector field and its linearisation
+      appear once in the compiled program instead of three times, so programs compile
+      faster (the forward-mode derivative of a short closed-loop drive by 17-28 %), while
+      batches of adaptive solves run 5-12 % faster unrolled (docs/performance.md).
 
     Order 3 with an embedded order-2 error estimate (use it with `diffrax.PIDController`);
     per step: one Jacobian-vector product per block column (all blocks at once), four
