@@ -151,7 +151,9 @@ def test_a_surface_map_carries_the_estimate_onto_another_surface(drive):
     p = vs.AxleGripEstimator().params
     t = np.asarray(mapped.measurements.t)
     x = np.asarray(mapped.states.car[:, 0])
-    np.testing.assert_array_equal(x, np.asarray(plain.states.car[:, 0]))  # the same drive
+    # the same drive (the estimator does not steer this car), to rounding: two programs, whose
+    # plant XLA may fuse differently (measured 7e-15 m apart after 3 s)
+    np.testing.assert_allclose(x, np.asarray(plain.states.car[:, 0]), rtol=1e-13, atol=0)
     sp, sm = np.asarray(plain.estimates.scale), np.asarray(mapped.estimates.scale)
     first = (t > 1.0) & (x + p.lF < 32.0)
     assert first.sum() >= 10
