@@ -82,10 +82,10 @@ SETTINGS: dict = {}
 (``--driver-settings``)."""
 
 
-def settings_for(road: str) -> dict:
-    """The receding-horizon drivers' settings on ``road``: `driver_settings`, then
-    `SETTINGS`."""
-    return vs.driver_settings(road) | SETTINGS
+def settings_for(road: str, kind: str = "rh-oracle") -> dict:
+    """The settings of the receding-horizon driver ``kind`` (its planner's friction after
+    ``rh-``) on ``road``: `driver_settings`, then `SETTINGS`."""
+    return vs.driver_settings(road, kind.split("-")[1]) | SETTINGS
 
 
 def size_group(road: str, roads) -> list[str]:
@@ -115,7 +115,7 @@ def make_driver(kind: str, sc, reference):
     if kind == "tracking":
         return vs.PrimitiveTracker(reference=reference, lead=vs.command_lead(act)), None
     return vs.scenario_driver(sc, kind.split("-")[1], pace_notes=kind == "rh-estimate-map",
-                              **settings_for(sc.road.name))
+                              **settings_for(sc.road.name, kind))
 
 
 @eqx.filter_jit
@@ -201,7 +201,8 @@ def scenario_table(args):
                     rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
                                num_samples=sc.num_samples, **rec)
                     if kind.startswith("rh-") or kind == "bound-driver":
-                        rec["driver_settings"] = settings_for(road)
+                        rec["driver_settings"] = settings_for(
+                            road, "rh-oracle" if kind == "bound-driver" else kind)
                     rec.setdefault("wall_s", time.perf_counter() - t0)
                     rows.append(rec)
                     f.write(json.dumps(rec) + "\n")
@@ -291,7 +292,7 @@ def monte_carlo(args):
                    departure_checks=check, per_scenario={},
                    seeds=[args.mc_first_seed, args.mc_first_seed + args.monte_carlo - 1])
     if args.mc_driver.startswith("rh-"):
-        summary["driver_settings"] = {r: settings_for(r) for r in args.roads}
+        summary["driver_settings"] = {r: settings_for(r, args.mc_driver) for r in args.roads}
     if args.previews:
         summary["previews_m"] = [p if math.isfinite(p) else "inf" for p in args.previews]
     for road in args.roads:

@@ -69,6 +69,24 @@ def rh_drive(tmp_path_factory):
                         "--frame-every", EVERY, "--seed", 3], out)
 
 
+def test_drive_test_brakes_until_the_front_axle_knows_the_grip(rh_drive):
+    """The scenarios' driver with the estimate brakes its front axle on a corner's first
+    metres (`DRIVER_PROBE_DISTANCE`) until the front axle's belief narrows below
+    `probe_std`: the record's `solver.probing` is on for the first samples only, the car
+    has not yet covered the distance when it stops, and the front's belief was wide on
+    the last probing command and narrow on the first one after (the estimate a command
+    sees is the one after the previous sample)."""
+    _, rec = rh_drive
+    assert rec["settings"]["controller"] == "rh"
+    probing = np.asarray(rec["solver"]["probing"], bool)
+    sigma = np.asarray(rec["estimate"]["scale_std"]) / np.asarray(rec["estimate"]["scale"])
+    k = int(np.argmin(probing))  # the first command that does not brake to probe
+    assert probing[:k].all() and not probing[k:].any()
+    assert 2 <= k <= 5
+    assert sigma[k - 2, 0] >= 0.25 > sigma[k - 1, 0]
+    assert rec["trajectory"]["s"][k - 1] < vs.DRIVER_PROBE_DISTANCE
+
+
 @pytest.fixture(scope="module")
 def tracking_drive(road_file, tmp_path_factory):
     """The nominal plan tracked on a road file of 80 % of the nominal grip: (output folder,
@@ -413,6 +431,11 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     assert want["margin_grip_power"] == (1.0 if road == "sturn" else 0.0)
     # the default controller: the estimate, with the scenarios' gate and sliding samples
     assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
+    # a test brake on the corners' first metres, for the estimate only
+    probe = None if driver.probe_distance is None else float(driver.probe_distance)
+    assert probe == (vs.DRIVER_PROBE_DISTANCE if road == "sturn" else None)
+    args = cli.build_parser().parse_args(["drive", *where, "--controller", "rh-oracle"])
+    assert setup.controller(args, sc)[0].probe_distance is None
 
 
 @pytest.mark.parametrize("given, preview", [([], math.inf), (["--preview", "10"], 10.0),
@@ -467,3 +490,29 @@ def test_drive_gives_the_estimate_pace_notes():
     _check(args)
     driver, estimator = setup.controller(args, setup.scenario(args, setup.road(args)))
     assert not driver.surface_map and estimator.surface is None
+
+
+def test_figure_shades_the_test_brake(small_run):
+    """A planner's test brake (`RecedingHorizonDriver.info`'s ``probing``) reaches the trace
+    and is shaded on the figure's grip and torque panels, from the first probing command's
+    sample time to the state after the last one; a drive without one has no shading."""
+    import matplotlib.pyplot as plt
+
+    road, plant, run = small_run
+    probing = np.zeros(13, bool)
+    probing[[1, 2, 3, 7]] = True
+    braked = vs.DriveRun(run.states, run.measurements, run.commands, run.estimates,
+                         run.final, controller_info={"probing": probing})
+    np.testing.assert_array_equal(drive_trace(road, braked, plant)["probing"], probing)
+    t = np.asarray(run.states.t)
+    fig = drive_figure(road, braked, plant)
+    spans = [p for a in fig.axes for p in a.patches if p.get_gid() == "test-brake"]
+    assert len(spans) == 4  # two runs of samples on two panels
+    got = sorted({(round(p.get_x(), 12), round(p.get_x() + p.get_width(), 12)) for p in spans})
+    want = sorted({(round(t[1] - 0.05, 12), round(t[3], 12)), (round(t[7] - 0.05, 12),
+                                                               round(t[7], 12))})
+    assert got == want
+    plt.close(fig)
+    fig = drive_figure(road, run, plant)
+    assert not [p for a in fig.axes for p in a.patches if p.get_gid() == "test-brake"]
+    plt.close(fig)

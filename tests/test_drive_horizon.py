@@ -744,3 +744,47 @@ def test_margin_narrows_with_the_planned_grip():
                                       margin=0.4, margin_grip_power=0.5)
     np.testing.assert_array_equal(np.asarray(driver.problem(0.0, state8, D).corridor),
                                   np.asarray(prob.corridor))
+
+
+def test_test_brake_brakes_the_front_axle_until_the_grip_is_known():
+    """`probe_distance`: while the arc length is below it and the front axle's belief is
+    wide (`probe_std`), the command brakes the front axle at least at the planner's slip
+    whose force is `probe_utilisation` of the believed peak (the planning tire's closed
+    form; the stage's `peak_fraction` taken out), held; the rear axle and the steering are
+    the plan's; a plan braking harder keeps its slip; it needs the estimate, and is refused
+    by name with another friction."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    for fraction in (1.0, 0.9):
+        driver = vs.RecedingHorizonDriver(table, car, friction="estimate", probe_distance=2.0,
+                                          probe_utilisation=0.8, peak_fraction=fraction)
+        kappa = float(driver.probe_slip())
+        assert 0.0 < kappa < 0.15  # within the plans' slip bound
+        mu_x = car.tire.mu(jnp.asarray(-kappa), jnp.asarray(0.0))[0]
+        assert float(-mu_x) == pytest.approx(0.8 / fraction * float(car.tire.D), rel=1e-12)
+    X = jnp.array([0.1, 0.02, 8.0, 0.0, 0.0, 0.03, 0.04, 0.05, 0.1])
+    u = jnp.array([0.01, 0.02, 0.003])
+    X1, u1 = driver.probe_point(X, u, jnp.asarray(True))
+    assert float(X1[5]) == -float(driver.probe_slip())
+    np.testing.assert_array_equal(np.asarray(X1).take([0, 1, 2, 3, 4, 6, 7, 8]),
+                                  np.asarray(X).take([0, 1, 2, 3, 4, 6, 7, 8]))
+    assert float(u1[0]) == 0.0 and np.all(np.asarray(u1[1:]) == np.asarray(u[1:]))
+    X0, u0 = driver.probe_point(X, u, jnp.asarray(False))
+    assert np.all(np.asarray(X0) == np.asarray(X)) and np.all(np.asarray(u0) == np.asarray(u))
+    harder = X.at[5].set(-0.3)
+    X2, u2 = driver.probe_point(harder, u, jnp.asarray(True))
+    assert float(X2[5]) == -0.3 and float(u2[0]) == float(u[0])
+
+    def belief(front_std, rear_std=0.3):
+        scale = jnp.array([0.4, 0.4])
+        return vs.GripEstimate(scale, scale * jnp.array([front_std, rear_std]),
+                               jnp.full(2, 0.52), jnp.zeros(2))
+
+    assert bool(driver.probing(jnp.asarray(1.9), belief(0.3)))
+    assert not bool(driver.probing(jnp.asarray(2.1), belief(0.3)))  # past the distance
+    assert not bool(driver.probing(jnp.asarray(1.0), belief(0.1)))  # the front knows
+    assert bool(driver.probing(jnp.asarray(1.0), belief(0.3, 0.1)))  # the rear does not brake
+    with pytest.raises(ValueError, match="RecedingHorizonDriver.probe_distance"):
+        vs.RecedingHorizonDriver(table, car, friction="oracle", probe_distance=2.0)
+    with pytest.raises(ValueError, match="RecedingHorizonDriver.probe_utilisation"):
+        vs.RecedingHorizonDriver(table, car, friction="estimate", probe_utilisation=1.5)

@@ -431,6 +431,7 @@ from .drive.plant import (
 )
 from .drive.scenarios import (
     CORNER_DRIVER as CORNER_DRIVER,
+    DRIVER_PROBE_DISTANCE as DRIVER_PROBE_DISTANCE,
     FAST_ROAD_DRIVER as FAST_ROAD_DRIVER,
     FILE_ROAD_DRIVER as FILE_ROAD_DRIVER,
     DriveScenario as DriveScenario,

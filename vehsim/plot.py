@@ -415,8 +415,9 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     `RecedingHorizonDriver.info`: ``plan_s``, ``plan_n`` (N, M + 1), ``D`` (N, M)),
     ``horizon_x``, ``horizon_y`` (N, M + 1), the planned path converted from its
     $(s, n)$ to the plane, and ``planner_D`` (N,), the planned peak friction (the mean over
-    the horizon where it varies). `upto`: only the first this many samples (e.g. up to the
-    end of the road).
+    the horizon where it varies), ``probing`` (N,) whether the sample's command was a test
+    brake (`RecedingHorizonDriver.probe_distance`). `upto`: only the first this many
+    samples (e.g. up to the end of the road).
     """
     import jax
 
@@ -446,9 +447,9 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
 
 
 def _planned(road, info) -> dict:
-    """The planned horizon in the plane and the planner's D from a controller's per-sample
-    diagnostics (a mapping with ``plan_s``, ``plan_n`` (N, M + 1) and ``D`` (N,) or
-    (N, M)); what it lacks is left out."""
+    """The planned horizon in the plane, the planner's D and the test brake from a
+    controller's per-sample diagnostics (a mapping with ``plan_s``, ``plan_n`` (N, M + 1),
+    ``D`` (N,) or (N, M) and ``probing`` (N,)); what it lacks is left out."""
     if info is None or not hasattr(info, "get"):
         return {}
     out = {}
@@ -460,7 +461,21 @@ def _planned(road, info) -> dict:
     if D is not None:
         D = np.asarray(D, float)
         out["planner_D"] = D if D.ndim == 1 else D.reshape(D.shape[0], -1).mean(axis=1)
+    if info.get("probing") is not None:
+        out["probing"] = np.asarray(info["probing"], bool)
     return out
+
+
+def _shade_test_brake(ax, t, probing):
+    """Shade the samples whose command was a test brake (each from the command's sample
+    time, a period before the state recorded after it, to that state's time)."""
+    if probing is None or not np.any(probing) or len(t) < 2:
+        return
+    period = t[1] - t[0]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], probing.astype(int), [0]])))
+    for i, (start, stop) in enumerate(zip(edges[::2], edges[1::2])):
+        ax.axvspan(t[start] - period, t[stop - 1], color="tab:purple", alpha=0.15, lw=0,
+                   label="test brake" if i == 0 else None, gid="test-brake")
 
 
 def _footprint(x, y, psi, footprint):
@@ -553,6 +568,7 @@ def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT
             a.plot(t, m, f"C{j}-", lw=1.2, label=f"estimate {axle}")
     if "planner_D" in tr:
         a.plot(t, tr["planner_D"], "k-", lw=1.0, label="planner D, horizon mean")
+    _shade_test_brake(a, t, tr.get("probing"))
     a.set(ylabel="peak friction")
     a.legend(fontsize=7, ncol=2, loc="best")
     a = fig.add_subplot(gs[2, 1], sharex=a)
@@ -564,6 +580,7 @@ def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT
     for j, axle in enumerate(("front", "rear")):
         a.plot(t, tr["command"][:, j], f"C{j}--", lw=0.8)
         a.plot(t, tr["applied"][:, j], f"C{j}-", lw=1.2, label=f"T_{axle[0].upper()}")
+    _shade_test_brake(a, t, tr.get("probing"))
     a.set(xlabel="t [s]", ylabel="axle torque [N m]")
     a.legend(fontsize=7)
     for a in fig.axes[2:]:

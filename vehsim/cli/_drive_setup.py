@@ -120,7 +120,7 @@ def controller(args, sc):
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    settings = driver_settings(None if args.road_file else args.road)
+    settings = driver_settings(None if args.road_file else args.road, friction)
     if args.preview is not None:
         settings["preview"] = args.preview
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",

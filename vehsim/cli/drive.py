@@ -308,7 +308,8 @@ def _drive(args) -> int:
             "scale": tr["scale_est"], "scale_std": np.asarray(run.estimates.scale_std)},
         "planner_D": None if "planner_D" not in tr else {"t": tr["t"], "D": tr["planner_D"]},
         "solver": None if not isinstance(info, dict) else {
-            k: np.asarray(info[k]) for k in ("iterations", "converged", "kkt") if k in info},
+            k: np.asarray(info[k]) for k in ("iterations", "converged", "kkt", "probing")
+            if k in info},
         "truth": {"t": tr["t"], "peak": tr["peak_true"], "scale": tr["scale_true"]},
         "trajectory": {k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,

@@ -674,7 +674,9 @@ class HorizonState(eqx.Module):
     $(\\kappa_F, \\kappa_R, \\delta)$ of the last command, and its diagnostics:
     `iterations`, `converged`, `kkt` (the largest of the residuals), `D` (M,) the planner's
     peak friction, `projection` $(s, n, \\xi)$; `planned`: whether a plan has been solved
-    (False after `RecedingHorizonDriver.init`, whose first plan the first command solves)."""
+    (False after `RecedingHorizonDriver.init`, whose first plan the first command solves);
+    `probing`: whether the last command was a test brake (`RecedingHorizonDriver`'s
+    `probe_distance`)."""
 
     t: Float[Array, ""]
     s: Float[Array, ""]
@@ -694,6 +696,7 @@ class HorizonState(eqx.Module):
     D: Float[Array, " M"]
     projection: Float[Array, " 3"]
     planned: Bool[Array, ""]
+    probing: Bool[Array, ""]
 
 
 class RecedingHorizonDriver(AbstractDriveController):
@@ -752,6 +755,28 @@ class RecedingHorizonDriver(AbstractDriveController):
     [s/m] (None: a hard corridor) the plans' soft corridor (`HorizonOCP`): a plan may leave
     the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
     which no plan keeps inside it still has a plan, the one that leaves it least.
+    `probe_distance` [m] (None: never) with 'estimate': a test brake on the front axle over
+    the road's first `probe_distance` metres while the grip is not known (below), asking
+    `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
+    narrower than `probe_std` (0.25).
+
+    **The test brake.** The estimator learns only where an axle uses most of the grip it
+    believes in (`driver_estimator`), and a driver that trusts its prior first does so
+    where it brakes for the first corner: on a road worse than believed it has then
+    already arrived too fast. A rally driver brakes once on the first straight to feel the
+    surface; with `probe_distance` this driver does the same. While the arc length is below
+    `probe_distance` and the front axle's $\sigma_F$ = `scale_std`/`scale` (the standard
+    deviation of its $\log\lambda$; the prior's 0.3) is at least `probe_std`, the command
+    brakes the front axle at least at the planner's slip $-\kappa_p$ (`probe_slip`: the
+    slip at which the planning tire gives `probe_utilisation` of the believed peak, more
+    than the estimator's gate of 70 %), held, and takes the rear axle and the steering
+    from the plan. A road with that much grip gives informative samples at once; a worse
+    one makes the front wheels slide, which counts too (`sliding_slip`). One axle, the
+    front, so that the car slows by half as much and stays straight; the planner takes the
+    smaller axle's peak, so a front axle that finds less grip than believed slows every
+    plan at once. The plans go on from the braking car, so the test costs only the speed
+    it takes off; it ends with the first informative sample (the actuators' delay and lag:
+    three commands at 20 Hz) or at `probe_distance`.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -841,6 +866,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     replan_iterations: Int[Array, ""] = int_field(default=300)
     corridor_penalty: Float[Array, ""] | None = eqx.field(
         default=None, converter=lambda x: None if x is None else float_array(x))
+    probe_distance: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
+    probe_utilisation: Float[Array, ""] = array_field(default=0.95)
+    probe_std: Float[Array, ""] = array_field(default=0.25)
 
     def __check_init__(self):
         if not jax.config.jax_enable_x64:
@@ -869,7 +898,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
                      "terminal_backoff", "mu0", "reference_speed", "slip_limit",
-                     "position_std", "corridor_penalty"):
+                     "position_std", "corridor_penalty", "probe_distance", "probe_std"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
@@ -882,6 +911,10 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"got {self.replan_iterations}")
         check_range("RecedingHorizonDriver", "replan_iterations", self.replan_iterations,
                     lower=1.0)
+        if self.probe_distance is not None and self.friction != "estimate":
+            raise ValueError("RecedingHorizonDriver.probe_distance is a test brake that "
+                             "excites the grip estimator: it needs friction='estimate', got "
+                             f"{self.friction!r}")
         if self.surface_map and self.friction != "estimate":
             raise ValueError("RecedingHorizonDriver.surface_map carries the estimate along a "
                              "map of the relative grip: it needs friction='estimate', got "
@@ -893,6 +926,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"friction={self.friction!r} has no preview (leave it inf)")
         check_range("RecedingHorizonDriver", "peak_fraction", self.peak_fraction, lower=0.0,
                     upper=1.0, lower_open=True)
+        check_range("RecedingHorizonDriver", "probe_utilisation", self.probe_utilisation,
+                    lower=0.0, upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
             raise TypeError("RecedingHorizonDriver.plant_tire must be a LumpedLuGre2D, got "
                             f"{type(self.plant_tire).__name__}")
@@ -1059,14 +1094,15 @@ class RecedingHorizonDriver(AbstractDriveController):
         return eqx.tree_at(lambda s: (s.xs, s.us), sol, (xs, us))
 
     def _state(self, t, s, position, position_var, velocity, s_plan, sol, inputs, D,
-               projection):
+               projection, probing):
         kkt = jnp.maximum(jnp.maximum(sol.inf_pr, sol.inf_du), sol.compl)
         return HorizonState(t=t, s=s, position=position, position_var=position_var,
                             velocity=velocity, s_plan=s_plan,
                             xs=sol.xs, us=sol.us, lam=sol.lam, nu=sol.nu, z=sol.z,
                             inputs=inputs,
                             iterations=sol.iterations, converged=sol.converged, kkt=kkt, D=D,
-                            projection=projection, planned=jnp.asarray(True))
+                            projection=projection, planned=jnp.asarray(True),
+                            probing=probing)
 
     def _measured_state(self, m: DriveMeasurement, position, s_guess):
         s, n, xi = self.table.to_frenet(position[0], position[1], m.psi, s_guess)
@@ -1132,7 +1168,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                             nu=jnp.zeros(masks.eq.shape), z=jnp.zeros(masks.g.shape),
                             inputs=inputs, iterations=jnp.zeros((), dtype=int),
                             converged=jnp.asarray(False), kkt=inf, D=D,
-                            projection=projection, planned=jnp.asarray(False))
+                            projection=projection, planned=jnp.asarray(False),
+                            probing=jnp.asarray(False))
 
     def command(self, state: HorizonState, measurement: DriveMeasurement, estimate
                 ) -> tuple[HorizonState, Float[Array, " 3"]]:
@@ -1167,12 +1204,17 @@ class RecedingHorizonDriver(AbstractDriveController):
             # a plan that did not converge has no multipliers to trust: the cold start
             duals = lam, nu, jnp.where(state.converged & ~cold, z, 0.0)
         sol = self._solve(prob, xs0, us0, self.options(first, cold & ~first), duals)
-        inputs, torques = self.plan_command(sol.xs, sol.us, D[0])
+        X, u = self.plan_point(sol.xs, sol.us)
+        probing = jnp.asarray(False)
+        if self.probe_distance is not None:  # a test brake while the grip is not known
+            probing = self.probing(s, estimate)
+            X, u = self.probe_point(X, u, probing)
+        inputs, torques = X[5:8], self.plan_torques(X, u, D[0])
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
         torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
         new = self._state(m.t, s, position, position_var, velocity, s_pred, sol, inputs, D,
-                          jnp.concatenate([s[None], X5[:2]]))
+                          jnp.concatenate([s[None], X5[:2]]), probing)
         return new, jnp.concatenate([torques, inputs[2:]])
 
     def measured_slip(self, m: DriveMeasurement):
@@ -1188,18 +1230,57 @@ class RecedingHorizonDriver(AbstractDriveController):
         start (interpolated in $s$) and the torques that realise them (eqs. 52-53:
         $T_i = I_i\dot\omega_i + r f_{ix}$ with $\dot{(\cdot)} = \dot s\,d(\cdot)/ds$) on
         the planning car with peak ``D0``."""
+        X, u = self.plan_point(xs, us)
+        return X[5:8], self.plan_torques(X, u, D0)
+
+    def plan_point(self, xs, us):
+        """The plan's knot ``X`` (9,) `lead` seconds after its start (interpolated in $s$)
+        and its stage's rates ``u`` (3,)."""
         M = us.shape[0]
         pos = jnp.interp(self.lead, xs[:, 8], jnp.arange(M + 1.0))
         k = jnp.clip(jnp.floor(pos).astype(int), 0, M - 1)
         w = pos - k
-        X = xs[k] + w * (xs[k + 1] - xs[k])
-        u = us[k, :3]  # the rates (a soft corridor's slack is the last control)
+        return xs[k] + w * (xs[k + 1] - xs[k]), us[k, :3]  # a soft corridor's slack last
+
+    def plan_torques(self, X, u, D0):
+        """The axle torques (2,) that realise the knot ``X``'s slips changing at the rates
+        ``u`` (per metre) on the planning car with peak ``D0`` (`plan_command`)."""
         veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
         n, xi, vx, vy = X[0], X[1], X[2], X[3]
         sdot = vx * jnp.cos(xi) - vy * jnp.sin(xi)  # on the centre line's scale (n small)
         state6 = jnp.stack([0.0 * n, 0.0 * n, xi, vx, vy, X[4]])
         _, _, T_F, T_R = veh.recover_torques(state6, X[5:8], u * sdot)
-        return X[5:8], jnp.stack([T_F, T_R])
+        return jnp.stack([T_F, T_R])
+
+    def probing(self, s, estimate) -> Bool[Array, ""]:
+        r"""Whether the command at arc length ``s`` is a test brake: ``s`` <
+        `probe_distance` and the front axle's belief still wide, $\sigma_F$ =
+        `scale_std`/`scale` $\ge$ `probe_std` (class docstring)."""
+        if estimate is None:
+            raise ValueError("RecedingHorizonDriver.probe_distance needs a grip estimator: "
+                             "pass estimator= to simulate_drive")
+        wide = estimate.scale_std[0] / estimate.scale[0] >= self.probe_std
+        return (s < self.probe_distance) & wide
+
+    def probe_slip(self) -> Float[Array, ""]:
+        r"""$\kappa_p$: the planner's slip at which its tire (`FrictionEllipseTire`,
+        $\mu = D\sin(C\arctan(Bs))$) with $D$ = `peak_fraction` times the believed peak
+        gives `probe_utilisation` $u_p$ of the believed peak, $s = \tan(\arcsin(\min(u_p
+        /f, 0.99))/C)/B$, $\kappa_p = s/(1 + s)$ (braking, $s = -\kappa/(1 + \kappa)$)."""
+        tire = self.vehicle.tire
+        share = jnp.minimum(self.probe_utilisation / self.peak_fraction, 0.99)
+        slip = jnp.tan(jnp.arcsin(share) / tire.C) / tire.B
+        return slip / (1.0 + slip)
+
+    def probe_point(self, X, u, probing):
+        r"""The plan's point ``X``, ``u`` with, where ``probing``, the front axle braking at
+        least at the slip $-\kappa_p$ (`probe_slip`), held: $\kappa_F \leftarrow
+        \min(\kappa_F, -\kappa_p)$, $d\kappa_F/ds \leftarrow 0$ where it changed; the rear
+        axle and the steering are the plan's."""
+        kap = jnp.minimum(X[5], -self.probe_slip())
+        held = probing & (kap < X[5])
+        return (X.at[5].set(jnp.where(probing, kap, X[5])),
+                u.at[0].set(jnp.where(held, 0.0, u[0])))
 
     def info(self, state: HorizonState) -> dict:
         """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the plan (`xs`, `us`)
@@ -1211,5 +1292,5 @@ class RecedingHorizonDriver(AbstractDriveController):
                     xs=state.xs, us=state.us, lam=state.lam, nu=state.nu, z=state.z,
                     plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
                     plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], start=state.xs[0, :8],
-                    D=state.D,
+                    D=state.D, probing=state.probing,
                     s=state.projection[0], n=state.projection[1], xi=state.projection[2])
