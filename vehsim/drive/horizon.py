@@ -756,7 +756,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
     which no plan keeps inside it still has a plan, the one that leaves it least.
     `probe_distance` [m] (None: never) with 'estimate': a test brake on the front axle over
-    the road's first `probe_distance` metres while the grip is not known (below), asking
+    the road's first `probe_distance` metres (on a circuit the first lap's: the projected
+    arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
     narrower than `probe_std` (0.25).
 
