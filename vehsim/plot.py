@@ -524,7 +524,9 @@ def drive_figure(road, run, plant, *, title: str = "", footprint=DRIVE_FOOTPRINT
     the speed along the road's arc length $s$; the peak friction: each axle's estimate
     (with a band of two standard deviations), the truth under it and the planner's $D$ where
     the controller reports one; the steering angle and the axle torques (command dashed,
-    applied solid) over time. `run`: a `vehsim.DriveRun` of `plant` (`drive_trace`);
+    applied solid) over time, the samples of a test brake (`drive_trace`'s ``probing``)
+    shaded on the grip and torque panels. `run`: a `vehsim.DriveRun` of `plant`
+    (`drive_trace`);
     `grip_vmax`: the grip scale shaded palest (`draw_grip_field`'s `vmax`,
     e.g. the nominal road's, so that a road of less grip everywhere shows blue); `upto`: draw
     the first this many samples only (`drive_trace`)."""

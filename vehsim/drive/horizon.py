@@ -777,7 +777,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     smaller axle's peak, so a front axle that finds less grip than believed slows every
     plan at once. The plans go on from the braking car, so the test costs only the speed
     it takes off; it ends with the first informative sample (the actuators' delay and lag:
-    three commands at 20 Hz) or at `probe_distance`.
+    three commands at 20 Hz) or at `probe_distance`. The condition is evaluated at every
+    sample, not latched: a belief that widens again within the distance (the estimator's
+    change detector resets it to its prior's width) brakes again.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
