@@ -82,7 +82,7 @@ SETTINGS: dict = {}
 (``--driver-settings``)."""
 
 
-def settings_for(road: str, kind: str = "rh-oracle") -> dict:
+def settings_for(road: str, kind: str) -> dict:
     """The settings of the receding-horizon driver ``kind`` (its planner's friction after
     ``rh-``) on ``road``: `driver_settings`, then `SETTINGS`."""
     return vs.driver_settings(road, kind.split("-")[1]) | SETTINGS
