@@ -1,6 +1,7 @@
 """The per-axle grip estimator on the move: it converges under excitation, holds its prior
 without, tracks a change of road; its model is the tire's steady state."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -170,3 +171,55 @@ def test_a_surface_map_carries_the_estimate_onto_another_surface(drive):
     uniform = drive(road, pulses, vs.AxleGripEstimator(
         surface=vs.UniformGrip(0.5), prior_scale=2.0, scale_min=0.2, scale_max=6.0))
     np.testing.assert_allclose(np.asarray(uniform.estimates.scale), sp, rtol=1e-12)
+
+
+def test_slip_noise_weighs_a_sample_by_the_slope_it_is_read_on():
+    r"""The measured relative velocity's noise $\sigma_v$ enters the friction's variance as
+    $\sigma_v^2\|\partial\mu_{ss}/\partial v_r\|^2$ (against central differences). A rear
+    axle driving at 7.5 m/s and 1.2 % slip on the road the prior believes, its ground speed
+    read 4 cm/s high (about one $\sigma_v$ of the default sensors): without the term the
+    filter takes the small-slip sample at face value and moves by its largest step, with
+    it by a small fraction of that; sliding at 10 % slip on a road of 80 % of the belief,
+    where the curve is flat, the term leaves the step within 10 %."""
+    lam0 = vs.nominal_scale()
+    plain = vs.AxleGripEstimator(prior_scale=lam0, min_utilisation=0.5, dynamic_loads=False)
+    sigma = vs.slip_velocity_std(vs.DriveSensors(), plain.params.r)
+    np.testing.assert_allclose(float(sigma), np.sqrt((0.05**2 + (plain.params.r * 0.05)**2) / 2),
+                               rtol=1e-12)
+    noisy = eqx.tree_at(lambda e: e.slip_velocity_std, plain, sigma, is_leaf=lambda x: x is None)
+    p, V, g = plain.params, 7.5, 9.81
+    FzR = p.m * g * p.lF / (p.lF + p.lR)
+
+    # the variance term against central differences of the model's friction
+    th = jnp.log(jnp.array([lam0, lam0]))
+    v_r = jnp.array([[0.02, -0.01], [0.09, 0.03]])
+    c = jnp.array([V, V])
+    h = 1e-6
+    fd = sum(((plain.model_mu(th, v_r + h * e, c) - plain.model_mu(th, v_r - h * e, c)) / (2 * h))**2
+             for e in (jnp.array([[1.0, 0.0], [1.0, 0.0]]), jnp.array([[0.0, 1.0], [0.0, 1.0]])))
+    np.testing.assert_allclose(noisy.slip_variance(th, v_r, c), sigma**2 * fd, rtol=1e-6)
+    np.testing.assert_array_equal(plain.slip_variance(th, v_r, c), 0.0)
+
+    def step(est, lam_road, kappa, vx_error):
+        wr = V * (1.0 + kappa)  # the rear wheel's rim speed
+        mu = vs.scaled_steady_state_mu(est.tire, lam_road, jnp.array([wr - V, 0.0]), wr)[0]
+        torque = jnp.array([0.0, float(mu) * FzR * p.r])
+
+        def sample(t):
+            return vs.DriveMeasurement(
+                t=jnp.asarray(t), omega=jnp.array([V / p.r, wr / p.r]), yaw_rate=jnp.asarray(0.0),
+                ax=jnp.asarray(0.0), ay=jnp.asarray(0.0), vx=jnp.asarray(V + vx_error),
+                vy=jnp.asarray(0.0), x=jnp.asarray(0.0), y=jnp.asarray(0.0),
+                psi=jnp.asarray(0.0), delta=jnp.asarray(0.0), torque=torque)
+        state = est.update(est.init(sample(0.0)), sample(0.05))
+        assert float(state.gain[1]) != 0.0  # the rear's sample counts
+        return float(state.log_scale[1] - jnp.log(lam0))
+
+    big, small = step(plain, lam0, 0.012, 0.04), step(noisy, lam0, 0.012, 0.04)
+    assert big > 0.15 and 0 < small < 0.3 * big, (big, small)
+    # read right, neither moves
+    assert abs(step(plain, lam0, 0.012, 0.0)) < 1e-6 and abs(step(noisy, lam0, 0.012, 0.0)) < 1e-6
+    # sliding on a road worse than believed: the flat curve keeps the step
+    flat_plain, flat_noisy = step(plain, 0.8 * lam0, 0.1, 0.0), step(noisy, 0.8 * lam0, 0.1, 0.0)
+    assert flat_plain < -0.05
+    np.testing.assert_allclose(flat_noisy, flat_plain, rtol=0.1)
