@@ -200,18 +200,22 @@ def test_slip_noise_weighs_a_sample_by_the_slope_it_is_read_on():
     np.testing.assert_allclose(noisy.slip_variance(th, v_r, c), sigma**2 * fd, rtol=1e-6)
     np.testing.assert_array_equal(plain.slip_variance(th, v_r, c), 0.0)
 
-    def step(est, lam_road, kappa, vx_error):
+    @eqx.filter_jit
+    def update(est, lam_road, kappa, vx_error):
         wr = V * (1.0 + kappa)  # the rear wheel's rim speed
         mu = vs.scaled_steady_state_mu(est.tire, lam_road, jnp.array([wr - V, 0.0]), wr)[0]
-        torque = jnp.array([0.0, float(mu) * FzR * p.r])
+        torque = jnp.stack([0.0 * mu, mu * FzR * p.r])
 
         def sample(t):
             return vs.DriveMeasurement(
                 t=jnp.asarray(t), omega=jnp.array([V / p.r, wr / p.r]), yaw_rate=jnp.asarray(0.0),
-                ax=jnp.asarray(0.0), ay=jnp.asarray(0.0), vx=jnp.asarray(V + vx_error),
+                ax=jnp.asarray(0.0), ay=jnp.asarray(0.0), vx=V + jnp.asarray(vx_error),
                 vy=jnp.asarray(0.0), x=jnp.asarray(0.0), y=jnp.asarray(0.0),
                 psi=jnp.asarray(0.0), delta=jnp.asarray(0.0), torque=torque)
-        state = est.update(est.init(sample(0.0)), sample(0.05))
+        return est.update(est.init(sample(0.0)), sample(0.05))
+
+    def step(est, lam_road, kappa, vx_error):
+        state = update(est, *map(jnp.asarray, (lam_road, kappa, vx_error)))
         assert float(state.gain[1]) != 0.0  # the rear's sample counts
         return float(state.log_scale[1] - jnp.log(lam0))
 
@@ -223,3 +227,16 @@ def test_slip_noise_weighs_a_sample_by_the_slope_it_is_read_on():
     flat_plain, flat_noisy = step(plain, 0.8 * lam0, 0.1, 0.0), step(noisy, 0.8 * lam0, 0.1, 0.0)
     assert flat_plain < -0.05
     np.testing.assert_allclose(flat_noisy, flat_plain, rtol=0.1)
+
+    # differentiable in both modes through the weighed update (an error of 2 cm/s: the step
+    # is not clipped), and finite where the slip is zero
+    def rear(err, kappa=0.012):
+        state = update(noisy, jnp.asarray(lam0), jnp.asarray(kappa), err)
+        return state.log_scale[1] + state.variance[1]
+    err = jnp.asarray(0.02)
+    fd = (rear(err + 1e-6) - rear(err - 1e-6)) / 2e-6
+    np.testing.assert_allclose(jax.grad(rear)(err), fd, rtol=1e-6)
+    np.testing.assert_allclose(jax.jacfwd(rear)(err), fd, rtol=1e-6)
+    assert abs(float(fd)) > 1.0
+    for mode in (jax.grad, jax.jacfwd):
+        assert np.isfinite(float(mode(lambda e: rear(e, 0.0))(jnp.asarray(0.0))))
