@@ -186,7 +186,11 @@ def test_slip_noise_weighs_a_sample_by_the_slope_it_is_read_on():
     sigma = vs.slip_velocity_std(vs.DriveSensors(), plain.params.r)
     np.testing.assert_allclose(float(sigma), np.sqrt((0.05**2 + (plain.params.r * 0.05)**2) / 2),
                                rtol=1e-12)
-    noisy = eqx.tree_at(lambda e: e.slip_velocity_std, plain, sigma, is_leaf=lambda x: x is None)
+    noisy = vs.AxleGripEstimator(prior_scale=lam0, min_utilisation=0.5, dynamic_loads=False,
+                                 slip_velocity_std=float(sigma))
+    assert float(vs.slip_velocity_std(vs.DriveSensors(noise_on=False), plain.params.r)) == 0.0
+    with pytest.raises(ValueError, match="slip_velocity_std"):
+        vs.AxleGripEstimator(slip_velocity_std=-0.01)
     p, V, g = plain.params, 7.5, 9.81
     FzR = p.m * g * p.lF / (p.lF + p.lR)
 

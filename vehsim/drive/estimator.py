@@ -37,7 +37,9 @@ forgetting: $P^- = \min(P/\gamma, P_{max})$; $H = \partial\mu_{ss}/\partial\vart
 $\sigma_v$ that of each component of the measured $v_r$, read through the curve's slope:
 at small slip, where the curve is steep, a few cm/s of velocity noise are a large error in
 $\mu_{ss}$, so the sample weighs little; near and past the peak, where it is flat, the
-term vanishes); $\vartheta \leftarrow \Pi(\vartheta +
+term vanishes. It is first order: where $\sigma_v$ is as large as $\|v_r\|$ itself it is
+rough, and it does not remove the upward bias of a noisy slip's norm, which the gate below
+is for); $\vartheta \leftarrow \Pi(\vartheta +
 \operatorname{clip}(K(\mu_i - \mu_{ss}), \pm\Delta_{max}))$, $\Pi$ the projection onto
 $[\log\lambda_{min}, \log\lambda_{max}]$; $P = (1 - KH)P^-$. A change of road shows as
 innovations far larger than the covariance expects once $P$ has shrunk: a CUSUM detector
@@ -106,7 +108,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_positive, check_range
+from .._checks import check_nonnegative, check_positive, check_range
 from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_norm
 from ..tire.lugre2d import decay_rates
@@ -163,8 +165,12 @@ def slip_velocity_std(sensors: DriveSensors, radius) -> Float[Array, ""]:
     velocity $v_r$ that `AxleGripEstimator` measures over a sample (the mean of its two
     ends) with `sensors` on wheels of `radius` [m]: $\sigma_v^2 = (\sigma_V^2 +
     r^2\sigma_\omega^2)/2$, the ground velocity's and the wheel speed's noises independent
-    at the two ends (3.7 cm/s with the default `DriveSensors` and 0.3 m wheels)."""
-    return jnp.sqrt((sensors.velocity_std**2 + (radius * sensors.wheel_speed_std)**2) / 2)
+    at the two ends (3.7 cm/s with the default `DriveSensors` and 0.3 m wheels; 0 with
+    their noise off). Exact for the longitudinal component; the lateral one has the yaw
+    rate's noise times the axle's lever in place of the wheel speed's (3.6 cm/s with the
+    defaults)."""
+    on = jnp.where(sensors.noise_on, 1.0, 0.0)
+    return on * jnp.sqrt((sensors.velocity_std**2 + (radius * sensors.wheel_speed_std)**2) / 2)
 
 
 REFERENCE_SPEED = 20.0
@@ -238,7 +244,7 @@ class AxleGripEstimator(AbstractGripEstimator):
     **Fields:** `params` (the nominal `HalfCarParams`, default `rally_gravel()`), `tire`
     (the assumed `LumpedLuGre2D`, default the plant's), `prior_scale` $\lambda_0$ (1),
     `initial_variance` $P_0$ of $\log\lambda$ (0.09), `max_variance` $P_{max}$ (0.25),
-    `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sqrt R$ of the utilised friction
+    `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sigma_\mu$ of the utilised friction
     (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
     `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
     at least this fraction of the estimated peak at its speed), `sliding_slip` (None: off;
@@ -296,7 +302,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         if self.sliding_slip is not None:
             check_positive(owner, "sliding_slip", self.sliding_slip)
         if self.slip_velocity_std is not None:
-            check_positive(owner, "slip_velocity_std", self.slip_velocity_std)
+            check_nonnegative(owner, "slip_velocity_std", self.slip_velocity_std)
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
 
