@@ -393,11 +393,12 @@ class AxleGripEstimator(AbstractGripEstimator):
         return jnp.log(jnp.stack([self.surface.scale_at(m.x + p.lF * c, m.y + p.lF * s),
                                   self.surface.scale_at(m.x - p.lR * c, m.y - p.lR * s)]))
 
+    def _axle_mu(self, th, vr, cc):
+        return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), vr, cc))
+
     def model_mu(self, log_scale, v_r, c):
         r"""$\mu_{ss}$ of the assumed tire at $\lambda = e^\vartheta$ per axle."""
-        def one(th, vr, cc):
-            return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), vr, cc))
-        return jax.vmap(one)(log_scale, v_r, c)
+        return jax.vmap(self._axle_mu)(log_scale, v_r, c)
 
     def slip_variance(self, log_scale, v_r, c):
         r"""$\sigma_v^2\|\partial\mu_{ss}/\partial v_r\|^2$ per axle: the variance the
@@ -407,9 +408,7 @@ class AxleGripEstimator(AbstractGripEstimator):
             return jnp.zeros(2) + 0.0 * log_scale
 
         def one(th, vr, cc):
-            def mu(w):
-                return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), w, cc))
-            return jnp.sum(jax.jacfwd(mu)(vr) ** 2)
+            return jnp.sum(jax.jacfwd(self._axle_mu, argnums=1)(th, vr, cc) ** 2)
         return self.slip_velocity_std**2 * jax.vmap(one)(log_scale, v_r, c)
 
     def update(self, state: AxleGripState, m: DriveMeasurement) -> AxleGripState:
