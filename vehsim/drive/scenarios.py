@@ -166,15 +166,15 @@ def main_corner(name: str) -> tuple[float, float]:
 CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
 
-FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 8, "peak_fraction": 0.9}
+FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 12, "peak_fraction": 0.9}
 """`RecedingHorizonDriver` settings of `driver_settings` on the stage: a corridor margin,
 more passes and a friction margin."""
 
 FILE_ROAD_DRIVER = {"margin": 0.5, "iterations": 8, "peak_fraction": 0.9,
                     "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40,
                     "slip_limit": 0.1, "corridor_penalty": 1.0}
-"""`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: the stage's
-passes and friction margin, a wider corridor margin, a lower terminal speed bound, a lost
+"""`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: 8 passes
+and the stage's friction margin, a wider corridor margin, a lower terminal speed bound, a lost
 plan planned again from the cold start in at most 40 passes, a tighter slip bound for the
 plant's tire at speed and a soft corridor (measured on the shipped circuit)."""
 
@@ -189,16 +189,21 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
     r"""`RecedingHorizonDriver` settings for the scenario road called ``name`` (None: a
     road from a file).
 
-    - The stage (driven at 12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`, 8 interior-point
+    - The stage (driven at 12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`, 12 interior-point
       passes per sample and 90 % of the believed peak. With the defaults (4 passes, the
       whole peak) the plans at those speeds are still far from converged (KKT residual
       10-500) and the car, weaving across the road, spun in the 20 m corner with every
       friction; even converged plans at the whole peak left the road (the planning model's
-      tire is not the plant's); these settings keep the oracle and the estimate on it. And
-      a corridor margin of 0.3 m: over 16 noise seeds on the four grips the estimate with
-      pace notes completed 47 of 64 stages against 25 with the default 0.2 m, 0.1-0.8 %
-      slower (the corners' margin, narrowing with the grip, completed the same 24 of 32 on
-      seeds 0-7, 0.2-0.6 % slower).
+      tire is not the plant's). With 8 passes the plans braking into the first corner were
+      still lost at times (KKT residual mostly 100-70 000 for most of a second) and the
+      car ran over the apex's inside edge: over 8 noise seeds on the four grips the
+      estimate with pace notes completed 24 of 32 stages with 8 passes, 31 with 12 (the
+      one failure 5.05 cm off) and 32 with 16, the median times 0.0-1.1 % longer than
+      with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one core) leave
+      the period no margin; twelve take 29 and 34 ms. And a corridor margin of 0.3 m:
+      with 8 passes over 16 seeds it completed 47 of 64 stages against 25 with the
+      default 0.2 m (the corners' margin, narrowing with the grip, the same 24 of 32 on
+      seeds 0-7). The measurements: docs/drive.md ("Passes on the stage").
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
       margin of 0.4 m that narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: 0.21-0.23 m on the icy patch, 0.34-0.38 m at 20 % less
@@ -211,7 +216,7 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       than at 0.3 m.
     - A road from a file (None, or a name that is not a scenario road's): `FILE_ROAD_DRIVER`,
       measured on the shipped circuit (Oschersleben: 3.7 km, about 11 m wide, straights
-      driven at 35-47 m/s): the stage's passes and friction margin, a corridor margin of
+      driven at 35-47 m/s): 8 passes and the stage's friction margin, a corridor margin of
       0.5 m, the terminal speed bound at 85 % (`terminal_backoff`), a plan whose KKT
       residual passes 100 planned again from the cold start (`replan_kkt`) in at most 40
       passes (`replan_iterations`), the axles' combined slip bounded by 0.10
