@@ -196,10 +196,10 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       friction; even converged plans at the whole peak left the road (the planning model's
       tire is not the plant's). With 8 passes the plans braking into the first corner were
       still lost at times (KKT residual mostly 100-70 000 for most of a second) and the
-      car ran over the apex's inside edge: over 8 noise seeds on the four grips the
-      estimate with pace notes completed 24 of 32 stages with 8 passes, 31 with 12 (the
-      one failure 5.05 cm off) and 32 with 16, the median times 0.0-1.1 % longer than
-      with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one core) leave
+      car ran over the apex's inside edge: over 16 noise seeds on the four grips the
+      estimate with pace notes completed 47 of 64 stages with 8 passes, 63 with 12 (the
+      one failure 5.05 cm off) and 64 with 16, the median times with 12 0.1-1.1 % longer
+      than with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one core) leave
       the period no margin; twelve take 29 and 34 ms. And a corridor margin of 0.3 m:
       with 8 passes over 16 seeds it completed 47 of 64 stages against 25 with the
       default 0.2 m (the corners' margin, narrowing with the grip, the same 24 of 32 on
