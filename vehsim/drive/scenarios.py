@@ -198,12 +198,12 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       still lost at times (KKT residual mostly 100-70 000 for most of a second) and the
       car ran over the apex's inside edge: over 16 noise seeds on the four grips the
       estimate with pace notes completed 47 of 64 stages with 8 passes, 63 with 12 (the
-      one failure 5.05 cm off) and 64 with 16, the median times with 12 0.1-1.1 % longer
-      than with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one core) leave
-      the period no margin; twelve take 29 and 34 ms. And a corridor margin of 0.3 m:
-      with 8 passes over 16 seeds it completed 47 of 64 stages against 25 with the
-      default 0.2 m (the corners' margin, narrowing with the grip, the same 24 of 32 on
-      seeds 0-7). The measurements: docs/drive.md ("Passes on the stage").
+      one failure 5.05 cm off) and 64 with 16; with 12 the median times are 0.1-1.1 %
+      longer than with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one
+      core) leave the period no margin; twelve take 29 and 34 ms. And a corridor margin
+      of 0.3 m (with 8 passes, 47 of 64 against 25 at the default 0.2 m; the corners'
+      margin, narrowing with the grip, the same 24 of 32 on seeds 0-7). The
+      measurements: docs/drive.md ("Passes on the stage").
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
       margin of 0.4 m that narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: 0.21-0.23 m on the icy patch, 0.34-0.38 m at 20 % less
