@@ -303,7 +303,10 @@ def monte_carlo(args):
             summary["per_scenario"][name] = dict(
                 completed=float(np.mean(done[m])),
                 time_p50=float(np.median(tc[m & crossed])) if np.any(m & crossed) else None,
-                max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])))
+                max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])),
+                # the noise keys (jax.random.key) of the drives that failed, to drive again alone
+                failed_keys=[1000 + args.mc_first_seed + meta[b][2]
+                             for b in np.flatnonzero(m & ~done)])
     print(json.dumps(summary))
     with open(args.out, "a") as f:
         f.write(json.dumps(summary) + "\n")

@@ -712,3 +712,44 @@ def test_a_step_without_newton_direction_reestimates_the_multipliers(bang_bang, 
     # multipliers to the Newton steps
     off = solver._iteration(prob, lay, IPOptions(reestimate_multipliers=jnp.asarray(False)), st)
     assert bool(off.multipliers_ready) and int(off.iteration) == int(st.iteration) + 1
+
+
+def test_a_fixed_work_solve_stops_when_its_line_search_stalls(bang_bang, monkeypatch):
+    """Without the multipliers' re-estimate (a real-time iteration's fixed work), a pass
+    whose line search accepts no trial is retried once (its filter forgotten); a second
+    failure in a row ends the solve with `RESULTS.ip_line_search_failed` at the iterate it
+    stalled at, instead of repeating the same failed step, with all its trials, until
+    ``max_iter``. With the re-estimate the passes go on, and a pass that succeeds in between
+    restarts the count."""
+    from vehsim.optimal.ip import solver
+
+    prob, _ = bang_bang
+    search = solver.filter_line_search
+    fails = {"on": True}
+
+    def failing(*args):
+        alpha, n, filt, direction = search(*args)
+        n = jnp.where(fails["on"], solver.MAX_TRIALS, n)
+        return jnp.where(fails["on"], alpha * 2.0**-30, alpha), n, filt, direction
+
+    monkeypatch.setattr(solver, "filter_line_search", failing)
+    xs0, us0 = _guess(prob.num_stages)
+    fixed = IPOptions(max_iter=12, reestimate_multipliers=False, log_size=17)  # its own program
+    sol = interior_point(prob, xs0, us0, fixed, throw=False)
+    assert sol.result == RESULTS.ip_line_search_failed and not sol.converged
+    assert int(sol.iterations) == solver.STALLED_PASSES
+    assert int(np.sum(np.asarray(sol.log.trials))) == solver.STALLED_PASSES * solver.MAX_TRIALS
+    with pytest.raises(RuntimeError, match="ip_line_search_failed|line search accepted no step"):
+        interior_point(prob, xs0, us0, fixed)
+    # with the re-estimate every pass is tried up to max_iter
+    again = interior_point(prob, xs0, us0, IPOptions(max_iter=12, log_size=17), throw=False)
+    assert again.result == RESULTS.ip_max_iterations and int(again.iterations) == 12
+    # the rule pass by pass: fail, succeed, fail (not stalled), fail (stalled)
+    lay = solver.stage_layout(prob)
+    st = solver._initial_state(prob, lay, xs0, us0, fixed)
+    done = []
+    for on in (True, False, True, True):
+        fails["on"] = on
+        st = solver._iteration(prob, lay, fixed, st)
+        done.append(bool(st.done))
+    assert done == [False, False, False, True] and int(st.failed_searches) == 2

@@ -22,6 +22,12 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
         "The interior-point method reached its iteration limit before the scaled KKT error "
         "met its tolerance. Increase `IPOptions.max_iter`, or start from a better guess."
     )
+    ip_line_search_failed = (
+        "The interior-point line search accepted no step on consecutive passes, with the "
+        "multipliers not re-estimated (`IPOptions.reestimate_multipliers` off): the solve "
+        "stopped at the last accepted iterate. Start from a better guess, or switch the "
+        "re-estimate on."
+    )
     not_identifiable = (
         "The data do not determine the parameters: the Jacobian (in relative parameters) is "
         "numerically rank deficient. Is there slip excitation in the data?"

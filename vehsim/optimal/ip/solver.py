@@ -21,6 +21,13 @@ One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
    second-order correction of a full step that raised the constraint violation);
 5. the step, with $z$ kept within a factor $\kappa_\Sigma$ of $\mu S^{-1}$.
 
+A line search that accepts no trial takes the shortest one and forgets the filter (the
+method has no restoration phase). Where the multipliers are re-estimated after it
+(``reestimate_multipliers``) the next pass starts from new $(\lambda, \nu)$; where they are
+not, the next pass starts from the same primal point, and a second failure in a row ends the
+solve (`STALLED_PASSES`, `RESULTS.ip_line_search_failed`): further passes would repeat
+the same step at the full cost of its trials (a fixed-work solve's slowest passes).
+
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
 together. A solve that reaches ``max_iter`` ends with a pass that takes no step: it tests
 convergence at the iterate returned, from values and Jacobians only (no Hessian).
@@ -74,6 +81,9 @@ MU_DECREASE, MU_POWER, MU_TEST = 0.2, 1.5, 10.0
 DELTA_RESET = 1e8
 """A step that needed a larger primal regularisation (or a failed line search) re-estimates
 the defect and equality multipliers by least squares on the next pass."""
+STALLED_PASSES = 2
+"""Consecutive passes whose line search accepted no trial that end a solve which does not
+re-estimate its multipliers (the first is retried without its filter)."""
 INITIAL_SLACK = 1e-2
 """Initial slacks are at least $\\min(10^{-2}, 10\\mu_0)$."""
 
@@ -201,7 +211,9 @@ class IPState(eqx.Module):
     was needed), the line-search ``filter``, the ``iteration`` count, ``done``, the
     ``result`` so far, whether the defect and equality multipliers are ``multipliers_ready``
     (false after runaway multipliers: the next pass re-estimates them), and the
-    ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``."""
+    ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``;
+    ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
+    trial."""
 
     iterate: Iterate
     hessian: Float[Array, "M+1 ny ny"]
@@ -216,6 +228,7 @@ class IPState(eqx.Module):
     objective: Float[Array, ""]
     residuals: Residuals
     log: IPLog
+    failed_searches: Int[Array, ""]
 
 
 def interior_point(
@@ -460,7 +473,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         objective=jnp.asarray(jnp.nan),
         residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),
-        log=IPLog.empty(options.log_size),
+        log=IPLog.empty(options.log_size), failed_searches=jnp.asarray(0),
     )
     return strong(state)
 
@@ -519,10 +532,16 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
     # runaway multipliers: the line search failed, or the inertia correction needed a
     # regularisation that leaves no Newton step; estimate (lambda, nu) afresh next pass
-    reset = ~setup & ((n_trials >= MAX_TRIALS) | (step.delta > DELTA_RESET))
-    reset = reset & options.reestimate_multipliers
+    failed = ~setup & (n_trials >= MAX_TRIALS)
+    reset = (failed | (~setup & (step.delta > DELTA_RESET))) & options.reestimate_multipliers
+    # without a re-estimate, a failure after a failure (the filter already forgotten) stalls:
+    # the next pass would start from the same point and take the same step
+    failed_searches = jnp.where(setup, st.failed_searches,
+                                jnp.where(failed, st.failed_searches + 1, 0))
+    stalled = ((failed_searches >= STALLED_PASSES) & ~options.reestimate_multipliers
+               & ~converged)
     # keep the iterate whose residuals are reported when the loop ends on this pass
-    hold = converged | ~finite
+    hold = converged | ~finite | stalled
     return IPState(
         iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
         hessian=d.H, mu=mu,
@@ -530,9 +549,12 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                                                    st.delta_last)),
         delta_step=jnp.where(setup, st.delta_step, step.delta),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
-        iteration=st.iteration + jnp.where(converged | setup, 0, 1), done=converged | ~finite,
-        result=_outcome(converged, finite),
-        multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective, residuals=res, log=log,
+        iteration=st.iteration + jnp.where(converged | setup, 0, 1),
+        done=converged | ~finite | stalled,
+        result=RESULTS.where(stalled & finite, RESULTS.ip_line_search_failed,
+                             _outcome(converged, finite)),
+        multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
+        residuals=res, log=log, failed_searches=failed_searches,
     )
 
 
