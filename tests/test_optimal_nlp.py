@@ -750,6 +750,10 @@ def test_a_fixed_work_solve_stops_when_its_line_search_stalls(bang_bang, monkeyp
     done = []
     for on in (True, False, True, True):
         fails["on"] = on
+        before = st.iterate.ys
         st = solver._iteration(prob, lay, fixed, st)
         done.append(bool(st.done))
     assert done == [False, False, False, True] and int(st.failed_searches) == 2
+    # the stalled pass returns the point it started from (whose residuals it reports)
+    np.testing.assert_array_equal(np.asarray(st.iterate.ys), np.asarray(before))
+    assert st.result == RESULTS.ip_line_search_failed
