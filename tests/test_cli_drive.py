@@ -409,10 +409,12 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     sc = setup.scenario(args, setup.road(args))
     driver, estimator = setup.controller(args, sc)
     default = vs.RecedingHorizonDriver(table=sc.table)
-    want = {"iterations": default.iterations, "peak_fraction": 1.0,
+    want = {"iterations": default.iterations, "hessian_update": default.hessian_update,
+            "peak_fraction": 1.0,
             "margin": float(default.margin),
             "margin_grip_power": float(default.margin_grip_power)} | expect
     assert driver.iterations == want["iterations"]
+    assert driver.hessian_update == want["hessian_update"]
     assert float(driver.peak_fraction) == want["peak_fraction"]
     assert float(driver.margin) == want["margin"]
     assert float(driver.margin_grip_power) == want["margin_grip_power"]

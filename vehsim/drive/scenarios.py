@@ -166,9 +166,10 @@ def main_corner(name: str) -> tuple[float, float]:
 CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
 
-FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 12, "peak_fraction": 0.9}
+FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 16, "hessian_update": "first",
+                    "peak_fraction": 0.9}
 """`RecedingHorizonDriver` settings of `driver_settings` on the stage: a corridor margin,
-more passes and a friction margin."""
+more passes (each sample's first Hessian kept for its later ones) and a friction margin."""
 
 FILE_ROAD_DRIVER = {"margin": 0.5, "iterations": 8, "peak_fraction": 0.9,
                     "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40,
@@ -189,8 +190,9 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
     r"""`RecedingHorizonDriver` settings for the scenario road called ``name`` (None: a
     road from a file).
 
-    - The stage (driven at 12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`, 12 interior-point
-      passes per sample and 90 % of the believed peak. With the defaults (4 passes, the
+    - The stage (driven at 12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`, 16 interior-point
+      passes per sample that keep the sample's first Hessian (``hessian_update='first'``)
+      and 90 % of the believed peak. With the defaults (4 passes, the
       whole peak) the plans at those speeds are still far from converged (KKT residual
       10-500) and the car, weaving across the road, spun in the 20 m corner with every
       friction; even converged plans at the whole peak left the road (the planning model's
@@ -198,9 +200,12 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       still lost at times (KKT residual mostly 100-70 000 for most of a second) and the
       car ran over the apex's inside edge: over 16 noise seeds on the four grips the
       estimate with pace notes completed 47 of 64 stages with 8 passes, 63 with 12 (the
-      one failure 5.05 cm off) and 64 with 16; with 12 the median times are 0.1-1.1 %
-      longer than with 8. Sixteen passes (38 ms p50, 48 ms p99 per 50 ms sample on one
-      core) leave the period no margin; twelve take 29 and 34 ms. And a corridor margin
+      one failure 5.05 cm off) and 64 with 16. Sixteen passes with a fresh Hessian each
+      took 38 ms p50 and 48 ms p99 of the 50 ms period on one core; keeping the first
+      Hessian halves a pass, and since a solve stops at a stalled line search
+      (`RESULTS.ip_line_search_failed`) the slowest samples no longer repeat a failed
+      step: 16 such passes complete 64 of 64, the median times 0.2-1.2 % longer than
+      with 12 fresh ones. And a corridor margin
       of 0.3 m (with 8 passes, 47 of 64 against 25 at the default 0.2 m; the corners'
       margin, narrowing with the grip, the same 24 of 32 on seeds 0-7). The
       measurements: docs/drive.md ("Passes on the stage").
