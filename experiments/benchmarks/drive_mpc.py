@@ -11,9 +11,9 @@ drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "no
 planner's D = 0.52, the actuators' delay, rate limit and lag, the sensors' noise of the same
 seed, the scenario's start speed and time budget).
 
-- vehsim: `RecedingHorizonDriver` with the scenario's `driver_settings` (on the stage 8
-  passes per sample in 'rti' mode and 90 % of the peak, which do-mpc's problem gets too
-  through the stages' grip) (its jitted ``command``: projection, prediction over the
+- vehsim: `RecedingHorizonDriver` with the scenario's `driver_settings` (on the stage
+  more passes per sample in 'rti' mode and 90 % of the peak, which do-mpc's problem gets
+  too through the stages' grip) (its jitted ``command``: projection, prediction over the
   actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
   with ``block_until_ready`` in a Python loop; in 'converged' mode, in 'rti' mode, and in
   'rti' mode with the first pass's Hessian kept for the sample's later passes
@@ -299,9 +299,12 @@ def main(argv=None):
 
     def planning_driver(mode, **extra):
         """The driver of vehsim's `mode` ('converged' or 'rti') with the benchmark's sizes,
-        slip bound and the road's settings: every reading, and do-mpc's, from this one."""
+        slip bound and the road's settings: every reading, and do-mpc's, from this one. The
+        mode sets the Hessian update (a fresh Hessian every pass unless ``extra`` keeps the
+        first), whatever the road's settings say."""
+        settings = vehsim.driver_settings(args.road) | {"hessian_update": "every"} | extra
         return vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes, **bound,
-                                            **vehsim.driver_settings(args.road), **extra)
+                                            **settings)
 
     results = {}
     for mode in args.modes.split(","):
