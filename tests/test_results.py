@@ -16,7 +16,7 @@ def test_case_names_are_read_from_the_enumerations():
     names = result_names()
     for parent in (lx.RESULTS, optx.RESULTS, dfx.RESULTS):
         assert set(result_names(parent)) <= set(names)
-    assert names[-2:] == ("ip_max_iterations", "not_identifiable")
+    assert names[-3:] == ("ip_max_iterations", "ip_line_search_failed", "not_identifiable")
     assert len(set(names)) == len(names) == len(RESULTS)
     for name in names:
         assert result_name(getattr(RESULTS, name)) == name
