@@ -205,7 +205,7 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       Hessian halves a pass, and since a solve stops at a stalled line search
       (`RESULTS.ip_line_search_failed`) the slowest samples no longer repeat a failed
       step: 16 such passes complete 64 of 64, the median times 0.2-1.2 % longer than
-      with 12 fresh ones. And a corridor margin
+      with 12 fresh ones, and take 16.4 ms p50 and 24.0 ms p99. And a corridor margin
       of 0.3 m (with 8 passes, 47 of 64 against 25 at the default 0.2 m; the corners'
       margin, narrowing with the grip, the same 24 of 32 on seeds 0-7). The
       measurements: docs/drive.md ("Passes on the stage").
