@@ -25,7 +25,7 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
     ip_line_search_failed = (
         "The interior-point line search accepted no step on consecutive passes, with the "
         "multipliers not re-estimated (`IPOptions.reestimate_multipliers` off): the solve "
-        "stopped at the last accepted iterate. Start from a better guess, or switch the "
+        "stopped at the point where it stalled. Start from a better guess, or switch the "
         "re-estimate on."
     )
     not_identifiable = (
