@@ -216,6 +216,12 @@ def stack(trees):
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
 
 
+def noise_key(args, seed: int) -> int:
+    """The `jax.random.key` of the Monte Carlo's noise seed `seed` (counted from
+    ``--mc-first-seed``), so that one drive can be driven again alone."""
+    return 1000 + args.mc_first_seed + seed
+
+
 def monte_carlo(args):
     budget, points = common_sizes(args.roads)
     previews = args.previews or [None]
@@ -234,7 +240,7 @@ def monte_carlo(args):
                     plants.append(sc.plant)
                     ctrls.append(ctrl)
                     states.append(sc.state0)
-                    keys.append(jax.random.key_data(jax.random.key(1000 + args.mc_first_seed + seed)))
+                    keys.append(jax.random.key_data(jax.random.key(noise_key(args, seed))))
                     tables.append(sc.table)
                     gates.append(vs.EndGate.of(sc.road))
                     ests.append(estimator)
@@ -305,8 +311,7 @@ def monte_carlo(args):
                 time_p50=float(np.median(tc[m & crossed])) if np.any(m & crossed) else None,
                 max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])),
                 # the noise keys (jax.random.key) of the drives that failed, to drive again alone
-                failed_keys=[1000 + args.mc_first_seed + meta[b][2]
-                             for b in np.flatnonzero(m & ~done)])
+                failed_keys=[noise_key(args, meta[b][2]) for b in np.flatnonzero(m & ~done)])
     print(json.dumps(summary))
     with open(args.out, "a") as f:
         f.write(json.dumps(summary) + "\n")

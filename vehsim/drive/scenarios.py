@@ -196,19 +196,13 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       whole peak) the plans at those speeds are still far from converged (KKT residual
       10-500) and the car, weaving across the road, spun in the 20 m corner with every
       friction; even converged plans at the whole peak left the road (the planning model's
-      tire is not the plant's). With 8 passes the plans braking into the first corner were
-      still lost at times (KKT residual mostly 100-70 000 for most of a second) and the
-      car ran over the apex's inside edge: over 16 noise seeds on the four grips the
-      estimate with pace notes completed 47 of 64 stages with 8 passes, 63 with 12 (the
-      one failure 5.05 cm off) and 64 with 16. Sixteen passes with a fresh Hessian each
-      took 38 ms p50 and 48 ms p99 of the 50 ms period on one core; keeping the first
-      Hessian halves a pass, and since a solve stops at a stalled line search
-      (`RESULTS.ip_line_search_failed`) the slowest samples no longer repeat a failed
-      step: 16 such passes complete 64 of 64, the median times 0.2-1.2 % longer than
-      with 12 fresh ones, and take 16.4 ms p50 and 24.0 ms p99. And a corridor margin
-      of 0.3 m (with 8 passes, 47 of 64 against 25 at the default 0.2 m; the corners'
-      margin, narrowing with the grip, the same 24 of 32 on seeds 0-7). The
-      measurements: docs/drive.md ("Passes on the stage").
+      tire is not the plant's). With fewer passes the plans braking into the first corner
+      were lost at times and the car ran over the apex's inside edge; 16 passes that keep
+      the first Hessian complete every noisy stage measured and fit the 50 ms period with
+      room, since a solve stops at a stalled line search (`RESULTS.ip_line_search_failed`)
+      rather than repeat a failed step. And a corridor margin of 0.3 m (the default 0.2 m
+      lost about twice as many drives). The measurements: docs/drive.md ("Passes on the
+      stage", "A 0.3 m margin on the stage").
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
       margin of 0.4 m that narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: 0.21-0.23 m on the icy patch, 0.34-0.38 m at 20 % less
