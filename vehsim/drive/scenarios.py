@@ -217,15 +217,15 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
     - A road from a file (None, or a name that is not a scenario road's): `FILE_ROAD_DRIVER`,
       measured on the shipped circuit (Oschersleben: 3.7 km, about 11 m wide, straights
       driven at 35-47 m/s): the stage's 16 passes that keep each sample's first Hessian
-      and its friction margin, a corridor margin of
-      0.5 m, the terminal speed bound at 85 % (`terminal_backoff`), a plan whose KKT
-      residual passes 100 planned again from the cold start (`replan_kkt`) in at most 40
-      passes (`replan_iterations`), the axles' combined slip bounded by 0.10
-      (`slip_limit`; the plant's tire peaks at 3.4-3.7 % slip at 30-40 m/s, where at 0.15
-      it has 82 % of its peak and the planner's tire 96 %) and a soft corridor of 1 s/m
-      (`corridor_penalty`). With the defaults the car left the road 344 m in, at 34 m/s;
-      without the slip bound and the soft corridor it left it on one of two noise seeds
-      (1.02 m), braking into a corner at 14 % rear slip. With these and 8 fresh passes,
+      and its friction margin, a corridor margin of 0.5 m, the terminal speed bound at
+      85 % (`terminal_backoff`), a plan whose KKT residual passes 100 planned again from
+      the cold start (`replan_kkt`) in at most 40 passes (`replan_iterations`), the axles'
+      combined slip bounded by 0.10 (`slip_limit`; the plant's tire peaks at 3.4-3.7 %
+      slip at 30-40 m/s, where at 0.15 it has 82 % of its peak and the planner's tire
+      96 %) and a soft corridor of 1 s/m (`corridor_penalty`). With the defaults the car
+      left the road 344 m in, at 34 m/s; without the slip bound and the soft corridor it
+      left it on one of two noise seeds (1.02 m), braking into a corner at 14 % rear
+      slip. With these and 8 fresh passes,
       six noise seeds lapped in 163.6-164.7 s and never left the road in 200 s of
       driving (with the slip bound alone, 166.5-167.5 s), but 1.8 % of the samples were
       re-plans of up to 40 passes, past the 50 ms period at p99; with the 16 kept-Hessian
