@@ -229,8 +229,8 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       six noise seeds lapped in 163.6-164.7 s and never left the road in 200 s of
       driving (with the slip bound alone, 166.5-167.5 s), but 1.8 % of the samples were
       re-plans of up to 40 passes, past the 50 ms period at p99; with the 16 kept-Hessian
-      passes they lapped in 163.3-163.9 s, never off, with a third of the re-plans
-      (docs/driver.md).
+      passes they lapped in 163.3-163.9 s, never off, with a third of the re-plans, and
+      six more seeds did the same (docs/driver.md).
 
     With ``friction`` = "estimate" (the planner's friction, `scenario_driver`) on the
     benchmark corners, also a test brake on the first `DRIVER_PROBE_DISTANCE` metres
