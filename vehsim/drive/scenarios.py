@@ -171,9 +171,9 @@ FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 16, "hessian_update": "first",
 """`RecedingHorizonDriver` settings of `driver_settings` on the stage: a corridor margin,
 more passes (each sample's first Hessian kept for its later ones) and a friction margin."""
 
-FILE_ROAD_DRIVER = {"margin": 0.5, "iterations": 16, "hessian_update": "first",
-                    "peak_fraction": 0.9, "terminal_backoff": 0.85, "replan_kkt": 100.0,
-                    "replan_iterations": 40, "slip_limit": 0.1, "corridor_penalty": 1.0}
+FILE_ROAD_DRIVER = FAST_ROAD_DRIVER | {
+    "margin": 0.5, "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40,
+    "slip_limit": 0.1, "corridor_penalty": 1.0}
 """`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: the stage's
 passes (16, each sample's first Hessian kept) and friction margin, a wider corridor margin,
 a lower terminal speed bound, a lost plan planned again from the cold start in at most 40
@@ -225,12 +225,11 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
       96 %) and a soft corridor of 1 s/m (`corridor_penalty`). With the defaults the car
       left the road 344 m in, at 34 m/s; without the slip bound and the soft corridor it
       left it on one of two noise seeds (1.02 m), braking into a corner at 14 % rear
-      slip. With these and 8 fresh passes,
-      six noise seeds lapped in 163.6-164.7 s and never left the road in 200 s of
-      driving (with the slip bound alone, 166.5-167.5 s), but 1.8 % of the samples were
-      re-plans of up to 40 passes, past the 50 ms period at p99; with the 16 kept-Hessian
-      passes they lapped in 163.3-163.9 s, never off, with a third of the re-plans, and
-      six more seeds did the same (docs/driver.md).
+      slip. With these and 8 fresh passes, six noise seeds lapped in 163.6-164.7 s and
+      never left the road in 200 s of driving (with the slip bound alone, 166.5-167.5 s),
+      but 1.8 % of the samples were re-plans of up to 40 passes, past the 50 ms period at
+      p99; with the 16 kept-Hessian passes they lapped in 163.3-163.9 s, never off, with a
+      third of the re-plans, and six more seeds did the same (docs/driver.md).
 
     With ``friction`` = "estimate" (the planner's friction, `scenario_driver`) on the
     benchmark corners, also a test brake on the first `DRIVER_PROBE_DISTANCE` metres
