@@ -269,8 +269,15 @@ def main(argv=None):
                          "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
     ap.add_argument("--no-slip-limit", action="store_true",
                     help="plan without the bound on the axles' combined slip (both drivers)")
+    ap.add_argument("--driver-settings", default=None, metavar="JSON",
+                    help="settings laid over the road's driver settings, for both drivers "
+                         "(e.g. '{\"tol\": 1e-4}')")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file")
     args = ap.parse_args(argv)
+    overrides = json.loads(args.driver_settings) if args.driver_settings else {}
+    if not isinstance(overrides, dict):
+        raise SystemExit("--driver-settings: expected a JSON object, got "
+                         f"{args.driver_settings!r}")
     warnings.filterwarnings("ignore")
     load_before = os.getloadavg()
 
@@ -295,14 +302,15 @@ def main(argv=None):
                   sample_time_s=SAMPLE_TIME, initial_speed=float(sc.start_speed),
                   grip="nominal", seed=args.seed, samples_budget=num_samples,
                   slip_limit=None if args.no_slip_limit else float(probe.slip_limit),
-                  driver_settings=vehsim.driver_settings(args.road))
+                  driver_settings=vehsim.driver_settings(args.road) | overrides)
 
     def planning_driver(mode, **extra):
         """The driver of vehsim's `mode` ('converged' or 'rti') with the benchmark's sizes,
         slip bound and the road's settings: every reading, and do-mpc's, from this one. The
         mode sets the Hessian update (a fresh Hessian every pass unless ``extra`` keeps the
         first), whatever the road's settings say."""
-        settings = vehsim.driver_settings(args.road) | {"hessian_update": "every"} | extra
+        settings = (vehsim.driver_settings(args.road) | overrides | {"hessian_update": "every"}
+                    | extra)
         return vehsim.RecedingHorizonDriver(table=table, mode=mode, **sizes, **bound,
                                             **settings)
 
