@@ -180,9 +180,9 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     cap. The same compiled drive gives the same bits on one machine, but a closed loop of
     solves at the grip limit amplifies rounding: on that machine the real-time iterations
     of this corner took 4.519 s with 6 passes and 4.614 s with 8, against 4.611 s and
-    4.543 s on the first. Earlier: +2.0 % while the position estimate started a sample
-    ahead of the car, up to +5.8 % after a change of the first command alone. Never off
-    the road."""
+    4.543 s on the first. The drive is as sensitive to its solves' starts: +2.0 % while
+    the position estimate started a sample ahead of the car, up to +5.8 % after a change of
+    the first command alone. Never off the road."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
     t_prim = float(corner["prim"].t_f)
