@@ -321,8 +321,9 @@ def test_drive_derivative_matches_finite_differences(gentle):
     carry the plans' convergence (3e-7 m in the position, 1 % of the differences at these
     steps, and it changes with the rounding of the factorisation). At 1e-9 the cold first
     plan's residual stalled at 2.6e-9 in the derivative's program on one machine (300
-    iterations): 1e-9 is near the residual's floor, and without its implicit derivative
-    the drive's derivative is NaN, which the test reports through ``converged``. At the default weight,
+    iterations): 1e-9 is near the residual's floor, and a plan without its implicit
+    derivative makes the drive's derivative raise
+    (`test_derivative_through_a_plan_that_did_not_converge_raises`). At the default weight,
     1e-4, a step of 1e-5 moves the car by about 1.5e-7 m; and with the stages' peaks at
     their planned speeds (`peak_speed` None) the drive's position varies by about 1e-4 m
     between neighbouring weights (the differences at two steps disagree), so the driver
@@ -363,6 +364,29 @@ def test_rti_derivatives_are_refused_naming_converged_mode(gentle):
                        state)
     # while the values themselves trace
     assert jax.eval_shape(steer, 1e-4, state).shape == ()
+
+
+def test_derivative_through_a_plan_that_did_not_converge_raises(gentle):
+    """A converged-mode plan stopped short of a solution (here the cold first plan capped at
+    4 iterations) has no implicit derivative: the command's derivative raises, naming the
+    cause, in forward and in reverse mode, instead of returning a NaN; its values run."""
+    driver = vs.RecedingHorizonDriver(gentle["table"], gentle["car"], horizon=30.0,
+                                      num_stages=10, mode="converged", init_iterations=4)
+    plant = gentle["plant"]
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=10.0), jax.random.key(0))
+    state = driver.init(m0)
+
+    def steer(w):
+        d = eqx.tree_at(lambda d: d.rate_weight, driver, w)
+        new, command = d.command(state, m0, None)
+        return command[2], new.converged
+
+    value, converged = steer(jnp.asarray(1e-4))
+    assert np.isfinite(float(value)) and not bool(converged)
+    for derivative in (lambda w: jax.jvp(lambda v: steer(v)[0], (w,), (1.0,))[1],
+                       jax.grad(lambda w: steer(w)[0])):
+        with pytest.raises(Exception, match="did not converge"):
+            float(derivative(jnp.asarray(1e-4)))
 
 
 # ---- the slip bound ----------------------------------------------------------------------

@@ -629,14 +629,19 @@ def test_implicit_derivatives_of_the_optimum_are_the_closed_form(bang_bang):
     np.testing.assert_allclose(np.asarray(jax.grad(t_final, argnums=(0, 1))(L, a)), exact,
                                rtol=1e-6)
 
-    # a solve stopped short of the optimum has no implicit derivative: NaN, both modes
+    # a solve stopped short of the optimum has no implicit derivative: a clear error in both
+    # modes (jitted too), neither a NaN nor a number; its values are still returned
     def t_capped(L):
         p = eqx.tree_at(lambda q: q.L, prob, L)
         return interior_point(p, xs0, us0, IPOptions(max_iter=3), throw=False,
                               implicit=True).xs[-1, 4]
 
-    assert np.isnan(float(jax.jvp(t_capped, (L,), (1.0,))[1]))
-    assert np.isnan(float(jax.grad(t_capped)(L)))
+    assert np.isfinite(float(t_capped(L)))
+    for derivative in (lambda L: jax.jvp(t_capped, (L,), (1.0,))[1], jax.grad(t_capped),
+                       jax.jit(jax.grad(t_capped))):
+        with pytest.raises(Exception, match="did not converge") as info:
+            float(derivative(L))
+        assert "max_iter" in str(info.value)
 
 
 class EffortRestToRest(RestToRest):

@@ -18,8 +18,10 @@ functions and the vector-Jacobian product of the stage Lagrangian. The solve is 
 `lax.custom_linear_solve` of the symmetric KKT matrix, so the tangent is linear and
 transposable: reverse mode runs too. The guess (and warm-start multipliers) get no
 derivative: a converged solution does not depend on them. Where the solve did not converge
-the tangent is NaN (near a solution, with the barrier not yet small, the theorem gave
-derivatives far from the finite differences).
+the theorem does not apply (near a solution, with the barrier not yet small, it gave
+derivatives far from the finite differences): differentiating such a solve, in either mode,
+raises `UNCONVERGED_DERIVATIVE_MESSAGE` when the program runs, rather than return a NaN
+or a wrong number.
 """
 
 from __future__ import annotations
@@ -32,6 +34,16 @@ from ..._results import RESULTS
 from .derivatives import stage_derivatives
 from .kkt import Iterate, _condensed_system, _refined_solve, _regularised_solve, _split_step
 from .problem import stage_function, stage_layout
+
+
+UNCONVERGED_DERIVATIVE_MESSAGE = (
+    "interior_point(implicit=True): a derivative (jax.jvp, jax.grad) was asked of a solve "
+    "that did not converge (its IPSolution.result is not 'successful'). The implicit "
+    "function theorem gives derivatives only at a solution; at an iterate short of one it "
+    "gives numbers far from the finite differences, so none is returned. Solve to "
+    "convergence first (a larger IPOptions.max_iter, a closer guess, or a looser "
+    "IPOptions.tol) and check `result`; a receding-horizon drive in mode='converged' "
+    "needs every plan of the drive converged (its `converged` diagnostics)")
 
 
 def _stage_lagrangian(prob, lay, ys, w):
@@ -97,10 +109,12 @@ def _implicit_solve_jvp(primals, tangents, *, solve):
     lay = stage_layout(prob)
     it = Iterate(ys=lay.join(sol.xs, sol.us), s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
     t = solution_tangent(prob, tprob, it)
-    # at an iterate that did not converge the theorem does not apply: NaN, not a wrong number;
-    # a product (not a select, whose transpose would give reverse mode zeros there)
-    flag = jnp.where(sol.result == RESULTS.successful, 1.0, jnp.nan)
-    t = jax.tree.map(lambda a: a * flag, t)
+    # at an iterate that did not converge the theorem does not apply: an error, not a wrong
+    # number; checked on a primal factor of the tangent, so that reverse mode raises in its
+    # forward pass and the check is not pruned from either program
+    one = eqx.error_if(jnp.ones(()), sol.result != RESULTS.successful,
+                       UNCONVERGED_DERIVATIVE_MESSAGE)
+    t = jax.tree.map(lambda a: a * one, t)
     tsol = jax.tree.map(lambda _: None, sol)
     tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s), tsol,
                        (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s),
