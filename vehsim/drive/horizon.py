@@ -815,8 +815,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
     function theorem at the solution returned (`interior_point` with ``implicit``): a
     drive's derivatives in forward and reverse mode are those of its converged plans (and
-    only as good as their convergence). In 'rti' mode a plan is a few iterations, not a
-    solution: derivatives raise `RTI_DERIVATIVE_MESSAGE`.
+    only as good as their convergence); a plan that did not converge has none, and the
+    drive's derivative raises `UNCONVERGED_DERIVATIVE_MESSAGE` when it runs. In 'rti' mode
+    a plan is a few iterations, not a solution: derivatives raise `RTI_DERIVATIVE_MESSAGE`.
 
     **Assumptions.** Float64 (`jax_enable_x64`; the driver refuses to be built without
     it: in float32 its plans do not converge). The prediction over the delay assumes the
