@@ -1286,6 +1286,41 @@ class RecedingHorizonDriver(AbstractDriveController):
         return (X.at[5].set(jnp.where(probing, kap, X[5])),
                 u.at[0].set(jnp.where(held, 0.0, u[0])))
 
+    def recorded_solve(self, info: dict, k: int):
+        """The interior-point solve of sample ``k`` of a drive as `command` posed it, rebuilt
+        from that drive's diagnostics ``info`` (`controller_info` of one drive, the samples
+        first): ``(problem, xs0, us0, options, multipliers)``, so that
+        ``interior_point(problem, xs0, us0, options, multipliers=multipliers)`` solves it
+        again on its own, e.g. with ``verbose`` options to read how a plan that did not
+        converge failed. The problem is the one at the recorded start and $D$; the guess and
+        multipliers are the previous plan's shifted by the distance between the two plans'
+        starts (the multipliers only where that plan converged), or the cold start for the
+        first plan and for a re-plan (`replan_kkt`). The same problem solved in another
+        program may take more or fewer iterations than it did in the drive: these solves are
+        sensitive to rounding (docs/performance.md)."""
+        n = len(info["iterations"])
+        if not 0 <= k < n:
+            raise ValueError(f"recorded_solve: sample k must be in [0, {n - 1}], got {k}")
+        first = k == 0
+        cold = first or bool(info["kkt"][k - 1] > self.replan_kkt)
+        s0, state8, D = info["plan_s"][k, 0], info["start"][k], info["D"][k]
+        prob = self.problem(s0, state8, D)
+        if cold:
+            xs0, us0 = self.cold_guess(s0, state8, D)
+        else:
+            distance = s0 - info["plan_s"][k - 1, 0]
+            xs0, us0 = shift_plan(info["xs"][k - 1], info["us"][k - 1], distance,
+                                  self.horizon)
+            xs0 = xs0.at[0, :8].set(state8)
+        duals = None
+        if self.warm_duals:
+            j = max(k - 1, 0)
+            lam, nu, z = shift_multipliers(info["lam"][j], info["nu"][j], info["z"][j],
+                                           s0 - info["plan_s"][j, 0], self.horizon)
+            trusted = (not cold) and bool(info["converged"][j])
+            duals = lam, nu, z if trusted else jnp.zeros_like(z)
+        return prob, xs0, us0, self.options(first, cold and not first), duals
+
     def info(self, state: HorizonState) -> dict:
         """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the plan (`xs`, `us`)
         and its multipliers (`lam`, `nu`, `z`), the planned horizon
