@@ -81,3 +81,35 @@ def _check_slip_bound():
         got = np.array([float(e) for e in _dompc_driver.slip_excess(ca.DM(x), lim)])
         np.testing.assert_allclose(got, (1 + k) ** 2 * Vx**2 * (s**2 - lim**2), rtol=1e-10,
                                    atol=1e-10)
+
+
+def test_tvp_table_without_a_slip_bound_is_free_and_refuses_nan():
+    """A horizon planned without the slip bound (`--no-slip-limit`: the problem's
+    ``slip_limit`` is None) gives do-mpc's slip rows the free bound, through the benchmark's
+    conversion too (`drive_mpc.tvp_rows`), not NaN (which made IPOPT stop at its first
+    iterate); a NaN bound, such as ``np.asarray(None)`` gives, is refused naming the
+    field."""
+    require_casadi()
+    in_subprocess(_check_tvp_slip)
+
+
+def _check_tvp_slip():
+    _, _dompc_driver = _peer()
+    M = 4
+    args = (np.zeros((M, 3)), np.ones(M), np.tile([-1.8, 1.8], (M + 1, 1)),
+            np.tile([-1.8, 1.8], (M, 1)), 30.0)
+    free = _dompc_driver.tvp_table(*args, None)
+    assert np.all(np.isfinite(free))
+    np.testing.assert_array_equal(free[:, _dompc_driver.TVP.index("slip_max")],
+                                  _dompc_driver.FREE)
+    import drive_mpc  # the benchmark's conversion of a problem's arrays keeps None as None
+
+    np.testing.assert_array_equal(drive_mpc.tvp_rows(args + (None,)), free)
+    bound = _dompc_driver.tvp_table(*args, np.full(M, 0.15))
+    np.testing.assert_array_equal(bound[:M, _dompc_driver.TVP.index("slip_max")], 0.15)
+    try:
+        _dompc_driver.tvp_table(*args, np.asarray(None))
+    except ValueError as e:
+        assert "slip_max" in str(e)
+    else:
+        raise AssertionError("a NaN slip bound was accepted")

@@ -218,7 +218,11 @@ def tvp_table(curvature, grip, corridor, corridor_mid, speed_max, slip_max=None)
     t[M - 1, 8] = 1.0
     t[:M, 9:11] = np.asarray(corridor, float)[M]
     t[:M, 11] = speed_max
-    t[:M, 12] = FREE if slip_max is None else np.asarray(slip_max, float)
+    if slip_max is not None:
+        slip_max = np.asarray(slip_max, float)
+        if not np.all(np.isfinite(slip_max)):  # e.g. np.asarray(None): pass None itself
+            raise ValueError(f"tvp_table: slip_max must be finite or None, got {slip_max}")
+    t[:M, 12] = FREE if slip_max is None else slip_max
     t[M] = t[M - 1]
     return t
 

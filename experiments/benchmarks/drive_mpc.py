@@ -30,6 +30,14 @@ seed, the scenario's start speed and time budget).
   functions as vehsim's, so both see identical data), ``mpc.make_step``, and the driver's
   conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`).
 
+``--sample-solves`` (with the converged mode): each sample's problem of vehsim's converged
+drive solved again on its own (`sample_solves`), by vehsim from the drive's warm start
+(`RecedingHorizonDriver.recorded_solve`), by vehsim from the same plan without the
+multipliers, and by IPOPT through the do-mpc transcription from the same plan (IPOPT's own
+multiplier estimate): the same problems and starts for both solvers, so their robustness
+(solves converged, iterations) and their time per solve compare directly; ``ratio`` = IPOPT's
+p50 time per solve / vehsim's without the multipliers.
+
 Per-sample compute of each controller alone (the plant's step is not timed; each drive
 stops once the car is past the road's end): p50, p99, mean and max of the samples after the
 first (vehsim's first command solves the first plan from the cold start, do-mpc's setup
@@ -96,6 +104,12 @@ def arrays(prob):
             prob.terminal_speed, prob.slip_limit)
 
 
+def tvp_rows(tvp_arrays):
+    """do-mpc's tvp table of a sample from `arrays` (NumPy; no slip bound stays None)."""
+    return _dompc_driver.tvp_table(*(None if a is None else np.asarray(a)
+                                     for a in tvp_arrays))
+
+
 # ---- the do-mpc controller ----------------------------------------------------------------
 
 
@@ -148,7 +162,7 @@ class DompcDriver:
         self.success = []
 
     def _solve(self, state8, tvp_arrays):
-        self.set_horizon(_dompc_driver.tvp_table(*(np.asarray(a) for a in tvp_arrays)))
+        self.set_horizon(tvp_rows(tvp_arrays))
         x0 = np.concatenate([np.asarray(state8), [0.0]])
         t0 = time.perf_counter()
         self.mpc.make_step(x0)
@@ -209,6 +223,57 @@ class DompcDriver:
 
 
 # ---- the closed loop ----------------------------------------------------------------------
+
+
+def sample_solves(driver, states):
+    """Each sample's solve of vehsim's drive (``states``: its `HorizonState` per command)
+    solved again on its own: by vehsim from the drive's warm start
+    (`RecedingHorizonDriver.recorded_solve`), by vehsim from the same plan without the
+    multipliers, and by IPOPT through do-mpc's transcription from the same plan (IPOPT's own
+    multiplier estimate, its first barrier the driver's, no do-mpc warm start). The first
+    sample (the cold first plan) is left out. Returns per solver the converged count, the
+    iterations and the wall time per solve (vehsim's compiled beforehand)."""
+    info = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]),
+                        *[driver.info(s) for s in states])
+    limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                  DELTA_MAX=float(driver.steer_limit))
+    ocp = driver.problem(0.0, jnp.zeros(8), jnp.full((driver.num_stages,),
+                                                     float(driver.nominal_peak)))
+    mpc, set_horizon = _dompc_driver.horizon_mpc(
+        float(driver.horizon), driver.num_stages, limits, D=float(driver.vehicle.tire.D),
+        rate_weight=float(driver.rate_weight), steer_rate=float(driver.steer_rate),
+        terminal_sideslip=float(ocp.terminal_sideslip),
+        terminal_heading=float(ocp.terminal_heading), tol=driver.tol,
+        max_iter=driver.max_iterations, mu_init=float(driver.barrier), warm_start=False)
+    solve = jax.jit(lambda p, x, u, o, d: interior_point(p, x, u, o, throw=False,
+                                                         multipliers=d))
+    out = {"vehsim": [], "vehsim_without_multipliers": [], "ipopt": []}
+    for k in range(1, len(states)):
+        prob, xs0, us0, options, duals = driver.recorded_solve(info, k)
+        cold = (duals[0], duals[1], jnp.zeros_like(duals[2]))
+        if k == 1:  # compile
+            jax.block_until_ready(solve(prob, xs0, us0, options, duals))
+        for name, d in (("vehsim", duals), ("vehsim_without_multipliers", cold)):
+            t0 = time.perf_counter()
+            sol = jax.block_until_ready(solve(prob, xs0, us0, options, d))
+            out[name].append((bool(sol.converged), int(sol.iterations),
+                              time.perf_counter() - t0))
+        set_horizon(tvp_rows(arrays(prob)))
+        _dompc_driver.set_guess(mpc, np.asarray(xs0), np.asarray(us0))
+        t0 = time.perf_counter()
+        mpc.make_step(np.concatenate([np.asarray(info["start"][k]), [0.0]]))
+        dt = time.perf_counter() - t0
+        stats = mpc.solver_stats
+        out["ipopt"].append((bool(stats["success"]), int(stats["iter_count"]), dt))
+    summary = {}
+    for name, rows in out.items():
+        conv, its, dt = (np.array(c) for c in zip(*rows))
+        summary[name] = {
+            "converged": int(conv.sum()), "solves": int(conv.size),
+            "failed_samples": [k + 1 for k in np.flatnonzero(~conv).tolist()],
+            "iterations_p50": float(np.median(its)), "iterations_mean": round(float(its.mean()), 2),
+            "solve_ms_p50": round(float(np.median(dt)) * 1e3, 3)}
+    return summary
 
 
 def closed_loop(command, cs, plant, state0, m0, key, num_samples, step, table):
@@ -272,8 +337,15 @@ def main(argv=None):
     ap.add_argument("--driver-settings", default=None, metavar="JSON",
                     help="settings laid over the road's driver settings, for both drivers "
                          "(e.g. '{\"tol\": 1e-4}')")
+    ap.add_argument("--sample-solves", action="store_true",
+                    help="after vehsim's converged drive, solve each of its samples' "
+                         "problems again on its own, by vehsim and by IPOPT from the same "
+                         "plan (`sample_solves`)")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file")
     args = ap.parse_args(argv)
+    if args.sample_solves and "converged" not in args.modes.split(","):
+        raise SystemExit("--sample-solves: needs vehsim's converged drive, 'converged' in "
+                         f"--modes (got {args.modes!r})")
     overrides = json.loads(args.driver_settings) if args.driver_settings else {}
     if not isinstance(overrides, dict):
         raise SystemExit("--driver-settings: expected a JSON object, got "
@@ -341,6 +413,8 @@ def main(argv=None):
         conv = np.array([bool(c.converged) for c in infos])
         res = drive_result(road, path)
         results[mode] = (driver, cs, percentiles(times))
+        if mode == "converged":
+            converged_drive = (driver, infos)
         emit(controller=f"vehsim-{mode}", **common, **percentiles(times),
              real_time_factor_p99=round(SAMPLE_TIME / np.percentile(times[1:], 99), 2),
              iterations_mean=round(float(its.mean()), 2), iterations_max=int(its.max()),
@@ -396,6 +470,11 @@ def main(argv=None):
         emit(ratio_against=f"vehsim-{mode}", **common,
              ratio=round(p_d["p50_ms"] / p["p50_ms"], 2),
              ratio_p99=round(p_d["p99_ms"] / p["p99_ms"], 2))
+    if args.sample_solves:
+        summary = sample_solves(*converged_drive)
+        emit(comparison="sample_solves", **common, **summary,
+             ratio=round(summary["ipopt"]["solve_ms_p50"]
+                         / summary["vehsim_without_multipliers"]["solve_ms_p50"], 2))
     emit(note="machine", load_average_before=[round(v, 2) for v in load_before],
          load_average_after=[round(v, 2) for v in os.getloadavg()],
          cpu_affinity=sorted(os.sched_getaffinity(0)), cpu_count=os.cpu_count(),
