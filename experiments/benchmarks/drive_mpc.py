@@ -113,6 +113,27 @@ def tvp_rows(tvp_arrays):
 # ---- the do-mpc controller ----------------------------------------------------------------
 
 
+def dompc_mpc(driver, warm_start: bool = True):
+    """do-mpc's MPC of the vehsim ``driver``'s horizon problem (`_dompc_driver.horizon_mpc`:
+    its sizes, limits, weights, tolerance, iteration cap and first barrier) and its
+    ``set_horizon``; ``warm_start``: IPOPT's warm start from do-mpc's previous solution."""
+    tire, par = driver.vehicle.tire, driver.vehicle.params
+    if (float(tire.B), float(tire.C), float(par.m), float(par.Iz), float(par.lF),
+            float(par.lR), float(par.h)) != (7.0, 1.6, 1450.0, 2740.0, 1.3, 1.4, 0.4):
+        raise SystemExit("the do-mpc model (_casadi_maneuver.body_model) is the rally "
+                         "gravel car with B = 7, C = 1.6: the driver plans with another")
+    d = driver
+    limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                  DELTA_MAX=float(d.steer_limit))
+    ocp = d.problem(0.0, jnp.zeros(8), jnp.full((d.num_stages,), float(d.nominal_peak)))
+    return _dompc_driver.horizon_mpc(
+        float(d.horizon), d.num_stages, limits, D=float(d.vehicle.tire.D),
+        rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
+        terminal_sideslip=float(ocp.terminal_sideslip),
+        terminal_heading=float(ocp.terminal_heading), tol=d.tol,
+        max_iter=d.max_iterations, mu_init=float(d.barrier), warm_start=warm_start)
+
+
 class DompcDriver:
     """The do-mpc MPC as a drive controller (module docstring), with the vehsim driver
     ``driver``'s projection, prediction, problem data and command conversion."""
@@ -121,20 +142,7 @@ class DompcDriver:
         self.driver = driver
         self.shift = shift
         d = driver
-        tire, par = d.vehicle.tire, d.vehicle.params
-        if (float(tire.B), float(tire.C), float(par.m), float(par.Iz), float(par.lF),
-                float(par.lR), float(par.h)) != (7.0, 1.6, 1450.0, 2740.0, 1.3, 1.4, 0.4):
-            raise SystemExit("the do-mpc model (_casadi_maneuver.body_model) is the rally "
-                             "gravel car with B = 7, C = 1.6: the driver plans with another")
-        limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
-                      DELTA_MAX=float(d.steer_limit))
-        ocp = d.problem(0.0, jnp.zeros(8), jnp.full((d.num_stages,), float(d.nominal_peak)))
-        self.mpc, self.set_horizon = _dompc_driver.horizon_mpc(
-            float(d.horizon), d.num_stages, limits, D=float(d.vehicle.tire.D),
-            rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
-            terminal_sideslip=float(ocp.terminal_sideslip),
-            terminal_heading=float(ocp.terminal_heading), tol=d.tol,
-            max_iter=d.max_iterations, mu_init=float(d.barrier))
+        self.mpc, self.set_horizon = dompc_mpc(driver)
 
         def prepare(s_prev, t_prev, position, position_var, velocity, inputs, m, xs, us,
                     s_plan):
@@ -235,16 +243,7 @@ def sample_solves(driver, states):
     iterations and the wall time per solve (vehsim's compiled beforehand)."""
     info = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]),
                         *[driver.info(s) for s in states])
-    limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
-                  DELTA_MAX=float(driver.steer_limit))
-    ocp = driver.problem(0.0, jnp.zeros(8), jnp.full((driver.num_stages,),
-                                                     float(driver.nominal_peak)))
-    mpc, set_horizon = _dompc_driver.horizon_mpc(
-        float(driver.horizon), driver.num_stages, limits, D=float(driver.vehicle.tire.D),
-        rate_weight=float(driver.rate_weight), steer_rate=float(driver.steer_rate),
-        terminal_sideslip=float(ocp.terminal_sideslip),
-        terminal_heading=float(ocp.terminal_heading), tol=driver.tol,
-        max_iter=driver.max_iterations, mu_init=float(driver.barrier), warm_start=False)
+    mpc, set_horizon = dompc_mpc(driver, warm_start=False)
     solve = jax.jit(lambda p, x, u, o, d: interior_point(p, x, u, o, throw=False,
                                                          multipliers=d))
     out = {"vehsim": [], "vehsim_without_multipliers": [], "ipopt": []}
