@@ -439,6 +439,56 @@ def test_a_capped_solve_reports_the_residuals_of_the_iterate_it_returns(bang_ban
     assert np.isnan(float(sol.log.alpha[4]))
 
 
+def test_best_iterate_returns_the_smallest_kkt_error_the_solve_reached(bang_bang):
+    """``best_iterate``: a capped solve returns, of the iterates it passed, the one of the
+    smallest scaled KKT error, with its own residuals and objective. The solve capped at
+    ``n`` passes returns the iterate after ``n - 1`` steps, so the caps 1..N lay out the
+    trajectory, each iterate's error is computed here from its derivatives
+    (`kkt_residuals`), and the capped solve with the option must return the caps' argmin.
+    The error along this trajectory is not monotone, so the best is not always the last; a
+    converged solve is the same with and without the option."""
+    from vehsim.optimal.ip.derivatives import stage_derivatives
+    from vehsim.optimal.ip.kkt import Iterate, kkt_residuals
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, converged = bang_bang
+    lay = stage_layout(prob)
+    xs0, us0 = _guess(prob.num_stages)
+
+    def error(sol):
+        ys = lay.join(sol.xs, sol.us)
+        it = Iterate(ys=ys, s=sol.s, z=sol.z, lam=sol.lam, nu=sol.nu)
+        return float(kkt_residuals(lay, it, stage_derivatives(prob, lay, ys, it.lam, it.nu,
+                                                                it.z)).error)
+
+    caps = range(1, 13)
+    last = [interior_point(prob, xs0, us0, IPOptions(max_iter=n), throw=False) for n in caps]
+    errors = np.array([error(sol) for sol in last])
+    print("errors along the trajectory", errors)
+    earlier = 0
+    for n, sol_last in zip(caps, last):
+        best = interior_point(prob, xs0, us0, IPOptions(max_iter=n, best_iterate=True),
+                              throw=False)
+        j = int(np.argmin(errors[:n]))
+        earlier += j < n - 1
+        want = last[j]
+        # the same iterate (two programs: equal to their rounding)
+        for name in ("xs", "us", "z", "lam", "nu", "s", "objective", "inf_pr", "inf_du",
+                     "compl"):
+            np.testing.assert_allclose(np.asarray(getattr(best, name)),
+                                       np.asarray(getattr(want, name)), rtol=1e-9,
+                                       atol=1e-12, err_msg=name)
+        # the outcome is the solve's: the result, the passes and the log of the last iterate
+        assert best.result == sol_last.result and int(best.iterations) == n
+        np.testing.assert_allclose(np.asarray(best.log.inf_pr), np.asarray(sol_last.log.inf_pr),
+                                   rtol=1e-9)
+    assert earlier >= 2  # the option changed what some capped solves return
+    again = interior_point(prob, xs0, us0, IPOptions(best_iterate=True))
+    assert again.converged and int(again.iterations) == int(converged.iterations)
+    for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(converged)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-12)
+
+
 def test_zero_and_least_squares_starts_reach_the_same_optimum(bang_bang):
     prob, sol = bang_bang
     xs0, us0 = _guess(prob.num_stages)

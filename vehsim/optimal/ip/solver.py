@@ -115,7 +115,12 @@ class IPOptions(eqx.Module):
     (`print_iteration_log`; not part of the compiled program, so the quiet and the verbose
     solve are one program); ``live``: print each iteration's line while the solve runs (a
     host callback per iteration, so a program of its own; for one solve, not a `vmap`ped
-    batch, whose members would interleave)."""
+    batch, whose members would interleave); ``best_iterate``: a solve that stops without
+    converging returns the iterate of the smallest scaled KKT error it reached, with its
+    residuals, objective and multipliers, instead of the last one (its ``result``,
+    ``iterations`` and ``log`` unchanged): for a plan that is used whatever the outcome, such
+    as a receding-horizon controller's, where the iterates of a solve that does not settle
+    can wander far from the nearly converged ones it passed (off: the last iterate)."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -130,6 +135,7 @@ class IPOptions(eqx.Module):
     bound_multiplier_init: str = eqx.field(static=True, default="mu-based")
     verbose: bool = eqx.field(static=True, default=False)
     live: bool = eqx.field(static=True, default=False)
+    best_iterate: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
@@ -204,6 +210,21 @@ class IPSolution(eqx.Module):
         return result_message(self.result)
 
 
+class _Best(eqx.Module):
+    """The iterate of the smallest scaled KKT error a solve has reached
+    (``IPOptions.best_iterate``), with its ``residuals`` and ``objective``."""
+
+    iterate: Iterate
+    residuals: Residuals
+    objective: Float[Array, ""]
+
+    def update(self, it: Iterate, res: Residuals, objective) -> _Best:
+        """This record, or ``it`` where its error is smaller (and finite)."""
+        better = jnp.isfinite(objective) & (res.error < self.residuals.error)
+        return jax.tree.map(lambda new, old: jnp.where(better, new, old),
+                            _Best(iterate=it, residuals=res, objective=objective), self)
+
+
 class IPState(eqx.Module):
     """The loop state: the ``iterate``, the stage Lagrangian ``hessian`` of the last pass
     that took it (kept by ``hessian_update='first'``), barrier ``mu``, the last nonzero
@@ -213,7 +234,8 @@ class IPState(eqx.Module):
     (false after runaway multipliers: the next pass re-estimates them), and the
     ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``;
     ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
-    trial."""
+    trial; ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
+    KKT error so far, its residuals and objective (`_Best`)."""
 
     iterate: Iterate
     hessian: Float[Array, "M+1 ny ny"]
@@ -229,6 +251,7 @@ class IPState(eqx.Module):
     residuals: Residuals
     log: IPLog
     failed_searches: Int[Array, ""]
+    best: _Best | None = None
 
 
 def interior_point(
@@ -416,12 +439,16 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
     )
     state = jax.lax.cond(state.done, lambda st: st,
                          lambda st: _final_evaluation(prob, lay, options, st), state)
-    it = state.iterate
+    it, res, objective = state.iterate, state.residuals, state.objective
+    if state.best is not None:  # a solve that did not converge: its best iterate
+        keep = state.result == RESULTS.successful
+        it, res, objective = jax.tree.map(
+            lambda last, best: jnp.where(keep, last, best), (it, res, objective),
+            (state.best.iterate, state.best.residuals, state.best.objective))
     return IPSolution(
         xs=it.ys[:, : lay.nx], us=it.ys[:-1, lay.nx :], lam=it.lam, nu=it.nu, z=it.z,
-        result=state.result, iterations=state.iteration, objective=state.objective,
-        inf_pr=state.residuals.inf_pr, inf_du=state.residuals.inf_du,
-        compl=state.residuals.compl, log=state.log, s=it.s,
+        result=state.result, iterations=state.iteration, objective=objective,
+        inf_pr=res.inf_pr, inf_du=res.inf_du, compl=res.compl, log=state.log, s=it.s,
     )
 
 
@@ -475,6 +502,10 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
                             optimality=inf, s_c=jnp.asarray(1.0)),
         log=IPLog.empty(options.log_size), failed_searches=jnp.asarray(0),
     )
+    if options.best_iterate:
+        state = eqx.tree_at(lambda st: st.best, state,
+                            _Best(iterate, state.residuals, state.objective),
+                            is_leaf=lambda x: x is None)
     return strong(state)
 
 
@@ -555,6 +586,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                              _outcome(converged, finite)),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
         residuals=res, log=log, failed_searches=failed_searches,
+        best=None if st.best is None else st.best.update(it, res, d.objective),
     )
 
 
@@ -584,11 +616,14 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
         jax.debug.callback(_print_row, st.iteration, d.objective, res.inf_pr, res.inf_du,
                            st.mu, zero, zero, 0)
     finite = jnp.isfinite(res.error) & jnp.isfinite(d.objective)
-    return eqx.tree_at(
+    st = eqx.tree_at(
         lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
          _outcome(converged, finite),
          d.objective, res, log))
+    if st.best is None:
+        return st
+    return eqx.tree_at(lambda s: s.best, st, st.best.update(it, res, d.objective))
 
 
 def _barrier_update(error_mu, mu, tol):
