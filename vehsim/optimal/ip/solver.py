@@ -372,7 +372,8 @@ def solution_tree():
 def print_iteration_log(sol: IPSolution, file=None) -> None:
     """One line per iteration of a finished solve, from its log: objective, ``inf_pr``,
     ``inf_du``, barrier ``mu``, step ``alpha``, regularisation ``reg`` and line-search
-    trials ``ls`` (the last line is the iterate returned). ``file``: default stderr."""
+    trials ``ls`` (the last line is the iterate returned, unless ``best_iterate`` returned an
+    earlier one: the line whose residuals are the solution's). ``file``: default stderr."""
     log = jax.tree.map(np.asarray, sol.log)
     n = min(int(sol.iterations) + 1, log.mu.shape[0])
     for i in range(n):
