@@ -545,6 +545,62 @@ def test_soft_corridor_is_exact_where_the_hard_one_holds_and_plans_where_it_does
         vs.RecedingHorizonDriver(table, corridor_penalty=0.0)
 
 
+@pytest.mark.slow  # two horizon programs (hard, first stage soft): one compilation each
+def test_soft_first_stages_plan_a_start_drifting_out_and_keep_the_rest_hard():
+    """`soft_stages`: a start inside the corridor, 5 cm from its edge, heading out at 0.05 rad
+    at 12 m/s on a straight, drifts past the edge over the first two stages (3 m each)
+    whatever the controls, so the hard problem has no plan (the interior point does not
+    converge). With the first two stages soft (rho = 100 s/m) the plan exists: their slacks
+    cover the departure, the later stages' slacks stay at zero and their corridor holds
+    (only the first stages' rows read the slack). From a start heading away, the plan is
+    the hard one's."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 60.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    M, H = 12, 36.0
+    D = jnp.full(M, 0.52)
+
+    @eqx.filter_jit
+    def plan(state8, penalty, soft):
+        prob = vs.horizon_problem(table, car, 0.0, state8, D, horizon=H,
+                                  corridor_penalty=penalty, soft_stages=soft)
+        xs0, us0 = vs.profile_guess(table, car, 0.0, state8, D, horizon=H)
+        if penalty is not None:
+            us0 = jnp.concatenate([us0, jnp.zeros((M, 1))], 1)
+        sol = vs.interior_point(prob, xs0, us0, vs.IPOptions(max_iter=300), throw=False)
+        return sol, prob
+
+    drifting = jnp.array([1.75, 0.05, 12.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    lost, prob = plan(drifting, None, None)
+    assert not bool(lost.converged)
+    np.testing.assert_allclose(np.asarray(prob.corridor), [[-1.8, 1.8]] * (M + 1))
+    sol, soft = plan(drifting, jnp.asarray(100.0), jnp.asarray(2))
+    sigma, n = np.asarray(sol.us[:, 3]), np.asarray(sol.xs[:, 0])
+    print("iterations", int(sol.iterations), "slack", sigma[:3], "n", n[:4])
+    assert bool(sol.converged)
+    assert sigma[:2].sum() > 1e-2 and n[1] > 1.8 + 1e-2  # the first stages leave it ...
+    assert np.all(np.abs(sigma[2:]) < 1e-6) and np.all(n[2:] <= 1.8 + 1e-6)  # ... no more
+    # only the first two stages' corridor rows (the first four: knot and midpoint, two
+    # sides) read the slack
+    x, u = sol.xs[0], sol.us[0]
+    for k in range(4):
+        rows = lambda sig: soft.path_inequality(x, u.at[3].set(sig), jnp.asarray(k))[:4]
+        moved = np.asarray(rows(0.5) - rows(0.0))
+        np.testing.assert_allclose(moved, 0.5 if k < 2 else 0.0, atol=1e-12, err_msg=str(k))
+    # from a start heading away the hard corridor holds: the same plan, no slack
+    away = drifting.at[1].set(-0.05)
+    hard, _ = plan(away, None, None)
+    easy, _ = plan(away, jnp.asarray(100.0), jnp.asarray(2))
+    assert bool(hard.converged) and bool(easy.converged)
+    assert float(jnp.max(easy.us[:, 3])) < 1e-6
+    np.testing.assert_allclose(easy.xs, hard.xs, atol=1e-5)
+    # the driver poses the same problem
+    driver = vs.RecedingHorizonDriver(table, vehicle=car, horizon=H, num_stages=M,
+                                      corridor_penalty=100.0, soft_stages=2)
+    assert int(driver.problem(0.0, drifting, D).soft_stages) == 2
+    with pytest.raises(ValueError, match="corridor_penalty"):
+        vs.RecedingHorizonDriver(table, soft_stages=1)
+
+
 def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():
     """Rolling straight (no slip, no side slip) the combined slip is 0, a square root's
     kink: the bound's widening at the start (`horizon_problem`) has a finite derivative in

@@ -54,7 +54,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._checks import check_nonnegative, check_positive, check_range, is_concrete
-from .._fields import array_field, float_array, int_field
+from .._fields import array_field, float_array, int_array, int_field
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
 from ..optimal.curvilinear import (
@@ -334,7 +334,8 @@ class HorizonOCP(CurvilinearManeuverOCP):
     `steer_limit` [rad]; `slip_limit` (M,) or None: the bound on each axle's combined slip
     (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
     agrees with the plant's); `corridor_penalty` $\rho$ [s/m] or None (hard corridor): a
-    soft corridor, below.
+    soft corridor, below; `soft_stages` (None: all) the stages whose corridor is soft, the
+    first ones (the later stages' slacks are unused and go to zero).
 
     **The soft corridor.** With $\rho$ the controls gain a slack $\sigma_k \ge 0$
     ($u = (d(\kappa_F, \kappa_R, \delta)/ds, \sigma)$, `control_size` 4), the corridor at
@@ -344,7 +345,10 @@ class HorizonOCP(CurvilinearManeuverOCP):
     multipliers are below $\rho$, it is the soft problem's, with $\sigma = 0$; where it has
     none (a start a few tenths of a metre wide of its plan at the friction limit), the soft
     problem still has one, the plan that leaves the corridor by the least total distance,
-    instead of an interior point with nothing to converge to.
+    instead of an interior point with nothing to converge to. With `soft_stages` $R$ only
+    the stages $k < R$ are soft: a start that no control keeps inside the corridor (at its
+    edge, drifting out) still has a plan, and the rest of the horizon keeps the hard
+    corridor, which a plan cannot trade for time at any $\rho$.
     """
 
     initial_state: Float[Array, " 8"] = array_field(default=(0.0,) * 8)
@@ -356,6 +360,7 @@ class HorizonOCP(CurvilinearManeuverOCP):
     terminal_heading: Float[Array, ""] = array_field(default=0.15)
     slip_limit: Float[Array, " M"] | None = None
     corridor_penalty: Float[Array, ""] | None = None
+    soft_stages: Int[Array, ""] | None = None
 
     def __check_init__(self):
         if self.control_size != (3 if self.corridor_penalty is None else 4):
@@ -400,7 +405,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
     def _path(self, x, u, k, starts, end):
         base = super()._path(x, u, k, starts, end)
         if self.corridor_penalty is not None:  # the corridor's rows: 2 per node, 2 per mid
-            base = jnp.concatenate([base[:4 * self.steps_per_stage] + u[3],
+            slack = u[3] if self.soft_stages is None else jnp.where(k < self.soft_stages,
+                                                                    u[3], 0.0)
+            base = jnp.concatenate([base[:4 * self.steps_per_stage] + slack,
                                     base[4 * self.steps_per_stage:], u[3:4]])
         n, xi, vx, vy = x[0], x[1], x[2], x[3]
         kap = self.curvature[k][0, 0]
@@ -436,7 +443,8 @@ RELAX_STAGES = 3
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
-                    margin_grip_power=0.0, corridor_penalty=None) -> HorizonOCP:
+                    margin_grip_power=0.0, corridor_penalty=None,
+                    soft_stages=None) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
@@ -458,7 +466,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
     start, read from the last plan between its first two knots, crept up to the bound
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
-    soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$."""
+    soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$, on the
+    first ``soft_stages`` stages (None: all)."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -493,7 +502,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         rate_weight=rate_weight, initial_state=state8, grip=grip,
         terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
         slip_limit=slips, corridor_penalty=None if corridor_penalty is None else
-        jnp.asarray(corridor_penalty, float), control_size=3 if corridor_penalty is None else 4)
+        jnp.asarray(corridor_penalty, float), control_size=3 if corridor_penalty is None else 4,
+        soft_stages=None if soft_stages is None else jnp.asarray(soft_stages, int))
 
 
 def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
@@ -754,7 +764,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     is used as it stands, as a real-time iteration's plan is); `corridor_penalty` $\rho$
     [s/m] (None: a hard corridor) the plans' soft corridor (`HorizonOCP`): a plan may leave
     the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
-    which no plan keeps inside it still has a plan, the one that leaves it least.
+    which no plan keeps inside it still has a plan, the one that leaves it least;
+    `soft_stages` (None: every stage) only the first stages' corridor soft: with 1 and
+    $\rho$ = 100 s/m, the start's stage (docs/drive.md, "A soft first stage").
     `probe_distance` [m] (None: never) with 'estimate': a test brake on the front axle over
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
@@ -870,6 +882,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     replan_iterations: Int[Array, ""] = int_field(default=300)
     corridor_penalty: Float[Array, ""] | None = eqx.field(
         default=None, converter=lambda x: None if x is None else float_array(x))
+    soft_stages: Int[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else int_array(x))
     probe_distance: Float[Array, ""] | None = eqx.field(
         default=None, converter=lambda x: None if x is None else float_array(x))
     probe_utilisation: Float[Array, ""] = array_field(default=0.95)
@@ -902,9 +916,13 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"last pass only evaluates), got {self.iterations}")
         for name in ("horizon", "sample_time", "steer_rate", "steer_limit", "nominal_peak",
                      "terminal_backoff", "mu0", "reference_speed", "slip_limit",
-                     "position_std", "corridor_penalty", "probe_distance", "probe_std"):
+                     "position_std", "corridor_penalty", "probe_distance", "probe_std",
+                     "soft_stages"):
             if getattr(self, name) is not None:
                 check_positive("RecedingHorizonDriver", name, getattr(self, name))
+        if self.soft_stages is not None and self.corridor_penalty is None:
+            raise ValueError("RecedingHorizonDriver.soft_stages needs corridor_penalty (the "
+                             "soft corridor's cost, > 0), got None")
         check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
         check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
                     allow_inf=True)  # inf: the whole horizon
@@ -1046,7 +1064,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                                terminal_backoff=self.terminal_backoff,
                                slip_limit=self.slip_limit,
                                margin_grip_power=self.margin_grip_power,
-                               corridor_penalty=self.corridor_penalty)
+                               corridor_penalty=self.corridor_penalty,
+                               soft_stages=self.soft_stages)
 
     def cold_guess(self, s0, state8, D):
         """`profile_guess` with this driver's horizon (and a zero slack with
