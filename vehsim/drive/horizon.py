@@ -765,8 +765,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     [s/m] (None: a hard corridor) the plans' soft corridor (`HorizonOCP`): a plan may leave
     the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
     which no plan keeps inside it still has a plan, the one that leaves it least;
-    `soft_stages` (None: every stage) only the first stages' corridor soft: with 1 and
-    $\rho$ = 100 s/m, the start's stage (docs/drive.md, "A soft first stage").
+    `soft_stages` (None: every stage) the number of first stages whose corridor is soft,
+    the rest hard (measured with 1 and $\rho$ = 100 s/m: docs/drive.md, "A soft first
+    stage").
     `probe_distance` [m] (None: never) with 'estimate': a test brake on the front axle over
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
