@@ -599,6 +599,8 @@ def test_soft_first_stages_plan_a_start_drifting_out_and_keep_the_rest_hard():
     assert int(driver.problem(0.0, drifting, D).soft_stages) == 2
     with pytest.raises(ValueError, match="corridor_penalty"):
         vs.RecedingHorizonDriver(table, soft_stages=1)
+    with pytest.raises(ValueError, match="soft_stages needs corridor_penalty"):
+        vs.horizon_problem(table, car, 0.0, drifting, D, horizon=H, soft_stages=2)
 
 
 def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():

@@ -367,6 +367,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
             raise ValueError("HorizonOCP.control_size must be 3 with a hard corridor and 4 "
                              "(the slack) with corridor_penalty; build it with "
                              "horizon_problem")
+        if self.soft_stages is not None and self.corridor_penalty is None:
+            raise ValueError("HorizonOCP.soft_stages needs corridor_penalty (the soft "
+                             "corridor's cost, > 0), got None")
 
     def _slip_constraints(self, X, limit):
         r"""`axle_slips` $\le$ ``limit`` for both axles, as the polynomial
