@@ -166,29 +166,29 @@ EPYC machine, with XLA's default code generation), so a cap of 600, not the defa
 
 @pytest.fixture(scope="module")
 def converged_run(corner):
-    driver = _driver(corner, mode="converged", init_iterations=INIT_ITERATIONS)
+    driver = _driver(corner, mode="converged", init_iterations=INIT_ITERATIONS,
+                     corridor_penalty=100.0, soft_stages=1)
     return driver, _run(corner, driver)
 
 
 @pytest.mark.slow  # a drive: one compilation of a few minutes
 def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     """The driver (converged mode: the multipliers warm-started, at most 100 iterations; D
-    fixed at its car's) against the offline primitive of its planning car on the same
-    corridor, within 5 %: measured +0.8 % (4.530 s against 4.495 s; 98 % of the samples'
-    solves converged) on one machine and +4.8 % (4.711 s; 96 %) on another (AMD EPYC),
-    where four solves at the apex (samples 34-37) ran away, their residuals 1e4-1e7 at the
-    cap. The same compiled drive gives the same bits on one machine, but a closed loop of
-    solves at the grip limit amplifies rounding: on that machine the real-time iterations
-    of this corner took 4.519 s with 6 passes and 4.614 s with 8, against 4.611 s and
-    4.543 s on the first. The drive is as sensitive to its solves' starts: +2.0 % while
-    the position estimate started a sample ahead of the car, up to +5.8 % after a change of
-    the first command alone. Never off the road."""
+    fixed at its car's; the first stage's corridor soft at 100 s/m, the rest hard) against
+    the offline primitive of its planning car on the same corridor, within 2 %: measured
+    +0.29 % (4.508 s against 4.495 s; every solve converged) on an AMD EPYC machine, and
+    -0.17 % to +0.20 % with the rounding or the caps changed (LLVM's optimisation off; a
+    cold-plan cap of 500; a sample cap of 80). A closed loop of solves at the grip limit
+    amplifies rounding, and with the hard corridor the drive took +0.8 % on one machine and
+    +4.8 % on the AMD EPYC one, where four solves at the apex (samples 34-37) ran away, their
+    residuals 1e4-1e7 at the cap: a start just inside the corridor's edge, drifting out,
+    leaves the hard problem without a plan. Never off the road."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
     t_prim = float(corner["prim"].t_f)
     print("oracle drive", tc, "primitive", t_prim, "off", off,
           "iterations", np.asarray(run.controller_info["iterations"]).tolist())
-    assert abs(tc / t_prim - 1.0) < 0.05, (tc, t_prim)
+    assert abs(tc / t_prim - 1.0) < 0.02, (tc, t_prim)
     assert off < 0.05
     info = run.controller_info
     assert info["plan_s"].shape == (corner["num"], STAGES + 1)
@@ -215,7 +215,6 @@ def test_warm_start_lowers_iterations(corner, converged_run):
     driver, run = converged_run
     info = jax.tree.map(np.asarray, run.controller_info)
     samples = np.arange(10, corner["num"] - 10, 6)
-    table, car, H = corner["table"], corner["car"], driver.horizon
 
     @eqx.debug.assert_max_traces(max_traces=1)
     def solve(s0, state8, D, xs0, us0, duals, options):
@@ -231,8 +230,7 @@ def test_warm_start_lowers_iterations(corner, converged_run):
     batch = jax.jit(jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, 0, None)))
     xs0, us0, duals = jax.tree.map(lambda *a: jnp.stack(a), *[shifted(i) for i in k])
     iters = {"warm": np.asarray(batch(*args, xs0, us0, duals, driver.options()).iterations)}
-    cold = [vs.profile_guess(table, car, *(a[i] for a in args), horizon=H)
-            for i in range(len(k))]
+    cold = [driver.cold_guess(*(a[i] for a in args)) for i in range(len(k))]
     xs0, us0 = (jnp.stack(a) for a in zip(*cold))
     no_duals = jax.tree.map(lambda a: 0.0 * a, duals)
     # the cold starts at the samples' cap too (alone they take 100-600 iterations): the
@@ -242,8 +240,8 @@ def test_warm_start_lowers_iterations(corner, converged_run):
     iters["cold"] = np.asarray(batch(*args, xs0, us0, no_duals, cold_options).iterations)
     print("iterations per sample:", {n: v.tolist() for n, v in iters.items()},
           "drive", info["iterations"][k].tolist())
-    # measured: warm 301 iterations on these 14 samples (each as the drive's but one: 83
-    # against the drive's 100 at sample 34), cold 1376. Not compared: the shifted plan
+    # measured: warm 186 iterations on these 14 samples (each as the drive's), cold 1400
+    # (every one at the cap; with the hard corridor, warm 301, cold 1376). Not compared: the shifted plan
     # against the unshifted and the backwards-shifted one; without the multipliers' warm
     # start the solves mostly reached the cap under the tests' code generator, and these
     # did not rank as they should (sums 1027 shifted, 1040 unshifted, 1104 backwards).
