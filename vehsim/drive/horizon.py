@@ -769,8 +769,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     the corridor at a cost of $\rho$ seconds per metre at each knot, so that a state from
     which no plan keeps inside it still has a plan, the one that leaves it least;
     `soft_stages` (None: every stage) the number of first stages whose corridor is soft,
-    the rest hard (measured with 1 and $\rho$ = 100 s/m: docs/drive.md, "A soft first
-    stage").
+    the rest hard: with 1 and $\rho$ = 100 s/m in 'converged' mode every solve of a corner
+    drive converged, but in 'rti' mode it lost drives the hard corridor kept on the road
+    (docs/drive.md, "A soft first stage").
     `probe_distance` [m] (None: never) with 'estimate': a test brake on the front axle over
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
