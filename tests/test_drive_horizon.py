@@ -604,49 +604,6 @@ def test_soft_first_stages_plan_a_start_drifting_out_and_keep_the_rest_hard():
         vs.horizon_problem(table, car, 0.0, drifting, D, horizon=H, soft_stages=2)
 
 
-@pytest.mark.slow  # one horizon program
-def test_soft_corridor_prices_its_slack_bound_for_a_solve_without_multipliers():
-    """A real-time iteration solves without multipliers, and the interior point starts an
-    inequality's multiplier at mu0/s (0.1 at the driver's mu0 = 1e-3): against a penalty of
-    100 s/m the slack's bound sigma >= 0 is then nearly free, and a few passes run the
-    slacks negative, the cost rewarding it (-0.03 m at the median of a corner drive's
-    samples, every stage). `HorizonOCP.path_multiplier_guess` prices that bound at rho, the
-    row whose value is the slack (and only it): four passes keep every slack >= 0 within
-    the start's 1e-5, on the real-time iteration's own options."""
-    road = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 15.0, 90.0),
-                                            ("straight", 20.0)], 4.0)
-    table = vs.RoadTable.from_road(road, extension=40.0)
-    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
-    M, D = 12, jnp.full(12, 0.52)
-    driver = vs.RecedingHorizonDriver(table, vehicle=car, horizon=36.0, num_stages=M,
-                                      corridor_penalty=100.0, slip_limit=0.15)
-    start = jnp.array([0.3, 0.05, 14.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-
-    @eqx.filter_jit
-    def passes(state8):
-        prob = driver.problem(0.0, state8, D)
-        xs0, us0 = driver.cold_guess(0.0, state8, D)
-        return vs.interior_point(prob, xs0, us0, driver.options(), throw=False)
-
-    prob = driver.problem(0.0, start, D)
-    x, u = driver.cold_guess(0.0, start, D)
-    for k in (0, 5, M - 1):
-        guess = np.asarray(prob.path_multiplier_guess(jnp.asarray(k)))
-        moved = np.asarray(prob.path_inequality(x[k], u[k].at[3].set(0.5), jnp.asarray(k))
-                           - prob.path_inequality(x[k], u[k], jnp.asarray(k)))
-        row = np.flatnonzero(guess)
-        assert row.size == 1 and guess[row[0]] == 100.0
-        assert moved[row[0]] == 0.5  # the slack's own row (the corridor's also move)
-        assert np.count_nonzero(np.isclose(moved, 0.5, atol=1e-12)) == 5  # corridor x4, bound
-    assert vs.horizon_problem(table, car, 0.0, start, D, horizon=36.0).path_multiplier_guess(
-        jnp.asarray(0)) is None  # a hard corridor: no guess
-    assert int(driver.options().max_iter) == 4
-    sol = passes(start)
-    sigma = np.asarray(sol.us[:, 3])
-    print("slacks after four passes", sigma.min(), sigma.max())
-    assert sigma.min() > -2e-5, sigma
-
-
 def test_slip_bound_has_finite_derivatives_at_a_straight_rolling_start():
     """Rolling straight (no slip, no side slip) the combined slip is 0, a square root's
     kink: the bound's widening at the start (`horizon_problem`) has a finite derivative in

@@ -421,17 +421,6 @@ class HorizonOCP(CurvilinearManeuverOCP):
         return jnp.concatenate([base, jnp.stack([self.steer_rate - rate,
                                                  self.steer_rate + rate]), slips])
 
-    def path_multiplier_guess(self, k):
-        r"""With a soft corridor: its price $\rho$ on the slack's bound $\sigma_k \ge 0$
-        (its multiplier wherever the corridor is inactive), so that a solve without
-        multipliers (a real-time iteration) does not start that bound at $\mu_0/s$,
-        orders of magnitude below $\rho$, and run the slacks negative."""
-        if self.corridor_penalty is None:
-            return None
-        nh = stage_layout(self).nh
-        row = nh - 3 - (0 if self.slip_limit is None else 2)  # before the rate and slip rows
-        return jnp.zeros(nh).at[row].set(self.corridor_penalty)
-
     def initial_equality(self, x):
         return jnp.concatenate([x[8:9], x[:8] - self.initial_state])
 

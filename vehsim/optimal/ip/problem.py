@@ -53,13 +53,6 @@ class AbstractStagewiseNLP(eqx.Module):
         r"""$h_k(x_k, u_k) \ge 0$ for $k < M$ (default none)."""
         return jnp.zeros((0,))
 
-    def path_multiplier_guess(self, k: Array) -> Array | None:
-        r"""A guess of the multipliers of $h_k \ge 0$ for a solve that starts without
-        multipliers: positive on a row whose price the problem knows (the bound
-        $\sigma \ge 0$ of an exact penalty's slack, priced at the penalty), 0 on the rest;
-        None (the default): no guess, every row started at $\mu_0/s$."""
-        return None
-
     def initial_equality(self, x: Array) -> Array:
         """$e_0(x_0) = 0$ (default none)."""
         return jnp.zeros((0,))

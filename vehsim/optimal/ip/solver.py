@@ -453,22 +453,10 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
     )
 
 
-def _path_multiplier_guess(prob, lay: StageLayout):
-    """`AbstractStagewiseNLP.path_multiplier_guess` of every stage, padded to the layout's
-    (M+1, ng) (0: no guess), or None."""
-    k = jnp.arange(lay.M)
-    if jax.eval_shape(prob.path_multiplier_guess, k[0]) is None:
-        return None
-    h = jax.vmap(prob.path_multiplier_guess)(k)
-    return jnp.pad(h, ((0, 1), (0, lay.ng - lay.nh)))
-
-
 def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
                    multipliers=None) -> IPState:
     """Slacks $s = \\max(g, \\min(10^{-2}, 10\\mu_0))$ on the inequalities in use, $z = 1$
-    or $\\mu_0 / s$ (``bound_multiplier_init``); on a row the problem prices
-    (`AbstractStagewiseNLP.path_multiplier_guess`) that price $\\bar z$ and
-    $s = \\max(g, \\min(10^{-2}, \\mu_0/\\bar z))$; and the defect and equality multipliers of
+    or $\\mu_0 / s$ (``bound_multiplier_init``), and the defect and equality multipliers of
     ``multiplier_init``: zero, or their least-squares estimate at that $z$
     (`_least_squares_multipliers`).
 
@@ -485,11 +473,6 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
     mu0 = options.mu0
     s = jnp.where(mg > 0, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, 10.0 * mu0)), 1.0)
     z = jnp.where(mg > 0, 1.0 if options.bound_multiplier_init == "constant" else mu0 / s, 0.0)
-    guess = _path_multiplier_guess(prob, lay)
-    if guess is not None:  # the rows the problem prices: z at that price, s z = mu0
-        known = (guess > 0) & (mg > 0)
-        s = jnp.where(known, jnp.maximum(g0, jnp.minimum(INITIAL_SLACK, mu0 / guess)), s)
-        z = jnp.where(known, guess, z)
     lam, nu = jnp.zeros((lay.M + 1, lay.nx)), jnp.zeros((lay.M + 1, lay.ne))
     warm = jnp.asarray(False)
     if multipliers is not None:
