@@ -177,8 +177,8 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     fixed at its car's; the first stage's corridor soft at 100 s/m, the rest hard) against
     the offline primitive of its planning car on the same corridor, within 2 %: measured
     +0.29 % (4.508 s against 4.495 s; every solve converged) on an AMD EPYC machine, and
-    -0.17 % to +0.20 % with the rounding or the caps changed (LLVM's optimisation off; a
-    cold-plan cap of 500; a sample cap of 80). A closed loop of solves at the grip limit
+    -0.17 %, +0.29 % and +0.20 % with the rounding or a cap changed (LLVM's optimisation
+    off; a cold-plan cap of 500; a sample cap of 80). A closed loop of solves at the grip limit
     amplifies rounding, and with the hard corridor the drive took +0.8 % on one machine and
     +4.8 % on the AMD EPYC one, where four solves at the apex (samples 34-37) ran away, their
     residuals 1e4-1e7 at the cap: a start just inside the corridor's edge, drifting out,
