@@ -178,11 +178,11 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     the offline primitive of its planning car on the same corridor, within 2 %: measured
     +0.29 % (4.508 s against 4.495 s; every solve converged) on an AMD EPYC machine, and
     -0.17 %, +0.29 % and +0.20 % with the rounding or a cap changed (LLVM's optimisation
-    off; a cold-plan cap of 500; a sample cap of 80). A closed loop of solves at the grip limit
-    amplifies rounding, and with the hard corridor the drive took +0.8 % on one machine and
-    +4.8 % on the AMD EPYC one, where four solves at the apex (samples 34-37) ran away, their
-    residuals 1e4-1e7 at the cap: a start just inside the corridor's edge, drifting out,
-    leaves the hard problem without a plan. Never off the road. The time alone does not
+    off; a cold-plan cap of 500; a sample cap of 80). A closed loop of solves at the grip
+    limit amplifies rounding, and with the hard corridor the drive took +0.8 % on one
+    machine and +4.8 % on the AMD EPYC one, where four solves at the apex (samples 34-37)
+    ran away, their residuals 1e4-1e7 at the cap: a start just inside the corridor's edge,
+    drifting out, leaves the hard problem without a plan. Never off the road. The time alone does not
     tell the corridors apart on every machine; the convergence checks below do: with the
     slack read on no stage (the hard corridor) the first samples' solves ran to their cap
     (+1.25 %), with it read on every stage 55 % of the solves converged (+1.2 %)."""
@@ -244,10 +244,11 @@ def test_warm_start_lowers_iterations(corner, converged_run):
     print("iterations per sample:", {n: v.tolist() for n, v in iters.items()},
           "drive", info["iterations"][k].tolist())
     # measured: warm 186 iterations on these 14 samples (each as the drive's), cold 1400
-    # (every one at the cap; with the hard corridor, warm 301, cold 1376). Not compared: the shifted plan
-    # against the unshifted and the backwards-shifted one; without the multipliers' warm
-    # start the solves mostly reached the cap under the tests' code generator, and these
-    # did not rank as they should (sums 1027 shifted, 1040 unshifted, 1104 backwards).
+    # (every one at the cap; with the hard corridor, warm 301, cold 1376). Not compared:
+    # the shifted plan against the unshifted and the backwards-shifted one; without the
+    # multipliers' warm start the solves mostly reached the cap under the tests' code
+    # generator, and these did not rank as they should (sums 1027 shifted, 1040
+    # unshifted, 1104 backwards).
     assert np.sum(iters["warm"]) < 0.5 * np.sum(iters["cold"]), iters
 
 
