@@ -335,7 +335,8 @@ class HorizonOCP(CurvilinearManeuverOCP):
     (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
     agrees with the plant's); `corridor_penalty` $\rho$ [s/m] or None (hard corridor): a
     soft corridor, below; `soft_stages` (None: all) the stages whose corridor is soft, the
-    first ones (the later stages' slacks are unused and go to zero).
+    first ones (the later stages' slacks are unused: zero at a converged plan, though a
+    few passes without multipliers can leave them negative, docs/drive.md).
 
     **The soft corridor.** With $\rho$ the controls gain a slack $\sigma_k \ge 0$
     ($u = (d(\kappa_F, \kappa_R, \delta)/ds, \sigma)$, `control_size` 4), the corridor at
