@@ -663,6 +663,15 @@ def test_driver_passes_its_hessian_update_to_the_sample_solves():
     assert vs.RecedingHorizonDriver(table, mode="converged").options().reestimate_multipliers
     with pytest.raises(ValueError, match="RecedingHorizonDriver.hessian_update must be"):
         vs.RecedingHorizonDriver(table, hessian_update="never")
+    # the Jacobians kept with the Hessian: passed on, and refused without a kept Hessian
+    adjoint = vs.RecedingHorizonDriver(table, hessian_update="first",
+                                       jacobian_update="first-adjoint")
+    assert adjoint.options().jacobian_update == "first-adjoint"
+    assert vs.RecedingHorizonDriver(table).options().jacobian_update == "every"
+    with pytest.raises(ValueError, match="jacobian_update='first' needs hessian_update"):
+        vs.RecedingHorizonDriver(table, jacobian_update="first")
+    with pytest.raises(ValueError, match="RecedingHorizonDriver.jacobian_update must be"):
+        vs.RecedingHorizonDriver(table, hessian_update="first", jacobian_update="never")
 
 
 def _has_loop(f, *args) -> bool:

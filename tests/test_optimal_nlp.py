@@ -600,6 +600,43 @@ def test_frozen_hessian_reaches_the_same_optimum_linearly(bang_bang):
         IPOptions(hessian_update="first", fresh_hessian_steps=0)
 
 
+def test_kept_jacobians_adjoint_reaches_the_optimum_and_zero_order_a_feasible_point(bang_bang):
+    """``jacobian_update`` keeps the Jacobians with the Hessian (after 10 Newton steps here).
+    'first-adjoint' (the Lagrangian gradient fresh by a reverse pass) converges to the KKT
+    point, the analytic bang-bang time, in more passes than Newton's. 'first' (the values
+    only, a zero-order step) reaches a point that is feasible but stationary only for the
+    kept Jacobians: it never claims convergence, and the residuals it reports are those at
+    its iterate with fresh Jacobians (`kkt_residuals`), so its Lagrangian gradient shows.
+    Either refuses to run without a kept Hessian."""
+    from vehsim.optimal.ip.derivatives import stage_jacobians
+    from vehsim.optimal.ip.kkt import Iterate, kkt_residuals
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, newton = bang_bang
+    lay = stage_layout(prob)
+    solve = eqx.filter_jit(lambda o: interior_point(prob, *_guess(prob.num_stages), o,
+                                                    throw=False))
+    t_exact = 2 * np.sqrt(10.0 / 5.0)
+    kept = lambda update: IPOptions(hessian_update="first", jacobian_update=update,
+                                    max_iter=300, fresh_hessian_steps=10)
+    adjoint = solve(kept("first-adjoint"))
+    assert adjoint.result == RESULTS.successful
+    assert int(newton.iterations) < int(adjoint.iterations) < 300
+    assert float(adjoint.xs[-1, 4]) == pytest.approx(t_exact, abs=1e-6)
+    zero = solve(kept("first"))
+    assert zero.result == RESULTS.ip_max_iterations and int(zero.iterations) == 300
+    assert float(zero.inf_pr) < 1e-12  # the constraints' values are exact
+    assert float(zero.xs[-1, 4]) == pytest.approx(t_exact, abs=1e-6)
+    it = Iterate(ys=lay.join(zero.xs, zero.us), s=zero.s, z=zero.z, lam=zero.lam, nu=zero.nu)
+    exact = kkt_residuals(lay, it, stage_jacobians(prob, lay, it.ys))
+    assert float(zero.inf_du) == pytest.approx(float(exact.inf_du), rel=1e-12)
+    assert float(zero.inf_du) > 1e-4  # not a KKT point
+    with pytest.raises(ValueError, match="needs hessian_update='first'"):
+        IPOptions(jacobian_update="first-adjoint")
+    with pytest.raises(ValueError, match="IPOptions.jacobian_update must be one of"):
+        IPOptions(hessian_update="first", jacobian_update="never")
+
+
 def test_kept_hessian_starts_the_inertia_correction_from_the_last_regularisation():
     """A Newton pass tries $\\delta = 0$ first, then `DELTA_FIRST` growing a hundredfold
     (IPOPT's sequence); a pass that keeps the Hessian of a pass that needed a regularisation

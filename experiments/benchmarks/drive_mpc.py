@@ -327,7 +327,9 @@ def main(argv=None):
                     help="stages M (default: the driver's)")
     ap.add_argument("--modes", default="converged,rti,rti-frozen",
                     help="vehsim modes to run: converged, rti, rti-frozen (rti with the "
-                         "first pass's Hessian kept: hessian_update='first')")
+                         "first pass's Hessian kept: hessian_update='first'), rti-kept "
+                         "(its Jacobians kept too: jacobian_update='first'), rti-adjoint "
+                         "(jacobian_update='first-adjoint')")
     ap.add_argument("--shift", action="store_true",
                     help="warm-start do-mpc from its plan shifted by the distance travelled "
                          "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
@@ -387,9 +389,12 @@ def main(argv=None):
 
     results = {}
     for mode in args.modes.split(","):
-        if mode not in ("converged", "rti", "rti-frozen"):
-            raise SystemExit(f"--modes: {mode!r} is not one of converged, rti, rti-frozen")
-        frozen = {"hessian_update": "first"} if mode == "rti-frozen" else {}
+        kept = {"rti-frozen": "every", "rti-kept": "first", "rti-adjoint": "first-adjoint"}
+        if mode not in ("converged", "rti", *kept):
+            raise SystemExit(f"--modes: {mode!r} is not one of converged, rti, "
+                             + ", ".join(kept))
+        frozen = ({"hessian_update": "first", "jacobian_update": kept[mode]} if mode in kept
+                  else {})
         driver = planning_driver(mode.split("-")[0], **frozen)
         init = jax.jit(lambda m, d=driver: d.init(m))
         command = jax.jit(lambda cs, m, d=driver: d.command(cs, m, None))

@@ -756,7 +756,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
     (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
     sample's first step's Hessian kept for its later passes, which then cost about a third),
-    `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip (or, with
+    `jacobian_update` (static; 'every') their `IPOptions.jacobian_update` ('first' or
+    'first-adjoint', with `hessian_update` 'first': the first step's Jacobians kept too,
+    the later passes evaluating the stages' values, and with 'first-adjoint' the
+    Lagrangian's gradient), `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip (or, with
     `surface_map`, the estimate the surface); `surface_map` (static; False) with
     'estimate': the `table`'s `scale` column is a map of the road's *relative* grip (pace
     notes, a camera's surface classification; below); `replan_kkt` (inf: never) the KKT
@@ -882,6 +885,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=0.15, converter=lambda x: None if x is None else float_array(x))
     peak_fraction: Float[Array, ""] = array_field(default=1.0)
     hessian_update: str = eqx.field(static=True, default="every")
+    jacobian_update: str = eqx.field(static=True, default="every")
     preview: Float[Array, ""] = array_field(default=math.inf)
     surface_map: bool = eqx.field(static=True, default=False)
     replan_kkt: Float[Array, ""] = array_field(default=math.inf)
@@ -911,6 +915,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.hessian_update not in ("every", "first"):
             raise ValueError("RecedingHorizonDriver.hessian_update must be 'every' or 'first', "
                              f"got {self.hessian_update!r}")
+        if self.jacobian_update not in ("every", "first", "first-adjoint"):
+            raise ValueError("RecedingHorizonDriver.jacobian_update must be 'every', 'first' "
+                             f"or 'first-adjoint', got {self.jacobian_update!r}")
+        if self.jacobian_update != "every" and self.hessian_update != "first":
+            raise ValueError(f"RecedingHorizonDriver.jacobian_update={self.jacobian_update!r} "
+                             f"needs hessian_update='first', got {self.hessian_update!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")
@@ -997,6 +1007,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         return IPOptions(max_iter=jnp.where(first, cold_cap, cap), tol=self.tol,
                          constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
                          log_size=8, hessian_update=self.hessian_update,
+                         jacobian_update=self.jacobian_update,
                          fresh_hessian_steps=jnp.where(first, self.init_iterations, 1),
                          reestimate_multipliers=first | (self.mode == "converged"))
 

@@ -107,6 +107,31 @@ def _assemble(lay: StageLayout, masks, ys, V, J, H) -> StageDerivatives:
     )
 
 
+def stage_values_and_lagrangian_gradient(
+    prob: AbstractStagewiseNLP,
+    lay: StageLayout,
+    ys: Float[Array, "M+1 ny"],
+    lam: Float[Array, "M+1 nx"],
+    nu: Float[Array, "M+1 ne"],
+    z: Float[Array, "M+1 ng"],
+):
+    r"""Objective, defects, equalities, inequalities (as `stage_values`) and the gradient of
+    each stage's Lagrangian $\nabla(w_k \cdot v_k)$ with the weights of
+    `stage_derivatives`, by one reverse pass per stage (an adjoint: no Jacobian is formed)."""
+    masks = lay.masks()
+    vec = stage_function(prob, lay)
+    w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -lam * masks.lam, nu * masks.eq,
+                         -z * masks.g], 1)
+
+    def one(y, k, ww):
+        v, pullback = jax.vjp(lambda q: vec(q, k), y)
+        return v, pullback(ww)[0]
+
+    V, grad = jax.vmap(one)(ys, jnp.arange(lay.M + 1), w)
+    f, F, e, g = lay.split(V)
+    return jnp.sum(f), _defects(lay, ys, F), e * masks.eq, g, grad
+
+
 def stage_derivatives(
     prob: AbstractStagewiseNLP,
     lay: StageLayout,

@@ -50,7 +50,13 @@ from ..._checks import check_positive, is_concrete
 from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
-from .derivatives import stage_derivatives, stage_jacobians, stage_values
+from .derivatives import (
+    StageDerivatives,
+    stage_derivatives,
+    stage_jacobians,
+    stage_values,
+    stage_values_and_lagrangian_gradient,
+)
 from .implicit import implicit_solve
 from .kkt import (
     Iterate,
@@ -99,6 +105,11 @@ class IPOptions(eqx.Module):
     reached linearly rather than quadratically, and such a pass costs about a third; for
     real-time iterations of a few passes from a close warm start; a kept Hessian that
     needed a regularisation starts the next pass's inertia correction from it, not from 0);
+    ``jacobian_update``: 'every' (fresh Jacobians every pass), 'first' (with
+    ``hessian_update='first'``: the kept passes keep the Jacobians of the last fresh
+    step too, and only the values are fresh: a zero-order step, `_iteration`) or
+    'first-adjoint' (the same, with the Lagrangian gradient fresh by one reverse pass, so
+    that the residuals and the limit are exact);
     ``fresh_hessian_steps``: with 'first', the steps that take a fresh Hessian before it
     is kept (1; an array, so that a solve by Newton's method, ``max_iter`` of them, and a
     frozen one are one program); ``mu0``: initial
@@ -128,6 +139,7 @@ class IPOptions(eqx.Module):
     log_size: int = eqx.field(static=True, default=1000)
     hessian: str = eqx.field(static=True, default="forward-over-reverse")
     hessian_update: str = eqx.field(static=True, default="every")
+    jacobian_update: str = eqx.field(static=True, default="every")
     fresh_hessian_steps: Int[Array, ""] = int_field(default=1)
     reestimate_multipliers: Bool[Array, ""] = bool_field(default=True)
     mu0: Float[Array, ""] = array_field(default=0.1)
@@ -141,11 +153,16 @@ class IPOptions(eqx.Module):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
                               ("bound_multiplier_init", ("constant", "mu-based")),
                               ("hessian", ("forward-over-reverse", "forward-over-forward")),
-                              ("hessian_update", ("every", "first"))):
+                              ("hessian_update", ("every", "first")),
+                              ("jacobian_update", ("every", "first", "first-adjoint"))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
         check_positive("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps)
+        if self.jacobian_update != "every" and self.hessian_update != "first":
+            raise ValueError(f"IPOptions.jacobian_update={self.jacobian_update!r} keeps the "
+                             "Jacobians with the Hessian: it needs hessian_update='first', "
+                             f"got {self.hessian_update!r}")
 
 
 class IPLog(eqx.Module):
@@ -235,7 +252,9 @@ class IPState(eqx.Module):
     ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``;
     ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
     trial; ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
-    KKT error so far, its residuals and objective (`_Best`)."""
+    KKT error so far, its residuals and objective (`_Best`); ``jacobians`` (with
+    ``jacobian_update`` other than 'every', else None): the stage derivatives of the last
+    pass, whose Jacobians the kept passes reuse."""
 
     iterate: Iterate
     hessian: Float[Array, "M+1 ny ny"]
@@ -252,6 +271,7 @@ class IPState(eqx.Module):
     log: IPLog
     failed_searches: Int[Array, ""]
     best: _Best | None = None
+    jacobians: StageDerivatives | None = None
 
 
 def interior_point(
@@ -438,7 +458,10 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
                               frozen=options.hessian_update == "first"),
         state,
     )
-    state = jax.lax.cond(state.done, lambda st: st,
+    # a solve that ended on kept-Jacobian passes claimed nothing: it is tested here too
+    skip = (state.result == RESULTS.successful if options.jacobian_update == "first"
+            else state.done)
+    state = jax.lax.cond(skip, lambda st: st,
                          lambda st: _final_evaluation(prob, lay, options, st), state)
     it, res, objective = state.iterate, state.residuals, state.objective
     if state.best is not None:  # a solve that did not converge: its best iterate
@@ -507,6 +530,12 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         state = eqx.tree_at(lambda st: st.best, state,
                             _Best(iterate, state.residuals, state.objective),
                             is_leaf=lambda x: x is None)
+    if options.jacobian_update != "every":
+        zeros = lambda *shape: jnp.zeros((lay.M + 1,) + shape)
+        state = eqx.tree_at(lambda st: st.jacobians, state, StageDerivatives(
+            objective=jnp.asarray(0.0), c=zeros(lay.nx), e=zeros(lay.ne), g=zeros(lay.ng),
+            grad_f=zeros(lay.ny), A=zeros(lay.nx, lay.ny), Je=zeros(lay.ne, lay.ny),
+            Jg=zeros(lay.ng, lay.ny), H=zeros(lay.ny, lay.ny)), is_leaf=lambda x: x is None)
     return strong(state)
 
 
@@ -523,15 +552,41 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     """One pass: test convergence at the iterate, update the barrier, step. A pass after
     runaway multipliers (not ``multipliers_ready``) only re-estimates them by least squares
     (the same derivatives and KKT factorisation, no step, not counted). ``frozen``: the
-    Hessian of the state, only the values and Jacobians evaluated."""
+    Hessian of the state, only the values and Jacobians evaluated; with
+    ``jacobian_update`` 'first' or 'first-adjoint' the Jacobians of the state too.
+
+    With 'first' only the values are evaluated: a zero-order step (the constraints' values
+    exact, their linearisation that of the last fresh pass), whose limit is feasible but
+    stationary only for the kept Jacobians, so its residuals decide no convergence; a solve
+    that ends on such passes is tested at its iterate by `_final_evaluation`, from fresh
+    Jacobians. With 'first-adjoint' the Lagrangian gradient $\\nabla_y \\mathcal{L}$ is
+    evaluated too (`stage_values_and_lagrangian_gradient`) and the kept cost gradient
+    replaced by $\\nabla_y \\mathcal{L} - J_e^T\\nu + A^T\\lambda + J_g^T z$ with the kept
+    Jacobians, so that the residuals, and the right-hand side at the central path, are
+    exact: its limit is a KKT point."""
     it = st.iterate
     setup = ~st.multipliers_ready
-    if frozen:
+    inexact = frozen and options.jacobian_update == "first"
+    if frozen and options.jacobian_update == "first-adjoint":
+        mk = lay.masks()
+        objective, c, e, g, grad_l = stage_values_and_lagrangian_gradient(
+            prob, lay, it.ys, it.lam, it.nu, it.z)
+        kept = st.jacobians
+        grad_f = (grad_l - jnp.einsum("kij,ki->kj", kept.Je, it.nu * mk.eq)
+                  + jnp.einsum("kij,ki->kj", kept.A, it.lam * mk.lam)
+                  + jnp.einsum("kij,ki->kj", kept.Jg, it.z * mk.g))
+        d = eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.grad_f, d.H), kept,
+                        (objective, c, e, g, grad_f, st.hessian))
+    elif inexact:
+        objective, c, e, g = stage_values(prob, lay, it.ys)
+        d = eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.H), st.jacobians,
+                        (objective, c, e, g, st.hessian))
+    elif frozen:
         d = eqx.tree_at(lambda d: d.H, stage_jacobians(prob, lay, it.ys), st.hessian)
     else:
         d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
     res = kkt_residuals(lay, it, d)
-    converged = _converged(res, options) & ~setup
+    converged = _converged(res, options) & ~setup & (not inexact)
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
     mu, mu_changed = jnp.where(setup, st.mu, mu), mu_changed & ~setup
@@ -588,6 +643,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
         residuals=res, log=log, failed_searches=failed_searches,
         best=None if st.best is None else st.best.update(it, res, d.objective),
+        jacobians=None if st.jacobians is None else d,
     )
 
 
@@ -602,9 +658,10 @@ def _outcome(converged, finite) -> RESULTS:
 
 
 def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
-    """The last pass of a solve that reached ``max_iter``: the residuals and the convergence
-    test at the iterate returned, from values and Jacobians only (no step is taken, so no
-    Hessian is needed); logged as a pass with no step (``alpha`` 0)."""
+    """The last pass of a solve that reached ``max_iter`` (or, with
+    ``jacobian_update='first'``, that stopped unconverged): the residuals and the
+    convergence test at the iterate returned, from values and Jacobians only (no step is
+    taken, so no Hessian is needed); logged as a pass with no step (``alpha`` 0)."""
     it = st.iterate
     d = stage_jacobians(prob, lay, it.ys)
     res = kkt_residuals(lay, it, d)
@@ -620,7 +677,7 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
     st = eqx.tree_at(
         lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
-         _outcome(converged, finite),
+         RESULTS.where(st.done & ~converged, st.result, _outcome(converged, finite)),
          d.objective, res, log))
     if st.best is None:
         return st
