@@ -617,8 +617,8 @@ def test_kept_jacobians_adjoint_reaches_the_optimum_and_zero_order_a_feasible_po
     solve = eqx.filter_jit(lambda o: interior_point(prob, *_guess(prob.num_stages), o,
                                                     throw=False))
     t_exact = 2 * np.sqrt(10.0 / 5.0)
-    kept = lambda update: IPOptions(hessian_update="first", jacobian_update=update,
-                                    max_iter=300, fresh_hessian_steps=10)
+    kept = lambda update, cap=300: IPOptions(hessian_update="first", jacobian_update=update,
+                                             max_iter=cap, fresh_hessian_steps=10)
     adjoint = solve(kept("first-adjoint"))
     assert adjoint.result == RESULTS.successful
     assert int(newton.iterations) < int(adjoint.iterations) < 300
@@ -627,6 +627,12 @@ def test_kept_jacobians_adjoint_reaches_the_optimum_and_zero_order_a_feasible_po
                                                    z=sol.z, lam=sol.lam, nu=sol.nu),
                                       stage_jacobians(prob, lay, lay.join(sol.xs, sol.us)))
     assert float(exact(adjoint).inf_du) < 1e-6  # the limit is the KKT point
+    # a capped solve's last pass reports the residuals with fresh Jacobians, from the adjoint
+    capped = solve(kept("first-adjoint", 14))
+    assert capped.result == RESULTS.ip_max_iterations
+    for name in ("inf_pr", "inf_du"):
+        got, want = float(getattr(capped, name)), float(getattr(exact(capped), name))
+        assert want > 1e-9 and got == pytest.approx(want, rel=1e-9), name
     zero = solve(kept("first"))
     assert zero.result == RESULTS.ip_max_iterations and int(zero.iterations) == 300
     assert float(zero.inf_pr) < 1e-12  # the constraints' values are exact

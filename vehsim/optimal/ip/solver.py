@@ -547,6 +547,22 @@ def _least_squares_multipliers(prob, lay: StageLayout, it: Iterate, mu):
     return capped_multipliers(step.dlam, step.dnu)
 
 
+def _adjoint_derivatives(prob, lay: StageLayout, it: Iterate, kept: StageDerivatives,
+                         H) -> StageDerivatives:
+    """The stage derivatives of a kept-Jacobian pass with ``jacobian_update='first-adjoint'``:
+    the values and the Lagrangian gradient at ``it`` (one reverse pass per stage), the
+    Jacobians ``kept``, the Hessian ``H``, and the cost gradient that makes the Lagrangian
+    gradient assembled from the kept Jacobians the exact one (whatever they are)."""
+    mk = lay.masks()
+    objective, c, e, g, grad_l = stage_values_and_lagrangian_gradient(
+        prob, lay, it.ys, it.lam, it.nu, it.z)
+    grad_f = (grad_l - jnp.einsum("kij,ki->kj", kept.Je, it.nu * mk.eq)
+              + jnp.einsum("kij,ki->kj", kept.A, it.lam * mk.lam)
+              + jnp.einsum("kij,ki->kj", kept.Jg, it.z * mk.g))
+    return eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.grad_f, d.H), kept,
+                       (objective, c, e, g, grad_f, H))
+
+
 def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                frozen: bool = False) -> IPState:
     """One pass: test convergence at the iterate, update the barrier, step. A pass after
@@ -568,15 +584,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     setup = ~st.multipliers_ready
     inexact = frozen and options.jacobian_update == "first"
     if frozen and options.jacobian_update == "first-adjoint":
-        mk = lay.masks()
-        objective, c, e, g, grad_l = stage_values_and_lagrangian_gradient(
-            prob, lay, it.ys, it.lam, it.nu, it.z)
-        kept = st.jacobians
-        grad_f = (grad_l - jnp.einsum("kij,ki->kj", kept.Je, it.nu * mk.eq)
-                  + jnp.einsum("kij,ki->kj", kept.A, it.lam * mk.lam)
-                  + jnp.einsum("kij,ki->kj", kept.Jg, it.z * mk.g))
-        d = eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.grad_f, d.H), kept,
-                        (objective, c, e, g, grad_f, st.hessian))
+        d = _adjoint_derivatives(prob, lay, it, st.jacobians, st.hessian)
     elif inexact:
         objective, c, e, g = stage_values(prob, lay, it.ys)
         d = eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.H), st.jacobians,
@@ -661,9 +669,14 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
     """The last pass of a solve that reached ``max_iter`` (or, with
     ``jacobian_update='first'``, that stopped unconverged): the residuals and the
     convergence test at the iterate returned, from values and Jacobians only (no step is
-    taken, so no Hessian is needed); logged as a pass with no step (``alpha`` 0)."""
+    taken, so no Hessian is needed; with 'first-adjoint' from the values and the
+    Lagrangian gradient, `_adjoint_derivatives`); logged as a pass with no step (``alpha``
+    0)."""
     it = st.iterate
-    d = stage_jacobians(prob, lay, it.ys)
+    if options.jacobian_update == "first-adjoint":  # exact from the adjoint, no Jacobian
+        d = _adjoint_derivatives(prob, lay, it, st.jacobians, st.hessian)
+    else:
+        d = stage_jacobians(prob, lay, it.ys)
     res = kkt_residuals(lay, it, d)
     converged = _converged(res, options)
     zero = jnp.asarray(0.0)
