@@ -17,7 +17,8 @@ seed, the scenario's start speed and time budget).
   actuator delay, the shifted warm start, `interior_point`, the torques), timed per sample
   with ``block_until_ready`` in a Python loop; in 'converged' mode, in 'rti' mode, and in
   'rti' mode with the first pass's Hessian kept for the sample's later passes
-  (``hessian_update='first'``, reported as 'vehsim-rti-frozen').
+  (``hessian_update='first'``, reported as 'vehsim-rti-frozen'); with ``--modes
+  rti-kept`` also with its Jacobians kept (``jacobian_update='first'``).
 - do-mpc (`_dompc_driver`): the problem as do-mpc's discrete model with the arc length as
   the independent variable (``t_step`` = H/M; the same RK4 stage map, so the same
   transcription), the road's data along the horizon as time-varying parameters set from the
@@ -328,8 +329,7 @@ def main(argv=None):
     ap.add_argument("--modes", default="converged,rti,rti-frozen",
                     help="vehsim modes to run: converged, rti, rti-frozen (rti with the "
                          "first pass's Hessian kept: hessian_update='first'), rti-kept "
-                         "(its Jacobians kept too: jacobian_update='first'), rti-adjoint "
-                         "(jacobian_update='first-adjoint')")
+                         "(its Jacobians kept too: jacobian_update='first')")
     ap.add_argument("--shift", action="store_true",
                     help="warm-start do-mpc from its plan shifted by the distance travelled "
                          "(vehsim's shift) instead of do-mpc's own unshifted previous solution")
@@ -389,7 +389,7 @@ def main(argv=None):
 
     results = {}
     for mode in args.modes.split(","):
-        kept = {"rti-frozen": "every", "rti-kept": "first", "rti-adjoint": "first-adjoint"}
+        kept = {"rti-frozen": "every", "rti-kept": "first"}
         if mode not in ("converged", "rti", *kept):
             raise SystemExit(f"--modes: {mode!r} is not one of converged, rti, "
                              + ", ".join(kept))

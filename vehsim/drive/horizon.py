@@ -756,10 +756,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
     (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
     sample's first step's Hessian kept for its later passes, which then cost about a third),
-    `jacobian_update` (static; 'every') their `IPOptions.jacobian_update` ('first' or
-    'first-adjoint', with `hessian_update` 'first': the first step's Jacobians kept too,
-    the later passes evaluating the stages' values, and with 'first-adjoint' the
-    Lagrangian's gradient), `preview` [m] (inf) how far ahead of the car the 'oracle' knows the grip (or, with
+    `jacobian_update` (static; 'every') their `IPOptions.jacobian_update` ('first', with
+    `hessian_update` 'first': the first step's Jacobians kept too, the later passes
+    evaluating the stages' values and the Lagrangian's gradient only; docs/performance.md
+    for what it did to the stage's drives), `preview` [m] (inf) how far ahead of the car
+    the 'oracle' knows the grip (or, with
     `surface_map`, the estimate the surface); `surface_map` (static; False) with
     'estimate': the `table`'s `scale` column is a map of the road's *relative* grip (pace
     notes, a camera's surface classification; below); `replan_kkt` (inf: never) the KKT
@@ -915,12 +916,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.hessian_update not in ("every", "first"):
             raise ValueError("RecedingHorizonDriver.hessian_update must be 'every' or 'first', "
                              f"got {self.hessian_update!r}")
-        if self.jacobian_update not in ("every", "first", "first-adjoint"):
-            raise ValueError("RecedingHorizonDriver.jacobian_update must be 'every', 'first' "
-                             f"or 'first-adjoint', got {self.jacobian_update!r}")
-        if self.jacobian_update != "every" and self.hessian_update != "first":
-            raise ValueError(f"RecedingHorizonDriver.jacobian_update={self.jacobian_update!r} "
-                             f"needs hessian_update='first', got {self.hessian_update!r}")
+        if self.jacobian_update not in ("every", "first"):
+            raise ValueError("RecedingHorizonDriver.jacobian_update must be 'every' or "
+                             f"'first', got {self.jacobian_update!r}")
+        if self.jacobian_update == "first" and self.hessian_update != "first":
+            raise ValueError("RecedingHorizonDriver.jacobian_update='first' needs "
+                             f"hessian_update='first', got {self.hessian_update!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")

@@ -105,11 +105,10 @@ class IPOptions(eqx.Module):
     reached linearly rather than quadratically, and such a pass costs about a third; for
     real-time iterations of a few passes from a close warm start; a kept Hessian that
     needed a regularisation starts the next pass's inertia correction from it, not from 0);
-    ``jacobian_update``: 'every' (fresh Jacobians every pass), 'first' (with
-    ``hessian_update='first'``: the kept passes keep the Jacobians of the last fresh
-    step too, and only the values are fresh: a zero-order step, `_iteration`) or
-    'first-adjoint' (the same, with the Lagrangian gradient fresh by one reverse pass, so
-    that the residuals and the limit are exact);
+    ``jacobian_update``: 'every' (fresh Jacobians every pass) or 'first' (with
+    ``hessian_update='first'``: the kept passes keep the Jacobians of the last fresh step
+    too, and evaluate the values and the Lagrangian gradient, by one reverse pass, so that
+    the residuals and the limit are exact, `_adjoint_derivatives`);
     ``fresh_hessian_steps``: with 'first', the steps that take a fresh Hessian before it
     is kept (1; an array, so that a solve by Newton's method, ``max_iter`` of them, and a
     frozen one are one program); ``mu0``: initial
@@ -154,15 +153,15 @@ class IPOptions(eqx.Module):
                               ("bound_multiplier_init", ("constant", "mu-based")),
                               ("hessian", ("forward-over-reverse", "forward-over-forward")),
                               ("hessian_update", ("every", "first")),
-                              ("jacobian_update", ("every", "first", "first-adjoint"))):
+                              ("jacobian_update", ("every", "first"))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
         check_positive("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps)
-        if self.jacobian_update != "every" and self.hessian_update != "first":
-            raise ValueError(f"IPOptions.jacobian_update={self.jacobian_update!r} keeps the "
-                             "Jacobians with the Hessian: it needs hessian_update='first', "
-                             f"got {self.hessian_update!r}")
+        if self.jacobian_update == "first" and self.hessian_update != "first":
+            raise ValueError("IPOptions.jacobian_update='first' keeps the Jacobians with the "
+                             "Hessian: it needs hessian_update='first', got "
+                             f"{self.hessian_update!r}")
 
 
 class IPLog(eqx.Module):
@@ -253,8 +252,8 @@ class IPState(eqx.Module):
     ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
     trial; ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
     KKT error so far, its residuals and objective (`_Best`); ``jacobians`` (with
-    ``jacobian_update`` other than 'every', else None): the stage derivatives of the last
-    pass, whose Jacobians the kept passes reuse."""
+    ``jacobian_update='first'``, else None): the stage derivatives of the last pass, whose
+    Jacobians the kept passes reuse."""
 
     iterate: Iterate
     hessian: Float[Array, "M+1 ny ny"]
@@ -458,10 +457,7 @@ def _solve(prob: AbstractStagewiseNLP, xs0, us0, options: IPOptions,
                               frozen=options.hessian_update == "first"),
         state,
     )
-    # a solve that ended on kept-Jacobian passes claimed nothing: it is tested here too
-    skip = (state.result == RESULTS.successful if options.jacobian_update == "first"
-            else state.done)
-    state = jax.lax.cond(skip, lambda st: st,
+    state = jax.lax.cond(state.done, lambda st: st,
                          lambda st: _final_evaluation(prob, lay, options, st), state)
     it, res, objective = state.iterate, state.residuals, state.objective
     if state.best is not None:  # a solve that did not converge: its best iterate
@@ -530,7 +526,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         state = eqx.tree_at(lambda st: st.best, state,
                             _Best(iterate, state.residuals, state.objective),
                             is_leaf=lambda x: x is None)
-    if options.jacobian_update != "every":
+    if options.jacobian_update == "first":
         zeros = lambda *shape: jnp.zeros((lay.M + 1,) + shape)
         state = eqx.tree_at(lambda st: st.jacobians, state, StageDerivatives(
             objective=jnp.asarray(0.0), c=zeros(lay.nx), e=zeros(lay.ne), g=zeros(lay.ng),
@@ -549,7 +545,7 @@ def _least_squares_multipliers(prob, lay: StageLayout, it: Iterate, mu):
 
 def _adjoint_derivatives(prob, lay: StageLayout, it: Iterate, kept: StageDerivatives,
                          H) -> StageDerivatives:
-    """The stage derivatives of a kept-Jacobian pass with ``jacobian_update='first-adjoint'``:
+    """The stage derivatives of a kept-Jacobian pass (``jacobian_update='first'``):
     the values and the Lagrangian gradient at ``it`` (one reverse pass per stage), the
     Jacobians ``kept``, the Hessian ``H``, and the cost gradient that makes the Lagrangian
     gradient assembled from the kept Jacobians the exact one (whatever they are)."""
@@ -569,32 +565,23 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     runaway multipliers (not ``multipliers_ready``) only re-estimates them by least squares
     (the same derivatives and KKT factorisation, no step, not counted). ``frozen``: the
     Hessian of the state, only the values and Jacobians evaluated; with
-    ``jacobian_update`` 'first' or 'first-adjoint' the Jacobians of the state too.
-
-    With 'first' only the values are evaluated: a zero-order step (the constraints' values
-    exact, their linearisation that of the last fresh pass), whose limit is feasible but
-    stationary only for the kept Jacobians, so its residuals decide no convergence; a solve
-    that ends on such passes is tested at its iterate by `_final_evaluation`, from fresh
-    Jacobians. With 'first-adjoint' the Lagrangian gradient $\\nabla_y \\mathcal{L}$ is
-    evaluated too (`stage_values_and_lagrangian_gradient`) and the kept cost gradient
-    replaced by $\\nabla_y \\mathcal{L} - J_e^T\\nu + A^T\\lambda + J_g^T z$ with the kept
-    Jacobians, so that the residuals, and the right-hand side at the central path, are
-    exact: its limit is a KKT point."""
+    ``jacobian_update='first'`` the Jacobians of the state too: the values and the
+    Lagrangian gradient $\\nabla_y \\mathcal{L}$ are evaluated
+    (`stage_values_and_lagrangian_gradient`), and the kept cost gradient replaced by
+    $\\nabla_y \\mathcal{L} - J_e^T\\nu + A^T\\lambda + J_g^T z$ with the kept Jacobians
+    (`_adjoint_derivatives`), so that the residuals, and the right-hand side on the central
+    path, are exact: the limit is a KKT point. (With the values alone, a zero-order step,
+    the limit is feasible but stationary only for the kept Jacobians.)"""
     it = st.iterate
     setup = ~st.multipliers_ready
-    inexact = frozen and options.jacobian_update == "first"
-    if frozen and options.jacobian_update == "first-adjoint":
+    if frozen and options.jacobian_update == "first":
         d = _adjoint_derivatives(prob, lay, it, st.jacobians, st.hessian)
-    elif inexact:
-        objective, c, e, g = stage_values(prob, lay, it.ys)
-        d = eqx.tree_at(lambda d: (d.objective, d.c, d.e, d.g, d.H), st.jacobians,
-                        (objective, c, e, g, st.hessian))
     elif frozen:
         d = eqx.tree_at(lambda d: d.H, stage_jacobians(prob, lay, it.ys), st.hessian)
     else:
         d = stage_derivatives(prob, lay, it.ys, it.lam, it.nu, it.z, options.hessian)
     res = kkt_residuals(lay, it, d)
-    converged = _converged(res, options) & ~setup & (not inexact)
+    converged = _converged(res, options) & ~setup
     mu, mu_changed = _barrier_update(lambda m: barrier_error(lay, it, res, m), st.mu,
                                      options.tol)
     mu, mu_changed = jnp.where(setup, st.mu, mu), mu_changed & ~setup
@@ -666,14 +653,12 @@ def _outcome(converged, finite) -> RESULTS:
 
 
 def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
-    """The last pass of a solve that reached ``max_iter`` (or, with
-    ``jacobian_update='first'``, that stopped unconverged): the residuals and the
-    convergence test at the iterate returned, from values and Jacobians only (no step is
-    taken, so no Hessian is needed; with 'first-adjoint' from the values and the
-    Lagrangian gradient, `_adjoint_derivatives`); logged as a pass with no step (``alpha``
-    0)."""
+    """The last pass of a solve that reached ``max_iter``: the residuals and the convergence
+    test at the iterate returned, from values and Jacobians only (no step is taken, so no
+    Hessian is needed; with ``jacobian_update='first'`` from the values and the Lagrangian
+    gradient, `_adjoint_derivatives`); logged as a pass with no step (``alpha`` 0)."""
     it = st.iterate
-    if options.jacobian_update == "first-adjoint":  # exact from the adjoint, no Jacobian
+    if options.jacobian_update == "first":  # exact from the adjoint, no Jacobian
         d = _adjoint_derivatives(prob, lay, it, st.jacobians, st.hessian)
     else:
         d = stage_jacobians(prob, lay, it.ys)
@@ -690,7 +675,7 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
     st = eqx.tree_at(
         lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
-         RESULTS.where(st.done & ~converged, st.result, _outcome(converged, finite)),
+         _outcome(converged, finite),
          d.objective, res, log))
     if st.best is None:
         return st
