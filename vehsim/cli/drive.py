@@ -112,8 +112,9 @@ def register(subparsers) -> None:
                         "the whole horizon")
     p.add_argument("--pace-notes", action="store_true",
                    help="with --controller rh: the driver and its estimator know how the "
-                        "road's surfaces compare (the grip relative to the start, as pace "
-                        "notes give it), not their level; --preview limits how far ahead")
+                        "road's surfaces compare (the grip relative to the road's best "
+                        "surface, as pace notes give it: they only warn), not their level; "
+                        "--preview limits how far ahead")
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
