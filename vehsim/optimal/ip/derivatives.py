@@ -107,6 +107,13 @@ def _assemble(lay: StageLayout, masks, ys, V, J, H) -> StageDerivatives:
     )
 
 
+def _lagrangian_weights(lay: StageLayout, masks, lam, nu, z):
+    """The weights $w_k = (1, -\\lambda_k, \\nu_k, -z_k)$ (masked) of the stage vector in the
+    stage Lagrangian $w_k \\cdot v_k$."""
+    return jnp.concatenate([jnp.ones((lay.M + 1, 1)), -lam * masks.lam, nu * masks.eq,
+                            -z * masks.g], 1)
+
+
 def stage_values_and_lagrangian_gradient(
     prob: AbstractStagewiseNLP,
     lay: StageLayout,
@@ -120,8 +127,7 @@ def stage_values_and_lagrangian_gradient(
     `stage_derivatives`, by one reverse pass per stage (an adjoint: no Jacobian is formed)."""
     masks = lay.masks()
     vec = stage_function(prob, lay)
-    w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -lam * masks.lam, nu * masks.eq,
-                         -z * masks.g], 1)
+    w = _lagrangian_weights(lay, masks, lam, nu, z)
 
     def one(y, k, ww):
         v, pullback = jax.vjp(lambda q: vec(q, k), y)
@@ -148,8 +154,7 @@ def stage_derivatives(
     masks = lay.masks()
     vec = stage_function(prob, lay)
     ks = jnp.arange(lay.M + 1)
-    w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -lam * masks.lam, nu * masks.eq,
-                         -z * masks.g], 1)
+    w = _lagrangian_weights(lay, masks, lam, nu, z)
     if hessian == "forward-over-forward":
         V, J, T = jax.vmap(lambda y, k: _forward_over_forward(vec, y, k))(ys, ks)
         H = jnp.einsum("ko,koij->kij", w, T)
