@@ -548,7 +548,9 @@ def _adjoint_derivatives(prob, lay: StageLayout, it: Iterate, kept: StageDerivat
     """The stage derivatives of a kept-Jacobian pass (``jacobian_update='first'``):
     the values and the Lagrangian gradient at ``it`` (one reverse pass per stage), the
     Jacobians ``kept``, the Hessian ``H``, and the cost gradient that makes the Lagrangian
-    gradient assembled from the kept Jacobians the exact one (whatever they are)."""
+    gradient assembled from the kept Jacobians the exact one (whatever they are). The line
+    search's directional derivative takes that gradient too: the cost gradient plus the
+    multipliers times the Jacobians' change since they were kept."""
     mk = lay.masks()
     objective, c, e, g, grad_l = stage_values_and_lagrangian_gradient(
         prob, lay, it.ys, it.lam, it.nu, it.z)
