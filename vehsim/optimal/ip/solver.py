@@ -1,10 +1,10 @@
 r"""The interior-point loop: options, solution, state, and `interior_point`.
 
-The start: slacks $s = \max(g, 10^{-2})$, $z = \mu_0 / s$ (on the central path), and the
-defect and equality multipliers $(\lambda, \nu)$ that minimise the first Lagrangian gradient
-(IPOPT's least-squares estimate, from the KKT system with $W = I$: values, Jacobians and
-one factorisation before the first iteration; ``multiplier_init`` and
-``bound_multiplier_init`` of `IPOptions` select the alternatives, docs/performance.md
+The start: slacks $s = \max(g, \min(10^{-2}, 10\mu_0))$, $z = \mu_0 / s$ (on the central
+path), and the defect and equality multipliers $(\lambda, \nu)$ that minimise the first
+Lagrangian gradient (IPOPT's least-squares estimate, from the KKT system with $W = I$:
+values, Jacobians and one factorisation before the first iteration; ``multiplier_init``
+and ``bound_multiplier_init`` of `IPOptions` select the alternatives, docs/performance.md
 compares them).
 
 One iteration at the iterate $(y, s, z, \lambda, \nu)$ and barrier $\mu$:
@@ -195,8 +195,8 @@ class IPLog(eqx.Module):
 class IPSolution(eqx.Module):
     """Result of `interior_point`: knots ``xs`` (M+1, nx), controls ``us`` (M, nu),
     multipliers (``lam`` of the defects, ``nu`` of the equalities, ``z`` of the
-    inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations`` or
-    ``nonfinite``), ``iterations``, the final ``objective`` and residuals (``inf_pr``: max
+    inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations``,
+    ``ip_line_search_failed`` or ``nonfinite``), ``iterations``, the final ``objective`` and residuals (``inf_pr``: max
     constraint violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
     complementarity), the iteration ``log`` (`IPLog`) and the slacks ``s`` of the
     inequalities (shaped as ``z``)."""
