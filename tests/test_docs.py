@@ -172,3 +172,49 @@ def test_docs_mathml_conversion_and_a_formula_it_cannot_convert(caplog):
     assert "\\foo + x" in caplog.records[0].getMessage()
     assert math_texts(out) == {"y<1", "κ", "ab"}  # not $5, not code, not outside a cell
     assert "<code>$HOME$</code>" in out and "<p>$z$</p>" in out
+
+
+def _cli_options():
+    """``(command, option strings, allowed words or None)`` for every argument of every
+    ``vehsim`` subcommand (a nested one, such as ``tire show``, under its parent's name)."""
+    import argparse
+
+    from vehsim.cli import build_parser
+
+    def walk(command, parser):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    yield from walk(command, sub)
+            elif "--help" not in action.option_strings:
+                names = getattr(action.type, "names", None) or action.choices
+                yield command, action.option_strings or [action.dest], names
+
+    (commands,) = [a for a in build_parser()._actions
+                   if isinstance(a, argparse._SubParsersAction)]
+    for command, parser in commands.choices.items():
+        yield from walk(command, parser)
+
+
+def test_command_line_page_names_every_option_and_its_words():
+    """docs/cli.md, under each subcommand's heading, names each of its long options; where
+    an option's table row lists the words it accepts (rather than pointing to ``--help``),
+    it lists every one of them, so that a new controller or mode cannot go undocumented."""
+    text = (ROOT / "docs" / "cli.md").read_text()
+    sections = {part.splitlines()[0].strip("`"): part
+                for part in re.split(r"^## ", text, flags=re.M)[1:]}
+    checked = 0
+    for command, options, names in _cli_options():
+        section = sections[f"vehsim {command}"]
+        for option in (o for o in options if not o.startswith("-") or o.startswith("--")):
+            assert option in section, (command, option)
+        if not names or not options[0].startswith("--"):
+            continue
+        rows = [ln for ln in section.splitlines() if ln.startswith(f"| `{options[0]}")]
+        assert rows, (command, options[0])
+        if "--help" in rows[0]:
+            continue
+        missing = [n for n in names if f"`{n}`" not in rows[0]]
+        assert not missing, (command, options[0], missing)
+        checked += 1
+    assert checked >= 5

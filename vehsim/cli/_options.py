@@ -75,6 +75,7 @@ def choice_of(names, what: str):
                 f"unknown {what} {text!r}; one of: {', '.join(names)}")
         return text
 
+    parse.names = names  # the allowed words, for help texts and docs checks
     return parse
 
 
