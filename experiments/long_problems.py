@@ -1,6 +1,6 @@
 """Long arc-length problems: how the structured interior point's cost per iteration grows
 with the number of stages (it should grow linearly: one Riccati pass and per-stage
-derivatives), on a rally stage of seven corners (`rally_stage`) and a closed lap.
+derivatives), on a rally stage of six corners (`rally_stage`) and a closed lap.
 
 Prints one JSON line per solve: road, stages, iterations, wall_s (the solve, compiled
 beforehand), compile_s, per_iteration_s (wall_s / iterations), per_iteration_best_s (the
@@ -33,12 +33,12 @@ RALLY_SEGMENTS = [
     ("straight", 100.0), ("arc", 25.0, 90.0), ("straight", 60.0), ("arc", 50.0, -30.0),
     ("straight", 80.0),
 ]
-"""A gravel stage of about 740 m: seven corners from a 15 m hairpin to a 50 m kink."""
+"""A gravel stage of about 740 m: six corners from a 15 m hairpin to a 50 m kink."""
 LAP_SEGMENTS = [
     ("straight", 60.0), ("arc", 20.0, 90.0), ("straight", 30.0), ("arc", 15.0, 90.0),
     ("straight", 60.0), ("arc", 20.0, 90.0), ("straight", 30.0), ("arc", 15.0, 90.0),
 ]
-"""A small closed circuit (about 340 m) of four corners."""
+"""A small closed circuit (about 290 m) of four corners."""
 WIDTH = 8.0
 TIMED_ITERATIONS, REPEATS = 20, 3
 START_SPEED = 5.0

@@ -60,7 +60,7 @@ def matched_lugre_tire() -> IsotropicLumpedLuGre:
     and 10 m/s (the speeds of the corner90 primitive): $\sigma_0 = 33.19$ 1/m,
     $\mu_s = 1.916$, $\mu_c = 0.3736$, $v_s = 0.6656$ m/s; max misfit 0.055 (RMS 0.027) in
     $\mu$. Peak $\mu$ = 0.559 / 0.494 / 0.453 at 5 / 8 / 11 m/s (friction ellipse 0.52) at
-    $s \approx 0.21$-$0.26$ (0.215); full sliding ($s = 1$) 0.45 / 0.40 / 0.38 (0.39).
+    $s \approx 0.21$-$0.26$ (0.214); full sliding ($s = 1$) 0.45 / 0.40 / 0.38 (0.39).
     Cornering stiffness per load $\sigma_0 L/\kappa_0 = 8.3$ (friction ellipse $BCD = 5.8$).
     $\sigma_1 = 1$ s/m (damping of the bristles, transients only; not fitted), $\sigma_2 = 0$.
     """
