@@ -51,6 +51,29 @@ def test_peak_depends_on_the_speed():
     assert float(vs.scale_of_peak(TIRE, 0.52)) == pytest.approx(lam0, rel=1e-9)
 
 
+def test_scale_of_peak_derivatives_are_the_implicit_functions_both_modes():
+    """`scale_of_peak` is a bisection, whose own derivatives are zero: its derivatives in
+    the peak, the speed and a tire parameter are the implicit function theorem's at the
+    root, in reverse and forward mode, and match central differences; beyond the scales it
+    searches (a peak no road reaches) the end is returned and the derivative is zero."""
+    def lam(peak, speed, v_s):
+        tire = eqx.tree_at(lambda t: t.params.v_s, TIRE, v_s)
+        return vs.scale_of_peak(tire, peak, speed)
+
+    x = (jnp.asarray(0.45), jnp.asarray(12.0), jnp.asarray(TIRE.params.v_s, float))
+    rev = jax.grad(lam, argnums=(0, 1, 2))(*x)
+    fwd = jax.jacfwd(lam, argnums=(0, 1, 2))(*x)
+    steps = (1e-5, 1e-3, 1e-5)
+    for i, h in enumerate(steps):
+        up = [a + (h * np.eye(1, 3, i)[0, j]) for j, a in enumerate(x)]
+        dn = [a - (h * np.eye(1, 3, i)[0, j]) for j, a in enumerate(x)]
+        fd = (float(lam(*up)) - float(lam(*dn))) / (2 * h)
+        assert abs(fd) > 1e-6 * float(lam(*x)) / float(np.abs(x[i]))  # a real dependence
+        np.testing.assert_allclose(float(rev[i]), fd, rtol=1e-5)
+        np.testing.assert_allclose(float(fwd[i]), fd, rtol=1e-5)
+    assert float(jax.grad(lam)(jnp.asarray(1e-6), *x[1:])) == 0.0  # below every road's peak
+
+
 def test_with_grip_gives_the_tires_true_peak(table):
     """`with_grip` keeps the field's scale on the centre line; the peak at a speed is the
     tire's, which is not the peak at scale 1 times the scale (14 % off at 0.4)."""

@@ -102,6 +102,7 @@ $5\omega_\epsilon$ at either end of the sample is not measured.
 from __future__ import annotations
 
 import abc
+import functools
 
 import equinox as eqx
 import jax
@@ -182,7 +183,9 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     r"""$\mu^*(\lambda, V)$: the largest steady-state friction $\|\mu_{ss}\|$
     (`scaled_steady_state_mu`) of `tire` on a road of friction scale $\lambda$ = `scale` in
     pure braking at the ground speed $V$ = `speed` [m/s] ($v_r = (-\kappa V, 0)$, $c = (1 -
-    \kappa)V$; $\kappa$ from 0 to 1 in 96 points, the largest refined by a parabola).
+    \kappa)V$; $\kappa$ on 96 points from 1/96 to 1, the largest refined by a parabola
+    through it and its neighbours: a peak at a slip below 1/96, on a road far below
+    $\lambda = 0.1$ or at high speed, is read about 1 % low).
 
     The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
     peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
@@ -203,21 +206,50 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     return b - 0.25 * (a - cc) * shift
 
 
+_SCALE_RANGE = (1e-3, 10.0)
+r"""The friction scales $\lambda$ `scale_of_peak` searches."""
+
+
 def scale_of_peak(tire: LumpedLuGre2D, peak, speed=REFERENCE_SPEED, steps: int = 60):
     r"""The friction scale $\lambda$ with $\mu^*(\lambda, V)$ = `peak` (`peak_friction`
     at $V$ = `speed` [m/s]): bisection on $\log\lambda \in [\log 10^{-3}, \log 10]$, where
     $\mu^*$ increases, `steps` halvings (60: to rounding). JAX; a peak outside
-    $(\mu^*(10^{-3}), \mu^*(10))$ gives the nearer end."""
+    $(\mu^*(10^{-3}), \mu^*(10))$ gives the nearer end.
+
+    Derivatives (forward and reverse mode) in `peak`, `speed` and the tire's parameters
+    are the implicit function theorem's at the root, $d\log\lambda = (dp - d\mu^*|_
+    \lambda) / (\partial\mu^*/\partial\log\lambda)$, not those of the bisection (which
+    are zero); zero where the peak is outside the range and the end is returned."""
+    return _scale_of_peak(tire, jnp.asarray(peak, float), jnp.asarray(speed, float), steps)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3,))
+def _scale_of_peak(tire, peak, speed, steps):
     def step(bounds, _):
         lo, hi = bounds
         mid = 0.5 * (lo + hi)
         below = peak_friction(tire, jnp.exp(mid), speed) < peak
         return (jnp.where(below, mid, lo), jnp.where(below, hi, mid)), None
 
-    lo = jnp.log(1e-3) + 0.0 * peak
-    hi = jnp.log(10.0) + 0.0 * peak
+    lo = jnp.log(_SCALE_RANGE[0]) + 0.0 * peak
+    hi = jnp.log(_SCALE_RANGE[1]) + 0.0 * peak
     (lo, hi), _ = jax.lax.scan(step, (lo, hi), None, length=steps)
     return jnp.exp(0.5 * (lo + hi))
+
+
+@_scale_of_peak.defjvp
+def _scale_of_peak_jvp(steps, primals, tangents):
+    tire, peak, speed = primals
+    d_tire, d_peak, d_speed = tangents
+    lam = _scale_of_peak(tire, peak, speed, steps)
+    theta = jnp.log(lam)
+    mu = lambda tr, th, v: peak_friction(tr, jnp.exp(th), v)
+    # d mu* along the log scale, and along the tire's and the speed's tangents at fixed scale
+    _, slope = jax.jvp(lambda th: mu(tire, th, speed), (theta,), (jnp.ones_like(theta),))
+    _, moved = jax.jvp(lambda tr, v: mu(tr, theta, v), (tire, speed), (d_tire, d_speed))
+    inside = (lam > 1.0001 * _SCALE_RANGE[0]) & (lam < 0.9999 * _SCALE_RANGE[1])
+    d_theta = jnp.where(inside, (d_peak - moved) / jnp.where(inside, slope, 1.0), 0.0)
+    return lam, lam * d_theta
 
 
 class AxleGripState(eqx.Module):
