@@ -313,6 +313,25 @@ def test_mf52_camber_load_and_moments_match_hand_computed_values():
     np.testing.assert_allclose(float(out.My), my, rtol=1e-12)
 
 
+def test_camber_scalings_belong_to_mf52_alone():
+    """``LGAX``, ``LGAY``, ``LGAZ`` scale camber in MF 5.2 (PAC2002) only: a 6.1 file that
+    carries them (one converted from PAC2002) gives the same forces and moments as without
+    them, and a 5.2 file's camber response does change with them."""
+    scalings = dict(LGAX=0.3, LGAY=0.0, LGAZ=2.0)
+    point = (-0.08, 0.05, 3800.0, 0.07)  # kappa, alpha, Fz, gamma [rad]
+
+    def outputs(P):
+        out = mf_evaluate(P, *point, limits=False)
+        return np.array([float(out.Fx), float(out.Fy), float(out.Mz), float(out.Mz0)])
+
+    np.testing.assert_array_equal(outputs(params_of(SAMPLE, **scalings)),
+                                  outputs(params_of(SAMPLE)))
+    mf52, mf52_scaled = (outputs(params_of(SAMPLE, FITTYP=52, PHY3=0.04, **extra))
+                         for extra in ({}, scalings))
+    # F_y, M_z, M_z0 (the sample's F_x hardly depends on camber: its PDX3 is 0)
+    assert np.all(np.abs(mf52_scaled - mf52)[1:] > 1e-2 * np.abs(mf52)[1:])
+
+
 # --- symmetry and limits ----------------------------------------------------------------------
 
 def test_fy_and_mz_are_odd_in_slip_angle_without_camber_and_shifts():

@@ -48,6 +48,10 @@ the files we read when the scaling factors are 1):
 - Equivalent slips $\alpha_{t,eq} = \sqrt{\alpha_t^2 + (K_{x\kappa}/K'_{y\alpha})^2\kappa^2}$
   (4.E77-4.E78; MFeval uses the paper's arctan/tan form, equal to third order). $t$ and
   $M_{zr}$ are even in them, so the sign factor is dropped (it makes no difference).
+- The side force in the combined $M_z$ (MF 6.1): $F'_y = G_{y\kappa}F_{y0}$ both at
+  $\gamma = 0$ (4.E74). MFeval and TyreDyn, to match TNO's solver, take $G_{y\kappa}$ at the
+  actual camber; the two differ only where $r_{By4} \ne 0$ (its $\gamma^{*2}$ term in
+  $B_{y\kappa}$), by 0.2 % of $M_z$ at $r_{By4} = 20$, $\gamma = 0.1$ rad.
 - $M_{zr} = D_r\cos(C_r\arctan B_r\alpha_{r,eq})\cos\alpha$: one factor $\cos\alpha$
   ($\cos\alpha'$ of 4.E36 at steady state) in pure and combined slip alike.
 - Friction scaling: $\lambda'_\mu = \lambda^*_\mu = \lambda_\mu$ (4.E7 with
@@ -490,7 +494,8 @@ def mf_evaluate(params: MFParams, kappa, alpha, Fz, gamma=0.0, p=None, vx=None, 
     dpi = (p - P.NOMPRES) / P.NOMPRES  # 4.E2b
     alpha_s = jnp.tan(alpha)  # 4.E3
     gamma_s = jnp.sin(gamma)  # 4.E4
-    gx, gy, gz = gamma_s * P.LGAX, gamma_s * P.LGAY, gamma_s * P.LGAZ
+    # MF 5.2's camber scalings; MF 6.1 has none (it scales camber through LKYC, LKZC)
+    gx, gy, gz = (gamma_s * jnp.where(is52, L, 1.0) for L in (P.LGAX, P.LGAY, P.LGAZ))
     R0 = P.UNLOADED_RADIUS
 
     # pure longitudinal slip, 4.E9-4.E18
