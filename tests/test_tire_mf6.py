@@ -7,6 +7,7 @@ zero speed), and driven by the vehicles as every other tire."""
 
 import math
 import types
+import warnings
 
 import diffrax
 import equinox as eqx
@@ -290,7 +291,7 @@ def test_mf52_camber_load_and_moments_match_hand_computed_values():
     # M_z = -t (F_y - S_Vyk) + M_zr + s F_x, with gamma_z in the trail
     sht = c["QHZ1"] + c["QHZ2"] * dfz + (c["QHZ3"] + c["QHZ4"] * dfz) * gz
     assert float(out.Mz) != pytest.approx(float(mf_evaluate(
-        params_of(SAMPLE, FITTYP=61, PHY3=0.04, LGAY=1.3, LGAZ=0.7, QSY2=0.01, RVY5=1.9,
+        params_of(SAMPLE, FITTYP=61, PHY3=0.04, QSY2=0.01, RVY5=1.9,
                   RVY6=2.0), kappa, alpha, Fz, gamma, limits=False).Mz), rel=1e-6)
     at = math.tan(alpha) + sht
     kx = (c["PKX1"] + c["PKX2"] * dfz) * math.exp(c["PKX3"] * dfz) * Fz
@@ -315,8 +316,9 @@ def test_mf52_camber_load_and_moments_match_hand_computed_values():
 
 def test_camber_scalings_belong_to_mf52_alone():
     """``LGAX``, ``LGAY``, ``LGAZ`` scale camber in MF 5.2 (PAC2002) only: a 6.1 file that
-    carries them (one converted from PAC2002) gives the same forces and moments as without
-    them, and a 5.2 file's camber response does change with them."""
+    carries them (one converted from PAC2002) is read with a warning naming them, and
+    gives the same forces and moments as without them; a 5.2 file's camber response does
+    change with them, with no warning."""
     scalings = dict(LGAX=0.3, LGAY=0.0, LGAZ=2.0)
     point = (-0.08, 0.05, 3800.0, 0.07)  # kappa, alpha, Fz, gamma [rad]
 
@@ -324,10 +326,13 @@ def test_camber_scalings_belong_to_mf52_alone():
         out = mf_evaluate(P, *point, limits=False)
         return np.array([float(out.Fx), float(out.Fy), float(out.Mz), float(out.Mz0)])
 
-    np.testing.assert_array_equal(outputs(params_of(SAMPLE, **scalings)),
-                                  outputs(params_of(SAMPLE)))
-    mf52, mf52_scaled = (outputs(params_of(SAMPLE, FITTYP=52, PHY3=0.04, **extra))
-                         for extra in ({}, scalings))
+    with pytest.warns(UserWarning, match=r"LGAX = 0.3, LGAY = 0, LGAZ = 2: MF 5.2 camber"):
+        mf61_scaled = params_of(SAMPLE, **scalings)
+    np.testing.assert_array_equal(outputs(mf61_scaled), outputs(params_of(SAMPLE)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mf52, mf52_scaled = (outputs(params_of(SAMPLE, FITTYP=52, PHY3=0.04, **extra))
+                             for extra in ({}, scalings))
     # F_y, M_z, M_z0 (the sample's F_x hardly depends on camber: its PDX3 is 0)
     assert np.all(np.abs(mf52_scaled - mf52)[1:] > 1e-2 * np.abs(mf52)[1:])
 

@@ -82,6 +82,7 @@ are used as written).
 from __future__ import annotations
 
 import math
+import warnings
 from typing import ClassVar
 
 import equinox as eqx
@@ -315,6 +316,12 @@ class MFParams(eqx.Module):
         """The coefficients of a `vehsim.TirFile` (values converted to SI)."""
         kwargs = {name: tir.get(name) for name in FIELD_NAMES if name in tir}
         kwargs["version"] = float(tir.version)
+        unused = [f"{k} = {kwargs[k]:g}" for k in ("LGAX", "LGAY", "LGAZ")
+                  if kwargs["version"] >= 6.0 and k in kwargs and float(kwargs[k]) != 1.0]
+        if unused:
+            warnings.warn(f"{', '.join(unused)}: MF 5.2 camber scalings, which MF "
+                          f"{kwargs['version']:g} does not have (it scales camber through "
+                          "LKYC and LKZC); not used", stacklevel=2)
         if "NOMPRES" not in kwargs:  # MF 5.2 has no pressure terms: any positive value
             kwargs["NOMPRES"] = kwargs.get("INFLPRES", 2.2e5)
         kwargs.setdefault("INFLPRES", kwargs["NOMPRES"])
