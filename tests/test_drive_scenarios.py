@@ -3,6 +3,7 @@ measurements against closed forms and brute force, and the open-loop replay of t
 minimum-time drive."""
 
 import math
+import types
 
 import equinox as eqx
 import jax
@@ -317,6 +318,21 @@ def test_substep_poses_are_the_integrators_states(replay):
                                rtol=1e-12)
     # consecutive poses are a step's travel apart (< 12 m/s x 1.25 ms)
     assert np.max(np.hypot(np.diff(x), np.diff(y))) < 12.0 * sc.sample_time / sc.plant.substeps
+
+
+def test_drive_path_of_one_sample_continued_from_a_later_state():
+    """A run of one sample has no period to read from its times: its substeps divide the
+    time from `state0`'s (a run continued from a later `DriveState`), not from 0."""
+    S = 4
+    run = types.SimpleNamespace(states=types.SimpleNamespace(t=np.array([1.05])),
+                                poses=np.arange(2.0 * S).reshape(1, S, 2))
+    state0 = types.SimpleNamespace(t=1.0, car=np.array([-1.0, -2.0, 0.0]))
+    t, x, y = vs.drive_path(run, state0)
+    np.testing.assert_allclose(t, 1.0 + 0.05 * np.arange(S + 1) / S, rtol=1e-12)
+    np.testing.assert_array_equal(x, [-1.0, 0.0, 2.0, 4.0, 6.0])
+    run.states.t = np.array([0.05])  # no start given: from 0
+    t, _, _ = vs.drive_path(run)
+    np.testing.assert_allclose(t, 0.05 * np.arange(1, S + 1) / S, rtol=1e-12)
 
 
 @pytest.mark.slow

@@ -102,8 +102,10 @@ def drive_path(run, state0=None):
     if getattr(run, "poses", None) is not None:
         poses = np.asarray(run.poses)  # (..., N, S, 2)
         S = poses.shape[-2]
-        dt = np.diff(T, axis=-1)[..., :1] if T.shape[-1] > 1 else None
-        h = (dt if dt is not None else T[..., :1]) / S
+        # the sample period; a run of one sample: from the start (state0's time, else 0)
+        start = 0.0 if state0 is None else np.asarray(state0.t, float)[..., None]
+        dt = np.diff(T, axis=-1)[..., :1] if T.shape[-1] > 1 else T[..., :1] - start
+        h = dt / S
         frac = np.arange(1, S + 1) - S  # substep j ends at t_k+1 - (S - j) h
         t = (T[..., :, None] + frac * h[..., None]).reshape(*T.shape[:-1], -1)
         xy = poses.reshape(*poses.shape[:-3], -1, 2)
