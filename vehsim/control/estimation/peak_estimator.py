@@ -9,8 +9,9 @@ $$\mu_k = -\frac{J(\omega_k - \omega_{k-1})/\Delta t + \bar T_b\tanh(\omega_k/\o
   {rF_n},$$
 $\bar T_b$ the mean brake torque over the sample (the actuator model's, Simpson's rule). The
 vehicle speed is filtered with the measured friction, $\hat v^-_k = \hat v_{k-1} +
-\mu_kF_nT/m$ ($m\dot v = F_x$), $\hat v_k = \hat v_k^- + L_v(v_k - \hat v_k^-)$, and the
-braking slip is $\lambda_k = 1 - r\omega_k/\hat v_k$. Nothing here assumes a tire model.
+\mu_kF_nT/m$ ($m\dot v = F_x$; at a sample with no new tone-wheel edge, such as a locked
+wheel's, $\mu_k$ is the last one measured), $\hat v_k = \hat v_k^- + L_v(v_k - \hat v_k^-)$,
+and the braking slip is $\lambda_k = 1 - r\omega_k/\hat v_k$. Nothing here assumes a tire model.
 
 **The curve.** The measured points are kept as a curve over the slip axis: `bins` bins
 (finer near zero slip, edges $(i/B)^2$), each holding the running means of the measured
@@ -228,7 +229,8 @@ class PeakEstimator(AbstractFrictionEstimator):
         accel = jnp.where(valid_rate, (omega - state.omega) / jnp.where(valid_rate, dt, 1.0), 0.0)
         Fn, r = car.Fn_static, car.radius
         mu = -(car.inertia * accel + torque * jnp.tanh(omega / car.omega_eps)) / (r * Fn)
-        v_pred = state.v + jnp.where(valid_rate, mu * Fn * T / car.mass, 0.0)
+        # the car decelerates every sample: between edges with the last friction measured
+        v_pred = state.v + jnp.where(valid_rate, mu, state.mu) * Fn * T / car.mass
         v_hat = v_pred + self.speed_injection * (v - v_pred)
         slip = jnp.clip(1.0 - r * omega / jnp.maximum(v_hat, 1e-3), 0.0, 1.0)
         informative = valid_rate & (slip > self.min_slip) & (v_hat > self.min_speed)
