@@ -16,6 +16,7 @@ import pytest
 from vehsim._constants import GRAVITY
 from vehsim._results import RESULTS
 from vehsim.control.controllers.braking import (
+    DUMP,
     LockedWheel,
     PeakSlipTracking,
     RuleBasedABS,
@@ -347,6 +348,15 @@ def test_abs_keeps_steering_in_a_turn_and_a_locked_axle_does_not():
     assert abs(turned["front locked"]) < 0.2 * kinematic
     assert sideslip["abs"] < 0.1 and sideslip["rear locked"] > 1.0
     assert turned["rear locked"] > 3 * kinematic
+    # the rear controller knows its brakes' capacity (0.4 of the front's): each dump lowers
+    # the applied torque within 6 samples (told the front's, its torque wound up past the
+    # capacity and a dump held the capped torque for 160 ms)
+    phase, torque = s["phase"][:, 1], s["torque"][:, 1]
+    dumps = np.flatnonzero((phase[1:] == DUMP) & (phase[:-1] != DUMP)) + 1
+    dumps = dumps[dumps + 6 < len(torque)]
+    assert len(dumps) >= 3
+    for k in dumps:
+        assert torque[k + 6] < np.max(torque[k - 1:k + 6]) - 20.0, k
 
 
 @pytest.mark.slow  # two compiles of the closed loop in forward mode (BFGS; J)

@@ -129,6 +129,11 @@ def axle_cars(sc: TurnScenario):
                          for share, inertia in ((p.lR, p.Iw_F), (p.lF, p.Iw_R)))
 
 
+def _axle_capacity(sc, hardware, i):
+    """The brake torque capacity [N m] of axle ``i`` (0 front, 1 rear: `rear_share` of it)."""
+    return hardware.max_torque * (1.0 if i == 0 else sc.rear_share)
+
+
 def _sample(sc, controllers, hardware, key, st: TurnState, k):
     T = hardware.sample_time
     t = k * T
@@ -142,10 +147,10 @@ def _sample(sc, controllers, hardware, key, st: TurnState, k):
     cmds, phases, new_ctrl = [], [], []
     for i, controller in enumerate(controllers):
         m = measurement(omega[i], v_m[i], st.omega_prev[i], p.r, T, st.brake_prev[i])
-        c, cmd, phase = controller.command(st.controllers[i], m, belief, cars[i], T,
-                                           hardware.max_torque)
+        # each axle's controller is told its own brakes' capacity (its anti-windup limit)
+        cap = _axle_capacity(sc, hardware, i)
+        c, cmd, phase = controller.command(st.controllers[i], m, belief, cars[i], T, cap)
         new_ctrl.append(c)
-        cap = hardware.max_torque * (1.0 if i == 0 else sc.rear_share)
         cmds.append(jnp.where(t >= sc.brake_time, jnp.minimum(cmd, cap), 0.0))
         phases.append(phase)
     act, target = jax.vmap(lambda a, c: actuator_target(hardware, a, k, c))(st.actuator,
@@ -164,7 +169,7 @@ def _sample(sc, controllers, hardware, key, st: TurnState, k):
 def _simulate(sc, controllers, hardware, key, n_steps):
     y0 = sc.car.init_state(vx=sc.speed)
     act0 = jax.vmap(lambda _: ActuatorState.init())(jnp.arange(2))
-    ctrl0 = tuple(c.init(hardware.max_torque) for c in controllers)
+    ctrl0 = tuple(c.init(_axle_capacity(sc, hardware, i)) for i, c in enumerate(controllers))
     step = lambda st, k: _sample(sc, controllers, hardware, key, st, k)  # noqa: E731
     st0 = TurnState(y0, act0, ctrl0, y0[6:8], jnp.zeros(2, y0.dtype), RESULTS.successful)
     st, out = jax.lax.scan(step, st0, jnp.arange(n_steps))
