@@ -22,7 +22,11 @@ from vehsim.control.controllers.braking import Measurement, PeakSlipTracking, Ru
 from vehsim.control.estimation.base import run_estimator
 from vehsim.control.estimation.mhe import BrakingRecord, MovingHorizonEstimator
 from vehsim.control.estimation.observer import FrictionObserver
-from vehsim.control.estimation.parametrisation import FrictionScale, RoadCondition
+from vehsim.control.estimation.parametrisation import (
+    FrictionScale,
+    RoadCondition,
+    steady_state,
+)
 from vehsim.control.estimation.peak_estimator import PeakEstimator, burckhardt_peak
 from vehsim.control.experiments.scenarios import braking_scenario
 from vehsim.control.loop import simulate_braking
@@ -158,6 +162,47 @@ def test_peak_estimator_holds_on_a_locked_wheel():
         assert np.all(np.isfinite(a))
         np.testing.assert_array_equal(a[k:], np.broadcast_to(a[k - 1], a[k:].shape))
     np.testing.assert_allclose(np.asarray(states.v)[k:], s["v"][k:], atol=0.05)
+
+
+def test_steady_state_of_a_point_tire_at_zero_slip_is_the_undeflected_state():
+    # every state of a point LuGre tire is steady at zero relative velocity (its rates do
+    # not depend on it there): the undeflected one, finite with finite derivatives, as the
+    # moving-horizon estimator's first guess of a free-rolling window; elsewhere the state
+    # where the rates vanish
+    tire, r = vs.PointLuGre(table3()), 0.3
+    z = lambda v, omega: steady_state(tire, v, omega, r)  # noqa: E731
+    assert float(z(20.0, 20.0 / r)) == 0.0
+    g = jax.grad(z, argnums=(0, 1))(20.0, 20.0 / r)
+    assert np.all(np.isfinite(np.asarray(g)))  # (the steady state jumps there: g/sigma0 sgn v_r)
+    zb = z(20.0, 0.9 * 20.0 / r)
+    assert float(zb) != 0.0
+    assert abs(float(tire.dynamics(zb, 20.0, 0.9 * 20.0 / r, r))) < 1e-12
+
+
+def test_moving_horizon_jacobian_in_float32_is_the_float64_one():
+    # the forward-difference step of the window's Jacobian: 1e-7 in float64; in float32,
+    # where 1e-7 is below the rounding, its square root of eps (with 1e-7 the float32
+    # column was noise, multiples of the rounding step: -763 where -60)
+    from vehsim.control.plant.quarter_car import braking_quarter_car
+
+    def column():
+        srf = surface("dry_asphalt")
+        car, N = braking_quarter_car(srf.tire()), 6
+        ts = jnp.arange(N + 1) * 0.005
+        v = 20.0 - 8.0 * ts
+        record = BrakingRecord(ts, jnp.full(N + 1, 1200.0), jnp.full(N + 1, 1200.0), ts,
+                               0.85 * v / 0.3, v, jnp.ones(N + 1, bool))
+        mhe = MovingHorizonEstimator(srf.params, window=N)
+        u = mhe.initial_guess(car, record, 0.8)
+        _, J = mhe._residuals_and_jacobian(u, car, ideal_hardware(), record)
+        return np.asarray(J[:N, 0]), u.dtype
+
+    exact, dtype = column()
+    with jax.enable_x64(False):
+        single, single_dtype = column()
+    assert (dtype, single_dtype) == (np.float64, np.float32)
+    assert np.all(np.abs(exact) > 50.0)
+    np.testing.assert_allclose(single, exact, rtol=0.01)
 
 
 def test_burckhardt_peak_is_where_the_slope_vanishes():

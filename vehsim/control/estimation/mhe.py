@@ -47,6 +47,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float
@@ -181,7 +182,9 @@ class MovingHorizonEstimator(eqx.Module):
 
     def _residuals_and_jacobian(self, u, car, hardware, data):
         """The residuals and their forward-difference Jacobian, one vmapped simulation."""
-        h = _DIFFERENCE_STEP * jnp.maximum(jnp.abs(u), 1.0)
+        # 1e-7 in float64; in float32 that is below the rounding, so its square root of eps
+        step = max(_DIFFERENCE_STEP, float(np.sqrt(np.finfo(u.dtype).eps)))
+        h = step * jnp.maximum(jnp.abs(u), 1.0)
         points = jnp.concatenate([u[None], u[None] + jnp.diag(h)])
         rs = jax.vmap(lambda v: self._residuals(v, car, hardware, data))(points)
         return rs[0], ((rs[1:] - rs[0][None]) / h[:, None]).T

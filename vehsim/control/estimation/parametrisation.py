@@ -147,7 +147,9 @@ class FrictionScale(AbstractRoadParametrisation):
 def steady_state(tire: AbstractLongitudinalTire, v, omega, r):
     """The friction state at which `tire.dynamics` vanishes under constant `v`, `omega`,
     `r`: one Newton step from the undeflected state (exact for dynamics affine in the state,
-    every LuGre tire and the relaxed Magic Formula)."""
+    every LuGre tire and the relaxed Magic Formula). Where the rates do not depend on the
+    state (a point LuGre tire at zero relative velocity, where every state is steady) the
+    undeflected state."""
     z0, unravel = ravel_pytree(tire.init_state())
 
     def rates(z):
@@ -155,7 +157,8 @@ def steady_state(tire: AbstractLongitudinalTire, v, omega, r):
 
     if z0.size == 1:
         f, slope = jax.jvp(rates, (z0,), (jnp.ones_like(z0),))
-        return unravel(z0 - f / slope)
+        flat = slope == 0
+        return unravel(z0 - jnp.where(flat, 0.0, f / jnp.where(flat, 1.0, slope)))
     return unravel(z0 - jnp.linalg.solve(jax.jacfwd(rates)(z0), rates(z0)))
 
 
