@@ -395,6 +395,24 @@ def test_step_response_is_the_steady_state_after_one_transit(name):
     assert np.all(np.abs(forces[np.asarray(ts) < 0.5 * transit][-1] - ss) > 1e-3 * np.abs(ss))
 
 
+@pytest.mark.parametrize("basis", ["legendre", "monomial"])
+def test_the_triangle_is_two_ramps_in_either_basis(basis):
+    """The trapezoid of ramp 1/2 is the triangle: the moment model takes it as its two ramps
+    (a flat piece of zero width divided the Legendre tables by its width: NaN), and its step
+    response is the closed-form steady state after one transit."""
+    p = lugre2d_bakker1987()
+    model = MomentLuGre2D(p, TrapezoidalLoad(0.5), basis=basis)
+    assert model.pieces == 2
+    vx, vy, om = _step(8.0, 0.08)
+    transit = float(p.L) / (om * R)
+    ts = jnp.linspace(0.0, 2 * transit, 11)
+    forces = np.asarray(_response(model, vx, vy, om, ts=ts))
+    ss = np.asarray(steady_state_mu_2d(p, TrapezoidalLoad(0.5), jnp.array([om * R - vx, -vy]),
+                                       om * R)) * FZ
+    ss[2] *= float(p.L)
+    np.testing.assert_allclose(forces[-1], ss, rtol=1e-10)
+
+
 def test_step_response_from_deflected_patch_matches_delay_closure():
     """From a uniform initial deflection (old tread leaves over the first transit) the exact
     solution equals `simulate_moments_delay` (rtol 1e-11) to 1e-7 of the peaks, in

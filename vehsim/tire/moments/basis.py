@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from ..._checks import is_concrete
 from ..load import AbstractLoadDistribution, AbstractPolynomialLoad, TrapezoidalLoad
 
 
@@ -43,9 +44,14 @@ def _polynomial_pieces(c, degree):
 
 
 def _trapezoid_pieces(eps):
-    r"""Ramp up on $[0, \epsilon]$, flat, ramp down on $[1-\epsilon, 1]$, height $1/(1-\epsilon)$."""
+    r"""Ramp up on $[0, \epsilon]$, flat, ramp down on $[1-\epsilon, 1]$, height $1/(1-\epsilon)$;
+    the triangle ($\epsilon = 1/2$, given as a number) as its two ramps (a flat piece of zero
+    width would divide the Legendre tables by its width)."""
     h = 1.0 / (1.0 - eps)
     zero = jnp.zeros(())
+    if is_concrete(eps) and float(eps) == 0.5:
+        coeffs = jnp.stack([jnp.stack([zero, h / eps]), jnp.stack([h / eps, -h / eps])])
+        return jnp.stack([zero, jnp.asarray(eps, float), jnp.ones(())]), coeffs
     coeffs = jnp.stack([
         jnp.stack([zero, h / eps]),
         jnp.stack([h, zero]),
