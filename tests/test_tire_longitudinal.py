@@ -210,6 +210,22 @@ def test_gradients_at_singular_points_are_the_one_sided_slopes(p, name):
             err_msg=f"{name} at {point}: parameter gradient")
 
 
+def test_uniform_lumped_derivatives_near_lock_tend_to_the_locked_ones(p):
+    """As the wheel nears lock, k = theta sigma0 |v_r| L/(g |omega r|) grows without bound
+    and the uniform-load lumped tire's decay rate tends to the point model's: its
+    derivatives in (v, omega) settle to their limit (evaluated as the sliding rate plus a
+    bounded excess; as the quotient |omega r|/(L psi(k)), d/d omega was 3.4 at 1e-15 m/s
+    and -2.7e15 at 1e-30 m/s, against 0.94)."""
+    from vehsim.tire.uniform_lumped import UniformLumpedLuGre
+
+    tire = UniformLumpedLuGre(p)
+    grad = jax.jit(jax.grad(lambda v, om: tire.dynamics(0.01, v, om, R), argnums=(0, 1)))
+    near = np.asarray(grad(20.0, 1e-6 / R))
+    for c in (1e-9, 1e-12, 1e-15, 1e-30, 1e-100):
+        np.testing.assert_allclose(np.asarray(grad(20.0, c / R)), near, rtol=1e-5,
+                                   err_msg=f"|omega r| = {c} m/s")
+
+
 def test_steady_state_gradients_at_singular_points_are_the_one_sided_slopes(p):
     """eq. 17 (quartic load) and the profile z_ss of eq. 15 at the singular points: the
     gradient is the mean of the one-sided slopes (they differ only at the locked wheel's

@@ -31,9 +31,21 @@ def psi(x):
     return jnp.where(small, 0.5 - x / 6.0 + x * x / 24.0 - x * x * x / 120.0, exact)
 
 
+def _excess(k):
+    r"""$1/\psi(k) - k = k(1 - e^{-k})/(k - 1 + e^{-k})$, between 2 (at 0) and 1 (as $k \to
+    \infty$), in a form without cancellation at large $k$ (a series below $10^{-3}$)."""
+    small = k < 1e-3
+    ks = jnp.where(small, jnp.ones_like(k), k)
+    em = jnp.expm1(-ks)
+    return jnp.where(small, 1.0 / psi(k) - k, -em / (1.0 + em / ks))
+
+
 def decay(params: LuGreParams, v, omega, r):
     r"""Total decay rate $|\omega r|/(L\psi(k))$ of $\bar z$ [1/s] (module docstring); the
-    point model's $\theta\sigma_0|v_r|/g$ for a locked wheel."""
+    point model's $\theta\sigma_0|v_r|/g$ for a locked wheel. Evaluated as
+    $\theta\sigma_0|v_r|/g + (|\omega r|/L)(1/\psi(k) - k)$, the same number, whose
+    derivatives stay exact as the wheel nears lock ($k \sim 1/|\omega r|$ grows without
+    bound; the quotient's lost all their digits below $|\omega r| \approx 10^{-12}$ m/s)."""
     p = params
     v_r = relative_velocity(v, omega, r)
     c = safe_abs(omega * r)
@@ -41,7 +53,7 @@ def decay(params: LuGreParams, v, omega, r):
     c_safe = jnp.where(rolling, c, 1.0)
     sliding = p.theta * p.sigma0 * safe_abs(v_r) / stribeck(p, v_r)
     k = sliding * p.L / c_safe
-    return jnp.where(rolling, c_safe / (p.L * psi(k)), sliding)
+    return sliding + jnp.where(rolling, c_safe / p.L * _excess(k), 0.0)
 
 
 class UniformLumpedLuGre(AbstractLongitudinalTire):
