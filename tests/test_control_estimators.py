@@ -205,6 +205,33 @@ def test_moving_horizon_jacobian_in_float32_is_the_float64_one():
     np.testing.assert_allclose(single, exact, rtol=0.01)
 
 
+def test_moving_horizon_cost_and_error_count_only_the_observations():
+    # a window whose tone wheel sent an edge only every other sample: its wheel rows without
+    # an edge are zeros, not observations. The cost is the mean square over the speed rows
+    # and the fresh wheel rows, and s^2 of the standard error their sum of squares over
+    # their number less the unknowns (counting the zeros made both smaller)
+    from vehsim.control.plant.quarter_car import braking_quarter_car
+
+    srf = surface("dry_asphalt")
+    car, N, hw = braking_quarter_car(srf.tire()), 8, ideal_hardware()
+    k = jnp.arange(N + 1)
+    ts = k * 0.005
+    v = 20.0 - 8.0 * ts + 0.01 * jnp.sin(7.0 * k)
+    omega = 0.85 * (20.0 - 8.0 * ts) / 0.3 + 0.05 * jnp.cos(5.0 * k)
+    record = BrakingRecord(ts, jnp.full(N + 1, 1200.0), jnp.full(N + 1, 1200.0), ts, omega, v,
+                           k % 2 == 0)
+    mhe = MovingHorizonEstimator(srf.params, window=N)
+    theta, se, cost, _, _, u = mhe._fit(car, hw, record)
+    r, J = mhe._residuals_and_jacobian(u, car, hw, record)
+    n_obs = N + N // 2
+    assert r.shape[0] == 2 * N and int(np.sum(np.asarray(r) == 0.0)) == N // 2
+    np.testing.assert_allclose(float(cost), float(jnp.sum(r * r)) / n_obs, rtol=1e-12)
+    # se(theta) = theta s sqrt([(J^T J)^-1]_00), s^2 = sum r^2 / (n_obs - unknowns)
+    s2 = float(jnp.sum(r * r)) / (n_obs - u.shape[0])
+    gauss_newton = float(jnp.linalg.inv(J.T @ J)[0, 0])
+    np.testing.assert_allclose(float(se), float(theta) * np.sqrt(s2 * gauss_newton), rtol=1e-6)
+
+
 def test_burckhardt_peak_is_where_the_slope_vanishes():
     c1, c2, c3 = 1.2801, 23.99, 0.52  # dry asphalt
     lam, mu = burckhardt_peak(c1, c2, c3)

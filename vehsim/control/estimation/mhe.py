@@ -31,7 +31,8 @@ solve fails otherwise than by running out of steps (e.g. `RESULTS.nonfinite` on 
 non-finite measurement) returns the solver's result.
 
 **Standard errors** are Gauss-Newton's, $\operatorname{se}(\log\theta) = \sqrt{s^2[(J^\top
-J)^{-1}]_{\theta\theta}}$ with $s^2$ the residuals' mean square; $\operatorname{se}(\theta)
+J)^{-1}]_{\theta\theta}}$ with $s^2$ the residuals' mean square over the observations
+(the speed and the fresh wheel speeds, less the unknowns); $\operatorname{se}(\theta)
 = \theta\operatorname{se}(\log\theta)$. **Identifiability** is judged with $s^2 = 1$ (the
 sensors' stated noise): a window whose $\operatorname{se}(\log\theta)$ would exceed
 `max_log_se` (10 %) cannot determine $\theta$ and returns `RESULTS.not_identifiable`. That
@@ -221,7 +222,10 @@ class MovingHorizonEstimator(eqx.Module):
         u = values[best]
         lm_result = jax.tree.map(lambda x: x[best], results)
         r, J = self._residuals_and_jacobian(u, car, hardware, data)
-        s2 = jnp.sum(r * r) / jnp.maximum(r.shape[0] - u.shape[0], 1)
+        # the observations: the speed rows and the wheel rows of fresh samples (the rest of
+        # the wheel rows are zeros that carry no data)
+        n_obs = data.v_meas.shape[0] - 1 + jnp.sum(data.fresh[1:])
+        s2 = jnp.sum(r * r) / jnp.maximum(n_obs - u.shape[0], 1)
         # information on log(theta) left after the other unknowns: the Schur complement
         J_t, J_n = J[:, 0], J[:, 1:]
         projected = J_t - J_n @ (jnp.linalg.pinv(J_n) @ J_t)
@@ -238,7 +242,7 @@ class MovingHorizonEstimator(eqx.Module):
         judged = is_successful(solved) | (solved == RESULTS.nonlinear_max_steps_reached)
         result = RESULTS.where(identifiable | ~judged, solved, RESULTS.not_identifiable)
         k = len(self.model.names)
-        return theta, theta_se, jnp.sum(r * r) / r.shape[0], result, jnp.exp(u[:k])
+        return theta, theta_se, jnp.sum(r * r) / n_obs, result, jnp.exp(u[:k]), u
 
     def estimate(self, car: QuarterCar, hardware: BrakeHardware,
                  record: BrakingRecord | dict, ends) -> MHEResult:
@@ -257,7 +261,7 @@ _WINDOW_SIGNALS = ("ts", "torque", "target", "omega_stamp", "omega_meas", "v_mea
 def _estimate(mhe: MovingHorizonEstimator, car, hardware, record: BrakingRecord,
               ends) -> MHEResult:
     def one(end):
-        return mhe._fit(car, hardware, record.window(end, mhe.window))
+        return mhe._fit(car, hardware, record.window(end, mhe.window))[:5]
 
     theta, se, cost, result, values = jax.vmap(one)(ends)
     return MHEResult(record.ts[ends], theta, se, cost, result, values)
