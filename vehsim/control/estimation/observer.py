@@ -211,7 +211,10 @@ class FrictionObserver(AbstractFrictionEstimator):
         L = jnp.where(fresh, self.injection, 0.0)
         omega_hat = jnp.where(fresh, omega_pred + L * e, jnp.minimum(omega_pred, omega))
         v_hat = v_pred + self.speed_injection * (v - v_pred)
-        sensitivity = jnp.concatenate([((1.0 - L) * d_end)[None], dz,
+        # d omega_hat / d theta: of the correction (the innovation's regressor at the
+        # measurement's time, not at the sample's end), or of the bound where it holds
+        d_hat = jnp.where(fresh, d_end - L * d_omega, jnp.where(omega_pred <= omega, d_end, 0.0))
+        sensitivity = jnp.concatenate([d_hat[None], dz,
                                        ((1.0 - self.speed_injection) * dv)[None]])
         return ObserverState(z, omega_hat, v_hat, log_theta, P, sensitivity, e, g)
 
