@@ -68,6 +68,40 @@ def test_cli_reports_unknown_section_as_error(tmp_path, capsys):
     assert "no section matches" in capsys.readouterr().err
 
 
+_OUT_COMMANDS = {  # each command with an output: its arguments, and whether --out is a file
+    "reproduce": (["reproduce", "--tiny"], False), "fit": (["fit", "x.csv"], False),
+    "optimise": (["optimise", "corner90"], False), "brake": (["brake"], False),
+    "estimate": (["estimate", "x.csv"], False), "drive": (["drive", "--road", "sturn"], False),
+    "sweep": (["sweep"], True), "tire plot": (["tire", "plot", "x.tir"], True),
+    "tire fit-lugre": (["tire", "fit-lugre", "x.tir"], True),
+}
+
+
+@pytest.mark.parametrize("command", list(_OUT_COMMANDS))
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(command, tmp_path, capsys,
+                                                                     monkeypatch):
+    """`--out` naming an existing file where a folder goes (or a folder where a file goes), a
+    path under a file, or a folder that cannot be written in (permissions, a read-only file
+    system): exit 2 naming --out, before anything runs (the input files do not even exist)
+    and with nothing written."""
+    args, is_file = _OUT_COMMANDS[command]
+    afile = tmp_path / "afile.json"
+    afile.write_text("{}")
+    cases = [(str(afile / "sub.json"), "is a file, not a folder"),
+             (str(tmp_path), "is a folder") if is_file else (str(afile), "is not a folder")]
+    for out, message in cases:
+        assert cli.main([*args, "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and message in err and "Traceback" not in err, err
+    target = tmp_path / "results" / ("x.json" if is_file else "")
+    real_access = __import__("os").access
+    monkeypatch.setattr("os.access", lambda p, mode: False if str(p) == str(tmp_path)
+                        else real_access(p, mode))
+    assert cli.main([*args, "--out", str(target)]) == 2
+    assert "cannot write in" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile.json"]
+
+
 def test_every_reproduce_section_is_importable_with_title_and_entry_point():
     import importlib
 

@@ -18,6 +18,7 @@ import gc
 import sys
 
 from . import brake, drive, estimate, fit, optimise, reproduce, sweep, tire
+from ._options import writable_output
 
 
 COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire, drive)
@@ -61,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
         args.cache_dir = command_line_cache(args.no_compilation_cache)
         library_default = set_default(not args.no_progress)
         try:
+            if getattr(args, "out", None) is not None:  # before any work
+                writable_output("--out", args.out, getattr(args, "out_kind", "folder"))
             return int(args.func(args) or 0)
         except (ValueError, FileNotFoundError) as e:
             print(f"vehsim: error: {e}", file=sys.stderr)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 
 
@@ -89,4 +90,27 @@ def output_file(option: str, path: str, suffixes: dict[str, str]) -> str:
     return suffixes[suffix]
 
 
-__all__ = ["choice_of", "integer", "number", "output_file"]
+def writable_output(option: str, path, kind: str) -> None:
+    """Refuse, naming `option`, an output `path` that cannot be written, before any work:
+    a `kind` 'folder' that exists as a file, a 'file' that exists as a folder, or one whose
+    nearest existing folder is a file or cannot be written in (permissions, a read-only
+    file system). Creates nothing."""
+    path = Path(path)
+    if kind == "folder" and path.exists() and not path.is_dir():
+        raise ValueError(f"{option}: {str(path)!r} exists and is not a folder; give a folder "
+                         "to write the results in")
+    if kind == "file" and path.is_dir():
+        raise ValueError(f"{option}: {str(path)!r} is a folder; give a file name")
+    where = path if kind == "folder" else path.parent
+    existing = where if str(where) else Path(".")
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{option}: cannot create {str(path)!r}: {str(existing)!r} is a file, "
+                         "not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{option}: cannot write in {str(existing)!r} (no permission, or a "
+                         "read-only file system)")
+
+
+__all__ = ["choice_of", "integer", "number", "output_file", "writable_output"]

@@ -57,7 +57,7 @@ def register(subparsers) -> None:
                    help="this process's id, 0 to num-processes - 1")
     p.add_argument("--out", default="sweep.json",
                    help="output file: .json, or netCDF if it ends in .nc (needs vehsim[xarray])")
-    p.set_defaults(func=_sweep)
+    p.set_defaults(func=_sweep, out_kind="file")
 
 
 def parse_axes(items: list[str]) -> dict[str, list[float]]:

@@ -35,7 +35,7 @@ def register(subparsers) -> None:
                         "cambers, and the combined-slip curves with the friction ellipse.")
     pl.add_argument("file", help="tyre property file (.tir)")
     pl.add_argument("--out", default=None, help="figure (default: FILE's name with _curves.png)")
-    pl.set_defaults(func=_plot)
+    pl.set_defaults(func=_plot, out_kind="file")
 
     f = sub.add_parser("fit-lugre", help="fit the 2D LuGre model to the file's Magic Formula",
                        description="Fit the steady distributed 2D LuGre model (eqs. 31-33), its "
@@ -59,7 +59,7 @@ def register(subparsers) -> None:
     f.add_argument("--max-steps", type=integer(1, 100_000), default=300,
                    help="Levenberg-Marquardt steps at most (300; the sample converges in "
                         "109; docs/tir.md)")
-    f.set_defaults(func=_fit_lugre)
+    f.set_defaults(func=_fit_lugre, out_kind="file")
 
 
 def read_tire(path):
