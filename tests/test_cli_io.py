@@ -102,6 +102,44 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(command, tm
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile.json"]
 
 
+@pytest.mark.parametrize("command", ["fit", "estimate"])
+@pytest.mark.parametrize("side, message", [
+    ('["r"]', "must be a JSON object"), ('{"r": true}', "'r' must be a number"),
+    ('{"r": 1e308}', "'r' [m] must lie in (0, 5]"), ('{"r": 0.3, "J": -1}', "'J'"),
+])
+def test_a_bad_side_file_is_refused_naming_it(command, side, message, tmp_path, capsys):
+    """The record's side file (NAME.json) must be a JSON object of positive numbers, the
+    radius within --radius's range: otherwise exit 2 naming the file and the key, not a
+    traceback, a fit of r = 1 (true) or a nonfinite one (1e308)."""
+    from pathlib import Path
+
+    shipped = Path(_io.__file__).parent / "data" / "brakings" / "braking_1.csv"
+    record = tmp_path / "braking.csv"
+    record.write_text(shipped.read_text())
+    (tmp_path / "braking.json").write_text(side)
+    assert cli.main([command, str(record), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "braking.json" in err and message in err and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["sweep", "--num-processes", "2", "--process-id", "1"], "give --distributed"),
+    (["sweep", "--coordinator", "127.0.0.1:1", "--num-processes", "2", "--process-id", "5"],
+     "--process-id must be in [0, 1]"),
+    (["optimise", "--road-file", "{folder}"], "Is a directory"),
+    (["drive", "--road-file", "{folder}"], "Is a directory"),
+])
+def test_bad_process_ids_and_a_folder_for_a_file_end_with_exit_2(args, message, tmp_path,
+                                                                 capsys):
+    """No traceback: a process id outside the run's count, or ids without a multi-process
+    run; a folder where a road file goes (an OSError, named)."""
+    args = [a.format(folder=tmp_path) for a in args]
+    assert cli.main([*args, "--out", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+
+
 def test_every_reproduce_section_is_importable_with_title_and_entry_point():
     import importlib
 

@@ -3,7 +3,8 @@
 One module per subcommand (`reproduce`, `sweep`, `fit`, `optimise`, `brake`, `estimate`,
 `tire`, `drive`), each with ``register(subparsers)`` adding a parser whose ``func`` is called with the
 parsed arguments.
-A `ValueError` or a missing file ends the command with exit status 2 and the message.
+A `ValueError` or an `OSError` (a missing file, a folder given for a file) ends the
+command with exit status 2 and the message.
 Long batched work shows progress on stderr (`vehsim.progress`) unless ``--no-progress``.
 Compiled programs are kept in JAX's persistent compilation cache
 (`vehsim._compilation.command_line_cache`, the layer above the solvers that also keeps
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, "out", None) is not None:  # before any work
                 writable_output("--out", args.out, getattr(args, "out_kind", "folder"))
             return int(args.func(args) or 0)
-        except (ValueError, FileNotFoundError) as e:
+        except (ValueError, OSError) as e:  # bad input; a file that is missing, a folder, ...
             print(f"vehsim: error: {e}", file=sys.stderr)
             return 2
         finally:

@@ -22,7 +22,6 @@ column, before anything is computed or written.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
@@ -90,7 +89,7 @@ def read_recorded_braking(path) -> tuple:
     import numpy as np
 
     from ..control.estimation.recorded import MeasuredBraking, nonuniform_step
-    from ..identify.braking import _fail, _read_columns
+    from ..identify.braking import _fail, _read_columns, read_side_file
 
     path = Path(path)
     if not path.is_file():
@@ -114,32 +113,11 @@ def read_recorded_braking(path) -> tuple:
     if "theta" in values and np.any(values["theta"] <= 0):
         i = int(np.argmax(values["theta"] <= 0)) + 1
         _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]!r}")
-    extras = _side_file(path)
+    extras = read_side_file(path)
     extras["theta"] = values.get("theta")
     record = MeasuredBraking(values["t"], values["v"], values["omega"], values["T_b"],
                              values.get("F_x"), values.get("F_n"))
     return record, extras
-
-
-def _side_file(path: Path) -> dict:
-    side = path.with_suffix(".json")
-    if not side.is_file():
-        return {}
-    try:
-        meta = json.loads(side.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{side}: invalid JSON side file: {e}") from None
-    out = {}
-    for key in ("r", "m", "J"):
-        if meta.get(key) is not None:
-            try:
-                x = float(meta[key])
-            except (TypeError, ValueError):
-                raise ValueError(f"{side}: {key!r} must be a number, got {meta[key]!r}") from None
-            if not (math.isfinite(x) and x > 0):
-                raise ValueError(f"{side}: {key!r} must lie in (0, inf), got {x}")
-            out[key] = x
-    return out
 
 
 def _positive(option: str, value) -> None:

@@ -132,6 +132,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
     axes = parse_axes(args.axes)
     output_file("--out", args.out, {".json": "json", ".nc": "netcdf"})
+    check_process_ids(args)
     if args.distributed or args.coordinator:
         join_distributed(args)
     params, tire = preset(args.vehicle), preset(args.tire)
@@ -164,8 +165,27 @@ def _sweep(args: argparse.Namespace) -> int:
     return exit_status("sweep", res.result)
 
 
-_BOOT = ("import json, sys; import jax; jax.distributed.initialize(**json.loads(sys.argv[1])); "
-         "from vehsim.cli import main; sys.exit(main(sys.argv[2:]))")
+_BOOT = ("import json, sys\nimport jax\ntry:\n"
+         "    jax.distributed.initialize(**json.loads(sys.argv[1]))\n"
+         "except (ValueError, RuntimeError) as e:\n"
+         "    print(f'vehsim: error: --distributed: the multi-process runtime did not start: {e}',"
+         " file=sys.stderr)\n    sys.exit(2)\n"
+         "from vehsim.cli import main\nsys.exit(main(sys.argv[2:]))")
+"""The restarted process: JAX's multi-process runtime first (a failure to start it, such as
+no cluster detected, ends with exit status 2 and its reason), then the command."""
+
+
+def check_process_ids(args: argparse.Namespace) -> None:
+    """--process-id in [0, --num-processes - 1]; both only with --distributed or
+    --coordinator (a single process has neither)."""
+    given = args.num_processes is not None or args.process_id is not None
+    if given and not (args.distributed or args.coordinator):
+        raise ValueError("--num-processes and --process-id belong to a multi-process run: "
+                         "give --distributed or --coordinator too")
+    if (args.num_processes is not None and args.process_id is not None
+            and args.process_id >= args.num_processes):
+        raise ValueError(f"--process-id must be in [0, {args.num_processes - 1}] "
+                         f"(--num-processes {args.num_processes}), got {args.process_id}")
 
 
 def join_distributed(args: argparse.Namespace) -> None:

@@ -159,15 +159,44 @@ def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
             _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {float(values[c][i - 1]):g}")
 
 
+SIDE_RANGES = {"r": 5.0, "m": math.inf, "J": math.inf}
+"""Upper bounds of the side file's wheel radius [m], mass [kg] and inertia [kg m^2] (the
+lower bound of each is 0, open; the radius's as the command line's ``--radius``)."""
+
+
+def read_side_file(path: str | Path) -> dict:
+    """The wheel data of a record's side file (``NAME.json`` beside ``NAME.csv``): a JSON
+    object whose `r`, `m`, `J` (each optional) are numbers in (0, `SIDE_RANGES`]; ``{}``
+    when there is no side file. A bad file is refused naming it and the key."""
+    side = Path(path).with_suffix(".json")
+    if not side.is_file():
+        return {}
+    try:
+        meta = json.loads(side.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{side}: invalid JSON side file: {e}") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{side}: the side file must be a JSON object such as "
+                         f'{{"r": 0.3, "m": 350, "J": 1.0}}, got a {type(meta).__name__}')
+    out = {}
+    for key, upper in SIDE_RANGES.items():
+        value = meta.get(key)
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"{side}: {key!r} must be a number, got {value!r}")
+        x = float(value)
+        if not (math.isfinite(x) and 0 < x <= upper):
+            raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in (0, {upper:g}], "
+                             f"got {x:g}")
+        out[key] = x
+    return out
+
+
 def _read_wheel_data(path: Path, r: float | None) -> dict:
     """`r` (required), `m`, `J` from the side file (`r` overridden by the argument)."""
-    meta = {}
     side = path.with_suffix(".json")
-    if side.is_file():
-        try:
-            meta = json.loads(side.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{side}: invalid JSON side file: {e}") from None
+    meta = read_side_file(path)
     if r is not None:
         meta["r"] = r
     if "r" not in meta:
