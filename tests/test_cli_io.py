@@ -140,6 +140,30 @@ def test_bad_process_ids_and_a_folder_for_a_file_end_with_exit_2(args, message, 
     assert message in err and "Traceback" not in err, err
 
 
+@pytest.mark.parametrize("args", [["fit", "{bad}", "--radius", "0.3"], ["estimate", "{bad}"],
+                                  ["optimise", "--road-file", "{bad}"]])
+def test_a_file_that_is_not_utf8_text_is_refused_naming_it(args, tmp_path, capsys):
+    bad = tmp_path / "binary.csv"
+    bad.write_bytes(b"\xbc\xff\x00t,v")
+    assert cli.main([a.format(bad=bad) for a in args] + ["--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: not a UTF-8 text file" in err and "Traceback" not in err, err
+
+
+def test_read_text_drops_a_byte_order_mark(tmp_path):
+    path = tmp_path / "x.csv"
+    path.write_bytes("\ufefft,v\r\n1,2\r\n".encode())
+    assert _io.read_text(path) == "t,v\r\n1,2\r\n"
+
+
+def test_tire_plot_refuses_a_format_it_cannot_write_before_reading_the_file(tmp_path, capsys):
+    # the file does not exist: the output's format is checked first
+    assert cli.main(["tire", "plot", str(tmp_path / "none.tir"), "--out",
+                     str(tmp_path / "x.txt")]) == 2
+    err = capsys.readouterr().err
+    assert "--out: the file name must end in .png or .pdf or .svg" in err and "x.txt" in err
+
+
 def test_every_reproduce_section_is_importable_with_title_and_entry_point():
     import importlib
 

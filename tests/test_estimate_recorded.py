@@ -365,7 +365,7 @@ def test_peak_estimator_runs_over_the_record_sample_by_sample():
 def test_command_line_refuses_a_bad_side_file(tmp_path, capsys):
     path = _bad(tmp_path, "t,v,omega,T_b\n" + GOOD_ROWS)
     side = path.with_suffix(".json")
-    for text, message in (('{"r": -0.3}', "'r' must lie in (0, inf), got -0.3"),
+    for text, message in (('{"r": -0.3}', "'r' [m] must lie in (0, 5], got -0.3"),
                           ('{"r": 0.3, "J": "heavy"}', "'J' must be a number, got 'heavy'"),
                           ("{r: 0.3", "invalid JSON side file")):
         side.write_text(text)

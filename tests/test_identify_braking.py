@@ -70,7 +70,7 @@ def test_shipped_brakings_load_and_are_physical():
         # missing radius
         (GOOD, None, r"radius 'r'"),
         # invalid radius
-        (GOOD, {"r": -0.3}, r"'r' \[m\] must lie in \(0, inf\)"),
+        (GOOD, {"r": -0.3}, r"'r' \[m\] must lie in \(0, 5\]"),
         # too short
         ("t,v,omega,F_x,F_n\n0,1,2,3,4\n", {"r": 0.3}, r"at least 3 data rows"),
     ],

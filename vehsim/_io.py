@@ -74,6 +74,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         raise
 
 
+def read_text(path: str | os.PathLike) -> str:
+    """The text of a UTF-8 file (newlines as written, for the `csv` module; a leading byte
+    order mark, as spreadsheet programs write, dropped); a file that is not UTF-8 text is
+    refused naming it."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            return f.read()
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a UTF-8 text file (byte {e.start}: {e.reason}); "
+                         "save it as UTF-8 CSV") from None
+
+
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
     mode = "wb" if isinstance(data, bytes) else "w"

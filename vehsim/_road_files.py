@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import write_atomic
+from ._io import read_text, write_atomic
 from .optimal.centreline import CentrelineRoad
 
 
@@ -51,8 +51,7 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
     path = Path(path)
     name = path.stem if name is None else name
     header, rows, lines = None, [], []
-    with open(path, newline="") as f:
-        text = f.read()
+    text = read_text(path)
     for lineno, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
         if not fields or not "".join(fields).strip():
             continue

@@ -227,9 +227,11 @@ def _plot(args) -> int:
 
     from .._io import save_figure
     from ..plot import tire_curves_figure
+    from ._options import output_file
 
-    tir, params = read_tire(args.file)
     out = Path(args.out) if args.out else Path(f"{Path(args.file).stem}_curves.png")
+    output_file("--out", str(out), {".png": "png", ".pdf": "pdf", ".svg": "svg"})
+    tir, params = read_tire(args.file)
     curves = tire_curves(params)
     fig = tire_curves_figure(curves, title=f"{Path(args.file).name}: Magic Formula "
                              f"{float(params.version):.1f} (ISO-W axes, the file's ranges "

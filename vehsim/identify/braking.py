@@ -24,6 +24,7 @@ file, the row (1-based data row; the header is row 0) and the column.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from pathlib import Path
@@ -33,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._io import write_atomic, write_json
+from .._io import read_text, write_atomic, write_json
 
 
 REQUIRED_COLUMNS = ("t", "v", "omega", "F_x", "F_n")
@@ -108,13 +109,12 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
     """The `required` and present `optional` columns of the CSV, each value a finite number
     (in the columns `may_be_missing`, an empty field or ``nan`` reads as NaN: a missing
     sample)."""
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f"{path}: empty file (expected a header row)") from None
-        rows = list(reader)
+    reader = csv.reader(io.StringIO(read_text(path)))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise ValueError(f"{path}: empty file (expected a header row)") from None
+    rows = list(reader)
     for col in required:
         if col not in header:
             _fail(path, None, col, f"missing required column (header has {header}; "
