@@ -692,8 +692,9 @@ def _block_nearest(q, a, b):
 
 
 def _segments_cross(p1, p2, q1, q2):
-    """Whether segments p1-p2 and each q1-q2 properly intersect (and where, as a fraction along
-    p1-p2)."""
+    """Whether segments p1-p2 and each q1-q2 intersect (and where, as a fraction along
+    p1-p2), a crossing at or a rounding error beyond an end included (a centre line that
+    passes again through one of its knots)."""
     r = p2 - p1
     sv = q2 - q1
     den = r[0] * sv[:, 1] - r[1] * sv[:, 0]
@@ -701,8 +702,10 @@ def _segments_cross(p1, p2, q1, q2):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (qp[:, 0] * sv[:, 1] - qp[:, 1] * sv[:, 0]) / den
         u = (qp[:, 0] * r[1] - qp[:, 1] * r[0]) / den
-    hit = (np.abs(den) > 1e-15) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    return hit, t, u
+    tol = 1e-9
+    hit = ((np.abs(den) > 1e-15) & (t >= -tol) & (t <= 1 + tol) & (u >= -tol)
+           & (u <= 1 + tol))
+    return hit, np.clip(t, 0.0, 1.0), np.clip(u, 0.0, 1.0)
 
 
 def _assemble(name, closed, s_k, p, tan, acc_s, acc_e, widths, slopes) -> CentrelineRoad:
@@ -760,4 +763,4 @@ def _validate(road: CentrelineRoad) -> None:
             raise ValueError(
                 f"road {name!r}: the centre line crosses itself: between s = {sk[i]:.6g} and "
                 f"{sk[i + 1]:.6g} m and between s = {sk[j]:.6g} and {sk[j + 1]:.6g} m "
-                f"(at s = {s_a:.6g} m and s = {s_b:.6g} m)")
+                f"(at s = {round(s_a, 6):.6g} m and s = {round(s_b, 6):.6g} m)")
