@@ -137,6 +137,24 @@ def test_sharded_vmap_in_chunks_equals_vmap():
     assert len(set(np.asarray(got[1]))) > 3  # the members take different step counts
 
 
+@pytest.mark.parametrize("maneuver, axis, message", [
+    ("brake_in_turn", "delta=0.1,100", r"brake_in_turn.delta must lie in [-1.5708, 1.5708], got 100"),
+    ("brake_in_turn", "t_brake=-1", "brake_in_turn.t_brake must lie in [0, inf), got -1"),
+    ("brake_in_turn", "brake_torque=-100", "brake_in_turn.brake_torque must lie in [0, inf)"),
+    ("brake_in_turn", "front_share=1.5", "brake_in_turn.front_share must lie in [0, 1]"),
+    ("step_steer", "rise=0", "step_steer.rise must lie in (0, inf), got 0"),
+])
+def test_bad_maneuver_values_are_refused_before_the_run(maneuver, axis, message, capsys,
+                                                        tmp_path):
+    """The maneuvers check their arguments as the models do: a sweep over a steering angle
+    of 100 rad or a negative braking time ends with exit 2 naming it, before any run."""
+    rc = main(["sweep", "--maneuver", maneuver, "--set", axis,
+               "--out", str(tmp_path / "unused.json")])
+    assert rc == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "unused.json").exists()
+
+
 def test_bad_member_values_are_refused_before_the_run(capsys, tmp_path):
     """A negative mass is refused with the single model's error (field and range), from the
     library and from the command line (exit status 2), before any batched work."""

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._checks import check_positive
+from .._checks import check_finite, check_nonnegative, check_positive, check_range
 
 
 def smooth_step(t, t0, rise):
@@ -24,12 +25,21 @@ def smooth_step(t, t0, rise):
     return s * s * (3.0 - 2.0 * s)
 
 
+def _check_steering(owner, delta, t_start, rise):
+    check_range(owner, "delta", delta, lower=-0.5 * math.pi, upper=0.5 * math.pi)
+    check_nonnegative(owner, "t_steer" if owner == "brake_in_turn" else "t_step", t_start)
+    check_positive(owner, "rise", rise)
+
+
 def step_steer(delta, t_step=0.5, rise=0.2, drive_torque=0.0):
     r"""Step steer: $\delta(t) = \delta\,H(t - t_{step})$ (smoothed), constant torques.
 
     **Arguments:** `delta` [rad] final steering angle; `t_step` [s]; `rise` [s];
-    `drive_torque` [N m] on each axle (0: coasting).
+    `drive_torque` [N m] on each axle (0: coasting). Refuses a steering angle beyond a
+    quarter turn, a negative step time and a rise that is not positive.
     """
+    _check_steering("step_steer", delta, t_step, rise)
+    check_finite("step_steer", "drive_torque", drive_torque)
 
     def u(t, y):
         d = delta * smooth_step(t, t_step, rise)
@@ -48,8 +58,14 @@ def brake_in_turn(
     1 - `front_share` between the axles. Brakes oppose the wheel's rotation,
     $T_i = -T_{b,i}\tanh(\omega_i/\omega_{lock})$ ($\omega_{lock}$ = `omega_lock` rad/s),
     so a locked wheel stays (nearly) locked instead of being spun backwards. Needs the
-    `HalfCar` state (wheel speeds at indices 6, 7).
+    `HalfCar` state (wheel speeds at indices 6, 7). Refuses a steering angle beyond a
+    quarter turn, a negative torque or time, a share outside [0, 1].
     """
+    _check_steering("brake_in_turn", delta, t_steer, rise)
+    for name, value in (("brake_torque", brake_torque), ("t_brake", t_brake)):
+        check_nonnegative("brake_in_turn", name, value)
+    check_range("brake_in_turn", "front_share", front_share, lower=0.0, upper=1.0)
+    check_positive("brake_in_turn", "omega_lock", omega_lock)
 
     def u(t, y):
         d = delta * smooth_step(t, t_steer, rise)
