@@ -170,6 +170,8 @@ def _show(args) -> int:
     from .._io import _jsonable
 
     tir, params = read_tire(args.file)
+    if args.load is not None:
+        _check_loads("--load", [args.load], params, lowest="zero")
     s = tire_summary(tir, params, args.load)
     print(json.dumps(_jsonable(s), indent=2) if args.json else summary_text(s))
     return 0
@@ -254,6 +256,17 @@ def _parse_loads(text):
     return loads
 
 
+def _check_loads(option: str, loads, params, lowest: str = "FZMIN") -> None:
+    """Each load within the file's valid range: [FZMIN, FZMAX] (`lowest` 'FZMIN'), or (0,
+    FZMAX] ('zero')."""
+    lo, hi = float(params.FZMIN) if lowest == "FZMIN" else 0.0, float(params.FZMAX)
+    for v in loads:
+        if not (lo <= v <= hi) or v <= 0:
+            span = f"[{lo:g}, {hi:g}]" if lowest == "FZMIN" else f"(0, {hi:g}]"
+            raise ValueError(f"{option}: {v:g} N is outside the file's load range {span} N "
+                             "(FZMIN, FZMAX)")
+
+
 def _fit_lugre(args) -> int:
     import matplotlib
 
@@ -271,6 +284,11 @@ def _fit_lugre(args) -> int:
     out = Path(args.out)
     figure = out.with_suffix(".png")
     tir, params = read_tire(args.file)
+    if loads is not None:
+        _check_loads("--loads", loads, params)
+        if len(set(loads)) < 2:
+            raise ValueError("--loads: give at least two different loads (the patch length's "
+                             f"law in the load is fitted), got {args.loads!r}")
     print(f"vehsim tire fit-lugre: {args.file}, Magic Formula {float(params.version):.1f}, "
           f"at most {args.max_steps} Levenberg-Marquardt steps", file=sys.stderr, flush=True)
     fit, record = fit_lugre_to(params, args.speed, loads, args.max_steps)
