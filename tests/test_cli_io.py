@@ -63,9 +63,10 @@ def test_cli_parses_reproduce_options():
 
 
 def test_cli_reports_unknown_section_as_error(tmp_path, capsys):
-    rc = cli.main(["reproduce", "--out", str(tmp_path), "--only", "no-such-section"])
+    rc = cli.main(["reproduce", "--out", str(tmp_path / "out"), "--only", "no-such-section"])
     assert rc == 2
     assert "no section matches" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing written, not even the folder
 
 
 _OUT_COMMANDS = {  # each command with an output: its arguments, and whether --out is a file

@@ -68,6 +68,10 @@ def run(out: str | Path = "results", quick: bool = True, only: list[str] | None 
     import matplotlib
 
     matplotlib.use("Agg")
+    sections = [s for s in SECTIONS if not only or any(o in s.rsplit('.', 1)[1] for o in only)]
+    if not sections:  # before anything is written
+        raise ValueError(f"no section matches {only}; sections: "
+                         f"{[s.rsplit('.', 1)[1] for s in SECTIONS]}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ctx = ReproduceContext(out=out, quick=quick or tiny, tiny=tiny)
@@ -77,10 +81,6 @@ def run(out: str | Path = "results", quick: bool = True, only: list[str] | None 
         f"Mode: {mode}. Equation, figure and table numbers refer to "
         "Tsiotras, *Analysis and Control of High-Speed Wheeled Mobile Robots*, final report, 2004.",
     )
-    sections = [s for s in SECTIONS if not only or any(o in s.rsplit('.', 1)[1] for o in only)]
-    if not sections:
-        raise ValueError(f"no section matches {only}; sections: "
-                         f"{[s.rsplit('.', 1)[1] for s in SECTIONS]}")
     for i, name in enumerate(sections, 1):
         module = importlib.import_module(name)
         print(f"[{i}/{len(sections)}] {module.TITLE}", file=sys.stderr, flush=True)
