@@ -18,9 +18,14 @@ import os
 from pathlib import Path
 
 
+def _bound(x) -> str:
+    """A bound as written: integers in full (a seed's 2147483647), other numbers by `g`."""
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
 def _interval(lower, upper, lower_open, upper_open, unit) -> str:
-    lo = "-inf" if lower is None else f"{lower:g}"
-    hi = "inf" if upper is None else f"{upper:g}"
+    lo = "-inf" if lower is None else _bound(lower)
+    hi = "inf" if upper is None else _bound(upper)
     text = f"{'(' if lower_open or lower is None else '['}{lo}, {hi}" \
            f"{')' if upper_open or upper is None else ']'}"
     return f"{text} {unit}".rstrip()

@@ -102,17 +102,17 @@ def read_recorded_braking(path) -> tuple:
     if k is not None:
         dt = np.diff(values["t"])
         _fail(path, k + 1, "t", f"time must increase uniformly (steps within 1 % of the mean "
-              f"{np.mean(dt):g} s), got {values['t'][k]!r} after {values['t'][k - 1]!r}; "
+              f"{np.mean(dt):g} s), got {values['t'][k]:g} after {values['t'][k - 1]:g}; "
               "resample the record first")
     if math.isnan(values["omega"][0]):
         _fail(path, 1, "omega", "the first sample starts the estimators and must be present")
     for c in ("T_b", "F_n"):
         if c in values and np.any(values[c] < 0):
             i = int(np.argmax(values[c] < 0)) + 1
-            _fail(path, i, c, f"must be >= 0 (a magnitude), got {values[c][i - 1]!r}")
+            _fail(path, i, c, f"must be >= 0 (a magnitude), got {values[c][i - 1]:g}")
     if "theta" in values and np.any(values["theta"] <= 0):
         i = int(np.argmax(values["theta"] <= 0)) + 1
-        _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]!r}")
+        _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]:g}")
     extras = read_side_file(path)
     extras["theta"] = values.get("theta")
     record = MeasuredBraking(values["t"], values["v"], values["omega"], values["T_b"],
@@ -151,6 +151,8 @@ def _assumed_tire(args):
     _positive("--prior-theta", prior)
     _positive("--theta-range LO", rng[0])
     _positive("--kappa0", args.kappa0)
+    if rng[0] >= rng[1]:
+        raise ValueError(f"--theta-range: LO must be below HI, got {rng[0]:g} {rng[1]:g}")
     if not (rng[0] <= prior <= rng[1]):
         raise ValueError(f"--prior-theta must lie in --theta-range [{rng[0]:g}, {rng[1]:g}], "
                          f"got {prior:g}")
