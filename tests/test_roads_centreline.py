@@ -278,6 +278,17 @@ def test_an_open_road_passing_again_through_its_start_is_refused():
         CentrelineRoad.from_points(x, y, np.full(80, 3.0), np.full(80, 3.0), name="lobes")
 
 
+def test_a_centre_line_doubling_back_along_itself_is_refused():
+    """Back along the same line (100 m to 0, then on to 5 m): no crossing at an angle, but
+    the road overlaps itself, refused as crossing itself (it was accepted and solved)."""
+    x = np.array([100.0, 97.5, 95.0, 0.0, 2.5, 5.0])
+    with pytest.raises(ValueError, match="'back': the centre line crosses itself"):
+        CentrelineRoad.from_points(x, np.zeros(6), np.full(6, 4.0), np.full(6, 4.0),
+                                   name="back")
+    # a straight road (collinear segments that do not overlap) is a road
+    CentrelineRoad.from_points(np.arange(6) * 10.0, np.zeros(6), np.ones(6), np.ones(6))
+
+
 def test_a_closed_road_repeating_its_first_point_is_refused():
     t = np.linspace(0, 2 * np.pi, 20)
     with pytest.raises(ValueError, match="rows 19 and 0 .*first point is not repeated"):

@@ -64,17 +64,18 @@ def optimise_road(args) -> int:
         raise ValueError("--interior-points and --no-corner-clearance apply to the benchmark "
                          "roads' corners; on a road file the corridor holds at each step's "
                          "midpoint as well as at the nodes")
+    closed = args.closed or args.track is not None  # known before the road is read
+    if args.start_speed is not None and closed:
+        raise ValueError("--start-speed applies to an open road (a lap ends in the state "
+                         "it starts, at a speed of its own)")
+    if closed and args.objective == "max-exit":
+        raise ValueError("--objective max-exit needs an open road (a lap has no exit); "
+                         "leave out --closed or use --objective min-time")
     road = road_from_args(args)
     if args.start_speed is not None:
-        if road.closed:
-            raise ValueError("--start-speed applies to an open road (a lap ends in the state "
-                             "it starts, at a speed of its own)")
         from ..optimal.centreline import Gate
 
         road = road.with_gates(Gate.at(road, 0.0, speed=args.start_speed), None)
-    if road.closed and args.objective == "max-exit":
-        raise ValueError("--objective max-exit needs an open road (a lap has no exit); "
-                         "leave out --closed or use --objective min-time")
     stages = args.segments if args.segments is not None else default_stages(road.length)
     coarse = coarse_stages(road.length, stages)
     kind = "lap" if road.closed else "stage"

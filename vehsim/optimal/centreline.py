@@ -705,7 +705,15 @@ def _segments_cross(p1, p2, q1, q2):
     tol = 1e-9
     hit = ((np.abs(den) > 1e-15) & (t >= -tol) & (t <= 1 + tol) & (u >= -tol)
            & (u <= 1 + tol))
-    return hit, np.clip(t, 0.0, 1.0), np.clip(u, 0.0, 1.0)
+    # parallel segments on one line that overlap (a centre line doubling back on itself)
+    rr = float(r @ r)
+    off_line = np.abs(qp[:, 0] * r[1] - qp[:, 1] * r[0]) / max(np.sqrt(rr), 1e-300)
+    a0, a1 = (qp @ r) / rr, ((q2 - p1) @ r) / rr
+    overlap = np.minimum(np.maximum(a0, a1), 1.0) - np.maximum(np.minimum(a0, a1), 0.0)
+    along = (np.abs(den) <= 1e-15) & (off_line <= tol * (1.0 + np.sqrt(rr))) & (overlap > tol)
+    t = np.where(along, np.clip(np.maximum(np.minimum(a0, a1), 0.0), 0.0, 1.0), t)
+    u = np.where(along, 0.0, u)
+    return hit | along, np.clip(t, 0.0, 1.0), np.clip(u, 0.0, 1.0)
 
 
 def _assemble(name, closed, s_k, p, tan, acc_s, acc_e, widths, slopes) -> CentrelineRoad:
