@@ -278,6 +278,16 @@ def test_an_open_road_passing_again_through_its_start_is_refused():
         CentrelineRoad.from_points(x, y, np.full(80, 3.0), np.full(80, 3.0), name="lobes")
 
 
+@pytest.mark.parametrize("key, value", [("x", 9e300), ("y", -2e7), ("width_left", 5e3)])
+def test_coordinates_and_widths_beyond_a_local_frame_are_refused_naming_the_row(key, value):
+    cols = dict(x=np.arange(5) * 10.0, y=np.zeros(5), width_right=np.ones(5),
+                width_left=np.ones(5))
+    cols[key] = cols[key].copy()
+    cols[key][2] = value
+    with pytest.raises(ValueError, match=rf"row 2, {key} must lie within"):
+        CentrelineRoad.from_points(**cols, name="far")
+
+
 def test_a_centre_line_doubling_back_along_itself_is_refused():
     """Back along the same line (100 m to 0, then on to 5 m): no crossing at an angle, but
     the road overlaps itself, refused as crossing itself (it was accepted and solved)."""

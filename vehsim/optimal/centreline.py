@@ -431,6 +431,13 @@ class CentrelineRoad(eqx.Module):
             if bad.size:
                 raise ValueError(f"road {name!r}: row {bad[0]}, {key} must be > 0 m, got "
                                  f"{arrs[key][bad[0]]:g}")
+        for key, limit in (("x", COORDINATE_LIMIT), ("y", COORDINATE_LIMIT),
+                           ("width_right", WIDTH_LIMIT), ("width_left", WIDTH_LIMIT)):
+            bad = np.flatnonzero(np.abs(arrs[key]) > limit)
+            if bad.size:
+                raise ValueError(f"road {name!r}: row {bad[0]}, {key} must lie within "
+                                 f"{limit:g} m (a local frame in metres), got "
+                                 f"{arrs[key][bad[0]]:g}")
         pts = np.stack([arrs["x"], arrs["y"]], axis=-1)
         if closed:
             pts_c = np.concatenate([pts, pts[:1]])
@@ -689,6 +696,12 @@ def _block_nearest(q, a, b):
     d = np.hypot(q[:, None, 0] - c[..., 0], q[:, None, 1] - c[..., 1])
     j = np.argmin(d, axis=1)
     return d[np.arange(len(q)), j], j
+
+
+COORDINATE_LIMIT = 1e7
+"""Largest centre-line coordinate [m] of a road (10,000 km: a local frame in metres)."""
+WIDTH_LIMIT = 1e3
+"""Largest width [m] of a road's side."""
 
 
 def _segments_cross(p1, p2, q1, q2):
