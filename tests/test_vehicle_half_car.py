@@ -167,6 +167,31 @@ def test_vmap_jit_grad():
     np.testing.assert_allclose(g, fd_grad(objective, x0, eps=1e-5), rtol=2e-4)
 
 
+@pytest.mark.parametrize("car", [CAR, ReducedHalfCar(rally_gravel(), rally_gravel_tire())],
+                         ids=["half car", "reduced"])
+def test_angle_signals_of_a_car_at_rest_have_finite_gradients(car):
+    """The sideslip and the axles' slip angles are the angles of velocities that vanish at
+    rest: 0 there with zero gradients, not NaN; elsewhere the angles, with their
+    derivatives."""
+    names = ("sideslip", "alpha_F", "alpha_R")
+    u = jnp.zeros(3)
+
+    def angles(state):
+        sig = car.signals(state, u)
+        return jnp.stack([sig[n] for n in names])
+
+    start = (lambda vx: car.init_state(vx=vx)) if isinstance(car, HalfCar) else (
+        lambda vx: jnp.zeros(6).at[3].set(vx))  # the reduced car: (x, y, psi, vx, vy, r)
+    rest = start(0.0)
+    assert np.all(np.asarray(angles(rest)) == 0.0)
+    assert np.all(np.isfinite(np.asarray(jax.jacrev(angles)(rest))))
+    assert np.all(np.isfinite(np.asarray(jax.jacfwd(angles)(rest))))
+    moving = start(10.0).at[4].set(0.5)  # vy = 0.5 m/s
+    np.testing.assert_allclose(float(angles(moving)[0]), np.arctan2(0.5, 10.0), rtol=1e-12)
+    J = np.asarray(jax.jacrev(angles)(moving))
+    assert abs(J[0, 4] - 10.0 / (10.0**2 + 0.5**2)) < 1e-9  # d sideslip / d vy
+
+
 def test_input_forms():
     ts = jnp.array([0.0, 1.0, 3.0])
     samples = jnp.array([[0.0, 1.0, 2.0], [10.0, 1.0, 0.0], [30.0, -1.0, 4.0]])

@@ -66,6 +66,14 @@ def safe_hypot(x, y):
     return safe_sqrt(x * x + y * y)
 
 
+def safe_arctan2(y, x):
+    """arctan2(y, x), 0 at the origin with a zero gradient there (not NaN): the angle of a
+    velocity of a car at rest."""
+    origin = (x == 0) & (y == 0)
+    return jnp.where(origin, jnp.zeros_like(x * y),
+                     jnp.arctan2(y, jnp.where(origin, jnp.ones_like(x), x)))
+
+
 def wrap_angle(angle):
     r"""The angle in $(-\pi, \pi]$."""
     return -jnp.remainder(-angle + jnp.pi, 2 * jnp.pi) + jnp.pi

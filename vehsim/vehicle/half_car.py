@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._math import safe_div
+from .._math import safe_arctan2, safe_div
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
 from .params import HalfCarParams
@@ -185,13 +185,13 @@ class HalfCar(AbstractVehicle):
         return {
             "x": q[0], "y": q[1], "psi": q[2], "vx": vx, "vy": vy, "yaw_rate": r,
             "speed": jnp.hypot(vx, vy),
-            "sideslip": jnp.arctan2(vy, vx),
+            "sideslip": safe_arctan2(vy, vx),
             "ax": rates[3] - r * vy, "ay": rates[4] + r * vx,
             "T_F": controls[0], "T_R": controls[1], "delta": controls[2],
             "omega_F": q[6], "omega_R": q[7],
             "kappa_F": safe_div(q[6] * p.r - VFx, VFx),
             "kappa_R": safe_div(q[7] * p.r - VRx, VRx),
-            "alpha_F": jnp.arctan2(VFy, VFx), "alpha_R": jnp.arctan2(VRy, VRx),
+            "alpha_F": safe_arctan2(VFy, VFx), "alpha_R": safe_arctan2(VRy, VRx),
             "Vx_F": VFx, "Vx_R": VRx,
             "Fx_F": fF[0], "Fy_F": fF[1], "Mz_F": fF[2],
             "Fx_R": fR[0], "Fy_R": fR[1], "Mz_R": fR[2],

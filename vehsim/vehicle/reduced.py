@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._math import safe_arctan2
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
 from .params import HalfCarParams
@@ -173,11 +174,11 @@ class ReducedHalfCar(AbstractVehicle):
             "x": state[0], "y": state[1], "psi": state[2],
             "vx": vx, "vy": vy, "yaw_rate": state[5],
             "speed": jnp.hypot(vx, vy),
-            "sideslip": jnp.arctan2(vy, vx),
+            "sideslip": safe_arctan2(vy, vx),
             "ax": rates[3] - state[5] * vy,
             "ay": rates[4] + state[5] * vx,
             "delta": delta, "kappa_F": kF, "kappa_R": kR,
-            "alpha_F": jnp.arctan2(VFy, VFx), "alpha_R": jnp.arctan2(VRy, VRx),
+            "alpha_F": safe_arctan2(VFy, VFx), "alpha_R": safe_arctan2(VRy, VRx),
             "Vx_F": VFx, "Vx_R": VRx,
             "omega_F": omF, "omega_R": omR,
             "Fx_F": fF[0], "Fy_F": fF[1], "Fx_R": fR[0], "Fy_R": fR[1],
