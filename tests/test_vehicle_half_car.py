@@ -192,6 +192,22 @@ def test_angle_signals_of_a_car_at_rest_have_finite_gradients(car):
     assert abs(J[0, 4] - 10.0 / (10.0**2 + 0.5**2)) < 1e-9  # d sideslip / d vy
 
 
+def test_a_lifted_axle_neither_grips_nor_pulls_the_body_down():
+    """Pitched far nose down (the rear spring extended past its preload, its load negative):
+    the rear wheel has left the ground, so the heave and pitch see only the front's load,
+    and the rear tire has no force (the spring pulling the body to the ground was a model
+    error)."""
+    car = CAR
+    state = car.init_state(vx=15.0).at[10].set(0.2)  # theta = 0.2 rad, nose down
+    FzF, FzR = car._suspension_loads(state[:12])
+    assert float(FzR) < 0 < float(FzF)
+    p = car.params
+    rates = car.f(state, jnp.zeros(3))
+    np.testing.assert_allclose(float(rates[9]), float(FzF) / p.m - p.g, rtol=1e-12)
+    sig = car.signals(state, jnp.zeros(3))
+    assert float(sig["Fx_R"]) == 0.0 and float(sig["Fy_R"]) == 0.0
+
+
 def test_input_forms():
     ts = jnp.array([0.0, 1.0, 3.0])
     samples = jnp.array([[0.0, 1.0, 2.0], [10.0, 1.0, 0.0], [30.0, -1.0, 4.0]])

@@ -51,7 +51,9 @@ class HalfCar(AbstractVehicle):
       the quasi-static load transfer of the reduced model.
     - `load_iterations`: used only with ``suspension=False`` (see `quasi_static_loads`).
 
-    Tire loads are clipped at 0 (a lifted axle carries no friction).
+    Axle loads are clipped at 0: a lifted axle carries no friction, and its spring, whose
+    wheel has left the ground, no longer acts on the body (eqs. 54-55 with the clipped
+    loads; the wheels have no mass of their own).
     """
 
     params: HalfCarParams
@@ -160,15 +162,18 @@ class HalfCar(AbstractVehicle):
         FzF, FzR = e["Fz"]
         planar = planar_rates(p, q[2], q[3], q[4], q[5], fF, fR, delta)
         wheels = jnp.stack([(T_F - fF[0] * p.r) / p.Iw_F, (T_R - fR[0] * p.r) / p.Iw_R])
+        # the ground pushes, never pulls: an axle whose spring would pull the body down
+        # has lifted its wheel, and carries nothing (the tire's load and the body's alike)
+        FzF_t, FzR_t = jnp.maximum(FzF, 0.0), jnp.maximum(FzR, 0.0)
         if self.suspension:
             z, z_dot, theta, theta_dot = q[8], q[9], q[10], q[11]
             sum_fx = front_body_x(fF[0], fF[1], delta) + fR[0]
-            z_dd = (FzF + FzR) / p.m - p.g
-            theta_dd = ((FzR * p.lR - FzF * p.lF) * jnp.cos(theta) - sum_fx * (p.h + z)) / p.Iy
+            z_dd = (FzF_t + FzR_t) / p.m - p.g
+            theta_dd = ((FzR_t * p.lR - FzF_t * p.lF) * jnp.cos(theta)
+                        - sum_fx * (p.h + z)) / p.Iy
             susp = jnp.stack([z_dot, z_dd, theta_dot, theta_dd])
         else:
             susp = jnp.zeros(4)
-        FzF_t, FzR_t = jnp.maximum(FzF, 0.0), jnp.maximum(FzR, 0.0)
         tire_F, tire_R = self.tires
         dzF = ravel_pytree(tire_F.dynamics(e["zF"], VFx, VFy, q[6], p.r, FzF_t))[0]
         dzR = ravel_pytree(tire_R.dynamics(e["zR"], VRx, VRy, q[7], p.r, FzR_t))[0]
