@@ -286,9 +286,6 @@ def _fit_lugre(args) -> int:
     tir, params = read_tire(args.file)
     if loads is not None:
         _check_loads("--loads", loads, params)
-        if len(set(loads)) < 2:
-            raise ValueError("--loads: give at least two different loads (the patch length's "
-                             f"law in the load is fitted), got {args.loads!r}")
     print(f"vehsim tire fit-lugre: {args.file}, Magic Formula {float(params.version):.1f}, "
           f"at most {args.max_steps} Levenberg-Marquardt steps", file=sys.stderr, flush=True)
     fit, record = fit_lugre_to(params, args.speed, loads, args.max_steps)
