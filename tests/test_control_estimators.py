@@ -336,6 +336,13 @@ def test_observer_update_exact_sensitivity_and_derivative_with_frozen_jacobians(
     stamp, end = (predicted(p[1] + eps) - predicted(p[1] - eps)) / (2 * eps)
     assert abs(fd) > 1e-3 and abs(stamp - end) > 0.1 * abs(end)  # the times differ
     assert float(st.sensitivity[0]) == pytest.approx(fd, rel=1e-7)
+    # no edge: the estimate is the prediction, bounded by the last measured speed; where
+    # the bound holds (a wheel measured slower, 0 here) it does not depend on theta
+    for omega_m, expected in ((0.0, 0.0), (1e6, end)):
+        st_b = observer.update(eqx.tree_at(lambda s: (s.log_theta, s.omega), st0, (p[1], p[2])),
+                               car, HARDWARE, 8, jnp.asarray(29.9), jnp.asarray(omega_m), 0.0025,
+                               False, 800.0, 1200.0, 0.0)
+        assert float(st_b.sensitivity[0]) == pytest.approx(expected, rel=1e-7, abs=1e-12)
 
     fwd = np.asarray(eqx.filter_jit(jax.jacfwd(flat))(p))
     rev = np.asarray(eqx.filter_jit(jax.jacrev(flat))(p))
