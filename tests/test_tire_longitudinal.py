@@ -226,6 +226,33 @@ def test_uniform_lumped_derivatives_near_lock_tend_to_the_locked_ones(p):
                                    err_msg=f"|omega r| = {c} m/s")
 
 
+def test_steady_state_derivatives_near_lock_tend_to_the_locked_ones(p):
+    """eq. 17 for any load and the profile of eq. 15 towards lock: v_r L/c grows without
+    bound while the profile's factor falls as 1/k; regrouped for k > 1, the derivatives in
+    (v, omega) settle to the locked wheel's (the product lost its digits below about 1e-12
+    m/s of rolling speed)."""
+    from vehsim.tire.steady_state import steady_state_mu, z_ss
+
+    load = vs.QuarticLoad()
+    fs = {"mu": lambda v, om: steady_state_mu(p, load, v, om, R),
+          "z": lambda v, om: z_ss(p, 0.3 * p.L, v, om, R)}
+    for name, f in fs.items():
+        grad = jax.jit(jax.grad(f, argnums=(0, 1)))
+        near = np.asarray(grad(20.0, 1e-6 / R))
+        assert np.all(np.abs(near) > 0)
+        for c in (1e-9, 1e-12, 1e-15, 1e-30, 1e-100):
+            np.testing.assert_allclose(np.asarray(grad(20.0, c / R)), near, rtol=1e-4,
+                                       err_msg=f"{name} at |omega r| = {c} m/s")
+        # the two groupings meet at k = 1 without a jump (both exact there)
+        from vehsim.tire.steady_state import _rolling_terms
+
+        lo, hi = 1.0 / R, 20.0 / R  # k > 1 at lo, < 1 at hi (a braking wheel at 20 m/s)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if float(_rolling_terms(p, 20.0, mid, R)[4]) > 1.0 else (lo, mid)
+        assert abs(float(f(20.0, lo)) - float(f(20.0, hi))) < 1e-12 * abs(float(f(20.0, lo)))
+
+
 def test_steady_state_gradients_at_singular_points_are_the_one_sided_slopes(p):
     """eq. 17 (quartic load) and the profile z_ss of eq. 15 at the singular points: the
     gradient is the mean of the one-sided slopes (they differ only at the locked wheel's

@@ -40,11 +40,24 @@ def _rolling_terms(params: LuGreParams, v, omega, r):
     return v_r, g, c_safe, rolling, k
 
 
+def _near_lock(v_r, g, c, k, params):
+    r"""$v_rL/c$ and, for $k > 1$ (towards lock, where $v_rL/c \to \infty$ while the
+    profile's $\xi\phi(k\xi) \sim 1/k$), the same product regrouped as
+    $g\,\mathrm{sgn}(v_r)/(\theta\sigma_0)$ times $k\xi\phi(k\xi) = 1 - e^{-k\xi}$: the
+    values agree, and the derivatives stay exact as $|\omega r| \to 0$."""
+    large = k > 1.0
+    scale_small = v_r * params.L / c
+    scale_large = jnp.sign(v_r) * g / (params.theta * params.sigma0)
+    return large, scale_small, scale_large
+
+
 def z_ss(params: LuGreParams, zeta, v, omega, r):
     r"""Steady-state deflection profile $z_{ss}(\zeta)$ (eqs. 15-16) [m]."""
     v_r, g, c, rolling, k = _rolling_terms(params, v, omega, r)
     xi = zeta / params.L
-    z_roll = v_r * params.L / c * xi * one_minus_exp_over(k * xi)
+    large, small_scale, large_scale = _near_lock(v_r, g, c, k, params)
+    z_roll = jnp.where(large, large_scale * -jnp.expm1(-k * xi),
+                       small_scale * xi * one_minus_exp_over(k * xi))
     z_lock = jnp.sign(v_r) * g / (params.theta * params.sigma0)
     return jnp.where(rolling, z_roll, z_lock)
 
@@ -71,9 +84,13 @@ def steady_state_mu(params: LuGreParams, load: AbstractLoadDistribution, v, omeg
     a, b = edges[:-1, None], edges[1:, None]
     xi = 0.5 * (b - a) * jnp.asarray(_GL_X)[None, :] + 0.5 * (a + b)
     w = 0.5 * (b - a) * jnp.asarray(_GL_W)[None, :]
-    # K = int_0^1 xi phi(k xi) q(xi) dxi ; z_ss = v_r L / c * xi phi(k xi).
-    K = jnp.sum(w * xi * one_minus_exp_over(k * xi) * load.q(xi))
-    mu_roll = params.sigma0 * v_r * params.L / c * K
+    # K = int_0^1 xi phi(k xi) q(xi) dxi ; z_ss = v_r L / c * xi phi(k xi); towards lock
+    # (k > 1) the same as g sgn(v_r) / (theta sigma0) * int (1 - exp(-k xi)) q (`_near_lock`)
+    large, small_scale, large_scale = _near_lock(v_r, g, c, k, params)
+    q = load.q(xi)
+    K = jnp.sum(w * xi * one_minus_exp_over(k * xi) * q)
+    kK = jnp.sum(w * -jnp.expm1(-k * xi) * q)
+    mu_roll = params.sigma0 * jnp.where(large, large_scale * kK, small_scale * K)
     mu_lock = jnp.sign(v_r) * g / params.theta
     return jnp.where(rolling, mu_roll, mu_lock) + params.sigma2 * v_r
 
