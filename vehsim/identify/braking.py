@@ -196,24 +196,19 @@ def read_side_file(path: str | Path) -> dict:
 def _read_wheel_data(path: Path, r: float | None) -> dict:
     """`r` (required), `m`, `J` from the side file (`r` overridden by the argument)."""
     side = path.with_suffix(".json")
-    meta = read_side_file(path)
+    meta = read_side_file(path)  # its values checked there
     if r is not None:
-        meta["r"] = r
+        try:
+            meta["r"] = float(r)
+        except (TypeError, ValueError):
+            raise ValueError(f"load_braking: r must be a number, got {r!r}") from None
+        if not (math.isfinite(meta["r"]) and meta["r"] > 0):
+            raise ValueError(f"load_braking: r [m] must lie in (0, inf), got {meta['r']}")
     if "r" not in meta:
         raise ValueError(f"{path}: wheel radius 'r' [m] missing: put it in the side file "
                          f"{side.name}, or give it (--radius on the command line, r= to "
                          "load_braking)")
-    scalars = {}
-    for key in ("r", "m", "J"):
-        if key in meta and meta[key] is not None:
-            try:
-                x = float(meta[key])
-            except (TypeError, ValueError):
-                raise ValueError(f"{side}: {key!r} must be a number, got {meta[key]!r}") from None
-            if not (math.isfinite(x) and x > 0):
-                raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in (0, inf), got {x}")
-            scalars[key] = jnp.asarray(x)
-    return scalars
+    return {key: jnp.asarray(x) for key, x in meta.items()}
 
 
 def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: int = 10):

@@ -25,9 +25,11 @@ def smooth_step(t, t0, rise):
     return s * s * (3.0 - 2.0 * s)
 
 
-def _check_steering(owner, delta, t_start, rise):
+def _check_steering(owner, delta, start: tuple[str, float], rise):
+    """A steering angle within a quarter turn, its start time (name, value) not negative and
+    a positive rise."""
     check_range(owner, "delta", delta, lower=-0.5 * math.pi, upper=0.5 * math.pi)
-    check_nonnegative(owner, "t_steer" if owner == "brake_in_turn" else "t_step", t_start)
+    check_nonnegative(owner, *start)
     check_positive(owner, "rise", rise)
 
 
@@ -38,7 +40,7 @@ def step_steer(delta, t_step=0.5, rise=0.2, drive_torque=0.0):
     `drive_torque` [N m] on each axle (0: coasting). Refuses a steering angle beyond a
     quarter turn, a negative step time and a rise that is not positive.
     """
-    _check_steering("step_steer", delta, t_step, rise)
+    _check_steering("step_steer", delta, ("t_step", t_step), rise)
     check_finite("step_steer", "drive_torque", drive_torque)
 
     def u(t, y):
@@ -61,7 +63,7 @@ def brake_in_turn(
     `HalfCar` state (wheel speeds at indices 6, 7). Refuses a steering angle beyond a
     quarter turn, a negative torque or time, a share outside [0, 1].
     """
-    _check_steering("brake_in_turn", delta, t_steer, rise)
+    _check_steering("brake_in_turn", delta, ("t_steer", t_steer), rise)
     for name, value in (("brake_torque", brake_torque), ("t_brake", t_brake)):
         check_nonnegative("brake_in_turn", name, value)
     check_range("brake_in_turn", "front_share", front_share, lower=0.0, upper=1.0)
