@@ -33,6 +33,9 @@ BAD = {
     "output extension": (["sweep", "--out", "{tmp}/s.csv"], "--out"),
     "negative speed on an axis": (["sweep", "--set", "speed=-3,2", "--out", "{tmp}/s.json"],
                                   "speed"),
+    "axis speed beyond --speed's range": (["sweep", "--set", "speed=20,1e6", "--out",
+                                           "{tmp}/s.json"], "--set speed: must be a finite "
+                                          "number in (0, 100] m/s"),
     # brake
     "nan speed": (["brake", "--speed", "nan"], "--speed"),
     "speed beyond range": (["brake", "--speed", "1000"], "--speed"),
@@ -75,6 +78,13 @@ def test_bad_input_exits_2_naming_the_option_and_writes_nothing(case, tmp_path, 
     assert option in err, err
     assert "Traceback" not in err
     assert sorted(p.name for p in tmp_path.rglob("*")) == [], "a file was written"
+
+
+def test_sweep_refuses_a_model_value_before_announcing_the_run(tmp_path, capsys):
+    code, err = _run(["sweep", "--set", "m=1200,-1200", "--out", tmp_path / "s.json"], capsys)
+    assert code == 2 and "HalfCarParams.m must lie in (0, inf), got -1200" in err, err
+    assert "members x" not in err, err  # the run's announcement comes after every check
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_option_types_check_ranges_and_parse_good_values():

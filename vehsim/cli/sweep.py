@@ -11,9 +11,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ._options import number
+
+
+SPEED = number(0.0, 100.0, lower_open=True, unit="m/s")
+"""The initial speed's type: a number in (0, 100] m/s (``--speed`` and ``--set speed``)."""
+
 
 def register(subparsers) -> None:
-    from ._options import integer, number
+    from ._options import integer
 
     p = subparsers.add_parser(
         "sweep",
@@ -34,8 +40,9 @@ def register(subparsers) -> None:
                    help=f"tire preset: {', '.join(presets_of_kind('tire'))} (rally_gravel_tire)")
     p.add_argument("--set", dest="axes", action="append", default=[], metavar="NAME=V1,V2",
                    help="a grid axis (repeatable)")
-    p.add_argument("--speed", type=number(0.0, 100.0, lower_open=True, unit="m/s"),
-                   default=20.0, help="initial speed [m/s], in (0, 100] (20)")
+    p.add_argument("--speed", type=SPEED, default=20.0,
+                   help="initial speed [m/s], in (0, 100] (20); a --set speed axis takes "
+                        "the same range")
     p.add_argument("--duration", type=number(0.0, 600.0, lower_open=True, unit="s"),
                    default=5.0, help="simulated time [s], in (0, 600] (5)")
     p.add_argument("--samples", type=integer(2, 100_000), default=101,
@@ -123,7 +130,7 @@ def _sweep(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from .._results import is_successful
-    from .._sweep import sweep, sweep_grid
+    from .._sweep import check_members, sweep, sweep_grid
     from ..params import preset
     from ..sharding import num_members
     from ..vehicle.maneuvers import half_car_scenario
@@ -131,6 +138,11 @@ def _sweep(args: argparse.Namespace) -> int:
     from ._status import exit_status
 
     axes = parse_axes(args.axes)
+    for v in axes.get("speed", []):
+        try:
+            SPEED(repr(v))
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"--set speed: {e}") from None
     output_file("--out", args.out, {".json": "json", ".nc": "netcdf"})
     check_process_ids(args)
     if args.distributed or args.coordinator:
@@ -139,6 +151,7 @@ def _sweep(args: argparse.Namespace) -> int:
     members = sweep_grid(**axes) if axes else {"speed": jnp.asarray([args.speed])}
     n = num_members(members)
     scenario = half_car_scenario(params, tire, args.maneuver, args.speed, list(members))
+    check_members(scenario, members)  # every value's range, before the run is announced
     where = f"{len(jax.devices())} device(s)" + (
         f" of {jax.process_count()} processes (this is process {jax.process_index()})"
         if jax.process_count() > 1 else "")
@@ -147,7 +160,7 @@ def _sweep(args: argparse.Namespace) -> int:
     ts = jnp.linspace(0.0, args.duration, args.samples)
     t0 = time.perf_counter()
     batch_size = default_batch_size(n) if args.batch_size is None else args.batch_size or None
-    res = sweep(scenario, members, ts, batch_size=batch_size)
+    res = sweep(scenario, members, ts, batch_size=batch_size, check=False)
     wall = time.perf_counter() - t0
     n_ok = int(jnp.sum(is_successful(res.result)))
     if jax.process_index() != 0:  # every process has the gathered result; process 0 writes
