@@ -62,6 +62,8 @@ def test_shipped_brakings_load_and_are_physical():
         (GOOD.replace("0.004,", "0.002,"), {"r": 0.3}, r"row 3, column 't'.*increase"),
         # negative load
         (GOOD.replace("4020", "-4020"), {"r": 0.3}, r"row 3, column 'F_n'.*>= 0"),
+        # negative speed (a braking is forwards)
+        (GOOD.replace("19.99", "-19.99"), {"r": 0.3}, r"row 2, column 'v'.*>= 0 \(the forward"),
         # negative brake torque
         (GOOD.replace(",30\n", ",-30\n"), {"r": 0.3}, r"row 4, column 'T_b'.*>= 0"),
         # inconsistent lengths (a short row)
@@ -75,7 +77,7 @@ def test_shipped_brakings_load_and_are_physical():
         ("t,v,omega,F_x,F_n\n0,1,2,3,4\n", {"r": 0.3}, r"at least 3 data rows"),
     ],
     ids=["missing_column", "nan", "inf", "not_a_number", "time_not_increasing",
-         "negative_load", "negative_torque", "inconsistent_lengths", "missing_radius",
+         "negative_load", "negative_speed", "negative_torque", "inconsistent_lengths", "missing_radius",
          "invalid_radius", "too_short"],
 )
 def test_loader_rejects_bad_file(tmp_path, text, meta, match):

@@ -9,7 +9,7 @@ inertia [kg m^2]; the options override it):
 | column  | unit  | meaning                                                                 |
 |---------|-------|-------------------------------------------------------------------------|
 | `t`     | s     | time, uniformly sampled (steps within 1 % of the mean)                  |
-| `v`     | m/s   | vehicle speed                                                           |
+| `v`     | m/s   | vehicle speed, forwards, >= 0                                           |
 | `omega` | rad/s | wheel speed; an empty field or ``nan`` is a missing sample              |
 | `T_b`   | N m   | brake torque as it acted, >= 0                                          |
 | `F_x`   | N     | friction force (optional, not used by the estimators)                  |
@@ -89,7 +89,7 @@ def read_recorded_braking(path) -> tuple:
     import numpy as np
 
     from ..control.estimation.recorded import MeasuredBraking, nonuniform_step
-    from ..identify.braking import _fail, _read_columns, read_side_file
+    from ..identify.braking import _fail, _read_columns, check_magnitudes, read_side_file
 
     path = Path(path)
     if not path.is_file():
@@ -106,10 +106,7 @@ def read_recorded_braking(path) -> tuple:
               "resample the record first")
     if math.isnan(values["omega"][0]):
         _fail(path, 1, "omega", "the first sample starts the estimators and must be present")
-    for c in ("T_b", "F_n"):
-        if c in values and np.any(values[c] < 0):
-            i = int(np.argmax(values[c] < 0)) + 1
-            _fail(path, i, c, f"must be >= 0 (a magnitude), got {values[c][i - 1]:g}")
+    check_magnitudes(path, values)
     if "theta" in values and np.any(values["theta"] <= 0):
         i = int(np.argmax(values["theta"] <= 0)) + 1
         _fail(path, i, "theta", f"must be > 0, got {values['theta'][i - 1]:g}")

@@ -86,7 +86,7 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
 
     **Raises:** `ValueError` naming the row and column for: a missing required column, a
     row with the wrong number of fields, a non-numeric, NaN or infinite value, time not
-    strictly increasing, a negative normal load or brake torque, fewer than 3 rows, or a
+    strictly increasing, a negative speed, normal load or brake torque, fewer than 3 rows, or a
     missing/invalid radius.
     """
     path = Path(path)
@@ -145,7 +145,7 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
 
 
 def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
-    """At least 3 rows, time strictly increasing, load and torque not negative."""
+    """At least 3 rows, time strictly increasing, speed, load and torque not negative."""
     if len(values["t"]) < 3:
         raise ValueError(f"{path}: need at least 3 data rows, got {len(values['t'])}")
     dt = np.diff(values["t"])
@@ -153,10 +153,20 @@ def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
         i = int(np.argmax(dt <= 0)) + 2
         _fail(path, i, "t", f"time must increase strictly, got {float(values['t'][i - 1]):g} after "
               f"{float(values['t'][i - 2]):g}")
-    for c in ("F_n", "T_b"):
+    check_magnitudes(path, values)
+
+
+NONNEGATIVE = {"v": "the forward speed of a braking", "F_n": "a load magnitude",
+               "T_b": "a torque magnitude"}
+"""The columns of a braking record that may not be negative, and what each holds."""
+
+
+def check_magnitudes(path, values: dict[str, np.ndarray]) -> None:
+    """Refuse the first negative value of a `NONNEGATIVE` column, naming its row."""
+    for c, what in NONNEGATIVE.items():
         if c in values and np.any(values[c] < 0):
             i = int(np.argmax(values[c] < 0)) + 1
-            _fail(path, i, c, f"must be >= 0 (a load/torque magnitude), got {float(values[c][i - 1]):g}")
+            _fail(path, i, c, f"must be >= 0 ({what}), got {float(values[c][i - 1]):g}")
 
 
 SIDE_RANGES = {"r": 5.0, "m": math.inf, "J": math.inf}
