@@ -5,11 +5,12 @@ The unicycle moves as $\dot x = v\cos\gamma$, $\dot y = v\sin\gamma$, $\dot\gamm
 a differential drive with wheel base $b$ has wheel speeds $v_{L,R} = v \mp \omega b/2$.
 
 Every controller of Table 1 except the polar one (controller 4) is written for the
-*nonholonomic integrator* in the form of eq. 3,
+*nonholonomic integrator*
 
 $$\dot x_1 = u_1,\qquad \dot x_2 = u_2,\qquad \dot x_3 = x_1 u_2,$$
 
-for which $s := x_3 - x_1x_2/2$ obeys $2\dot s = x_1u_2 - u_1x_2$ (eq. 2). A *system* is a
+the form for which $s := x_3 - x_1x_2/2$ obeys $2\dot s = x_1u_2 - u_1x_2$ (eq. 2); the
+coordinates of eq. 3 bring the unicycle to it. A *system* is a
 change of coordinates pose -> $(x_1, x_2, x_3)$ together with the input map
 $(u_1, u_2) \to (v, \omega)$. Positions are divided by a length scale $\ell$ (field `length`)
 so that the chained coordinates are dimensionless and the controller gains mean the same on
@@ -52,7 +53,7 @@ def unicycle_step(pose: Pose, v, omega, h) -> Pose:
 
 
 def chained_rhs(x: Chained, u: Float[Array, 2]) -> Chained:
-    r"""$(\dot x_1, \dot x_2, \dot x_3) = (u_1, u_2, x_1u_2)$ (the form of eq. 3)."""
+    r"""$(\dot x_1, \dot x_2, \dot x_3) = (u_1, u_2, x_1u_2)$ (the form eq. 2 implies)."""
     return jnp.stack([u[0], u[1], x[0] * u[1]])
 
 
@@ -72,7 +73,7 @@ def body_velocity(wheels: Float[Array, 2], wheel_base):
 
 
 class AbstractSystem(eqx.Module):
-    r"""A transformation of the unicycle to the nonholonomic integrator of eq. 3.
+    r"""A transformation of the unicycle to the nonholonomic integrator (eqs. 2-3).
 
     Subclasses define `to_chained` (pose -> $x$), `to_pose` (its inverse) and `velocity`
     ($(u_1,u_2)$ at a pose -> $(v, \omega)$).
@@ -129,7 +130,7 @@ class SystemI(AbstractSystem):
 class SystemII(AbstractSystem):
     r"""System II: the classical chained form $z = (\tilde x, \tan\gamma, \tilde y)$
     (Murray and Sastry 1993), $\dot z_1 = u_1$, $\dot z_2 = u_2$, $\dot z_3 = z_2u_1$, brought
-    to the form of eq. 3 by $x_3 = z_1z_2 - z_3$:
+    to the integrator's form by $x_3 = z_1z_2 - z_3$:
 
     $$x_1 = \tilde x,\quad x_2 = \tan\gamma,\quad x_3 = \tilde x\tan\gamma - \tilde y.$$
 
