@@ -115,3 +115,35 @@ def test_a_program_with_a_host_callback_is_not_exported(monkeypatch, tmp_path):
     out = cc.exported_call("quiet", quiet, (jnp.arange(3.0),))
     np.testing.assert_array_equal(np.asarray(out["y"]), np.sin(np.arange(3.0)))
     assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["quiet"]
+
+
+def test_a_program_damaged_inside_its_file_is_exported_again(monkeypatch, tmp_path):
+    """A stored program whose wrapper reads but whose StableHLO does not (bytes flipped
+    inside it) is exported again, not a failure of every later run."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import vehsim._compilation as cc
+
+    monkeypatch.setattr(cc, "_exported_folder", lambda: tmp_path)
+    f = jax.jit(lambda x, y: jnp.sin(x) * 2.0 + y)
+    args = (jnp.linspace(0.0, 1.0, 5), jnp.ones(5))
+    monkeypatch.setattr(cc, "_programs", {})
+    cc.exported_program("damaged", f, args)
+    (path,) = tmp_path.iterdir()
+    good = path.read_bytes()
+    mended = 0
+    for at in range(len(good) // 8, len(good), len(good) // 8):
+        bad = bytearray(good)
+        bad[at:at + 8] = bytes(b ^ 0xFF for b in bad[at:at + 8])
+        path.write_bytes(bytes(bad))
+        readable = cc._load_exported(path) is not None  # the damage is past the wrapper
+        monkeypatch.setattr(cc, "_programs", {})  # a new process: only the file remains
+        out = cc.exported_program("damaged", f, args)(*args)
+        np.testing.assert_allclose(np.asarray(out), np.sin(np.asarray(args[0])) * 2.0 + 1.0,
+                                   rtol=1e-15)
+        if readable and path.read_bytes() != bad:  # rewritten: the new file compiles
+            cc._compile_exported(cc._load_exported(path), list(args))
+            mended += 1
+    assert mended >= 1

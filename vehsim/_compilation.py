@@ -217,7 +217,13 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
             return _programs[key]
     path = folder / f"{name}-{key}.bin"
     exported = _load_exported(path)
-    if exported is None:
+    compiled = None
+    if exported is not None:
+        try:
+            compiled = _compile_exported(exported, leaves)
+        except Exception:  # damaged inside a readable wrapper: exported again below
+            path.unlink(missing_ok=True)
+    if compiled is None:
         def flat(*flat_leaves):
             out = fn(*eqx.combine(jax.tree.unflatten(treedef, flat_leaves), static))
             if out_tree is None:
@@ -235,13 +241,7 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
                 _programs[key] = None
             return None
         write_atomic(path, data)
-    if exported.nr_devices > 1:  # split over devices (multi-start): the same devices
-        mesh = jax.sharding.Mesh(np.array(jax.devices()[:exported.nr_devices]), ("devices",))
-        replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-        call_exported = jax.jit(exported.call, in_shardings=replicated)
-    else:
-        call_exported = jax.jit(exported.call)
-    compiled = call_exported.lower(*leaves).compile()
+        compiled = _compile_exported(exported, leaves)
     shardings = compiled.input_shardings[0]
 
     def call(*call_args):
@@ -275,6 +275,18 @@ def _exported_folder() -> Path | None:
     if not (jax.config.jax_enable_compilation_cache and jax.config.jax_compilation_cache_dir):
         return None
     return Path(jax.config.jax_compilation_cache_dir) / EXPORTED_FOLDER
+
+
+def _compile_exported(exported, leaves):
+    """The exported program compiled for arguments like `leaves` (split over the devices it
+    was exported for, the first ones)."""
+    if exported.nr_devices > 1:  # split over devices (multi-start): the same devices
+        mesh = jax.sharding.Mesh(np.array(jax.devices()[:exported.nr_devices]), ("devices",))
+        replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+        call_exported = jax.jit(exported.call, in_shardings=replicated)
+    else:
+        call_exported = jax.jit(exported.call)
+    return call_exported.lower(*leaves).compile()
 
 
 def _load_exported(path: Path):
