@@ -28,6 +28,12 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
         "stopped at the point where it stalled. Start from a better guess, or switch the "
         "re-estimate on."
     )
+    ip_newton_system_failed = (
+        "The interior-point method could not solve its Newton system: no regularisation up "
+        "to the last one tried gave a factor of the right inertia and an accurate solve "
+        "(non-finite derivatives at the iterate, or a precision too low for the problem). "
+        "The solve stopped at the iterate where it happened."
+    )
     not_identifiable = (
         "The data do not determine the parameters: the Jacobian (in relative parameters) is "
         "numerically rank deficient. Is there slip excitation in the data?"

@@ -43,7 +43,7 @@ def _defects(lay: StageLayout, ys, F):
 def stage_values(prob: AbstractStagewiseNLP, lay: StageLayout, ys: Float[Array, "M+1 ny"]):
     """Objective, defects, (masked) equalities and inequalities at ``ys``, no derivatives."""
     masks = lay.masks()
-    vec = stage_function(prob, lay)
+    vec = stage_function(prob, lay, ys)
     f, F, e, g = lay.split(jax.vmap(vec)(ys, jnp.arange(lay.M + 1)))
     return jnp.sum(f), _defects(lay, ys, F), e * masks.eq, g
 
@@ -84,7 +84,7 @@ def stage_jacobians(
     $n_y$ tangents per stage, about a fifth of `stage_derivatives`. Enough for the KKT
     residuals and the least-squares multipliers, which do not involve the Hessian."""
     masks = lay.masks()
-    vec = stage_function(prob, lay)
+    vec = stage_function(prob, lay, ys)
 
     def one(y, k):
         def value_twice(yy):  # the value as the aux output: one evaluation
@@ -126,7 +126,7 @@ def stage_values_and_lagrangian_gradient(
     each stage's Lagrangian $\nabla(w_k \cdot v_k)$ with the weights of
     `stage_derivatives`, by one reverse pass per stage (an adjoint: no Jacobian is formed)."""
     masks = lay.masks()
-    vec = stage_function(prob, lay)
+    vec = stage_function(prob, lay, ys)
     w = _lagrangian_weights(lay, masks, lam, nu, z)
 
     def one(y, k, ww):
@@ -152,7 +152,7 @@ def stage_derivatives(
     ``hessian``: 'forward-over-reverse' (the Hessian of the weighted stage Lagrangian only)
     or 'forward-over-forward' (every per-output Hessian, then weighted)."""
     masks = lay.masks()
-    vec = stage_function(prob, lay)
+    vec = stage_function(prob, lay, ys)
     ks = jnp.arange(lay.M + 1)
     w = _lagrangian_weights(lay, masks, lam, nu, z)
     if hessian == "forward-over-forward":

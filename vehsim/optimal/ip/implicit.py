@@ -17,7 +17,8 @@ at a regular solution). The parameter derivatives are one forward-mode pass over
 functions and the vector-Jacobian product of the stage Lagrangian. The solve is a
 `lax.custom_linear_solve` of the symmetric KKT matrix, so the tangent is linear and
 transposable: reverse mode runs too. The guess (and warm-start multipliers) get no
-derivative: a converged solution does not depend on them. Where the solve did not converge
+derivative: a converged solution does not depend on them. The objective's tangent is its
+total derivative along the solution's; the residuals and the log get none. Where the solve did not converge
 the theorem does not apply (near a solution, with the barrier not yet small, it gave
 derivatives far from the finite differences): differentiating such a solve, in either mode,
 raises `UNCONVERGED_DERIVATIVE_MESSAGE` when the program runs, rather than return a NaN
@@ -31,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._results import RESULTS
-from .derivatives import stage_derivatives
+from .derivatives import stage_derivatives, stage_values
 from .kkt import Iterate, _condensed_system, _refined_solve, _regularised_solve, _split_step
 from .problem import stage_function, stage_layout
 
@@ -48,7 +49,7 @@ UNCONVERGED_DERIVATIVE_MESSAGE = (
 
 def _stage_lagrangian(prob, lay, ys, w):
     """Per stage: the gradient in $y_k$ of $w_k\\cdot v_k(y_k)$ and the stage vector $v_k$."""
-    vec = stage_function(prob, lay)
+    vec = stage_function(prob, lay, ys)
 
     def one(y, k, wk):
         v, pullback = jax.vjp(lambda yy: vec(yy, k), y)
@@ -68,10 +69,7 @@ def solution_tangent(prob, tprob, it: Iterate, hessian: str = "forward-over-reve
     d = jax.lax.stop_gradient(d)
     w = jnp.concatenate([jnp.ones((lay.M + 1, 1)), -it.lam * mk.lam, it.nu * mk.eq,
                          -it.z * mk.g], 1)
-    dyn, static = eqx.partition(prob, eqx.is_inexact_array)
-    tdyn = jax.tree.map(
-        lambda p, t: None if p is None else jnp.zeros_like(p) if t is None
-        else jnp.asarray(t, p.dtype), dyn, tprob, is_leaf=lambda x: x is None)
+    dyn, static, tdyn = _problem_tangent(prob, tprob)
     _, (dgrad, dv) = jax.jvp(
         lambda p: _stage_lagrangian(eqx.combine(p, static), lay, it.ys, w), (dyn,), (tdyn,))
     _, dF, de, dg = lay.split(dv)
@@ -90,6 +88,26 @@ def solution_tangent(prob, tprob, it: Iterate, hessian: str = "forward-over-reve
     dy, ds, dlam, dnu = _split_step(lay, d, sol, dg, 0.0)
     dz = -Sigma * ds * mk.g
     return Iterate(ys=dy, s=ds, z=dz, lam=dlam, nu=dnu)
+
+
+def _problem_tangent(prob, tprob):
+    """``(dyn, static, tdyn)``: the problem's inexact arrays, the rest, and their tangents
+    (zeros where ``tprob`` has None)."""
+    dyn, static = eqx.partition(prob, eqx.is_inexact_array)
+    tdyn = jax.tree.map(
+        lambda p, t: None if p is None else jnp.zeros_like(p) if t is None
+        else jnp.asarray(t, p.dtype), dyn, tprob, is_leaf=lambda x: x is None)
+    return dyn, static, tdyn
+
+
+def objective_tangent(prob, tprob, ys, dys):
+    r"""The objective's tangent at the solution: $\partial_	heta f\,\dot	heta + 
+abla_y f
+    \cdot\dot y$ (its total derivative along the solution's tangent ``dys``)."""
+    dyn, static, tdyn = _problem_tangent(prob, tprob)
+    lay = stage_layout(prob)
+    return jax.jvp(lambda p, y: stage_values(eqx.combine(p, static), lay, y)[0],
+                   (dyn, jax.lax.stop_gradient(ys)), (tdyn, dys))[1]
 
 
 @eqx.filter_custom_jvp
@@ -116,8 +134,9 @@ def _implicit_solve_jvp(primals, tangents, *, solve):
                        UNCONVERGED_DERIVATIVE_MESSAGE)
     t = jax.tree.map(lambda a: a * one, t)
     tsol = jax.tree.map(lambda _: None, sol)
-    tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s), tsol,
-                       (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s),
+    tsol = eqx.tree_at(lambda q: (q.xs, q.us, q.lam, q.nu, q.z, q.s, q.objective), tsol,
+                       (t.ys[:, : lay.nx], t.ys[:-1, lay.nx:], t.lam, t.nu, t.z, t.s,
+                        objective_tangent(prob, tprob, it.ys, t.ys)),
                        is_leaf=lambda x: x is None)
     return sol, tsol
 

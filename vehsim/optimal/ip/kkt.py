@@ -49,7 +49,8 @@ MAX_FACTORISATIONS = 40
 MULTIPLIER_INIT_MAX = 1e3
 """Largest accepted least-squares initial multiplier (IPOPT's ``constr_mult_init_max``)."""
 BACKWARD_ERROR_TOL = 1e-10
-"""Largest accepted componentwise backward error of the solve (Oettli-Prager)."""
+"""Largest accepted componentwise backward error of the solve (Oettli-Prager) in float64;
+in a lower precision, 1000 times its machine epsilon where that is larger."""
 
 
 class Iterate(eqx.Module):
@@ -89,7 +90,9 @@ def barrier_error(lay: StageLayout, it: Iterate, res: Residuals, mu) -> Float[Ar
 class NewtonStep(eqx.Module):
     """A primal-dual Newton direction, the primal regularisation ``delta`` it took, the
     number of ``factorisations`` the inertia correction tried, and the accepted ``matrix``
-    with its ``factor`` (for the second-order correction)."""
+    with its ``factor`` (for the second-order correction); ``solved`` is false where no
+    regularisation up to the last (`MAX_FACTORISATIONS`) was accepted (the direction is
+    then zero)."""
 
     dy: Float[Array, "M+1 ny"]
     dlam: Float[Array, "M+1 nx"]
@@ -100,6 +103,7 @@ class NewtonStep(eqx.Module):
     factorisations: Int[Array, ""]
     factor: RiccatiFactor
     matrix: KKTMatrix
+    solved: Bool[Array, ""]
 
 
 class InertiaCorrection(eqx.Module):
@@ -225,10 +229,11 @@ def _split_step(lay: StageLayout, d: StageDerivatives, sol, g, s):
 
 def _backward_error_ok(K: KKTMatrix, sol, rhs):
     """Whether the componentwise backward error (Oettli-Prager) of ``sol`` is below
-    `BACKWARD_ERROR_TOL`; also the residual."""
+    `BACKWARD_ERROR_TOL` (for the residual's precision); also the residual."""
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
-    return jnp.max(jnp.abs(res)) <= BACKWARD_ERROR_TOL * jnp.max(scale), res
+    tol = max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(res.dtype).eps))
+    return jnp.max(jnp.abs(res)) <= tol * jnp.max(scale), res
 
 
 def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
@@ -307,7 +312,7 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     dz = (mu / sg - it.z - Sigma * ds) * mg
     return NewtonStep(dy=dy, dlam=dlam, dnu=dnu, ds=ds, dz=dz, delta=corrected.delta,
                       factorisations=corrected.factorisations, factor=corrected.factor,
-                      matrix=corrected.matrix)
+                      matrix=corrected.matrix, solved=corrected.ok)
 
 
 def second_order_correction(lay: StageLayout, it: Iterate, d: StageDerivatives, mu,

@@ -86,6 +86,8 @@ def constraint_violation(c, e, g, s, mask_g):
 
 def fraction_to_boundary(v, dv, mask, tau) -> Float[Array, ""]:
     """Largest $\\alpha \\le 1$ with $v + \\alpha\\,dv \\ge (1 - \\tau) v$ on the rows in use."""
+    if v.size == 0:  # no inequalities: nothing bounds the step
+        return jnp.ones((), v.dtype)
     ratio = jnp.where((dv < 0) & (mask > 0), -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
     return jnp.minimum(1.0, jnp.min(ratio))
 
@@ -100,8 +102,9 @@ def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate
     ``values``: the objective, defects, equalities and inequalities at the iterate (those of
     its `StageDerivatives`).
 
-    **Returns:** the step length, the number of trials, the updated filter and the primal
-    direction taken with its multiplier steps ``(dy, ds, dlam, dnu)``."""
+    **Returns:** the step length, the number of trials, whether a trial was accepted, the
+    updated filter and the primal direction taken with its multiplier steps
+    ``(dy, ds, dlam, dnu)``."""
     mg = lay.masks().g
     sg = jnp.where(mg > 0, it.s, 1.0)
     f0, c0, e0, g0 = values
@@ -160,7 +163,7 @@ def filter_line_search(prob: AbstractStagewiseNLP, lay: StageLayout, it: Iterate
     use_soc = ok_soc & ~ok1
     direction = jax.tree_util.tree_map(lambda a, b: jnp.where(use_soc, a, b), soc_dir,
                                        (step.dy, step.ds, step.dlam, step.dnu))
-    return jnp.where(use_soc, alpha_soc, alpha), n + try_soc, filt, direction
+    return jnp.where(use_soc, alpha_soc, alpha), n + try_soc, accepted, filt, direction
 
 
 def _merit(f, c, e, g, s, mg, mu):

@@ -159,27 +159,40 @@ def stage_layout(prob: AbstractStagewiseNLP) -> StageLayout:
     )
 
 
-def stage_function(prob: AbstractStagewiseNLP, lay: StageLayout) -> Callable[[Array, Array], Array]:
+def stage_function(prob: AbstractStagewiseNLP, lay: StageLayout,
+                   ys: Array) -> Callable[[Array, Array], Array]:
     """$(y_k, k) \\mapsto (\\ell_k + [k = M]\\phi, F_k, e_k, g_k)$ for $k = 0..M$ as one vector:
     one function to differentiate (one trace, one integration per stage). Rows not in use at
-    knot $k$ are filled (0 for equalities, 1 for inequalities) and masked by `StageMasks`."""
+    knot $k$ are filled (0 for equalities, 1 for inequalities) and masked by `StageMasks`.
+
+    The functions not in use at a knot are evaluated at a knot where they are (``ys``,
+    without derivatives): the stage functions at $k = M$ with the last control $u_{M-1}$,
+    the initial ones at $x_0$, the terminal ones at $x_M$. A masked value then never comes
+    from a point outside the problem's domain (a cost $1/u$ at the dummy control $u_M = 0$),
+    whose infinite derivatives would turn the masked zeros of a reverse-mode Hessian into
+    NaN (the double-`where` rule)."""
     M, nx = lay.M, lay.nx
+    anchors = jax.lax.stop_gradient((ys[0, :nx], ys[M, :nx], ys[M - 1, nx:]))
 
     def pad(v, n):
         return jnp.concatenate([v, jnp.zeros((n - v.shape[0],), v.dtype)])
 
     def vec(y, k):
         x, u = y[:nx], y[nx:]
+        x_first, x_last, u_last = anchors
         km = jnp.minimum(k, M - 1)
+        u = jnp.where(k < M, u, u_last)
+        x_initial = jnp.where(k == 0, x, x_first)
+        x_terminal = jnp.where(k == M, x, x_last)
         F, h = prob.transition_and_path(x, u, km)
         cost = jnp.where(k < M, prob.stage_cost(x, u, km), 0.0) + jnp.where(
-            k == M, prob.terminal_cost(x), 0.0
+            k == M, prob.terminal_cost(x_terminal), 0.0
         )
-        e0 = pad(prob.initial_equality(x), lay.ne)
-        eT = pad(prob.terminal_equality(x), lay.ne)
+        e0 = pad(prob.initial_equality(x_initial), lay.ne)
+        eT = pad(prob.terminal_equality(x_terminal), lay.ne)
         e = jnp.where(k == 0, e0, jnp.where(k == M, eT, 0.0))
-        i0 = prob.initial_inequality(x)
-        iT = prob.terminal_inequality(x)
+        i0 = prob.initial_inequality(x_initial)
+        iT = prob.terminal_inequality(x_terminal)
         g = jnp.concatenate(
             [jnp.where(k < M, h, 1.0), jnp.where(k == 0, i0, 1.0), jnp.where(k == M, iT, 1.0)]
         )

@@ -79,6 +79,8 @@ def _cholesky(Q: Float[Array, "n n"]) -> Float[Array, "n n"]:
     r"""The lower Cholesky factor of a small symmetric ``Q`` (Cholesky-Banachiewicz, unrolled
     for $n \le$ `UNROLLED_MAX`); NaN on a pivot that is not positive, as LAPACK's."""
     n = Q.shape[0]
+    if n == 0:  # no controls: an empty factor
+        return Q
     if n > UNROLLED_MAX:
         return jnp.linalg.cholesky(Q)
     L = [[None] * n for _ in range(n)]
@@ -95,6 +97,8 @@ def _solve_lower(L, b, transposed=False):
     r"""$L^{-1} b$, or $L^{-T} b$ where ``transposed``, for a lower triangular ``L``
     (substitution, unrolled for $n \le$ `UNROLLED_MAX`); ``b`` a vector or a matrix."""
     n = L.shape[0]
+    if n == 0:
+        return b
     if n > UNROLLED_MAX:
         return jax.scipy.linalg.solve_triangular(L, b, lower=True, trans=int(transposed))
     x = [None] * n

@@ -69,7 +69,6 @@ from .kkt import (
     second_order_correction,
 )
 from .linesearch import (
-    MAX_TRIALS,
     Filter,
     constraint_violation,
     filter_line_search,
@@ -196,8 +195,9 @@ class IPSolution(eqx.Module):
     """Result of `interior_point`: knots ``xs`` (M+1, nx), controls ``us`` (M, nu),
     multipliers (``lam`` of the defects, ``nu`` of the equalities, ``z`` of the
     inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations``,
-    ``ip_line_search_failed`` or ``nonfinite``), ``iterations``, the final ``objective`` and residuals (``inf_pr``: max
-    constraint violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
+    ``ip_line_search_failed``, ``ip_newton_system_failed`` or ``nonfinite``),
+    ``iterations``, the final ``objective`` and residuals (``inf_pr``: max constraint
+    violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
     complementarity), the iteration ``log`` (`IPLog`) and the slacks ``s`` of the
     inequalities (shaped as ``z``)."""
 
@@ -595,7 +595,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     mg = lay.masks().g
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
     alpha_dual = fraction_to_boundary(jnp.where(mg > 0, it.z, 1.0), step.dz, mg, tau)
-    alpha, n_trials, filt, direction = filter_line_search(
+    alpha, n_trials, accepted, filt, direction = filter_line_search(
         prob, lay, it, step, (d.objective, d.c, d.e, d.g), d.grad_f, mu,
         st.filter.cleared_where(mu_changed), alpha_max,
         lambda c, e, gs: second_order_correction(lay, it, d, mu, step, c, e, gs), tau
@@ -616,7 +616,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     finite = jnp.all(jnp.isfinite(trial.ys)) & jnp.all(jnp.isfinite(trial.lam))
     # runaway multipliers: the line search failed, or the inertia correction needed a
     # regularisation that leaves no Newton step; estimate (lambda, nu) afresh next pass
-    failed = ~setup & (n_trials >= MAX_TRIALS)
+    failed = ~setup & ~accepted
     reset = (failed | (~setup & (step.delta > DELTA_RESET))) & options.reestimate_multipliers
     # without a re-estimate, a failure after a failure (the filter already forgotten) stalls:
     # the next pass would start from the same point and take the same step
@@ -624,8 +624,10 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                                 jnp.where(failed, st.failed_searches + 1, 0))
     stalled = ((failed_searches >= STALLED_PASSES) & ~options.reestimate_multipliers
                & ~converged)
+    # no Newton direction at all (every regularisation refused): the next pass would fail again
+    unsolved = ~step.solved & ~converged
     # keep the iterate whose residuals are reported when the loop ends on this pass
-    hold = converged | ~finite | stalled
+    hold = converged | ~finite | stalled | unsolved
     return IPState(
         iterate=jax.tree.map(lambda new, old: jnp.where(hold, old, new), trial, it),
         hessian=d.H, mu=mu,
@@ -634,9 +636,11 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
         delta_step=jnp.where(setup, st.delta_step, step.delta),
         filter=jax.tree.map(lambda a, b: jnp.where(setup, a, b), st.filter, filt),
         iteration=st.iteration + jnp.where(converged | setup, 0, 1),
-        done=converged | ~finite | stalled,
-        result=RESULTS.where(stalled & finite, RESULTS.ip_line_search_failed,
-                             _outcome(converged, finite)),
+        done=converged | ~finite | stalled | unsolved,
+        result=RESULTS.where(
+            unsolved & finite, RESULTS.ip_newton_system_failed,
+            RESULTS.where(stalled & finite, RESULTS.ip_line_search_failed,
+                          _outcome(converged, finite))),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
         residuals=res, log=log, failed_searches=failed_searches,
         best=None if st.best is None else st.best.update(it, res, d.objective),
