@@ -294,7 +294,7 @@ def test_checked_solve_refines_an_inaccurate_solve_and_rejects_one_refinement_ca
     err = np.max(np.abs(np.asarray(sol).reshape(-1) - ref))
     assert err < 1e-3 * np.max(np.abs(first.reshape(-1) - ref))  # the refined solution
 
-    monkeypatch.setattr(kkt, "BACKWARD_ERROR_TOL", 0.0)  # no solve in floating point meets it
+    monkeypatch.setattr(kkt, "backward_error_tol", lambda dtype: 0.0)  # none meets it
     sol, ok, F = kkt.checked_solve(lay, K, rhs)
     assert bool(F.ok) and not bool(ok)
     assert np.all(np.isfinite(np.asarray(sol)))
@@ -850,3 +850,164 @@ def test_a_fixed_work_solve_stops_when_its_line_search_stalls(bang_bang, monkeyp
     # the stalled pass returns the point it started from (whose residuals it reports)
     np.testing.assert_array_equal(np.asarray(st.iterate.ys), np.asarray(before))
     assert st.result == RESULTS.ip_line_search_failed
+
+
+class DoubleIntegrator(AbstractStagewiseNLP):
+    """x = (position, speed) from (1, 0), acceleration u: quadratic costs; `bound` (None: no
+    inequality at all) on |u|; `inverse_cost`: a cost 1/u with 0.5 <= u <= 3 instead, a
+    function undefined at the dummy control u_M = 0 of the last knot."""
+
+    num_stages: int = eqx.field(static=True)
+    bound: float | None = eqx.field(static=True, default=None)
+    inverse_cost: bool = eqx.field(static=True, default=False)
+    state_size: int = eqx.field(static=True, default=2)
+    control_size: int = eqx.field(static=True, default=1)
+
+    def transition(self, x, u, k):
+        return jnp.stack([x[0] + 0.1 * x[1], x[1] + 0.1 * u[0]])
+
+    def stage_cost(self, x, u, k):
+        return x @ x + (1.0 / u[0] if self.inverse_cost else 0.1 * u @ u)
+
+    def terminal_cost(self, x):
+        return 10.0 * x @ x
+
+    def path_inequality(self, x, u, k):
+        if self.inverse_cost:
+            return jnp.stack([u[0] - 0.5, 3.0 - u[0]])
+        if self.bound is None:
+            return jnp.zeros((0,))
+        return jnp.stack([self.bound - u[0], self.bound + u[0]])
+
+    def initial_equality(self, x):
+        return x - jnp.array([1.0, 0.0])
+
+
+class Decay(AbstractStagewiseNLP):
+    """No control: x_{k+1} = 0.9 x_k, cost sum_k (x_k - 2)^2 over the stages, x_0 free; the
+    optimum x_0 = 2 sum a_k / sum a_k^2 with a_k = 0.9^k."""
+
+    num_stages: int = eqx.field(static=True)
+    state_size: int = eqx.field(static=True, default=1)
+    control_size: int = eqx.field(static=True, default=0)
+
+    def transition(self, x, u, k):
+        return 0.9 * x
+
+    def stage_cost(self, x, u, k):
+        return (x[0] - 2.0) ** 2
+
+    def path_inequality(self, x, u, k):
+        return jnp.stack([x[0] + 5.0])
+
+
+class SquareRootExit(AbstractStagewiseNLP):
+    """From x_0 = 0, u_k in [0, 1]: maximise sqrt(x_M) against the effort, a terminal
+    cost undefined (infinite slope) at the fixed first knot."""
+
+    num_stages: int = eqx.field(static=True)
+    state_size: int = eqx.field(static=True, default=1)
+    control_size: int = eqx.field(static=True, default=1)
+
+    def transition(self, x, u, k):
+        return x + 0.1 * u
+
+    def stage_cost(self, x, u, k):
+        return u @ u
+
+    def terminal_cost(self, x):
+        return -jnp.sqrt(x[0])
+
+    def path_inequality(self, x, u, k):
+        return jnp.stack([u[0], 1.0 - u[0]])
+
+    def initial_equality(self, x):
+        return x
+
+
+def test_problems_without_inequalities_or_controls_solve():
+    M = 10
+    free = interior_point(DoubleIntegrator(num_stages=M), jnp.zeros((M + 1, 2)),
+                          jnp.zeros((M, 1)))
+    loose = interior_point(DoubleIntegrator(num_stages=M, bound=100.0), jnp.zeros((M + 1, 2)),
+                           jnp.zeros((M, 1)))  # the same optimum, its bound inactive
+    assert free.converged and loose.converged
+    np.testing.assert_allclose(np.asarray(free.us), np.asarray(loose.us), atol=1e-7)
+    sol = interior_point(Decay(num_stages=5), jnp.zeros((6, 1)), jnp.zeros((5, 0)))
+    a = 0.9 ** np.arange(5)
+    assert sol.converged
+    assert float(sol.xs[0, 0]) == pytest.approx(2.0 * a.sum() / (a @ a), rel=1e-9)
+
+
+@pytest.mark.parametrize("case", ["inverse stage cost", "square-root terminal cost"])
+def test_functions_undefined_where_they_are_masked_keep_the_hessian_finite(case):
+    """The stage functions at the last knot (dummy control 0) and the terminal ones at the
+    first knot are masked; evaluated there, 1/u and sqrt(x) have infinite slopes, which a
+    reverse-mode Hessian multiplied by the mask's zero (NaN). Both Hessian modes solve."""
+    M = 10
+    if case == "inverse stage cost":
+        prob, guess = DoubleIntegrator(num_stages=M, inverse_cost=True), (
+            jnp.zeros((M + 1, 2)), jnp.ones((M, 1)))
+    else:
+        prob, guess = SquareRootExit(num_stages=M), (
+            jnp.full((M + 1, 1), 0.5).at[0].set(0.0), jnp.full((M, 1), 0.5))
+    sols = [interior_point(prob, *guess, IPOptions(hessian=h), throw=False)
+            for h in ("forward-over-reverse", "forward-over-forward")]
+    assert all(s.result == RESULTS.successful for s in sols), [s.message for s in sols]
+    assert float(sols[0].objective) == pytest.approx(float(sols[1].objective), rel=1e-9)
+    assert int(sols[0].iterations) < 30
+
+
+def test_a_newton_system_no_regularisation_solves_ends_the_solve(monkeypatch):
+    """Every factorisation refused (forced: no solve is accurate enough): the solve stops
+    on its first pass with `ip_newton_system_failed`, not at its iteration limit."""
+    from vehsim.optimal.ip import kkt
+
+    class Refused(DoubleIntegrator):  # a program of its own: the patch is traced into it
+        pass
+
+    monkeypatch.setattr(kkt, "backward_error_tol", lambda dtype: 0.0)
+    M = 6
+    sol = interior_point(Refused(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
+                         jnp.zeros((M, 1)), throw=False)
+    assert sol.result == RESULTS.ip_newton_system_failed
+    assert int(sol.iterations) <= 1
+    assert int(sol.log.factorisations[0]) == kkt.MAX_FACTORISATIONS
+    with pytest.raises(RuntimeError, match="could not solve its Newton system"):
+        interior_point(Refused(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
+                       jnp.zeros((M, 1)))
+
+
+def test_a_float32_solve_accepts_the_backward_error_of_its_precision():
+    M = 10
+    ref = interior_point(DoubleIntegrator(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
+                         jnp.zeros((M, 1)))
+    jax.config.update("jax_enable_x64", False)
+    try:
+        sol = interior_point(DoubleIntegrator(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
+                             jnp.zeros((M, 1)), IPOptions(tol=1e-4, constr_tol=1e-4),
+                             throw=False)
+        assert sol.xs.dtype == jnp.float32
+        assert sol.result == RESULTS.successful, sol.message
+        assert int(sol.iterations) < 20
+        assert float(sol.objective) == pytest.approx(float(ref.objective), rel=1e-4)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+
+
+def test_implicit_derivative_of_the_objective_matches_finite_differences():
+    M = 12
+    xs0, us0 = _guess(M)
+    opts = IPOptions(tol=1e-11, constr_tol=1e-11)
+
+    def objective(rho):
+        p = EffortRestToRest(num_stages=M, rho=rho)
+        return interior_point(p, xs0, us0, opts, implicit=True).objective
+
+    rho = jnp.asarray(0.05)
+    f = jax.jit(objective)
+    fd = [float(f(rho + h) - f(rho - h)) / (2 * h) for h in (1e-4, 2.5e-5)]
+    forward = float(jax.jvp(objective, (rho,), (1.0,))[1])
+    assert fd[0] == pytest.approx(fd[1], rel=1e-5) and abs(fd[1]) > 0.1
+    assert forward == pytest.approx(fd[1], rel=1e-5)
+    assert float(jax.grad(objective)(rho)) == pytest.approx(forward, rel=1e-9)

@@ -232,8 +232,13 @@ def _backward_error_ok(K: KKTMatrix, sol, rhs):
     `BACKWARD_ERROR_TOL` (for the residual's precision); also the residual."""
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
-    tol = max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(res.dtype).eps))
-    return jnp.max(jnp.abs(res)) <= tol * jnp.max(scale), res
+    return jnp.max(jnp.abs(res)) <= backward_error_tol(res.dtype) * jnp.max(scale), res
+
+
+def backward_error_tol(dtype) -> float:
+    """`BACKWARD_ERROR_TOL`, or 1000 machine epsilons of ``dtype`` where that is larger (a
+    float32 solve cannot reach 1e-10)."""
+    return max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(dtype).eps))
 
 
 def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
