@@ -71,6 +71,10 @@ class _ArcsRoad:
     def curvature(self, s):
         return self._piece(s)[1][..., 2]
 
+    def curvature_jumps(self):
+        starts, k = np.array([p[0] for p in self.pieces]), np.array([p[2] for p in self.pieces])
+        return starts[1:][np.diff(k) != 0]
+
     def width_left(self, s):
         return np.full(np.shape(s), self.w)
 
@@ -158,8 +162,7 @@ def _cartesian_drive(car, z0, t_knots, inputs, substeps):
     return np.array(out)
 
 
-def _cartesian_knots(road, xs):
-    s = np.linspace(0, road.length, len(xs))
+def _cartesian_knots(road, xs, s):
     x, y = road.to_cartesian(s, xs[:, 0])
     return np.stack([x, y, np.unwrap(road.heading(s)) + xs[:, 1], xs[:, 2], xs[:, 3],
                      xs[:, 4]], 1)
@@ -169,7 +172,7 @@ def test_cartesian_re_simulation_stays_on_the_road_and_ends_at_the_gate(corner):
     road, prim = corner
     car = prim.problem.vehicle
     xs = np.asarray(prim.solution.xs)
-    cart = _cartesian_knots(road, xs)
+    cart = _cartesian_knots(road, xs, prim.problem.stage_edges())
     # stage by stage from each knot: the path between the nodes, and the next knot
     f = jax.jit(jax.vmap(lambda z0, t, u: _stage_rk4(car, z0, t, u, 20)))
     ends, path = f(cart[:-1], np.stack([xs[:-1, 8], xs[1:, 8]], 1),
@@ -206,8 +209,10 @@ def test_cartesian_path_of_the_primitive_is_the_road_frame_path(corner):
     road, prim = corner
     pose = prim.cartesian()
     xs = np.asarray(prim.nodes())
-    # independent: the stand-in's own frame, offset n along the left normal
-    s = np.linspace(0, road.length, len(xs))
+    # independent: the stand-in's own frame, offset n along the left normal, at the knots
+    # (a node on each of the corner's two curvature jumps)
+    s = prim.arc_length()
+    assert np.isin(road.curvature_jumps(), s).all()
     cx, cy = road.position(s)
     th = road.heading(s)
     np.testing.assert_allclose(pose["x"], cx - xs[:, 0] * np.sin(th), atol=1e-12)
@@ -216,6 +221,42 @@ def test_cartesian_path_of_the_primitive_is_the_road_frame_path(corner):
     assert rec["status"] == "successful" and rec["t_f"] == pytest.approx(float(prim.t_f))
     assert rec["max_corridor_violation_between_nodes"] < 0.01
     assert rec["t"][-1] == pytest.approx(rec["t_f"]) and np.all(np.diff(rec["t"]) > 0)
+
+
+def test_stages_at_curvature_jumps_are_as_accurate_as_the_others(corner):
+    """Each stage re-integrated from its knot by an independent integrator (SciPy's DOP853
+    at 1e-11, the road-frame equations written out here with the stand-in's exact
+    piecewise-constant curvature) ends at the next knot. A node sits on each of the
+    corner's two jumps, so the stages there are as accurate as the rest; a stage across a
+    jump was off by millimetres."""
+    from scipy.integrate import solve_ivp
+
+    road, prim = corner
+    xs, us = np.asarray(prim.solution.xs), np.asarray(prim.solution.us)
+    edges = prim.problem.stage_edges()
+    body = jax.jit(lambda v, u: prim.problem.vehicle.f(jnp.concatenate([jnp.zeros(2), v]),
+                                                       u)[3:6])
+
+    def rhs(s, X, u, kappa):
+        n, xi, vx, vy, r = X[:5]
+        sdot = (vx * math.cos(xi) - vy * math.sin(xi)) / (1.0 - n * kappa)
+        ndot = vx * math.sin(xi) + vy * math.cos(xi)
+        rates = np.asarray(body(jnp.asarray(X[1:5]), jnp.asarray(X[5:8])))
+        return np.concatenate([[ndot / sdot, r / sdot - kappa], rates / sdot, u, [1 / sdot]])
+
+    def error(k):
+        kappa = float(road.curvature(0.5 * (edges[k] + edges[k + 1])))
+        end = solve_ivp(rhs, (edges[k], edges[k + 1]), xs[k, :9], args=(us[k], kappa),
+                        method="DOP853", rtol=1e-11, atol=1e-11).y[:, -1]
+        return np.max(np.abs(end[:2] - xs[k + 1, :2]))  # n [m] and xi [rad]
+
+    jumps = road.curvature_jumps()
+    at_jumps = [k for k in range(len(us)) if np.any((edges[k] <= jumps + 1e-9)
+                                                     & (jumps - 1e-9 <= edges[k + 1]))]
+    assert len(at_jumps) == 4  # a node on each jump: the stages either side of it
+    errors = [error(k) for k in at_jumps]
+    assert max(errors) < 1e-5, errors
+    assert np.median([error(k) for k in range(0, len(us), 5)]) < 1e-5
 
 
 def test_the_library_road_gives_the_stand_in_drive(corner):

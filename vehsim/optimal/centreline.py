@@ -200,6 +200,19 @@ class CentrelineRoad(eqx.Module):
         p = self._curve(s)[0]
         return p[..., 0], p[..., 1]
 
+    def curvature_jumps(self, tol: float = 1e-8) -> np.ndarray:
+        """Arc lengths in $(0, L)$ of the knots where the curvature jumps by more than
+        ``tol`` [1/m]: the junctions of straights and arcs of `from_segments` (none on a
+        smoothing spline's road). The road's frame in `road_primitive` puts a node on each."""
+        if len(self.knots) < 3:
+            return np.zeros(0)
+        T = self.tangents[1:-1]
+        norm3 = np.hypot(T[:, 0], T[:, 1]) ** 3
+        cross = lambda a: T[:, 0] * a[:, 1] - T[:, 1] * a[:, 0]
+        left = cross(self.accel_end[:-1]) / norm3  # at s_k-
+        right = cross(self.accel_start[1:]) / norm3  # at s_k+
+        return np.asarray(self.knots[1:-1], float)[np.abs(right - left) > tol]
+
     def heading(self, s) -> np.ndarray:
         r"""The tangent's angle $\theta(s)$ [rad], unwrapped: continuous in $s$, and for a
         closed road continued over the laps, $\theta(s + L) = \theta(s) + \Theta$ with

@@ -12,9 +12,14 @@ $(\dot v_x, \dot v_y, \dot r)$ as eqs. 61-63 (`ReducedHalfCar.f`, the body-rate 
 every rate is divided by $\dot s$ to give $dX/ds$; the time is a state with $dt/ds = 1/\dot s$
 (`spatial_rhs`).
 
-The grid is uniform, $s_k = kL/M$; each stage is integrated by ``steps_per_stage`` classical
-RK4 steps, with the curvature sampled from the road at the RK4 points when the problem is
-built (the problem is a module of arrays, batchable, with no spline inside JAX). The inputs
+The grid is uniform, $s_k = kL/M$, except on a road whose curvature jumps (the junctions of
+straights and arcs in `CentrelineRoad.from_segments`): there the stages are uniform within
+each piece between jumps, with a node on every jump (`stage_edges`), since an RK4 step across
+a jump is only first-order accurate (a stage across the 90-degree corner's two junctions was
+off by mm where the others are off by um, enough to leave the road in an open-loop replay).
+Each stage is integrated by ``steps_per_stage`` classical RK4 steps, with the curvature
+sampled from the road at the RK4 points (a step's end from the left of a jump) when the
+problem is built (the problem is a module of arrays, batchable, with no spline inside JAX). The inputs
 $(\kappa_F, \kappa_R, \delta)$ are states with piecewise-constant rates $d(\cdot)/ds$ (the NLP
 controls), as in `ManeuverOCP`. The corridor $-w_r(s) + m \le n \le w_l(s) - m$ holds at every
 integration node and at every step's midpoint, on the cubic Hermite interpolant of $n$ through
@@ -33,6 +38,7 @@ from __future__ import annotations
 
 import abc
 import math
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -123,6 +129,52 @@ def _rk4_steps(rhs: Callable, x, u, h, kappas):
     return jax.lax.scan(step, x, kappas)
 
 
+def stage_edges(road, num_stages: int) -> np.ndarray | None:
+    """The stage boundaries $s_0 = 0 < \\dots < s_M = L$ with a node on every curvature jump
+    (the road's `curvature_jumps`, where it has that method): each piece between jumps
+    gets a whole number of equal stages, at least one, in proportion to its length (largest
+    remainders). None (the uniform grid) for a road without jumps, or with more pieces than
+    stages (then with a warning: the steps across a jump are first-order accurate)."""
+    L = float(road.length)
+    jumps = np.asarray(road.curvature_jumps() if hasattr(road, "curvature_jumps") else [],
+                       float)
+    if jumps.size == 0:
+        return None
+    bounds = np.concatenate([[0.0], jumps, [L]])
+    pieces = np.diff(bounds)
+    if pieces.size > num_stages:
+        warnings.warn(f"road {getattr(road, 'name', '')!r}: its curvature jumps at "
+                      f"{jumps.size} knots, more than num_stages={num_stages} stages can "
+                      "put a node on; the grid stays uniform, and steps across a jump are "
+                      "first-order accurate", stacklevel=3)
+        return None
+    share = pieces / L * num_stages
+    n = np.maximum(1, np.floor(share)).astype(int)
+    while n.sum() > num_stages:  # the pieces made one stage long: take from the largest
+        n[np.argmax(np.where(n > 1, n - share, -np.inf))] -= 1
+    while n.sum() < num_stages:
+        n[np.argmax(share - n)] += 1
+    edges = [b + p * np.arange(k) / k for b, p, k in zip(bounds[:-1], pieces, n)]
+    return np.concatenate([*edges, [L]])
+
+
+def _step_grid(edges: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(starts, h)``: each of the ``steps`` equal steps of every stage between `edges`
+    (M+1,): its start (M, steps) and its size (M,)."""
+    h = np.diff(edges) / steps
+    return edges[:-1, None] + h[:, None] * np.arange(steps), h
+
+
+def _rk4_curvature(road, starts: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The road's curvature at the RK4 points of steps ``starts`` (M, S) of sizes ``h``
+    (M,) or a scalar: (M, S, 3), a step's end taken from its left."""
+    L = float(road.length)
+    h = np.broadcast_to(np.asarray(h, float).reshape(-1, 1), starts.shape)
+    ends = np.nextafter(starts + h, -np.inf)
+    pts = np.clip(np.stack([starts, starts + 0.5 * h, ends], -1), 0.0, L)
+    return np.asarray(road.curvature(pts.reshape(-1)), float).reshape(*starts.shape, 3)
+
+
 def _gate(gate) -> tuple[float, float, float | None]:
     """(lower, upper) lateral bound [m] and the fixed speed (or None) of a road's gate."""
     lo, hi = gate.lateral
@@ -130,22 +182,31 @@ def _gate(gate) -> tuple[float, float, float | None]:
     return float(lo), float(hi), None if speed is None else float(speed)
 
 
-def _road_arrays(road, num_stages: int, steps_per_stage: int, margin: float):
+def _road_arrays(road, num_stages: int, steps_per_stage: int, margin: float,
+                 edges: np.ndarray | None = None):
     """Curvature at the RK4 points (M, S, 3), corridor bounds at the nodes (M+1, 2) and at the
-    steps' midpoints (M, S, 2) as (lower, upper) on n."""
+    steps' midpoints (M, S, 2) as (lower, upper) on n; ``edges``: the stage boundaries
+    (`stage_edges`; None: uniform)."""
     M, S = num_stages, steps_per_stage
     L = float(road.length)
-    h = L / (M * S)
-    starts = (np.arange(M * S) * h).reshape(M, S)
-    pts = starts[..., None] + np.array([0.0, 0.5, 1.0]) * h
-    kap = np.asarray(road.curvature(np.clip(pts, 0.0, L).reshape(-1)), float).reshape(M, S, 3)
+    if edges is None:
+        h = L / (M * S)
+        starts = (np.arange(M * S) * h).reshape(M, S)
+        pts = starts[..., None] + np.array([0.0, 0.5, 1.0]) * h
+        kap = np.asarray(road.curvature(np.clip(pts, 0.0, L).reshape(-1)), float).reshape(
+            M, S, 3)
+        node_s = np.linspace(0.0, L, M + 1)
+    else:
+        starts, h = _step_grid(edges, S)
+        kap = _rk4_curvature(road, starts, h)
+        h, node_s = h[:, None], edges
 
     def bounds(s):
         s = np.clip(s, 0.0, L)
         return np.stack([np.asarray(road.width_right(s), float) * -1.0 + margin,
                          np.asarray(road.width_left(s), float) - margin], -1)
 
-    nodes = bounds(np.linspace(0.0, L, M + 1))
+    nodes = bounds(node_s)
     mids = bounds((starts + 0.5 * h).reshape(-1)).reshape(M, S, 2)
     if np.any(nodes[:, 0] >= nodes[:, 1]) or np.any(mids[..., 0] >= mids[..., 1]):
         raise ValueError(f"margin={margin} leaves no road: it must be below half the width")
@@ -161,7 +222,7 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
     # subclasses define the fields: length, curvature, corridor, corridor_mid,
     # corridor_steps, start_lateral, end_lateral, start_speed, end_speed (arrays),
     # start_speed_fixed, end_speed_fixed, num_stages, steps_per_stage, closed, objective
-    # (static), tf_max, rate_weight
+    # (static), tf_max, rate_weight, stage_lengths (None: the uniform grid)
 
     @property
     @abc.abstractmethod
@@ -191,8 +252,26 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
 
     @property
     def step(self):
-        """RK4 step in s [m]."""
+        """RK4 step in s [m] of the uniform grid."""
         return self.length / (self.num_stages * self.steps_per_stage)
+
+    def stage_length(self, k):
+        """Length [m] of stage ``k`` (its ``steps_per_stage`` RK4 steps together)."""
+        if self.stage_lengths is None:
+            return self.length / self.num_stages
+        return self.stage_lengths[k]
+
+    def stage_step(self, k):
+        """RK4 step in s [m] of stage ``k``."""
+        if self.stage_lengths is None:
+            return self.step
+        return self.stage_lengths[k] / self.steps_per_stage
+
+    def stage_edges(self) -> np.ndarray:
+        """Arc lengths [m] of the knots (M+1), the stages' boundaries."""
+        if self.stage_lengths is None:
+            return np.linspace(0.0, float(self.length), self.num_stages + 1)
+        return np.concatenate([[0.0], np.cumsum(np.asarray(self.stage_lengths, float))])
 
     def final_time(self, x):
         """Time [s] at the knot state(s) ``x``."""
@@ -207,7 +286,7 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
         return jnp.concatenate([self._rhs(X[:p], u, kappa), jnp.zeros((X.shape[0] - p,))])
 
     def _segment(self, x, u, k):
-        return _rk4_steps(self._full_rhs, x, u, self.step, self.curvature[k])
+        return _rk4_steps(self._full_rhs, x, u, self.stage_step(k), self.curvature[k])
 
     def transition(self, x, u, k):
         return self._segment(x, u, k)[0]
@@ -226,7 +305,7 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
         kap_nodes = jnp.concatenate([kap[:, 0], kap[-1:, 2]])
         slope = jax.vmap(self.lateral_slope)(nodes, kap_nodes)
         n = nodes[:, 0]
-        h = self.step
+        h = self.stage_step(k)
         n_mid = 0.5 * (n[:-1] + n[1:]) + h * (slope[:-1] - slope[1:]) / 8.0
         lo_hi = self.corridor_mid[k]  # (S, 2)
         node_lo_hi = jnp.concatenate([self.corridor[k][None], _interior_nodes(self, k)], 0)
@@ -277,24 +356,34 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
         return -self.speed(x)
 
     def nodes(self, xs, us):
-        """Knot states at every integration node (M S + 1, nx), uniform in s."""
+        """Knot states at every integration node (M S + 1, nx), at `node_positions`."""
         _, starts = jax.vmap(self._segment)(xs[:-1], us, jnp.arange(self.num_stages))
         return jnp.concatenate([starts.reshape(-1, xs.shape[1]), xs[-1:]], 0)
 
     def fine_nodes(self, xs, us, fine_curvature):
         """Every stage re-integrated from its knot with the finer steps whose curvature is
         ``fine_curvature`` (M, S', 3) (`fine_curvature` of the road): (M S' + 1, nx) states,
-        uniform in s; the last state of each stage differs from the next knot by the
-        discretisation error of the coarse steps."""
+        equal within each stage; the last state of each stage differs from the next knot by
+        the discretisation error of the coarse steps."""
         Sf = fine_curvature.shape[1]
-        h = self.length / (self.num_stages * Sf)
-        _, fine = jax.vmap(lambda x, u, kap: _rk4_steps(self._full_rhs, x, u, h, kap))(
-            xs[:-1], us, fine_curvature)
+        if self.stage_lengths is None:
+            h = self.length / (self.num_stages * Sf)
+            _, fine = jax.vmap(lambda x, u, kap: _rk4_steps(self._full_rhs, x, u, h, kap))(
+                xs[:-1], us, fine_curvature)
+        else:
+            _, fine = jax.vmap(lambda x, u, kap, h: _rk4_steps(self._full_rhs, x, u, h, kap))(
+                xs[:-1], us, fine_curvature, self.stage_lengths / Sf)
         return jnp.concatenate([fine.reshape(-1, xs.shape[1]), xs[-1:]], 0)
 
-    def node_positions(self) -> np.ndarray:
-        """Arc lengths [m] of the integration nodes (M S + 1)."""
-        return np.linspace(0.0, float(self.length), self.num_stages * self.steps_per_stage + 1)
+    def node_positions(self, steps: int | None = None) -> np.ndarray:
+        """Arc lengths [m] of the integration nodes (M S + 1), or of ``steps`` equal steps
+        per stage."""
+        S = self.steps_per_stage if steps is None else steps
+        if self.stage_lengths is None:
+            return np.linspace(0.0, float(self.length), self.num_stages * S + 1)
+        edges = self.stage_edges()
+        starts, _ = _step_grid(edges, S)
+        return np.concatenate([starts.reshape(-1), edges[-1:]])
 
 
 def _interior_nodes(prob, k):
@@ -306,9 +395,12 @@ def _interior_nodes(prob, k):
     return prob.corridor_steps[k]
 
 
-def fine_curvature(road, num_stages: int, substeps: int) -> np.ndarray:
-    """The road's curvature at the RK4 points of ``substeps`` uniform steps per stage
-    (M, substeps, 3)."""
+def fine_curvature(road, num_stages: int, substeps: int,
+                   edges: np.ndarray | None = None) -> np.ndarray:
+    """The road's curvature at the RK4 points of ``substeps`` equal steps per stage
+    (M, substeps, 3); ``edges``: the stage boundaries (None: uniform)."""
+    if edges is not None:
+        return _rk4_curvature(road, *_step_grid(edges, substeps))
     L = float(road.length)
     h = L / (num_stages * substeps)
     starts = (np.arange(num_stages * substeps) * h).reshape(num_stages, substeps)
@@ -321,18 +413,23 @@ def _common_fields(road, num_stages, steps_per_stage, margin):
     if num_stages < 2 or steps_per_stage < 1:
         raise ValueError("num_stages must be >= 2 and steps_per_stage >= 1, got "
                          f"{num_stages} and {steps_per_stage}")
-    kap, nodes, mids = _road_arrays(road, num_stages, steps_per_stage, margin)
+    edges = stage_edges(road, num_stages)
+    kap, nodes, mids = _road_arrays(road, num_stages, steps_per_stage, margin, edges)
     S = steps_per_stage
     L = float(road.length)
-    h = L / (num_stages * S)
-    s_steps = (np.arange(num_stages * S) * h).reshape(num_stages, S)[:, 1:]
+    if edges is None:
+        h = L / (num_stages * S)
+        s_steps = (np.arange(num_stages * S) * h).reshape(num_stages, S)[:, 1:]
+    else:
+        s_steps = _step_grid(edges, S)[0][:, 1:]
     steps = np.stack([np.asarray(road.width_right(s_steps.reshape(-1)), float) * -1.0 + margin,
                       np.asarray(road.width_left(s_steps.reshape(-1)), float) - margin],
                      -1).reshape(num_stages, S - 1, 2)
     closed = bool(getattr(road, "closed", False))
     fields = dict(length=jnp.asarray(L), curvature=jnp.asarray(kap), corridor=jnp.asarray(nodes),
                   corridor_mid=jnp.asarray(mids), corridor_steps=jnp.asarray(steps),
-                  num_stages=num_stages, steps_per_stage=steps_per_stage, closed=closed)
+                  num_stages=num_stages, steps_per_stage=steps_per_stage, closed=closed,
+                  stage_lengths=None if edges is None else jnp.asarray(np.diff(edges)))
     if closed:
         fields.update(start_lateral=jnp.zeros(2), end_lateral=jnp.zeros(2),
                       start_speed=jnp.asarray(0.0), end_speed=jnp.asarray(0.0),
@@ -345,6 +442,14 @@ def _common_fields(road, num_stages, steps_per_stage, margin):
                       end_speed=jnp.asarray(0.0 if v1 is None else v1),
                       start_speed_fixed=v0 is not None, end_speed_fixed=v1 is not None)
     return fields
+
+
+def _rate_penalty(prob, u, k):
+    """$w\\,\\Delta s_k|u|^2$, the stage's share of the rate penalty (on the uniform grid in
+    the arithmetic of $wL/M$)."""
+    if prob.stage_lengths is None:
+        return prob.rate_weight * prob.length / prob.num_stages * jnp.sum(u * u)
+    return prob.rate_weight * prob.stage_lengths[k] * jnp.sum(u * u)
 
 
 def _check_objective(objective: str) -> None:
@@ -366,7 +471,8 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
     ``start_lateral``/``end_lateral`` intervals and speeds (``start_speed``, used where
     ``start_speed_fixed``), ``objective``, ``tf_max`` [s] (the time budget of max-exit),
     ``rate_weight`` $w$ of the penalty $w\int |du/ds|^2 ds$ [s m] that picks one input history
-    where the time is flat, ``num_stages`` $M$, ``steps_per_stage`` $S$, ``closed``.
+    where the time is flat, ``num_stages`` $M$, ``steps_per_stage`` $S$, ``closed``,
+    ``stage_lengths`` (M,) [m] (None: the uniform grid; module docstring).
     """
 
     vehicle: ReducedHalfCar
@@ -388,6 +494,7 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
     tf_max: Array = array_field(default=60.0)
     rate_weight: Array = array_field(default=1e-4)
     control_size: int = eqx.field(static=True, default=3)
+    stage_lengths: Array | None = None
 
     def __check_init__(self):
         _check_objective(self.objective)
@@ -436,7 +543,7 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
         return jnp.stack(parts)
 
     def stage_cost(self, x, u, k):
-        return self.rate_weight * self.length / self.num_stages * jnp.sum(u * u)
+        return _rate_penalty(self, u, k)
 
     def speed(self, x):
         return (x[..., 2] ** 2 + x[..., 3] ** 2) ** 0.5
@@ -470,6 +577,7 @@ class CurvilinearPointMassOCP(AbstractCurvilinearOCP):
     tf_max: Array = array_field(default=60.0)
     rate_weight: Array = array_field(default=1e-6)
     control_size: int = eqx.field(static=True, default=2)
+    stage_lengths: Array | None = None
 
     def __check_init__(self):
         _check_objective(self.objective)
@@ -512,7 +620,7 @@ class CurvilinearPointMassOCP(AbstractCurvilinearOCP):
         return jnp.stack(parts)
 
     def stage_cost(self, x, u, k):
-        return self.rate_weight * self.length / self.num_stages * jnp.sum(u * u)
+        return _rate_penalty(self, u, k)
 
     def speed(self, x):
         return x[..., 2]
@@ -567,17 +675,18 @@ def speed_profile(road, D: float, fraction: float = 0.8, *, g: float = GRAVITY,
 
 
 def speed_profile_guess(road, car: ReducedHalfCar, num_stages: int, fraction: float = 0.8,
-                        steps_per_stage: int = 1):
+                        steps_per_stage: int = 1, edges: np.ndarray | None = None):
     r"""Knots (M+1, 9 or 17) and input rates (M, 3) of `CurvilinearManeuverOCP` on the centre
     line ($n = 0$, $\xi = 0$, $v_y = 0$) at the speed of `speed_profile` with ``fraction`` of
     the tire's peak friction: yaw rate $r = v\kappa$, kinematic steering
     $\delta = \arctan((\ell_F + \ell_R)\kappa)$, equal slips giving the tangential
     acceleration on the tire's curve (within 80 % of the peak), time by integration of
-    $1/v$. A closed road's knots carry the first knot's copy."""
+    $1/v$. A closed road's knots carry the first knot's copy. ``edges``: the knots' arc
+    lengths (`CurvilinearManeuverOCP.stage_edges`; None: uniform)."""
     D, g = _friction(car)
     s_fine, v_fine = speed_profile(road, D, fraction, g=g)
     L = float(road.length)
-    s = np.linspace(0.0, L, num_stages + 1)
+    s = np.linspace(0.0, L, num_stages + 1) if edges is None else np.asarray(edges, float)
     v = np.interp(s, s_fine, v_fine)
     kap = np.asarray(road.curvature(s), float)
     dv2 = np.gradient(v_fine**2, s_fine)
@@ -594,18 +703,20 @@ def speed_profile_guess(road, car: ReducedHalfCar, num_stages: int, fraction: fl
     sx = -np.sign(mux) * sl
     slip = -sx / (1.0 + sx)
     xs = np.stack([0 * s, 0 * s, v, 0 * s, v * kap, slip, slip, delta, t], 1)
-    us = np.diff(xs[:, 5:8], axis=0) / (L / num_stages)
+    us = np.diff(xs[:, 5:8], axis=0) / (L / num_stages if edges is None else np.diff(s)[:, None])
     if bool(getattr(road, "closed", False)):
         xs = np.concatenate([xs, np.broadcast_to(xs[:1, :8], (num_stages + 1, 8))], 1)
     return jax.device_put(xs), jax.device_put(us)
 
 
-def point_mass_guess(road, D: float, num_stages: int, fraction: float = 0.8):
+def point_mass_guess(road, D: float, num_stages: int, fraction: float = 0.8,
+                     edges: np.ndarray | None = None):
     """Knots (n = 0, xi = 0, V, t) and accelerations (a_t, a_n) of
-    `CurvilinearPointMassOCP` from `speed_profile` (a closed road's knots carry the copy)."""
+    `CurvilinearPointMassOCP` from `speed_profile` (a closed road's knots carry the copy);
+    ``edges`` as `speed_profile_guess`."""
     s_fine, v_fine = speed_profile(road, D, fraction)
     L = float(road.length)
-    s = np.linspace(0.0, L, num_stages + 1)
+    s = np.linspace(0.0, L, num_stages + 1) if edges is None else np.asarray(edges, float)
     v = np.interp(s, s_fine, v_fine)
     t_fine = np.concatenate([[0.0], np.cumsum(np.diff(s_fine) * 0.5 * (
         1.0 / v_fine[1:] + 1.0 / v_fine[:-1]))])
@@ -621,6 +732,11 @@ def point_mass_guess(road, D: float, num_stages: int, fraction: float = 0.8):
     if bool(getattr(road, "closed", False)):
         xs = np.concatenate([xs, np.broadcast_to(xs[:1, :3], (num_stages + 1, 3))], 1)
     return jax.device_put(xs), jax.device_put(us)
+
+
+def _edges_of(prob) -> np.ndarray | None:
+    """The stage boundaries of a problem on a non-uniform grid; None on the uniform one."""
+    return None if prob.stage_lengths is None else prob.stage_edges()
 
 
 # --------------------------------------------------------------------------------------
@@ -710,9 +826,10 @@ class RoadPrimitive(AbstractSolvedDrive):
         n = np.asarray(self.nodes())
         s = self.arc_length()
         off = np.asarray(rd.distance_off_road(*rd.to_cartesian(s, n[:, 0])), float)
-        kap = fine_curvature(rd, prob.num_stages, prob.steps_per_stage * substeps)
+        steps = prob.steps_per_stage * substeps
+        kap = fine_curvature(rd, prob.num_stages, steps, _edges_of(prob))
         fine = np.asarray(self.runner("curvilinear_fine", _fine, (prob, xs, us, kap)))
-        s_fine = np.linspace(0.0, float(prob.length), fine.shape[0])
+        s_fine = prob.node_positions(steps)
         between = np.asarray(rd.distance_off_road(*rd.to_cartesian(s_fine, fine[:, 0])), float)
         defects, bc = (float(a) for a in self.runner("curvilinear_defects", _defects,
                                                      (prob, xs, us)))
@@ -764,16 +881,19 @@ class RoadPrimitive(AbstractSolvedDrive):
         return rec
 
 
-def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages: int):
+def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages: int,
+                   edges: np.ndarray | None = None):
     """A car drive's knots ``xs`` of ``prob`` on another grid of ``num_stages`` stages
-    (linear interpolation in s; the inputs stay piecewise linear, their rates the
-    differences): a guess for a finer problem from a coarse solution."""
+    (``edges``, their knots' arc lengths; None: uniform) by linear interpolation in s (the
+    inputs stay piecewise linear, their rates the differences): a guess for a finer problem
+    from a coarse solution."""
     xs = np.asarray(xs, float)
     L = float(prob.length)
-    s_old = np.linspace(0.0, L, xs.shape[0])
-    s_new = np.linspace(0.0, L, num_stages + 1)
+    s_old = prob.stage_edges()
+    s_new = np.linspace(0.0, L, num_stages + 1) if edges is None else np.asarray(edges, float)
     new = np.stack([np.interp(s_new, s_old, xs[:, j]) for j in range(xs.shape[1])], 1)
-    us = np.diff(new[:, 5:8], axis=0) / (L / num_stages)
+    us = np.diff(new[:, 5:8], axis=0) / (
+        L / num_stages if edges is None else np.diff(s_new)[:, None])
     return jax.device_put(new), jax.device_put(us)
 
 
@@ -789,7 +909,7 @@ def road_point_mass_bound(road, objective: str = "min-time", *, D: float = 0.52,
     prob = CurvilinearPointMassOCP.from_road(road, friction=D, objective=objective,
                                              num_stages=num_stages,
                                              steps_per_stage=steps_per_stage, tf_max=tf_max)
-    xs0, us0 = point_mass_guess(road, D, num_stages, fraction)
+    xs0, us0 = point_mass_guess(road, D, num_stages, fraction, _edges_of(prob))
     if objective == "max-exit":
         xs0 = xs0.at[:, 3].multiply(jnp.minimum(1.0, 0.98 * tf_max / xs0[-1, 3]))
     sol = solver(prob, xs0, us0, options, throw=throw)
@@ -833,10 +953,11 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
                                 rate_weight=rate_weight, fraction=fraction, options=options,
                                 throw=False, solver=solver)
         if bool(coarse.solution.converged):
-            guess = resample_drive(coarse.problem, coarse.solution.xs, num_stages)
+            guess = resample_drive(coarse.problem, coarse.solution.xs, num_stages,
+                                   _edges_of(prob))
             options = eqx.tree_at(lambda o: o.mu0, options, jnp.asarray(warm_mu0, float))
     if guess is None:
-        guess = speed_profile_guess(road, car, num_stages, fraction)
+        guess = speed_profile_guess(road, car, num_stages, fraction, edges=_edges_of(prob))
         if objective == "max-exit":
             xs0, us0 = guess
             xs0 = xs0.at[:, 8].multiply(jnp.minimum(1.0, 0.98 * tf_max / xs0[-1, 8]))
