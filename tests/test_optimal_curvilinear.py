@@ -321,3 +321,29 @@ def test_bad_arguments_are_refused():
         CurvilinearPointMassOCP.from_road(road, margin=4.0)
     with pytest.raises(ValueError, match="num_stages"):
         CurvilinearPointMassOCP.from_road(road, num_stages=1)
+
+
+def test_stage_edges_put_a_node_on_every_curvature_jump():
+    from vehsim.drive.scenarios import scenario_road
+    from vehsim.optimal.curvilinear import stage_edges
+
+    road = scenario_road("stage")  # six arcs between straights: ten jumps
+    jumps = road.curvature_jumps()
+    assert len(jumps) == 10
+    M = 60
+    edges = stage_edges(road, M)
+    assert len(edges) == M + 1 and edges[0] == 0.0 and edges[-1] == road.length
+    assert np.all(np.diff(edges) > 0)
+    bounds = np.concatenate([[0.0], jumps, [road.length]])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        inside = edges[(edges >= a - 1e-9) & (edges <= b + 1e-9)]
+        assert inside[0] == pytest.approx(a, abs=1e-9) and inside[-1] == pytest.approx(b, abs=1e-9)
+        steps = np.diff(inside)
+        np.testing.assert_allclose(steps, steps[0], rtol=1e-12)  # equal within a piece
+        assert len(steps) == pytest.approx((b - a) / road.length * M, abs=1.0)
+    smooth = CentrelineRoad.from_segments(
+        [("straight", 10.0), ("clothoid", 10.0, 0.1), ("clothoid", 10.0, 0.0),
+         ("straight", 10.0)], 8.0)
+    assert len(smooth.curvature_jumps()) == 0 and stage_edges(smooth, M) is None
+    with pytest.warns(UserWarning, match="more than num_stages=8"):
+        assert stage_edges(road, 8) is None
