@@ -50,8 +50,9 @@ class _ArcsRoad:
             x0, y0, th0 = self._pose(k, L, x0, y0, th0)
             s0 += L
         self.length, self.closed, self.w = s0, closed, width / 2
-        self.start = _Gate(0.0, (-0.8 * self.w, 0.8 * self.w), start_speed)
-        self.end = _Gate(s0, (-0.8 * self.w, 0.8 * self.w))
+        lateral = (-self.w, self.w) if closed else (-0.8 * self.w, 0.8 * self.w)  # a lap: full
+        self.start = _Gate(0.0, lateral, start_speed)
+        self.end = _Gate(s0, lateral)
         self._dense = np.stack(self.position(np.linspace(0, s0, int(s0 / 0.01) + 1)), 1)
 
     @staticmethod
@@ -321,6 +322,31 @@ def test_bad_arguments_are_refused():
         CurvilinearPointMassOCP.from_road(road, margin=4.0)
     with pytest.raises(ValueError, match="num_stages"):
         CurvilinearPointMassOCP.from_road(road, num_stages=1)
+
+
+def test_gates_the_road_frame_cannot_pose_are_refused_not_ignored():
+    lib = CentrelineRoad.from_segments(CORNER, 8.0)
+    car = rally_gravel_car()
+    build = lambda r: CurvilinearManeuverOCP.from_road(r, car, num_stages=10)
+    build(lib)  # the default gates: full width at both ends
+    with pytest.raises(ValueError, match=r"start gate is at s = 30 m.*must be at s = 0 m"):
+        build(lib.with_gates(30.0, None))
+    with pytest.raises(ValueError, match=r"end gate is at s = 40 m.*must be at s = 71.4159"):
+        CurvilinearPointMassOCP.from_road(lib.with_gates(None, 40.0), num_stages=10)
+    with pytest.raises(ValueError, match=r"start gate's speed must be at least 1 m/s.*got 0.5"):
+        build(lib.with_gates(Gate.at(lib, 0.0, speed=0.5), None))
+    lap = CentrelineRoad.from_segments(OVAL, 8.0, closed=True)
+    build(lap)
+    with pytest.raises(ValueError, match="closed road's lap is periodic"):
+        build(lap.with_gates(Gate.at(lap, 0.0, n_min=-1.0, n_max=1.0), None))
+    with pytest.raises(ValueError, match="closed road's lap is periodic"):
+        build(lap.with_gates(Gate.at(lap, 0.0, speed=10.0), None))
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ValueError, match="needs float64"):
+            build(lib)
+    finally:
+        jax.config.update("jax_enable_x64", True)
 
 
 def test_stage_edges_put_a_node_on_every_curvature_jump():

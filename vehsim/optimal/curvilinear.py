@@ -408,11 +408,44 @@ def fine_curvature(road, num_stages: int, substeps: int,
     return np.asarray(road.curvature(pts.reshape(-1)), float).reshape(num_stages, substeps, 3)
 
 
+def _check_road(road) -> None:
+    """What the road-frame problem can pose: float64, an open road's gates at its ends, a
+    closed road's full width and free speed, and a fixed gate speed above the floor."""
+    if not jax.config.jax_enable_x64:
+        raise ValueError(
+            "the road-frame problem needs float64: call jax.config.update('jax_enable_x64', "
+            "True) first. In float32 its solves stall (the residual stays near 0.4)")
+    name = getattr(road, "name", "")
+    L = float(road.length)
+    closed = bool(getattr(road, "closed", False))
+    for which, gate, at in (("start", road.start, 0.0), ("end", road.end, L)):
+        s_gate = getattr(gate, "s", at)
+        if not closed and abs(float(s_gate) - at) > 1e-9 * max(1.0, L):
+            raise ValueError(
+                f"road {name!r}: the {which} gate is at s = {float(s_gate):g} m; the "
+                f"road-frame problem runs from s = 0 to s = L = {L:g} m, so its {which} "
+                f"gate must be at s = {at:g} m (build the road from its points between the "
+                "gates instead)")
+        speed = getattr(gate, "speed", None)
+        if closed and (speed is not None or tuple(map(float, gate.lateral)) != (
+                -float(road.width_right(at)), float(road.width_left(at)))):
+            raise ValueError(
+                f"road {name!r}: a closed road's lap is periodic, so its {which} gate must be "
+                "the full width with the speed free (got lateral "
+                f"{tuple(map(float, gate.lateral))} m, speed {speed})")
+        if speed is not None and float(speed) < SPEED_FLOOR:
+            raise ValueError(
+                f"road {name!r}: the {which} gate's speed must be at least {SPEED_FLOOR:g} m/s "
+                f"(the speed floor of the road-frame problem, whose time is the integral of "
+                f"ds/s-dot: a standing start cannot be posed), got {float(speed):g}")
+
+
 def _common_fields(road, num_stages, steps_per_stage, margin):
     """The road's arrays as problem fields."""
     if num_stages < 2 or steps_per_stage < 1:
         raise ValueError("num_stages must be >= 2 and steps_per_stage >= 1, got "
                          f"{num_stages} and {steps_per_stage}")
+    _check_road(road)
     edges = stage_edges(road, num_stages)
     kap, nodes, mids = _road_arrays(road, num_stages, steps_per_stage, margin, edges)
     S = steps_per_stage
