@@ -155,6 +155,37 @@ def test_uniform_and_rising_grips_have_their_peaks_along_the_road(roads, grips, 
     np.testing.assert_allclose(np.asarray(grips[road, "minus20"].peak), 0.416, atol=1e-6)
 
 
+def test_a_file_road_named_like_a_scenario_road_gets_the_file_roads_patch(tmp_path):
+    """A road read from ``stage.csv`` is named ``stage`` but is not the stage: its icy patch
+    sits at its middle with a 3 m radius (the stage's would be on the stage's hairpin, 8 m),
+    the same as under any other name."""
+    text = "x_m,y_m,w_tr_right_m,w_tr_left_m\n" + "".join(
+        f"{x},0,2,2\n" for x in np.linspace(0.0, 211.0, 300))
+    fields = {}
+    for stem in ("stage", "mystage"):
+        (tmp_path / f"{stem}.csv").write_text(text)
+        road = vs.read_road(tmp_path / f"{stem}.csv")
+        fields[stem] = vs.scenario_grip("icy", road).field
+    assert vs.read_road(tmp_path / "stage.csv").name == "stage"
+    for f in fields.values():
+        np.testing.assert_allclose(np.asarray(f.centres[0]), [105.5, 0.0], atol=1e-6)
+        assert float(f.radii[0]) == 3.0
+    stage = vs.scenario_grip("icy", vs.scenario_road("stage")).field
+    assert float(stage.radii[0]) == 8.0  # the scenario road itself keeps its own
+
+
+def test_rising_grip_is_refused_where_the_road_does_not_run_towards_its_end():
+    back = vs.CentrelineRoad.from_segments([("straight", 20.0), ("arc", 10.0, 180.0),
+                                            ("straight", 40.0)], 8.0)  # a hairpin
+    with pytest.raises(ValueError, match=r"grip 'rising'.*behind its start"):
+        vs.scenario_grip("rising", back)
+    lap = vs.CentrelineRoad.from_segments([("straight", 30.0), ("arc", 12.0, 180.0),
+                                           ("straight", 30.0), ("arc", 12.0, 180.0)], 8.0,
+                                          closed=True)
+    with pytest.raises(ValueError, match="a closed road has no such line"):
+        vs.scenario_grip("rising", lap)
+
+
 # ---- measurements --------------------------------------------------------------------------
 
 

@@ -91,8 +91,9 @@ def register(subparsers) -> None:
     p.add_argument("--conditions", type=choice_of(CONDITIONS, "conditions"), default=None,
                    help="a named grip scenario instead of --grip/--patch: nominal, minus20 "
                         "(20 %% less grip everywhere), icy (a patch of half the grip on the "
-                        "main corner) or rising (60 %% of the grip at the start, all of it "
-                        "from a third of the road on); docs/driver.md")
+                        "main corner; on a road file at its middle) or rising (60 %% of the "
+                        "grip at the start, all of it from a third of the road on; open roads "
+                        "that run towards their end); docs/driver.md")
     p.add_argument("--grip", type=number(0.0, MAX_GRIP, lower_open=True), default=None,
                    help="the peak friction everywhere, relative to the nominal road's (gravel, "
                         f"0.52), in (0, {MAX_GRIP:g}] (default 1; 0.8: 20 %% less)")

@@ -35,11 +35,14 @@ $D = 0.52$.
 - `icy`: a circular patch of peak $0.5 \times 0.52$ ($\tanh$ edge of 1 m, as
   `GripPatches`) centred on the apex of the road's main corner (corner90's corner, the first
   corner of uturn and sturn, the stage's hairpin), radius 3 m on the benchmark corners, 8 m
-  on the stage, on the nominal road;
+  on the stage, on the nominal road; on any other road (one read from a file, even if named
+  like a scenario road), radius 3 m at $s = L/2$;
 - `rising`: peak $0.6 \times 0.52$ at the start rising to 0.52 at a third of the road (a
   `GripProfile` along the direction from the start to the end of the road, its stations
   those of the start and of the centre line at $s = L/3$; on these roads the centre line
-  never comes back below that station, so the grip along it rises monotonically).
+  never comes back below that station, so the grip along it rises monotonically). A closed
+  road, or one whose centre line at $s = L/3$ lies behind its start on that line, is
+  refused.
 
 All these peaks are stated at 20 m/s (`REFERENCE_SPEED`, the estimator's
 `reference_speed`): the LuGre peak rises as the speed falls (eq. 21), so at the corners'
@@ -389,6 +392,18 @@ class PatchedProfile(AbstractGripField):
         return lam
 
 
+def _is_scenario_road(road: CentrelineRoad) -> bool:
+    """Whether `road` is the scenario road of its name (not only named like it: a road file
+    called ``stage.csv`` is named ``stage``)."""
+    if road.name not in _ROADS:
+        return False
+    own = scenario_road(road.name)
+    ends = np.array([0.0, road.length])
+    return (abs(road.length - own.length) <= 1e-9 * own.length
+            and np.allclose(np.stack(road.position(ends)), np.stack(own.position(ends)),
+                            rtol=0.0, atol=1e-6))
+
+
 def _grip_field(name: str, road: CentrelineRoad) -> PatchedProfile:
     lam0 = nominal_scale()
     (x0, x1), (y0, y1) = road.position(np.array([0.0, road.length]))
@@ -396,9 +411,18 @@ def _grip_field(name: str, road: CentrelineRoad) -> PatchedProfile:
     xt, yt = road.position(road.length / 3.0)
     third = ((float(xt) - float(x0)) * math.cos(direction)
              + (float(yt) - float(y0)) * math.sin(direction))
-    s0, s1 = main_corner(road.name) if road.name in _ROADS else (0.0, road.length)
+    if name == "rising" and (road.closed or third <= 0.0):
+        raise ValueError(
+            f"grip 'rising' on road {road.name!r}: the grip rises along the line from the "
+            "road's start to its end, up to the point a third of the road along it; "
+            + ("a closed road has no such line" if road.closed else
+               f"this road's third lies {third:.1f} m behind its start on that line")
+            + ". Choose another grip (nominal, minus20, icy) or an open road that runs "
+            "from its start towards its end")
+    scenario = _is_scenario_road(road)
+    s0, s1 = main_corner(road.name) if scenario else (0.0, road.length)
     cx, cy = road.position(0.5 * (s0 + s1))
-    radius = _ROADS[road.name][5] if road.name in _ROADS else 3.0
+    radius = _ROADS[road.name][5] if scenario else 3.0
     start = end = lam0
     factor = 1.0
     if name == "minus20":
