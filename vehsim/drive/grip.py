@@ -4,9 +4,11 @@ A grip field gives the friction scale $\lambda > 0$ at a point $(x, y)$ of the r
 tire's friction coefficients are multiplied by $\lambda$ there (`scale_friction`). For the
 LuGre family this is the road-condition parameter of the report, $\theta = 1/\lambda$: the
 bristle decay of eq. 22 (eq. 27 in combined slip), $\theta\sigma_0|v_r|/g(v_r)$, is the same
-for $\mu\to\lambda\mu$ as for $\theta\to\theta/\lambda$, so the steady-state curve is
-$\lambda$ times the nominal one, stretched by $\lambda$ along the slip axis (peak
-$\lambda\mu^*$, same initial slope, eq. 19). The half-car of eqs. 49-60 reads the field at
+for $\mu\to\lambda\mu$ as for $\theta\to\theta/\lambda$, so the single-contact steady-state
+curve is $\lambda$ times the nominal one, stretched by $\lambda$ along the slip axis (peak
+$\lambda\mu^*$, same initial slope, eq. 19). The lumped tire's contact-patch edge term does
+not scale, so its peak is not proportional to $\lambda$ (`scale_for_peak` finds the
+$\lambda$ of a peak). The half-car of eqs. 49-60 reads the field at
 each axle's contact point separately (`DrivePlant`), so the two axles can be on different
 surfaces.
 
