@@ -61,6 +61,8 @@ def test_fit_writes_parameters_errors_and_figure(tmp_path):
     assert all(v > 0 for v in fit["std_errors"].values())
     held_out = fit["validation_errors"]["braking_3"]
     assert 0 < held_out["rms_error_rel_peak"] < 0.03
+    assert data["units"]["fits.kappa0 fitted.parameters.theta"] == "-"  # LuGre's, not a pitch
+    assert data["units"]["fits.kappa0 fitted.parameters.sigma0"] == "1/m"
     assert _is_png(tmp_path / "fit.png")
     rc, _, err = _vehsim("fit", tmp_path / "no_such.csv", "--out", tmp_path / "x")
     assert rc == 2 and "no_such.csv" in err and "vehsim: error:" in err
@@ -106,6 +108,7 @@ def test_reproduce_every_section_at_its_smallest(tmp_path):
     assert rc == 0, err
     report = (tmp_path / "report.md").read_text()
     results = json.loads((tmp_path / "results.json").read_text())
+    assert results["units"]["fig13.max_Fx_alpha0_N"] == "N"  # the block every JSON ends with
     for name in reproduce.SECTIONS:
         assert f"## {importlib.import_module(name).TITLE}" in report, name
         assert results[f"{name}.wall_time_s"] > 0, name

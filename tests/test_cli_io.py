@@ -242,8 +242,20 @@ def test_units_block_names_every_numeric_field_and_load_result_reads_it_back(tmp
     assert back["status"] == "successful" and back["starts"][0]["iterations"] == 28
     with pytest.raises(ValueError, match=r"\.json, \.nc and \.csv"):
         vehsim.load_result(tmp_path / "r.txt")
+    flags = vehsim.load_result(_io.write_json(tmp_path / "b.json", {"converged": [True, False]}))
+    assert flags["converged"] == [True, False]  # booleans stay booleans, not 1.0 and 0.0
     with pytest.raises(FileNotFoundError):
         vehsim.load_result(tmp_path / "missing.json")
+
+
+def test_units_are_read_from_whole_words_of_a_name():
+    from vehsim._result_files import unit_of_name
+
+    for name in ("t_f_over_bound", "mean_iterations", "converged_fraction", "num_steps",
+                 "drive_ratio", "seed", "nodes"):
+        assert unit_of_name(name) == "1", name
+    for name in ("duration", "deceleration", "iteration_time", "calibration"):
+        assert unit_of_name(name) != "1", name  # "ratio" inside a word is not a ratio
 
 
 def test_fit_points_out_a_kappa0_far_from_the_lumped_models_range():

@@ -95,7 +95,8 @@ def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
         for p in procs:
             p.kill()
     assert rc == 0
-    assert capsys.readouterr().err.count("sweep: 100% (4/4 members)") == 1  # 3 padded to 4
+    assert capsys.readouterr().err.count(  # 3 padded to 4 for 2 devices, and said so
+        "sweep: 100% (4/4 members, 1 of them padding)") == 1
     data = json.loads(out.read_text())
     assert data["num_devices"] == 2 and data["axes"] == {"delta": [0.02, 0.04, 0.08]}
     rows = data["members"]
@@ -106,7 +107,8 @@ def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
     print("\n".join(f"--- process {i}:\n{log}" for i, log in enumerate(logs)))
     assert [p.returncode for p in procs] == [0, 0], logs
     assert "of 2 processes (this is process 1)" in logs[1]
-    assert "sweep: 100% (2/2 members)" in logs[0]  # each process runs its own half
+    assert "sweep: 100% (2/2 members)," in logs[0]  # each process runs its own half,
+    assert "sweep: 100% (2/2 members, 1 of them padding)" in logs[1]  # the padding its last
     xr = pytest.importorskip("xarray")
     two = xr.load_dataset(tmp_path / "two.nc")
     assert two.attrs["num_devices"] == 2 and list(two["status"].values) == ["successful"] * 3

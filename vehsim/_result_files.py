@@ -4,7 +4,8 @@ writes, and `load_result` to read any of them back.
 The units of a field come, in this order, from the writer's own table, from the names
 vehsim knows (`vehsim.labelled.UNITS`, with its ``final_``/``max_``/``min_`` prefixes), and
 from the unit suffix of the name (``stopping_distance_m`` [m], ``speed_m_s`` [m/s],
-``wall_time_s`` [s], ``distance_over_bound`` and other ``*_over_*`` ratios [1]). Nested
+``wall_time_s`` [s], ``distance_over_bound`` and other ``*_over_*`` ratios, counts and
+fractions [1], read from whole words of the name). Nested
 records give dotted paths (``residuals.inf_pr``); the fields of a list of records
 (``starts``, ``members``) are named once, as ``starts[].objective``.
 """
@@ -25,8 +26,9 @@ from .labelled import units_of
 _SUFFIXES = (("_m_s", "m/s"), ("_m_s2", "m/s^2"), ("_rad_s", "rad/s"), ("_m", "m"),
              ("_s", "s"), ("_rad", "rad"), ("_deg", "deg"), ("_n", "N"), ("_nm", "N m"),
              ("_kg", "kg"), ("_hz", "Hz"), ("_pa", "Pa"))
-_DIMENSIONLESS_WORDS = ("_over_", "ratio", "fraction", "count", "num_", "number", "seed",
-                        "iterations", "segments", "nodes", "devices", "steps")
+_DIMENSIONLESS_WORDS = frozenset({"over", "ratio", "fraction", "count", "num", "number", "seed",
+                                  "iterations", "segments", "nodes", "devices", "steps"})
+"""Words of a name, between underscores, that make it a count or a ratio (unit 1)."""
 
 
 def unit_of_name(name: str) -> str | None:
@@ -38,7 +40,9 @@ def unit_of_name(name: str) -> str | None:
     for suffix, unit in _SUFFIXES:
         if lower.endswith(suffix):
             return unit
-    if any(w in lower for w in _DIMENSIONLESS_WORDS):
+    words = set(lower.split("_"))
+    if words & _DIMENSIONLESS_WORDS or {w[:-1] for w in words if w.endswith("s")} & \
+            _DIMENSIONLESS_WORDS:  # whole words: "duration" holds "ratio" but is a time
         return "1"
     return None
 
@@ -97,7 +101,8 @@ def _arrays(value):
     if isinstance(value, Mapping):
         return {k: _arrays(v) for k, v in value.items()}
     if isinstance(value, list):
-        if value and all(isinstance(v, int | float) or v is None for v in value) and any(
+        if value and all((isinstance(v, int | float) and not isinstance(v, bool)) or v is None
+                         for v in value) and any(
                 v is not None for v in value):
             return np.asarray([np.nan if v is None else v for v in value], dtype=float)
         if value and all(isinstance(v, list) for v in value):

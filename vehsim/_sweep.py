@@ -141,8 +141,13 @@ def sweep(
     simulate_kwargs = dict(simulate_kwargs, throw=False)
     progress = resolve(progress)
     local = sum(d.process_index == jax.process_index() for d in devices)
-    share = num_members(padded) * local // len(devices)
-    with progress_bar("sweep", share, "members", enabled=progress):
+    total = num_members(padded)
+    share = total * local // len(devices)
+    m = total // len(devices)  # device j runs members j m ... (j + 1) m - 1
+    padding = sum(max(0, min((j + 1) * m, total) - max(j * m, n)) for j, d in
+                  enumerate(devices) if d.process_index == jax.process_index())
+    unit = "members" if not padding else f"members, {padding} of them padding"
+    with progress_bar("sweep", share, unit, enabled=progress):
         out = _sweep_run(scenario, padded, ts, tuple(devices), batch_size, progress,
                          simulate_kwargs)
         out = jax.block_until_ready(gather_members(out))

@@ -62,6 +62,7 @@ def _fit(args) -> int:
     from .._io import save_figure, write_json
     from .._result_files import with_units
     from ..identify.braking import load_braking
+    from ..identify.parameters import UNITS as PARAMETER_UNITS
     from ..plot import force_histories_figure
     from ..reproduce.identify import VARIANTS, identify
 
@@ -79,7 +80,7 @@ def _fit(args) -> int:
     summary = out["summary"]
     summary["files"] = {"train": [str(f) for f in args.data],
                         "validate": [str(f) for f in args.validate]}
-    write_json(folder / "fit.json", with_units(summary, strict=False))
+    write_json(folder / "fit.json", with_units(summary, PARAMETER_UNITS, strict=False))
     fig = force_histories_figure(train + validate, out["predictions"], list(variants),
                                  title="measured vs predicted friction force (lumped LuGre)",
                                  held_out=[d.name for d in validate])

@@ -255,4 +255,4 @@ def _write_json(out, res, stats, info, wall, signals) -> Path:
     if signals:
         out_data["ts"] = res.trajectories.ts[0]
     # the axes are any model field or maneuver argument: those vehsim knows get their units
-    return write_json(out, with_units(out_data, strict=False))
+    return write_json(out, with_units(out_data, {"duration": "s"}, strict=False))

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .._io import save_figure, write_atomic, write_json
+from .._result_files import with_units
 
 
 SECTIONS: tuple[str, ...] = (  # in the order of the report
@@ -89,6 +90,6 @@ def run(out: str | Path = "results", quick: bool = True, only: list[str] | None 
         module.reproduce(ctx)
         ctx.record(f"{name}.wall_time_s", round(time.perf_counter() - t0, 2))
     write_atomic(out / "report.md", "\n".join(ctx.lines))
-    write_json(out / "results.json", ctx.results)
+    write_json(out / "results.json", with_units(ctx.results, strict=False))
     print(f"report: {out / 'report.md'}", file=sys.stderr)
     return out / "report.md"

@@ -710,6 +710,7 @@ def figures_for_tir(path, out, v: float = V, loads=None, max_steps: int = 1024, 
     import matplotlib.pyplot as plt
 
     from .._io import save_figure, write_json
+    from .._result_files import with_units
     from ..tire.mf6 import MFParams
     from ..tire.tir import read_tir
 
@@ -728,5 +729,5 @@ def figures_for_tir(path, out, v: float = V, loads=None, max_steps: int = 1024, 
         save_figure(_finish(fig, ax, f"{name}: distributed 2D LuGre fitted to its Magic "
                                      "Formula"), out / f"{stem}.png")
         plt.close(fig)
-    write_json(out / "lugre_fit.json", record)
+    write_json(out / "lugre_fit.json", with_units(record, strict=False))
     return fit, record
