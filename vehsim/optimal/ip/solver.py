@@ -26,7 +26,11 @@ method has no restoration phase). Where the multipliers are re-estimated after i
 (``reestimate_multipliers``) the next pass starts from new $(\lambda, \nu)$; where they are
 not, the next pass starts from the same primal point, and a second failure in a row ends the
 solve (`STALLED_PASSES`, `RESULTS.ip_line_search_failed`): further passes would repeat
-the same step at the full cost of its trials (a fixed-work solve's slowest passes).
+the same step at the full cost of its trials (a fixed-work solve's slowest passes). A
+pass whose inertia correction accepts no regularisation (`MAX_FACTORISATIONS` of them:
+non-finite derivatives, or a precision the solve's backward-error test cannot meet) has no
+Newton direction, and ends the solve with `RESULTS.ip_newton_system_failed` at its iterate
+(IPOPT would enter its restoration phase).
 
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
 together. A solve that reaches ``max_iter`` ends with a pass that takes no step: it tests
