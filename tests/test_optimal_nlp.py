@@ -742,23 +742,27 @@ class EffortRestToRest(RestToRest):
         return self.rho * x[4] / self.num_stages * (u @ u)
 
 
-def test_implicit_derivative_of_a_cost_parameter_matches_finite_differences():
+@pytest.mark.parametrize("output", ["final time", "objective"])
+def test_implicit_derivative_of_a_cost_parameter_matches_finite_differences(output):
+    """The final time (a state of the solution) and the objective (its total derivative
+    along the solution's tangent, which ``implicit=True`` once left at 0)."""
     M = 12
     xs0, us0 = _guess(M)
     opts = IPOptions(tol=1e-11, constr_tol=1e-11)
 
-    def t_final(rho):
-        p = EffortRestToRest(num_stages=M, rho=rho)
-        return interior_point(p, xs0, us0, opts, implicit=True).xs[-1, 4]
+    def value(rho):
+        sol = interior_point(EffortRestToRest(num_stages=M, rho=rho), xs0, us0, opts,
+                             implicit=True)
+        return sol.xs[-1, 4] if output == "final time" else sol.objective
 
     rho = jnp.asarray(0.05)
-    forward = float(jax.jvp(t_final, (rho,), (1.0,))[1])
-    f = jax.jit(t_final)
+    forward = float(jax.jvp(value, (rho,), (1.0,))[1])
+    f = jax.jit(value)
     fd = [float(f(rho + h) - f(rho - h)) / (2 * h) for h in (1e-4, 2.5e-5)]
-    assert abs(forward) > 0.1  # the effort slows the optimum down
+    assert abs(forward) > 0.1  # the effort slows the optimum down and costs
     assert fd[0] == pytest.approx(fd[1], rel=1e-5)
     assert forward == pytest.approx(fd[1], rel=1e-5)
-    assert float(jax.grad(t_final)(rho)) == pytest.approx(forward, rel=1e-9)
+    assert float(jax.grad(value)(rho)) == pytest.approx(forward, rel=1e-9)
 
 
 def test_warm_start_of_the_multipliers(bang_bang):
@@ -993,21 +997,3 @@ def test_a_float32_solve_accepts_the_backward_error_of_its_precision():
         assert float(sol.objective) == pytest.approx(float(ref.objective), rel=1e-4)
     finally:
         jax.config.update("jax_enable_x64", True)
-
-
-def test_implicit_derivative_of_the_objective_matches_finite_differences():
-    M = 12
-    xs0, us0 = _guess(M)
-    opts = IPOptions(tol=1e-11, constr_tol=1e-11)
-
-    def objective(rho):
-        p = EffortRestToRest(num_stages=M, rho=rho)
-        return interior_point(p, xs0, us0, opts, implicit=True).objective
-
-    rho = jnp.asarray(0.05)
-    f = jax.jit(objective)
-    fd = [float(f(rho + h) - f(rho - h)) / (2 * h) for h in (1e-4, 2.5e-5)]
-    forward = float(jax.jvp(objective, (rho,), (1.0,))[1])
-    assert fd[0] == pytest.approx(fd[1], rel=1e-5) and abs(fd[1]) > 0.1
-    assert forward == pytest.approx(fd[1], rel=1e-5)
-    assert float(jax.grad(objective)(rho)) == pytest.approx(forward, rel=1e-9)
