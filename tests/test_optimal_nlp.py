@@ -811,6 +811,30 @@ def test_a_step_without_newton_direction_reestimates_the_multipliers(bang_bang, 
     assert bool(off.multipliers_ready) and int(off.iteration) == int(st.iteration) + 1
 
 
+def test_a_step_accepted_on_the_last_trial_is_not_a_failed_search(bang_bang, monkeypatch):
+    """The trial count alone does not say whether the search failed: a step accepted on its
+    last allowed trial (forced here) leaves the multipliers and the failure count alone."""
+    from vehsim.optimal.ip import solver
+    from vehsim.optimal.ip.linesearch import MAX_TRIALS
+    from vehsim.optimal.ip.problem import stage_layout
+
+    prob, _ = bang_bang
+    lay = stage_layout(prob)
+    opts = IPOptions()
+    st = solver._initial_state(prob, lay, *_guess(prob.num_stages), opts)
+    st = solver._iteration(prob, lay, opts, st)  # the least-squares setup pass
+    search = solver.filter_line_search
+
+    def on_the_last_trial(*a, **k):
+        alpha, _, accepted, filt, direction = search(*a, **k)
+        assert bool(accepted)
+        return alpha, jnp.asarray(MAX_TRIALS), accepted, filt, direction
+
+    monkeypatch.setattr(solver, "filter_line_search", on_the_last_trial)
+    after = solver._iteration(prob, lay, opts, st)
+    assert bool(after.multipliers_ready) and int(after.failed_searches) == 0
+
+
 def test_a_fixed_work_solve_stops_when_its_line_search_stalls(bang_bang, monkeypatch):
     """Without the multipliers' re-estimate (a real-time iteration's fixed work), a pass
     whose line search accepts no trial is retried once (its filter forgotten); a second
