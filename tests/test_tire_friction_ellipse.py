@@ -64,6 +64,18 @@ def test_locked_wheel_slides_with_limit_friction():
     np.testing.assert_allclose(f[1] / f[0], -5.0 / 12.0, rtol=1e-4)
 
 
+def test_a_wheel_rolling_backwards_gets_the_mirrored_forces():
+    """Driving backwards (V_x < 0, omega < 0) is the forward case seen in a mirror: the
+    forces change sign with the velocities, not saturate (the slips are over |omega r|)."""
+    tire = rally_gravel_tire()
+    r, Fz = 0.3, 1000.0
+    for vx, vy, kappa in [(10.0, 0.3, 0.0), (5.0, -0.4, -0.2), (8.0, 1.0, 0.1)]:
+        omega = (1 + kappa) * vx / r
+        ahead = tire.forces(tire.init_state(), vx, vy, omega, r, Fz)
+        back = tire.forces(tire.init_state(), -vx, -vy, -omega, r, Fz)
+        np.testing.assert_allclose(back, -ahead, rtol=1e-12, atol=1e-9)
+
+
 def test_gradients_finite_at_zero_slip_and_match_fd():
     tire = rally_gravel_tire()
     g = jax.grad(lambda k: tire.mu(k, 0.0)[0])(0.0)

@@ -47,8 +47,10 @@ class FrictionEllipseTire(AbstractTire):
     Used two ways:
 
     - as an `AbstractTire` (`forces(state, vx, vy, omega, r, Fz)`), for the torque-input
-      half-car; the rolling speed $\omega r$ is floored at `ROLLING_FLOOR` = 1 mm/s so a
-      locked wheel slides with $\mu \to D\sin(C\pi/2)$ (not a division by zero);
+      half-car: theoretical slips $(V_x - \omega r, V_y)/|\omega r|$, so a wheel rolling
+      backwards gets the mirror image of the forward forces, with $|\omega r|$ floored at
+      `ROLLING_FLOOR` = 1 mm/s so a locked wheel slides with $\mu \to D\sin(C\pi/2)$
+      (not a division by zero);
     - as a slip-input law `mu(kappa, tan_alpha)` for the reduced half-car (eqs. 61-63),
       with $\kappa \in (-1, \infty)$ the control input and `tan_alpha` $= V_y/V_x$.
     """
@@ -89,7 +91,7 @@ class FrictionEllipseTire(AbstractTire):
         return jnp.zeros((0,))
 
     def forces(self, state, vx, vy, omega, r, Fz):
-        rolling = jnp.maximum(omega * r, ROLLING_FLOOR)
+        rolling = jnp.maximum(jnp.abs(omega * r), ROLLING_FLOOR)  # |omega r|: backwards too
         mu_x, mu_y = self.mu_theoretical((vx - omega * r) / rolling, vy / rolling)
         return jnp.stack([mu_x * Fz, mu_y * Fz, jnp.zeros_like(mu_x * Fz)])
 
