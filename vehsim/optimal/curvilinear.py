@@ -537,8 +537,9 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
                   num_stages: int = 100, steps_per_stage: int = 1, margin: float = 0.0,
                   tf_max: float = 60.0, rate_weight: float = 1e-4) -> CurvilinearManeuverOCP:
         """The problem on ``road`` (a centre-line road: `curvature`, `width_left`,
-        `width_right`, `length`, `closed`, gates `start`/`end`), its arrays sampled with
-        NumPy; ``margin`` [m] narrows the corridor on each side."""
+        `width_right`, `length`, `closed`, gates `start`/`end`, and where its curvature
+        jumps, `curvature_jumps`: the knots then include each jump, `stage_edges`), its
+        arrays sampled with NumPy; ``margin`` [m] narrows the corridor on each side."""
         _check_objective(objective)
         return cls(vehicle=vehicle, objective=objective, tf_max=tf_max,
                    rate_weight=rate_weight,
