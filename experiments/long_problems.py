@@ -78,7 +78,7 @@ def solve(road, name: str, M: int, bound: bool, coarse: int | None) -> dict:
     if coarse is not None and coarse < M:  # start from the coarse solution (road_primitive)
         first = road_primitive(road, car=car, num_stages=coarse, options=options, throw=False)
         if bool(first.solution.converged):
-            xs0, us0 = resample_drive(first.problem, first.solution.xs, M)
+            xs0, us0 = resample_drive(first.problem, first.solution.xs, prob)
             options = IPOptions(max_iter=500, mu0=1e-3)
     t0 = time.perf_counter()
     program = compile_interior_point(prob, xs0, us0, options)

@@ -40,13 +40,14 @@ def ipopt_solve(road: dict, limits: dict, objective: str, D: float, xs0, us0,
     """Build the problem on ``road`` (plain arrays, as `road_arrays` in ocp_vs_ipopt.py
     gives them: ``length``, ``closed``, ``curvature`` (M, 3) at each stage's RK4 points,
     ``corridor`` (M+1, 2) and ``corridor_mid`` (M, 2) lower/upper bounds on n, the gates'
-    ``start_lateral``/``end_lateral`` and ``start_speed``/``end_speed`` (None: free)) and
+    ``start_lateral``/``end_lateral``, ``start_speed``/``end_speed`` (None: free) and
+    ``stage_lengths`` (M,) (optional: else uniform, ``length`` / M)) and
     solve it from (``xs0``, ``us0``) (knots (M+1, 9), input rates (M, 3)) with IPOPT's
     initial barrier ``mu_init``; the solver call is timed (``wall``)."""
     curv = np.asarray(road["curvature"], float)
     M = curv.shape[0]
     L = float(road["length"])
-    h = L / M
+    hs = np.asarray(road.get("stage_lengths", np.full(M, L / M)), float)
     lim = limits
     f, axles = spatial_model(D)
     opti = ca.Opti()
@@ -61,6 +62,7 @@ def ipopt_solve(road: dict, limits: dict, objective: str, D: float, xs0, us0,
     for j in range(M):
         xk, vk = X[:, j], V[:, j]
         k0, k1, k2 = curv[j]
+        h = float(hs[j])
         f1 = f(xk, vk, k0)
         f2 = f(xk + 0.5 * h * f1, vk, k1)
         f3 = f(xk + 0.5 * h * f2, vk, k1)
@@ -88,7 +90,7 @@ def ipopt_solve(road: dict, limits: dict, objective: str, D: float, xs0, us0,
             opti.subject_to(opti.bounded(lo, xk[0], hi))
             if road[f"{end}_speed"] is not None:
                 opti.subject_to(xk[2] == road[f"{end}_speed"])
-    reg = rate_weight * h * ca.sumsqr(V)
+    reg = rate_weight * sum(float(hs[j]) * ca.sumsqr(V[:, j]) for j in range(M))
     if objective == "min-time":
         opti.minimize(X[8, M] + reg)
     else:

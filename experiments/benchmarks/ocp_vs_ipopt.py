@@ -309,7 +309,8 @@ def road_arrays(prob) -> dict:
                 corridor=np.asarray(prob.corridor), corridor_mid=np.asarray(prob.corridor_mid)[:, 0],
                 start_lateral=np.asarray(prob.start_lateral).tolist(),
                 end_lateral=np.asarray(prob.end_lateral).tolist(),
-                start_speed=start_speed, end_speed=end_speed)
+                start_speed=start_speed, end_speed=end_speed,
+                stage_lengths=np.diff(prob.stage_edges()))
 
 
 def long_problems(stages, road_name: str = "rally", coarse_above: int = 300) -> None:
@@ -347,7 +348,7 @@ def long_problems(stages, road_name: str = "rally", coarse_above: int = 300) -> 
         if M > coarse_above:
             first = road_primitive(road, car=car, num_stages=M // 4, options=options,
                                    throw=False)
-            xs0, us0 = resample_drive(first.problem, first.solution.xs, M)
+            xs0, us0 = resample_drive(first.problem, first.solution.xs, prob)
             options = IPOptions(max_iter=500, mu0=1e-3)
         print(f"# long problem {road.name}, {M} stages", file=sys.stderr, flush=True)
         program = compile_interior_point(prob, xs0, us0, options)

@@ -45,7 +45,7 @@ from jaxtyping import Array, Float
 
 from .._fields import array_field
 from .._math import wrap_angle
-from ..optimal.curvilinear import RoadPrimitive, road_primitive
+from ..optimal.curvilinear import RoadPrimitive, resample_drive, road_primitive
 from ..optimal.ip import IPOptions, interior_point
 from ..optimal.primitives import rally_gravel_car
 from ..optimal.replay import TrackingGains
@@ -254,11 +254,12 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
         return _bound_solve(scenario.table, car, length, rate_weight, xs0, us0, D_stage,
                             limits)
 
-    def fixed_point(start, D_stage, limits, xs=None):
-        """The fixed point from the drive `start` (solved again at least once; from `xs`
-        where given)."""
+    def fixed_point(start, D_stage, limits, xs=None, us=None):
+        """The fixed point from the drive `start` (solved again at least once; from `xs`,
+        `us` where given)."""
         best, exact = start, True
-        xs, us = start.solution.xs if xs is None else xs, start.solution.us
+        xs = start.solution.xs if xs is None else xs
+        us = start.solution.us if us is None else us
         for _ in range(int(rounds)):
             target = _stage_peaks(scenario.table, mid, xs)
             if best is not start and float(jnp.max(jnp.abs(target / D_stage - 1.0))) < 1e-3:
@@ -280,8 +281,11 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
 
     free = dict(margin=0.0, margin_grip_power=0.0, steer_rate=1e3, steer_limit=DELTA_MAX,
                 slip_limit=None, peak_fraction=1.0)
-    # (the floor solve itself may not converge: not exact)
-    best, D_stage, exact = fixed_point(floor, jnp.full((M,), D), free)
+    # (the floor solve itself may not converge: not exact); the bound's stages are uniform,
+    # the floor's have a knot on each curvature jump: its drive is moved onto them
+    xs0, us0 = (None, None) if prob0.stage_lengths is None else resample_drive(
+        prob0, floor.solution.xs, M)
+    best, D_stage, exact = fixed_point(floor, jnp.full((M,), D), free, xs0, us0)
     if driver is not None:
         limits = {name: getattr(driver, name) for name in free}  # the same constraints
         # from the drive's start as the driver plans it: wheels rolling, steering straight

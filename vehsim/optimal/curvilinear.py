@@ -716,10 +716,12 @@ def speed_profile_guess(road, car: ReducedHalfCar, num_stages: int, fraction: fl
     $\delta = \arctan((\ell_F + \ell_R)\kappa)$, equal slips giving the tangential
     acceleration on the tire's curve (within 80 % of the peak), time by integration of
     $1/v$. A closed road's knots carry the first knot's copy. ``edges``: the knots' arc
-    lengths (`CurvilinearManeuverOCP.stage_edges`; None: uniform)."""
+    lengths (default those of the problem on ``road``, `stage_edges`: uniform unless the
+    road's curvature jumps)."""
     D, g = _friction(car)
     s_fine, v_fine = speed_profile(road, D, fraction, g=g)
     L = float(road.length)
+    edges = stage_edges(road, num_stages) if edges is None else edges
     s = np.linspace(0.0, L, num_stages + 1) if edges is None else np.asarray(edges, float)
     v = np.interp(s, s_fine, v_fine)
     kap = np.asarray(road.curvature(s), float)
@@ -750,6 +752,7 @@ def point_mass_guess(road, D: float, num_stages: int, fraction: float = 0.8,
     ``edges`` as `speed_profile_guess`."""
     s_fine, v_fine = speed_profile(road, D, fraction)
     L = float(road.length)
+    edges = stage_edges(road, num_stages) if edges is None else edges
     s = np.linspace(0.0, L, num_stages + 1) if edges is None else np.asarray(edges, float)
     v = np.interp(s, s_fine, v_fine)
     t_fine = np.concatenate([[0.0], np.cumsum(np.diff(s_fine) * 0.5 * (
@@ -915,12 +918,15 @@ class RoadPrimitive(AbstractSolvedDrive):
         return rec
 
 
-def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages: int,
+def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages,
                    edges: np.ndarray | None = None):
-    """A car drive's knots ``xs`` of ``prob`` on another grid of ``num_stages`` stages
-    (``edges``, their knots' arc lengths; None: uniform) by linear interpolation in s (the
-    inputs stay piecewise linear, their rates the differences): a guess for a finer problem
-    from a coarse solution."""
+    """A car drive's knots ``xs`` of ``prob`` on another grid by linear interpolation in s
+    (the inputs stay piecewise linear, their rates the differences): a guess for a finer
+    problem from a coarse solution. ``num_stages``: the new problem itself (its knots,
+    `stage_edges`), or a number of stages with their knots' arc lengths ``edges`` (None:
+    uniform)."""
+    if isinstance(num_stages, AbstractCurvilinearOCP):
+        num_stages, edges = num_stages.num_stages, _edges_of(num_stages)
     xs = np.asarray(xs, float)
     L = float(prob.length)
     s_old = prob.stage_edges()
@@ -943,7 +949,7 @@ def road_point_mass_bound(road, objective: str = "min-time", *, D: float = 0.52,
     prob = CurvilinearPointMassOCP.from_road(road, friction=D, objective=objective,
                                              num_stages=num_stages,
                                              steps_per_stage=steps_per_stage, tf_max=tf_max)
-    xs0, us0 = point_mass_guess(road, D, num_stages, fraction, _edges_of(prob))
+    xs0, us0 = point_mass_guess(road, D, num_stages, fraction)
     if objective == "max-exit":
         xs0 = xs0.at[:, 3].multiply(jnp.minimum(1.0, 0.98 * tf_max / xs0[-1, 3]))
     sol = solver(prob, xs0, us0, options, throw=throw)
@@ -987,11 +993,10 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
                                 rate_weight=rate_weight, fraction=fraction, options=options,
                                 throw=False, solver=solver)
         if bool(coarse.solution.converged):
-            guess = resample_drive(coarse.problem, coarse.solution.xs, num_stages,
-                                   _edges_of(prob))
+            guess = resample_drive(coarse.problem, coarse.solution.xs, prob)
             options = eqx.tree_at(lambda o: o.mu0, options, jnp.asarray(warm_mu0, float))
     if guess is None:
-        guess = speed_profile_guess(road, car, num_stages, fraction, edges=_edges_of(prob))
+        guess = speed_profile_guess(road, car, num_stages, fraction)
         if objective == "max-exit":
             xs0, us0 = guess
             xs0 = xs0.at[:, 8].multiply(jnp.minimum(1.0, 0.98 * tf_max / xs0[-1, 8]))
