@@ -18,6 +18,7 @@ from vehsim._constants import GRAVITY as G
 from vehsim.optimal.curvilinear import (
     CurvilinearManeuverOCP,
     CurvilinearPointMassOCP,
+    resample_drive,
     road_point_mass_bound,
     road_primitive,
     speed_profile,
@@ -373,3 +374,21 @@ def test_stage_edges_put_a_node_on_every_curvature_jump():
     assert len(smooth.curvature_jumps()) == 0 and stage_edges(smooth, M) is None
     with pytest.warns(UserWarning, match="more than num_stages=8"):
         assert stage_edges(road, 8) is None
+
+
+def test_guess_and_resampling_follow_the_problems_knots():
+    """On a road with curvature jumps the knots are not uniform: the speed-profile guess's
+    rates are its input differences over each stage's own length, and resampling a drive
+    onto the problem it came from gives it back."""
+    lib = CentrelineRoad.from_segments(CORNER, 8.0)
+    car = rally_gravel_car()
+    prob = CurvilinearManeuverOCP.from_road(lib, car, num_stages=40)
+    ds = np.diff(prob.stage_edges())
+    assert np.ptp(ds) > 0.01  # not uniform
+    xs, us = (np.asarray(a) for a in speed_profile_guess(lib, car, 40))
+    np.testing.assert_allclose(us * ds[:, None], np.diff(xs[:, 5:8], axis=0), atol=1e-12)
+    np.testing.assert_allclose(xs[:, 4], xs[:, 2] * lib.curvature(prob.stage_edges()),
+                               atol=1e-12)  # r = v kappa at the knots' own arc lengths
+    xs2, us2 = (np.asarray(a) for a in resample_drive(prob, xs, prob))
+    np.testing.assert_allclose(xs2, xs, atol=1e-12)
+    np.testing.assert_allclose(us2, us, atol=1e-9)
