@@ -77,8 +77,8 @@ def test_shipped_brakings_load_and_are_physical():
         ("t,v,omega,F_x,F_n\n0,1,2,3,4\n", {"r": 0.3}, r"at least 3 data rows"),
     ],
     ids=["missing_column", "nan", "inf", "not_a_number", "time_not_increasing",
-         "negative_load", "negative_speed", "negative_torque", "inconsistent_lengths", "missing_radius",
-         "invalid_radius", "too_short"],
+         "negative_load", "negative_speed", "negative_torque", "inconsistent_lengths",
+         "missing_radius", "invalid_radius", "too_short"],
 )
 def test_loader_rejects_bad_file(tmp_path, text, meta, match):
     with pytest.raises(ValueError, match=match):

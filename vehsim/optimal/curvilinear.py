@@ -19,11 +19,12 @@ a jump is only first-order accurate (a stage across the 90-degree corner's two j
 off by mm where the others are off by um, enough to leave the road in an open-loop replay).
 Each stage is integrated by ``steps_per_stage`` classical RK4 steps, with the curvature
 sampled from the road at the RK4 points (a step's end from the left of a jump) when the
-problem is built (the problem is a module of arrays, batchable, with no spline inside JAX). The inputs
-$(\kappa_F, \kappa_R, \delta)$ are states with piecewise-constant rates $d(\cdot)/ds$ (the NLP
-controls), as in `ManeuverOCP`. The corridor $-w_r(s) + m \le n \le w_l(s) - m$ holds at every
-integration node and at every step's midpoint, on the cubic Hermite interpolant of $n$ through
-the two nodes with their slopes $dn/ds = (1 - n\kappa)\dot n/((1 - n\kappa)\dot s)$:
+problem is built (the problem is a module of arrays, batchable, with no spline inside JAX).
+The inputs $(\kappa_F, \kappa_R, \delta)$ are states with piecewise-constant rates
+$d(\cdot)/ds$ (the NLP controls), as in `ManeuverOCP`. The corridor
+$-w_r(s) + m \le n \le w_l(s) - m$ holds at every integration node and at every step's
+midpoint, on the cubic Hermite interpolant of $n$ through the two nodes with their slopes
+$dn/ds = (1 - n\kappa)\dot n/((1 - n\kappa)\dot s)$:
 $n(s_{1/2}) = (n_0 + n_1)/2 + h(n_0' - n_1')/8$.
 
 Boundary conditions from the road's gates: at each end $\xi = 0$, $r = 0$, $\dot n = 0$, $n$

@@ -18,11 +18,11 @@ functions and the vector-Jacobian product of the stage Lagrangian. The solve is 
 `lax.custom_linear_solve` of the symmetric KKT matrix, so the tangent is linear and
 transposable: reverse mode runs too. The guess (and warm-start multipliers) get no
 derivative: a converged solution does not depend on them. The objective's tangent is its
-total derivative along the solution's; the residuals and the log get none. Where the solve did not converge
-the theorem does not apply (near a solution, with the barrier not yet small, it gave
-derivatives far from the finite differences): differentiating such a solve, in either mode,
-raises `UNCONVERGED_DERIVATIVE_MESSAGE` when the program runs, rather than return a NaN
-or a wrong number.
+total derivative along the solution's; the residuals and the log get none. Where the solve
+did not converge the theorem does not apply (near a solution, with the barrier not yet
+small, it gave derivatives far from the finite differences): differentiating such a solve,
+in either mode, raises `UNCONVERGED_DERIVATIVE_MESSAGE` when the program runs, rather than
+return a NaN or a wrong number.
 """
 
 from __future__ import annotations
