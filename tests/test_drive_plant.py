@@ -144,6 +144,24 @@ def test_sensor_noise_statistics():
     assert abs(c) < 0.1
 
 
+def test_continued_drive_draws_the_longer_drives_noise(run_schedule):
+    """The noise of sample k is keyed by the plant's own sample count: a noisy drive
+    continued from a mid-drive state with the same key measures what the one drive
+    measured (a constant command, so the continued controller issues the same)."""
+    plant = vs.DrivePlant()
+    ctrl = vs.CommandSchedule(_commands()[:1])
+    key = jax.random.key(3)
+    whole = run_schedule(plant, ctrl, vs.init_drive(plant, vx=12.0), key)
+    half = N // 2
+    middle = jax.tree_util.tree_map(lambda a: a[half - 1], whole.states)
+    assert int(middle.k) == half
+    rest = run_schedule(plant, ctrl, middle, key)
+    for name in ("omega", "vx", "x", "ay"):
+        np.testing.assert_allclose(np.asarray(getattr(rest.measurements, name))[:half],
+                                   np.asarray(getattr(whole.measurements, name))[half:],
+                                   rtol=1e-9, atol=1e-9, err_msg=name)
+
+
 def test_batch_of_256_drives_in_one_call():
     plant = vs.DrivePlant(grip=vs.GripPatches(centres=jnp.array([[8.0, 0.0]]),
                                               radii=jnp.array([3.0]), scales=jnp.array([0.3]),

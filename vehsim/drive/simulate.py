@@ -142,24 +142,26 @@ def simulate_drive(plant: DrivePlant, controller: AbstractDriveController, state
                    key, num_samples: int, estimator=None, *,
                    substep_poses: bool = False) -> DriveRun:
     r"""`num_samples` control samples of `controller` driving `plant` from `state0`, the
-    sensor noise of sample $k$ drawn from ``fold_in(key, k)`` (module docstring).
+    sensor noise of sample $k$ drawn from ``fold_in(key, k)`` (module docstring), $k$ the
+    plant's own sample count (`DriveState.k`): a drive continued from `DriveRun.final`
+    with the same key draws the noise the longer drive would have drawn.
 
     `estimator`: an `AbstractGripEstimator` run on the measurements; the controller gets
     its `estimate` before each command. A controller with an `info(state)` method has it
     recorded after each command (`DriveRun.controller_info`). `substep_poses`: also record
     the centre of gravity's pose at every integration step (`DriveRun.poses`,
     `drive_step`)."""
-    m0 = measure_drive(plant, state0, jax.random.fold_in(key, 0))
+    m0 = measure_drive(plant, state0, jax.random.fold_in(key, state0.k))
     c0 = controller.init(m0)
     e0 = None if estimator is None else estimator.init(m0)
     info = getattr(controller, "info", None)
 
-    def sample(carry, k):
+    def sample(carry, _):
         state, m, cs, es = carry
         estimate = None if estimator is None else estimator.estimate(es)
         cs, command = controller.command(cs, m, estimate)
         record = None if info is None else info(cs)
-        state, m, *poses = drive_step(plant, state, command, jax.random.fold_in(key, k + 1),
+        state, m, *poses = drive_step(plant, state, command, jax.random.fold_in(key, state.k + 1),
                                       substep_poses=substep_poses)
         if estimator is not None:
             es = estimator.update(es, m)
