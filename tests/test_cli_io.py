@@ -67,6 +67,10 @@ def test_cli_reports_unknown_section_as_error(tmp_path, capsys):
     assert rc == 2
     assert "no section matches" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()  # nothing written, not even the folder
+    # `--only` without a word is refused, rather than read as every section
+    rc = cli.main(["reproduce", "--out", str(tmp_path / "out"), "--only"])
+    assert rc == 2 and "--only: expected at least one argument" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 _OUT_COMMANDS = {  # each command with an output: its arguments, and whether --out is a file

@@ -16,7 +16,7 @@ def register(subparsers) -> None:
                       help="the smallest sizes that run every step (for testing the command; "
                            "its numbers are not results)")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
-    p.add_argument("--only", nargs="*", default=None,
+    p.add_argument("--only", nargs="+", default=None, metavar="WORD",
                    help="run only sections whose name contains one of these words "
                         "(robot, longitudinal, identify, combined, vehicle, optimal, "
                         "braking_control)")
