@@ -147,3 +147,19 @@ def test_a_program_damaged_inside_its_file_is_exported_again(monkeypatch, tmp_pa
             cc._compile_exported(cc._load_exported(path), list(args))
             mended += 1
     assert mended >= 1
+
+
+def test_every_library_that_traces_into_a_program_keys_it(monkeypatch):
+    """A new version of diffrax, lineax or optimistix (as of JAX, jaxlib or equinox) is a
+    new exported program: the fingerprint in its key changes."""
+    import vehsim._compilation as comp
+
+    fingerprint = comp._source_fingerprint.__wrapped__
+    before = fingerprint()
+    real = comp.importlib.metadata.version
+    for name in ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix"):
+        monkeypatch.setattr(comp.importlib.metadata, "version",
+                            lambda n, name=name: real(n) + ".post1" if n == name else real(n))
+        assert fingerprint() != before, name
+        monkeypatch.setattr(comp.importlib.metadata, "version", real)
+    assert fingerprint() == before

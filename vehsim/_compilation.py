@@ -44,6 +44,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import importlib.metadata
 import os
 import threading
 from collections.abc import Callable
@@ -180,7 +181,7 @@ def exported_program(name: str, fn: Callable, args: tuple, out_tree=None) -> Cal
     static fields, their shapes and dtypes, the backend and its device count, the JAX
     settings that change the
     traced program (float64, matmul precision, promotion rules), ``EQX_ON_ERROR``, the
-    versions of JAX, jaxlib and equinox, and the source of vehsim itself (a changed model or
+    versions of `KEYED_LIBRARIES`, and the source of vehsim itself (a changed model or
     solver is a new program). A missing program is exported (`jax.export`: traced and lowered
     once, written atomically to ``<cache>/exported/``); a present one is deserialized,
     skipping the tracing and lowering, and JAX's cache then provides the compilation.
@@ -298,12 +299,18 @@ def _load_exported(path: Path):
         return None
 
 
+KEYED_LIBRARIES = ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix")
+"""The libraries whose versions key an exported program: those that trace into it."""
+
+
+def _library_versions() -> dict[str, str]:
+    return {name: importlib.metadata.version(name) for name in KEYED_LIBRARIES}
+
+
 @functools.cache
 def _source_fingerprint() -> str:
-    """Hash of the library versions and every source file of vehsim."""
-    import jaxlib
-
-    h = hashlib.sha256(f"{jax.__version__} {jaxlib.__version__} {eqx.__version__}".encode())
+    """Hash of the library versions (`KEYED_LIBRARIES`) and every source file of vehsim."""
+    h = hashlib.sha256(repr(sorted(_library_versions().items())).encode())
     root = Path(__file__).resolve().parent
     for f in sorted(root.rglob("*.py")):
         h.update(str(f.relative_to(root)).encode())
