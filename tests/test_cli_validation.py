@@ -87,6 +87,19 @@ def test_sweep_refuses_a_model_value_before_announcing_the_run(tmp_path, capsys)
     assert list(tmp_path.iterdir()) == []
 
 
+def test_values_that_start_with_a_minus_are_read_as_values(capsys):
+    """A list whose first number is negative is a value, not an unknown option; a negative
+    load then meets the option's own range check, named."""
+    parser = cli.build_parser()
+    args = parser.parse_args(["drive", "--road", "sturn", "--patch", "-5,2,3,0.5"])
+    assert args.patch == [(-5.0, 2.0, 3.0, 0.5)]
+    args = parser.parse_args(["tire", "fit-lugre", "x.tir", "--loads", "-.5e3,3800"])
+    assert args.loads == "-.5e3,3800"
+    with pytest.raises(SystemExit):  # an option that is not one is still refused
+        parser.parse_args(["sweep", "-x"])
+    assert "unrecognized arguments: -x" in capsys.readouterr().err
+
+
 def test_option_types_check_ranges_and_parse_good_values():
     speed = _options.number(1.0, 100.0, lower_open=True, unit="m/s")
     assert speed("30") == 30.0 and speed("100") == 100.0

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import re
 import sys
 
 from . import brake, drive, estimate, fit, optimise, reproduce, sweep, tire
@@ -25,11 +26,22 @@ from ._options import writable_output
 COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire, drive)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with every word that starts with a minus and a digit read as a value:
+    ``--patch -5,2,3,0.5`` and ``--loads -100,3800`` (argparse alone takes only single
+    negative numbers for values, and reads such lists as unknown options). No vehsim option
+    is spelled that way. Its subcommands' parsers are of the same class."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
     from .._compilation import NO_CACHE_VARIABLE, default_cache_dir
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vehsim", description="Differentiable vehicle simulation (after Tsiotras, 2004)."
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
