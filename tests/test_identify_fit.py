@@ -104,13 +104,46 @@ def test_fixed_mu_s_stays_fixed_while_mu_c_is_fitted(brakings):
     assert res.values["mu_s"] == mu_s and 0 < res.values["mu_c"] < mu_s
     # ... and one below the initial mu_c is refused, naming both
     low = 0.9 * float(parameter_values(start)["mu_c"])
-    with pytest.raises(ValueError, match="fixed mu_s = .* must exceed the initial mu_c"):
+    with pytest.raises(ValueError, match=r"mu_c = .* must be below mu_s = .* \(fixed mu_s\)"):
         fit_open_loop(data, start, free=free, fixed={"mu_s": low}, n_starts=1)
     # the transform round-trips
     u = to_unconstrained(TRUTH, PARAMETER_NAMES, True)
     back = parameter_values(from_unconstrained(u, TRUTH, PARAMETER_NAMES, True))
     for n in PARAMETER_NAMES:
         np.testing.assert_allclose(float(back[n]), float(truth[n]), rtol=1e-12, err_msg=n)
+
+
+def test_a_value_held_at_zero_is_fitted_around(brakings):
+    """sigma2 = 0 (no viscous term) is a legal value to hold: on noise-free data made with
+    it, the free parameters are recovered from 30 % off, and sigma2 stays exactly 0 (the
+    solver keeps a held value's -inf coordinate out of its steps)."""
+    truth_model = with_values(TRUTH, {"sigma2": 0.0})
+    data = [_lumped(brakings["braking_1"], truth_model),
+            _lumped(brakings["braking_2"], truth_model)]
+    truth = parameter_values(truth_model)
+    start = with_values(truth_model, {n: truth[n] * (1.3 if i % 2 else 0.7)
+                                      for i, n in enumerate(DEFAULT_FREE)})
+    res = fit_open_loop(data, start, fixed={"sigma2": 0.0}, n_starts=1)
+    assert res.result == RESULTS.successful and res.num_steps > 0
+    assert res.values["sigma2"] == 0.0 and res.loss < 1e-6
+    for n in DEFAULT_FREE:
+        np.testing.assert_allclose(res.values[n], float(truth[n]), rtol=1e-3, err_msg=n)
+
+
+def test_starts_outside_the_fitted_coordinates_are_refused(brakings):
+    """A free value at 0, mu_c not below mu_s (held or not), a braking without force:
+    each refused before any compilation, naming the quantity."""
+    data = [brakings["braking_1"]]
+    with pytest.raises(ValueError, match=r"initial sigma2 = 0 must be > 0 to be fitted"):
+        fit_open_loop(data, with_values(TRUTH, {"sigma2": 0.0}), free=LUMPED_PARAMETERS)
+    with pytest.raises(ValueError, match=r"mu_c = 1.2 must be below mu_s = 1.2 \(initial"):
+        fit_open_loop(data, with_values(TRUTH, {"mu_c": 1.2, "mu_s": 1.2}))
+    mu_s = float(TRUTH.params.mu_s)
+    with pytest.raises(ValueError, match=r"must be below mu_s = .* \(fixed mu_c\)"):
+        fit_open_loop(data, TRUTH, fixed={"mu_c": mu_s + 0.1})
+    silent = eqx.tree_at(lambda x: x.F_x, data[0], jnp.zeros(len(data[0])))
+    with pytest.raises(ValueError, match=r"column 'F_x' is 0 throughout"):
+        fit_open_loop([silent])
 
 
 def test_distributed_truth_held_out_error_below_3_percent(brakings):
@@ -374,3 +407,25 @@ def test_standard_errors_from_the_singular_values_of_the_jacobian():
     np.testing.assert_allclose([scaled[n] for n in names], ref / np.array([1.0, 1e9, 1.0]),
                                rtol=1e-6)
     assert all(np.isnan(v) for v in standard_errors(J, r, names, np.inf).values())
+
+
+def test_fewer_samples_than_free_parameters_are_not_identifiable():
+    """Three samples cannot determine six parameters, however well conditioned their three
+    singular values are (a 3 x 6 Jacobian of full row rank): the condition number is
+    infinite and the outcome `not_identifiable`."""
+    from vehsim.identify.diagnostics import diagnose, outcome
+
+    rng = np.random.default_rng(5)
+    names = DEFAULT_FREE
+    theta_all = np.asarray([float(parameter_values(TRUTH)[n]) for n in PARAMETER_NAMES])
+    J_u, r = rng.normal(size=(3, len(names))), 1e-3 * rng.normal(size=3)
+    diag = diagnose(J_u, r, np.zeros(len(names)), theta_all, names, 1e-4)
+    assert diag.condition_number == np.inf
+    theta = theta_all[[PARAMETER_NAMES.index(n) for n in names]]
+    assert outcome(diag, 0.5 * float(r @ r), theta, RESULTS.successful) == \
+        RESULTS.not_identifiable
+    # with as many samples as parameters and more, the same draw is identifiable
+    J_u = rng.normal(size=(12, len(names)))
+    r = 1e-3 * rng.normal(size=12)
+    diag = diagnose(J_u, r, np.zeros(len(names)), theta_all, names, 1e-4)
+    assert np.isfinite(diag.condition_number)

@@ -126,7 +126,9 @@ def diagnose(J_u, r, prior_residual, theta_all, names: Sequence[str],
     J = physical_jacobian(J_u, theta_all, names)
     J_rel = J * theta[None, :]
     sv = singular_values(J_rel) if np.all(np.isfinite(J_rel)) else np.array([0.0])
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    # fewer samples than free parameters: J has a null space its len(sv) = N values miss
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 and J_rel.shape[0] >= J_rel.shape[1] \
+        else math.inf
     std = standard_errors(J, r, names, cond)
     # the optimality tests in the solver's coordinates u, prior included
     Ju = np.concatenate([J_u, float(prior_weight) * np.eye(len(names))])

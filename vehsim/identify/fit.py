@@ -38,6 +38,7 @@ from .parameters import (
     default_initial_guess,
     from_unconstrained,
     keeps_mu_s,
+    parameter_values,
     to_unconstrained,
     values_batch,
     with_values,
@@ -271,22 +272,39 @@ def _prepare(data, init, free, fixed, n_starts) -> _Problem:
             raise ValueError(f"unknown parameter {n!r}; known: {list(PARAMETER_NAMES)}")
     if fixed:
         model = with_values(model, fixed)
-    if "mu_s" in fixed and "mu_c" in free and "mu_c" not in fixed:
-        mu_c, mu_s = float(model.params.mu_c), float(model.params.mu_s)
-        if not mu_c < mu_s:
-            raise ValueError(
-                f"fixed mu_s = {mu_s:g} must exceed the initial mu_c = {mu_c:g}: with mu_s held, "
-                "mu_c is fitted in (0, mu_s); give an initial guess with a smaller mu_c")
     names = tuple(n for n in PARAMETER_NAMES if n in free and n not in fixed)
     if not names:
         raise ValueError("no free parameters")
+    _check_start(model, names, fixed)
     if n_starts < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts}")
     # the scales from the concrete data in NumPy (no eager JAX dispatches)
     scales = tuple(np.asarray(s) for s in peak_scales(data, np))
+    for column, scale in zip(("F_x", "v", "omega"), scales):
+        if scale == 0:  # (NaN is left to the fit, which reports it as nonfinite)
+            raise ValueError(f"the brakings' column {column!r} is 0 throughout: nothing to fit "
+                             f"(the residuals are scaled by its peak |{column}|)")
     return _Problem(data=data, anon=[_unnamed(d) for d in data],
                     model=jax.tree.map(_strong_float, model), names=names,
                     mask=np.asarray([n in names for n in PARAMETER_NAMES]), scales=scales)
+
+
+def _check_start(model: LumpedLuGre, names, fixed) -> None:
+    """The start must lie inside the fitted coordinates (`vehsim.identify.parameters`):
+    every free quantity above 0 and, with either friction level free, mu_c < mu_s. A held
+    value may be 0 (sigma2 or kappa0 switched off)."""
+    values = {n: float(v) for n, v in parameter_values(model).items()}
+    mu_c, mu_s = values["mu_c"], values["mu_s"]
+    for n in names:
+        if not values[n] > 0:
+            raise ValueError(f"the initial {n} = {values[n]:g} must be > 0 to be fitted (the fit "
+                             f"works in log {n}, which reaches 0 only at -inf); hold it fixed "
+                             f"with fixed={{{n!r}: {values[n]:g}}}, or start above 0")
+    if ("mu_c" in names or "mu_s" in names) and not mu_c < mu_s:
+        held = [n for n in ("mu_c", "mu_s") if n in fixed]
+        which = (f"fixed {held[0]}" if held else "initial mu_c and mu_s")
+        raise ValueError(f"mu_c = {mu_c:g} must be below mu_s = {mu_s:g} ({which}): the fit "
+                         "keeps mu_c < mu_s; give values with mu_c below mu_s")
 
 
 def _solve(problem: _Problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
@@ -370,7 +388,7 @@ def _diagnose(problem: _Problem, core: _FitCore, prior_weight) -> Diagnostics:
     """`diagnose` the best start: its data residuals and Jacobian in the free u, and the
     prior's residuals."""
     best, cols = int(core.best), [PARAMETER_NAMES.index(n) for n in problem.names]
-    prior = float(prior_weight) * (core.us[best] - core.u_fixed)[cols]
+    prior = float(prior_weight) * (core.us[best][cols] - core.u_fixed[cols])
     return diagnose(core.J_u[:, cols], core.r, prior, core.theta, problem.names,
                     prior_weight)
 

@@ -117,6 +117,9 @@ def solve_batch(u0s, u_fixed, mask, prior_weight, model, data, braking, scales, 
         return jnp.concatenate([data_residual(u), prior])
 
     def one(u0):
+        # the solver's fixed entries at a finite placeholder: a value held at 0 (sigma2,
+        # kappa0) is u = -inf, whose differences would be NaN in the solver's steps and tests
+        u0 = jnp.where(mask, u0, 0.0)
         J = jax.jacfwd(lambda u: residual(u, None))(u0)
         lambda_0 = INITIAL_DAMPING * jnp.max(jnp.sum(J**2, axis=0))
         solver = LevenbergMarquardt(tol, tol, 1.0 / lambda_0, progress)
