@@ -229,3 +229,19 @@ def test_frozen_jacobian_same_values_reverse_equals_forward_derivative_within_lo
         assert 1e-8 < gap < 1e-3 * np.max(np.abs(fd))
         gaps.append(gap)
     assert gaps[0] / gaps[1] > 2.0 ** 3  # of the local error's order
+
+
+def test_ros34pw2_tableau_meets_the_order_conditions():
+    """The coefficients of Rang and Angermann's ROS34PW2 (as PETSc's TSROSWRA34PW2 gives
+    them) meet the Rosenbrock order conditions to rounding: order 3 for the solution
+    (and order 2 for the embedded one), with beta = alpha + Gamma (the diagonal gamma)."""
+    from vehsim.solvers.rosenbrock import _A, _B, _B_HAT, _G, _GAMMA
+
+    beta = _A + _G + _GAMMA * np.eye(4)
+    a, bp = _A.sum(axis=1), (_A + _G).sum(axis=1)
+    g = _GAMMA
+    for b in (_B, _B_HAT):
+        assert abs(b.sum() - 1.0) < 1e-15
+        assert abs(b @ bp - (0.5 - g)) < 1e-15
+    assert abs(_B @ a**2 - 1.0 / 3.0) < 1e-15
+    assert abs(_B @ ((beta - g * np.eye(4)) @ bp) - (1.0 / 6.0 - g + g * g)) < 1e-15
