@@ -245,3 +245,64 @@ def test_ros34pw2_tableau_meets_the_order_conditions():
         assert abs(b @ bp - (0.5 - g)) < 1e-15
     assert abs(_B @ a**2 - 1.0 / 3.0) < 1e-15
     assert abs(_B @ ((beta - g * np.eye(4)) @ bp) - (1.0 / 6.0 - g + g * g)) < 1e-15
+
+
+def test_jump_times_are_honoured_with_a_given_step_size_controller():
+    """A controller passed in is still clipped to the jump times: with a kink in the
+    vector field at 0.5013 s, ``PIDController(1e-8, 1e-8)`` given explicitly takes the
+    default controller's steps exactly, and fewer rejections than without the jump."""
+    from vehsim._integrate import integrate
+
+    tj = 0.5013
+    ts = jnp.array([0.0, 2.0])
+
+    def f(t, y, args):
+        return -y + jnp.where(t > tj, 3.0, 0.0)
+
+    def run(**kw):
+        sol = integrate(f, ts, jnp.array([1.0]), rtol=1e-8, atol=1e-8, **kw)
+        return float(sol.ys[-1, 0]), int(sol.stats["num_steps"]), \
+            int(sol.stats["num_rejected_steps"])
+
+    jumps = jnp.array([tj])
+    default = run(jump_ts=jumps)
+    given = run(jump_ts=jumps, stepsize_controller=dfx.PIDController(rtol=1e-8, atol=1e-8))
+    blind = run(stepsize_controller=dfx.PIDController(rtol=1e-8, atol=1e-8))
+    assert given == default
+    assert given[2] < blind[2]
+    exact = 3.0 + (np.exp(-tj) - 3.0) * np.exp(-(2.0 - tj))
+    assert abs(given[0] - exact) < 1e-7
+
+
+def test_a_non_finite_start_is_refused_by_name():
+    car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
+    y0 = car.init_state(vx=15.0)
+    with pytest.raises(ValueError, match=r"state0 must be finite; non-finite values in vx"):
+        simulate(car, jnp.array([0.0, 1.0]), jnp.zeros(3), y0.at[3].set(jnp.nan))
+    with pytest.raises(ValueError, match=r"inputs must be finite; non-finite values in T_R"):
+        simulate(car, jnp.array([0.0, 1.0]), jnp.array([0.0, jnp.inf, 0.0]), y0)
+
+
+def test_derivative_from_steady_rolling_with_the_stiff_solver():
+    """From straight, nearly free rolling (a nearly steady motion, where an explicit adaptive solve's
+    steps grow past the wheel-tire modes' stability and its derivative goes wrong),
+    `ROS34PW2` gives d v_x(1 s)/d brake torque in both modes as central differences do
+    (docs/differentiating.md, "Explicit steps on a steady motion")."""
+    car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
+    ts = jnp.array([0.0, 1.0])
+    solver = ROS34PW2(car.stiff_blocks)
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def final_vx(brake, adjoint=None):
+        u = lambda t, y: jnp.stack([-0.6 * brake, -0.4 * brake, 0.0 * brake])
+        return simulate(car, ts, u, car.init_state(vx=15.0), solver=solver, rtol=1e-10,
+                        atol=1e-10, adjoint=adjoint).states[-1, 3]
+
+    # a light brake of 5 N m, off the kink of |v_r| at exactly zero slip (where the two
+    # sides' slopes differ by 0.1 %)
+    b0, eps = 5.0, 1e-2
+    fd = float((final_vx(b0 + eps) - final_vx(b0 - eps)) / (2 * eps))
+    fwd = float(jax.jvp(lambda b: final_vx(b, dfx.ForwardMode()), (b0,), (1.0,))[1])
+    rev = float(jax.grad(final_vx)(b0))
+    assert -0.0024 < fd < -0.0021  # about -1 / (r m_eff) over the second
+    np.testing.assert_allclose([fwd, rev], fd, rtol=1e-3)

@@ -85,7 +85,9 @@ def integrate(
     - `rtol`, `atol`, `jump_ts`, `step_ts`: the default step-size controller,
       ``PIDController(rtol, atol)`` clipped to `jump_ts` (discontinuities: the solver
       restarts there) and `step_ts` (steps land there).
-    - `stepsize_controller`: replaces that controller.
+    - `stepsize_controller`: replaces the `PIDController` (`rtol` and `atol` then unused);
+      an adaptive one is clipped to `jump_ts` and `step_ts` all the same (a
+      `ConstantStepSize` is not: its steps land where they fall).
     - `max_steps`: the step budget.
     - `adjoint`: a diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `saveat`: replaces ``SaveAt(ts=ts)`` (dense output, every step, a save function).
@@ -96,9 +98,10 @@ def integrate(
     """
     if stepsize_controller is None:
         stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol)
-        if jump_ts is not None or step_ts is not None:
-            stepsize_controller = dfx.ClipStepSizeController(
-                stepsize_controller, step_ts=step_ts, jump_ts=jump_ts)
+    if (jump_ts is not None or step_ts is not None) and isinstance(
+            stepsize_controller, dfx.AbstractAdaptiveStepSizeController):
+        stepsize_controller = dfx.ClipStepSizeController(
+            stepsize_controller, step_ts=step_ts, jump_ts=jump_ts)
     sol = dfx.diffeqsolve(
         vector_field if isinstance(vector_field, dfx.AbstractTerm) else dfx.ODETerm(vector_field),
         dfx.Tsit5() if solver is None else solver,

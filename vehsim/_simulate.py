@@ -10,8 +10,10 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import is_concrete
 from ._integrate import ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from ._results import RESULTS, as_result
 from ._signals import as_controls
@@ -45,6 +47,23 @@ class Trajectory(AbstractSolution):
         return self.solution.evaluate(t)
 
 
+def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
+    """A NaN or inf in a concrete initial state or input array is refused by name: the
+    solver would otherwise spend its step budget and report `max_steps_reached`."""
+    for what, x, names in (("state0", state0, vehicle.state_names),
+                           ("inputs", None if callable(inputs) else inputs,
+                            vehicle.control_names)):
+        if x is None or not is_concrete(x):
+            continue
+        v = np.asarray(x, dtype=float)
+        if np.all(np.isfinite(v)):
+            continue
+        bad = np.nonzero(~np.isfinite(v.reshape(-1, v.shape[-1]) if v.ndim else v))
+        columns = sorted({int(c) for c in bad[-1]}) if v.ndim else []
+        named = ", ".join(names[c] if c < len(names) else str(c) for c in columns)
+        raise ValueError(f"simulate: {what} must be finite; non-finite values in {named}")
+
+
 def simulate(
     vehicle: AbstractVehicle,
     ts: Float[Array, " T"],
@@ -76,13 +95,17 @@ def simulate(
     - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). With dynamic tires
       the wheel-tire blocks are stiff (explicit steps of about a millisecond);
       ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
-      steps; the cheaper choice at loose and moderate accuracy).
+      steps; the cheaper choice at loose and moderate accuracy). Differentiating from an
+      exact equilibrium (free rolling at zero slip), `Tsit5`'s derivative can be wrong
+      while its result is successful; `ROS34PW2`'s is not (docs/differentiating.md).
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available (defaults: those
       of every vehsim solve, `vehsim._integrate`).
     - `jump_ts`: times where the inputs have kinks (the controller steps onto them);
       sampled inputs add `ts` themselves.
-    - `stepsize_controller`: replaces the default ``PIDController(rtol, atol, jump_ts)``.
+    - `stepsize_controller`: replaces the default ``PIDController(rtol, atol)`` (an
+      adaptive one is still clipped to `jump_ts` and the sample times, e.g.
+      ``PIDController(rtol, atol, dtmax=...)``).
     - `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
     - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
@@ -94,6 +117,7 @@ def simulate(
     """
     ts = jnp.asarray(ts, dtype=float)
     state0 = jnp.asarray(state0, dtype=float)
+    _check_finite_start(vehicle, state0, inputs)
     u_fn, sampled = as_controls(ts, inputs, len(vehicle.control_names))
 
     def vector_field(t, y, args):
