@@ -286,3 +286,16 @@ def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min
     assert float(primitive_options("max-exit", ((0.5, 0.6), (0.3, 0.8))).mu0) == MAX_EXIT_MU0
     assert float(primitive_options("max-exit", 8).mu0) == 0.1
     assert float(primitive_options("min-time").mu0) == 0.1
+
+
+def test_the_bound_starts_from_the_cars_path_too():
+    """The point-mass problem has local optima: on sturn (150 stages, one RK4 step each)
+    its centreline starts end above the car's own optimum (6.5055 s). Started also from
+    the car's path (knots of vehsim's car optimum, tests/data), the bound lies below it."""
+    xs = np.load(Path(__file__).parent / "data" / "sturn_min_time_150_knots.npz")["xs"]
+    car_tf = float(xs[-1, IDX_TF])
+    assert abs(car_tf - 6.505518) < 1e-5
+    bound = point_mass_bound("sturn", "min-time", num_stages=150, steps_per_stage=1,
+                             throw=False, car_xs=xs)
+    assert bool(bound.solution.converged)
+    assert float(bound.t_f) < car_tf

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..vehicle.reduced import ReducedHalfCar
@@ -39,6 +40,27 @@ def centreline_guess(road: Road, num_stages: int, speed: float = 5.0):
     us = np.diff(xs[:, 2:4], axis=0) / h
     us = np.concatenate([us[1:], us[-1:]], 0) * 0.5 + us * 0.5
     return jax.device_put(xs), jax.device_put(us)  # jnp.asarray would run a copy program
+
+
+def point_mass_guess_from_car(car: ReducedHalfCar, car_xs, friction: float):
+    """Point-mass knots (x, y, vx, vy, t_f) and accelerations (M, 2) of a car's knots
+    (x, y, psi, v_x, v_y, r, kappa_F, kappa_R, delta, t_f): the same positions and final
+    time, the body velocity in the road's frame, and the car's own accelerations at the
+    knots (from `car.f`, eqs. 61-63), averaged over each stage and kept within 99 % of
+    ``friction`` g. The car's path is feasible for the point mass (its friction ellipse
+    lies inside the friction circle); a start on it lets the bound's solve find an optimum
+    below the car's where the centreline starts do not."""
+    xs = np.asarray(car_xs, float)
+    body = np.asarray(jax.vmap(car.f)(jnp.asarray(xs[:, :6]), jnp.asarray(xs[:, 6:9])))
+    psi, vx, vy, r = xs[:, 2], xs[:, 3], xs[:, 4], xs[:, 5]
+    ax, ay = body[:, 3] - r * vy, body[:, 4] + r * vx
+    c, s = np.cos(psi), np.sin(psi)
+    acc = np.stack([c * ax - s * ay, s * ax + c * ay], 1)
+    pm = np.stack([xs[:, 0], xs[:, 1], c * vx - s * vy, s * vx + c * vy, xs[:, -1]], 1)
+    a = 0.5 * (acc[:-1] + acc[1:])
+    limit = 0.99 * friction * float(car.params.g)
+    a *= np.minimum(1.0, limit / np.maximum(np.hypot(*a.T), 1e-300))[:, None]
+    return jax.device_put(pm), jax.device_put(a)
 
 
 def car_guess_from_point_mass(car: ReducedHalfCar, road: Road, pm_xs, pm_us):
