@@ -299,3 +299,17 @@ def test_the_bound_starts_from_the_cars_path_too():
                              throw=False, car_xs=xs)
     assert bool(bound.solution.converged)
     assert float(bound.t_f) < car_tf
+
+
+def test_primitives_refuse_float32():
+    """With float64 off, the car's primitive and the point-mass bound say so before any
+    solve (in float32 they run to their iteration limit far from the optimum)."""
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ValueError, match=r"car's primitive needs float64: call "
+                                             r"jax.config.update\('jax_enable_x64', True\)"):
+            min_time_primitive("corner90", num_stages=10, steps_per_stage=1)
+        with pytest.raises(ValueError, match=r"point-mass bound needs float64"):
+            point_mass_bound("corner90", num_stages=10, steps_per_stage=1)
+    finally:
+        jax.config.update("jax_enable_x64", True)

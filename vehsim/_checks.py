@@ -84,3 +84,11 @@ def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     if not np.all(a <= b):
         raise ValueError(f"{owner} needs {small} <= {big}, got {small} = {plain(a)}, "
                          f"{big} = {plain(b)}")
+
+
+def require_float64(what: str, why: str) -> None:
+    """Raise ``ValueError`` unless JAX runs in float64 (``jax_enable_x64``): `what` needs
+    it, and `why` says what float32 does to it."""
+    if not jax.config.jax_enable_x64:
+        raise ValueError(f"{what} needs float64: call jax.config.update('jax_enable_x64', "
+                         f"True) first. {why}")

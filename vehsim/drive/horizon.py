@@ -53,7 +53,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from .._checks import (
+    check_nonnegative,
+    check_positive,
+    check_range,
+    is_concrete,
+    require_float64,
+)
 from .._fields import array_field, float_array, int_array, int_field
 from .._math import safe_hypot, wrap_angle
 from ..optimal.centreline import _hermite3
@@ -901,12 +907,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     probe_std: Float[Array, ""] = array_field(default=0.25)
 
     def __check_init__(self):
-        if not jax.config.jax_enable_x64:
-            raise ValueError(
-                "RecedingHorizonDriver needs float64: call jax.config.update("
-                "'jax_enable_x64', True) before building it. In float32 its horizon problems "
-                "do not converge (the first plan's residual stays near 1) and the car drives "
-                "on without a plan")
+        require_float64("RecedingHorizonDriver",
+                        "In float32 its horizon problems do not converge (the first plan's "
+                        "residual stays near 1) and the car drives on without a plan")
         if self.mode not in ("rti", "converged"):
             raise ValueError(f"RecedingHorizonDriver.mode must be 'rti' or 'converged', got "
                              f"{self.mode!r}")

@@ -49,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._checks import require_float64
 from .._constants import GRAVITY
 from .._fields import array_field
 from .._results import result_name, result_record
@@ -412,10 +413,8 @@ def fine_curvature(road, num_stages: int, substeps: int,
 def _check_road(road) -> None:
     """What the road-frame problem can pose: float64, an open road's gates at its ends, a
     closed road's full width and free speed, and a fixed gate speed above the floor."""
-    if not jax.config.jax_enable_x64:
-        raise ValueError(
-            "the road-frame problem needs float64: call jax.config.update('jax_enable_x64', "
-            "True) first. In float32 its solves stall (the residual stays near 0.4)")
+    require_float64("the road-frame problem",
+                    "In float32 its solves stall (the residual stays near 0.4)")
     name = getattr(road, "name", "")
     L = float(road.length)
     closed = bool(getattr(road, "closed", False))
