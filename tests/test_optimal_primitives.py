@@ -67,6 +67,8 @@ def test_corner90_min_time_feasible_and_above_point_mass_bound(corner_min_time):
     rec = solution_record(prim, bound)
     assert rec["point_mass_exit_speed"] == pytest.approx(math.hypot(pm[2], pm[3]), rel=1e-14)
     assert rec["t_f_over_bound"] == pytest.approx(car[9] / pm[4], rel=1e-14)
+    assert rec["exit_speed_over_bound"] == pytest.approx(
+        math.hypot(car[3], car[4]) / math.hypot(pm[2], pm[3]), rel=1e-14)
     # boundary conditions of Table 4 (literal heading)
     x0, xT = np.asarray(prim.solution.xs[0]), np.asarray(prim.solution.xs[-1])
     assert abs(x0[0] + 5.0) < 1e-6 and 8.0 <= x0[1] <= 10.0

@@ -17,8 +17,8 @@ UNITS = {
     "violations.inputs": "1 or rad (the largest)", "violations.axle_speed_floor": "m/s",
     "violations.time_budget": "s", "max_corridor_violation": "m",
     "max_corridor_violation_between_nodes": "m", "point_mass_t_f": "s",
-    "point_mass_exit_speed": "m/s", "t_f_over_bound": "1", "starts[].objective":
-    "s (min-time) or -m/s (max-exit)", "interior_points": "1",
+    "point_mass_exit_speed": "m/s", "t_f_over_bound": "1", "exit_speed_over_bound": "1",
+    "starts[].objective": "s (min-time) or -m/s (max-exit)", "interior_points": "1",
 }
 """Units of the optimise JSON's fields that `vehsim.labelled.UNITS` and their names do not
 give (the interior point's residuals are scaled, dimensionless)."""

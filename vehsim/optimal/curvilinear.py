@@ -909,6 +909,7 @@ class RoadPrimitive(AbstractSolvedDrive):
             rec["point_mass_exit_speed"] = float(bound.exit_speed)
             rec["point_mass_status"] = result_name(bound.result)
             rec["t_f_over_bound"] = rec["t_f"] / rec["point_mass_t_f"]
+            rec["exit_speed_over_bound"] = rec["exit_speed"] / rec["point_mass_exit_speed"]
         rec["t"] = sig["t"]
         rec["s"] = sig["s"]
         rec["states"] = {k: sig[k] for k in ("x", "y", "psi", "vx", "vy", "yaw_rate", "n", "xi")}

@@ -174,6 +174,8 @@ def solution_record(prim: Primitive, bound: Primitive | None = None) -> dict:
             bound.problem, bound.solution)
         rec["point_mass_status"] = result_name(bound.result)
         rec["t_f_over_bound"] = t_f / rec["point_mass_t_f"]
+        # the max-exit objective's own ratio (its t_f is the budget's, about the bound's)
+        rec["exit_speed_over_bound"] = rec["exit_speed"] / rec["point_mass_exit_speed"]
     if prim.starts is not None:
         rec["starts"] = [dict(objective=float(o), status=r, iterations=int(i))
                          for o, r, i in zip(np.asarray(prim.starts.objective),
