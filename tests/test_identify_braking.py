@@ -94,3 +94,19 @@ def test_radius_override(tmp_path):
     d = load_braking(_write(tmp_path, GOOD, None), r=0.31)
     assert float(d.r) == 0.31
     assert isinstance(d, BrakingData)
+
+
+def test_slip_sign_note_flags_records_in_other_units_or_signs():
+    """The shipped brakings pass; the same with omega in rpm, or the force's sign flipped,
+    get a note naming what is off."""
+    import equinox as eqx
+
+    from vehsim.identify.braking import slip_sign_note
+
+    d = load_braking(shipped_brakings()["braking_1"])
+    assert slip_sign_note(d) is None
+    rpm = eqx.tree_at(lambda x: x.omega, d, d.omega * 60.0 / (2.0 * np.pi))
+    assert "the slip (omega r - v)/v reaches 8." in slip_sign_note(rpm)
+    flipped = eqx.tree_at(lambda x: x.F_x, d, -d.F_x)
+    assert "the force opposes the slip on 100 % of the slipping samples" in \
+        slip_sign_note(flipped)

@@ -61,7 +61,7 @@ def _fit(args) -> int:
 
     from .._io import save_figure, write_json
     from .._result_files import with_units
-    from ..identify.braking import load_braking
+    from ..identify.braking import load_braking, slip_sign_note
     from ..identify.parameters import UNITS as PARAMETER_UNITS
     from ..plot import force_histories_figure
     from ..reproduce.identify import VARIANTS, identify
@@ -73,6 +73,10 @@ def _fit(args) -> int:
         raise ValueError(f"braking names (file stems) must be distinct, got {names}")
     print(f"vehsim fit: {len(train)} training and {len(validate)} held-out braking(s)",
           file=sys.stderr, flush=True)
+    for d in train + validate:
+        note = slip_sign_note(d)
+        if note:
+            print(f"  note: {note}", file=sys.stderr, flush=True)
     variants = {"kappa0 fitted": {}} if args.only_fitted_kappa0 else VARIANTS
     out = identify(train, validate, mode="closed_loop" if args.closed_loop else "open_loop",
                    variants=variants, n_starts=args.starts, throw=False, verbose=True)

@@ -245,3 +245,31 @@ def shipped_brakings() -> dict[str, Path]:
     """The synthetic brakings shipped with vehsim: name -> CSV path (see their side files)."""
     folder = Path(__file__).resolve().parent.parent / "data" / "brakings"
     return {p.stem: p for p in sorted(folder.glob("*.csv"))}
+
+
+def slip_sign_note(data: BrakingData) -> str | None:
+    r"""A sentence when a braking's force and slip disagree the way mistaken units or signs
+    make them (None otherwise): on the samples that slip ($|v| > 1$ m/s, $|s| > 0.02$ with
+    $s = (\omega r - v)/v$) and carry force ($|F_x|$ above 5 % of its peak), the force
+    should push the way the slip does (eq. 22's steady force has the sign of the slip); a
+    record whose force opposes it on most of them, or whose slip passes 1.5, is not a
+    braking in SI units (omega in rpm, for example, gives slips near 9)."""
+    v, omega, F = (np.asarray(x, float) for x in (data.v, data.omega, data.F_x))
+    r = float(np.asarray(data.r))
+    moving = np.abs(v) > 1.0
+    if not moving.any():
+        return None
+    s = (omega[moving] * r - v[moving]) / v[moving]
+    Fm = F[moving]
+    loaded = (np.abs(s) > 0.02) & (np.abs(Fm) > 0.05 * np.max(np.abs(F)))
+    opposed = float(np.mean(np.sign(Fm[loaded]) != np.sign(s[loaded]))) if loaded.any() else 0.0
+    reasons = []
+    if opposed > 0.5:
+        reasons.append(f"the force opposes the slip on {100 * opposed:.0f} % of the slipping "
+                       "samples")
+    if np.max(np.abs(s)) > 1.5:
+        reasons.append(f"the slip (omega r - v)/v reaches {np.max(np.abs(s)):.3g}")
+    if not reasons:
+        return None
+    return (f"{data.name}: " + " and ".join(reasons) + "; check the units and signs "
+            "(omega in rad/s, v in m/s, r in m, F_x > 0 driving and < 0 braking)")
