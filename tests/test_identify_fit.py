@@ -429,3 +429,22 @@ def test_fewer_samples_than_free_parameters_are_not_identifiable():
     r = 1e-3 * rng.normal(size=12)
     diag = diagnose(J_u, r, np.zeros(len(names)), theta_all, names, 1e-4)
     assert np.isfinite(diag.condition_number)
+
+
+def test_closed_loop_loss_in_forward_mode_and_reverse_mode_refused(brakings):
+    """The closed-loop loss (an adaptive solve) differentiates in forward mode, as central
+    differences at a tight tolerance do; reverse mode stops with an error, not a number."""
+    d = jax.tree.map(lambda x: x[50:172:2] if getattr(x, "ndim", 0) == 1 else x,
+                     brakings["braking_1"])
+    mode = ClosedLoopBraking(dfx.Tsit5(), 1e-10)
+
+    def loss(v_s):
+        return fit_loss(eqx.tree_at(lambda m: m.params.v_s, TRUTH, v_s), [d], mode)
+
+    x = jnp.asarray(float(TRUTH.params.v_s))
+    fwd = float(jax.jvp(jax.jit(loss), (x,), (jnp.ones(()),))[1])
+    h = 1e-4 * float(x)
+    fd = float((loss(x + h) - loss(x - h)) / (2 * h))
+    np.testing.assert_allclose(fwd, fd, rtol=1e-5)
+    with pytest.raises(ValueError, match="Reverse-mode differentiation does not work"):
+        jax.grad(loss)(x)

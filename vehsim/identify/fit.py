@@ -164,8 +164,13 @@ def fit_loss(model: LumpedLuGre, data: Sequence[BrakingData],
              mode: str | AbstractBrakingModel = "open_loop", substeps: int = 2,
              rtol: float = 1e-6):
     r"""$\tfrac12\sum_k r_k^2$ with $r_k$ the force (and, closed loop, speed) errors scaled by
-    the peak measured $|F_x|$ ($|v|$, $|\omega|$). Differentiable in `model`. `substeps`
-    and `rtol` apply to a `mode` given by name (see `braking_model`)."""
+    the peak measured $|F_x|$ ($|v|$, $|\omega|$). `substeps` and `rtol` apply to a `mode`
+    given by name (see `braking_model`).
+
+    Differentiable in `model`: open loop in both modes; closed loop (an adaptive solve with
+    forward-mode sensitivities, as the fit uses) in forward mode only (`jax.jvp`,
+    `jax.jacfwd`): reverse mode stops with JAX's error that a `while_loop` cannot be
+    reverse-differentiated."""
     data = list(data)
     r = braking_model(mode, substeps, rtol).residuals(model, data, peak_scales(data))
     return 0.5 * jnp.sum(r**2)
