@@ -204,6 +204,8 @@ def _tire_np(z, vx, vy, omega, Fz):
 def numpy_rhs(t, y, delta_max, brake):
     m, g, lF, lR, h = C["m"], C["g"], C["lF"], C["lR"], C["h"]
     y = y.tolist()
+    if not all(map(math.isfinite, y)):  # a trial step that blew up: NaN, as NumPy gives it,
+        return np.full(len(y), np.nan)  # which the solver rejects
     x, yy, psi, vx, vy, r, omF, omR, z, zd, th, thd = y[:12]
     d = delta_max * _smooth_step(t, T_STEER, RISE)
     b = brake * _smooth_step(t, T_BRAKE, RISE)
