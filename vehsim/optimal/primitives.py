@@ -117,9 +117,9 @@ def point_mass_bound(road: str | Road, objective: str = "min-time", *, D: float 
     ``IPOptions()``; ``solver``: the interior-point solve (`interior_point`);
     ``corner_clearance``, ``interior_points``: the corridor between the nodes
     (`PointMassOCP`); ``car_xs``: the knots of ``car`` (default `rally_gravel_car`) on
-    the same stages, a third start (`point_mass_guess_from_car`). The problem has local optima: on sturn the centreline
-    starts alone end 0.6 % slower than the car's own optimum, which the car's start
-    undercuts (`primitive_and_bound` gives it)."""
+    the same stages, a third start (`point_mass_guess_from_car`). The problem has local
+    optima: on sturn the centreline starts alone end 0.6 % slower than the car's own
+    optimum, which the car's start undercuts (`primitive_and_bound` gives it)."""
     require_float64("the point-mass bound", _FLOAT32)
     options = IPOptions() if options is None else options
     rd = _road(road)
