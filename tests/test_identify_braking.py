@@ -85,6 +85,17 @@ def test_loader_rejects_bad_file(tmp_path, text, meta, match):
         load_braking(_write(tmp_path, text, meta))
 
 
+def test_blank_lines_end_a_file_but_not_its_middle(tmp_path):
+    """Blank lines after the last row (a common file ending) are no rows; one between
+    rows is still an inconsistent row, named."""
+    d = load_braking(_write(tmp_path, GOOD + "\n\n"))
+    np.testing.assert_array_equal(np.asarray(d.t), [0.0, 0.002, 0.004, 0.006])
+    rows = GOOD.split("\n")
+    middle = "\n".join(rows[:2] + [""] + rows[2:])
+    with pytest.raises(ValueError, match=r"row 2, column 't'.*inconsistent lengths"):
+        load_braking(_write(tmp_path, middle, name="c.csv"))
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError):
         load_braking(tmp_path / "nope.csv")

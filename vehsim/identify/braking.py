@@ -115,6 +115,8 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
     except StopIteration:
         raise ValueError(f"{path}: empty file (expected a header row)") from None
     rows = list(reader)
+    while rows and not rows[-1]:  # blank lines at the end of the file are not rows
+        rows.pop()
     for col in required:
         if col not in header:
             _fail(path, None, col, f"missing required column (header has {header}; "
