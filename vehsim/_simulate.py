@@ -58,8 +58,8 @@ def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
         v = np.asarray(x, dtype=float)
         if np.all(np.isfinite(v)):
             continue
-        bad = np.nonzero(~np.isfinite(v.reshape(-1, v.shape[-1]) if v.ndim else v))
-        columns = sorted({int(c) for c in bad[-1]}) if v.ndim else []
+        # a state or input vector, or input samples (T, m): the names are the last axis's
+        columns = np.flatnonzero(~np.all(np.isfinite(v.reshape(-1, v.shape[-1])), axis=0))
         named = ", ".join(names[c] if c < len(names) else str(c) for c in columns)
         raise ValueError(f"simulate: {what} must be finite; non-finite values in {named}")
 

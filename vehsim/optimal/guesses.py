@@ -45,9 +45,9 @@ def centreline_guess(road: Road, num_stages: int, speed: float = 5.0):
 def point_mass_guess_from_car(car: ReducedHalfCar, car_xs, friction: float):
     """Point-mass knots (x, y, vx, vy, t_f) and accelerations (M, 2) of a car's knots
     (x, y, psi, v_x, v_y, r, kappa_F, kappa_R, delta, t_f): the same positions and final
-    time, the body velocity in the road's frame, and the car's own accelerations at the
-    knots (from `car.f`, eqs. 61-63), averaged over each stage and kept within 99 % of
-    ``friction`` g. The car's path is feasible for the point mass (its friction ellipse
+    time, the body velocity turned into the ground frame, and the car's own accelerations
+    at the knots (from `car.f`, eqs. 61-63), averaged over each stage and kept within
+    99 % of ``friction`` g. The car's path is feasible for the point mass (its friction ellipse
     lies inside the friction circle); a start on it lets the bound's solve find an optimum
     below the car's where the centreline starts do not."""
     xs = np.asarray(car_xs, float)
