@@ -388,6 +388,7 @@ from .drive.estimator import (
     AxleGripEstimator as AxleGripEstimator,
     AxleGripState as AxleGripState,
     GripEstimate as GripEstimate,
+    longitudinal_capacity as longitudinal_capacity,
     peak_friction as peak_friction,
     scale_of_peak as scale_of_peak,
     scaled_steady_state_mu as scaled_steady_state_mu,
@@ -433,6 +434,7 @@ from .drive.plant import (
 from .drive.scenarios import (
     CORNER_DRIVER as CORNER_DRIVER,
     DRIVER_PROBE_DISTANCE as DRIVER_PROBE_DISTANCE,
+    DRIVER_TRACTION_LIMIT as DRIVER_TRACTION_LIMIT,
     FAST_ROAD_DRIVER as FAST_ROAD_DRIVER,
     FILE_ROAD_DRIVER as FILE_ROAD_DRIVER,
     DriveScenario as DriveScenario,

@@ -206,6 +206,30 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     return b - 0.25 * (a - cc) * shift
 
 
+def longitudinal_capacity(tire: LumpedLuGre2D, scale, vx, vy):
+    r"""$(\mu_{x,drive}, \mu_{x,brake})$: the largest steady-state longitudinal friction
+    $|\mu_x|$ (`scaled_steady_state_mu`) of `tire` on a road of friction scale
+    $\lambda$ = `scale` at the wheel-frame ground velocity $(v_x, v_y)$ [m/s] of its axle,
+    over the driving slips $\kappa > 0$ and over the braking ones $\kappa < 0$ ($v_r =
+    (\kappa v_x, -v_y)$, $c = (1 + \kappa)v_x$; $|\kappa|$ on 48 points from $10^{-3}$ to 1,
+    geometrically spaced; $v_x$ floored at 1 m/s).
+
+    A wheel whose torque asks more than $r F_z$ times this of its tire has no steady slip:
+    beyond the LuGre peak the force falls as the slip grows, so the wheel spins up (or
+    locks). With lateral slip the capacity is below the pure-slip peak `peak_friction`
+    (the friction is shared with $\mu_y$)."""
+    vx = jnp.maximum(vx, 1.0)
+    kap = jnp.geomspace(1e-3, 1.0, 48)
+
+    def mu_x(k):
+        v_r = jnp.stack([k * vx, -vy + 0.0 * k])
+        return scaled_steady_state_mu(tire, scale, v_r, (1.0 + k) * vx)[0]
+
+    drive = jnp.max(jax.vmap(mu_x)(kap))
+    brake = jnp.max(-jax.vmap(mu_x)(-kap))
+    return drive, brake
+
+
 _SCALE_RANGE = (1e-3, 10.0)
 r"""The friction scales $\lambda$ `scale_of_peak` searches."""
 

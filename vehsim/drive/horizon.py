@@ -76,7 +76,7 @@ from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
 from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.params import lugre2d_bakker1987
 from ..vehicle.reduced import ReducedHalfCar
-from .estimator import REFERENCE_SPEED, peak_friction, scale_of_peak
+from .estimator import REFERENCE_SPEED, longitudinal_capacity, peak_friction, scale_of_peak
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController
 
@@ -787,7 +787,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
-    narrower than `probe_std` (0.25).
+    narrower than `probe_std` (0.25); `traction_limit` $\rho$ (None: off; in (0, 1]) the
+    traction control (below).
 
     **The test brake.** The estimator learns only where an axle uses most of the grip it
     believes in (`driver_estimator`), and a driver that trusts its prior first does so
@@ -808,6 +809,22 @@ class RecedingHorizonDriver(AbstractDriveController):
     three commands at 20 Hz) or at `probe_distance`. The condition is evaluated at every
     sample, not latched: a belief that widens again within the distance (the estimator's
     change detector resets it to its prior's width) brakes again.
+
+    **Traction control.** The torques realise the planned slips through the wheel
+    equations with the planner's tire force, $T_i = I_i\dot\omega_i + r f_{ix}$. Where
+    that force is more than the plant's tire can give at the wheel's lateral slip, the
+    wheel has no steady slip: past the LuGre peak (5-6 % slip) the force falls as the slip
+    grows, and a driven wheel spins up (a braked one locks) until the torque falls. On the
+    benchmark corners without it the rear wheels spun to slips of 2-3 on every corner's
+    exit, a front wheel to 30 on one drive, and the car, its tire sliding, ran wide.
+    With `traction_limit` $\rho$ each axle's $f_{ix}$ in the torque is clipped to $\rho
+    F_{iz}$ times the plant tire's `longitudinal_capacity` at the axle's planned
+    velocity, on the road the driver believes to be under that axle (`believed_scales`):
+    the wheel then finds a steady slip below the peak, where the plant's force is what
+    the torque asks. A sample-rate slip feedback (`slip_gain`) cannot do this: the
+    wheel's instability past the peak is faster (tens of 1/s) than a 20 Hz loop behind a
+    delay; measured, it roughly halved the spin and left it. docs/drive.md has the
+    measurements.
 
     **The slip bound.** The planner's friction-ellipse tire ($B = 7$, $C = 1.6$) keeps
     most of its force far past its peak, so an unbounded minimum-time plan drifts (rear
@@ -905,6 +922,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=None, converter=lambda x: None if x is None else float_array(x))
     probe_utilisation: Float[Array, ""] = array_field(default=0.95)
     probe_std: Float[Array, ""] = array_field(default=0.25)
+    traction_limit: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
         require_float64("RecedingHorizonDriver",
@@ -970,6 +989,9 @@ class RecedingHorizonDriver(AbstractDriveController):
                     upper=1.0, lower_open=True)
         check_range("RecedingHorizonDriver", "probe_utilisation", self.probe_utilisation,
                     lower=0.0, upper=1.0, lower_open=True)
+        if self.traction_limit is not None:
+            check_range("RecedingHorizonDriver", "traction_limit", self.traction_limit,
+                        lower=0.0, upper=1.0, lower_open=True)
         if not isinstance(self.plant_tire, LumpedLuGre2D):
             raise TypeError("RecedingHorizonDriver.plant_tire must be a LumpedLuGre2D, got "
                             f"{type(self.plant_tire).__name__}")
@@ -1253,7 +1275,10 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.probe_distance is not None:  # a test brake while the grip is not known
             probing = self.probing(s, estimate)
             X, u = self.probe_point(X, u, probing)
-        inputs, torques = X[5:8], self.plan_torques(X, u, D[0])
+        scales = None
+        if self.traction_limit is not None:
+            scales = self.believed_scales(s_pred, estimate)
+        inputs, torques = X[5:8], self.plan_torques(X, u, D[0], scales)
         # slip feedback: the slip commanded for now against the one measured
         slip_meas = self.measured_slip(m)
         torques = torques + self.slip_gain * (state.inputs[:2] - slip_meas)
@@ -1286,15 +1311,50 @@ class RecedingHorizonDriver(AbstractDriveController):
         w = pos - k
         return xs[k] + w * (xs[k + 1] - xs[k]), us[k, :3]  # a soft corridor's slack last
 
-    def plan_torques(self, X, u, D0):
-        """The axle torques (2,) that realise the knot ``X``'s slips changing at the rates
-        ``u`` (per metre) on the planning car with peak ``D0`` (`plan_command`)."""
+    def plan_torques(self, X, u, D0, scales=None):
+        r"""The axle torques (2,) that realise the knot ``X``'s slips changing at the rates
+        ``u`` (per metre) on the planning car with peak ``D0`` (`plan_command`).
+
+        ``scales`` (2,): the believed friction scales of the axles (`believed_scales`),
+        with `traction_limit` $\rho$: each axle's longitudinal force in $T_i = I_i\dot
+        \omega_i + r f_{ix}$ is clipped to $\rho F_{iz}$ times the plant tire's
+        `longitudinal_capacity` at the axle's planned velocity (the traction control
+        of the class docstring)."""
         veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
         n, xi, vx, vy = X[0], X[1], X[2], X[3]
         sdot = vx * jnp.cos(xi) - vy * jnp.sin(xi)  # on the centre line's scale (n small)
         state6 = jnp.stack([0.0 * n, 0.0 * n, xi, vx, vy, X[4]])
         _, _, T_F, T_R = veh.recover_torques(state6, X[5:8], u * sdot)
-        return jnp.stack([T_F, T_R])
+        T = jnp.stack([T_F, T_R])
+        if scales is None or self.traction_limit is None:
+            return T
+        fF, fR, FzF, FzR = veh._axle_forces(state6, X[5:8])
+        VFx, VFy, VRx, VRy = veh.axle_velocities(state6, X[7])
+        f = jnp.stack([fF[0], fR[0]])
+        drive, brake = jax.vmap(lambda lam, a, b: longitudinal_capacity(self.plant_tire, lam,
+                                                                        a, b))(
+            scales, jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy]))
+        Fz = jnp.stack([FzF, FzR])
+        rho = self.traction_limit
+        clipped = jnp.clip(f, -rho * brake * Fz, rho * drive * Fz)
+        return T - self.vehicle.params.r * (f - clipped)
+
+    def believed_scales(self, s, estimate) -> Float[Array, " 2"]:
+        r"""The friction scales $\lambda$ the driver believes to be under its front and rear
+        axle with the car's centre of gravity at arc length ``s``: the nominal road's, the
+        true road's at $s + \ell_F$ and $s - \ell_R$ ('oracle'), or the estimate's
+        (`GripEstimate.scale`: per axle, with a surface map that of the surface under the
+        axle)."""
+        if self.friction == "nominal":
+            lam = scale_of_peak(self.plant_tire, self.nominal_peak, self.reference_speed)
+            return jnp.full((2,), lam)
+        if self.friction == "oracle":
+            p = self.vehicle.params
+            return self.table.scale_at(jnp.stack([s + p.lF, s - p.lR]))
+        if estimate is None:
+            raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
+                             "estimator: pass estimator= to simulate_drive")
+        return estimate.scale
 
     def probing(self, s, estimate) -> Bool[Array, ""]:
         r"""Whether the command at arc length ``s`` is a test brake: ``s`` <

@@ -166,11 +166,16 @@ def main_corner(name: str) -> tuple[float, float]:
     return s0, s0 + float(lengths[index])
 
 
-CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0}
+DRIVER_TRACTION_LIMIT = 0.9
+"""`RecedingHorizonDriver.traction_limit` of every `driver_settings`: the axle torques ask
+at most 90 % of the longitudinal force the plant's tire can give at the planned velocity."""
+
+CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0,
+                 "traction_limit": DRIVER_TRACTION_LIMIT}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
 
 FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 16, "hessian_update": "first",
-                    "peak_fraction": 0.9}
+                    "peak_fraction": 0.9, "traction_limit": DRIVER_TRACTION_LIMIT}
 """`RecedingHorizonDriver` settings of `driver_settings` on the stage: a corridor margin,
 more passes (each sample's first Hessian kept for its later ones) and a friction margin."""
 
