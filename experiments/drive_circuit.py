@@ -7,7 +7,8 @@ estimate; `driver_settings(None)`, `FILE_ROAD_DRIVER`) or with the settings give
 line per drive: the lap time (the first crossing of the start line, with how far off the
 road the car was until then), where it first went more than 5 cm off the road (time, arc
 length, speed), and the plans: the samples whose KKT residual passed 1 and 100, the
-re-plans from the cold start (`replan_kkt`) and how many of those did not converge.
+re-plans from the cold start (`replan_kkt`) and how many of those did not converge, and the
+wheels' largest and smallest true slip (front, rear) up to the lap.
 
 The measured lines are in experiments/drive_circuit_results.jsonl (docs/driver.md, "A road
 from a file").
@@ -65,6 +66,14 @@ def drive(settings: dict, seed: int, duration: float) -> dict:
         car = np.asarray(run.states.car)
         v = np.hypot(car[k, 3], car[k, 4])
         first = {"t": float(t[i]), "s": float(s_car[k]), "speed": float(v)}
+    # the wheels' true slip (front, rear) up to the lap: spinning or locked wheels
+    plant = sc.plant
+
+    def slips(car, u):
+        sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))
+        return jax.numpy.stack([sig["kappa_F"], sig["kappa_R"]])
+
+    slip = np.asarray(jax.jit(jax.vmap(slips))(run.states.car, run.states.actuators.applied))
     kkt, its = info["kkt"], info["iterations"]
     cold = its > driver.iterations
     lap_t = None if k_lap is None else float(np.asarray(run.states.t)[k_lap])
@@ -76,6 +85,8 @@ def drive(settings: dict, seed: int, duration: float) -> dict:
             "samples": int(kkt.size), "kkt_over_1": int(np.sum(kkt > 1)),
             "kkt_over_100": int(np.sum(kkt > 100)), "replans": int(np.sum(cold[1:])),
             "replans_not_converged": int(np.sum(cold[1:] & ~info["converged"][1:])),
+            "slip_max": np.max(slip[:max(k_lap or len(slip), 1)], axis=0).tolist(),
+            "slip_min": np.min(slip[:max(k_lap or len(slip), 1)], axis=0).tolist(),
             "wall_s": wall}
 
 

@@ -127,6 +127,15 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
                           for row in np.asarray(rec["estimate"]["scale"])])
     assert np.all(D[1:] < np.min(slowest, axis=1)[:-1])
     assert len(rec["solver"]["iterations"]) == n
+    # the wheels' true slip: the test brake's front wheel braking, and no wheel spinning up
+    # or locking (the traction control)
+    slip = np.asarray(rec["trajectory"]["slip"])
+    assert slip.shape == (n, 2) and "trajectory.slip" in rec["units"]
+    probing = np.asarray(rec["solver"]["probing"], bool)
+    print("true slips: front while braking to probe", slip[probing, 0], "largest",
+          np.max(np.abs(slip), axis=0))
+    assert np.min(slip[probing, 0]) < -0.02
+    assert np.max(np.abs(slip)) < 0.3
     assert (out / "drive.png").read_bytes()[:8] == PNG
     gif = out / "drive.gif"
     assert gif.read_bytes()[:6] in GIF

@@ -410,7 +410,9 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     centre of gravity on `road`), ``command`` and ``applied`` $(T_F, T_R, \delta)$ (N, 3),
     ``scale_true`` $\lambda$ under the (front, rear) axle (N, 2) and ``peak_true``
     $\mu^*(\lambda)$ there (the plant tire's peak on that road,
-    `AxleGripEstimator.peak`; N, 2); with an estimator ``scale_est``, ``peak_est``,
+    `AxleGripEstimator.peak`; N, 2), ``slip_true`` the wheels' longitudinal slip
+    $\kappa_i = \omega_i r/V_{ix} - 1$ (front, rear; N, 2: a spinning wheel above 1, a
+    locked one at -1); with an estimator ``scale_est``, ``peak_est``,
     ``peak_std`` (N, 2); with a planner that reports them (``run.controller_info``, as
     `RecedingHorizonDriver.info`: ``plan_s``, ``plan_n`` (N, M + 1), ``D`` (N, M)),
     ``horizon_x``, ``horizon_y`` (N, M + 1), the planned path converted from its
@@ -420,6 +422,7 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     samples (e.g. up to the end of the road).
     """
     import jax
+    import jax.numpy as jnp
 
     from .drive.estimator import AxleGripEstimator
 
@@ -434,10 +437,16 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
     est = AxleGripEstimator(params=plant.params, tire=plant.tire)
     peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
+    def slips(car, u):
+        sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))
+        return jnp.stack([sig["kappa_F"], sig["kappa_R"]])
+
+    applied = states.actuators.applied
     out = {"t": np.asarray(states.t), "x": x, "y": y, "psi": psi,
            "speed": np.hypot(vx, vy), "s": s, "n": n, "command": np.asarray(cut(run.commands)),
-           "applied": np.asarray(states.actuators.applied), "scale_true": lam,
-           "peak_true": peak}
+           "applied": np.asarray(applied), "scale_true": lam,
+           "peak_true": peak,
+           "slip_true": np.asarray(jax.jit(jax.vmap(slips))(states.car, applied))}
     if estimates is not None:
         out["scale_est"] = np.asarray(estimates.scale)
         out["peak_est"] = np.asarray(estimates.peak)

@@ -29,7 +29,8 @@ seed, the scenario's start speed and time budget).
   ``store_full_solution`` off, no printing. Per sample, in Python: the
   driver's own jitted projection and prediction and the problem's arrays (the same
   functions as vehsim's, so both see identical data), ``mpc.make_step``, and the driver's
-  conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`).
+  conversion of the plan's inputs to the command (`RecedingHorizonDriver.plan_command`,
+  with the same traction control).
 
 ``--sample-solves`` (with the converged mode): each sample's problem of vehsim's converged
 drive solved again on its own (`sample_solves`), by vehsim from the drive's warm start
@@ -159,8 +160,9 @@ class DompcDriver:
             return (s, position, position_var, velocity, y[0], state8, D,
                     arrays(d.problem(y[0], state8, D)), (xs0, us0))
 
-        def finish(xs, us, D0, inputs_prev, m):
-            inputs, torques = d.plan_command(xs, us, D0)
+        def finish(xs, us, D0, inputs_prev, m, s_pred):
+            scales = None if d.traction_limit is None else d.believed_scales(s_pred, None)
+            inputs, torques = d.plan_command(xs, us, D0, scales)
             torques = torques + d.slip_gain * (inputs_prev[:2] - d.measured_slip(m))
             return inputs, jnp.concatenate([torques, inputs[2:]])
 
@@ -213,7 +215,7 @@ class DompcDriver:
         jax.block_until_ready(self._prepare(s, m.t, position, position_var, velocity, inputs, m,
                                             jnp.asarray(xs), jnp.asarray(us), s))
         jax.block_until_ready(self._finish(jnp.asarray(xs), jnp.asarray(us), prob.grip[0],
-                                           inputs, m))
+                                           inputs, m, s))
         return {"s": s, "t": m.t, "position": position, "position_var": position_var,
                 "velocity": velocity, "s_plan": s, "inputs": inputs, "xs": xs, "us": us}
 
@@ -225,7 +227,8 @@ class DompcDriver:
         if self.shift:
             _dompc_driver.set_guess(self.mpc, np.asarray(xs0), np.asarray(us0))
         xs, us = self._solve(state8, data)
-        inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m)
+        inputs, command = self._finish(jnp.asarray(xs), jnp.asarray(us), D[0], cs["inputs"], m,
+                                       s_pred)
         return {"s": s, "t": m.t, "position": position, "position_var": position_var,
                 "velocity": velocity, "s_plan": s_pred, "inputs": inputs, "xs": xs,
                 "us": us}, command

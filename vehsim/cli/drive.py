@@ -40,6 +40,8 @@ UNITS = {
     "estimate.scale_std": "1", "planner_D.t": "s", "planner_D.D": "1", "truth.peak": "1",
     "trajectory.t": "s", "trajectory.x": "m", "trajectory.y": "m", "trajectory.psi": "rad",
     "trajectory.speed": "m/s", "trajectory.s": "m", "trajectory.n": "m",
+    "trajectory.slip": "1 (the wheels' longitudinal slip omega r / V_x - 1, front and rear: "
+                       "above 1 a spinning wheel, -1 a locked one)",
     "compute_time.samples": "1", "start_speed": "m/s", "truth.t": "s", "truth.scale": "1",
     "solver.iterations": "1", "solver.converged": "1 (true or false)",
     "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
@@ -313,7 +315,8 @@ def _drive(args) -> int:
             k: np.asarray(info[k]) for k in ("iterations", "converged", "kkt", "probing")
             if k in info},
         "truth": {"t": tr["t"], "peak": tr["peak_true"], "scale": tr["scale_true"]},
-        "trajectory": {k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
+        "trajectory": {**{k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
+                       "slip": tr["slip_true"]},
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],

@@ -1294,13 +1294,14 @@ class RecedingHorizonDriver(AbstractDriveController):
         V = jnp.maximum(jnp.stack([VFx, VRx]), SPEED_FLOOR)
         return m.omega * self.vehicle.params.r / V - 1.0
 
-    def plan_command(self, xs, us, D0):
+    def plan_command(self, xs, us, D0, scales=None):
         r"""The inputs $(\kappa_F, \kappa_R, \delta)$ of the plan `lead` seconds after its
         start (interpolated in $s$) and the torques that realise them (eqs. 52-53:
         $T_i = I_i\dot\omega_i + r f_{ix}$ with $\dot{(\cdot)} = \dot s\,d(\cdot)/ds$) on
-        the planning car with peak ``D0``."""
+        the planning car with peak ``D0``; with ``scales`` (`believed_scales`) and
+        `traction_limit`, the traction control's (`plan_torques`)."""
         X, u = self.plan_point(xs, us)
-        return X[5:8], self.plan_torques(X, u, D0)
+        return X[5:8], self.plan_torques(X, u, D0, scales)
 
     def plan_point(self, xs, us):
         """The plan's knot ``X`` (9,) `lead` seconds after its start (interpolated in $s$)
