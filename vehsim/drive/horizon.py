@@ -38,8 +38,10 @@ it over the actuator delay with the reduced model and the inputs already on thei
 shift the previous plan by the distance travelled (interpolated in $s$), solve by
 `interior_point` from it, and apply the plan's first inputs: the steering angle directly,
 the axle torques from the planned slips through the wheel equations 52-53,
-$T_i = I_i\dot\omega_i + r f_{ix}$ (`ReducedHalfCar.recover_torques`), plus a feedback on
-the slip error measured from the wheel speeds and the ground velocity.
+$T_i = I_i\dot\omega_i + r f_{ix}$ (`ReducedHalfCar.recover_torques`), each axle's force
+at most a fraction of what the plant's tire can give (the traction control,
+`RecedingHorizonDriver.traction_limit`), plus a feedback on the slip error measured from
+the wheel speeds and the ground velocity.
 """
 
 from __future__ import annotations
@@ -815,8 +817,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     that force is more than the plant's tire can give at the wheel's lateral slip, the
     wheel has no steady slip: past the LuGre peak (5-6 % slip) the force falls as the slip
     grows, and a driven wheel spins up (a braked one locks) until the torque falls. On the
-    benchmark corners without it the rear wheels spun to slips of 2-3 on every corner's
-    exit, a front wheel to 30 on one drive, and the car, its tire sliding, ran wide.
+    benchmark corners without it the rear wheels spun to slips of 1.6-3.4 on every
+    corner's exit, a front wheel to 29 on one drive, and the car, its tires sliding, ran
+    wide.
     With `traction_limit` $\rho$ each axle's $f_{ix}$ in the torque is clipped to $\rho
     F_{iz}$ times the plant tire's `longitudinal_capacity` at the axle's planned
     velocity, on the road the driver believes to be under that axle (`believed_scales`):
@@ -1332,9 +1335,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         fF, fR, FzF, FzR = veh._axle_forces(state6, X[5:8])
         VFx, VFy, VRx, VRy = veh.axle_velocities(state6, X[7])
         f = jnp.stack([fF[0], fR[0]])
-        drive, brake = jax.vmap(lambda lam, a, b: longitudinal_capacity(self.plant_tire, lam,
-                                                                        a, b))(
-            scales, jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy]))
+        capacity = jax.vmap(functools.partial(longitudinal_capacity, self.plant_tire))
+        drive, brake = capacity(scales, jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy]))
         Fz = jnp.stack([FzF, FzR])
         rho = self.traction_limit
         clipped = jnp.clip(f, -rho * brake * Fz, rho * drive * Fz)
