@@ -415,3 +415,23 @@ def test_believed_scales_are_under_each_axle(table, estimate):
     for bad in (0.0, 1.5):
         with pytest.raises(ValueError, match="traction_limit"):
             _driver(table, "nominal", traction_limit=bad)
+
+
+def test_command_applies_the_traction_control(table):
+    """The driver's command passes the axles' believed scales to its torques: with a limit
+    of 0.1 % of the tire's capacity the first command, accelerating out of 8 m/s on the
+    straight, asks little more than the wheels' inertia (measured: the rear 21 N m) where
+    the plain driver asks 267 N m; the steering is the same."""
+    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    m = vs.measure_drive(plant, vs.init_drive(plant, vx=8.0), jax.random.key(0))
+
+    @eqx.filter_jit
+    def first_command(driver):
+        return driver.command(driver.init(m), m, None)[1]
+
+    free = np.asarray(first_command(_driver(table, "nominal")))
+    held = np.asarray(first_command(_driver(table, "nominal", traction_limit=1e-3)))
+    print("first command", free, held)
+    assert np.max(free[:2]) > 200.0
+    assert np.all(np.abs(held[:2]) < 0.1 * np.max(free[:2]))
+    assert held[2] == pytest.approx(free[2], abs=1e-12)
