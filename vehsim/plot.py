@@ -437,6 +437,7 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
     est = AxleGripEstimator(params=plant.params, tire=plant.tire)
     peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
+
     def slips(car, u):
         sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))
         return jnp.stack([sig["kappa_F"], sig["kappa_R"]])
