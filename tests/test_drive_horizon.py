@@ -187,7 +187,9 @@ def test_fixed_grip_driver_reproduces_primitive(corner, converged_run):
     drifting out, leaves the hard problem without a plan. Never off the road. The time alone does not
     tell the corridors apart on every machine; the convergence checks below do: with the
     slack read on no stage (the hard corridor) the first samples' solves ran to their cap
-    (+1.25 %), with it read on every stage 55 % of the solves converged (+1.2 %)."""
+    (+1.25 %), with it read on every stage 55 % of the solves converged (+1.2 %). With the
+    traction control (the driver's default since) on this project's machine: -0.33 % (4.490 s
+    against 4.505 s)."""
     driver, run = converged_run
     tc, off = _reading(corner["road"], run)
     t_prim = float(corner["prim"].t_f)

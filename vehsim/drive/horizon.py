@@ -789,8 +789,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
-    narrower than `probe_std` (0.25); `traction_limit` $\rho$ (None: off; in (0, 1]) the
-    traction control (below).
+    narrower than `probe_std` (0.25); `traction_limit` $\rho$ (in (0, 1]; 0.9; None: off)
+    the traction control (below).
 
     **The test brake.** The estimator learns only where an axle uses most of the grip it
     believes in (`driver_estimator`), and a driver that trusts its prior first does so
@@ -926,7 +926,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     probe_utilisation: Float[Array, ""] = array_field(default=0.95)
     probe_std: Float[Array, ""] = array_field(default=0.25)
     traction_limit: Float[Array, ""] | None = eqx.field(
-        default=None, converter=lambda x: None if x is None else float_array(x))
+        default=0.9, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
         require_float64("RecedingHorizonDriver",
