@@ -33,6 +33,7 @@ import numpy as np  # noqa: E402
 import vehsim as vs  # noqa: E402
 from vehsim.cli import _drive_setup as setup  # noqa: E402
 from vehsim.drive.metrics import drive_path  # noqa: E402
+from vehsim.plot import drive_trace  # noqa: E402
 
 
 def drive(settings: dict, seed: int, duration: float) -> dict:
@@ -67,13 +68,7 @@ def drive(settings: dict, seed: int, duration: float) -> dict:
         v = np.hypot(car[k, 3], car[k, 4])
         first = {"t": float(t[i]), "s": float(s_car[k]), "speed": float(v)}
     # the wheels' true slip (front, rear) up to the lap: spinning or locked wheels
-    plant = sc.plant
-
-    def slips(car, u):
-        sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))
-        return jax.numpy.stack([sig["kappa_F"], sig["kappa_R"]])
-
-    slip = np.asarray(jax.jit(jax.vmap(slips))(run.states.car, run.states.actuators.applied))
+    slip = drive_trace(road, run, sc.plant)["slip_true"]
     kkt, its = info["kkt"], info["iterations"]
     cold = its > driver.iterations
     lap_t = None if k_lap is None else float(np.asarray(run.states.t)[k_lap])
