@@ -30,6 +30,17 @@ def best_time(fn, *args, repeats: int = 5) -> float:
     return best
 
 
+def cpu_time(fn, *args, repeats: int = 5) -> float:
+    """Process CPU time [s] of one call of ``fn(*args)`` (mean of ``repeats`` after one warm-up
+    call, all threads together): XLA may spread one large fused loop over the cores where
+    NumPy runs on one, so wall times alone can hide a difference in the cores used."""
+    block(fn(*args))
+    c0 = time.process_time()
+    for _ in range(repeats):
+        block(fn(*args))
+    return (time.process_time() - c0) / repeats
+
+
 def compile_time(fn, *args) -> float:
     t0 = time.perf_counter()
     block(fn(*args))

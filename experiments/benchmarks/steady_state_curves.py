@@ -19,12 +19,11 @@ import argparse
 import datetime
 import json
 import os
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import best_time, block, compile_time, emit
+from _common import best_time, compile_time, cpu_time, emit
 
 import vehsim as vs
 
@@ -42,16 +41,6 @@ def numpy_braking_mu(p, s, v, theta):
         psi = np.where(x < 1e-3, 0.5 - x / 6 + x * x / 24, (x + np.expm1(-x)) / (x * x))
         rolling = k * s / one_s * psi
     return np.where(one_s == 0, np.sign(s) * g / theta, rolling) + p["sigma2"] * v_r
-
-
-def cpu_time(fn, *args, repeats: int = 5) -> float:
-    """Process CPU time [s] of one call of ``fn(*args)`` (mean of ``repeats``, all threads):
-    XLA may spread one large fused loop over the cores, NumPy runs on one."""
-    block(fn(*args))
-    c0 = time.process_time()
-    for _ in range(repeats):
-        block(fn(*args))
-    return (time.process_time() - c0) / repeats
 
 
 def main(argv=None):

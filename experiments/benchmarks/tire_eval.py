@@ -4,18 +4,26 @@ Combined-slip F_x, F_y, M_z of the shipped sample (vehsim/data/tires/, MF 6.1) a
 random operating points (slip ratio, slip angle, camber, load, pressure), with the file's
 limits. vehsim: `vs.mf_forces`, jitted and vmapped. Baseline: the same equations written
 here again for NumPy (whole-array operations, no Python loop over points, each
-intermediate computed once): a competent vectorised evaluation. Prints one JSON line with
-`ratio` = NumPy wall time / vehsim wall time and the largest difference of the results.
-Run: python experiments/benchmarks/tire_eval.py [points]
+intermediate computed once): a competent vectorised evaluation. Each side is timed by its
+best of 3 calls after a warm-up (vehsim's compilation apart), the two alternated over
+`--rounds` rounds; `ratio` = NumPy wall time / vehsim wall time, the median over the rounds.
+XLA may spread the fused loops over the cores where NumPy runs on one, so each side's CPU
+time (`ratio_cpu_time`) is reported beside it, with the machine's load and the largest
+difference of the results. NumPy's transcendental functions are vectorised (SIMD) on CPUs
+that have the instructions, so the ratio depends on the processor.
+
+Run: PYTHONPATH=. python experiments/benchmarks/tire_eval.py [--points N] [--out FILE]
 """
 
+import argparse
+import datetime
+import json
 import os
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import best_time, compile_time, emit
+from _common import best_time, compile_time, cpu_time, emit
 
 import vehsim as vs
 
@@ -121,7 +129,14 @@ def numpy_mf61(c, kappa, alpha, gamma, Fz, p):
     return np.stack([Fx, Fy, Mz], axis=-1)
 
 
-def main(n: int = 1_000_000):
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", default=None, help="append the JSON line to this file")
+    args_ = ap.parse_args(argv)
+    n = args_.points
+    load_before = os.getloadavg()
     tir = vs.read_tir(vs.shipped_tires()["sample_185_80R14_mf61"])
     # pressure terms of a typical MF 6.1 car tire, so that the pressure path does work
     tir = tir.replace(PPX1=-0.35, PPX2=0.38, PPX3=-0.1, PPX4=0.06, PPY1=-0.65, PPY2=-0.8,
@@ -141,21 +156,35 @@ def main(n: int = 1_000_000):
 
     args = (P,) + tuple(jnp.asarray(x) for x in (kappa, alpha, gamma, Fz, p))
     t_compile = compile_time(vehsim_eval, *args)
-    t_vehsim = best_time(vehsim_eval, *args)
     c = {k: float(getattr(P, k)) for k in vs.tire.mf6.FIELD_NAMES}
-    t_numpy = best_time(numpy_mf61, c, kappa, alpha, gamma, Fz, p, repeats=3)
+    np_args = (c, kappa, alpha, gamma, Fz, p)
+    rounds = [(best_time(vehsim_eval, *args, repeats=3),
+               best_time(numpy_mf61, *np_args, repeats=3)) for _ in range(args_.rounds)]
+    t_vehsim, t_numpy = (float(np.median(col)) for col in zip(*rounds))
+    cpu_vehsim = cpu_time(vehsim_eval, *args, repeats=3)
+    cpu_numpy = cpu_time(numpy_mf61, *np_args, repeats=3)
     a = np.asarray(vehsim_eval(*args))
     b = numpy_mf61(c, kappa, alpha, gamma, Fz, p)
     scale = np.max(np.abs(b), axis=0)
-    emit(benchmark="tire_eval", tire="sample_185_80R14_mf61 (MF 6.1) + pressure terms",
-         points=n, outputs="Fx, Fy, Mz combined", device=jax.devices()[0].platform,
-         dtype="float64", cpu_count=os.cpu_count(), load_average_1min=os.getloadavg()[0],
-         vehsim_s=t_vehsim, numpy_s=t_numpy, compile_s=t_compile,
-         vehsim_points_per_s=n / t_vehsim, numpy_points_per_s=n / t_numpy,
-         ratio=t_numpy / t_vehsim,
-         max_abs_difference=[float(x) for x in np.max(np.abs(a - b), axis=0)],
-         max_rel_difference=[float(x) for x in np.max(np.abs(a - b), axis=0) / scale])
+    row = dict(benchmark="tire_eval", tire="sample_185_80R14_mf61 (MF 6.1) + pressure terms",
+               points=n, outputs="Fx, Fy, Mz combined", device=jax.devices()[0].platform,
+               dtype="float64", cpu_count=os.cpu_count(),
+               load_average_before_after=[round(load_before[0], 2),
+                                          round(os.getloadavg()[0], 2)],
+               vehsim_s=t_vehsim, numpy_s=t_numpy, compile_s=t_compile,
+               vehsim_points_per_s=n / t_vehsim, numpy_points_per_s=n / t_numpy,
+               ratio=float(np.median([b_ / a_ for a_, b_ in rounds])),
+               ratio_per_round=[round(b_ / a_, 3) for a_, b_ in rounds],
+               vehsim_cpu_s=cpu_vehsim, numpy_cpu_s=cpu_numpy,
+               ratio_cpu_time=cpu_numpy / cpu_vehsim,
+               max_abs_difference=[float(x) for x in np.max(np.abs(a - b), axis=0)],
+               max_rel_difference=[float(x) for x in np.max(np.abs(a - b), axis=0) / scale],
+               date=datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"))
+    emit(**row)
+    if args_.out:
+        with open(args_.out, "a") as f:
+            f.write(json.dumps(row) + "\n")
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1_000_000)
+    main()
