@@ -351,14 +351,19 @@ class NumpyBraking:
         integral = min(max(integral + c["ki"] * e * hw["T"], -ff), hw["Tmax"] - ff)
         return integral, min(max(ff + integral + c["kp"] * e, 0.0), hw["Tmax"])
 
+    peak = staticmethod(peak_braking)
+    """The peak of eq. 19 at a speed: ``(slip, mu)``."""
+    mu = staticmethod(braking_mu)
+    """Eq. 19 at one slip and speed, a float."""
+
     def tracking(self, integral, omega_m, v_hat, theta):
         pm = dict(self.pm, theta=theta)
         v = max(v_hat, 0.5)
         if self.name == "estimate":
-            s = min(max(self.c["slip_scale"] * peak_braking(pm, v)[0], -1.0), -1e-3)
+            s = min(max(self.c["slip_scale"] * self.peak(pm, v)[0], -1.0), -1e-3)
         else:
             s = self.c["slip"]
-        return self.track(integral, omega_m, v_hat, s, -braking_mu(pm, s, v))
+        return self.track(integral, omega_m, v_hat, s, -self.mu(pm, s, v))
 
     def seek(self, st, omega_m, v_hat, slip, accel, brake_mean, theta):
         """The peak-seeking law (`PeakSeekingABS`): the belief's peak at the onset's speed
@@ -543,6 +548,12 @@ class PreviousNumpyBraking(NumpyBraking):
         super().__init__(scenario, observer, ctrl, ctrl_name, hw, noise)
         self.c = _FloatOnRead(ctrl)
 
+    peak = staticmethod(peak_braking_numpy)
+
+    @staticmethod
+    def mu(p, s, v):
+        return float(braking_mu_array(p, s, v))
+
     def advance(self, y, t, torque, target):
         return integrate_solve_ivp(self.plant_rates(t, torque, target), y, t,
                                    self.hw["T"]).tolist()
@@ -565,15 +576,6 @@ class PreviousNumpyBraking(NumpyBraking):
         mid = self.copy_predict(x, t0, torque0, target, stamp)
         der = (self.copy_predict(x + FD_STEP * d, t0, torque0, target, stamp) - mid) / FD_STEP
         return mid, der
-
-    def tracking(self, integral, omega_m, v_hat, theta):
-        pm = dict(self.pm, theta=theta)
-        v = max(v_hat, 0.5)
-        if self.name == "estimate":
-            s = min(max(self.c["slip_scale"] * peak_braking_numpy(pm, v)[0], -1.0), -1e-3)
-        else:
-            s = self.c["slip"]
-        return self.track(integral, omega_m, v_hat, s, -float(braking_mu_array(pm, s, v)))
 
 
 # ------------------------------------------------------------------ the benchmark
