@@ -39,11 +39,14 @@ the table's interpolation error).
 M metres ahead of the car (`RecedingHorizonDriver.preview`; 0: the grip under the car, at
 once), each preview more members of the same batch: how far ahead a driver must know the
 grip to keep the road.
+``--mc-replay-failures``: every drive the batch failed is driven again alone (the same key;
+one unbatched program), and both outcomes are recorded (``failures_alone``): a drive at the
+limit of the grip can fail in one program and not in the other, which round differently.
 
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
        [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
-       [--previews 0 5 inf] [--mc-first-seed 0]] [--driver-settings JSON]
+       [--previews 0 5 inf] [--mc-first-seed 0] [--mc-replay-failures]] [--driver-settings JSON]
 
 ``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
 `driver_settings`'s, on every road (recorded with each row).
@@ -312,6 +315,9 @@ def monte_carlo(args):
                 max_off_p50=float(np.median(off[m])), max_off_max=float(np.max(off[m])),
                 # the noise keys (jax.random.key) of the drives that failed, to drive again alone
                 failed_keys=[noise_key(args, meta[b][2]) for b in np.flatnonzero(m & ~done)])
+    if args.mc_replay_failures:
+        summary["failures_alone"] = replay_failures(args, meta, ctrls, ests, done, off, tc,
+                                                    crossed, mapped)
     print(json.dumps(summary))
     with open(args.out, "a") as f:
         f.write(json.dumps(summary) + "\n")
@@ -321,6 +327,28 @@ def monte_carlo(args):
         tm = "-" if v["time_p50"] is None else f"{v['time_p50']:.3f}"
         print(f"| {k} | {v['completed']:.2f} | {tm} | {v['max_off_p50']:.3f} | "
               f"{v['max_off_max']:.3f} |")
+
+
+def replay_failures(args, meta, ctrls, ests, done, off, tc, crossed, mapped):
+    """Each drive the batch failed, driven again alone (one unbatched program, the same
+    plant, driver, estimator and noise key): at the limit of the grip a drive can fail in
+    one and not in the other, since the batched and the single program round differently.
+    One record per failed drive: its key and both outcomes."""
+    records = []
+    for b in np.flatnonzero(~done):
+        road, grip, seed, sc, _ = meta[b]
+        key = noise_key(args, seed)
+        run = _drive(sc.plant, ctrls[b], sc.state0, jax.random.key(key),
+                     ests[b] if mapped else ests[0], sc.num_samples)
+        alone = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0))
+        rec = dict(road=road, grip=grip, key=key,
+                   batched=dict(time=float(tc[b]) if crossed[b] else None,
+                                max_off_road=float(off[b]), completed=False),
+                   alone=alone.record())
+        print(f"#   failed {road}/{grip} key {key}: batched {float(off[b]):.3f} m off; alone "
+              f"{alone.max_off_road:.3f} m off, completed {alone.completed}")
+        records.append(rec)
+    return records
 
 
 def main(argv=None):
@@ -339,6 +367,8 @@ def main(argv=None):
     ap.add_argument("--mc-only", action="store_true")
     ap.add_argument("--mc-first-seed", type=int, default=0, metavar="K",
                     help="the Monte Carlo's seeds are K, K+1, ... (another sample of seeds)")
+    ap.add_argument("--mc-replay-failures", action="store_true",
+                    help="drive each failed drive again alone and record both outcomes")
     ap.add_argument("--previews", nargs="+", type=float, metavar="M",
                     help="Monte Carlo of rh-oracle only: also over these previews [m] "
                          "(`RecedingHorizonDriver.preview`; inf: the whole horizon)")
