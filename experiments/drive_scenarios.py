@@ -30,11 +30,11 @@ samples (the longest budget) and one road-table size, so that each driver compil
 them; the stage (four times their budget) has its own.
 
 ``--monte-carlo SEEDS``: roads x grips x SEEDS noise seeds of one driver (``--mc-driver``,
-default tracking) in ONE jitted, vmapped call (plants, controllers, initial states and keys
-batched; the end-gate time and the departure computed in the same call, on the road
-tables, `path_departure`); prints the compile and run wall times and the completion
-rate, and checks the JAX departure against the exact NumPy one on a few drives (equal to
-the table's interpolation error).
+default tracking) in ONE jitted call (plants, controllers, initial states and keys
+batched, the drives vectorised or one after another: ``--mc-map``; the end-gate time and
+the departure computed in the same call, on the road tables, `path_departure`); prints
+the compile and run wall times and the completion rate, and checks the JAX departure
+against the exact NumPy one on a few drives (equal to the table's interpolation error).
 ``--previews M ...`` (with ``--mc-driver rh-oracle``): the oracle that knows the grip only
 M metres ahead of the car (`RecedingHorizonDriver.preview`; 0: the grip under the car, at
 once), each preview more members of the same batch: how far ahead a driver must know the
@@ -50,7 +50,8 @@ limit of the grip can fail in one program and not in the other, which round diff
 Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
        [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
-       [--previews 0 5 inf] [--mc-first-seed 0] [--mc-map map] [--mc-replay-failures]] [--driver-settings JSON]
+       [--previews 0 5 inf] [--mc-first-seed 0] [--mc-map map] [--mc-replay-failures]]
+       [--driver-settings JSON]
 
 ``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
 `driver_settings`'s, on every road (recorded with each row).
