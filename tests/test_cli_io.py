@@ -132,8 +132,8 @@ def test_a_bad_side_file_is_refused_naming_it(command, side, message, tmp_path, 
     (["sweep", "--num-processes", "2", "--process-id", "1"], "give --distributed"),
     (["sweep", "--coordinator", "127.0.0.1:1", "--num-processes", "2", "--process-id", "5"],
      "--process-id must be in [0, 1]"),
-    (["optimise", "--road-file", "{folder}"], "Is a directory"),
-    (["drive", "--road-file", "{folder}"], "Is a directory"),
+    (["optimise", "--road-file", "{folder}"], "is a folder"),
+    (["drive", "--road-file", "{folder}"], "is a folder"),
 ])
 def test_bad_process_ids_and_a_folder_for_a_file_end_with_exit_2(args, message, tmp_path,
                                                                  capsys):

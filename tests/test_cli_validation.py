@@ -4,9 +4,13 @@ compilation (the cases run in-process, in milliseconds; a case that compiled wou
 seconds and the sweep's axis check is the only one that builds a model)."""
 
 import argparse
+import csv
+import shutil
+from pathlib import Path
 
 import pytest
 
+import vehsim
 from vehsim import cli
 from vehsim.cli import _options
 
@@ -57,11 +61,40 @@ BAD = {
     "no RK4 step": (["optimise", "corner90", "--steps-per-stage", "0"], "--steps-per-stage"),
     "too many interior points": (["optimise", "corner90", "--interior-points", "9"],
                                  "--interior-points"),
+    "a coordinator without a port": (["sweep", "--coordinator", "notahost", "--num-processes",
+                                      "2", "--process-id", "0", "--out", "{tmp}/s.json"],
+                                     "--coordinator must be HOST:PORT"),
+    "speed as an option and as an axis": (["sweep", "--speed", "30", "--set", "speed=10",
+                                           "--out", "{tmp}/s.json"], "--set speed"),
+    "minus infinity as a value": (["brake", "--speed", "-inf"], "--speed"),
+    "a change that never comes": (["brake", "--change-to", "ice", "--change-distance", "inf"],
+                                  "finite --change-distance"),
+    # optimise
+    "a road file's margin on a benchmark road": (["optimise", "corner90", "--margin", "2"],
+                                                 "--margin applies to --road-file"),
+    "a road file's start speed on a benchmark road": (
+        ["optimise", "corner90", "--start-speed", "5"], "--start-speed applies"),
+    "a missing road file": (["optimise", "--road-file", "{tmp}/nope.csv"], "--road-file"),
+    # drive
+    "a missing road file to drive": (["drive", "--road-file", "{tmp}/nope.csv"], "--road-file"),
+    "a patch at minus infinity": (["drive", "--road", "corner90", "--patch", "-inf,2,3,0.5"],
+                                  "--patch"),
+    "frames without an animation": (["drive", "--road", "corner90", "--frame-every", "5",
+                                     "--no-animation"], "--frame-every"),
+    # estimate
+    "a tire for the peak estimator": (["estimate", "{braking}", "--estimator", "peak",
+                                       "--kappa0", "3"], "--kappa0 does not apply"),
+    "a window for the observer": (["estimate", "{braking}", "--window", "5"],
+                                  "--window does not apply"),
+    "a sample time not a multiple of the record's": (
+        ["estimate", "{braking}", "--sample-time", "0.003"], "--sample-time (0.003 s)"),
+    "a folder for a braking": (["estimate", "{tmp}"], "a folder, not a braking file"),
     # fit
     "zero radius": (["fit", "{tmp}/x.csv", "--radius", "0"], "--radius"),
     "no fit starts": (["fit", "{tmp}/x.csv", "--starts", "0"], "--starts"),
     "missing data file": (["fit", "{tmp}/missing.csv"], "missing.csv"),
 }
+BRAKING = Path(vehsim.__file__).parent / "data" / "brakings" / "braking_1.csv"
 
 
 @pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
@@ -70,7 +103,7 @@ def test_bad_input_exits_2_naming_the_option_and_writes_nothing(case, tmp_path, 
     argv, option = BAD[case]
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
-    argv = [a.format(tmp=tmp_path) for a in argv]
+    argv = [a.format(tmp=tmp_path, braking=BRAKING) for a in argv]
     if not any(a == "--out" for a in argv):
         argv += ["--out", str(out)]
     code, err = _run(argv, capsys)
@@ -116,3 +149,87 @@ def test_option_types_check_ranges_and_parse_good_values():
         with pytest.raises(argparse.ArgumentTypeError, match=r"\[2, 5\]"):
             count(bad)
     assert _options.output_file("--out", "a.NC", {".json": "json", ".nc": "netcdf"}) == "netcdf"
+
+
+def _braking_without(tmp, name, column, value=None):
+    """braking_1 (and its side file) in `tmp` as NAME, its `column` set to `value` (None:
+    the column left out)."""
+    rows = list(csv.reader(BRAKING.read_text().splitlines()))
+    j = rows[0].index(column)
+    for row in rows:
+        if value is None:
+            del row[j]
+        elif row is not rows[0]:
+            row[j] = value
+    (tmp / f"{name}.csv").write_text("\n".join(",".join(r) for r in rows) + "\n")
+    shutil.copy(BRAKING.with_suffix(".json"), tmp / f"{name}.json")
+    return tmp / f"{name}.csv"
+
+
+def _road(tmp, name, scale):
+    """A 20-point arc of the unit circle scaled by `scale` [m], 1 m wide each side."""
+    import numpy as np
+
+    a = np.linspace(0.0, 0.5, 20)
+    rows = ["x_m,y_m,w_tr_right_m,w_tr_left_m"] + [
+        f"{scale * np.cos(t):.17g},{scale * np.sin(t):.17g},{min(1.0, 0.1 * scale):.17g},"
+        f"{min(1.0, 0.1 * scale):.17g}" for t in a]
+    (tmp / f"{name}.csv").write_text("\n".join(rows) + "\n")
+    return tmp / f"{name}.csv"
+
+
+def _tir_with(tmp, key, value):
+    """The shipped sample .tir file with `key`'s value replaced by the text `value`."""
+    src = next((Path(vehsim.__file__).parent / "data" / "tires").glob("*.tir"))
+    lines = src.read_text().splitlines()
+    i = next(i for i, line in enumerate(lines) if line.split("=")[0].strip() == key)
+    lines[i] = f"{key} = {value}"
+    (tmp / "bad.tir").write_text("\n".join(lines) + "\n")
+    return tmp / "bad.tir"
+
+
+BAD_FILES = {
+    "a coefficient beyond the double range": (
+        lambda tmp: ["tire", "show", _tir_with(tmp, "PDX1", "1e400")],
+        "PDX1: the number '1e400' is not finite"),
+    "a road shorter than a car": (
+        lambda tmp: ["optimise", "--road-file", _road(tmp, "tiny", 1e-3)],
+        "a road must be 5 m to 100000 m long"),
+    "a road longer than 100 km": (
+        lambda tmp: ["drive", "--road-file", _road(tmp, "huge", 1e6)],
+        "a road must be 5 m to 100000 m long"),
+    "a normal load of 0 throughout": (
+        lambda tmp: ["fit", _braking_without(tmp, "unloaded", "F_n", "0")],
+        "'F_n' is 0 throughout"),
+    "a closed-loop fit without the brake torque": (
+        lambda tmp: ["fit", _braking_without(tmp, "no_torque", "T_b"), "--closed-loop"],
+        "--closed-loop needs the column 'T_b'"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_FILES), ids=list(BAD_FILES))
+def test_bad_input_files_exit_2_naming_what_is_wrong_and_write_nothing(case, tmp_path, capsys,
+                                                                      monkeypatch):
+    make, message = BAD_FILES[case]
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    argv = make(inputs)
+    argv += [] if argv[:2] == ["tire", "show"] else ["--out", tmp_path / "out"]
+    before = sorted(tmp_path.rglob("*"))
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(argv, capsys)
+    assert code == 2 and message in err, err
+    assert "Traceback" not in err
+    assert sorted(tmp_path.rglob("*")) == before, "a file was written"
+
+
+def test_tire_plot_refuses_its_default_output_before_computing(tmp_path, capsys, monkeypatch):
+    """Without --out the figure goes to the current folder; one that cannot be written in
+    is refused at once, naming the default (permissions are not enforced for root, so the
+    check's view of them is what is replaced)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(cli._options.os, "access", lambda *a: False)
+    tir = next((Path(vehsim.__file__).parent / "data" / "tires").glob("*.tir"))
+    code, err = _run(["tire", "plot", tir], capsys)
+    assert code == 2 and "--out (its default" in err and "cannot write in '.'" in err, err
+    assert list(tmp_path.iterdir()) == []

@@ -229,6 +229,23 @@ ESTIMATE_OPTIONS = ["--tire", "table3", "--kappa0", str(KAPPA0), "--prior-theta"
                     "--theta-range", "0.3", "10", "--sample-time", str(T_EST)]
 
 
+def test_command_line_exits_1_where_estimates_failed(tmp_path, capsys):
+    """Exit status 1 as soon as one estimate fails, with its status on stderr: the summary's
+    final estimate is the last successful one, which the failures after it leave stale. A
+    brake torque of 1e12 N m over the record's second half makes those estimates
+    nonfinite."""
+    rec = record(False)
+    torque = np.where(np.arange(len(rec)) >= len(rec) // 2, 1e12, np.asarray(rec.torque))
+    csv = _write_csv(tmp_path / "braking.csv", eqx.tree_at(lambda r: r.torque, rec,
+                                                            jnp.asarray(torque)))
+    out = tmp_path / "out"
+    assert cli.main(["estimate", str(csv), *ESTIMATE_OPTIONS, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "vehsim estimate: nonfinite (" in err, err
+    status = json.loads((out / "estimate.json").read_text())["status"]
+    assert status[0] == "successful" and status[-1] == "nonfinite"
+
+
 def test_command_line_writes_the_estimate_and_its_figure(tmp_path, capsys):
     rec = record(False)
     csv = _write_csv(tmp_path / "braking.csv", rec, true_theta(rec.t))
@@ -283,7 +300,7 @@ GOOD_ROWS = "0.000,20,66.6,0\n0.001,20,66.5,10\n0.002,20,66.4,20\n0.003,20,66.3,
     ("t,v,omega,T_b\n" + GOOD_ROWS, ["--mass", "-1"],
      "argument --mass: must be a finite number in (0, inf) kg, got '-1'"),
     ("t,v,omega,T_b\n" + GOOD_ROWS, ["--sample-time", "0.0025"],
-     "sample_time (0.0025 s) must be a whole multiple of the record's step (0.001 s)"),
+     "--sample-time (0.0025 s) must be a whole multiple of the record's step (0.001 s"),
     ("t,v,omega,T_b\n" + GOOD_ROWS, ["--prior-theta", "50"], "--prior-theta must lie in"),
     ("t,v,omega,T_b\n" + GOOD_ROWS, ["--theta-range", "5", "1", "--prior-theta", "3"],
      "--theta-range: LO must be below HI, got 5 1"),

@@ -27,14 +27,15 @@ COMMANDS = (reproduce, sweep, fit, optimise, brake, estimate, tire, drive)
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, with every word that starts with a minus and a digit read as a value:
-    ``--patch -5,2,3,0.5`` and ``--loads -100,3800`` (argparse alone takes only single
-    negative numbers for values, and reads such lists as unknown options). No vehsim option
-    is spelled that way. Its subcommands' parsers are of the same class."""
+    """argparse, with every word that starts with a minus and a digit, ``inf`` or ``nan``
+    read as a value: ``--patch -5,2,3,0.5``, ``--loads -100,3800`` and ``--speed -inf``
+    (argparse alone takes only single finite negative numbers for values, and reads the
+    others as unknown options), so that the option's own range check names it. No vehsim
+    option is spelled that way. Its subcommands' parsers are of the same class."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._negative_number_matcher = re.compile(r"^-\.?\d")
+        self._negative_number_matcher = re.compile(r"^-(\.?\d|inf|nan)", re.IGNORECASE)
 
 
 def build_parser() -> argparse.ArgumentParser:

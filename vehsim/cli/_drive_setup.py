@@ -23,8 +23,9 @@ def road(args):
     """The road of ``--road`` or ``--road-file`` (read and checked before anything compiles)."""
     if args.road_file is not None:
         from .._road_files import read_road
+        from ._options import input_file
 
-        return read_road(args.road_file, closed=args.closed)
+        return read_road(input_file("--road-file", args.road_file), closed=args.closed)
     from ..drive.scenarios import scenario_road
 
     return scenario_road(args.road)

@@ -118,4 +118,14 @@ def writable_output(option: str, path, kind: str) -> None:
                          "read-only file system)")
 
 
-__all__ = ["choice_of", "integer", "number", "output_file", "writable_output"]
+def input_file(option: str, path) -> Path:
+    """`path` as a `Path`, after refusing, naming `option`, one that is missing or a folder."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option}: {str(path)!r} is a folder; give a file")
+    if not path.is_file():
+        raise ValueError(f"{option}: no such file {str(path)!r}")
+    return path
+
+
+__all__ = ["choice_of", "input_file", "integer", "number", "output_file", "writable_output"]

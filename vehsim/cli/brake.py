@@ -91,7 +91,8 @@ def _brake(args) -> int:
 
     if args.change_to is not None and math.isinf(args.change_distance) \
             and math.isinf(args.change_time):
-        raise ValueError("--change-to needs --change-distance or --change-time")
+        raise ValueError("--change-to needs a finite --change-distance or --change-time "
+                         "(inf, their default, is a change that never comes)")
     if args.change_to is None and not (math.isinf(args.change_distance)
                                        and math.isinf(args.change_time)):
         raise ValueError("--change-distance and --change-time need --change-to")

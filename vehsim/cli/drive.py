@@ -159,9 +159,10 @@ def _check(args) -> None:
         raise ValueError("--preview limits what the oracle (or the pace notes) know ahead: it "
                          "applies to --controller rh-oracle or --pace-notes, not --controller "
                          f"{args.controller}")
-    if not args.animation and args.animation_format is not None:
-        raise ValueError("--animation-format applies to the animation; leave out "
-                         "--no-animation")
+    for option, value in (("--animation-format", args.animation_format),
+                          ("--frame-every", args.frame_every)):
+        if not args.animation and value is not None:
+            raise ValueError(f"{option} applies to the animation; leave out --no-animation")
     if args.animation and args.animation_format == "mp4":
         from matplotlib import animation
 

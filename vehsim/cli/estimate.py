@@ -53,7 +53,7 @@ def register(subparsers) -> None:
     p.add_argument("--kappa0", type=number(0.0, 10.0, lower_open=True), default=None,
                    help="assume the lumped LuGre tire with this constant kappa0 (eq. 25) "
                         "instead of the uniform-load lumped tire (kappa0 from 2 to 1)")
-    p.add_argument("--tire", default="dry_asphalt",
+    p.add_argument("--tire", default=None,
                    help="the tire the estimator assumes: a surface (e.g. dry_asphalt, snow, "
                         "cdc1999_1) or a LuGre parameter preset (table3, cdc1999) of "
                         "vehsim.params (default: dry_asphalt)")
@@ -73,10 +73,12 @@ def register(subparsers) -> None:
     p.add_argument("--sample-time", type=number(0.0, 1.0, lower_open=True, unit="s"), default=None,
                    help="the estimator's step [s], a whole multiple of the record's "
                         "(default: the record's step)")
-    p.add_argument("--window", type=integer(2, 100_000), default=20, help="mhe: samples per window (20)")
+    p.add_argument("--window", type=integer(2, 100_000), default=None,
+                   help="mhe: samples per window (20)")
     p.add_argument("--stride", type=integer(1, 100_000), default=None,
                    help="mhe: samples between window ends (default: half a window)")
-    p.add_argument("--starts", type=integer(1, 1024), default=3, help="mhe: starts per window (3)")
+    p.add_argument("--starts", type=integer(1, 1024), default=None,
+                   help="mhe: starts per window (3)")
     p.add_argument("--out", default="estimate_results",
                    help="output folder (default: estimate_results/)")
     p.set_defaults(func=_estimate)
@@ -92,6 +94,8 @@ def read_recorded_braking(path) -> tuple:
     from ..identify.braking import _fail, _read_columns, check_magnitudes, read_side_file
 
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: a folder, not a braking file (CSV)")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such braking file")
     values = _read_columns(path, REQUIRED, OPTIONAL, may_be_missing=("omega",))
@@ -159,8 +163,31 @@ def _assumed_tire(args):
     return tire, rng
 
 
+MHE_ONLY = ("--window", "--stride", "--starts")
+"""Options of the moving-horizon estimator alone."""
+TIRE_OPTIONS = ("--tire", "--kappa0", "--prior-theta", "--theta-range")
+"""Options of the estimators that assume a tire (not the peak estimator)."""
+
+
+def _refuse_options_of_other_estimators(args) -> None:
+    """Refuse, naming them, the options the chosen estimator does not use."""
+    unused = [o for o in MHE_ONLY if args.estimator != "mhe"]
+    unused += [o for o in TIRE_OPTIONS if args.estimator == "peak"]
+    given = [o for o in unused if getattr(args, o[2:].replace("-", "_")) is not None]
+    if given:
+        why = (["the peak estimator assumes no tire"] if set(given) & set(TIRE_OPTIONS) else [])
+        why += (["--window, --stride and --starts belong to --estimator mhe"]
+                if set(given) & set(MHE_ONLY) else [])
+        raise ValueError(f"{', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply "
+                         f"to --estimator {args.estimator}: {'; '.join(why)}")
+
+
 def _estimate(args) -> int:
     # the options' types and ranges are checked while parsing (vehsim.cli._options)
+    _refuse_options_of_other_estimators(args)
+    args.tire = args.tire or "dry_asphalt"
+    args.window = args.window or 20
+    args.starts = args.starts or 3
     tire, (lo, hi) = _assumed_tire(args)
     record, extras = read_recorded_braking(args.data)
 
@@ -170,7 +197,7 @@ def _estimate(args) -> int:
     from ..control.estimation.mhe import MovingHorizonEstimator
     from ..control.estimation.observer import FrictionObserver
     from ..control.estimation.peak_estimator import PeakEstimator
-    from ..control.estimation.recorded import estimate_friction
+    from ..control.estimation.recorded import UNIFORM_TOLERANCE, estimate_friction
     from ..control.plant.hardware import ideal_hardware
     from ..vehicle.quarter_car import QuarterCar
 
@@ -186,6 +213,11 @@ def _estimate(args) -> int:
         Fn = m * GRAVITY
     car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
     h = record.sample_time
+    if args.sample_time is not None:
+        n = round(args.sample_time / h)
+        if n < 1 or abs(n * h - args.sample_time) > UNIFORM_TOLERANCE * h:
+            raise ValueError(f"--sample-time ({args.sample_time:g} s) must be a whole multiple "
+                             f"of the record's step ({h:g} s in {args.data})")
     hardware = ideal_hardware(sample_time=h if args.sample_time is None else args.sample_time)
     if args.estimator == "observer":
         estimator = FrictionObserver(tire, theta_min=lo, theta_max=hi)
@@ -197,11 +229,12 @@ def _estimate(args) -> int:
         print(f"vehsim estimate: {args.estimator} over {len(record)} samples of {h:g} s "
               f"({args.data}); compiling and running...", file=sys.stderr, flush=True)
     est = estimate_friction(record, estimator, car, hardware, stride=args.stride)
-    out = _write(args, record, extras, est, car, hardware, h)
+    _write(args, record, extras, est, car, hardware, h)
     from ._status import exit_status
 
-    return exit_status("estimate", est.result) if out["summary"]["estimates_successful"] == 0 \
-        else 0
+    # status 1 where any estimate failed: the recorded brakings' estimates all succeed, and
+    # the summary's final estimate is the last successful one, which a failure leaves stale
+    return exit_status("estimate", est.result)
 
 
 def _write(args, record, extras, est, car, hardware, h) -> dict:

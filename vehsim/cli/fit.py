@@ -68,6 +68,14 @@ def _fit(args) -> int:
 
     train = [load_braking(f, r=args.radius) for f in args.data]
     validate = [load_braking(f, r=args.radius) for f in args.validate]
+    if args.closed_loop:  # before anything is compiled
+        for f, d in zip(args.data + args.validate, train + validate):
+            missing = ([] if d.T_b is not None else ["the column 'T_b'"]) + [
+                f"the side file's {k!r}" for k in ("m", "J") if getattr(d, k) is None]
+            if missing:
+                raise ValueError(f"{f}: --closed-loop needs {' and '.join(missing)} (the brake "
+                                 "torque drives the quarter car; m [kg] and J [kg m^2] in "
+                                 "the side file NAME.json)")
     names = [d.name for d in train + validate]
     if len(set(names)) != len(names):
         raise ValueError(f"braking names (file stems) must be distinct, got {names}")

@@ -42,13 +42,13 @@ def register(subparsers) -> None:
     p.add_argument("--closed", action="store_true",
                    help="with --road-file: the road is a circuit and the drive a lap (periodic: "
                         "it ends in the state it started)")
-    p.add_argument("--smoothing", type=number(0.0, 10.0, unit="m"), default=0.0,
+    p.add_argument("--smoothing", type=number(0.0, 10.0, unit="m"), default=None,
                    help="with --road-file or --track: the rms distance [m] allowed between the "
                         "file's points and the smoothed centre line (0: through the points)")
     p.add_argument("--start-speed", type=number(1.0, 100.0, unit="m/s"), default=None,
                    help="with --road-file: the speed at the start line [m/s] (default: free, a "
                         "flying start as on the benchmark roads)")
-    p.add_argument("--margin", type=number(0.0, 10.0, unit="m"), default=0.0,
+    p.add_argument("--margin", type=number(0.0, 10.0, unit="m"), default=None,
                    help="with --road-file or --track: keep the centre of gravity this far "
                         "inside the edges [m] (0)")
     p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time",
@@ -100,9 +100,16 @@ def _optimise(args) -> int:
     if args.road is None:
         from .optimise_road import optimise_road
 
+        args.smoothing = args.smoothing or 0.0
+        args.margin = args.margin or 0.0
         return optimise_road(args)
     if args.closed:
         raise ValueError("--closed applies to --road-file (a benchmark road is a stage)")
+    for option, value in (("--smoothing", args.smoothing), ("--margin", args.margin),
+                          ("--start-speed", args.start_speed)):
+        if value is not None:  # a benchmark road has its own edges, centre line and start
+            raise ValueError(f"{option} applies to --road-file or --track, not to the "
+                             f"benchmark road {args.road}")
     if args.segments is None:
         args.segments = 150
     import jax

@@ -33,10 +33,12 @@ def coarse_stages(length: float, stages: int) -> int | None:
 def road_from_args(args):
     """The road the options name (read and checked before anything compiles)."""
     from .._road_files import read_road, track
+    from ._options import input_file
 
     if args.track is not None:
         return track(args.track, smoothing=args.smoothing)
-    return read_road(args.road_file, closed=args.closed, smoothing=args.smoothing)
+    return read_road(input_file("--road-file", args.road_file), closed=args.closed,
+                     smoothing=args.smoothing)
 
 
 def default_stages(length: float) -> int:

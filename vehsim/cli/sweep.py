@@ -40,9 +40,9 @@ def register(subparsers) -> None:
                    help=f"tire preset: {', '.join(presets_of_kind('tire'))} (rally_gravel_tire)")
     p.add_argument("--set", dest="axes", action="append", default=[], metavar="NAME=V1,V2",
                    help="a grid axis (repeatable)")
-    p.add_argument("--speed", type=SPEED, default=20.0,
-                   help="initial speed [m/s], in (0, 100] (20); a --set speed axis takes "
-                        "the same range")
+    p.add_argument("--speed", type=SPEED, default=None,
+                   help="initial speed [m/s], in (0, 100] (20); a --set speed axis, which "
+                        "takes the same range, replaces it")
     p.add_argument("--duration", type=number(0.0, 600.0, lower_open=True, unit="s"),
                    default=5.0, help="simulated time [s], in (0, 600] (5)")
     p.add_argument("--samples", type=integer(2, 100_000), default=101,
@@ -138,6 +138,10 @@ def _sweep(args: argparse.Namespace) -> int:
     from ._status import exit_status
 
     axes = parse_axes(args.axes)
+    if "speed" in axes and args.speed is not None:
+        raise ValueError("--speed and --set speed both give the initial speed: give one "
+                         "(--set speed=V1,V2,... for an axis)")
+    args.speed = 20.0 if args.speed is None else args.speed
     for v in axes.get("speed", []):
         try:
             SPEED(repr(v))
@@ -167,7 +171,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return exit_status("sweep", res.result)
     stats = jax.vmap(summary)(res.trajectories)
     info = {"maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
-            "speed": args.speed, "duration": args.duration}
+            "speed": None if "speed" in axes else args.speed, "duration": args.duration}
     if Path(args.out).suffix == ".nc":
         path = res.to_netcdf(args.out, signals=args.signals, outputs=stats,
                              attrs=info | {"wall_time_s": round(wall, 3)})
@@ -189,12 +193,17 @@ no cluster detected, ends with exit status 2 and its reason), then the command."
 
 
 def check_process_ids(args: argparse.Namespace) -> None:
-    """--process-id in [0, --num-processes - 1]; both only with --distributed or
-    --coordinator (a single process has neither)."""
+    """--coordinator as HOST:PORT; --process-id in [0, --num-processes - 1]; both only with
+    --distributed or --coordinator (a single process has neither)."""
     given = args.num_processes is not None or args.process_id is not None
     if given and not (args.distributed or args.coordinator):
         raise ValueError("--num-processes and --process-id belong to a multi-process run: "
                          "give --distributed or --coordinator too")
+    if args.coordinator is not None:
+        host, sep, port = args.coordinator.rpartition(":")
+        if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+            raise ValueError(f"--coordinator must be HOST:PORT with PORT in [1, 65535], got "
+                             f"{args.coordinator!r}")
     if (args.num_processes is not None and args.process_id is not None
             and args.process_id >= args.num_processes):
         raise ValueError(f"--process-id must be in [0, {args.num_processes - 1}] "

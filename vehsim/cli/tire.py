@@ -229,10 +229,12 @@ def _plot(args) -> int:
 
     from .._io import save_figure
     from ..plot import tire_curves_figure
-    from ._options import output_file
+    from ._options import output_file, writable_output
 
     out = Path(args.out) if args.out else Path(f"{Path(args.file).stem}_curves.png")
     output_file("--out", str(out), {".png": "png", ".pdf": "pdf", ".svg": "svg"})
+    writable_output("--out" if args.out else "--out (its default, FILE's name with "
+                    "_curves.png in the current folder)", out, "file")
     tir, params = read_tire(args.file)
     curves = tire_curves(params)
     fig = tire_curves_figure(curves, title=f"{Path(args.file).name}: Magic Formula "

@@ -90,6 +90,8 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
     missing/invalid radius.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: a folder, not a braking file (CSV)")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such braking file")
     values = _read_columns(path)

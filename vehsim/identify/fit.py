@@ -289,6 +289,9 @@ def _prepare(data, init, free, fixed, n_starts) -> _Problem:
         if scale == 0:  # (NaN is left to the fit, which reports it as nonfinite)
             raise ValueError(f"the brakings' column {column!r} is 0 throughout: nothing to fit "
                              f"(the residuals are scaled by its peak |{column}|)")
+    if all(np.max(np.abs(np.asarray(d.F_n))) == 0 for d in data):
+        raise ValueError("the brakings' column 'F_n' is 0 throughout: the predicted force "
+                         "mu F_n is 0 whatever the parameters, nothing to fit")
     return _Problem(data=data, anon=[_unnamed(d) for d in data],
                     model=jax.tree.map(_strong_float, model), names=names,
                     mask=np.asarray([n in names for n in PARAMETER_NAMES]), scales=scales)

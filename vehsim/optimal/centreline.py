@@ -416,8 +416,8 @@ class CentrelineRoad(eqx.Module):
 
         **Raises:** `ValueError` (naming the row, column or arc length) for fewer than 4
         points, a non-finite value, a width $\le 0$, duplicate consecutive points, a
-        self-intersecting centre line, a width reaching the local radius of curvature, or a
-        gate off the road.
+        self-intersecting centre line, a width reaching the local radius of curvature, a
+        centre line outside `LENGTH_RANGE`, or a gate off the road.
         """
         from scipy.interpolate import CubicSpline, splev, splprep
 
@@ -486,6 +486,9 @@ class CentrelineRoad(eqx.Module):
         seg = (speed(mid[:, None] + half[:, None] * gx[None]) @ gw) * half
         sb = np.concatenate([[0.0], np.cumsum(seg)])
         length = float(sb[-1])
+        if not LENGTH_RANGE[0] <= length <= LENGTH_RANGE[1]:
+            raise ValueError(f"road {name!r}: the centre line is {length:.6g} m long; a road "
+                             f"must be {LENGTH_RANGE[0]:g} m to {LENGTH_RANGE[1]:g} m long")
         # knots: every breakpoint of the spline (where its third derivative jumps), and
         # equal steps of at most SPACING between them
         pieces = np.maximum(1, np.ceil(np.diff(sb) / SPACING)).astype(int)
@@ -715,6 +718,10 @@ COORDINATE_LIMIT = 1e7
 """Largest centre-line coordinate [m] of a road (10,000 km: a local frame in metres)."""
 WIDTH_LIMIT = 1e3
 """Largest width [m] of a road's side."""
+LENGTH_RANGE = (5.0, 1e5)
+"""Shortest and longest centre line [m] of a road from points: longer than a car, and at
+most 100 km (the knots, every `SPACING`, number 200,000 there; the longest rally stages
+and circuits are a few tens of kilometres)."""
 
 
 def _segments_cross(p1, p2, q1, q2):

@@ -414,9 +414,12 @@ def _value(text: str) -> Value:
         return text[1:-1]
     if _NUMBER.match(text):
         t = text.replace("d", "e").replace("D", "e")
-        if re.fullmatch(r"[+-]?\d+", t):
+        v = float(t)
+        if re.fullmatch(r"[+-]?\d+", t) and math.isfinite(v):
             return int(t)
-        return float(t)
+        if not math.isfinite(v):  # beyond the double range: 1e400 reads as inf
+            raise ValueError(f"the number {text!r} is not finite in double precision")
+        return v
     raise ValueError(f"cannot read the value {text!r} (a number, a quoted string or "
                      "nothing)")
 
