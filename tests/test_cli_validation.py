@@ -66,7 +66,8 @@ BAD = {
                                      "--coordinator must be HOST:PORT"),
     "speed as an option and as an axis": (["sweep", "--speed", "30", "--set", "speed=10",
                                            "--out", "{tmp}/s.json"], "--set speed"),
-    "minus infinity as a value": (["brake", "--speed", "-inf"], "--speed"),
+    "minus infinity as a value": (["brake", "--speed", "-inf"],
+                                  "--speed: must be a finite number in (1, 100] m/s, got '-inf'"),
     "a change that never comes": (["brake", "--change-to", "ice", "--change-distance", "inf"],
                                   "finite --change-distance"),
     # optimise
@@ -78,7 +79,7 @@ BAD = {
     # drive
     "a missing road file to drive": (["drive", "--road-file", "{tmp}/nope.csv"], "--road-file"),
     "a patch at minus infinity": (["drive", "--road", "corner90", "--patch", "-inf,2,3,0.5"],
-                                  "--patch"),
+                                  "--patch: must be X,Y,RADIUS,SCALE"),
     "frames without an animation": (["drive", "--road", "corner90", "--frame-every", "5",
                                      "--no-animation"], "--frame-every"),
     # estimate
