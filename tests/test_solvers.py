@@ -306,3 +306,20 @@ def test_derivative_from_steady_rolling_with_the_stiff_solver():
     rev = float(jax.grad(final_vx)(b0))
     assert -0.0024 < fd < -0.0021  # about -1 / (r m_eff) over the second
     np.testing.assert_allclose([fwd, rev], fd, rtol=1e-3)
+
+
+def test_forward_mode_through_the_default_adjoint_says_which_adjoint_to_pass():
+    """The default adjoint differentiates in reverse mode only; a forward-mode derivative
+    raises naming `diffrax.ForwardMode()`, with which it agrees with reverse mode."""
+    from vehsim import PointLuGre, preset
+    from vehsim.tire.transient import simulate_tire
+
+    def mu_end(x, adjoint=None):
+        return simulate_tire(PointLuGre(preset("table3")), jnp.linspace(0.0, 0.05, 3), x[0],
+                             x[1], 0.25, adjoint=adjoint).mu[-1]
+
+    x = jnp.array([20.0, 70.0])
+    with pytest.raises(TypeError, match=r"adjoint=diffrax.ForwardMode\(\)"):
+        jax.jacfwd(mu_end)(x)
+    fwd = jax.jacfwd(functools.partial(mu_end, adjoint=dfx.ForwardMode()))(x)
+    np.testing.assert_allclose(fwd, jax.grad(mu_end)(x), rtol=1e-9)

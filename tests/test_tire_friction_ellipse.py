@@ -97,3 +97,26 @@ def test_invalid_parameters_raise():
         FrictionEllipseTire(B=-1.0, C=1.6, D=0.5)
     with pytest.raises(ValueError, match="LinearTire.c_alpha"):
         LinearTire(c_kappa=10.0, c_alpha=0.0)
+
+
+def test_slip_law_is_finite_and_continuous_through_a_locked_wheel_in_both_modes():
+    """`mu(kappa, tan_alpha)` at kappa = -1 (a locked wheel): the slips over |1 + kappa|
+    floored as `forces` floors |omega r|, so the value is the sliding one, the same just
+    above and below lock, with equal derivatives in both modes; elsewhere the slips are
+    -kappa / (1 + kappa) as before."""
+    tire = rally_gravel_tire()
+
+    def mu(k):
+        return jnp.stack(tire.mu(k, 0.1))
+
+    at_lock = mu(-1.0)
+    np.testing.assert_allclose(np.linalg.norm(at_lock), 0.52 * np.sin(1.6 * np.pi / 2),
+                               rtol=1e-4)
+    for k in (-1.0 + 1e-9, -1.0 - 1e-9):
+        np.testing.assert_allclose(mu(k), at_lock, rtol=1e-8)
+    rev, fwd = jax.jacrev(mu)(-1.0), jax.jacfwd(mu)(-1.0)
+    assert np.all(np.isfinite(rev)) and np.allclose(rev, fwd, rtol=1e-12, atol=0)
+    for k in (-0.9, -0.2, 0.0, 0.3):
+        s = np.array([-k, 0.1]) / (1.0 + k)
+        g = 0.52 * np.sin(1.6 * np.arctan(7.0 * np.hypot(*s))) / np.hypot(*s)
+        np.testing.assert_allclose(mu(k), -s * g, rtol=1e-12)

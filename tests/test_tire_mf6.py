@@ -575,3 +575,41 @@ def test_a_tir_tire_brakes_the_quarter_car():
     v = np.asarray(sol.v)
     assert np.all(np.isfinite(v)) and np.all(np.diff(v) < 0) and v[-1] < 18.0
     assert np.all(np.asarray(sol.Fx)[1:] < 0)
+
+
+@pytest.mark.parametrize("Fz", [500.0, 3000.0, 6000.0, 8000.0])
+def test_cornering_stiffness_is_4E25_on_both_sides_of_its_rewritten_branch(Fz):
+    """K_ya = PKY1 Fz0 sin(PKY4 atan(Fz / (PKY2 Fz0))) (4.E25, no camber, nominal pressure),
+    computed per unit load two ways (|Fz| below PKY2 Fz0, 5265 N for the sample file, and
+    above it: 6000 and 8000 N, within FZMAX); at PKY2 = 0 (a file without it) the limit PKY1 Fz0 sin(PKY4 pi / 2), with
+    finite forces whose derivative in PKY2 is the one-sided slope in both modes."""
+    P = params_of(SAMPLE)
+    f = {k: float(getattr(P, k)) for k in ("PKY1", "PKY2", "PKY4", "FNOMIN", "LFZO", "LKY")}
+    fz0 = f["FNOMIN"] * f["LFZO"]
+    hand = f["PKY1"] * fz0 * math.sin(f["PKY4"] * math.atan(Fz / (f["PKY2"] * fz0))) * f["LKY"]
+    np.testing.assert_allclose(abs(float(mf_evaluate(P, 0.0, 0.0, Fz).Kya)), abs(hand),
+                               rtol=1e-12)
+    P0 = eqx.tree_at(lambda p: p.PKY2, P, jnp.asarray(0.0))
+    limit = f["PKY1"] * fz0 * math.sin(f["PKY4"] * math.pi / 2) * f["LKY"]
+    np.testing.assert_allclose(abs(float(mf_evaluate(P0, 0.0, 0.0, Fz).Kya)), abs(limit),
+                               rtol=1e-12)
+
+    def fy(pky2):
+        return mf_forces(eqx.tree_at(lambda p: p.PKY2, P, pky2), 0.02, 0.05, Fz)[1]
+
+    rev, fwd = jax.grad(fy)(0.0), jax.jvp(fy, (0.0,), (1.0,))[1]
+    h = 1e-6
+    slope = (-3 * fy(0.0) + 4 * fy(h) - fy(2 * h)) / (2 * h)  # one-sided, second order
+    assert np.isfinite(float(fy(0.0))) and float(rev) == pytest.approx(float(fwd), rel=1e-12)
+    np.testing.assert_allclose(float(rev), float(slope), rtol=1e-5)
+
+
+def test_a_slip_angle_past_the_tangents_pole_keeps_the_forces_sign():
+    """Files state ALPMAX = 1.5708, just past pi/2, where tan(alpha) changes sign: the limits
+    keep |alpha| below the pole, so Fy at 2 rad (and at 1.5708) is Fy just below pi/2."""
+    P = params_of(SAMPLE)
+    assert float(P.ALPMAX) > math.pi / 2
+    below = float(mf_forces(P, 0.0, math.pi / 2 - 1e-6, FZ0)[1])
+    for alpha in (1.5708, 2.0):
+        got = float(mf_forces(P, 0.0, alpha, FZ0)[1])
+        assert np.sign(got) == np.sign(below) and got == pytest.approx(below, rel=1e-3)

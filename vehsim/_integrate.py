@@ -10,8 +10,9 @@ with one set of defaults:
 - **step budget** `MAX_STEPS` = 100 000: finite, so that reverse-mode differentiation is
   available (`RecursiveCheckpointAdjoint` keeps $O(\sqrt{\text{max\_steps}})$
   checkpoints); only dense or per-step saving allocates buffers of that length;
-- **adjoint** `RecursiveCheckpointAdjoint` (any AD mode; `diffrax.ForwardMode()` for
-  forward-mode Jacobians, as least squares wants them);
+- **adjoint** `RecursiveCheckpointAdjoint` (reverse mode; `diffrax.ForwardMode()` for
+  forward mode, `jax.jvp` and `jax.jacfwd`, as least squares wants them: differentiating
+  the default in forward mode raises `FORWARD_MODE_MESSAGE`);
 - **saving** at the time grid `ts`, the solve running from ``ts[0]`` to ``ts[-1]``;
 - **failure**: the solution's `result` is a `vehsim.RESULTS` item; ``throw=True`` raises
   with its message (``result.error_if``, also under `jit`), ``throw=False`` leaves it for
@@ -102,7 +103,30 @@ def integrate(
             stepsize_controller, dfx.AbstractAdaptiveStepSizeController):
         stepsize_controller = dfx.ClipStepSizeController(
             stepsize_controller, step_ts=step_ts, jump_ts=jump_ts)
-    sol = dfx.diffeqsolve(
+    try:
+        sol = _diffeqsolve(vector_field, solver, ts, t0, t1, dt0, y0, args, saveat,
+                           stepsize_controller, max_steps, adjoint, progress_meter)
+    except TypeError as e:  # JAX's words for a jvp of the checkpointed loop's custom_vjp
+        if "custom_vjp" in str(e) and adjoint is None:
+            raise TypeError(FORWARD_MODE_MESSAGE) from e
+        raise
+    result = as_result(sol.result)
+    sol = eqx.tree_at(lambda s: s.result, sol, result)
+    if throw:
+        sol = result.error_if(sol, result != RESULTS.successful)
+    return sol
+
+
+FORWARD_MODE_MESSAGE = (
+    "forward-mode differentiation (jax.jvp, jax.jacfwd) of an integration with the default "
+    "adjoint (diffrax.RecursiveCheckpointAdjoint, reverse mode only): pass "
+    "adjoint=diffrax.ForwardMode(), or differentiate in reverse mode (jax.grad, jax.jacrev)")
+"""The error of a forward-mode derivative through `integrate` with its default adjoint."""
+
+
+def _diffeqsolve(vector_field, solver, ts, t0, t1, dt0, y0, args, saveat, stepsize_controller,
+                 max_steps, adjoint, progress_meter):
+    return dfx.diffeqsolve(
         vector_field if isinstance(vector_field, dfx.AbstractTerm) else dfx.ODETerm(vector_field),
         dfx.Tsit5() if solver is None else solver,
         t0=ts[0] if t0 is None else t0,
@@ -117,11 +141,6 @@ def integrate(
         throw=False,
         progress_meter=dfx.NoProgressMeter() if progress_meter is None else progress_meter,
     )
-    result = as_result(sol.result)
-    sol = eqx.tree_at(lambda s: s.result, sol, result)
-    if throw:
-        sol = result.error_if(sol, result != RESULTS.successful)
-    return sol
 
 
 def solve_stats(sol: dfx.Solution) -> dict[str, Array]:

@@ -39,6 +39,11 @@ def _mu_over_s(B, C, D, s2):
     return jnp.where(small, series, exact)
 
 
+LOCKED_FLOOR = 1e-4
+r"""Floor of $|1 + \kappa| = |\omega r|/V_x$ in `FrictionEllipseTire.mu` (1 mm/s of
+$|\omega r|$ at 10 m/s, `ROLLING_FLOOR`'s)."""
+
+
 class FrictionEllipseTire(AbstractTire):
     r"""Isotropic Magic Formula $\mu(s) = D\sin(C\arctan(Bs))$ with friction ellipse.
 
@@ -76,12 +81,14 @@ class FrictionEllipseTire(AbstractTire):
         return -sx * g, -sy * g
 
     def mu(self, kappa, tan_alpha):
-        r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (module docstring).
-
-        Singular at $\kappa = -1$ (locked wheel); the maneuvers of `docs/maneuvers.md` bound
-        $\kappa \ge -0.99$.
+        r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (module docstring):
+        the theoretical slips $(-\kappa, \tan\alpha)/|1 + \kappa|$, with $|1 + \kappa|
+        = |\omega r|/V_x$ floored at `LOCKED_FLOOR` as `forces` floors $|\omega r|$, so that
+        a locked wheel ($\kappa = -1$) slides at $\mu \to D\sin(C\pi/2)$ with finite
+        derivatives, and one turning backwards ($\kappa < -1$) gets the mirror image, as in
+        `forces`. The maneuvers of `docs/maneuvers.md` bound $\kappa \ge -0.99$.
         """
-        one_plus = 1.0 + kappa
+        one_plus = jnp.maximum(jnp.abs(1.0 + kappa), LOCKED_FLOOR)
         return self.mu_theoretical(-kappa / one_plus, tan_alpha / one_plus)
 
     def init_state(self):

@@ -70,7 +70,8 @@ S_{Vy\kappa}$, the trail and the residual moment by $\tfrac12(1 - \cos(\pi|V_x|/
 so every force and moment vanishes at standstill with finite gradients.
 
 **Limits** (``limits=True``, as the file states them): $\kappa$ to [KPUMIN, KPUMAX],
-$\alpha$ to [ALPMIN, ALPMAX], $\gamma$ to [CAMMIN, CAMMAX], $p$ to [PRESMIN, PRESMAX],
+$\alpha$ to [ALPMIN, ALPMAX] and within `ALPHA_BOUND` of 0 (files state ALPMAX = 1.5708 for
+$\pi/2$, past the pole of the $\tan\alpha$ the formulas take), $\gamma$ to [CAMMIN, CAMMAX], $p$ to [PRESMIN, PRESMAX],
 $F_z$ to at most FZMAX (and at least 0). FZMIN is not a clamp: raising a smaller load to
 it would give a force at zero load (MFeval uses it only inside the moments).
 
@@ -403,11 +404,33 @@ def _weighting(C, B, E, x):
     return jnp.cos(C * jnp.arctan(bx - E * (bx - jnp.arctan(bx))))
 
 
+ALPHA_BOUND = 0.5 * math.pi * (1.0 - 1e-9)
+r"""Largest $|\alpha|$ [rad] the limits let through: just below the pole of $\tan\alpha$ at
+$\pi/2$, where the slip's sign would turn."""
+
+
 def _sin_n_atan_over(u, n):
     r"""$\sin(n\arctan u)/u$, equal to $n$ at $u = 0$ (smooth: it is even in $u$)."""
     small = u == 0
     u_safe = jnp.where(small, 1.0, u)
     return jnp.where(small, n * jnp.ones_like(u), jnp.sin(n * jnp.arctan(u_safe)) / u_safe)
+
+
+def _sin_n_atan_over_uc(Fz, fz0p, c, n):
+    r"""$\sin(n\arctan u)/(u c)$ with $u = F_z/(F_{z0}' c)$: the cornering stiffness per
+    unit load of 4.E25 over $PKY1$, finite where $c$ = PKY2 + PKY5 $\gamma^2$ is 0 (a file
+    without PKY2): for $|u| > 1$ it is $\sin(n\theta)F_{z0}'/F_z$ with $\theta = \arctan u
+    = \mathrm{sgn}(u)\pi/2 - \arctan(1/u)$, so that no $1/c$ is formed, and both branches
+    are evaluated where they are used (double `where`). At $F_z = c = 0$, where it is
+    infinite, $c$ is taken as $10^{-12}$."""
+    big = jnp.abs(Fz) > jnp.abs(c * fz0p)  # |u| > 1, so Fz != 0
+    Fz_b = jnp.where(big, Fz, 1.0)
+    sign_u = jnp.sign(Fz_b) * jnp.where(c < 0, -1.0, 1.0)  # c = 0: the limit c -> 0+
+    theta = sign_u * (0.5 * jnp.pi) - jnp.arctan(jnp.where(big, c * fz0p / Fz_b, 0.0))
+    large = jnp.sin(n * theta) * fz0p / Fz_b
+    c_s = jnp.where(big, 1.0, jnp.where(c == 0, 1e-12, c))
+    small = _sin_n_atan_over(jnp.where(big, 0.0, Fz / (fz0p * c_s)), n) / c_s
+    return jnp.where(big, large, small)
 
 
 def _clamp_e(E, limits):
@@ -420,10 +443,8 @@ def _lateral_pure(P, Fz, dfz, dpi, alpha_s, gy, w, limits):
     is52 = P.version < 6.0
     lmuy_p = P.LMUY
     c = (P.PKY2 + P.PKY5 * gy**2) * (1.0 + P.PPY2 * dpi)
-    u = Fz / (P.FNOMIN * P.LFZO * c)
-    # Kya / Fz (4.E25): PKY1 Fz0' sin(PKY4 atan(u)) / Fz = PKY1 sin(PKY4 atan u) / (u c)
     kyn = (P.PKY1 * (1.0 + P.PPY1 * dpi) * (1.0 - P.PKY3 * safe_abs(gy))
-           * _sin_n_atan_over(u, P.PKY4) / c * P.LKY)
+           * _sin_n_atan_over_uc(Fz, P.FNOMIN * P.LFZO, c, P.PKY4) * P.LKY)
     svyg_n = (P.PVY3 + P.PVY4 * dfz) * gy * P.LKYC * lmuy_p  # S_Vyg / Fz (4.E28)
     kyg0_n = (P.PKY6 + P.PKY7 * dfz) * (1.0 + P.PPY5 * dpi) * P.LKYC  # K_yg0 / Fz (4.E30)
     shy_61 = (P.PHY1 + P.PHY2 * dfz) * P.LHY + safe_div(kyg0_n * gy - svyg_n, kyn)  # 4.E27
@@ -470,7 +491,8 @@ def _operating_point(P, kappa, alpha, gamma, Fz, p, vx, limits, reduce_slips):
             alpha = alpha * jnp.minimum(speed / P.VXLOW, 1.0)
     if limits:
         kappa = jnp.clip(kappa, P.KPUMIN, P.KPUMAX)
-        alpha = jnp.clip(alpha, P.ALPMIN, P.ALPMAX)
+        alpha = jnp.clip(alpha, jnp.maximum(P.ALPMIN, -ALPHA_BOUND),
+                         jnp.minimum(P.ALPMAX, ALPHA_BOUND))
         gamma = jnp.clip(gamma, P.CAMMIN, P.CAMMAX)
         p = jnp.clip(p, P.PRESMIN, P.PRESMAX)
         Fz = jnp.minimum(Fz, P.FZMAX)
