@@ -36,6 +36,20 @@ def test_braking_and_driving_closed_forms_match_quadrature_of_eq17(p):
                           vs.steady_state_mu(p, load, v, om, R), rtol=1e-12)
 
 
+@pytest.mark.parametrize("gap", [1e-6, 1e-9, 1e-12, 1e-14])
+def test_braking_closed_form_slope_towards_lock_is_the_quadratures(p, gap):
+    """d/ds of eq. 19 at s = -1 + gap, in both modes, equals the slope of eq. 17's
+    quadrature (regrouped towards lock) through omega = v (1 + s) / r: the closed form's
+    s / |1 + s| times a small psi cancelled, and its derivative was 100 % off at 1e-14."""
+    v = 20.0
+    s = -1.0 + gap
+    rev = jax.grad(lambda s: vs.braking_mu_uniform(p, s, v))(s)
+    fwd = jax.jvp(lambda s: vs.braking_mu_uniform(p, s, v), (s,), (1.0,))[1]
+    peer = jax.grad(lambda om: vs.steady_state_mu(p, vs.UniformLoad(), v, om, R))(
+        v * gap / R) * v / R
+    np.testing.assert_allclose([rev, fwd], [peer, peer], rtol=1e-8)
+
+
 def test_locked_wheel_steady_state_is_point_model(p):
     v = 15.0
     mu_point = -vs.stribeck(p, -v) / p.theta - p.sigma2 * v

@@ -116,6 +116,10 @@ def braking_mu_uniform(params: LuGreParams, s, v):
     $$\frac{F_b}{F_n} = \operatorname{sgn}(v_r)\frac{g}{\theta}\Bigl(1+\frac{g|1+s|}{\theta\sigma_0L|s|}
     \bigl(e^{-\theta\sigma_0L|s|/(g|1+s|)}-1\bigr)\Bigr) + \sigma_2 v s,$$
     with $g = g(vs)$. At $s=-1$ (locked wheel) it equals the point model, $-g/\theta - \sigma_2 v$.
+    Evaluated as $\sigma_0 L s\,\psi(x)/|1+s|$, $x = \theta\sigma_0L|s|/(g|1+s|)$, and for
+    $x > 1$ (towards lock) as the same number regrouped, $\operatorname{sgn}(s)(g/\theta)
+    (1 + (e^{-x} - 1)/x)$, whose derivatives stay exact as $1 + s \to 0$ (the first form
+    divides by $|1+s|$ what $\psi$ makes small: a cancellation).
     """
     p = params
     v_r = v * s
@@ -124,5 +128,9 @@ def braking_mu_uniform(params: LuGreParams, s, v):
     locked = one_s == 0
     one_s_safe = jnp.where(locked, 1.0, one_s)
     x = p.theta * p.sigma0 * p.L * safe_abs(s) / (g * one_s_safe)
-    rolling = p.sigma0 * p.L * s / one_s_safe * _psi(x)
+    large = x > 1.0
+    x_large = jnp.where(large, x, 2.0)
+    rolling = jnp.where(large,
+                        jnp.sign(s) * g / p.theta * (1.0 + jnp.expm1(-x_large) / x_large),
+                        p.sigma0 * p.L * s / one_s_safe * _psi(jnp.where(large, 0.5, x)))
     return jnp.where(locked, jnp.sign(s) * g / p.theta, rolling) + p.sigma2 * v_r
