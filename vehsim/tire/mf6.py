@@ -418,8 +418,8 @@ def _sin_n_atan_over(u, n):
 
 def _sin_n_atan_over_uc(Fz, fz0p, c, n):
     r"""$\sin(n\arctan u)/(u c)$ with $u = F_z/(F_{z0}' c)$: the cornering stiffness per
-    unit load of 4.E25 over $PKY1$, finite where $c$ = PKY2 + PKY5 $\gamma^2$ is 0 (a file
-    without PKY2): for $|u| > 1$ it is $\sin(n\theta)F_{z0}'/F_z$ with $\theta = \arctan u
+    unit load of 4.E25 over $PKY1$, finite where $c$ = PKY2 + PKY5 $\gamma^2$ is 0 (PKY2 = 0,
+    as `MFParams()` has it): for $|u| > 1$ it is $\sin(n\theta)F_{z0}'/F_z$ with $\theta = \arctan u
     = \mathrm{sgn}(u)\pi/2 - \arctan(1/u)$, so that no $1/c$ is formed, and both branches
     are evaluated where they are used (double `where`). At $F_z = c = 0$, where it is
     infinite, $c$ is taken as $10^{-12}$."""
