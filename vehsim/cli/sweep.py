@@ -171,7 +171,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return exit_status("sweep", res.result)
     stats = jax.vmap(summary)(res.trajectories)
     info = {"maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
-            "speed": None if "speed" in axes else args.speed, "duration": args.duration}
+            "duration": args.duration} | ({} if "speed" in axes else {"speed": args.speed})
     if Path(args.out).suffix == ".nc":
         path = res.to_netcdf(args.out, signals=args.signals, outputs=stats,
                              attrs=info | {"wall_time_s": round(wall, 3)})
