@@ -59,6 +59,33 @@ def test_closed_form_reduces_to_longitudinal_eq_17():
             np.testing.assert_allclose(mu[1:], 0.0, atol=1e-14)
 
 
+def test_slope_towards_lock_is_eq_17s_in_both_modes():
+    """d/d omega of the x force as omega r -> 0 (1e-6 to 1e-14 m/s), reverse and forward,
+    equals the longitudinal eq. 17's (its profile regrouped towards lock): the 2D profile
+    v_r L / c xi phi(k xi) cancelled, its slope 100 % off by 1e-13; below `C_FLOOR` the
+    value and the slope stay finite (a subnormal omega r gave NaN)."""
+    p1 = table3()
+    two = jnp.ones(2)
+    p2 = type(P)(sigma0=p1.sigma0 * two, sigma1=p1.sigma1 * two, sigma2=p1.sigma2 * two,
+                 mu_k=p1.mu_c * two, mu_s=p1.mu_s * two, v_s=p1.v_s, gamma=p1.alpha, L=p1.L)
+    v, r, load = 20.0, 0.3, UniformLoad()
+
+    def two_d(omega):
+        return steady_state_mu_2d(p2, load, jnp.stack([omega * r - v, 0.0 * omega]),
+                                  omega * r)[0]
+
+    def one_d(omega):
+        return steady_state_mu_1d(p1, load, v, omega, r)
+
+    for wr in (1e-6, 1e-9, 1e-12, 1e-14):
+        omega = wr / r
+        peer = jax.grad(one_d)(omega)
+        np.testing.assert_allclose([jax.grad(two_d)(omega),
+                                    jax.jvp(two_d, (omega,), (1.0,))[1]], [peer, peer],
+                                   rtol=1e-8)
+    assert np.isfinite(jax.grad(two_d)(1e-300)) and np.isfinite(two_d(1e-310))
+
+
 def test_locked_wheel_collapses_to_point_model():
     """omega = 0: no transport, no SAT penalty: every node obeys the point model exactly."""
     point = PointLuGre2D(P)

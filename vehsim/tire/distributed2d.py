@@ -129,11 +129,28 @@ def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
     C0 = decay_rates(params, v_r)
     rolling = c > 0
     c_safe = jnp.where(rolling, c, 1.0)
-    k = C0 * params.L / c_safe
+    k = _layer_rates(C0, params.L, c_safe)
+    large = (k > 1.0)[None, :]
     xi = jnp.asarray(xi).reshape(-1, 1)
-    z_roll = (v_r * params.L / c_safe)[None, :] * xi * one_minus_exp_over(k[None, :] * xi)
-    z_lock = jnp.broadcast_to(safe_div(v_r, C0)[None, :], z_roll.shape)
+    z_lock = jnp.broadcast_to(safe_div(v_r, C0)[None, :], (xi.shape[0], 2))
+    # towards lock (k > 1) v_r L / c xi phi(k xi) regrouped as v_r / C0 (1 - exp(-k xi)):
+    # the same values, and derivatives free of the 1/c cancelling a small phi
+    c_small = jnp.where(large, 1.0, c_safe)
+    k_small = C0[None, :] * params.L / c_small
+    z_small = v_r[None, :] * params.L / c_small * xi * one_minus_exp_over(k_small * xi)
+    z_roll = jnp.where(large, z_lock * -jnp.expm1(-k[None, :] * xi), z_small)
     return jnp.where(rolling, z_roll, z_lock)
+
+
+C_FLOOR = 1e-150
+"""Floor [m/s] of the transport speed $c = |\omega r|$ in the boundary layers' rates
+$k_i = C_{0,i}L/c$: below it the layer ($1/k_i$ of the contact) is thinner than any double
+resolves, and its rate's derivative in $c$ would overflow."""
+
+
+def _layer_rates(C0, L, c):
+    """$k_i = C_{0,i}L/\max(c, $ `C_FLOOR` $)$."""
+    return C0 * L / jnp.maximum(c, C_FLOOR)
 
 
 def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
@@ -145,7 +162,7 @@ def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_
     """
     C0 = decay_rates(params, v_r)
     c_safe = jnp.where(c > 0, c, 1.0)
-    k = C0 * params.L / c_safe
+    k = _layer_rates(C0, params.L, c_safe)
     edges = [jnp.zeros(()), jnp.ones(())] + [jnp.asarray(e, dtype=float) for e in load.kinks()]
     for ki in (k[0], k[1]):
         layer = jnp.minimum(1.0, 40.0 / jnp.maximum(ki, 1e-30))
