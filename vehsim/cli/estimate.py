@@ -91,13 +91,15 @@ def read_recorded_braking(path) -> tuple:
     import numpy as np
 
     from ..control.estimation.recorded import MeasuredBraking, nonuniform_step
-    from ..identify.braking import _fail, _read_columns, check_magnitudes, read_side_file
+    from ..identify.braking import (
+        _fail,
+        _read_columns,
+        braking_path,
+        check_magnitudes,
+        read_side_file,
+    )
 
-    path = Path(path)
-    if path.is_dir():
-        raise IsADirectoryError(f"{path}: a folder, not a braking file (CSV)")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such braking file")
+    path = braking_path(path)
     values = _read_columns(path, REQUIRED, OPTIONAL, may_be_missing=("omega",))
     n = len(values["t"])
     if n < 3:

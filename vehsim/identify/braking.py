@@ -89,11 +89,7 @@ def load_braking(path, r: float | None = None, name: str | None = None) -> Braki
     strictly increasing, a negative speed, normal load or brake torque, fewer than 3 rows, or a
     missing/invalid radius.
     """
-    path = Path(path)
-    if path.is_dir():
-        raise IsADirectoryError(f"{path}: a folder, not a braking file (CSV)")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such braking file")
+    path = braking_path(path)
     values = _read_columns(path)
     _check_columns(path, values)
     scalars = _read_wheel_data(path, r)
@@ -146,6 +142,16 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
                 _fail(path, i, c, f"value must be finite, got {text!r} (NaN or inf)")
             values[c][i - 1] = x
     return values
+
+
+def braking_path(path) -> Path:
+    """`path` as a `Path`, after refusing a folder or a missing file, naming it."""
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: a folder, not a braking file (CSV)")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such braking file")
+    return path
 
 
 def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
