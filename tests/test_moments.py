@@ -214,6 +214,26 @@ def test_legendre_and_monomial_bases_agree_along_transient(transients):
     np.testing.assert_allclose(leg, mono, rtol=0, atol=1e-6 * np.max(np.abs(mono)))
 
 
+def test_derivative_slope_in_transport_speed_is_finite_towards_lock():
+    """The edge equations' arrival term exp(-C0 L b / c) has a c-derivative that overflows
+    below c ~ 1e-154 (NaN in reverse mode); below `TRANSPORT_FLOOR` both modes give the
+    slope at c = 1e-20, where the term's contribution has long vanished."""
+    p = lugre2d_bakker1987()
+    mom = MomentLuGre2D(p, QuarticLoad())
+    m, z_edge, _ = mom.init_state(jnp.array([1e-3, -2e-3]))
+    state = (m, z_edge, jnp.asarray(0.5))
+    v_r = jnp.array([-10.0, 2.0])
+
+    def total(c):
+        return sum(jnp.sum(x) for x in jax.tree_util.tree_leaves(mom.derivative(state, v_r, c)))
+
+    peer = jax.jvp(total, (1e-20,), (1.0,))[1]
+    assert np.isfinite(peer) and peer != 0.0
+    for c in (1e-120, 1e-200):
+        np.testing.assert_allclose([jax.grad(total)(c), jax.jvp(total, (c,), (1.0,))[1]],
+                                   [peer, peer], rtol=1e-12)
+
+
 def test_basis_is_checked():
     with pytest.raises(ValueError, match="MomentLuGre2D.basis"):
         MomentLuGre2D(lugre2d_bakker1987(), basis="chebyshev")

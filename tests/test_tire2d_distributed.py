@@ -62,8 +62,8 @@ def test_closed_form_reduces_to_longitudinal_eq_17():
 def test_slope_towards_lock_is_eq_17s_in_both_modes():
     """d/d omega of the x force as omega r -> 0 (1e-6 to 1e-14 m/s), reverse and forward,
     equals the longitudinal eq. 17's (its profile regrouped towards lock): the 2D profile
-    v_r L / c xi phi(k xi) cancelled, its slope 100 % off by 1e-13; below `C_FLOOR` the
-    value and the slope stay finite (a subnormal omega r gave NaN)."""
+    v_r L / c xi phi(k xi) cancelled, its slope 100 % off by 1e-13. Below `TRANSPORT_FLOOR`
+    (1e-200 m/s) the slope is the same, in both modes (a subnormal omega r gave NaN)."""
     p1 = table3()
     two = jnp.ones(2)
     p2 = type(P)(sigma0=p1.sigma0 * two, sigma1=p1.sigma1 * two, sigma2=p1.sigma2 * two,
@@ -83,6 +83,10 @@ def test_slope_towards_lock_is_eq_17s_in_both_modes():
         np.testing.assert_allclose([jax.grad(two_d)(omega),
                                     jax.jvp(two_d, (omega,), (1.0,))[1]], [peer, peer],
                                    rtol=1e-8)
+    peer = jax.grad(one_d)(1e-14 / r)
+    np.testing.assert_allclose([jax.grad(two_d)(1e-200 / r),
+                                jax.jvp(two_d, (1e-200 / r,), (1.0,))[1]], [peer, peer],
+                               rtol=1e-8)
     assert np.isfinite(jax.grad(two_d)(1e-300)) and np.isfinite(two_d(1e-310))
 
 

@@ -50,6 +50,26 @@ def test_braking_closed_form_slope_towards_lock_is_the_quadratures(p, gap):
     np.testing.assert_allclose([rev, fwd], [peer, peer], rtol=1e-8)
 
 
+@pytest.mark.parametrize("wr", [1e-120, 1e-200, 1e-300])
+def test_slopes_below_the_transport_floor_are_the_limits(p, wr):
+    """Between lock and |omega r| ~ 1e-154 the rate k ~ 1/|omega r| has a derivative that
+    overflows (NaN times a saturated exponential, in both the steady states and the uniform
+    lumped model's decay). Below `TRANSPORT_FLOOR` the slopes in omega, in both modes, are
+    the ones at |omega r| = 1e-14 (which no floor touches), and the values are unchanged."""
+    v = 20.0
+    t = vs.UniformLumpedLuGre(p)
+    z0 = t.steady_state(v, 1.0, R)
+    for f in (lambda om: vs.steady_state_mu(p, vs.QuarticLoad(), v, om, R),
+              lambda om: vs.z_ss(p, 0.1, v, om, R),
+              lambda om: t.steady_state(v, om, R),
+              lambda om: t.dynamics(z0, v, om, R)):
+        peer = jax.grad(f)(1e-14 / R)
+        rev = jax.grad(f)(wr / R)
+        fwd = jax.jvp(f, (wr / R,), (1.0,))[1]
+        np.testing.assert_allclose([rev, fwd], [peer, peer], rtol=1e-8)
+        np.testing.assert_allclose(f(wr / R), f(1e-14 / R), rtol=1e-12)
+
+
 def test_locked_wheel_steady_state_is_point_model(p):
     v = 15.0
     mu_point = -vs.stribeck(p, -v) / p.theta - p.sigma2 * v

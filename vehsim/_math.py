@@ -5,6 +5,7 @@ substitute input where it would be singular, so neither the value nor the cotang
 carries a NaN.
 """
 
+import jax
 import jax.numpy as jnp
 
 
@@ -53,6 +54,20 @@ def one_minus_exp_over(x):
     exact = -jnp.expm1(-x_safe) / x_safe
     series = 1.0 - x / 2.0 + x * x / 6.0 - x * x * x / 24.0
     return jnp.where(small, series, exact)
+
+
+TRANSPORT_FLOOR = 1e-100
+r"""Floor [m/s] of the transport speed $c = |\omega r|$ where it divides a boundary layer's
+rate $k = C_0L/c$: below it the layer ($1/k$ of the contact) is thinner than any double
+resolves, and the rate's derivative $-k/c$ would overflow (a NaN once a saturated
+exponential multiplies it)."""
+
+
+def floor_transport(c):
+    r"""$\max(c,$ `TRANSPORT_FLOOR` $)$ in value, with derivative 1 in both modes: below the
+    floor the derivatives are those at the floor, i.e. the limit $c \to 0^+$ to rounding,
+    where a plain maximum would make them 0 and the unfloored quotient NaN."""
+    return c + jax.lax.stop_gradient(jnp.maximum(c, TRANSPORT_FLOOR) - c)
 
 
 def safe_sqrt(x):

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._math import one_minus_exp_over, safe_abs, safe_div
+from .._math import floor_transport, one_minus_exp_over, safe_abs, safe_div
 from .distributed import (
     chebyshev_nodes,
     interpolation_matrix,
@@ -142,15 +142,9 @@ def steady_state_profile(params: LuGre2DParams, xi, v_r, c):
     return jnp.where(rolling, z_roll, z_lock)
 
 
-C_FLOOR = 1e-150
-"""Floor [m/s] of the transport speed $c = |\omega r|$ in the boundary layers' rates
-$k_i = C_{0,i}L/c$: below it the layer ($1/k_i$ of the contact) is thinner than any double
-resolves, and its rate's derivative in $c$ would overflow."""
-
-
 def _layer_rates(C0, L, c):
-    """$k_i = C_{0,i}L/\max(c, $ `C_FLOOR` $)$."""
-    return C0 * L / jnp.maximum(c, C_FLOOR)
+    """$k_i = C_{0,i}L/c$ with $c$ floored by `floor_transport`."""
+    return C0 * L / floor_transport(c)
 
 
 def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):

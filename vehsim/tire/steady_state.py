@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._math import one_minus_exp_over, safe_abs
+from .._math import floor_transport, one_minus_exp_over, safe_abs
 from .load import AbstractLoadDistribution
 from .lugre import LuGreParams, relative_velocity, stribeck
 
@@ -35,7 +35,7 @@ def _rolling_terms(params: LuGreParams, v, omega, r):
     g = stribeck(params, v_r)
     c = safe_abs(omega * r)
     rolling = c > 0
-    c_safe = jnp.where(rolling, c, 1.0)
+    c_safe = floor_transport(jnp.where(rolling, c, 1.0))
     k = params.theta * params.sigma0 * safe_abs(v_r) * params.L / (g * c_safe)
     return v_r, g, c_safe, rolling, k
 

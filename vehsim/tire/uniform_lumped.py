@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import safe_abs, safe_div
+from .._math import floor_transport, safe_abs, safe_div
 from .lugre import AbstractLongitudinalTire, LuGreParams, relative_velocity, stribeck
 from .steady_state import braking_mu_uniform, driving_mu_uniform
 
@@ -50,7 +50,7 @@ def decay(params: LuGreParams, v, omega, r):
     v_r = relative_velocity(v, omega, r)
     c = safe_abs(omega * r)
     rolling = c > 0
-    c_safe = jnp.where(rolling, c, 1.0)
+    c_safe = floor_transport(jnp.where(rolling, c, 1.0))
     sliding = p.theta * p.sigma0 * safe_abs(v_r) / stribeck(p, v_r)
     k = sliding * p.L / c_safe
     return sliding + jnp.where(rolling, c_safe / p.L * _excess(k), 0.0)

@@ -12,6 +12,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ..._math import floor_transport
 from ..load import AbstractLoadDistribution, UniformLoad
 from ..lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
 from .basis import (
@@ -116,7 +117,7 @@ class MomentLuGre2D(AbstractPatchLuGre2D):
         m_dot = self.moment_rates(m, self.edge_values(state), v_r, c)
         # Edge equations: point model minus the (frozen) arrival of undeflected tread.
         rolling = c > 0
-        c_safe = jnp.where(rolling, c, 1.0)
+        c_safe = floor_transport(jnp.where(rolling, c, 1.0))
         decay = jnp.exp(-(C0 * self.params.L / c_safe)[:, None] * b[None, :])
         arrived = (s >= b)[None, :] & rolling
         arrival = jnp.where(arrived, decay * v_r[:, None], 0.0)
