@@ -70,6 +70,18 @@ def test_slopes_below_the_transport_floor_are_the_limits(p, wr):
         np.testing.assert_allclose(f(wr / R), f(1e-14 / R), rtol=1e-12)
 
 
+def test_slope_at_exact_lock_is_the_mean_of_the_one_sided_slopes(p):
+    """|1 + s| (eq. 19) and |omega r| (eq. 17) have a kink at lock: the derivative there, in
+    both modes, is the mean of the slopes just either side (as |x|'s derivative is 0 at 0)."""
+    v = 20.0
+    for f, x0, h in ((lambda s: vs.braking_mu_uniform(p, s, v), -1.0, 1e-9),
+                     (lambda om: vs.steady_state_mu(p, vs.UniformLoad(), v, om, R), 0.0, 1e-9)):
+        sides = [jax.grad(f)(x0 - h), jax.grad(f)(x0 + h)]
+        assert abs(sides[0] - sides[1]) > 0.1 * abs(sides[0])
+        np.testing.assert_allclose([jax.grad(f)(x0), jax.jvp(f, (x0,), (1.0,))[1]],
+                                   [np.mean(sides)] * 2, rtol=1e-6)
+
+
 def test_locked_wheel_steady_state_is_point_model(p):
     v = 15.0
     mu_point = -vs.stribeck(p, -v) / p.theta - p.sigma2 * v

@@ -119,7 +119,8 @@ def braking_mu_uniform(params: LuGreParams, s, v):
     Evaluated as $\sigma_0 L s\,\psi(x)/|1+s|$, $x = \theta\sigma_0L|s|/(g|1+s|)$, and for
     $x > 1$ (towards lock) as the same number regrouped, $\operatorname{sgn}(s)(g/\theta)
     (1 + (e^{-x} - 1)/x)$, whose derivatives stay exact as $1 + s \to 0$ (the first form
-    divides by $|1+s|$ what $\psi$ makes small: a cancellation).
+    divides by $|1+s|$ what $\psi$ makes small: a cancellation). At exactly $s = -1$, the
+    kink of $|1+s|$, the derivative is the mean of the two one-sided ones, as $|x|$'s is 0 at 0.
     """
     p = params
     v_r = v * s
