@@ -63,6 +63,36 @@ def test_steady_state_gains_reproduce_distributed_steady_state():
         np.testing.assert_allclose(got, want, rtol=1e-8)
 
 
+def test_steady_state_gains_towards_lock_in_both_modes():
+    """Towards lock the gains' (1 - k Zbar) / (L Zbar) cancelled and a fixed quadrature could
+    not resolve the boundary layer: the slope in c was 18 % off at c = 1e-4 m/s, of the
+    wrong sign at 1e-6 and NaN at 1e-200. The lumped steady state's Jacobian in (v_r, c),
+    reverse and forward, now equals the closed form's (graded quadrature of eq. 31) there,
+    and below the transport floor stays finite and equal to the one at 1e-6."""
+    for load in (TrapezoidalLoad(0.25), QuarticLoad()):
+        lumped = LumpedLuGre2D(P, load, steady_state_gains=True)
+
+        def steady(x):
+            v_r, c = x[:2], x[2]
+            f = lambda s: lumped.derivative(s, v_r, c)  # noqa: E731
+            s = jnp.linalg.solve(jax.jacfwd(f)(jnp.zeros(3)), -f(jnp.zeros(3)))
+            return lumped.mu(s, v_r, c)
+
+        def closed(x):
+            return steady_state_mu_2d(P, load, x[:2], x[2])
+
+        for c in (1e-2, 1e-4, 1e-6):
+            x = jnp.array([-6.0, 1.5, c])
+            peer = jax.jacfwd(closed)(x)
+            scale = jnp.max(jnp.abs(peer), axis=0, keepdims=True)
+            for jac in (jax.jacrev(steady)(x), jax.jacfwd(steady)(x)):
+                # (the closed form's own slope in c rounds to ~1e-6 at c = 1e-6)
+                np.testing.assert_allclose(jac / scale, peer / scale, rtol=1e-4, atol=1e-6)
+        at_floor = jax.jacrev(steady)(jnp.array([-6.0, 1.5, 1e-200]))
+        np.testing.assert_allclose(at_floor[:, :2], jax.jacfwd(closed)(x)[:, :2], rtol=1e-6,
+                                   atol=1e-12)
+
+
 def test_lumped_gradients_at_zero_speed():
     lumped = LumpedLuGre2D(P, TrapezoidalLoad(0.25), steady_state_gains=True)
     s = jnp.array([1e-3, -2e-3, -1e-3])

@@ -147,6 +147,21 @@ def _layer_rates(C0, L, c):
     return C0 * L / floor_transport(c)
 
 
+def graded_nodes(load: AbstractLoadDistribution, k, gx, gw):
+    r"""Nodes and weights on $[0, 1]$ of the Gauss rule `gx`, `gw` (on $[-1, 1]$) on panels
+    split at the load's kinks and graded to the leading-edge boundary layers of the rates
+    `k` (thickness $1/k_i$: panel edges at $40/k_i$, $4/k_i$, $0.4/k_i$), so that an
+    integrand such as $e^{-k_i\xi}q(\xi)$ is resolved at any slip."""
+    edges = [jnp.zeros(()), jnp.ones(())] + [jnp.asarray(e, dtype=float) for e in load.kinks()]
+    for ki in jnp.atleast_1d(k):
+        layer = jnp.minimum(1.0, 40.0 / jnp.maximum(ki, 1e-30))
+        edges += [layer, 0.1 * layer, 0.01 * layer]
+    edges = jnp.sort(jnp.stack(edges))
+    a, b = edges[:-1, None], edges[1:, None]
+    gx, gw = jnp.asarray(gx)[None, :], jnp.asarray(gw)[None, :]
+    return (0.5 * (b - a) * gx + 0.5 * (a + b)).reshape(-1), (0.5 * (b - a) * gw).reshape(-1)
+
+
 def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_r, c):
     r"""Closed-form steady state $(F_x/F_n, F_y/F_n, M_z/(F_nL))$ of eqs. 31-33.
 
@@ -157,15 +172,7 @@ def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_
     C0 = decay_rates(params, v_r)
     c_safe = jnp.where(c > 0, c, 1.0)
     k = _layer_rates(C0, params.L, c_safe)
-    edges = [jnp.zeros(()), jnp.ones(())] + [jnp.asarray(e, dtype=float) for e in load.kinks()]
-    for ki in (k[0], k[1]):
-        layer = jnp.minimum(1.0, 40.0 / jnp.maximum(ki, 1e-30))
-        edges += [layer, 0.1 * layer, 0.01 * layer]
-    edges = jnp.sort(jnp.stack(edges))
-    a, b = edges[:-1, None], edges[1:, None]
-    gx, gw = jnp.asarray(_GL_X)[None, :], jnp.asarray(_GL_W)[None, :]
-    xi = (0.5 * (b - a) * gx + 0.5 * (a + b)).reshape(-1)
-    w = (0.5 * (b - a) * gw).reshape(-1)
+    xi, w = graded_nodes(load, k, _GL_X, _GL_W)
     z = steady_state_profile(params, xi, v_r, c)
     wq = w * load.q(xi)
     f = params.sigma0 * (wq @ z) + params.sigma2 * v_r

@@ -27,9 +27,13 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_range
-from .._math import one_minus_exp_over
+from .._math import floor_transport, one_minus_exp_over
+from .distributed2d import graded_nodes
 from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
+
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(20)
 
 
 def _first_moment(load):
@@ -55,8 +59,6 @@ class LumpedLuGre2D(AbstractPatchLuGre2D):
     nu0: Float[Array, ""]
     G: Float[Array, ""]
     steady_state_gains: bool = eqx.field(static=True)
-    _gx: Float[Array, " N"]
-    _gw: Float[Array, " N"]
 
     def __init__(self, params, load=None, kappa0=1.0, nu0=2.0, steady_state_gains=False):
         self.params = params
@@ -67,16 +69,6 @@ class LumpedLuGre2D(AbstractPatchLuGre2D):
         check_range("LumpedLuGre2D", "nu0", self.nu0, lower=0.0)
         self.G = _first_moment(self.load)
         self.steady_state_gains = bool(steady_state_gains)
-        # Quadrature for the steady-state gains: graded to the leading edge (boundary layer).
-        edges = np.unique(np.concatenate([np.geomspace(1e-4, 1.0, 9), [0.0],
-                                          np.asarray(self.load.kinks(), dtype=float)]))
-        xs, ws = [], []
-        gx, gw = np.polynomial.legendre.leggauss(20)
-        for a, b in zip(edges[:-1], edges[1:]):
-            xs.append(0.5 * (b - a) * gx + 0.5 * (a + b))
-            ws.append(0.5 * (b - a) * gw)
-        self._gx, self._gw = jnp.asarray(np.concatenate(xs)), jnp.asarray(np.concatenate(ws))
-
     def init_state(self):
         return jnp.zeros(3)
 
@@ -88,17 +80,19 @@ class LumpedLuGre2D(AbstractPatchLuGre2D):
             return const
         C0 = decay_rates(self.params, v_r)
         rolling = c > 0
-        c_safe = jnp.where(rolling, c, 1.0)
-        k = C0 * L / c_safe
-        # Steady profile z_i = v_ri (L/c) xi phi(k_i xi): the gains depend only on its shape
-        # Z_i = xi phi(k_i xi), so they are smooth through v_r = 0 while rolling.
-        x = self._gx[:, None]
-        Z = x * one_minus_exp_over(k[None, :] * x)  # (N, 2)
-        wq = self._gw * self.load.q(self._gx)
-        Zbar = wq @ Z
-        Zhat = (wq * self._gx) @ Z[:, 1]
-        kap = (1.0 - C0 * L / c_safe * Zbar) / (L * Zbar)
-        nu = (self.G - C0[1] * L / c_safe * Zhat + Zbar[1]) / (L * Zhat)
+        k = C0 * L / floor_transport(jnp.where(rolling, c, 1.0))
+        # Steady profile z_i = v_ri (L/c) Z_i, Z_i = xi phi(k_i xi) = (1 - exp(-k_i xi))/k_i:
+        # the gains depend only on its shape, so they are smooth through v_r = 0 while
+        # rolling. With E_i = exp(-k_i xi), 1 - k_i Zbar_i = Ebar_i and G - k_y Zhat = Ehat:
+        # no cancellation towards lock, where Zbar_i ~ 1/k_i (nodes graded to the layer).
+        x, w = graded_nodes(self.load, k, _GL_X, _GL_W)
+        wq = w * self.load.q(x)
+        Z = x[:, None] * one_minus_exp_over(k[None, :] * x[:, None])  # (N, 2)
+        E = jnp.exp(-k[None, :] * x[:, None])
+        Zbar, Ebar = wq @ Z, wq @ E
+        Zhat, Ehat = (wq * x) @ Z[:, 1], (wq * x) @ E[:, 1]
+        kap = Ebar / (L * Zbar)
+        nu = (Ehat + Zbar[1]) / (L * Zhat)
         kap = jnp.where(rolling, kap, const[:2])
         nu = jnp.where(rolling, nu, const[2])
         return jnp.concatenate([kap, nu[None]])
