@@ -205,6 +205,9 @@ BAD_FILES = {
     "a closed-loop fit without the brake torque": (
         lambda tmp: ["fit", _braking_without(tmp, "no_torque", "T_b"), "--closed-loop"],
         "--closed-loop needs the column 'T_b'"),
+    "a brake torque in the wrong unit": (
+        lambda tmp: ["estimate", _braking_without(tmp, "kilo_torque", "T_b", "1e6")],
+        "'T_b': 1e+06 N m is more than 100 r F_n"),
 }
 
 

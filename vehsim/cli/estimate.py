@@ -184,6 +184,27 @@ def _refuse_options_of_other_estimators(args) -> None:
                          f"to --estimator {args.estimator}: {'; '.join(why)}")
 
 
+TORQUE_LOAD_RATIO = 100.0
+r"""Largest brake torque of a record, in units of its wheel radius times its normal load
+$rF_n$: a tire brakes with $|F_x| \le \mu F_n$, $\mu$ about 1, so a hundredfold torque is
+not a braking (most likely a column in the wrong unit)."""
+
+
+def _check_torque(path, T_b, r: float, Fn: float) -> None:
+    """Refuse the first brake torque above `TORQUE_LOAD_RATIO` $rF_n$, naming its row."""
+    import numpy as np
+
+    from ..identify.braking import _fail
+
+    limit = TORQUE_LOAD_RATIO * r * Fn
+    over = np.abs(T_b) > limit
+    if np.any(over):
+        i = int(np.argmax(over))
+        _fail(path, i + 1, "T_b", f"{T_b[i]:g} N m is more than {TORQUE_LOAD_RATIO:g} r F_n = "
+              f"{limit:g} N m (r = {r:g} m, F_n = {Fn:g} N): no tire brakes with that; is "
+              "the column in N m?")
+
+
 def _estimate(args) -> int:
     # the options' types and ranges are checked while parsing (vehsim.cli._options)
     _refuse_options_of_other_estimators(args)
@@ -213,6 +234,7 @@ def _estimate(args) -> int:
         _positive(f"{args.data}: the mean of column 'F_n'", Fn)
     else:
         Fn = m * GRAVITY
+    _check_torque(args.data, np.asarray(record.torque), r, Fn)
     car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
     h = record.sample_time
     if args.sample_time is not None:
