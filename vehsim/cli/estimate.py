@@ -11,7 +11,7 @@ inertia [kg m^2]; the options override it):
 | `t`     | s     | time, uniformly sampled (steps within 1 % of the mean)                  |
 | `v`     | m/s   | vehicle speed, forwards, >= 0                                           |
 | `omega` | rad/s | wheel speed; an empty field or ``nan`` is a missing sample              |
-| `T_b`   | N m   | brake torque as it acted, >= 0                                          |
+| `T_b`   | N m   | brake torque as it acted, >= 0 and at most 100 r F_n                   |
 | `F_x`   | N     | friction force (optional, not used by the estimators)                  |
 | `F_n`   | N     | normal load (optional; its mean is the model's load unless --normal-load) |
 | `theta` | -     | the true road condition (optional, e.g. a simulated record: drawn)      |
