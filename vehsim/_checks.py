@@ -40,6 +40,13 @@ def check_finite(owner: str, name: str, x) -> None:
         raise ValueError(f"{owner}.{name} must be finite, got {plain(v)}")
 
 
+def check_not_nan(owner: str, name: str, x) -> None:
+    """Raise ``ValueError`` if ``x`` has a NaN (an infinity is a value here)."""
+    v = _values(x)
+    if v is not None and np.any(np.isnan(v)):
+        raise ValueError(f"{owner}.{name} must be a number (or +-inf), got {plain(v)}")
+
+
 def check_range(
     owner: str,
     name: str,
@@ -76,6 +83,15 @@ def check_nonnegative(owner: str, name: str, x) -> None:
     check_range(owner, name, x, lower=0.0)
 
 
+def check_integer(owner: str, name: str, x, *, lower: int = 0) -> None:
+    """Raise ``ValueError`` unless ``x`` is a whole number >= `lower` (a concrete one)."""
+    v = _values(x)
+    if v is None:
+        return
+    if not (np.all(np.isfinite(v)) and np.all(v == np.round(v)) and np.all(v >= lower)):
+        raise ValueError(f"{owner}.{name} must be an integer >= {lower}, got {plain(v)}")
+
+
 def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
     a, b = _values(x_small), _values(x_big)
@@ -84,6 +100,56 @@ def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     if not np.all(a <= b):
         raise ValueError(f"{owner} needs {small} <= {big}, got {small} = {plain(a)}, "
                          f"{big} = {plain(b)}")
+
+
+def check_times(owner: str, ts) -> None:
+    """Raise ``ValueError`` unless concrete save times ``ts`` are a non-empty 1-D array,
+    finite and non-decreasing (a solve runs from ``ts[0]`` to ``ts[-1]``)."""
+    v = _values(ts)
+    if v is None:
+        return
+    if v.ndim != 1 or v.size == 0:
+        raise ValueError(f"{owner}: ts must be a non-empty 1-D array of times [s], got shape "
+                         f"{v.shape}")
+    if not np.all(np.isfinite(v)):
+        i = int(np.argmin(np.isfinite(v)))
+        raise ValueError(f"{owner}: ts must be finite, got {v[i]:g} at index {i}")
+    back = np.diff(v) < 0
+    if np.any(back):
+        i = int(np.argmax(back)) + 1
+        raise ValueError(f"{owner}: ts must be increasing, got {v[i]:g} after {v[i - 1]:g} "
+                         f"(index {i})")
+
+
+def check_finite_signals(owner: str, **signals) -> None:
+    """Raise ``ValueError`` naming the first concrete signal (a constant or samples; a
+    callable or a tracer is not looked at) with a NaN or inf: a solve would otherwise
+    spend its step budget and report that it ran out of steps."""
+    for name, x in signals.items():
+        if x is None or callable(x) or not is_concrete(x):
+            continue
+        try:
+            v = np.asarray(x, dtype=float)
+        except (TypeError, ValueError):
+            continue
+        if not np.all(np.isfinite(v)):
+            bad = v[~np.isfinite(v)].ravel()[0]
+            raise ValueError(f"{owner}: {name} must be finite, got {bad:g}")
+
+
+def sample_count(owner: str, duration, sample_time, substeps=1) -> int:
+    """The number of whole samples of ``sample_time`` in ``duration`` [s], at least 1;
+    raises ``ValueError`` naming `duration` (finite, > 0) or `substeps` (an integer >= 1)."""
+    d = float(duration)
+    if not (math.isfinite(d) and d > 0):
+        raise ValueError(f"{owner}: duration [s] must lie in (0, inf), got {d:g}")
+    n = int(round(d / float(sample_time)))
+    if n < 1:
+        raise ValueError(f"{owner}: duration ({d:g} s) must be at least half a sample "
+                         f"({float(sample_time):g} s)")
+    if isinstance(substeps, bool) or not float(substeps).is_integer() or substeps < 1:
+        raise ValueError(f"{owner}: substeps must be an integer >= 1, got {substeps!r}")
+    return n
 
 
 def require_float64(what: str, why: str) -> None:

@@ -96,9 +96,28 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
     return Path(path)
 
 
+def write_atomic_files(files: dict) -> list[Path]:
+    """Write several files (``{path: text or bytes}``) together: every temporary file is
+    written before any is renamed into place, so that a failure while writing leaves none
+    of them (a pair of files that belong together, such as a CSV and its side file)."""
+    with contextlib.ExitStack() as stack:
+        for path, data in files.items():
+            tmp = stack.enter_context(atomic_path(path))
+            with open(tmp, "wb" if isinstance(data, bytes) else "w") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+    return [Path(p) for p in files]
+
+
+def json_text(obj: Any) -> str:
+    """``obj`` (dicts, lists, numbers, arrays) as indented JSON text."""
+    return json.dumps(_jsonable(obj), indent=2) + "\n"
+
+
 def write_json(path: str | os.PathLike, obj: Any) -> Path:
     """Write ``obj`` (dicts, lists, numbers, arrays) as indented JSON, atomically."""
-    return write_atomic(path, json.dumps(_jsonable(obj), indent=2) + "\n")
+    return write_atomic(path, json_text(obj))
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 130) -> Path:

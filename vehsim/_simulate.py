@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import is_concrete
+from ._checks import check_times, is_concrete
 from ._integrate import ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from ._results import RESULTS, as_result
 from ._signals import as_controls
@@ -115,6 +115,7 @@ def simulate(
 
     **Returns:** a `Trajectory`.
     """
+    check_times("simulate", ts)
     ts = jnp.asarray(ts, dtype=float)
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)

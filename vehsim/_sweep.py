@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
+from ._checks import check_times
 from ._results import RESULTS
 from ._simulate import Trajectory, simulate
 from .progress import progress_bar, resolve
@@ -132,6 +133,7 @@ def sweep(
     `sweep` with the same arguments and receives the whole result (gathered from all
     processes, `vehsim.sharding.gather_members`).
     """
+    check_times("sweep", ts)
     devices = list(jax.devices() if devices is None else devices)
     n = num_members(members)
     if check:

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray, PyTree
 
+from .._checks import sample_count
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._results import RESULTS, as_result
 from .._solution import AbstractSolution
@@ -234,7 +235,7 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
     """
     hardware = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(duration / float(hardware.sample_time)))
+    n_steps = sample_count("simulate_braking", duration, hardware.sample_time, substeps)
     return _simulate(scenario, controller, observer, hardware, key, n_steps, int(substeps),
                      bool(save), jnp.asarray(handback_speed, dtype=float))
 
@@ -307,7 +308,7 @@ def simulate_braking_grid(scenarios: BrakingScenario, controllers,
     **Returns:** a `BrakingRun` whose fields have leading axes (C, M).
     """
     hardware = realistic_hardware() if hardware is None else hardware
-    n_steps = int(round(duration / float(hardware.sample_time)))
+    n_steps = sample_count("simulate_braking_grid", duration, hardware.sample_time, substeps)
     return _grid(scenarios, tuple(controllers), observers, hardware, keys, n_steps, int(substeps),
                  bool(save), jnp.asarray(handback_speed, dtype=float))
 

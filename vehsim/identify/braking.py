@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._io import read_text, write_atomic, write_json
+from .._io import json_text, read_text, write_atomic_files
 
 
 REQUIRED_COLUMNS = ("t", "v", "omega", "F_x", "F_n")
@@ -222,8 +222,9 @@ def _read_wheel_data(path: Path, r: float | None) -> dict:
             meta["r"] = float(r)
         except (TypeError, ValueError):
             raise ValueError(f"load_braking: r must be a number, got {r!r}") from None
-        if not (math.isfinite(meta["r"]) and meta["r"] > 0):
-            raise ValueError(f"load_braking: r [m] must lie in (0, inf), got {meta['r']}")
+        if not (math.isfinite(meta["r"]) and 0 < meta["r"] <= SIDE_RANGES["r"]):
+            raise ValueError(f"load_braking: r [m] must lie in (0, {SIDE_RANGES['r']:g}], got "
+                             f"{meta['r']:g}")
     if "r" not in meta:
         raise ValueError(f"{path}: wheel radius 'r' [m] missing: put it in the side file "
                          f"{side.name}, or give it (--radius on the command line, r= to "
@@ -232,22 +233,36 @@ def _read_wheel_data(path: Path, r: float | None) -> dict:
 
 
 def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: int = 10):
-    """Write `data` as CSV (``%.{digits}g``) plus its ``.json`` side file, atomically."""
+    """Write `data` as CSV (``%.{digits}g``) plus its ``.json`` side file, both or neither,
+    atomically. What `load_braking` would refuse (a NaN, time not increasing, a negative
+    load, a radius outside its range, metadata that is not JSON) is refused before anything
+    is written."""
     path = Path(path)
     cols = list(REQUIRED_COLUMNS) + (["T_b"] if data.T_b is not None else [])
-    arrays = [np.asarray(getattr(data, c)) for c in cols]
-    lines = [",".join(cols)]
-    fmt = f"%.{digits}g"
-    for k in range(len(data)):
-        lines.append(",".join(fmt % a[k] for a in arrays))
-    write_atomic(path, "\n".join(lines) + "\n")
-    meta = {"r": float(data.r)}
-    for key in ("m", "J"):
+    values = {c: np.asarray(getattr(data, c), dtype=float) for c in cols}
+    for c, a in values.items():
+        if not np.all(np.isfinite(a)):
+            i = int(np.argmin(np.isfinite(a))) + 1
+            _fail(path, i, c, f"value must be finite, got {a[i - 1]:g}; not saved")
+    _check_columns(path, values)
+    meta = {}
+    for key in ("r", "m", "J"):
         if getattr(data, key) is not None:
             meta[key] = float(getattr(data, key))
+            if not (math.isfinite(meta[key]) and 0 < meta[key] <= SIDE_RANGES[key]):
+                raise ValueError(f"save_braking: {key} [{UNITS[key]}] must lie in "
+                                 f"(0, {SIDE_RANGES[key]:g}], got {meta[key]:g}; not saved")
     meta["units"] = {k: UNITS[k] for k in cols + list(meta)}
     meta.update(metadata or {})
-    write_json(path.with_suffix(".json"), meta)
+    try:
+        side = json_text(meta)
+    except TypeError as e:
+        raise ValueError(f"save_braking: metadata must be JSON (numbers, strings, lists, "
+                         f"dicts): {e}; not saved") from None
+    fmt = f"%.{digits}g"
+    arrays = list(values.values())
+    lines = [",".join(cols)] + [",".join(fmt % a[k] for a in arrays) for k in range(len(data))]
+    write_atomic_files({path: "\n".join(lines) + "\n", path.with_suffix(".json"): side})
     return path
 
 

@@ -49,7 +49,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import require_float64
+from .._checks import (
+    check_integer,
+    check_nonnegative,
+    check_positive,
+    check_range,
+    require_float64,
+)
 from .._constants import GRAVITY
 from .._fields import array_field
 from .._results import result_name, result_record
@@ -615,6 +621,7 @@ class CurvilinearPointMassOCP(AbstractCurvilinearOCP):
 
     def __check_init__(self):
         _check_objective(self.objective)
+        check_positive(type(self).__name__, "friction", self.friction)
 
     @classmethod
     def from_road(cls, road, *, friction: float = 0.52, objective: str = "min-time",
@@ -682,6 +689,11 @@ def speed_profile(road, D: float, fraction: float = 0.8, *, g: float = GRAVITY,
     L = float(road.length)
     closed = bool(getattr(road, "closed", False))
     laps = 3 if closed else 1
+    check_positive("speed_profile", "D", D)
+    check_range("speed_profile", "fraction", fraction, lower=0.0, upper=1.0, lower_open=True)
+    check_integer("speed_profile", "points", points, lower=1)
+    if start_speed is not None:
+        check_nonnegative("speed_profile", "start_speed", start_speed)
     s = np.linspace(0.0, L, points + 1)
     ds = L / points
     s_all = (s[:-1][None] + L * np.arange(laps)[:, None]).reshape(-1) if closed else s

@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._checks import check_nonnegative, check_positive
 from .._constants import GRAVITY
 from .._fields import array_field
 from ..vehicle.reduced import ReducedHalfCar
@@ -335,6 +336,14 @@ class PointMassOCP(AbstractManeuverOCP):
     `ManeuverOCP`'s (the margin shrinks them too)."""
 
     def __check_init__(self):
+        if self.objective not in ("min-time", "max-exit"):
+            raise ValueError(f"PointMassOCP.objective must be 'min-time' or 'max-exit', got "
+                             f"{self.objective!r}")
+        check_positive("PointMassOCP", "friction", self.friction)
+        check_positive("PointMassOCP", "tf_max", self.tf_max)
+        check_nonnegative("PointMassOCP", "margin", self.margin)
+        if self.num_stages < 2 or self.steps_per_stage < 1:
+            raise ValueError("PointMassOCP.num_stages must be >= 2 and steps_per_stage >= 1")
         _check_between(type(self).__name__, self.corner_clearance, self.interior_points)
 
     road: Road

@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._checks import check_nonnegative, check_positive, check_range, is_concrete
+from .._checks import check_nonnegative, check_positive, check_range, is_concrete, sample_count
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._fields import array_field, bool_field, int_field
 from .._results import RESULTS
@@ -342,7 +342,7 @@ def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0
     """
     plant = realistic_plant() if plant is None else plant
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(duration / float(plant.sample_time)))
+    n_steps = sample_count("simulate_robot", duration, plant.sample_time, substeps)
     return _simulate(controller, system, jnp.asarray(pose0, dtype=float), key, plant,
                      n_steps, int(substeps), bool(save))
 
@@ -429,7 +429,7 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     poses0 = jnp.asarray(poses0, dtype=float)
     keys = jnp.asarray(keys)
     C, S = len(controllers), len(systems)
-    n_steps = int(round(duration / float(plant.sample_time)))
+    n_steps = sample_count("simulate_robot_grid", duration, plant.sample_time, substeps)
     static = (tuple(controllers), tuple(systems))
     progress = resolve(progress)
     shards = 1 if devices is None else max(1, len(devices))

@@ -92,11 +92,19 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_positive, check_range
+from .._checks import (
+    check_finite,
+    check_nonnegative,
+    check_not_nan,
+    check_order,
+    check_positive,
+    check_range,
+)
 from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_pow_abs, safe_sqrt
 from .base import AbstractTire
 from .lugre import AbstractLongitudinalTire
+from .tir import ORDERED_PAIRS
 
 
 _C = Float[Array, "*batch"]
@@ -311,6 +319,16 @@ class MFParams(eqx.Module):
                      "LFZO"):
             check_positive(owner, name, getattr(self, name))
         check_range(owner, "version", self.version, lower=5.2, upper=6.2)
+        for lo, hi in ORDERED_PAIRS:  # a limit may be infinite (none), never NaN
+            for name in (lo, hi):
+                check_not_nan(owner, name, getattr(self, name))
+            check_order(owner, lo, getattr(self, lo), hi, getattr(self, hi))
+        limits = {name for pair in ORDERED_PAIRS for name in pair}
+        for name in FIELD_NAMES:
+            if name not in limits:
+                check_finite(owner, name, getattr(self, name))
+        for name in ("PCX1", "PCY1", "QCZ1", "PKY2"):  # shape factors, > 0 in any .tir
+            check_nonnegative(owner, name, getattr(self, name))
 
     @classmethod
     def from_tir(cls, tir) -> MFParams:

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PyTree
 
+from .._checks import check_finite_signals, check_times
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from .._results import RESULTS, as_result
 from .._signals import as_signal
@@ -115,6 +116,8 @@ def simulate_tire(
 
     **Returns:** a `TireSolution`: `forces` $(F_x, F_y, M_z)$ and `mu` $= F_x/F_z$ at `ts`.
     """
+    check_times("simulate_tire", ts)
+    check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
     ts = jnp.asarray(ts, dtype=float)
     longitudinal = isinstance(model, AbstractLongitudinalTire)
     if not (longitudinal or isinstance(model, AbstractTire)):

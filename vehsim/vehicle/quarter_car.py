@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_positive
+from .._checks import check_finite_signals, check_positive, check_times
 from .._constants import GRAVITY
 from .._fields import array_field
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
@@ -161,6 +161,9 @@ def simulate_quarter_car(
 
     **Returns:** a `QuarterCarSolution` with $v$, $\omega$, $F_n$, $F_x$ at `ts`.
     """
+    check_times("simulate_quarter_car", ts)
+    check_finite_signals("simulate_quarter_car", brake_torque=brake_torque,
+                         v0=None if state0 is not None else v0)
     ts = jnp.asarray(ts, dtype=float)
     Tb_fn = as_signal(ts, brake_torque)
     y0 = car.init_state(v0, ts[0]) if state0 is None else state0

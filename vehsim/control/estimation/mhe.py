@@ -53,7 +53,7 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float
 
-from ..._checks import check_positive
+from ..._checks import check_integer, check_order, check_positive
 from ..._fields import array_field
 from ..._optimality import max_gradient_cosine
 from ..._results import RESULTS, is_successful
@@ -144,6 +144,9 @@ class MovingHorizonEstimator(eqx.Module):
                              f"{self.window}")
         for name in ("wheel_noise", "speed_noise", "max_log_se", "theta_min", "theta_max"):
             check_positive("MovingHorizonEstimator", name, getattr(self, name))
+        check_order("MovingHorizonEstimator", "theta_min", self.theta_min, "theta_max",
+                    self.theta_max)
+        check_integer("MovingHorizonEstimator", "starts", self.starts, lower=1)
 
     def _simulate(self, u, car: QuarterCar, hardware: BrakeHardware, data: BrakingRecord):
         """Wheel speeds at the stamps and vehicle speeds at the samples 1..N of a window."""

@@ -19,11 +19,14 @@ follows the steering and its yaw rate stays bounded.
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ..._checks import check_nonnegative, check_positive, check_range, sample_count
 from ..._fields import array_field
 from ..._results import RESULTS
 from ..._solution import AbstractSolution
@@ -60,6 +63,13 @@ class TurnScenario(eqx.Module):
     delta: Float[Array, ""] = array_field()
     brake_time: Float[Array, ""] = array_field()
     rear_share: Float[Array, ""] = array_field(default=0.4)
+
+    def __check_init__(self):
+        check_positive("TurnScenario", "speed", self.speed)
+        check_range("TurnScenario", "delta", self.delta, lower=-math.pi / 2, upper=math.pi / 2,
+                    lower_open=True, upper_open=True)
+        check_nonnegative("TurnScenario", "brake_time", self.brake_time)
+        check_range("TurnScenario", "rear_share", self.rear_share, lower=0.0, upper=1.0)
 
 
 def turn_scenario(name: str = "dry_asphalt", speed=25.0, delta=0.02, brake_time=0.5,
@@ -188,7 +198,7 @@ def simulate_turn(sc: TurnScenario, front: AbstractBrakeController,
     """
     hardware = BrakeHardware(max_torque=4000.0) if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
-    n_steps = int(round(duration / float(hardware.sample_time)))
+    n_steps = sample_count("simulate_turn", duration, hardware.sample_time)
     result, out = _simulate(sc, (front, rear), hardware, key, n_steps)
     ts = out.pop("ts")
     delta = sc.delta * smooth_step(ts, 0.0, 0.2)

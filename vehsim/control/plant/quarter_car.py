@@ -71,8 +71,7 @@ class BrakingScenario(eqx.Module):
             self.change = SurfaceChange(self.car.tire)
 
     def __check_init__(self):
-        if not isinstance(self.speed, jax.core.Tracer) and np.any(np.asarray(self.speed) <= 0):
-            raise ValueError(f"BrakingScenario.speed must lie in (0, inf), got {self.speed}")
+        check_positive("BrakingScenario", "speed", self.speed)
         a = jax.tree_util.tree_structure(self.car.tire)
         b = jax.tree_util.tree_structure(self.change.tire)
         if a != b:

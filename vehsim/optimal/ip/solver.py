@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..._checks import check_positive, is_concrete
+from ..._checks import check_integer, check_positive, is_concrete
 from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
@@ -160,7 +160,11 @@ class IPOptions(eqx.Module):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
-        check_positive("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps)
+        check_integer("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps, lower=1)
+        check_integer("IPOptions", "max_iter", self.max_iter, lower=1)
+        check_integer("IPOptions", "log_size", self.log_size, lower=1)
+        for name in ("tol", "constr_tol", "mu0"):
+            check_positive("IPOptions", name, getattr(self, name))
         if self.jacobian_update == "first" and self.hessian_update != "first":
             raise ValueError("IPOptions.jacobian_update='first' keeps the Jacobians with the "
                              "Hessian: it needs hessian_update='first', got "

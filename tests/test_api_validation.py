@@ -1,0 +1,162 @@
+"""Bad values given to the library (not the command line) are refused at once, by a
+`ValueError` that names the function or field and the allowed range: before a solve that
+would spend its step budget, report success on nothing, or return NaN."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+from vehsim.control.controllers.braking import RuleBasedABS
+from vehsim.control.estimation.mhe import MovingHorizonEstimator
+from vehsim.control.experiments.half_car_abs import turn_scenario
+from vehsim.control.experiments.scenarios import braking_scenario
+from vehsim.control.loop import simulate_braking
+from vehsim.identify.braking import load_braking, save_braking, shipped_brakings
+from vehsim.optimal.curvilinear import speed_profile
+from vehsim.optimal.ip.solver import IPOptions
+from vehsim.optimal.primitives import point_mass_bound
+from vehsim.robot.controllers import DiscontinuousController
+from vehsim.robot.khepera import ideal_plant, simulate_robot
+from vehsim.robot.unicycle import SystemI
+from vehsim.tire.mf6 import MFParams
+
+
+P = vs.params.table3()
+TS = jnp.linspace(0.0, 0.1, 11)
+
+
+def _car():
+    return vs.QuarterCar(vs.LumpedLuGre(P), mass=350.0, inertia=1.0, radius=0.3)
+
+
+def _braking():
+    scenario, observer = braking_scenario("dry_asphalt", 30.0)
+    return scenario, RuleBasedABS(), observer
+
+
+def _robot(**kw):
+    return simulate_robot(DiscontinuousController(), SystemI(), jnp.array([0.0, 0.1, 0.0]),
+                          plant=ideal_plant(), **kw)
+
+
+def _road():
+    return vs.CentrelineRoad.from_segments([("straight", 20.0), ("arc", 15.0, 90.0)], 4.0)
+
+
+CASES = {
+    "a NaN speed into a tire": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, np.nan, 60.0, 0.3),
+        "simulate_tire: vx must be finite, got nan"),
+    "an infinite sample of the wheel speed": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, jnp.full(11, 60.0).at[3].set(
+            np.inf), 0.3), "simulate_tire: omega must be finite, got inf"),
+    "save times backwards": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS[::-1], 20.0, 60.0, 0.3),
+        "simulate_tire: ts must be increasing, got 0.09 after 0.1 (index 1)"),
+    "a NaN save time": (
+        lambda: vs.simulate_quarter_car(_car(), TS.at[4].set(np.nan), 800.0, 20.0),
+        "simulate_quarter_car: ts must be finite, got nan at index 4"),
+    "a NaN start speed of the quarter car": (
+        lambda: vs.simulate_quarter_car(_car(), TS, 800.0, np.nan),
+        "simulate_quarter_car: v0 must be finite"),
+    "a braking of negative duration": (
+        lambda: simulate_braking(*_braking(), duration=-1.0),
+        "simulate_braking: duration [s] must lie in (0, inf), got -1"),
+    "a braking of no substeps": (
+        lambda: simulate_braking(*_braking(), substeps=0),
+        "simulate_braking: substeps must be an integer >= 1, got 0"),
+    "a robot run of NaN duration": (
+        lambda: _robot(duration=np.nan), "simulate_robot: duration [s] must lie in (0, inf)"),
+    "a robot run shorter than a sample": (
+        lambda: _robot(duration=1e-6), "simulate_robot: duration (1e-06 s) must be at least"),
+    "a NaN braking speed": (
+        lambda: braking_scenario("dry_asphalt", speed=np.nan),
+        "BrakingScenario.speed must be finite"),
+    "a turn backwards": (
+        lambda: turn_scenario(speed=-25.0), "TurnScenario.speed must lie in (0, inf)"),
+    "a rear brake share above 1": (
+        lambda: turn_scenario(rear_share=2.0), "TurnScenario.rear_share must lie in [0, 1]"),
+    "a braking that never starts": (
+        lambda: turn_scenario(brake_time=np.nan), "TurnScenario.brake_time must be finite"),
+    "a misspelt objective of the bound": (
+        lambda: point_mass_bound("corner90", objective="min_time"),
+        "PointMassOCP.objective must be 'min-time' or 'max-exit', got 'min_time'"),
+    "a negative friction of the bound": (
+        lambda: point_mass_bound("corner90", D=-0.5),
+        "PointMassOCP.friction must lie in (0, inf), got -0.5"),
+    "a negative initial barrier": (
+        lambda: IPOptions(mu0=-0.1), "IPOptions.mu0 must lie in (0, inf)"),
+    "a negative tolerance": (lambda: IPOptions(tol=-1.0), "IPOptions.tol must lie in (0, inf)"),
+    "a fractional iteration cap": (
+        lambda: IPOptions(max_iter=2.5), "IPOptions.max_iter must be an integer >= 1, got 2.5"),
+    "no log": (lambda: IPOptions(log_size=0), "IPOptions.log_size must be an integer >= 1"),
+    "estimator bounds the wrong way round": (
+        lambda: MovingHorizonEstimator(P, 5.0, 1.0),
+        "MovingHorizonEstimator needs theta_min <= theta_max, got theta_min = 5"),
+    "no estimator starts": (
+        lambda: MovingHorizonEstimator(P, starts=0),
+        "MovingHorizonEstimator.starts must be an integer >= 1, got 0"),
+    "a NaN Magic Formula coefficient": (
+        lambda: MFParams(PDX1=np.nan), "MFParams.PDX1 must be finite, got nan"),
+    "a negative shape factor": (
+        lambda: MFParams(PCX1=-1.0), "MFParams.PCX1 must lie in [0, inf), got -1"),
+    "load limits the wrong way round": (
+        lambda: MFParams(FZMIN=5000.0, FZMAX=100.0),
+        "MFParams needs FZMIN <= FZMAX, got FZMIN = 5000, FZMAX = 100"),
+    "a speed profile for negative friction": (
+        lambda: speed_profile(_road(), -0.5), "speed_profile.D must lie in (0, inf), got -0.5"),
+    "a speed profile at no fraction of the friction": (
+        lambda: speed_profile(_road(), 0.5, 0.0), "speed_profile.fraction must lie in (0, 1]"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES), ids=list(CASES))
+def test_bad_values_are_refused_naming_the_field_and_its_range(case):
+    call, message = CASES[case]
+    with pytest.raises(ValueError) as err:
+        call()
+    assert message in str(err.value), str(err.value)
+
+
+def test_a_shipped_magic_formula_file_and_the_default_pass_the_checks():
+    MFParams()
+    for path in vs.shipped_tires().values():
+        MFParams.from_tir(vs.read_tir(path))
+
+
+def _record(**changes):
+    d = load_braking(next(iter(shipped_brakings().values())))
+    for name, value in changes.items():
+        d = eqx.tree_at(lambda x, name=name: getattr(x, name), d, value)
+    return d
+
+
+@pytest.mark.parametrize(("changes", "metadata", "message"), [
+    ({}, {"source": object()}, "save_braking: metadata must be JSON"),
+    ({"r": jnp.asarray(10.0)}, None, "save_braking: r [m] must lie in (0, 5], got 10"),
+    ({"F_n": "nan at 3"}, None, "row 3, column 'F_n': value must be finite, got nan; not saved"),
+], ids=["metadata", "radius", "nan"])
+def test_save_braking_refuses_what_load_braking_would_and_writes_nothing(tmp_path, changes,
+                                                                         metadata, message):
+    if changes.get("F_n") == "nan at 3":
+        changes["F_n"] = _record().F_n.at[2].set(np.nan)
+    with pytest.raises(ValueError) as err:
+        save_braking(_record(**changes), tmp_path / "b.csv", metadata=metadata)
+    assert message in str(err.value), str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_braking_round_trips_the_pair(tmp_path):
+    d = _record()
+    save_braking(d, tmp_path / "b.csv", metadata={"source": "a test"})
+    back = load_braking(tmp_path / "b.csv")
+    np.testing.assert_allclose(back.F_x, d.F_x, rtol=1e-9)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.csv", "b.json"]
+
+
+def test_load_braking_refuses_the_radius_its_side_file_would(tmp_path):
+    path = next(iter(shipped_brakings().values()))
+    with pytest.raises(ValueError, match=r"load_braking: r \[m\] must lie in \(0, 5\], got 10"):
+        load_braking(path, r=10.0)
