@@ -160,3 +160,10 @@ def test_load_braking_refuses_the_radius_its_side_file_would(tmp_path):
     path = next(iter(shipped_brakings().values()))
     with pytest.raises(ValueError, match=r"load_braking: r \[m\] must lie in \(0, 5\], got 10"):
         load_braking(path, r=10.0)
+
+
+def test_save_braking_leaves_no_csv_when_its_side_file_cannot_be_written(tmp_path):
+    (tmp_path / "b.json").mkdir()  # the side file's name is taken by a folder
+    with pytest.raises(OSError):
+        save_braking(_record(), tmp_path / "b.csv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.json"]
