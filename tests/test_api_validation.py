@@ -167,3 +167,36 @@ def test_save_braking_leaves_no_csv_when_its_side_file_cannot_be_written(tmp_pat
     with pytest.raises(OSError):
         save_braking(_record(), tmp_path / "b.csv")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.json"]
+
+
+MORE_CASES = {
+    "a negative prescribed load": (
+        lambda: vs.PrescribedLoad(jnp.array([0.0, 1.0]), jnp.array([3000.0, -3000.0])),
+        "PrescribedLoad.values must lie in [0, inf), got [3000, -3000]"),
+    "prescribed load times backwards": (
+        lambda: vs.PrescribedLoad(jnp.array([1.0, 0.0]), jnp.array([3000.0, 3000.0])),
+        "PrescribedLoad: ts must be increasing, got 0 after 1"),
+    "a road from a NaN heading": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", 20.0)], 4.0,
+                                                start_heading=np.nan),
+        "start must be a finite point (x, y) [m] and start_heading a finite angle"),
+    "a Magic Formula without regularising speed": (
+        lambda: vs.MagicFormula1987(vs.params.bakker1987(), v_eps=0.0),
+        "MagicFormula1987.v_eps must lie in (0, inf), got 0"),
+    "a plant peak on a road of no grip": (
+        lambda: vs.plant_peak(0.0), "plant_peak: scale must lie in (0, inf), got 0"),
+    "an empty sweep axis": (
+        lambda: vs.sweep_grid(m=[1000.0, 1200.0], h=[]),
+        "sweep_grid: axis 'h' must be a non-empty list of values"),
+    "a sweep in batches of none": (
+        lambda: vs.sharded_vmap(lambda x: x, batch_size=0),
+        "batch_size must be an integer >= 1 (or None), got 0"),
+}
+
+
+@pytest.mark.parametrize("case", list(MORE_CASES), ids=list(MORE_CASES))
+def test_more_bad_values_are_refused(case):
+    call, message = MORE_CASES[case]
+    with pytest.raises(ValueError) as err:
+        call()
+    assert message in str(err.value), str(err.value)

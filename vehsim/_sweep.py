@@ -73,6 +73,10 @@ def sweep_grid(**axes: Sequence[float]) -> dict[str, Array]:
     gives 6 members, ``{"m": [1, 1, 1, 2, 2, 2], "h": [3, 4, 5, 3, 4, 5]}``."""
     names = list(axes)
     values = [np.atleast_1d(np.asarray(axes[n], dtype=float)) for n in names]
+    for n, v in zip(names, values, strict=True):
+        if v.ndim != 1 or v.size == 0:
+            raise ValueError(f"sweep_grid: axis {n!r} must be a non-empty list of values, got "
+                             f"shape {v.shape}")
     rows = list(itertools.product(*values))
     return {n: jnp.asarray([r[i] for r in rows], dtype=float) for i, n in enumerate(names)}
 

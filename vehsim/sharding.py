@@ -124,6 +124,10 @@ def sharded_vmap(
     host callback per chunk; without `batch_size`, one per device).
     """
 
+    if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) != batch_size
+                                   or batch_size < 1):
+        raise ValueError(f"batch_size must be an integer >= 1 (or None), got {batch_size!r}")
+
     def batched(*args):
         axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
         return _chunked_vmap(fn, axes, batch_size, progress, *args)

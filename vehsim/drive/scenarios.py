@@ -355,6 +355,8 @@ def _scale(tire, peak, speed):
 def plant_peak(scale: float) -> float:
     r"""$\mu^*(\lambda)$ of the plant's tire on a road of friction scale `scale`
     (`AxleGripEstimator.peak`, whose assumed tire is the plant's)."""
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"plant_peak: scale must lie in (0, inf), got {scale:g}")
     return float(_peak(AxleGripEstimator(), jnp.asarray(float(scale))))
 
 

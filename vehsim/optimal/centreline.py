@@ -558,6 +558,10 @@ class CentrelineRoad(eqx.Module):
         gx, gw = np.polynomial.legendre.leggauss(10)
         th0 = float(start_heading)
         p0 = np.asarray(start, float)
+        if not (math.isfinite(th0) and p0.shape == (2,) and np.all(np.isfinite(p0))):
+            raise ValueError(f"road {name!r}: start must be a finite point (x, y) [m] and "
+                             f"start_heading a finite angle [rad], got {start!r}, "
+                             f"{start_heading!r}")
         k_prev = 0.0
         s_all, p_all, th_all, kl_all, kr_all = [0.0], [p0], [th0], [], []
         s0 = 0.0

@@ -41,6 +41,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._checks import check_positive
 from .._fields import array_field
 from .._math import safe_div, safe_norm
 from .base import AbstractTire
@@ -164,6 +165,9 @@ class MagicFormula1987(AbstractTire):
 
     params: MagicFormula1987Params
     v_eps: Float[Array, ""] = array_field(default=0.5)
+
+    def __check_init__(self):
+        check_positive(type(self).__name__, "v_eps", self.v_eps)
 
     def init_state(self):
         return jnp.zeros((0,))

@@ -10,7 +10,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_positive, check_range
+from .._checks import check_nonnegative, check_positive, check_range, check_times
 from .._fields import array_field
 
 
@@ -72,6 +72,8 @@ class PrescribedLoad(AbstractNormalLoad):
                 f"PrescribedLoad.ts and .values must be 1-D of equal length, got "
                 f"{self.ts.shape} and {self.values.shape}"
             )
+        check_times("PrescribedLoad", self.ts)
+        check_nonnegative("PrescribedLoad", "values", self.values)
 
     def _interp(self):
         return dfx.LinearInterpolation(ts=self.ts, ys=self.values)
