@@ -58,6 +58,7 @@ from .._checks import (
 )
 from .._constants import GRAVITY
 from .._fields import array_field
+from .._math import safe_hypot
 from .._results import result_name, result_record
 from ..vehicle.reduced import ReducedHalfCar
 from .ip import AbstractStagewiseNLP, IPOptions, IPSolution, interior_point
@@ -586,7 +587,7 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
         return _rate_penalty(self, u, k)
 
     def speed(self, x):
-        return (x[..., 2] ** 2 + x[..., 3] ** 2) ** 0.5
+        return safe_hypot(x[..., 2], x[..., 3])
 
 
 class CurvilinearPointMassOCP(AbstractCurvilinearOCP):

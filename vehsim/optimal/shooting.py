@@ -48,6 +48,7 @@ from jaxtyping import Array
 from .._checks import check_nonnegative, check_positive
 from .._constants import GRAVITY
 from .._fields import array_field
+from .._math import safe_hypot
 from ..vehicle.reduced import ReducedHalfCar
 from .ip import AbstractStagewiseNLP
 from .roads import Road
@@ -296,7 +297,7 @@ class ManeuverOCP(AbstractManeuverOCP):
     def terminal_cost(self, x):
         if self.objective == "min-time":
             return x[IDX_TF]
-        return -jnp.sqrt(x[3] ** 2 + x[4] ** 2)
+        return -safe_hypot(x[3], x[4])
 
     def final_time(self, x):
         return x[..., IDX_TF]
@@ -376,7 +377,7 @@ class PointMassOCP(AbstractManeuverOCP):
     def terminal_cost(self, x):
         if self.objective == "min-time":
             return x[4]
-        return -jnp.sqrt(x[2] ** 2 + x[3] ** 2)
+        return -safe_hypot(x[2], x[3])
 
     def final_time(self, x):
         return x[..., 4]

@@ -53,7 +53,7 @@ from jaxtyping import Array, Float, Int
 
 from ..._checks import check_positive, check_range
 from ..._fields import array_field
-from ..._math import safe_abs
+from ..._math import one_minus_exp_over, safe_abs
 from ...tire.lugre import AbstractLongitudinalTire, relative_velocity
 from ...vehicle.quarter_car import QuarterCar
 from ..plant.hardware import BrakeHardware, brake_torque
@@ -90,8 +90,11 @@ class BurckhardtBelief(AbstractLongitudinalTire):
 
     def _curve(self, s):
         c1, c2, c3 = self.params
-        lam = jnp.minimum(safe_abs(s), 1.0)
-        return jnp.sign(s) * (c1 * (1.0 - jnp.exp(-c2 * lam)) - c3 * lam)
+        # sgn(s) (c1 (1 - exp(-c2 |s|)) - c3 |s|), |s| capped at 1, written as
+        # c1 c2 s phi(c2 |s|) - c3 s: the same values, and the slope c1 c2 - c3 at s = 0
+        # (the product of sgn and |.| has derivative 0 there in both modes)
+        sc = jnp.clip(s, -1.0, 1.0)
+        return c1 * c2 * sc * one_minus_exp_over(c2 * safe_abs(sc)) - c3 * sc
 
     def mu(self, state, v, omega, r):
         return self._curve(state / self.relaxation_length)

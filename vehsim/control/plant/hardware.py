@@ -144,12 +144,13 @@ def actuator_target(hardware: BrakeHardware, state: ActuatorState, k, command):
 def brake_torque(hardware: BrakeHardware, torque0, target, t):
     r"""$T_b$ a time `t` after the sample: the exact lag response (step 4), or the target
     itself when the lag is off."""
-    decay = jnp.exp(-t / hardware.time_constant)
+    tau = jnp.where(hardware.lag, hardware.time_constant, 1.0)  # unchecked when off
+    decay = jnp.exp(-t / tau)
     return jnp.where(hardware.lag, target + (torque0 - target) * decay, target)
 
 
 def mean_brake_torque(hardware: BrakeHardware, torque0, target):
     r"""$\frac1T\int_0^T T_b\,dt$ over one sample (the exact mean of the lag response)."""
-    a = hardware.sample_time / hardware.time_constant
+    a = hardware.sample_time / jnp.where(hardware.lag, hardware.time_constant, 1.0)
     frac = -jnp.expm1(-a) / a
     return jnp.where(hardware.lag, target + (torque0 - target) * frac, target)
