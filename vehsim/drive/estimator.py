@@ -103,7 +103,6 @@ from __future__ import annotations
 
 import abc
 import functools
-import math
 
 import equinox as eqx
 import jax
@@ -112,7 +111,7 @@ from jaxtyping import Array, Float
 
 from .._checks import check_nonnegative, check_positive, check_range
 from .._fields import array_field, float_array
-from .._math import safe_abs, safe_div, safe_hypot, safe_norm
+from .._math import safe_abs, safe_div, safe_norm, safe_sqrt
 from ..tire.lugre2d import decay_rates
 from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.params import lugre2d_bakker1987
@@ -172,7 +171,7 @@ def slip_velocity_std(sensors: DriveSensors, radius) -> Float[Array, ""]:
     rate's noise times the axle's lever in place of the wheel speed's (3.6 cm/s with the
     defaults)."""
     on = jnp.where(sensors.noise_on, 1.0, 0.0)
-    return on * safe_hypot(sensors.velocity_std, radius * sensors.wheel_speed_std) / math.sqrt(2)
+    return on * safe_sqrt((sensors.velocity_std**2 + (radius * sensors.wheel_speed_std)**2) / 2)
 
 
 REFERENCE_SPEED = 20.0
