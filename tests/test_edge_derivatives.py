@@ -83,3 +83,31 @@ def test_a_switched_off_lag_with_no_time_constant_has_finite_derivatives():
     hw = vs.ideal_hardware(time_constant=0.0)
     rev, fwd = _both(lambda target: brake_torque(hw, 100.0, target, 0.0), 800.0)
     assert rev == fwd == 1.0
+
+
+def test_forward_mode_through_the_open_loop_prediction_names_the_adjoint():
+    """The open-loop prediction passes its default adjoint explicitly: forward mode through
+    it raised JAX's generic custom_vjp error rather than the message naming the remedy,
+    which then works."""
+    import diffrax as dfx
+    import equinox as eqx
+    import pytest
+
+    from vehsim._integrate import FORWARD_MODE_MESSAGE
+
+    model = vs.LumpedLuGre(vs.params.cdc1999(), kappa0=1.2)
+    n = 11
+    d = vs.BrakingData(t=jnp.linspace(0.0, 0.05, n), v=jnp.full(n, 20.0),
+                       omega=jnp.full(n, 60.0), F_x=jnp.full(n, -1000.0),
+                       F_n=jnp.full(n, 3500.0), r=jnp.asarray(0.3))
+    s0 = jnp.asarray(float(model.params.sigma0))
+
+    def f(s, adjoint=None):
+        m = eqx.tree_at(lambda m: m.params.sigma0, model, s)
+        return vs.predict_open_loop(m, d, adjoint=adjoint)[-1]
+
+    with pytest.raises(TypeError, match="pass adjoint=diffrax.ForwardMode()") as err:
+        jax.jvp(f, (s0,), (jnp.ones(()),))
+    assert str(err.value) == FORWARD_MODE_MESSAGE
+    fwd = jax.jvp(lambda s: f(s, dfx.ForwardMode()), (s0,), (jnp.ones(()),))[1]
+    np.testing.assert_allclose(fwd, jax.grad(f)(s0), rtol=1e-9)

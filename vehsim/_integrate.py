@@ -107,7 +107,8 @@ def integrate(
         sol = _diffeqsolve(vector_field, solver, ts, t0, t1, dt0, y0, args, saveat,
                            stepsize_controller, max_steps, adjoint, progress_meter)
     except TypeError as e:  # JAX's words for a jvp of the checkpointed loop's custom_vjp
-        if "custom_vjp" in str(e) and adjoint is None:
+        if "custom_vjp" in str(e) and (adjoint is None or isinstance(
+                adjoint, dfx.RecursiveCheckpointAdjoint)):
             raise TypeError(FORWARD_MODE_MESSAGE) from e
         raise
     result = as_result(sol.result)

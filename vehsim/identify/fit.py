@@ -167,7 +167,9 @@ def fit_loss(model: LumpedLuGre, data: Sequence[BrakingData],
     the peak measured $|F_x|$ ($|v|$, $|\omega|$). `substeps` and `rtol` apply to a `mode`
     given by name (see `braking_model`).
 
-    Differentiable in `model`: open loop in both modes; closed loop (an adaptive solve with
+    Differentiable in `model`: open loop in reverse mode (forward mode raises
+    `vehsim._integrate.FORWARD_MODE_MESSAGE`; `predict_open_loop` with
+    ``adjoint=diffrax.ForwardMode()`` serves it); closed loop (an adaptive solve with
     forward-mode sensitivities, as the fit uses) in forward mode only (`jax.jvp`,
     `jax.jacfwd`): reverse mode stops with JAX's error that a `while_loop` cannot be
     reverse-differentiated."""

@@ -27,8 +27,9 @@ def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2, 
 
     The friction state starts from the steady state at $t_0$ and takes `substeps` steps of
     the exponential midpoint rule per sample interval (`friction_state`). `adjoint`: a
-    diffrax adjoint (default `RecursiveCheckpointAdjoint`: any AD mode;
-    `diffrax.ForwardMode()` for forward-mode Jacobians).
+    diffrax adjoint (default `RecursiveCheckpointAdjoint`: reverse mode; forward mode
+    through it raises `vehsim._integrate.FORWARD_MODE_MESSAGE`; `diffrax.ForwardMode()`
+    for forward-mode Jacobians).
     """
     return _forces(model, [data], substeps, adjoint)[0]
 
