@@ -111,3 +111,30 @@ def test_forward_mode_through_the_open_loop_prediction_names_the_adjoint():
     assert str(err.value) == FORWARD_MODE_MESSAGE
     fwd = jax.jvp(lambda s: f(s, dfx.ForwardMode()), (s0,), (jnp.ones(()),))[1]
     np.testing.assert_allclose(fwd, jax.grad(f)(s0), rtol=1e-9)
+
+
+def test_a_peak_at_lock_is_the_end_of_the_range_with_its_derivatives():
+    """On a surface whose braking curve still rises at lock the peak is the end s* = -1,
+    exactly, and its derivatives in v are those of the end point (ds*/dv = 0,
+    dmu*/dv = the curve's at lock): the search stopped 7e-11 short of it, where the rule
+    for an interior peak gave dmu*/dv 19 % off and ds*/dv = -0.156. The physical limit's
+    distance inherits it."""
+    import equinox as eqx
+
+    tire = vs.surface("cdc1999_1").tire()
+    peak = lambda v: jnp.stack(vs.peak_braking(tire, v, 0.3))  # noqa: E731
+    s, mu = peak(20.0)
+    assert s == -1.0
+    fd = (peak(20.0 + 1e-3) - peak(20.0 - 1e-3)) / 2e-3
+    for jac in (jax.jacfwd(peak)(20.0), jax.jacrev(peak)(20.0)):
+        np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-12)
+    scenario, _ = vs.braking_scenario("cdc1999_1", 30.0)
+
+    def distance(theta):
+        return vs.physical_limit(eqx.tree_at(lambda q: q.car.tire.params.theta, scenario,
+                                             theta))[0]
+
+    theta = scenario.car.tire.params.theta
+    fd = (distance(theta + 1e-4) - distance(theta - 1e-4)) / 2e-4
+    rev, fwd = _both(distance, theta)
+    np.testing.assert_allclose([rev, fwd], [fd, fd], rtol=1e-6)

@@ -65,7 +65,11 @@ def _argmax(curve, lo, hi, args):
         return jnp.where(left, a, c), jnp.where(left, d, b)
 
     a, b = jax.lax.fori_loop(0, _GOLDEN_STEPS, shrink, (a, b))
-    return 0.5 * (a + b)
+    s = 0.5 * (a + b)
+    # a peak at an end of the range (a curve still rising at lock) is that end, exactly:
+    # the search stops a bracket short of it, where the derivative rule would take the
+    # nearest point for an interior peak
+    return jnp.where(curve(hi, args) >= curve(s, args), hi, s)
 
 
 @_argmax.defjvp
