@@ -88,12 +88,7 @@ def read_text(path: str | os.PathLike) -> str:
 
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    mode = "wb" if isinstance(data, bytes) else "w"
-    with atomic_path(path) as tmp, open(tmp, mode) as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    return Path(path)
+    return write_atomic_files({path: data})[0]
 
 
 def write_atomic_files(files: dict) -> list[Path]:
