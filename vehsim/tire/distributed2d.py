@@ -38,6 +38,7 @@ from .distributed import (
 )
 from .load import AbstractLoadDistribution, UniformLoad
 from .lugre2d import AbstractPatchLuGre2D, LuGre2DParams, decay_rates
+from .steady_state import graded_edges
 
 
 def lever_moment(load: AbstractLoadDistribution):
@@ -150,13 +151,9 @@ def _layer_rates(C0, L, c):
 def graded_nodes(load: AbstractLoadDistribution, k, gx, gw):
     r"""Nodes and weights on $[0, 1]$ of the Gauss rule `gx`, `gw` (on $[-1, 1]$) on panels
     split at the load's kinks and graded to the leading-edge boundary layers of the rates
-    `k` (thickness $1/k_i$: panel edges at $40/k_i$, $4/k_i$, $0.4/k_i$), so that an
-    integrand such as $e^{-k_i\xi}q(\xi)$ is resolved at any slip."""
-    edges = [jnp.zeros(()), jnp.ones(())] + [jnp.asarray(e, dtype=float) for e in load.kinks()]
-    for ki in jnp.atleast_1d(k):
-        layer = jnp.minimum(1.0, 40.0 / jnp.maximum(ki, 1e-30))
-        edges += [layer, 0.1 * layer, 0.01 * layer]
-    edges = jnp.sort(jnp.stack(edges))
+    `k` (`graded_edges`), so that an integrand such as $e^{-k_i\xi}q(\xi)$ is resolved at
+    any slip."""
+    edges = graded_edges(load, *jnp.atleast_1d(k))
     a, b = edges[:-1, None], edges[1:, None]
     gx, gw = jnp.asarray(gx)[None, :], jnp.asarray(gw)[None, :]
     return (0.5 * (b - a) * gx + 0.5 * (a + b)).reshape(-1), (0.5 * (b - a) * gw).reshape(-1)

@@ -62,12 +62,14 @@ def z_ss(params: LuGreParams, zeta, v, omega, r):
     return jnp.where(rolling, z_roll, z_lock)
 
 
-def _panels(load: AbstractLoadDistribution, k):
-    """Panel edges on [0, 1]: the load's kinks plus the edge of the boundary layer 40/k."""
+def graded_edges(load: AbstractLoadDistribution, *ks):
+    """Sorted panel edges on [0, 1]: the load's kinks and, for each boundary-layer rate
+    `k`, the edges 40/k, 4/k and 0.4/k of its layer (thickness 1/k, at the leading edge)."""
     edges = [jnp.zeros(()), jnp.ones(())]
     edges += list(load.kinks())
-    layer = jnp.minimum(1.0, 40.0 / jnp.maximum(k, 1e-30))
-    edges += [layer, 0.1 * layer, 0.01 * layer]
+    for k in ks:
+        layer = jnp.minimum(1.0, 40.0 / jnp.maximum(k, 1e-30))
+        edges += [layer, 0.1 * layer, 0.01 * layer]
     return jnp.sort(jnp.stack([jnp.asarray(e, dtype=float) for e in edges]))
 
 
@@ -80,7 +82,7 @@ def steady_state_mu(params: LuGreParams, load: AbstractLoadDistribution, v, omeg
     slip.
     """
     v_r, g, c, rolling, k = _rolling_terms(params, v, omega, r)
-    edges = _panels(load, k)
+    edges = graded_edges(load, k)
     a, b = edges[:-1, None], edges[1:, None]
     xi = 0.5 * (b - a) * jnp.asarray(_GL_X)[None, :] + 0.5 * (a + b)
     w = 0.5 * (b - a) * jnp.asarray(_GL_W)[None, :]
