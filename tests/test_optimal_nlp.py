@@ -717,6 +717,19 @@ def test_implicit_derivatives_of_the_optimum_are_the_closed_form(bang_bang):
     np.testing.assert_allclose(np.asarray(jax.grad(t_final, argnums=(0, 1))(L, a)), exact,
                                rtol=1e-6)
 
+    # through the iterations (implicit=False): forward mode differentiates the loop (here
+    # converged, so near the implicit derivative); reverse mode, which JAX cannot run through
+    # a while loop, refuses with a message naming implicit=True, jitted or vmapped too
+    def t_loop(L):
+        p = eqx.tree_at(lambda q: q.L, prob, L)
+        return interior_point(p, xs0, us0).xs[-1, 4]
+
+    np.testing.assert_allclose(float(jax.jvp(t_loop, (L,), (1.0,))[1]), exact[0], rtol=1e-4)
+    for derivative in (jax.grad(t_loop), jax.jit(jax.grad(t_loop)),
+                       lambda L: jax.vmap(jax.grad(t_loop))(L[None])):
+        with pytest.raises(TypeError, match="implicit=True"):
+            derivative(L)
+
     # a solve stopped short of the optimum has no implicit derivative: a clear error in both
     # modes (jitted too), neither a NaN nor a number; its values are still returned
     def t_capped(L):

@@ -51,6 +51,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..._checks import check_integer, check_positive, is_concrete
+from ..._derivative_modes import forward_mode_only
 from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
 from ._carry import strong
@@ -302,14 +303,24 @@ def interior_point(
     ``implicit``: differentiate the solution in ``prob``'s arrays by the implicit function
     theorem at the iterate returned (`implicit_solve`; forward and reverse mode, none in the
     guess) instead of through the iterations (forward mode only, and the derivative of the
-    iterations, not of the solution).
+    iterations, not of the solution: reverse mode raises `REVERSE_MODE_MESSAGE`).
 
     **Returns:** an `IPSolution`.
     """
     if implicit:
         return implicit_solve(prob, (xs0, us0, options, multipliers),
                               solve=functools.partial(_solve_guess, throw=throw))
-    return solver_of(_solve)(prob, xs0, us0, options, throw=throw, multipliers=multipliers)
+    return forward_mode_only(
+        solver_of(_solve)(prob, xs0, us0, options, throw=throw, multipliers=multipliers),
+        REVERSE_MODE_MESSAGE)
+
+
+REVERSE_MODE_MESSAGE = (
+    "reverse-mode differentiation (jax.grad, jax.vjp, jax.jacrev) of interior_point through "
+    "its iterations (a while loop, forward mode only): pass implicit=True (the solution's "
+    "derivative by the implicit function theorem, in both modes), or differentiate in "
+    "forward mode (jax.jvp, jax.jacfwd)")
+"""The error of a reverse-mode derivative of `interior_point` with ``implicit=False``."""
 
 
 def _solve_guess(prob, xs0, us0, options, multipliers, *, throw):
