@@ -186,6 +186,40 @@ CASES |= {
 }
 
 
+def _braking_of(**columns):
+    d = _record()
+    return vs.BrakingData(**({c: getattr(d, c) for c in ("t", "v", "omega", "F_x", "F_n", "r",
+                                                            "T_b")} | columns))
+
+
+CASES |= {
+    "a braking whose force column is short": (
+        lambda: _braking_of(F_x=_record().F_x[:-1]),
+        "BrakingData.F_x must have t's shape"),
+    "a braking whose torque column is short": (
+        lambda: _braking_of(T_b=_record().T_b[1:]), "BrakingData.T_b must have t's shape"),
+    "a fit of no starts": (
+        lambda: vs.fit_open_loop(_record(), n_starts=0),
+        "fit.n_starts must be an integer >= 1, got 0"),
+    "a fit with a negative spread": (
+        lambda: vs.fit_open_loop(_record(), spread=-0.3), "fit.spread must lie in [0, inf)"),
+    "a fit to tolerance 0": (
+        lambda: vs.fit_open_loop(_record(), tol=0.0), "fit.tol must lie in (0, 1), got 0"),
+    "a fit of a fractional step count": (
+        lambda: vs.fit_closed_loop(_record(), max_steps=10.5),
+        "fit.max_steps must be an integer >= 1, got 10.5"),
+    "a fit with a negative prior": (
+        lambda: vs.fit_open_loop(_record(), prior_weight=-1.0),
+        "fit.prior_weight must lie in [0, inf)"),
+    "an open-loop fit of no substeps": (
+        lambda: vs.fit_open_loop(_record(), substeps=0),
+        "OpenLoopBraking.substeps must be an integer >= 1, got 0"),
+    "a closed-loop fit to a relative tolerance of 1": (
+        lambda: vs.fit_closed_loop(_record(), rtol=1.0),
+        "ClosedLoopBraking.rtol must lie in (0, 1), got 1"),
+}
+
+
 @pytest.mark.parametrize("case", list(CASES), ids=list(CASES))
 def test_bad_values_are_refused_naming_the_field_and_its_range(case):
     call, message = CASES[case]

@@ -61,6 +61,14 @@ class BrakingData(eqx.Module):
     J: Float[Array, ""] | None = None
     name: str = eqx.field(static=True, default="braking")
 
+    def __check_init__(self):
+        shape = np.shape(self.t)
+        for column in ("v", "omega", "F_x", "F_n", "T_b"):
+            x = getattr(self, column)
+            if x is not None and np.shape(x) != shape:
+                raise ValueError(f"BrakingData.{column} must have t's shape {shape} (one value "
+                                 f"per sample), got {np.shape(x)}")
+
     @property
     def v_r(self):
         r"""Relative velocity $v_r = r\omega - v$ [m/s]."""

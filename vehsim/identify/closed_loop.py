@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import check_range
 from ..tire.lugre import LumpedLuGre
 from ..vehicle.normal_load import PrescribedLoad
 from ..vehicle.quarter_car import QuarterCar, simulate_quarter_car
@@ -75,6 +76,10 @@ class ClosedLoopBraking(AbstractBrakingModel):
     solver: Any = None
     rtol: float = 1e-6
     name: ClassVar[str] = "closed_loop"
+
+    def __check_init__(self):
+        check_range("ClosedLoopBraking", "rtol", self.rtol, lower=0.0, upper=1.0,
+                    lower_open=True, upper_open=True)
 
     def predict_force(self, model, data):
         return _predict_closed_loop_jit(model, data, rtol=self.rtol, atol=self.rtol * 1e-2,

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._checks import check_integer, check_nonnegative, check_range
 from .._results import RESULTS, is_successful, result_message, result_name, result_record
 from ..progress import progress_bar, resolve
 from ..tire.lugre import LumpedLuGre
@@ -255,7 +256,8 @@ class _Problem(NamedTuple):
 def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, spread, key, tol,
          max_steps, throw, verbose, prior_weight, progress=None) -> FitResult:
     t_start = time.perf_counter()
-    problem = _prepare(data, init, free, fixed, n_starts)
+    _check_options(n_starts, spread, tol, max_steps, prior_weight)
+    problem = _prepare(data, init, free, fixed)
     core = _solve(problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
                   verbose, t_start, resolve(progress))
     diag = _diagnose(problem, core, prior_weight)
@@ -267,7 +269,16 @@ def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, sprea
     return result
 
 
-def _prepare(data, init, free, fixed, n_starts) -> _Problem:
+def _check_options(n_starts, spread, tol, max_steps, prior_weight) -> None:
+    """The fit's numeric options in their ranges, before anything is compiled."""
+    check_integer("fit", "n_starts", n_starts, lower=1)
+    check_nonnegative("fit", "spread", spread)
+    check_range("fit", "tol", tol, lower=0.0, upper=1.0, lower_open=True, upper_open=True)
+    check_integer("fit", "max_steps", max_steps, lower=1)
+    check_nonnegative("fit", "prior_weight", prior_weight)
+
+
+def _prepare(data, init, free, fixed) -> _Problem:
     """The arguments checked, the initial guess with the fixed values, the scales."""
     data = [data] if isinstance(data, BrakingData) else list(data)
     if not data:
@@ -283,8 +294,6 @@ def _prepare(data, init, free, fixed, n_starts) -> _Problem:
     if not names:
         raise ValueError("no free parameters")
     _check_start(model, names, fixed)
-    if n_starts < 1:
-        raise ValueError(f"n_starts must be >= 1, got {n_starts}")
     # the scales from the concrete data in NumPy (no eager JAX dispatches)
     scales = tuple(np.asarray(s) for s in peak_scales(data, np))
     for column, scale in zip(("F_x", "v", "omega"), scales):

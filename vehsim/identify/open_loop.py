@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import check_integer
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel
 from .braking import BrakingData
@@ -58,6 +59,9 @@ class OpenLoopBraking(AbstractBrakingModel):
 
     substeps: int = eqx.field(static=True, default=2)
     name: ClassVar[str] = "open_loop"
+
+    def __check_init__(self):
+        check_integer("OpenLoopBraking", "substeps", self.substeps, lower=1)
 
     def predict_force(self, model, data):
         return _predict_open_loop_jit(model, data, self.substeps, adjoint=dfx.ForwardMode())
