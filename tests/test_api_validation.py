@@ -214,6 +214,16 @@ CASES |= {
     "an open-loop fit of no substeps": (
         lambda: vs.fit_open_loop(_record(), substeps=0),
         "OpenLoopBraking.substeps must be an integer >= 1, got 0"),
+    "a moment model of ill-conditioned degree": (
+        lambda: vs.MomentLuGre2D(vs.params.lugre2d_bakker1987(), vs.QuarticLoad(), degree=16),
+        "MomentLuGre2D.degree must be at most 12 (the moment tables' conditioning), got 16"),
+    "a moment model of a load of ill-conditioned degree": (
+        lambda: vs.MomentLuGre2D(vs.params.lugre2d_bakker1987(),
+                                 vs.PolynomialLoad(jnp.ones(15))),
+        "MomentLuGre2D: the load's polynomial degree 14 exceeds 12"),
+    "a moment model of fractional degree": (
+        lambda: vs.MomentLuGre2D(vs.params.lugre2d_bakker1987(), vs.QuarticLoad(), degree=4.5),
+        "MomentLuGre2D.degree must be an integer >= 0, got 4.5"),
     "a closed-loop fit to a relative tolerance of 1": (
         lambda: vs.fit_closed_loop(_record(), rtol=1.0),
         "ClosedLoopBraking.rtol must lie in (0, 1), got 1"),
