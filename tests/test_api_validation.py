@@ -214,6 +214,12 @@ CASES |= {
     "an open-loop fit of no substeps": (
         lambda: vs.fit_open_loop(_record(), substeps=0),
         "OpenLoopBraking.substeps must be an integer >= 1, got 0"),
+    "a tire started from a state of another shape": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, state0=jnp.zeros(3)),
+        "simulate_tire: state0 must be shaped as LumpedLuGre.init_state(), (), got (3,)"),
+    "a tire of negative radius": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, -60.0, -0.3),
+        "simulate_tire.r must lie in (0, inf), got -0.3"),
     "a moment model of ill-conditioned degree": (
         lambda: vs.MomentLuGre2D(vs.params.lugre2d_bakker1987(), vs.QuarticLoad(), degree=16),
         "MomentLuGre2D.degree must be at most 12 (the moment tables' conditioning), got 16"),

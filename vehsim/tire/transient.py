@@ -13,9 +13,10 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_finite_signals, check_times
+from .._checks import check_finite_signals, check_positive, check_times
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from .._results import RESULTS, as_result
 from .._signals import as_signal
@@ -118,6 +119,8 @@ def simulate_tire(
     """
     check_times("simulate_tire", ts)
     check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
+    if not callable(r):
+        check_positive("simulate_tire", "r", r)
     ts = jnp.asarray(ts, dtype=float)
     longitudinal = isinstance(model, AbstractLongitudinalTire)
     if not (longitudinal or isinstance(model, AbstractTire)):
@@ -128,7 +131,16 @@ def simulate_tire(
     vy = 0.0 if vy is None else vy
     signals = input_signals(ts, vx, vy, omega, Fz)
     vx_s, vy_s, om_s, fz_s = signals
-    y0 = model.init_state() if state0 is None else state0
+    y0 = model.init_state()
+    if state0 is not None:
+        if jax.tree.structure(state0) != jax.tree.structure(y0) or any(
+                np.shape(a) != np.shape(b) for a, b in zip(jax.tree.leaves(state0),
+                                                           jax.tree.leaves(y0))):
+            raise ValueError(f"simulate_tire: state0 must be shaped as "
+                             f"{type(model).__name__}.init_state(), "
+                             f"{jax.tree.map(np.shape, y0)}, got "
+                             f"{jax.tree.map(np.shape, state0)}")
+        y0 = state0
 
     if longitudinal:
         def vector_field(t, y, args):
