@@ -110,6 +110,11 @@ def test_members_that_are_not_a_grid_keep_a_member_dimension():
     np.testing.assert_array_equal(ds["m"], members["m"])
     assert ds["m"].dims == ("member",) and ds["m"].attrs["units"] == "kg"
     np.testing.assert_allclose(ds["x"].sel(member=2), 1450.0 * np.asarray(ts) + 0.2)
+    # one name as a string is that signal, not its letters; a name not saved is refused
+    one = _fake_sweep(members, ts).to_xarray(signals="vx")
+    assert list(one.data_vars) == ["status", "ok", "num_steps", "vx"]
+    with pytest.raises(ValueError, match=r"signals \['v_x'\] are not in the sweep's"):
+        _fake_sweep(members, ts).to_xarray(signals=["x", "v_x"])
 
 
 def test_missing_xarray_says_how_to_install_it(monkeypatch):

@@ -160,7 +160,7 @@ def sweep_to_xarray(result, *, signals: bool | Sequence[str] = True,
 
     - `result`: a `SweepResult`.
     - `signals`: the trajectory signals to include as variables over (members..., ``t``):
-      all (True), none (False) or the names given.
+      all (True), none (False), or the name or names given.
     - `outputs`: more per-member outputs ``{name: array with the member axis first}``,
       e.g. scalar summaries.
     - `attrs`: global attributes (the maneuver, the presets, ...).
@@ -175,7 +175,14 @@ def sweep_to_xarray(result, *, signals: bool | Sequence[str] = True,
     xr = require_xarray()
     dims, coords, shape = _member_coords(result.members)
     traj = result.trajectories
-    names = list(traj.signals) if signals is True else list(signals or [])
+    if signals is True:
+        names = list(traj.signals)
+    else:
+        names = [signals] if isinstance(signals, str) else list(signals or [])
+        unknown = [k for k in names if k not in traj.signals]
+        if unknown:
+            raise ValueError(f"sweep_to_xarray: signals {unknown} are not in the sweep's "
+                             f"trajectories; they hold {list(traj.signals)}")
     data = {"status": (dims, shape(np.asarray(result_name(result.result), dtype=str)),
                        {"long_name": "solver outcome (vehsim.RESULTS case)"}),
             "ok": (dims, shape(np.asarray(result.ok)), {"long_name": "solve succeeded"}),
