@@ -186,6 +186,10 @@ CASES |= {
 }
 
 
+def _fields_of(module):
+    return {k: getattr(module, k) for k, f in module.__dataclass_fields__.items() if f.init}
+
+
 def _braking_of(**columns):
     d = _record()
     return vs.BrakingData(**({c: getattr(d, c) for c in ("t", "v", "omega", "F_x", "F_n", "r",
@@ -220,6 +224,13 @@ CASES |= {
     "a tire of negative radius": (
         lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, -60.0, -0.3),
         "simulate_tire.r must lie in (0, inf), got -0.3"),
+    "a word in a parameter field": (
+        lambda: type(P)(**{**_fields_of(P), "sigma0": "stiff"}),
+        "LuGreParams.sigma0 must be a number or an array of numbers, got 'stiff'"),
+    "a word in a car's field": (
+        lambda: type(vs.params.rally_gravel())(**{**_fields_of(vs.params.rally_gravel()),
+                                                 "m": "heavy"}),
+        "HalfCarParams.m must be a number or an array of numbers, got 'heavy'"),
     "a moment model of ill-conditioned degree": (
         lambda: vs.MomentLuGre2D(vs.params.lugre2d_bakker1987(), vs.QuarticLoad(), degree=16),
         "MomentLuGre2D.degree must be at most 12 (the moment tables' conditioning), got 16"),

@@ -6,6 +6,8 @@ compilation: ``jnp.asarray(1.0)`` is *weakly* typed while a traced float64 is no
 floating-point parameter is converted to a strongly typed array of the default float type.
 """
 
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,8 +15,24 @@ import numpy as np
 
 
 def float_array(x):
-    """``x`` as a strongly typed floating-point array (float64 when x64 is on)."""
-    return jnp.asarray(x, dtype=jnp.result_type(float))
+    """``x`` as a strongly typed floating-point array (float64 when x64 is on); a value
+    that is not numeric is refused with a `ValueError` naming the field where it can."""
+    try:
+        return jnp.asarray(x, dtype=jnp.result_type(float))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{_field_being_converted()} must be a number or an array of "
+                         f"numbers, got {x!r}") from e
+
+
+def _field_being_converted() -> str:
+    """``Owner.field`` of the `eqx.Module` whose converter is running (read from the
+    converting frame of equinox's initialisation), or "a parameter field" if that frame is
+    not one equinox's initialisation has."""
+    frame = sys._getframe(2)
+    field, owner = frame.f_locals.get("f"), frame.f_locals.get("cls")
+    if isinstance(getattr(field, "name", None), str) and isinstance(owner, type):
+        return f"{owner.__name__}.{field.name}"
+    return "a parameter field"
 
 
 def int_array(x):
