@@ -138,3 +138,22 @@ def test_a_peak_at_lock_is_the_end_of_the_range_with_its_derivatives():
     fd = (distance(theta + 1e-4) - distance(theta - 1e-4)) / 2e-4
     rev, fwd = _both(distance, theta)
     np.testing.assert_allclose([rev, fwd], [fd, fd], rtol=1e-6)
+
+
+def test_the_peak_friction_at_standstill_is_its_limit_not_zero():
+    """At V = 0 every slip velocity is 0 and the steady state has no friction: the peak was
+    0 there, while it rises towards 2.6 as V falls (2.14 at 0.1 m/s). Below the floor
+    it is the peak at the floor, close to the limit, with slope 0 in both modes."""
+    from vehsim.drive.estimator import PEAK_SPEED_FLOOR, peak_friction
+    from vehsim.drive.horizon import _plant_tire
+
+    tire = _plant_tire()
+    peak = lambda v: peak_friction(tire, 1.0, v)  # noqa: E731
+    at_floor = float(peak(PEAK_SPEED_FLOOR))
+    assert float(peak(1e-3)) < at_floor < 2.61
+    assert float(peak(0.0)) == at_floor
+    for grad in _both(peak, 0.0):
+        np.testing.assert_array_equal(grad, 0.0)
+    # above the floor the slope is the central difference's
+    fd = (peak(0.1 + 1e-6) - peak(0.1 - 1e-6)) / 2e-6
+    np.testing.assert_allclose(_both(peak, 0.1), [fd, fd], rtol=1e-5)

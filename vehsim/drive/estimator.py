@@ -179,6 +179,11 @@ REFERENCE_SPEED = 20.0
 reported `GripEstimate.peak`, the scenarios' grips, the driver's `nominal_peak`."""
 
 
+PEAK_SPEED_FLOOR = 1e-6
+"""Speed [m/s] below which `peak_friction` is taken at this speed: at $V = 0$ every slip
+velocity is 0, so the steady state has no friction to find a peak of."""
+
+
 def peak_friction(tire: LumpedLuGre2D, scale, speed):
     r"""$\mu^*(\lambda, V)$: the largest steady-state friction $\|\mu_{ss}\|$
     (`scaled_steady_state_mu`) of `tire` on a road of friction scale $\lambda$ = `scale` in
@@ -190,8 +195,11 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
     peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
     0.65 at 4 m/s; and it is not proportional to $\lambda$ (the edge term $\kappa c$ of
-    the lumped model does not scale)."""
-    V = speed
+    the lumped model does not scale). Towards standstill it rises to a limit (2.60 on the
+    road of friction scale 1) with a slope that grows without bound (-1.4 per m/s at
+    0.1 m/s, -1830 at $10^{-6}$): below `PEAK_SPEED_FLOOR`, standstill included, the peak
+    is the one at that floor, with slope 0."""
+    V = jnp.maximum(speed, PEAK_SPEED_FLOOR)
     kappa = jnp.linspace(0.0, 1.0, 97)[1:]
 
     def mu_at(kap):
