@@ -87,7 +87,10 @@ def spatial_rhs(vehicle: ReducedHalfCar, X: Array, rates: Array, kappa: Array) -
       \frac{d(v_x, v_y, r)}{ds} = \frac{f_{3:6}(X)}{\dot s},\quad
       \frac{d(\kappa_F,\kappa_R,\delta)}{ds} = \text{rates},\quad \frac{dt}{ds} = \frac1{\dot s}$$
     with $f$ = `ReducedHalfCar.f` (eqs. 61-63; its rows 3-5 are the body rates, which do not
-    depend on the pose).
+    depend on the pose). The road's length is the independent variable, so the equations
+    are singular where the car makes no progress along it ($\dot s = 0$: standstill, or a
+    heading across the road), and give inf/NaN there; the problems built on them keep
+    each axle's $v_x$ at least `SPEED_FLOOR` (1 m/s) by a constraint.
     """
     n, xi, vx, vy, r = X[0], X[1], X[2], X[3], X[4]
     inputs = X[5:8]
