@@ -172,6 +172,13 @@ CASES |= {
         lambda: vs.CentrelineRoad.from_segments([("straight", 20.0)], 4.0,
                                                 start_heading=np.nan),
         "start must be a finite point (x, y) [m] and start_heading a finite angle"),
+    "a road shorter than a car": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", 3.0)], 4.0),
+        "road 'road': the centre line is 3 m long; a road must be 5 m to 100000 m long"),
+    "a road longer than 100 km": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", 6e4), ("arc", 1e3, 90.0),
+                                                 ("straight", 6e4)], 4.0),
+        "the centre line is 121571 m long at segment 2; a road must be 5 m to 100000 m"),
     "a Magic Formula without regularising speed": (
         lambda: vs.MagicFormula1987(vs.params.bakker1987(), v_eps=0.0),
         "MagicFormula1987.v_eps must lie in (0, inf), got 0"),

@@ -143,6 +143,13 @@ def _hermite3(t, h, p0, m0, m1, p1):
     return v, d, dd
 
 
+def _check_length(name, length: float, where: str = "") -> None:
+    """Refuse a centre line outside `LENGTH_RANGE`, naming its length."""
+    if not LENGTH_RANGE[0] <= length <= LENGTH_RANGE[1]:
+        raise ValueError(f"road {name!r}: the centre line is {length:.6g} m long{where}; a "
+                         f"road must be {LENGTH_RANGE[0]:g} m to {LENGTH_RANGE[1]:g} m long")
+
+
 class CentrelineRoad(eqx.Module):
     r"""A road given by its centre line $c(s)$, $s \in [0, L]$, and widths $w_l(s), w_r(s) > 0$
     to the left and right (module docstring: the Frenet frame, the stored form).
@@ -486,9 +493,7 @@ class CentrelineRoad(eqx.Module):
         seg = (speed(mid[:, None] + half[:, None] * gx[None]) @ gw) * half
         sb = np.concatenate([[0.0], np.cumsum(seg)])
         length = float(sb[-1])
-        if not LENGTH_RANGE[0] <= length <= LENGTH_RANGE[1]:
-            raise ValueError(f"road {name!r}: the centre line is {length:.6g} m long; a road "
-                             f"must be {LENGTH_RANGE[0]:g} m to {LENGTH_RANGE[1]:g} m long")
+        _check_length(name, length)
         # knots: every breakpoint of the spline (where its third derivative jumps), and
         # equal steps of at most SPACING between them
         pieces = np.maximum(1, np.ceil(np.diff(sb) / SPACING)).astype(int)
@@ -587,6 +592,8 @@ class CentrelineRoad(eqx.Module):
             if not (math.isfinite(length) and length > 0):
                 raise ValueError(f"road {name!r}: segment {idx} ({kind}) has length "
                                  f"{length:g} m; must be > 0")
+            if s0 + length > LENGTH_RANGE[1]:  # before its points are laid out
+                _check_length(name, s0 + length, f" at segment {idx}")
             n = max(1, int(math.ceil(length / SPACING)))
             tt = np.linspace(0.0, length, n + 1)
             dk = (k_b - k_a) / length
@@ -610,6 +617,7 @@ class CentrelineRoad(eqx.Module):
             kr_all += list(kap[1:])  # and end
             s0 += length
             p0, th0, k_prev = pts[-1], float(th[-1]), k_b
+        _check_length(name, s0)
         s_k = np.asarray(s_all)
         p = np.asarray(p_all)
         th = np.asarray(th_all)
