@@ -61,7 +61,7 @@ def test_fit_writes_parameters_errors_and_figure(tmp_path):
     assert all(v > 0 for v in fit["std_errors"].values())
     held_out = fit["validation_errors"]["braking_3"]
     assert 0 < held_out["rms_error_rel_peak"] < 0.03
-    assert data["units"]["fits.kappa0 fitted.parameters.theta"] == "-"  # LuGre's, not a pitch
+    assert data["units"]["fits.kappa0 fitted.parameters.theta"] == "1"  # LuGre's, not a pitch
     assert data["units"]["fits.kappa0 fitted.parameters.sigma0"] == "1/m"
     assert _is_png(tmp_path / "fit.png")
     rc, _, err = _vehsim("fit", tmp_path / "no_such.csv", "--out", tmp_path / "x")

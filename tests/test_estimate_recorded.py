@@ -258,6 +258,7 @@ def test_command_line_writes_the_estimate_and_its_figure(tmp_path, capsys):
     data = json.loads((out / "estimate.json").read_text())
     assert {"t_s", "theta", "theta_se", "status", "units", "summary", "car"} <= set(data)
     assert data["units"]["t_s"] == "s" and data["estimator"] == "observer"
+    assert list(data)[-1] == "units" and data["units"]["theta"] == "1"  # as every result file
     assert data["summary"]["record_sample_time_s"] == pytest.approx(H)
     assert data["summary"]["estimator_sample_time_s"] == pytest.approx(T_EST)
     assert data["summary"]["theta_true_final"] == THETA_SLIPPERY

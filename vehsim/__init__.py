@@ -199,7 +199,9 @@ from .optimal.ip import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     IPOptions as IPOptions,
     IPSolution as IPSolution,
+    compile_interior_point as compile_interior_point,
     interior_point as interior_point,
+    print_iteration_log as print_iteration_log,
 )
 from .optimal.primitive import Primitive as Primitive
 from .optimal.primitives import (
@@ -318,6 +320,7 @@ from .control.experiments.experiment import braking_experiment as braking_experi
 from .control.experiments.half_car_abs import (
     TurnRun as TurnRun,
     TurnScenario as TurnScenario,
+    axle_cars as axle_cars,
     simulate_turn as simulate_turn,
     turn_scenario as turn_scenario,
 )

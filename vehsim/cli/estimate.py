@@ -30,7 +30,7 @@ from pathlib import Path
 ESTIMATORS = ("observer", "mhe", "peak")
 REQUIRED = ("t", "v", "omega", "T_b")
 OPTIONAL = ("F_x", "F_n", "theta")
-UNITS = {"t_s": "s", "theta": "-", "theta_se": "-", "peak_slip": "-", "peak_mu": "-",
+UNITS = {"t_s": "s", "theta": "1", "theta_se": "1", "peak_slip": "1", "peak_mu": "1",
          "record_sample_time_s": "s",
          "estimator_sample_time_s": "s", "mass_kg": "kg", "radius_m": "m",
          "inertia_kg_m2": "kg m^2", "normal_load_n": "N"}
@@ -296,7 +296,7 @@ def _write(args, record, extras, est, car, hardware, h) -> dict:
            "car": {"mass_kg": float(car.mass), "radius_m": float(car.radius),
                    "inertia_kg_m2": float(car.inertia),
                    "normal_load_n": float(car.Fn_static)},
-           "units": UNITS, "summary": summary, "t_s": ts, **values, "status": names}
+           "summary": summary, "t_s": ts, **values, "status": names, "units": UNITS}
     t = np.asarray(record.t)
     slip = np.asarray(record.omega) * float(car.radius) / np.maximum(np.asarray(record.v),
                                                                       1e-9) - 1.0

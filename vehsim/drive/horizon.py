@@ -599,9 +599,9 @@ def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
     The LuGre curve peaks at a few per cent of slip and falls off after it; the benchmark's
     gravel tire (B = 7, C = 1.6) peaks near 20 %, so a planner with it asks for slips,
     and expects lateral forces, that the plant does not have. The LuGre friction also
-    rises as the sliding speed falls (the Stribeck curve, eq. 21): its peak at scale
-    $\lambda_0 = 0.52/\mu^*(1)$ is 0.52 at 20 m/s (`AxleGripEstimator.reference_speed`)
-    but 0.64 at 12 m/s."""
+    rises as the sliding speed falls (the Stribeck curve, eq. 21): on the nominal road
+    (`nominal_scale`, 0.400) its peak is 0.52 at 20 m/s
+    (`AxleGripEstimator.reference_speed`) but 0.56 at 12 m/s."""
     from scipy.optimize import least_squares
 
     from ..tire.friction_ellipse import FrictionEllipseTire

@@ -27,8 +27,8 @@ LUMPED_PARAMETERS = ("sigma0", "sigma1", "sigma2", "mu_c", "mu_s", "v_s", "kappa
 # braking (Stribeck curve plus a linear term): on real data freeing it sends mu_c to its
 # bound. It is fixed at the initial guess by default; free it with `free=LUMPED_PARAMETERS`.
 DEFAULT_FREE = ("sigma0", "sigma1", "mu_c", "mu_s", "v_s", "kappa0")
-UNITS = {"sigma0": "1/m", "sigma1": "s/m", "sigma2": "s/m", "mu_c": "-", "mu_s": "-",
-         "v_s": "m/s", "kappa0": "-", "alpha": "-", "theta": "-"}
+UNITS = {"sigma0": "1/m", "sigma1": "s/m", "sigma2": "s/m", "mu_c": "1", "mu_s": "1",
+         "v_s": "m/s", "kappa0": "1", "alpha": "1", "theta": "1"}
 
 
 def default_initial_guess() -> LumpedLuGre:
