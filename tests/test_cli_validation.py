@@ -94,6 +94,16 @@ BAD = {
     "zero radius": (["fit", "{tmp}/x.csv", "--radius", "0"], "--radius"),
     "no fit starts": (["fit", "{tmp}/x.csv", "--starts", "0"], "--starts"),
     "missing data file": (["fit", "{tmp}/missing.csv"], "missing.csv"),
+    # empty words, which would read as the current folder or match everything
+    "an empty output folder": (["estimate", "{braking}", "--out", ""],
+                               "--out: an empty file name"),
+    "an empty road file": (["optimise", "--road-file", ""], "--road-file: an empty file name"),
+    "an empty tire": (["estimate", "{braking}", "--tire", ""], "--tire: an empty name"),
+    "an empty section word": (["reproduce", "--tiny", "--only", ""],
+                              "--only: an empty word"),
+    "a drive shorter than a sample": (["drive", "--duration", "0.01"], "--duration"),
+    "an unreadable road file": (["optimise", "--road-file", "/proc/self/mem"],
+                                "/proc/self/mem: cannot read it"),
 }
 BRAKING = Path(vehsim.__file__).parent / "data" / "brakings" / "braking_1.csv"
 
@@ -179,6 +189,14 @@ def _road(tmp, name, scale):
     return tmp / f"{name}.csv"
 
 
+def _road_with_header(tmp, header):
+    """`_road`'s 30 m arc with another header line (and a column more per row)."""
+    lines = _road(tmp, "named", 30.0).read_text().splitlines()
+    path = tmp / "named.csv"
+    path.write_text("\n".join([header] + [f"{row},0" for row in lines[1:]]) + "\n")
+    return path
+
+
 def _tir_with(tmp, key, value):
     """The shipped sample .tir file with `key`'s value replaced by the text `value`."""
     src = next((Path(vehsim.__file__).parent / "data" / "tires").glob("*.tir"))
@@ -205,6 +223,9 @@ BAD_FILES = {
     "a closed-loop fit without the brake torque": (
         lambda tmp: ["fit", _braking_without(tmp, "no_torque", "T_b"), "--closed-loop"],
         "--closed-loop needs the column 'T_b'"),
+    "a road column named twice": (
+        lambda tmp: ["optimise", "--road-file", _road_with_header(
+            tmp, "x_m,y_m,w_tr_right_m,w_tr_left_m,x_m")], "column(s) x_m named twice"),
     "a brake torque in the wrong unit": (
         lambda tmp: ["estimate", _braking_without(tmp, "kilo_torque", "T_b", "1e6")],
         "'T_b': 1e+06 N m is more than 100 r F_n"),
@@ -237,3 +258,22 @@ def test_tire_plot_refuses_its_default_output_before_computing(tmp_path, capsys,
     code, err = _run(["tire", "plot", tir], capsys)
     assert code == 2 and "--out (its default" in err and "cannot write in '.'" in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_cache_folder_that_cannot_be_made_is_named_without_a_traceback(tmp_path, capsys,
+                                                                          monkeypatch):
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv("VEHSIM_CACHE_DIR", str(tmp_path / "a_file"))
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.delenv("VEHSIM_NO_COMPILATION_CACHE", raising=False)
+    import jax
+
+    before = jax.config.jax_compilation_cache_dir  # the suite's shared cache, if any
+    jax.config.update("jax_compilation_cache_dir", None)
+    try:
+        code, err = _run(["sweep", "--out", tmp_path / "sweep.json"], capsys)
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+    assert code == 2 and "compilation cache's folder cannot be used" in err, err
+    assert "VEHSIM_CACHE_DIR" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]

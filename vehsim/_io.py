@@ -84,6 +84,8 @@ def read_text(path: str | os.PathLike) -> str:
     except UnicodeDecodeError as e:
         raise ValueError(f"{path}: not a UTF-8 text file (byte {e.start}: {e.reason}); "
                          "save it as UTF-8 CSV") from None
+    except OSError as e:  # a device error, no permission, ...: name the file
+        raise ValueError(f"{path}: cannot read it ({e.strerror or e})") from None
 
 
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:

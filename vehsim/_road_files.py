@@ -74,6 +74,9 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
         if missing:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found "
                              f"{', '.join(header)}")
+        twice = sorted({c for c in COLUMNS if header.count(c) > 1})
+        if twice:
+            raise ValueError(f"{path}: column(s) {', '.join(twice)} named twice in the header")
         if len(fields) < len(header):
             raise ValueError(f"{path}:{lineno}: {len(fields)} fields, the header names "
                              f"{len(header)}")

@@ -73,7 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     # in-process callers (a notebook, a test) get their cache settings and progress back
     with cache_settings_restored():
-        args.cache_dir = command_line_cache(args.no_compilation_cache)
+        try:
+            args.cache_dir = command_line_cache(args.no_compilation_cache)
+        except OSError as e:  # $VEHSIM_CACHE_DIR (or its default) a file, or not creatable
+            print(f"vehsim: error: the compilation cache's folder cannot be used "
+                  f"({e.strerror}: {e.filename!r}): set VEHSIM_CACHE_DIR to a writable "
+                  "folder, or pass --no-compilation-cache", file=sys.stderr)
+            return 2
         library_default = set_default(not args.no_progress)
         try:
             if getattr(args, "out", None) is not None:  # before any work

@@ -95,11 +95,18 @@ def output_file(option: str, path: str, suffixes: dict[str, str]) -> str:
     return suffixes[suffix]
 
 
+def _refuse_empty(option: str, path) -> None:
+    """An empty name would be read as the current folder ('.')."""
+    if isinstance(path, str) and not path.strip():
+        raise ValueError(f"{option}: an empty file name")
+
+
 def writable_output(option: str, path, kind: str) -> None:
     """Refuse, naming `option`, an output `path` that cannot be written, before any work:
     a `kind` 'folder' that exists as a file, a 'file' that exists as a folder, or one whose
     nearest existing folder is a file or cannot be written in (permissions, a read-only
     file system). Creates nothing."""
+    _refuse_empty(option, path)
     path = Path(path)
     if kind == "folder" and path.exists() and not path.is_dir():
         raise ValueError(f"{option}: {str(path)!r} exists and is not a folder; give a folder "
@@ -120,6 +127,7 @@ def writable_output(option: str, path, kind: str) -> None:
 
 def input_file(option: str, path) -> Path:
     """`path` as a `Path`, after refusing, naming `option`, one that is missing or a folder."""
+    _refuse_empty(option, path)
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{option}: {str(path)!r} is a folder; give a file")

@@ -125,9 +125,10 @@ def register(subparsers) -> None:
                    help="seed of the sensor noise (0)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
                    help="noisy sensors (default) or exact measurements")
-    p.add_argument("--duration", type=number(0.0, 600.0, lower_open=True, unit="s"),
+    p.add_argument("--duration", type=number(0.05, 600.0, unit="s"),
                    default=None,
-                   help="time budget of the drive [s] (default: the scenario's)")
+                   help="time budget of the drive [s], at least one sample of the drive's "
+                        "0.05 s (default: the scenario's)")
     p.add_argument("--out", default="results/drive", help="output folder")
     p.add_argument("--no-animation", dest="animation", action="store_false",
                    help="write no animation")

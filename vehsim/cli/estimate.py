@@ -208,6 +208,8 @@ def _check_torque(path, T_b, r: float, Fn: float) -> None:
 def _estimate(args) -> int:
     # the options' types and ranges are checked while parsing (vehsim.cli._options)
     _refuse_options_of_other_estimators(args)
+    if args.tire is not None and not args.tire.strip():
+        raise ValueError("--tire: an empty name; give a surface or a LuGre preset")
     args.tire = args.tire or "dry_asphalt"
     args.window = args.window or 20
     args.starts = args.starts or 3

@@ -25,7 +25,7 @@ def register(subparsers) -> None:
     p.add_argument("--starts", type=integer(1, 1024), default=4,
                    help="multi-start: initial guesses solved in one vmapped call (default 4)")
     p.add_argument("--radius", type=number(0.0, 5.0, lower_open=True, unit="m"), default=None,
-                   help="wheel radius [m] if the data have no side file")
+                   help="wheel radius [m], in place of the side file's r (default: the side file's)")
     p.add_argument("--only-fitted-kappa0", action="store_true",
                    help="skip the constant kappa0 = 1, 2 fits")
     p.set_defaults(func=_fit)

@@ -16,7 +16,7 @@ def register(subparsers) -> None:
                       help="the smallest sizes that run every step (for testing the command; "
                            "its numbers are not results)")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
-    p.add_argument("--only", nargs="+", default=None, metavar="WORD",
+    p.add_argument("--only", nargs="+", action="extend", default=None, metavar="WORD",
                    help="run only sections whose name contains one of these words "
                         "(robot, longitudinal, identify, combined, vehicle, optimal, "
                         "braking_control)")
@@ -26,5 +26,7 @@ def register(subparsers) -> None:
 def _reproduce(args) -> int:
     from ..reproduce import run
 
+    if args.only is not None and not all(w.strip() for w in args.only):
+        raise ValueError("--only: an empty word (it would match every section)")
     run(args.out, quick=args.quick, only=args.only, tiny=args.tiny)
     return 0

@@ -172,7 +172,7 @@ def _sweep(args: argparse.Namespace) -> int:
     stats = jax.vmap(summary)(res.trajectories)
     info = {"maneuver": args.maneuver, "vehicle": args.vehicle, "tire": args.tire,
             "duration": args.duration} | ({} if "speed" in axes else {"speed": args.speed})
-    if Path(args.out).suffix == ".nc":
+    if Path(args.out).suffix.lower() == ".nc":  # as `output_file` reads it
         path = res.to_netcdf(args.out, signals=args.signals, outputs=stats,
                              attrs=info | {"wall_time_s": round(wall, 3)})
     else:
