@@ -73,7 +73,7 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     """`vehsim optimise corner90 --segments 30`: exit 0, the solution JSON (status, t_f
     equal to the library's primitive on the same grid, the point-mass bound below it,
     violations, states and inputs at every node) and the figure. Too few segments: exit 2,
-    naming the option."""
+    naming the option. Too few iterations: exit 1, the residuals on the status line."""
     from optimal_cache import M, corner90_min_time
 
     from vehsim.optimal.primitives import point_mass_bound
@@ -97,6 +97,10 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     assert _is_png(tmp_path / "corner90_min-time.png")
     rc, _, err = _vehsim("optimise", "corner90", "--segments", 1, "--out", tmp_path / "x")
     assert rc == 2 and "--segments" in err
+    # stopped short of the optimum: exit 1, its residuals on the status line
+    rc, _, err = _vehsim("optimise", "corner90", "--segments", M, "--max-iter", 3, "--quiet",
+                         "--out", tmp_path / "capped")
+    assert rc == 1 and "NOT CONVERGED: final residuals inf_pr" in err, err
 
 
 @pytest.mark.xdist_group("corner90_min_time")  # its optimal section: the tests' primitive

@@ -27,6 +27,17 @@ def exit_status(command: str, result, message: str | None = None) -> int:
     return 1
 
 
+def unconverged_note(record: dict) -> str:
+    """For the status line of a solve recorded by `solution_record`: nothing if it
+    succeeded, else its final residuals and that the figures are the last iterate's."""
+    if record["status"] == "successful":
+        return ""
+    r = record["residuals"]
+    return (f"; NOT CONVERGED: final residuals inf_pr {r['inf_pr']:.2e}, inf_du "
+            f"{r['inf_du']:.2e}, compl {r['compl']:.2e}, and the figures are those of the last "
+            "iterate, not of a solution")
+
+
 def waiting_line(cache_dir, what: str, program_prefix: str, first_time: str) -> str:
     """What a command says before its first compiled call: compiling `what` (`first_time`
     the first time, cached in `cache_dir` for the next run) when no program named

@@ -156,11 +156,14 @@ def _optimise(args) -> int:
     fig = primitive_figure(prim, title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
                             f"exit {rec['exit_speed']:.2f} m/s")
     save_figure(fig, out / f"{stem}.png")
+    from ._status import unconverged_note
+
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "
           f"{rec['exit_speed']:.3f} m/s, max corridor violation "
           f"{rec['max_corridor_violation']:.2e} m at the nodes, "
           f"{rec['max_corridor_violation_between_nodes']:.2e} m between them, "
-          f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png",
+          f"{rec['iterations']} iterations, {wall:.1f} s; wrote {out / stem}.json/.png"
+          f"{unconverged_note(rec)}",
           file=sys.stderr)
     from ._status import exit_status
 

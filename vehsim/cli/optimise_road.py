@@ -110,11 +110,14 @@ def optimise_road(args) -> int:
              + f", off the road {100 * rec['max_corridor_violation_between_nodes']:.1f} cm")
     fig = path_on_road_figure(road, st["x"], st["y"], st["psi"], speed, title=title)
     save_figure(fig, out / f"{stem}.png")
+    from ._status import unconverged_note
+
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.3f} s, exit speed "
           f"{rec['exit_speed']:.2f} m/s, off the road at the nodes "
           f"{rec['max_corridor_violation']:.2e} m and between them "
           f"{rec['max_corridor_violation_between_nodes']:.2e} m, {rec['iterations']} "
-          f"iterations, {wall:.1f} s; wrote {out / stem}.json/.png", file=sys.stderr)
+          f"iterations, {wall:.1f} s; wrote {out / stem}.json/.png"
+          f"{unconverged_note(rec)}", file=sys.stderr)
     from ._status import exit_status
 
     return exit_status("optimise", prim.solution.result)
