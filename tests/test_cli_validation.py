@@ -162,15 +162,15 @@ def test_option_types_check_ranges_and_parse_good_values():
     assert _options.output_file("--out", "a.NC", {".json": "json", ".nc": "netcdf"}) == "netcdf"
 
 
-def _braking_without(tmp, name, column, value=None):
+def _braking_without(tmp, name, column, value=None, keep_first=False):
     """braking_1 (and its side file) in `tmp` as NAME, its `column` set to `value` (None:
-    the column left out)."""
+    the column left out), on every row or (`keep_first`) every row but the first."""
     rows = list(csv.reader(BRAKING.read_text().splitlines()))
     j = rows[0].index(column)
     for row in rows:
         if value is None:
             del row[j]
-        elif row is not rows[0]:
+        elif row is not rows[0] and not (keep_first and row is rows[1]):
             row[j] = value
     (tmp / f"{name}.csv").write_text("\n".join(",".join(r) for r in rows) + "\n")
     shutil.copy(BRAKING.with_suffix(".json"), tmp / f"{name}.json")
@@ -226,6 +226,13 @@ BAD_FILES = {
     "a road column named twice": (
         lambda tmp: ["optimise", "--road-file", _road_with_header(
             tmp, "x_m,y_m,w_tr_right_m,w_tr_left_m,x_m")], "column(s) x_m named twice"),
+    "a record whose wheel speed is missing throughout": (
+        lambda tmp: ["estimate", _braking_without(tmp, "no_wheel", "omega", "nan",
+                                                  keep_first=True)],
+        "column 'omega' has 1 measured samples of 939"),
+    "a record of a car at rest": (
+        lambda tmp: ["estimate", _braking_without(tmp, "at_rest", "v", "0")],
+        "column 'v' never exceeds 1 m/s"),
     "a brake torque in the wrong unit": (
         lambda tmp: ["estimate", _braking_without(tmp, "kilo_torque", "T_b", "1e6")],
         "'T_b': 1e+06 N m is more than 100 r F_n"),

@@ -205,6 +205,36 @@ def _check_torque(path, T_b, r: float, Fn: float) -> None:
               "the column in N m?")
 
 
+MIN_WHEEL_SAMPLES = 10
+"""Fewest measured wheel speeds a record must have for `vehsim estimate` (all of a shorter
+record's; the rest may be missing, as from a slower sensor)."""
+
+
+def _check_speeds(path, v, omega, r) -> None:
+    """Refuse a record with nothing to estimate from: the car never moving faster than
+    1 m/s, or fewer than `MIN_WHEEL_SAMPLES` wheel speeds measured. A slip beyond 1.5
+    (omega in rpm, for example, gives slips near 9) gets a note on stderr, as `vehsim fit`
+    gives."""
+    import sys
+
+    import numpy as np
+
+    if not np.any(np.abs(v) > 1.0):
+        raise ValueError(f"{path}: column 'v' never exceeds 1 m/s: no braking to estimate "
+                         "from")
+    measured = np.isfinite(omega)
+    if measured.sum() < min(MIN_WHEEL_SAMPLES, omega.size):
+        raise ValueError(f"{path}: column 'omega' has {int(measured.sum())} measured samples "
+                         f"of {omega.size} (the rest nan); the estimators need at least "
+                         f"{MIN_WHEEL_SAMPLES}")
+    use = measured & (np.abs(v) > 1.0)
+    if use.any():
+        s = np.max(np.abs((omega[use] * r - v[use]) / v[use]))
+        if s > 1.5:
+            print(f"note: {path}: the slip (omega r - v)/v reaches {s:.3g}; check the units "
+                  "(omega in rad/s, v in m/s, r in m) and signs", file=sys.stderr)
+
+
 def _estimate(args) -> int:
     # the options' types and ranges are checked while parsing (vehsim.cli._options)
     _refuse_options_of_other_estimators(args)
@@ -237,6 +267,7 @@ def _estimate(args) -> int:
     else:
         Fn = m * GRAVITY
     _check_torque(args.data, np.asarray(record.torque), r, Fn)
+    _check_speeds(args.data, np.asarray(record.v), np.asarray(record.omega), r)
     car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
     h = record.sample_time
     if args.sample_time is not None:
