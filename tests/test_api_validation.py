@@ -179,6 +179,11 @@ CASES |= {
         lambda: vs.CentrelineRoad.from_segments([("straight", 6e4), ("arc", 1e3, 90.0),
                                                  ("straight", 6e4)], 4.0),
         "the centre line is 121571 m long at segment 2; a road must be 5 m to 100000 m"),
+    "an open road closed by a straight in no file": (
+        lambda: vs.CentrelineRoad.from_points(
+            40 * np.cos(np.linspace(0, np.pi / 2, 30)), 40 * np.sin(np.linspace(0, np.pi / 2, 30)),
+            np.full(30, 4.0), np.full(30, 4.0), closed=True),
+        "a closed road, but its last point (row 29) is 56.57 m from its first, 26 times"),
     "a Magic Formula without regularising speed": (
         lambda: vs.MagicFormula1987(vs.params.bakker1987(), v_eps=0.0),
         "MagicFormula1987.v_eps must lie in (0, inf), got 0"),

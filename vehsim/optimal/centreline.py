@@ -473,6 +473,13 @@ class CentrelineRoad(eqx.Module):
                 closed and j == 0) else ""
             raise ValueError(f"road {name!r}: rows {i} and {j} are the same point "
                              f"({pts[i, 0]:g}, {pts[i, 1]:g}){hint}")
+        if closed:
+            typical = float(np.median(chord[:-1]))
+            if chord[-1] > CLOSING_GAP * typical:
+                raise ValueError(
+                    f"road {name!r}: a closed road, but its last point (row {npts - 1}) is "
+                    f"{chord[-1]:.4g} m from its first, {chord[-1] / typical:.0f} times the "
+                    f"points' median spacing ({typical:.4g} m): is it an open road?")
         u = np.concatenate([[0.0], np.cumsum(chord)])
         smoothing = float(smoothing)
         if not (math.isfinite(smoothing) and smoothing >= 0):
@@ -730,6 +737,9 @@ COORDINATE_LIMIT = 1e7
 """Largest centre-line coordinate [m] of a road (10,000 km: a local frame in metres)."""
 WIDTH_LIMIT = 1e3
 """Largest width [m] of a road's side."""
+CLOSING_GAP = 10.0
+"""Largest gap between a closed road's last and first points, in median spacings of its
+points: a longer one would be closed by a straight that is in no file."""
 LENGTH_RANGE = (5.0, 1e5)
 """Shortest and longest centre line [m] of a road from points: longer than a car, and at
 most 100 km (the knots, every `SPACING`, number 200,000 there; the longest rally stages
