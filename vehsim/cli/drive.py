@@ -129,7 +129,8 @@ def register(subparsers) -> None:
                    default=None,
                    help="time budget of the drive [s], at least one sample of the drive's "
                         "0.05 s (default: the scenario's)")
-    p.add_argument("--out", default="results/drive", help="output folder")
+    p.add_argument("--out", default="results/drive",
+                   help="output folder (default: results/drive)")
     p.add_argument("--no-animation", dest="animation", action="store_false",
                    help="write no animation")
     p.add_argument("--animation-format", type=choice_of(FORMATS, "animation format"),

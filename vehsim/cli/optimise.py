@@ -28,8 +28,8 @@ def register(subparsers) -> None:
     from ._options import integer, number
 
     p = subparsers.add_parser(
-        "optimise", help="optimal driving primitive (min-time / max-exit) on a benchmark road"
-    )
+        "optimise", help="optimal driving primitive (min-time / max-exit) on a benchmark "
+                         "road, a road file or a shipped track")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("road", nargs="?", choices=["corner90", "uturn", "sturn"],
                        help="benchmark road (docs/maneuvers.md): corner90, uturn or sturn")
@@ -78,7 +78,8 @@ def register(subparsers) -> None:
                         "and status in the JSON), split over JAX's devices (on a CPU, "
                         "JAX_NUM_CPU_DEVICES=2 before the command gives two cores two "
                         "devices); 1: the default point-mass seed")
-    p.add_argument("--out", default="results/optimise", help="output folder")
+    p.add_argument("--out", default="results/optimise",
+                   help="output folder (default: results/optimise)")
     p.add_argument("--quiet", action="store_true",
                    help="no iteration log (printed when the solve returns; with --starts, a "
                         "line per start)")
