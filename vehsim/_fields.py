@@ -28,7 +28,10 @@ def _field_being_converted() -> str:
     """``Owner.field`` of the `eqx.Module` whose converter is running (read from the
     converting frame of equinox's initialisation), or "a parameter field" if that frame is
     not one equinox's initialisation has."""
-    frame = sys._getframe(2)
+    try:
+        frame = sys._getframe(2)
+    except ValueError:  # called from the bottom of the stack
+        return "a parameter field"
     field, owner = frame.f_locals.get("f"), frame.f_locals.get("cls")
     if isinstance(getattr(field, "name", None), str) and isinstance(owner, type):
         return f"{owner.__name__}.{field.name}"
