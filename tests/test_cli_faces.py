@@ -169,3 +169,12 @@ def test_brake_writes_the_braking_against_its_limits_and_caches_what_it_compiled
     assert rec["theta_true"] > 0 and rec["theta_settling_time_s"] < 0.5
     rc, _, err = _vehsim("brake", "--surface", "gravel", "--out", tmp_path / "x")
     assert rc == 2 and "gravel" in err and "wet_asphalt" in err
+    # a figure that cannot be written (a folder in its place): exit 2, and no record without it
+    (tmp_path / "blocked" / "brake.png").mkdir(parents=True)
+    out = subprocess.run([sys.executable, "-m", "vehsim", "brake", "--surface", "wet_asphalt",
+                          "--speed", "20", "--out", tmp_path / "blocked"],
+                         capture_output=True, text=True, timeout=900,
+                         env=env | {"VEHSIM_CACHE_DIR": str(tmp_path / "cache" / "jax")})
+    assert out.returncode == 2 and out.stderr.strip().endswith(
+        f"Is a directory: '{tmp_path / 'blocked' / 'brake.png'}'"), out.stderr
+    assert sorted(p.name for p in (tmp_path / "blocked").iterdir()) == ["brake.png"]

@@ -29,6 +29,26 @@ def test_write_atomic_keeps_old_file_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
+def test_a_record_and_its_figure_are_written_together_or_not_at_all(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    written = _io.write_json_and_figure(tmp_path / "r.json", {"a": 1}, tmp_path / "r.png", fig)
+    assert [p.name for p in written] == ["r.json", "r.png"]
+    assert json.loads((tmp_path / "r.json").read_text()) == {"a": 1}
+    assert (tmp_path / "r.png").read_bytes().startswith(b"\x89PNG")
+    (tmp_path / "b" / "r.png").mkdir(parents=True)  # the figure's place taken by a folder
+    with pytest.raises(IsADirectoryError, match=r"Is a directory: '[^']*/b/r\.png'$"):
+        _io.write_json_and_figure(tmp_path / "b" / "r.json", {"a": 1}, tmp_path / "b" / "r.png",
+                                  fig)
+    assert [p.name for p in (tmp_path / "b").iterdir()] == ["r.png"]  # no record, no temporary
+    plt.close(fig)
+
+
 def test_written_files_are_readable_by_others_under_the_umask(tmp_path):
     """Files are created like any new file (0666 minus the umask), not mkstemp's 0600, and a
     replaced file takes the same mode; the umask is the process's own."""

@@ -56,7 +56,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """Yield a temporary file name beside ``path`` (its folder created if needed); what is
     written there replaces ``path`` by a rename when the block ends, with the permissions
     `FILE_MODE` of any new file (set again before the rename, for writers that recreate the
-    temporary file), and is removed if the block raises."""
+    temporary file), and is removed if the block raises (an error of the rename naming
+    ``path``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -67,7 +68,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     try:
         yield tmp
         os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as e:  # name the file asked for, not the temporary one
+            raise OSError(e.errno, e.strerror, str(path)) from None
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -117,10 +121,23 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     return write_atomic(path, json_text(obj))
 
 
-def save_figure(fig, path: str | os.PathLike, dpi: int = 130) -> Path:
-    """Save a matplotlib figure atomically (PNG)."""
+def figure_bytes(fig, path: str | os.PathLike, dpi: int = 130) -> bytes:
+    """A matplotlib figure rendered in the format ``path``'s suffix names (PNG without one)."""
     import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight")
-    return write_atomic(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def save_figure(fig, path: str | os.PathLike, dpi: int = 130) -> Path:
+    """Save a matplotlib figure atomically (PNG)."""
+    return write_atomic(path, figure_bytes(fig, path, dpi))
+
+
+def write_json_and_figure(json_path: str | os.PathLike, obj: Any,
+                          figure_path: str | os.PathLike, fig) -> list[Path]:
+    """A result's JSON record and its figure, written together (`write_atomic_files`): both
+    or neither, so that a figure that cannot be written leaves no record without it."""
+    return write_atomic_files({json_path: json_text(obj),
+                               figure_path: figure_bytes(fig, figure_path)})

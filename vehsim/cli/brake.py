@@ -82,7 +82,7 @@ def _brake(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..control.experiments.experiment import braking_experiment
     from ..control.plant.hardware import ideal_hardware, realistic_hardware
@@ -105,9 +105,9 @@ def _brake(args) -> int:
         args.surface, args.controller, args.speed, args.change_to, args.change_distance,
         args.change_time, hw, jax.random.PRNGKey(args.seed))
     folder = Path(args.out)
-    write_json(folder / "brake.json", with_units(record, UNITS))
     fig = braking_figure(signals, title=figure_title(args))
-    save_figure(fig, folder / "brake.png")
+    write_json_and_figure(folder / "brake.json", with_units(record, UNITS),
+                          folder / "brake.png", fig)
     plt.close(fig)
     print(f"wrote {folder / 'brake.json'} and {folder / 'brake.png'}", file=sys.stderr)
     print(f"  stopping distance {record['stopping_distance_m']:.2f} m, limit "

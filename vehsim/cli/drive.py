@@ -279,7 +279,7 @@ def _drive(args) -> int:
     import jax
     import numpy as np
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..drive.scenarios import BENCHMARK_PEAK, nominal_scale
     from ..plot import animation_frames, drive_animation, drive_figure, drive_trace, frame_every_for
@@ -333,15 +333,15 @@ def _drive(args) -> int:
         "wall_time_s": wall,
     }
     out = Path(args.out)
-    write_json(out / "drive.json", with_units(rec, UNITS))
     status = (f"completed in {result['drive_time']:.2f} s" if result["completed"] else
               "crossed the end in " + f"{result['drive_time']:.2f} s" if result["drive_time"]
               else "did not reach the end")
     who = args.controller + (" with pace notes" if args.pace_notes else "")
     title = (f"{road.name}, {who}: {status}, off the road "
              f"{100 * result['max_distance_off_road']:.1f} cm")
-    save_figure(drive_figure(road, run, sc.plant, title=title, grip_vmax=nominal_scale(),
-                             upto=upto), out / "drive.png")
+    write_json_and_figure(out / "drive.json", with_units(rec, UNITS), out / "drive.png",
+                          drive_figure(road, run, sc.plant, title=title,
+                                       grip_vmax=nominal_scale(), upto=upto))
     written = ["drive.json", "drive.png"]
     if args.animation:
         name = f"drive.{args.animation_format or 'gif'}"

@@ -301,7 +301,7 @@ def _write(args, record, extras, est, car, hardware, h) -> dict:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._results import is_successful, result_name
     from ..plot import friction_estimate_figure
 
@@ -345,8 +345,7 @@ def _write(args, record, extras, est, car, hardware, h) -> dict:
               + ("" if peak else f" (assumed tire: {args.tire}"
                  + ("" if args.kappa0 is None else f", kappa0 = {args.kappa0:g}") + ")"))
     folder = Path(args.out)
-    write_json(folder / "estimate.json", out)
-    save_figure(fig, folder / "estimate.png")
+    write_json_and_figure(folder / "estimate.json", out, folder / "estimate.png", fig)
     plt.close(fig)
     print(f"wrote {folder / 'estimate.json'} and {folder / 'estimate.png'}", file=sys.stderr)
     if last.size:

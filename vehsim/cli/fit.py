@@ -59,7 +59,7 @@ def _fit(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..identify.braking import load_braking, slip_sign_note
     from ..identify.parameters import UNITS as PARAMETER_UNITS
@@ -92,11 +92,12 @@ def _fit(args) -> int:
     summary = out["summary"]
     summary["files"] = {"train": [str(f) for f in args.data],
                         "validate": [str(f) for f in args.validate]}
-    write_json(folder / "fit.json", with_units(summary, PARAMETER_UNITS, strict=False))
     fig = force_histories_figure(train + validate, out["predictions"], list(variants),
                                  title="measured vs predicted friction force (lumped LuGre)",
                                  held_out=[d.name for d in validate])
-    save_figure(fig, folder / "fit.png")
+    write_json_and_figure(folder / "fit.json",
+                          with_units(summary, PARAMETER_UNITS, strict=False),
+                          folder / "fit.png", fig)
     plt.close(fig)
     best = out["fits"]["kappa0 fitted"]
     print(f"wrote {folder / 'fit.json'} and {folder / 'fit.png'}", file=sys.stderr)

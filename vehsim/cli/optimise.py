@@ -116,7 +116,7 @@ def _optimise(args) -> int:
     import jax
 
     from .._compilation import primitive_and_bound
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..optimal.primitive import solution_record
     from ..optimal.primitives import primitive_options, rally_gravel_car
@@ -153,10 +153,9 @@ def _optimise(args) -> int:
     rec["wall_time_s"] = wall
     out = Path(args.out)
     stem = f"{args.road}_{args.objective}"
-    write_json(out / f"{stem}.json", with_units(rec, UNITS))
     fig = primitive_figure(prim, title=f"{args.road}, {args.objective}: t_f = {rec['t_f']:.3f} s, "
                             f"exit {rec['exit_speed']:.2f} m/s")
-    save_figure(fig, out / f"{stem}.png")
+    write_json_and_figure(out / f"{stem}.json", with_units(rec, UNITS), out / f"{stem}.png", fig)
     from ._status import unconverged_note
 
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.4f} s, exit speed "

@@ -49,7 +49,7 @@ def default_stages(length: float) -> int:
 def optimise_road(args) -> int:
     import jax
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..optimal.curvilinear import road_point_mass_bound, road_primitive
     from ..optimal.ip import IPOptions
@@ -102,14 +102,13 @@ def optimise_road(args) -> int:
     rec["start_speed"] = args.start_speed
     out = Path(args.out)
     stem = f"{road.name}_{args.objective}"
-    write_json(out / f"{stem}.json", with_units(rec, units))
     st = rec["states"]
     speed = rec["signals"]["speed"]
     title = (f"{road.name}, {args.objective}: t = {rec['t_f']:.2f} s"
              + ("" if road.closed else f", exit {rec['exit_speed']:.1f} m/s")
              + f", off the road {100 * rec['max_corridor_violation_between_nodes']:.1f} cm")
     fig = path_on_road_figure(road, st["x"], st["y"], st["psi"], speed, title=title)
-    save_figure(fig, out / f"{stem}.png")
+    write_json_and_figure(out / f"{stem}.json", with_units(rec, units), out / f"{stem}.png", fig)
     from ._status import unconverged_note
 
     print(f"status {rec['status']} ({rec['message']}), t_f = {rec['t_f']:.3f} s, exit speed "
