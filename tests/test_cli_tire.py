@@ -332,9 +332,12 @@ def test_bad_options_and_a_missing_file_in_a_real_process(tmp_path, capsys):
 
 @pytest.mark.parametrize("args, message", [
     (["show", "{tir}", "--load", "1e300"], "--load: 1e+300 N is outside the file's load range "
-                                           "(0, 8550] N"),
+                                           "(0, 8550] N (up to FZMAX)"),
     (["fit-lugre", "{tir}", "--loads", "10,20,30"], "--loads: 10 N is outside the file's load "
-                                                    "range [190, 8550] N"),
+                                                    "range [190, 8550] N (FZMIN, FZMAX)"),
+    (["fit-lugre", "{tir}", "--loads", "3800,2000,3800"], "--loads: 3800 N given more than "
+                                                          "once; the loads fitted together must "
+                                                          "differ"),
 ])
 def test_loads_outside_the_files_range_are_refused(args, message, tmp_path, capsys):
     """The summary and the fit only at loads the file is valid for (its FZMIN, FZMAX): a load

@@ -255,6 +255,11 @@ def _parse_loads(text):
         raise ValueError(f"--loads expects F1,F2,... in N, got {text!r}") from None
     for v in loads:
         _positive("--loads", v)
+    repeated = sorted({v for v in loads if loads.count(v) > 1})
+    if repeated:
+        raise ValueError(f"--loads: {', '.join(f'{v:g}' for v in repeated)} N given more than "
+                         "once; the loads fitted together must differ (one load fits at that "
+                         "load alone)")
     return loads
 
 
@@ -264,9 +269,9 @@ def _check_loads(option: str, loads, params, lowest: str = "FZMIN") -> None:
     lo, hi = float(params.FZMIN) if lowest == "FZMIN" else 0.0, float(params.FZMAX)
     for v in loads:
         if not (lo <= v <= hi) or v <= 0:
-            span = f"[{lo:g}, {hi:g}]" if lowest == "FZMIN" else f"(0, {hi:g}]"
-            raise ValueError(f"{option}: {v:g} N is outside the file's load range {span} N "
-                             "(FZMIN, FZMAX)")
+            span = (f"[{lo:g}, {hi:g}] N (FZMIN, FZMAX)" if lowest == "FZMIN" else
+                    f"(0, {hi:g}] N (up to FZMAX)")
+            raise ValueError(f"{option}: {v:g} N is outside the file's load range {span}")
 
 
 def _fit_lugre(args) -> int:
@@ -275,7 +280,7 @@ def _fit_lugre(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._io import save_figure, write_json
+    from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..reproduce.combined import fit_lugre_to, fit_table, lugre_fit_curves, lugre_fit_figure
     from ._options import output_file
@@ -292,11 +297,10 @@ def _fit_lugre(args) -> int:
           f"at most {args.max_steps} Levenberg-Marquardt steps", file=sys.stderr, flush=True)
     fit, record = fit_lugre_to(params, args.speed, loads, args.max_steps)
     record = {"file": str(args.file), "version": tir.version, **record}
-    write_json(out, with_units(record, strict=False))
     fig = lugre_fit_figure(lugre_fit_curves(params, fit, args.speed),
                            title=f"{Path(args.file).name}: distributed 2D LuGre (solid) fitted "
                                  "to its Magic Formula (dashed)")
-    save_figure(fig, figure)
+    write_json_and_figure(out, with_units(record, strict=False), figure, fig)
     plt.close(fig)
     print(f"fit: {record['status']}: {record['message']}")
     print("errors (RMS and worst, in % of each curve's peak in brackets):")
