@@ -284,3 +284,10 @@ def test_a_cache_folder_that_cannot_be_made_is_named_without_a_traceback(tmp_pat
     assert code == 2 and "compilation cache's folder cannot be used" in err, err
     assert "VEHSIM_CACHE_DIR" in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_a_cache_switch_that_is_neither_yes_nor_no_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("VEHSIM_NO_COMPILATION_CACHE", "sometimes")
+    code, err = _run(["sweep", "--out", tmp_path / "sweep.json"], capsys)
+    assert code == 2 and "VEHSIM_NO_COMPILATION_CACHE='sometimes': expected" in err, err
+    assert "Traceback" not in err and list(tmp_path.iterdir()) == []

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from vehsim._compilation import default_cache_dir
 
 
@@ -84,6 +86,15 @@ def test_command_line_cache_follows_the_flag_and_the_environment(monkeypatch):
         monkeypatch.setenv(NO_CACHE_VARIABLE, "0")
         assert command_line_cache() is not None and jax.config.jax_enable_compilation_cache
         assert command_line_cache(disabled=True) is None
+        monkeypatch.setenv(NO_CACHE_VARIABLE, " On ")
+        assert command_line_cache() is None
+        for word in ("off", "No", ""):
+            monkeypatch.setenv(NO_CACHE_VARIABLE, word)
+            assert command_line_cache() is not None
+        monkeypatch.setenv(NO_CACHE_VARIABLE, "maybe")
+        with pytest.raises(ValueError, match="VEHSIM_NO_COMPILATION_CACHE='maybe': expected 1, "
+                                             "true, yes or on"):
+            command_line_cache()
     finally:
         jax.config.update("jax_enable_compilation_cache", True)
         jax.config.update("jax_compilation_cache_dir", configured)

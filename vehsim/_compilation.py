@@ -133,12 +133,26 @@ def cache_settings_restored():
 
 
 NO_CACHE_VARIABLE = "VEHSIM_NO_COMPILATION_CACHE"
-"""Environment variable that turns the command line's compilation cache off (1, true, yes)."""
+"""Environment variable that turns the command line's compilation cache off (1, true, yes,
+on; 0, false, no, off or empty leave it on; case ignored)."""
+
+_TRUE_WORDS, _FALSE_WORDS = ("1", "true", "yes", "on"), ("", "0", "false", "no", "off")
+
+
+def cache_switched_off_by_environment() -> bool:
+    """Whether ``$VEHSIM_NO_COMPILATION_CACHE`` turns the cache off; a value that is neither
+    yes nor no is refused (`ValueError` naming the variable and the words it takes)."""
+    value = os.environ.get(NO_CACHE_VARIABLE, "")
+    word = value.strip().lower()
+    if word not in _TRUE_WORDS + _FALSE_WORDS:
+        raise ValueError(f"{NO_CACHE_VARIABLE}={value!r}: expected 1, true, yes or on (cache "
+                         "off), or 0, false, no, off or empty (cache on)")
+    return word in _TRUE_WORDS
 
 
 def command_line_cache(disabled: bool = False) -> Path | None:
-    """The command line's cache: off if `disabled` or ``$VEHSIM_NO_COMPILATION_CACHE`` is
-    1/true/yes (JAX's cache then switched off altogether, whatever else configured it),
+    """The command line's cache: off if `disabled` or ``$VEHSIM_NO_COMPILATION_CACHE`` says
+    so (`cache_switched_off_by_environment`; JAX's cache then switched off altogether, whatever else configured it),
     else `enable_compilation_cache` in the folder JAX was given, or `default_cache_dir`,
     for every program however quickly it compiled: a command's dozens of small programs
     (array operations outside the solvers, the solution record's) load from the cache in
@@ -146,7 +160,7 @@ def command_line_cache(disabled: bool = False) -> Path | None:
 
     **Returns:** the cache folder, or None when off.
     """
-    if disabled or os.environ.get(NO_CACHE_VARIABLE, "").strip().lower() in ("1", "true", "yes"):
+    if cache_switched_off_by_environment() or disabled:
         jax.config.update("jax_enable_compilation_cache", False)
         return None
     return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None,

@@ -80,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"({e.strerror}: {e.filename!r}): set VEHSIM_CACHE_DIR to a writable "
                   "folder, or pass --no-compilation-cache", file=sys.stderr)
             return 2
+        except ValueError as e:  # $VEHSIM_NO_COMPILATION_CACHE neither yes nor no
+            print(f"vehsim: error: {e}", file=sys.stderr)
+            return 2
         library_default = set_default(not args.no_progress)
         try:
             if getattr(args, "out", None) is not None:  # before any work
