@@ -170,3 +170,21 @@ def test_bad_member_values_are_refused_before_the_run(capsys, tmp_path):
                "--out", str(tmp_path / "unused.json")])
     assert rc == 2
     assert "HalfCarParams.m must lie in (0, inf), got -5" in capsys.readouterr().err
+
+
+def test_cli_sweep_notes_a_lifted_axle_and_writes_netcdf_for_an_upper_case_suffix(tmp_path,
+                                                                                capsys):
+    """Braking in a turn with the centre of mass 30 m up lifts both axles' loads below 0
+    (the model runs them unloaded): the member is still a successful solve, and the command
+    says how many members lifted an axle; 0.5 m lifts none. ``.NC`` is netCDF."""
+    xr = pytest.importorskip("xarray")
+    out = tmp_path / "lift.NC"
+    assert main(["sweep", "--maneuver", "brake_in_turn", "--set", "h=0.5,30", "--duration",
+                 "2", "--samples", "11", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "note: in 1 of 2 members an axle lifted (min_Fz_F or min_Fz_R below 0)" in err
+    data = xr.load_dataset(out)  # netCDF, not JSON
+    np.testing.assert_array_equal(data["h"], [0.5, 30.0])
+    assert list(data["status"].values) == ["successful"] * 2
+    low, tall = (min(float(data["min_Fz_F"][i]), float(data["min_Fz_R"][i])) for i in (0, 1))
+    assert low > 0 > tall

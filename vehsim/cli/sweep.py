@@ -106,7 +106,8 @@ def preset_of_kind(kind: str):
 
 def summary(traj) -> dict[str, Any]:
     """Scalar outcomes of one half-car run (final speed and pose, peaks of sideslip, yaw
-    rate, lateral acceleration and loads, solver steps)."""
+    rate, lateral acceleration and loads, solver steps). A negative least load is an axle
+    that lifted (the model clips its load at 0: no friction on it, `HalfCar`)."""
     import jax.numpy as jnp
 
     s = traj.signals
@@ -116,6 +117,7 @@ def summary(traj) -> dict[str, Any]:
         "max_abs_yaw_rate": jnp.max(jnp.abs(s["yaw_rate"])),
         "max_abs_ay": jnp.max(jnp.abs(s["ay"])),
         "max_Fz_F": jnp.max(s["Fz_F"]),
+        "min_Fz_F": jnp.min(s["Fz_F"]),
         "min_Fz_R": jnp.min(s["Fz_R"]),
         "max_theta": jnp.max(s["theta"]),
         "final_x": s["x"][-1],
@@ -179,6 +181,11 @@ def _sweep(args: argparse.Namespace) -> int:
         path = _write_json(args.out, res, stats, info | {"axes": axes}, wall, args.signals)
     print(f"vehsim sweep: {n_ok}/{n} ok in {wall:.1f} s (compile included); wrote {path}",
           file=sys.stderr)
+    lifted = int(jnp.sum((stats["min_Fz_F"] < 0) | (stats["min_Fz_R"] < 0)))
+    if lifted:
+        print(f"vehsim sweep: note: in {lifted} of {n} members an axle lifted (min_Fz_F or "
+              "min_Fz_R below 0): the half car then runs that axle unloaded, without "
+              "friction", file=sys.stderr)
     return exit_status("sweep", res.result)
 
 
