@@ -153,7 +153,8 @@ def test_bad_maneuver_values_are_refused_before_the_run(maneuver, axis, message,
     rc = main(["sweep", "--maneuver", maneuver, "--set", axis,
                "--out", str(tmp_path / "unused.json")])
     assert rc == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and f"--set {axis.split('=')[0]}=" in err, err  # the axis named
     assert not (tmp_path / "unused.json").exists()
 
 
@@ -163,13 +164,14 @@ def test_bad_member_values_are_refused_before_the_run(capsys, tmp_path):
     scenario = half_car_scenario(rally_gravel(), rally_gravel_tire(), "brake_in_turn", 20.0,
                                  ["m", "delta"])
     traces = eqx.debug.get_num_traces(_sweep_run)
-    with pytest.raises(ValueError, match=r"HalfCarParams\.m must lie in \(0, inf\), got -5$"):
+    with pytest.raises(ValueError,
+                       match=r"^m=-5: HalfCarParams\.m must lie in \(0, inf\), got -5$"):
         sweep(scenario, sweep_grid(m=[1200.0, -5.0], delta=[0.02, 0.04]), jnp.linspace(0, 1, 3))
     assert eqx.debug.get_num_traces(_sweep_run) == traces  # nothing was compiled or run
     rc = main(["sweep", "--maneuver", "brake_in_turn", "--set", "m=-5",
                "--out", str(tmp_path / "unused.json")])
     assert rc == 2
-    assert "HalfCarParams.m must lie in (0, inf), got -5" in capsys.readouterr().err
+    assert "--set m=-5: HalfCarParams.m must lie in (0, inf), got -5" in capsys.readouterr().err
 
 
 def test_cli_sweep_notes_a_lifted_axle_and_writes_netcdf_for_an_upper_case_suffix(tmp_path,

@@ -85,19 +85,38 @@ def check_members(scenario: Callable, members: PyTree) -> None:
     r"""Build `scenario` eagerly for every value each leaf of `members` takes (the other
     leaves at their first member's value), or for every member when that is fewer: the
     models' construction checks then see concrete numbers and raise their `ValueError`
-    (naming the field and its allowed range) before any batched work."""
+    (naming the field and its allowed range) before any batched work. The error is
+    prefixed with the member's leaf and value that raised it (``m=-1: HalfCarParams.m must
+    ...``), or with the member's index when every member is probed."""
     n = num_members(members)
-    leaves, treedef = jax.tree.flatten(members)
-    arrays = [np.asarray(x) for x in leaves]
+    paths, treedef = jax.tree_util.tree_flatten_with_path(members)
+    names = [_leaf_name(path) for path, _ in paths]
+    arrays = [np.asarray(x) for _, x in paths]
     first = [a[0] for a in arrays]
     probes = []
     for i, a in enumerate(arrays):
         _, where = np.unique(a.reshape(n, -1), axis=0, return_index=True)
-        probes += [first[:i] + [a[j]] + first[i + 1:] for j in sorted(where)]
+        probes += [(f"{names[i]}={_value_text(a[j])}", first[:i] + [a[j]] + first[i + 1:])
+                   for j in sorted(where)]
     if len(probes) > n:
-        probes = [[a[j] for a in arrays] for j in range(n)]
-    for probe in probes:
-        scenario(jax.tree.unflatten(treedef, [jnp.asarray(x) for x in probe]))
+        probes = [(f"member {j}", [a[j] for a in arrays]) for j in range(n)]
+    for label, probe in probes:
+        try:
+            scenario(jax.tree.unflatten(treedef, [jnp.asarray(x) for x in probe]))
+        except ValueError as e:
+            raise ValueError(f"{label}: {e}") from None
+
+
+def _leaf_name(path) -> str:
+    """A member leaf's name: its dict key, or JAX's path text for other trees."""
+    if len(path) == 1 and isinstance(path[0], jax.tree_util.DictKey):
+        return str(path[0].key)
+    return jax.tree_util.keystr(path) or "member"
+
+
+def _value_text(value) -> str:
+    value = np.asarray(value)
+    return f"{value.item():g}" if value.ndim == 0 else np.array2string(value, separator=",")
 
 
 def sweep(

@@ -157,7 +157,10 @@ def _sweep(args: argparse.Namespace) -> int:
     members = sweep_grid(**axes) if axes else {"speed": jnp.asarray([args.speed])}
     n = num_members(members)
     scenario = half_car_scenario(params, tire, args.maneuver, args.speed, list(members))
-    check_members(scenario, members)  # every value's range, before the run is announced
+    try:  # every value's range, before the run is announced
+        check_members(scenario, members)
+    except ValueError as e:  # "NAME=VALUE: <the model's check>": the axis that gave it
+        raise ValueError(f"--set {e}" if axes else str(e)) from None
     where = f"{len(jax.devices())} device(s)" + (
         f" of {jax.process_count()} processes (this is process {jax.process_index()})"
         if jax.process_count() > 1 else "")
