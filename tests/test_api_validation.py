@@ -107,6 +107,10 @@ CASES = {
         "MFParams needs FZMIN <= FZMAX, got FZMIN = 5000, FZMAX = 100"),
     "a speed profile for negative friction": (
         lambda: speed_profile(_road(), -0.5), "speed_profile.D must lie in (0, inf), got -0.5"),
+    "a margin as wide as half the road": (
+        lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10, margin=2.0),
+        "margin=2 m leaves no road: it must be below half the road's width, 2 m where it is "
+        "narrowest"),
     "a speed profile at no fraction of the friction": (
         lambda: speed_profile(_road(), 0.5, 0.0), "speed_profile.fraction must lie in (0, 1]"),
 }

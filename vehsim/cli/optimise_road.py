@@ -41,6 +41,18 @@ def road_from_args(args):
                      smoothing=args.smoothing)
 
 
+def _check_margin(road, margin: float) -> None:
+    """``--margin`` below half the road's width everywhere (sampled every 0.5 m or finer),
+    before anything compiles (the problem's own check names its keyword, not the option)."""
+    import numpy as np
+
+    s = np.linspace(0.0, road.length, max(2001, math.ceil(road.length / 0.5) + 1))
+    half = 0.5 * float(np.min(np.asarray(road.width_left(s)) + np.asarray(road.width_right(s))))
+    if margin >= half:
+        raise ValueError(f"--margin {margin:g} m leaves no road: it must be below half the "
+                         f"road's width, {half:.3g} m where it is narrowest")
+
+
 def default_stages(length: float) -> int:
     """Stages for a road of ``length`` [m]: one per `STAGE_LENGTH`, within the limits."""
     return int(min(MAX_STAGES, max(MIN_STAGES, math.ceil(length / STAGE_LENGTH))))
@@ -55,7 +67,7 @@ def optimise_road(args) -> int:
     from ..optimal.ip import IPOptions
     from ..optimal.primitives import rally_gravel_car
     from ..plot import path_on_road_figure
-    from .optimise import UNITS
+    from .optimise import MAX_ITER_OPTION, UNITS
 
     units = {**UNITS, "length": "m", "s": "m", "states.n": "m", "states.xi": "rad",
              "violations.speed_floor": "m/s", "start_speed": "m/s"}
@@ -74,6 +86,7 @@ def optimise_road(args) -> int:
         raise ValueError("--objective max-exit needs an open road (a lap has no exit); "
                          "leave out --closed or use --objective min-time")
     road = road_from_args(args)
+    _check_margin(road, args.margin)
     if args.start_speed is not None:
         from ..optimal.centreline import Gate
 
@@ -119,4 +132,4 @@ def optimise_road(args) -> int:
           f"{unconverged_note(rec)}", file=sys.stderr)
     from ._status import exit_status
 
-    return exit_status("optimise", prim.solution.result)
+    return exit_status("optimise", prim.solution.result, options=MAX_ITER_OPTION)

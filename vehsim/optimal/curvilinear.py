@@ -221,7 +221,9 @@ def _road_arrays(road, num_stages: int, steps_per_stage: int, margin: float,
     nodes = bounds(node_s)
     mids = bounds((starts + 0.5 * h).reshape(-1)).reshape(M, S, 2)
     if np.any(nodes[:, 0] >= nodes[:, 1]) or np.any(mids[..., 0] >= mids[..., 1]):
-        raise ValueError(f"margin={margin} leaves no road: it must be below half the width")
+        half = 0.5 * min(np.min(nodes[:, 1] - nodes[:, 0]), np.min(mids[..., 1] - mids[..., 0]))
+        raise ValueError(f"margin={margin:g} m leaves no road: it must be below half the "
+                         f"road's width, {half + margin:.3g} m where it is narrowest")
     return kap, nodes, mids
 
 
