@@ -101,6 +101,7 @@ def test_optimise_writes_the_primitive_the_library_solves(tmp_path):
     rc, _, err = _vehsim("optimise", "corner90", "--segments", M, "--max-iter", 3, "--quiet",
                          "--out", tmp_path / "capped")
     assert rc == 1 and "NOT CONVERGED: final residuals inf_pr" in err, err
+    assert "vehsim optimise: ip_max_iterations: " in err and "Increase --max-iter," in err, err
 
 
 @pytest.mark.xdist_group("corner90_min_time")  # its optimal section: the tests' primitive

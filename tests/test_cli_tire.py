@@ -226,6 +226,24 @@ def test_show_text_and_another_load(capsys):
     np.testing.assert_allclose(s["peak_mu_y"], fy.max(), rtol=1e-6)
 
 
+def test_show_says_where_a_curve_has_no_peak_inside_the_search(tmp_path, capsys):
+    """A lateral shape factor below 1 (PCY1 = 0.8) makes |F_y| rise all the way to the
+    search's 30 deg: the summary says that its value is the largest at the edge, not a peak;
+    the shipped file has its peaks inside."""
+    text = SAMPLE_PATH.read_text().replace("PCY1                     = 1.4675",
+                                           "PCY1                     = 0.8")
+    flat = tmp_path / "flat.tir"
+    flat.write_text(text)
+    assert main(["tire", "show", str(flat), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["peaks_at_search_edge"] == ["peak_mu_y"]
+    assert abs(s["alpha_at_peak_mu_y_deg"]) == pytest.approx(30.0)
+    assert main(["tire", "show", str(flat)]) == 0
+    assert "for peak_mu_y: the value is the largest, at its edge" in capsys.readouterr().out
+    assert main(["tire", "show", str(SAMPLE_PATH), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["peaks_at_search_edge"] == []
+
+
 def test_plot_draws_the_file_curves(tmp_path):
     """`vehsim tire plot`: a PNG; the curves it draws are `mf_evaluate`'s at the loads 0.5,
     1, 1.5 F_z0 and cambers -4, 0, 4 deg (file's axes), and the ellipse has the peaks."""
@@ -262,7 +280,9 @@ def test_fit_lugre_writes_table_json_and_figure(tmp_path, capsys):
     r = json.loads(out.read_text())
     assert rc == 1 and r["status"] == r["solver_status"] == "nonlinear_max_steps_reached"
     assert r["message"].startswith("Levenberg-Marquardt stopped after 3 steps")
-    assert r["message"] in printed and r["message"] in captured.err
+    said = r["message"].replace("`max_steps`", "--max-steps")  # the option, not the setting
+    assert "increase `max_steps`" in r["message"] and "increase --max-steps" in said
+    assert said in printed and said in captured.err
     assert r["gradient_cosine"] > 1e-6 and r["predicted_relative_reduction"] > 1e-6
     assert r["held"] == ["v_s", "gamma"]
     assert (r["lugre"]["v_s_m_per_s"], r["lugre"]["gamma"]) == (3.0, 0.7)

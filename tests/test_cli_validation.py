@@ -76,6 +76,20 @@ BAD = {
     "a road file's start speed on a benchmark road": (
         ["optimise", "corner90", "--start-speed", "5"], "--start-speed applies"),
     "a missing road file": (["optimise", "--road-file", "{tmp}/nope.csv"], "--road-file"),
+    "a margin wider than the road": (["optimise", "--track", "Oschersleben", "--margin", "9"],
+                                     "--margin 9 m leaves no road: it must be below half the "
+                                     "road's width, 4.2 m where it is narrowest"),
+    "a live log that is quiet": (["optimise", "corner90", "--live", "--quiet"],
+                                 "--live prints every iteration and --quiet none"),
+    "a change to the same surface": (["brake", "--surface", "ice", "--change-to", "ice",
+                                      "--change-distance", "5"],
+                                     "--change-to ice is the --surface already"),
+    "a time budget for the minimum time": (["optimise", "corner90", "--tf-max", "3"],
+                                           "--tf-max is the time budget of --objective "
+                                           "max-exit"),
+    "max-exit on a road file without a budget": (
+        ["optimise", "--road-file", "{tmp}/x.csv", "--objective", "max-exit"],
+        "--objective max-exit on a road file needs --tf-max"),
     # drive
     "a missing road file to drive": (["drive", "--road-file", "{tmp}/nope.csv"], "--road-file"),
     "a patch at minus infinity": (["drive", "--road", "corner90", "--patch", "-inf,2,3,0.5"],
@@ -90,6 +104,17 @@ BAD = {
     "a sample time not a multiple of the record's": (
         ["estimate", "{braking}", "--sample-time", "0.003"], "--sample-time (0.003 s)"),
     "a folder for a braking": (["estimate", "{tmp}"], "a folder, not a braking file"),
+    "a normal load too small for the torques": (
+        ["estimate", "{braking}", "--normal-load", "10"],
+        "F_n = 10 N from --normal-load): no tire brakes with that; is the column in N m, or "
+        "--normal-load too small?"),
+    "an estimator sample longer than a tenth of the record": (
+        ["estimate", "{braking}", "--sample-time", "0.5"],
+        "--sample-time 0.5 s leaves 4 estimator samples at --sample-time 0.5 s (a record of "),
+    "a window longer than the record": (
+        ["estimate", "{braking}", "--estimator", "mhe", "--sample-time", "0.1", "--window", "40"],
+        "--window 40 needs more than 40 estimator samples, and the record gives 19 estimator "
+        "samples at --sample-time 0.1 s"),
     # fit
     "zero radius": (["fit", "{tmp}/x.csv", "--radius", "0"], "--radius"),
     "no fit starts": (["fit", "{tmp}/x.csv", "--starts", "0"], "--starts"),
@@ -126,7 +151,8 @@ def test_bad_input_exits_2_naming_the_option_and_writes_nothing(case, tmp_path, 
 
 def test_sweep_refuses_a_model_value_before_announcing_the_run(tmp_path, capsys):
     code, err = _run(["sweep", "--set", "m=1200,-1200", "--out", tmp_path / "s.json"], capsys)
-    assert code == 2 and "HalfCarParams.m must lie in (0, inf), got -1200" in err, err
+    assert code == 2 and ("--set m=-1200: HalfCarParams.m must lie in (0, inf), got -1200"
+                          in err), err
     assert "members x" not in err, err  # the run's announcement comes after every check
     assert list(tmp_path.iterdir()) == []
 

@@ -6,11 +6,13 @@ from __future__ import annotations
 import sys
 
 
-def exit_status(command: str, result, message: str | None = None) -> int:
+def exit_status(command: str, result, message: str | None = None,
+                options: dict[str, str] | None = None) -> int:
     """0 where every member of `result` (a `vehsim.RESULTS` item, batched or not) is
     successful; else 1, after one line on stderr per failing case: the case's name, how many
     members it stopped (for a batch), and its message (`message` in place of it, for one
-    result)."""
+    result), with the library's settings it names replaced by the command's options
+    (`options`, e.g. ``{"`IPOptions.max_iter`": "--max-iter"}``)."""
     import numpy as np
 
     from .._results import is_successful, result_message_of_name, result_name
@@ -23,6 +25,8 @@ def exit_status(command: str, result, message: str | None = None) -> int:
     for name in dict.fromkeys(failed.tolist()):
         count = "" if ok.ndim == 0 else f" ({int(np.sum(failed == name))} of {ok.size})"
         text = message if message is not None and ok.ndim == 0 else result_message_of_name(name)
+        for setting, option in (options or {}).items():
+            text = text.replace(setting, option)
         print(f"vehsim {command}: {name}{count}: {text}", file=sys.stderr)
     return 1
 

@@ -93,6 +93,9 @@ def _brake(args) -> int:
             and math.isinf(args.change_time):
         raise ValueError("--change-to needs a finite --change-distance or --change-time "
                          "(inf, their default, is a change that never comes)")
+    if args.change_to is not None and args.change_to == args.surface:
+        raise ValueError(f"--change-to {args.change_to} is the --surface already: a change "
+                         "needs another surface")
     if args.change_to is None and not (math.isinf(args.change_distance)
                                        and math.isinf(args.change_time)):
         raise ValueError("--change-distance and --change-time need --change-to")

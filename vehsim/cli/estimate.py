@@ -190,8 +190,10 @@ $rF_n$: a tire brakes with $|F_x| \le \mu F_n$, $\mu$ about 1, so a hundredfold 
 not a braking (most likely a column in the wrong unit)."""
 
 
-def _check_torque(path, T_b, r: float, Fn: float) -> None:
-    """Refuse the first brake torque above `TORQUE_LOAD_RATIO` $rF_n$, naming its row."""
+def _check_torque(path, T_b, r: float, Fn: float, sources: dict[str, str]) -> None:
+    """Refuse the first brake torque above `TORQUE_LOAD_RATIO` $rF_n$, naming its row and
+    where r and F_n came from (`sources`: "r" and "F_n" to the option, side file or column
+    that gave them); the hint names the options that were given as well as the column."""
     import numpy as np
 
     from ..identify.braking import _fail
@@ -200,9 +202,32 @@ def _check_torque(path, T_b, r: float, Fn: float) -> None:
     over = np.abs(T_b) > limit
     if np.any(over):
         i = int(np.argmax(over))
+        given = [sources[k] for k in ("F_n", "r") if sources[k].startswith("--")]
         _fail(path, i + 1, "T_b", f"{T_b[i]:g} N m is more than {TORQUE_LOAD_RATIO:g} r F_n = "
-              f"{limit:g} N m (r = {r:g} m, F_n = {Fn:g} N): no tire brakes with that; is "
-              "the column in N m?")
+              f"{limit:g} N m (r = {r:g} m from {sources['r']}, F_n = {Fn:g} N from "
+              f"{sources['F_n']}): no tire brakes with that; is the column in N m"
+              + "".join(f", or {g} too small" for g in given) + "?")
+
+
+MIN_ESTIMATOR_SAMPLES = 10
+"""Fewest estimator samples (the record's samples at the estimator's ``--sample-time``) that
+`vehsim estimate` runs on: fewer give a standard error without meaning."""
+
+
+def _check_estimator_samples(args, samples: int, h: float) -> None:
+    """Enough estimator samples in the record: at least `MIN_ESTIMATOR_SAMPLES`, and for
+    the moving horizon more than one ``--window`` (checked here, before anything compiles,
+    naming the options)."""
+    T = h if args.sample_time is None else args.sample_time
+    n = -(-samples // max(round(T / h), 1))  # the record's samples at T, the first included
+    at = f"{n} estimator samples at --sample-time {T:g} s (a record of {samples * h:g} s)"
+    if n < MIN_ESTIMATOR_SAMPLES:
+        raise ValueError(f"--sample-time {T:g} s leaves {at}: at least "
+                         f"{MIN_ESTIMATOR_SAMPLES} are needed; give a shorter --sample-time")
+    if args.estimator == "mhe" and n <= args.window:
+        raise ValueError(f"--window {args.window} needs more than {args.window} estimator "
+                         f"samples, and the record gives {at}: give a shorter --window or "
+                         "--sample-time")
 
 
 MIN_WHEEL_SAMPLES = 10
@@ -259,14 +284,16 @@ def _estimate(args) -> int:
     m = args.mass or extras.get("m", 350.0)
     r = args.radius or extras.get("r", 0.3)
     J = args.inertia or extras.get("J", 1.0)
+    sources = {"r": "--radius" if args.radius else "the side file" if "r" in extras else
+               "the default"}
     if args.normal_load is not None:
-        Fn = args.normal_load
+        Fn, sources["F_n"] = args.normal_load, "--normal-load"
     elif record.F_n is not None:
-        Fn = float(np.mean(np.asarray(record.F_n)))
+        Fn, sources["F_n"] = float(np.mean(np.asarray(record.F_n))), "the mean of column 'F_n'"
         _positive(f"{args.data}: the mean of column 'F_n'", Fn)
     else:
-        Fn = m * GRAVITY
-    _check_torque(args.data, np.asarray(record.torque), r, Fn)
+        Fn, sources["F_n"] = m * GRAVITY, "m g"
+    _check_torque(args.data, np.asarray(record.torque), r, Fn, sources)
     _check_speeds(args.data, np.asarray(record.v), np.asarray(record.omega), r)
     car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)
     h = record.sample_time
@@ -276,6 +303,7 @@ def _estimate(args) -> int:
             raise ValueError(f"--sample-time ({args.sample_time:g} s) must be a whole multiple "
                              f"of the record's step ({h:g} s in {args.data})")
     hardware = ideal_hardware(sample_time=h if args.sample_time is None else args.sample_time)
+    _check_estimator_samples(args, len(record), h)
     if args.estimator == "observer":
         estimator = FrictionObserver(tire, theta_min=lo, theta_max=hi)
     elif args.estimator == "mhe":

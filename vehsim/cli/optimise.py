@@ -24,6 +24,10 @@ UNITS = {
 give (the interior point's residuals are scaled, dimensionless)."""
 
 
+MAX_ITER_OPTION = {"`IPOptions.max_iter`": "--max-iter"}
+"""The solver setting a failed solve's message names, as the command's option."""
+
+
 def register(subparsers) -> None:
     from ._options import integer, number
 
@@ -54,8 +58,9 @@ def register(subparsers) -> None:
     p.add_argument("--objective", choices=["min-time", "max-exit"], default="min-time",
                    help="min-time: reach the exit line soonest; max-exit: the largest exit "
                         "speed within --tf-max (default: min-time)")
-    p.add_argument("--tf-max", type=number(0.0, 60.0, lower_open=True, unit="s"), default=4.0,
-                   help="time budget of max-exit [s] (benchmark: 4.0, docs/maneuvers.md)")
+    p.add_argument("--tf-max", type=number(0.0, 60.0, lower_open=True, unit="s"), default=None,
+                   help="time budget of max-exit [s], in (0, 60] (a benchmark road: 4.0, the "
+                        "benchmark's, docs/maneuvers.md; a road file: required)")
     p.add_argument("--friction", type=number(0.0, 2.0, lower_open=True), default=0.52,
                    help="tire peak friction D, in (0, 2] (0.52)")
     p.add_argument("--segments", type=integer(2, 20_000), default=None,
@@ -98,6 +103,18 @@ def _shipped_tracks() -> list[str]:
 
 
 def _optimise(args) -> int:
+    if args.live and args.quiet:
+        raise ValueError("--live prints every iteration and --quiet none: give one")
+    if args.objective == "min-time" and args.tf_max is not None:
+        raise ValueError("--tf-max is the time budget of --objective max-exit; the "
+                         "minimum-time drive has none")
+    if args.objective == "max-exit" and args.tf_max is None and args.road_file is not None \
+            and not args.closed:  # a lap has no exit: refused with that reason below
+        raise ValueError("--objective max-exit on a road file needs --tf-max, the time "
+                         "budget [s] in (0, 60]: at least the road's minimum time "
+                         "(--objective min-time gives it)")
+    if args.tf_max is None:  # the benchmark's budget (unused by min-time)
+        args.tf_max = 4.0
     if args.road is None:
         from .optimise_road import optimise_road
 
@@ -125,7 +142,7 @@ def _optimise(args) -> int:
 
     car = rally_gravel_car(args.friction)
     starts = {} if args.starts == 1 else {"starts": args.starts}
-    live = args.live and not args.quiet
+    live = args.live
     if live and args.starts > 1:
         raise ValueError("--live logs one solve; with --starts, each start's line is printed "
                          "when the solves return")
@@ -167,4 +184,4 @@ def _optimise(args) -> int:
           file=sys.stderr)
     from ._status import exit_status
 
-    return exit_status("optimise", prim.solution.result)
+    return exit_status("optimise", prim.solution.result, options=MAX_ITER_OPTION)

@@ -124,6 +124,11 @@ def tire_summary(tir, params, load=None) -> dict:
                 "the cornering stiffness then usually negative",
         "peaks_found_on": "2001 slip ratios in [-1, 1] and 2001 slip angles in [-30, 30] deg, "
                           "zero camber, the file's ranges not applied",
+        "peaks_at_search_edge": [  # the largest value on the grid, not a peak inside it
+            name for name, slip, edge in (
+                ("peak_mu_x_driving", s["kappa_at_mu_x_drive"], 1.0),
+                ("peak_mu_x_braking", s["kappa_at_mu_x_brake"], 1.0),
+                ("peak_mu_y", s["alpha_deg_at_mu_y"], 30.0)) if abs(slip) >= edge * (1 - 1e-9)],
     }
 
 
@@ -159,6 +164,10 @@ def summary_text(s: dict) -> str:
         f"  camber                {_fmt_range(r['camber_deg'], ' deg')}",
         f"  pressure              {_fmt_range(r['pressure_Pa'], ' Pa')}",
     ]
+    if s["peaks_at_search_edge"]:
+        lines.append(f"no peak inside the search ({s['peaks_found_on']}) for "
+                     f"{', '.join(s['peaks_at_search_edge'])}: the value is the largest, at "
+                     "its edge")
     if s["unknown_keys"]:
         lines.append(f"keys vehsim does not use: {', '.join(s['unknown_keys'])}")
     return "\n".join(lines)
@@ -302,10 +311,14 @@ def _fit_lugre(args) -> int:
                                  "to its Magic Formula (dashed)")
     write_json_and_figure(out, with_units(record, strict=False), figure, fig)
     plt.close(fig)
-    print(f"fit: {record['status']}: {record['message']}")
+    said = {"`max_steps`": "--max-steps"}  # the solver's setting, as this command's option
+    message = record["message"]
+    for setting, option in said.items():
+        message = message.replace(setting, option)
+    print(f"fit: {record['status']}: {message}")
     print("errors (RMS and worst, in % of each curve's peak in brackets):")
     print("\n".join(fit_table(record)))
     print("at the start (uniform load):")
     print("\n".join(fit_table(record, "initial_errors")))
     print(f"wrote {out} and {figure}", file=sys.stderr)
-    return exit_status("tire fit-lugre", fit.result, fit.message)
+    return exit_status("tire fit-lugre", fit.result, fit.message, options=said)
