@@ -317,3 +317,23 @@ def test_a_cache_switch_that_is_neither_yes_nor_no_is_refused(tmp_path, capsys, 
     code, err = _run(["sweep", "--out", tmp_path / "sweep.json"], capsys)
     assert code == 2 and "VEHSIM_NO_COMPILATION_CACHE='sometimes': expected" in err, err
     assert "Traceback" not in err and list(tmp_path.iterdir()) == []
+
+
+def test_estimate_notes_a_slip_that_mistaken_units_give(capsys):
+    """A record whose wheel speed is in rpm (slips near 8) gets the note `vehsim fit`
+    gives, before the estimate; the shipped record in rad/s gets none. Missing wheel
+    speeds (nan) are left out of the test."""
+    import numpy as np
+
+    from vehsim.cli.estimate import _check_speeds
+    from vehsim.identify.braking import load_braking
+
+    d = load_braking(BRAKING)
+    v, omega, r = np.asarray(d.v), np.asarray(d.omega), float(d.r)
+    omega = np.where(np.arange(omega.size) % 3 == 0, np.nan, omega)
+    _check_speeds("b.csv", v, omega, r)
+    assert capsys.readouterr().err == ""
+    _check_speeds("b.csv", v, omega * 60.0 / (2.0 * np.pi), r)
+    err = capsys.readouterr().err
+    assert err.startswith("note: b.csv: the slip (omega r - v)/v reaches 8."), err
+    assert "check the units (omega in rad/s" in err

@@ -252,12 +252,12 @@ def _check_speeds(path, v, omega, r) -> None:
         raise ValueError(f"{path}: column 'omega' has {int(measured.sum())} measured samples "
                          f"of {omega.size} (the rest nan); the estimators need at least "
                          f"{MIN_WHEEL_SAMPLES}")
-    use = measured & (np.abs(v) > 1.0)
-    if use.any():
-        s = np.max(np.abs((omega[use] * r - v[use]) / v[use]))
-        if s > 1.5:
-            print(f"note: {path}: the slip (omega r - v)/v reaches {s:.3g}; check the units "
-                  "(omega in rad/s, v in m/s, r in m) and signs", file=sys.stderr)
+    from ..identify.braking import slip_unit_reasons
+
+    reasons = slip_unit_reasons(v, omega, r)
+    if reasons:
+        print(f"note: {path}: {' and '.join(reasons)}; check the units (omega in rad/s, v in "
+              "m/s, r in m) and signs", file=sys.stderr)
 
 
 def _estimate(args) -> int:

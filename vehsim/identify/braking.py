@@ -287,22 +287,33 @@ def slip_sign_note(data: BrakingData) -> str | None:
     should push the way the slip does (eq. 22's steady force has the sign of the slip); a
     record whose force opposes it on most of them, or whose slip passes 1.5, is not a
     braking in SI units (omega in rpm, for example, gives slips near 9)."""
-    v, omega, F = (np.asarray(x, float) for x in (data.v, data.omega, data.F_x))
-    r = float(np.asarray(data.r))
-    moving = np.abs(v) > 1.0
-    if not moving.any():
-        return None
-    s = (omega[moving] * r - v[moving]) / v[moving]
-    Fm = F[moving]
-    loaded = (np.abs(s) > 0.02) & (np.abs(Fm) > 0.05 * np.max(np.abs(F)))
-    opposed = float(np.mean(np.sign(Fm[loaded]) != np.sign(s[loaded]))) if loaded.any() else 0.0
-    reasons = []
-    if opposed > 0.5:
-        reasons.append(f"the force opposes the slip on {100 * opposed:.0f} % of the slipping "
-                       "samples")
-    if np.max(np.abs(s)) > 1.5:
-        reasons.append(f"the slip (omega r - v)/v reaches {np.max(np.abs(s)):.3g}")
+    reasons = slip_unit_reasons(data.v, data.omega, float(np.asarray(data.r)), data.F_x)
     if not reasons:
         return None
     return (f"{data.name}: " + " and ".join(reasons) + "; check the units and signs "
             "(omega in rad/s, v in m/s, r in m, F_x > 0 driving and < 0 braking)")
+
+
+def slip_unit_reasons(v, omega, r: float, F=None) -> list[str]:
+    """Why a record's slip looks like mistaken units or signs (`slip_sign_note`'s tests, on
+    the samples moving faster than 1 m/s with a measured wheel speed): the force opposing
+    the slip on most slipping, loaded samples (when the force `F` is given), a slip beyond
+    1.5. Empty when neither."""
+    v, omega = np.asarray(v, float), np.asarray(omega, float)
+    moving = (np.abs(v) > 1.0) & np.isfinite(omega)
+    if not moving.any():
+        return []
+    s = (omega[moving] * r - v[moving]) / v[moving]
+    reasons = []
+    if F is not None:
+        F = np.asarray(F, float)
+        Fm = F[moving]
+        loaded = (np.abs(s) > 0.02) & (np.abs(Fm) > 0.05 * np.max(np.abs(F)))
+        opposed = (float(np.mean(np.sign(Fm[loaded]) != np.sign(s[loaded]))) if loaded.any()
+                   else 0.0)
+        if opposed > 0.5:
+            reasons.append(f"the force opposes the slip on {100 * opposed:.0f} % of the "
+                           "slipping samples")
+    if np.max(np.abs(s)) > 1.5:
+        reasons.append(f"the slip (omega r - v)/v reaches {np.max(np.abs(s)):.3g}")
+    return reasons
