@@ -125,6 +125,23 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(command, tm
     assert cli.main([*args, "--out", str(target)]) == 2
     assert "cannot write in" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile.json"]
+    # permission bits that allow it, a folder that refuses files all the same (/proc as the
+    # superuser): found by the probe file, before any work
+    monkeypatch.setattr("os.access", real_access)
+    real_mkstemp = cli._options.tempfile.mkstemp
+
+    def refusing(*a, dir=None, **k):
+        if str(dir) == str(tmp_path):
+            raise OSError(2, "No such file or directory")
+        return real_mkstemp(*a, dir=dir, **k)
+
+    monkeypatch.setattr(cli._options.tempfile, "mkstemp", refusing)
+    assert cli.main([*args, "--out", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot write in {str(tmp_path)!r}: no file can be created there" in err, err
+    monkeypatch.setattr(cli._options.tempfile, "mkstemp", real_mkstemp)
+    cli._options.writable_output("--out", target, "file" if is_file else "folder")  # passes
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile.json"]  # no probe left
 
 
 @pytest.mark.parametrize("command", ["fit", "estimate"])

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import tempfile
 from pathlib import Path
 
 
@@ -105,7 +106,8 @@ def writable_output(option: str, path, kind: str) -> None:
     """Refuse, naming `option`, an output `path` that cannot be written, before any work:
     a `kind` 'folder' that exists as a file, a 'file' that exists as a folder, or one whose
     nearest existing folder is a file or cannot be written in (permissions, a read-only
-    file system). Creates nothing."""
+    file system, or a folder such as /proc that takes no files, found by making and removing
+    a probe file there: permission bits do not bind the superuser). Leaves nothing behind."""
     _refuse_empty(option, path)
     path = Path(path)
     if kind == "folder" and path.exists() and not path.is_dir():
@@ -123,6 +125,13 @@ def writable_output(option: str, path, kind: str) -> None:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ValueError(f"{option}: cannot write in {str(existing)!r} (no permission, or a "
                          "read-only file system)")
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".vehsim-probe-")
+    except OSError as e:
+        raise ValueError(f"{option}: cannot write in {str(existing)!r}: no file can be created "
+                         f"there ({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def input_file(option: str, path) -> Path:
