@@ -147,7 +147,8 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(command, tm
 @pytest.mark.parametrize("command", ["fit", "estimate"])
 @pytest.mark.parametrize("side, message", [
     ('["r"]', "must be a JSON object"), ('{"r": true}', "'r' must be a number"),
-    ('{"r": 1e308}', "'r' [m] must lie in (0, 5]"), ('{"r": 0.3, "J": -1}', "'J'"),
+    ('{"r": 1e308}', "'r' [m] must lie in (0, 5]"),
+    ('{"r": 0.3, "J": -1}', "'J' [kg m^2] must lie in (0, inf), got -1"),
 ])
 def test_a_bad_side_file_is_refused_naming_it(command, side, message, tmp_path, capsys):
     """The record's side file (NAME.json) must be a JSON object of positive numbers, the

@@ -215,8 +215,8 @@ def read_side_file(path: str | Path) -> dict:
             raise ValueError(f"{side}: {key!r} must be a number, got {value!r}")
         x = float(value)
         if not (math.isfinite(x) and 0 < x <= upper):
-            raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in (0, {upper:g}], "
-                             f"got {x:g}")
+            span = f"(0, {upper:g}]" if math.isfinite(upper) else "(0, inf)"
+            raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in {span}, got {x:g}")
         out[key] = x
     return out
 
