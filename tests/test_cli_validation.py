@@ -337,3 +337,17 @@ def test_estimate_notes_a_slip_that_mistaken_units_give(capsys):
     err = capsys.readouterr().err
     assert err.startswith("note: b.csv: the slip (omega r - v)/v reaches 8."), err
     assert "check the units (omega in rad/s" in err
+
+
+@pytest.mark.parametrize("value", ["0", "-2"])
+def test_a_cpu_device_count_jax_cannot_start_with_is_refused(value, tmp_path, capsys,
+                                                             monkeypatch):
+    """JAX takes JAX_NUM_CPU_DEVICES=0 at import and fails with a traceback at the first
+    computation; the command refuses it first, naming the variable and its range."""
+    monkeypatch.setenv("JAX_NUM_CPU_DEVICES", value)
+    code, err = _run(["sweep", "--out", tmp_path / "sweep.json"], capsys)
+    assert code == 2 and f"JAX_NUM_CPU_DEVICES='{value}': must be a whole number >= 1" in err
+    assert "Traceback" not in err and list(tmp_path.iterdir()) == []
+    for fine in ("2", "-1", ""):  # a count, JAX's own "not set", empty: passed on to JAX
+        monkeypatch.setenv("JAX_NUM_CPU_DEVICES", fine)
+        assert cli._jax_environment_error() is None

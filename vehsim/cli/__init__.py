@@ -59,7 +59,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _jax_environment_error() -> str | None:
+    """What is wrong with ``$JAX_NUM_CPU_DEVICES`` (which ``optimise --help`` suggests
+    setting), if anything: JAX reads a word that is not a number at import (its own error),
+    and takes 0 or a negative count, then fails to start its CPU backend at the first
+    computation with a traceback."""
+    import os
+
+    value = os.environ.get("JAX_NUM_CPU_DEVICES")
+    if value is None or value.strip() == "":
+        return None
+    try:
+        count = int(value)
+    except ValueError:
+        count = 0
+    if count >= 1 or count == -1:  # -1: JAX's own "not set"
+        return None
+    return (f"JAX_NUM_CPU_DEVICES={value!r}: must be a whole number >= 1 (the CPU devices JAX "
+            "makes), or unset for one")
+
+
 def main(argv: list[str] | None = None) -> int:
+    problem = _jax_environment_error()
+    if problem is not None:  # before JAX starts its backend
+        print(f"vehsim: error: {problem}", file=sys.stderr)
+        return 2
     import jax
 
     from .._compilation import cache_settings_restored, command_line_cache
