@@ -46,6 +46,11 @@ def test_a_record_and_its_figure_are_written_together_or_not_at_all(tmp_path):
         _io.write_json_and_figure(tmp_path / "b" / "r.json", {"a": 1}, tmp_path / "b" / "r.png",
                                   fig)
     assert [p.name for p in (tmp_path / "b").iterdir()] == ["r.png"]  # no record, no temporary
+    (tmp_path / "c" / "r.json").mkdir(parents=True)  # the record's place taken: no figure
+    with pytest.raises(IsADirectoryError, match=r"Is a directory: '[^']*/c/r\.json'$"):
+        _io.write_json_and_figure(tmp_path / "c" / "r.json", {"a": 1}, tmp_path / "c" / "r.png",
+                                  fig)
+    assert [p.name for p in (tmp_path / "c").iterdir()] == ["r.json"]
     plt.close(fig)
 
 

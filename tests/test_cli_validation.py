@@ -78,7 +78,7 @@ BAD = {
     "a missing road file": (["optimise", "--road-file", "{tmp}/nope.csv"], "--road-file"),
     "a margin wider than the road": (["optimise", "--track", "Oschersleben", "--margin", "9"],
                                      "--margin 9 m leaves no road: it must be below half the "
-                                     "road's width, 4.2 m where it is narrowest"),
+                                     "road's width, 4.197 m where it is narrowest"),
     "a live log that is quiet": (["optimise", "corner90", "--live", "--quiet"],
                                  "--live prints every iteration and --quiet none"),
     "a change to the same surface": (["brake", "--surface", "ice", "--change-to", "ice",
@@ -110,11 +110,15 @@ BAD = {
         "--normal-load too small?"),
     "an estimator sample longer than a tenth of the record": (
         ["estimate", "{braking}", "--sample-time", "0.5"],
-        "--sample-time 0.5 s leaves 4 estimator samples at --sample-time 0.5 s (a record of "),
+        "--sample-time 0.5 s leaves 4 estimator samples in the record's 1.876 s: at least 10"),
     "a window longer than the record": (
         ["estimate", "{braking}", "--estimator", "mhe", "--sample-time", "0.1", "--window", "40"],
-        "--window 40 needs more than 40 estimator samples, and the record gives 19 estimator "
-        "samples at --sample-time 0.1 s"),
+        "--window 40 needs more than 40 estimator samples, and the record's 1.876 s give 19 at "
+        "a sample time of 0.1 s"),
+    "a default window longer than the record": (
+        ["estimate", "{braking}", "--estimator", "mhe", "--sample-time", "0.1"],
+        "--window 20 (the default) needs more than 20 estimator samples"),
+
     # fit
     "zero radius": (["fit", "{tmp}/x.csv", "--radius", "0"], "--radius"),
     "no fit starts": (["fit", "{tmp}/x.csv", "--starts", "0"], "--starts"),
@@ -339,7 +343,7 @@ def test_estimate_notes_a_slip_that_mistaken_units_give(capsys):
     assert "check the units (omega in rad/s" in err
 
 
-@pytest.mark.parametrize("value", ["0", "-2"])
+@pytest.mark.parametrize("value", ["0", " 00"])
 def test_a_cpu_device_count_jax_cannot_start_with_is_refused(value, tmp_path, capsys,
                                                              monkeypatch):
     """JAX takes JAX_NUM_CPU_DEVICES=0 at import and fails with a traceback at the first
@@ -348,6 +352,22 @@ def test_a_cpu_device_count_jax_cannot_start_with_is_refused(value, tmp_path, ca
     code, err = _run(["sweep", "--out", tmp_path / "sweep.json"], capsys)
     assert code == 2 and f"JAX_NUM_CPU_DEVICES='{value}': must be a whole number >= 1" in err
     assert "Traceback" not in err and list(tmp_path.iterdir()) == []
-    for fine in ("2", "-1", ""):  # a count, JAX's own "not set", empty: passed on to JAX
+    assert cli.main(["--version"]) == 0  # what needs no computation still answers
+    capsys.readouterr()
+    for fine in ("2", "-1", "-2", ""):  # a count, JAX's "not set" (negative), empty
         monkeypatch.setenv("JAX_NUM_CPU_DEVICES", fine)
         assert cli._jax_environment_error() is None
+
+
+def test_a_mass_too_small_for_the_torques_is_named_as_the_load_s_source(tmp_path, capsys):
+    """A record without F_n takes the load as m g: a --mass too small for its torques is
+    refused naming where m came from and offering --mass as a cause."""
+    rows = list(csv.reader(BRAKING.read_text().splitlines()))
+    drop = rows[0].index("F_n")
+    path = tmp_path / "no_load.csv"
+    path.write_text("\n".join(",".join(r[:drop] + r[drop + 1:]) for r in rows) + "\n")
+    shutil.copy(BRAKING.with_suffix(".json"), tmp_path / "no_load.json")
+    code, err = _run(["estimate", path, "--mass", "1", "--out", tmp_path / "out"], capsys)
+    assert code == 2 and "F_n = 9.8" in err and "N from m g (m = 1 kg from --mass))" in err, err
+    assert err.rstrip().endswith("is the column in N m, or --mass too small?"), err
+    assert not (tmp_path / "out").exists()

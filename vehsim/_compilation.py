@@ -160,7 +160,7 @@ def command_line_cache(disabled: bool = False) -> Path | None:
 
     **Returns:** the cache folder, or None when off.
     """
-    if cache_switched_off_by_environment() or disabled:
+    if disabled or cache_switched_off_by_environment():
         jax.config.update("jax_enable_compilation_cache", False)
         return None
     return enable_compilation_cache(jax.config.jax_compilation_cache_dir or None,

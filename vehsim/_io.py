@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -100,7 +101,13 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:
 def write_atomic_files(files: dict) -> list[Path]:
     """Write several files (``{path: text or bytes}``) together: every temporary file is
     written before any is renamed into place, so that a failure while writing leaves none
-    of them (a pair of files that belong together, such as a CSV and its side file)."""
+    of them (a pair of files that belong together, such as a CSV and its side file), and a
+    folder in any file's place is refused before the first rename (`IsADirectoryError`
+    naming it). A rename that fails for another reason (rare: the folder's permissions
+    changed meanwhile) can still leave the files renamed before it."""
+    for path in files:
+        if Path(path).is_dir():
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     with contextlib.ExitStack() as stack:
         for path, data in files.items():
             tmp = stack.enter_context(atomic_path(path))
@@ -137,7 +144,7 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 130) -> Path:
 
 def write_json_and_figure(json_path: str | os.PathLike, obj: Any,
                           figure_path: str | os.PathLike, fig) -> list[Path]:
-    """A result's JSON record and its figure, written together (`write_atomic_files`): both
-    or neither, so that a figure that cannot be written leaves no record without it."""
+    """A result's JSON record and its figure, written together (`write_atomic_files`): a
+    figure that cannot be rendered or written leaves no record without it."""
     return write_atomic_files({json_path: json_text(obj),
                                figure_path: figure_bytes(fig, figure_path)})

@@ -116,7 +116,8 @@ def _leaf_name(path) -> str:
 
 def _value_text(value) -> str:
     value = np.asarray(value)
-    return f"{value.item():g}" if value.ndim == 0 else np.array2string(value, separator=",")
+    return (f"{value.item():.12g}" if value.ndim == 0 else
+            np.array2string(value, separator=",", precision=12))
 
 
 def sweep(

@@ -61,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _jax_environment_error() -> str | None:
     """What is wrong with ``$JAX_NUM_CPU_DEVICES`` (which ``optimise --help`` suggests
-    setting), if anything: JAX reads a word that is not a number at import (its own error),
-    and takes 0 or a negative count, then fails to start its CPU backend at the first
-    computation with a traceback."""
+    setting), if anything: JAX refuses a word that is not a number at import (its own
+    error), reads a negative count as "not set", and takes 0, then fails to start its CPU
+    backend at the first computation with a traceback."""
     import os
 
     value = os.environ.get("JAX_NUM_CPU_DEVICES")
@@ -72,18 +72,14 @@ def _jax_environment_error() -> str | None:
     try:
         count = int(value)
     except ValueError:
-        count = 0
-    if count >= 1 or count == -1:  # -1: JAX's own "not set"
+        return None  # JAX's import has refused it already
+    if count != 0:
         return None
     return (f"JAX_NUM_CPU_DEVICES={value!r}: must be a whole number >= 1 (the CPU devices JAX "
             "makes), or unset for one")
 
 
 def main(argv: list[str] | None = None) -> int:
-    problem = _jax_environment_error()
-    if problem is not None:  # before JAX starts its backend
-        print(f"vehsim: error: {problem}", file=sys.stderr)
-        return 2
     import jax
 
     from .._compilation import cache_settings_restored, command_line_cache
@@ -95,6 +91,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:  # bad input (status 2, argparse's message), --help, --version
         return int(e.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
+    problem = _jax_environment_error()
+    if problem is not None:  # before JAX starts its backend (--help and --version need none)
+        print(f"vehsim: error: {problem}", file=sys.stderr)
+        return 2
     # in-process callers (a notebook, a test) get their cache settings and progress back
     with cache_settings_restored():
         try:

@@ -202,7 +202,8 @@ def _check_torque(path, T_b, r: float, Fn: float, sources: dict[str, str]) -> No
     over = np.abs(T_b) > limit
     if np.any(over):
         i = int(np.argmax(over))
-        given = [sources[k] for k in ("F_n", "r") if sources[k].startswith("--")]
+        given = [o for o in ("--normal-load", "--mass", "--radius")
+                 if o in (sources["F_n"] + " " + sources["r"])]
         _fail(path, i + 1, "T_b", f"{T_b[i]:g} N m is more than {TORQUE_LOAD_RATIO:g} r F_n = "
               f"{limit:g} N m (r = {r:g} m from {sources['r']}, F_n = {Fn:g} N from "
               f"{sources['F_n']}): no tire brakes with that; is the column in N m"
@@ -220,14 +221,16 @@ def _check_estimator_samples(args, samples: int, h: float) -> None:
     naming the options)."""
     T = h if args.sample_time is None else args.sample_time
     n = -(-samples // max(round(T / h), 1))  # the record's samples at T, the first included
-    at = f"{n} estimator samples at --sample-time {T:g} s (a record of {samples * h:g} s)"
+    span = f"the record's {(samples - 1) * h:g} s"
     if n < MIN_ESTIMATOR_SAMPLES:
-        raise ValueError(f"--sample-time {T:g} s leaves {at}: at least "
-                         f"{MIN_ESTIMATOR_SAMPLES} are needed; give a shorter --sample-time")
-    if args.estimator == "mhe" and n <= args.window:
-        raise ValueError(f"--window {args.window} needs more than {args.window} estimator "
-                         f"samples, and the record gives {at}: give a shorter --window or "
+        raise ValueError(f"--sample-time {T:g} s leaves {n} estimator samples in {span}: at "
+                         f"least {MIN_ESTIMATOR_SAMPLES} are needed; give a shorter "
                          "--sample-time")
+    if args.estimator == "mhe" and n <= args.window:
+        window = f"--window {args.window}" + ("" if args.window_given else " (the default)")
+        raise ValueError(f"{window} needs more than {args.window} estimator samples, and "
+                         f"{span} give {n} at a sample time of {T:g} s: give a shorter "
+                         "--window or --sample-time")
 
 
 MIN_WHEEL_SAMPLES = 10
@@ -266,6 +269,7 @@ def _estimate(args) -> int:
     if args.tire is not None and not args.tire.strip():
         raise ValueError("--tire: an empty name; give a surface or a LuGre preset")
     args.tire = args.tire or "dry_asphalt"
+    args.window_given = args.window is not None
     args.window = args.window or 20
     args.starts = args.starts or 3
     tire, (lo, hi) = _assumed_tire(args)
@@ -284,15 +288,18 @@ def _estimate(args) -> int:
     m = args.mass or extras.get("m", 350.0)
     r = args.radius or extras.get("r", 0.3)
     J = args.inertia or extras.get("J", 1.0)
-    sources = {"r": "--radius" if args.radius else "the side file" if "r" in extras else
-               "the default"}
+    def source(option, given, key):  # where a value came from, for the torque check
+        return option if given else "the side file" if key in extras else "the default"
+
+    sources = {"r": source("--radius", args.radius, "r")}
     if args.normal_load is not None:
         Fn, sources["F_n"] = args.normal_load, "--normal-load"
     elif record.F_n is not None:
         Fn, sources["F_n"] = float(np.mean(np.asarray(record.F_n))), "the mean of column 'F_n'"
         _positive(f"{args.data}: the mean of column 'F_n'", Fn)
     else:
-        Fn, sources["F_n"] = m * GRAVITY, "m g"
+        Fn, sources["F_n"] = m * GRAVITY, (f"m g (m = {m:g} kg from "
+                                             f"{source('--mass', args.mass, 'm')})")
     _check_torque(args.data, np.asarray(record.torque), r, Fn, sources)
     _check_speeds(args.data, np.asarray(record.v), np.asarray(record.omega), r)
     car = QuarterCar(tire, mass=m, inertia=J, radius=r, Fn_static=Fn, omega_eps=1.0)

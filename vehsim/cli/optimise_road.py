@@ -42,15 +42,18 @@ def road_from_args(args):
 
 
 def _check_margin(road, margin: float) -> None:
-    """``--margin`` below half the road's width everywhere (sampled every 0.5 m or finer),
-    before anything compiles (the problem's own check names its keyword, not the option)."""
+    """``--margin`` below half the road's width everywhere (sampled every 0.5 m or finer, so
+    that the problem's own check at its nodes, which names its keyword rather than the
+    option, is left only margins within a fraction of a millimetre of the limit), before
+    anything compiles. The limit is written rounded down to the millimetre."""
     import numpy as np
 
     s = np.linspace(0.0, road.length, max(2001, math.ceil(road.length / 0.5) + 1))
     half = 0.5 * float(np.min(np.asarray(road.width_left(s)) + np.asarray(road.width_right(s))))
     if margin >= half:
         raise ValueError(f"--margin {margin:g} m leaves no road: it must be below half the "
-                         f"road's width, {half:.3g} m where it is narrowest")
+                         f"road's width, {math.floor(1e3 * half) / 1e3:g} m where it is "
+                         "narrowest")
 
 
 def default_stages(length: float) -> int:

@@ -223,7 +223,8 @@ def _road_arrays(road, num_stages: int, steps_per_stage: int, margin: float,
     if np.any(nodes[:, 0] >= nodes[:, 1]) or np.any(mids[..., 0] >= mids[..., 1]):
         half = 0.5 * min(np.min(nodes[:, 1] - nodes[:, 0]), np.min(mids[..., 1] - mids[..., 0]))
         raise ValueError(f"margin={margin:g} m leaves no road: it must be below half the "
-                         f"road's width, {half + margin:.3g} m where it is narrowest")
+                         f"road's width, {math.floor(1e3 * (half + margin)) / 1e3:g} m where "
+                         "it is narrowest")
     return kap, nodes, mids
 
 
