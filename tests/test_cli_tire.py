@@ -213,17 +213,23 @@ def test_show_json_is_what_the_formula_gives():
 
 
 def test_show_text_and_another_load(capsys):
-    """The text names the version and states the values of the JSON at `--load`."""
+    """The text names the version and states the values of the JSON at `--load`; a load
+    below the file's FZMIN is evaluated, with a note saying so."""
     assert main(["tire", "show", str(SAMPLE_PATH), "--load", "5000"]) == 0
     text = capsys.readouterr().out
     assert "Magic Formula 6.1" in text and "at F_z = 5000 N" in text
     assert main(["tire", "show", str(SAMPLE_PATH), "--load", "5000", "--json"]) == 0
-    s = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    s = json.loads(captured.out)
+    assert "FZMIN" not in captured.err  # within the file's loads: no note
     assert f"peak mu_y             {s['peak_mu_y']:.4f}" in text
     assert f"cornering stiffness   {s['cornering_stiffness_N_per_rad']:.1f} N/rad" in text
     fy = np.abs(np.asarray(mf_evaluate(P, 0.0, np.deg2rad(np.linspace(-30, 30, 20001)),
                                        5000.0, limits=False).Fy0)) / 5000.0
     np.testing.assert_allclose(s["peak_mu_y"], fy.max(), rtol=1e-6)
+    assert main(["tire", "show", str(SAMPLE_PATH), "--load", "100"]) == 0  # FZMIN is 190 N
+    assert ("note: --load 100 N is below the file's FZMIN (190 N): the formula is evaluated "
+            "there") in capsys.readouterr().err
 
 
 def test_show_says_where_a_curve_has_no_peak_inside_the_search(tmp_path, capsys):

@@ -183,6 +183,10 @@ def _show(args) -> int:
         _check_loads("--load", [args.load], params, lowest="zero")
     s = tire_summary(tir, params, args.load)
     print(json.dumps(_jsonable(s), indent=2) if args.json else summary_text(s))
+    if args.load is not None and args.load < float(params.FZMIN):
+        print(f"note: --load {args.load:g} N is below the file's FZMIN ({float(params.FZMIN):g} "
+              "N): the formula is evaluated there, outside the loads it was fitted on",
+              file=sys.stderr)
     return 0
 
 
