@@ -25,10 +25,17 @@ def exit_status(command: str, result, message: str | None = None,
     for name in dict.fromkeys(failed.tolist()):
         count = "" if ok.ndim == 0 else f" ({int(np.sum(failed == name))} of {ok.size})"
         text = message if message is not None and ok.ndim == 0 else result_message_of_name(name)
-        for setting, option in (options or {}).items():
-            text = text.replace(setting, option)
+        text = as_options(text, options)
         print(f"vehsim {command}: {name}{count}: {text}", file=sys.stderr)
     return 1
+
+
+def as_options(text: str, options: dict[str, str] | None) -> str:
+    """`text` with each library setting it names (a key of `options`) replaced by the
+    command's option for it (its value)."""
+    for setting, option in (options or {}).items():
+        text = text.replace(setting, option)
+    return text
 
 
 def unconverged_note(record: dict) -> str:

@@ -297,7 +297,7 @@ def _fit_lugre(args) -> int:
     from .._result_files import with_units
     from ..reproduce.combined import fit_lugre_to, fit_table, lugre_fit_curves, lugre_fit_figure
     from ._options import output_file
-    from ._status import exit_status
+    from ._status import as_options, exit_status
 
     loads = _parse_loads(args.loads)
     output_file("--out", args.out, {".json": "json"})
@@ -316,10 +316,7 @@ def _fit_lugre(args) -> int:
     write_json_and_figure(out, with_units(record, strict=False), figure, fig)
     plt.close(fig)
     said = {"`max_steps`": "--max-steps"}  # the solver's setting, as this command's option
-    message = record["message"]
-    for setting, option in said.items():
-        message = message.replace(setting, option)
-    print(f"fit: {record['status']}: {message}")
+    print(f"fit: {record['status']}: {as_options(record['message'], said)}")
     print("errors (RMS and worst, in % of each curve's peak in brackets):")
     print("\n".join(fit_table(record)))
     print("at the start (uniform load):")
