@@ -33,7 +33,7 @@ GIF = (b"GIF87a", b"GIF89a")
 SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
 DURATION, EVERY = 1.0, 4
 KEYS = {"road", "length", "closed", "controller", "mode", "completed", "drive_time",
-        "max_distance_off_road", "sample_time", "duration", "start_speed", "nominal_scale",
+        "max_distance_off_road", "nonfinite_from", "sample_time", "duration", "start_speed", "nominal_scale",
         "nominal_D", "compute_time", "real_time_factor", "commands_replayed_max_difference",
         "estimate", "planner_D", "solver", "truth", "trajectory", "settings", "wall_time_s",
         "units"}
@@ -171,6 +171,12 @@ BAD = {
     "zero grip": (["--road", "corner90", "--grip", "0"], "--grip"),
     "nan grip": (["--road", "corner90", "--grip", "nan"], "--grip"),
     "too much grip": (["--road", "corner90", "--grip", "4"], "--grip"),
+    "grip below glare ice": (["--road", "corner90", "--grip", "0.004"],
+                             "--grip: must be a finite number in [0.1, 3]"),
+    "patch below glare ice": (["--road", "corner90", "--patch", "1,2,3,0.05"],
+                              "SCALE in [0.1, 3]"),
+    "a seed without noise": (["--road", "corner90", "--no-noise", "--seed", "7"],
+                             "--seed seeds the sensor noise; leave it out with --no-noise"),
     "patch of three numbers": (["--road", "corner90", "--patch", "1,2,3"], "--patch"),
     "patch of no radius": (["--road", "corner90", "--patch", "1,2,0,0.5"], "--patch"),
     "patch of no grip": (["--road", "corner90", "--patch", "1,2,3,0"], "--patch"),
@@ -528,3 +534,40 @@ def test_figure_shades_the_test_brake(small_run):
     fig = drive_figure(road, run, plant)
     assert not [p for a in fig.axes for p in a.patches if p.get_gid() == "test-brake"]
     plt.close(fig)
+
+
+def test_the_first_non_finite_state_is_found_at_its_sample_time(capsys):
+    """`first_nonfinite_time` (what makes `vehsim drive` exit 1, naming the time, where a drive
+    diverged): the first sample at which any floating state leaf is NaN or infinite; integer
+    leaves are not looked at; None when every state is finite."""
+    import jax.numpy as jnp
+
+    from vehsim.cli.drive import first_nonfinite_time
+
+    t = np.arange(6) * 0.05
+    states = {"x": jnp.zeros((6, 3)).at[4, 1].set(jnp.nan), "y": jnp.zeros(6).at[5].set(jnp.inf),
+              "k": jnp.arange(6)}
+    assert first_nonfinite_time(states, t) == pytest.approx(0.2)
+    assert first_nonfinite_time({"x": jnp.zeros((6, 3)), "k": jnp.arange(6)}, t) is None
+    assert first_nonfinite_time({"y": states["y"]}, t) == pytest.approx(0.25)
+    from vehsim.cli.drive import nonfinite_status
+
+    assert nonfinite_status(None) == 0 and capsys.readouterr().err == ""
+    assert nonfinite_status(0.8) == 1
+    assert "nonfinite: the plant's state is not finite from t = 0.80 s" in capsys.readouterr().err
+
+
+def test_a_long_road_files_default_duration_is_capped_at_the_options_limit(tmp_path):
+    """A road file's default time budget is its length at 5 m/s plus 5 s: 65 s for 300 m,
+    and for 4 km the 600 s that ``--duration`` itself allows, not 805 s."""
+    from vehsim.cli import _drive_setup as setup, build_parser
+
+    for length, budget in ((300.0, 65.0), (4000.0, 600.0)):
+        path = tmp_path / f"straight_{length:g}.csv"
+        xs = np.linspace(0.0, length, 201)
+        path.write_text("x_m,y_m,w_tr_right_m,w_tr_left_m\n"
+                        + "".join(f"{x:.3f},0,3,3\n" for x in xs))
+        args = build_parser().parse_args(["drive", "--road-file", str(path), "--no-animation"])
+        cli.drive._check(args)  # the options' defaults, as the command sets them
+        sc = setup.scenario(args, setup.road(args))
+        assert sc.num_samples * sc.sample_time == pytest.approx(budget, abs=sc.sample_time)

@@ -50,12 +50,16 @@ def _field(args, road):
                        base=base, width=1.0)
 
 
+MAX_DURATION = 600.0
+"""The longest drive [s]: ``--duration``'s upper limit, and the cap of a road file's default."""
+
+
 def scenario(args, road):
     """The `DriveScenario` of the options: the road and its table (the scale column the true
     friction scale), its grip (with the true peak along the centre line), the plant (sensors
     noisy or not), the start (the scenario's speed; a road file's at `START_SPEED`) and the
     time budget (``--duration``, default the scenario's, or a road file's length at 5 m/s
-    plus 5 s)."""
+    plus 5 s, at most `MAX_DURATION`, the option's own limit)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -84,7 +88,8 @@ def scenario(args, road):
     v0 = START_SPEEDS.get(args.road, START_SPEED) if args.road else START_SPEED
     budget = args.duration
     if budget is None:
-        budget = TIME_BUDGETS[args.road] if args.road else road.length / 5.0 + 5.0
+        budget = TIME_BUDGETS[args.road] if args.road else min(road.length / 5.0 + 5.0,
+                                                                 MAX_DURATION)
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road)

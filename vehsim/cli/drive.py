@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from ._drive_setup import MAX_DURATION
+
 
 ROADS = ("corner90", "uturn", "sturn", "stage")
 CONTROLLERS = ("rh", "rh-nominal", "rh-oracle", "tracking", "open-loop")
@@ -27,10 +29,13 @@ RH_CONTROLLERS = ("rh", "rh-nominal", "rh-oracle")
 MODES = ("rti", "converged")
 CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
-MAX_GRIP = 3.0
-"""The largest peak friction `--grip` and `--patch` take, relative to the nominal road's."""
+MIN_GRIP, MAX_GRIP = 0.1, 3.0
+"""The peak frictions `--grip` and `--patch` take, relative to the nominal road's (0.52):
+from glare ice (0.052) to three times gravel's. Below the floor the tire is outside any
+road it was made for, and the drive's states soon become non-finite."""
 UNITS = {
-    "drive_time": "s", "max_distance_off_road": "m", "duration": "s", "length": "m",
+    "drive_time": "s", "nonfinite_from": "s", "max_distance_off_road": "m", "duration": "s",
+    "length": "m",
     "compute_time.p50": "s", "compute_time.p99": "s", "compute_time.max": "s",
     "compute_time.mean": "s", "compute_time.compile": "s", "sample_time": "s",
     "real_time_factor": "1 (controller time per sample / sample period, at the p50; < 1: "
@@ -55,9 +60,9 @@ UNITS = {
 
 def patch(text: str) -> tuple[float, float, float, float]:
     """``X,Y,RADIUS,SCALE``: an icy (or grippy) circular patch, centre [m], radius [m] > 0 and
-    peak friction SCALE in (0, `MAX_GRIP`] relative to the nominal road's."""
+    peak friction SCALE in [`MIN_GRIP`, `MAX_GRIP`] relative to the nominal road's."""
     rule = (f"must be X,Y,RADIUS,SCALE: four finite numbers, the centre [m], RADIUS > 0 m and "
-            f"SCALE in (0, {MAX_GRIP:g}] (relative to the nominal road)")
+            f"SCALE in [{MIN_GRIP:g}, {MAX_GRIP:g}] (relative to the nominal road)")
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -65,7 +70,7 @@ def patch(text: str) -> tuple[float, float, float, float]:
     if len(values) != 4 or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"{rule}, got {text!r}")
     x, y, radius, scale = values
-    if radius <= 0 or not 0 < scale <= MAX_GRIP:
+    if radius <= 0 or not MIN_GRIP <= scale <= MAX_GRIP:
         raise argparse.ArgumentTypeError(f"{rule}, got {text!r}")
     return values
 
@@ -96,9 +101,10 @@ def register(subparsers) -> None:
                         "main corner; on a road file at its middle) or rising (60 %% of the "
                         "grip at the start, all of it from a third of the road on; open roads "
                         "that run towards their end); docs/driver.md")
-    p.add_argument("--grip", type=number(0.0, MAX_GRIP, lower_open=True), default=None,
+    p.add_argument("--grip", type=number(MIN_GRIP, MAX_GRIP), default=None,
                    help="the peak friction everywhere, relative to the nominal road's (gravel, "
-                        f"0.52), in (0, {MAX_GRIP:g}] (default 1; 0.8: 20 %% less)")
+                        f"0.52), in [{MIN_GRIP:g}, {MAX_GRIP:g}] (default 1; 0.8: 20 %% less; "
+                        f"{MIN_GRIP:g}: glare ice)")
     p.add_argument("--patch", type=patch, action="append", default=[], metavar="X,Y,R,SCALE",
                    help="a circular patch of radius R [m] centred at (X, Y) [m] whose peak "
                         "friction is SCALE times the nominal road's; repeat for several")
@@ -121,11 +127,11 @@ def register(subparsers) -> None:
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
-    p.add_argument("--seed", type=integer(0, 2**31 - 1), default=0,
-                   help="seed of the sensor noise (0)")
+    p.add_argument("--seed", type=integer(0, 2**31 - 1), default=None,
+                   help="seed of the sensor noise (0; not with --no-noise)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
                    help="noisy sensors (default) or exact measurements")
-    p.add_argument("--duration", type=number(0.05, 600.0, unit="s"),
+    p.add_argument("--duration", type=number(0.05, MAX_DURATION, unit="s"),
                    default=None,
                    help="time budget of the drive [s], at least one sample of the drive's "
                         "0.05 s (default: the scenario's)")
@@ -149,6 +155,10 @@ def _check(args) -> None:
                          "and --patch (or give those without --conditions)")
     if args.grip is None:
         args.grip = 1.0
+    if args.seed is not None and not args.noise:
+        raise ValueError("--seed seeds the sensor noise; leave it out with --no-noise")
+    if args.seed is None:
+        args.seed = 0
     if args.closed and args.road_file is None:
         raise ValueError("--closed applies to --road-file (a scenario road knows its shape)")
     if args.mode is not None and args.controller not in RH_CONTROLLERS:
@@ -294,6 +304,7 @@ def _drive(args) -> int:
                                run.measurements)
     result = setup.outcome(sc, run)
     t = np.asarray(run.states.t)
+    nonfinite = first_nonfinite_time(run.states, t)
     upto = None if result["drive_time"] is None else int(
         min(len(t), np.searchsorted(t, result["drive_time"]) + 1))
     tr = drive_trace(road, run, sc.plant, upto)
@@ -304,7 +315,7 @@ def _drive(args) -> int:
         "controller": args.controller, "mode": (args.mode or "rti") if rh else None,
         "completed": result["completed"], "drive_time": result["drive_time"],
         "max_distance_off_road": result["max_distance_off_road"],
-        "sample_time": T, "duration": sc.num_samples * T,
+        "nonfinite_from": nonfinite, "sample_time": T, "duration": sc.num_samples * T,
         "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
         "nominal_scale": nominal_scale(),
         **timing_record(timing["times"], T, timing["compile"]),
@@ -359,4 +370,28 @@ def _drive(args) -> int:
           + ("" if ct is None else f", controller {1e3 * ct['p50']:.2f} ms p50, "
              f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * T:g} ms sample")
           + f"; wrote {', '.join(str(out / w) for w in written)}", file=sys.stderr)
-    return 0
+    return nonfinite_status(nonfinite)
+
+
+def nonfinite_status(nonfinite: float | None) -> int:
+    """The drive's exit status: 0 for any drive whose states stayed finite (on the road or
+    off it, a result), else 1 after a line on stderr saying from when they were not."""
+    if nonfinite is None:
+        return 0
+    print(f"vehsim drive: nonfinite: the plant's state is not finite from t = {nonfinite:.2f} s "
+          "on (a drive that diverged, not a result; the figures stop there)", file=sys.stderr)
+    return 1
+
+
+def first_nonfinite_time(states, t) -> float | None:
+    """The first sample time at which any of the plant's `states` is NaN or infinite (None:
+    finite throughout)."""
+    import jax
+    import numpy as np
+
+    bad = np.zeros(len(t), bool)
+    for leaf in jax.tree.leaves(states):
+        leaf = np.asarray(leaf)
+        if np.issubdtype(leaf.dtype, np.inexact):
+            bad |= ~np.isfinite(leaf.reshape(len(t), -1)).all(axis=1)
+    return float(t[np.argmax(bad)]) if bad.any() else None
