@@ -33,7 +33,8 @@ GIF = (b"GIF87a", b"GIF89a")
 SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
 DURATION, EVERY = 1.0, 4
 KEYS = {"road", "length", "closed", "controller", "mode", "completed", "drive_time",
-        "max_distance_off_road", "nonfinite_from", "sample_time", "duration", "start_speed", "nominal_scale",
+        "max_distance_off_road", "nonfinite_from", "nominal_plan", "sample_time", "duration",
+        "start_speed", "nominal_scale",
         "nominal_D", "compute_time", "real_time_factor", "commands_replayed_max_difference",
         "estimate", "planner_D", "solver", "truth", "trajectory", "settings", "wall_time_s",
         "units"}
@@ -103,6 +104,7 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
     assert len(rec["trajectory"]["t"]) == n and rec["duration"] == pytest.approx(DURATION)
     assert rec["road"] == "corner90" and rec["controller"] == "rh" and rec["mode"] == "rti"
     assert rec["settings"]["seed"] == 3 and rec["settings"]["conditions"] == "icy"
+    assert rec["nominal_plan"] is None and rec["nonfinite_from"] is None
     for key in ("max_distance_off_road", "compute_time.p50", "compute_time.p99",
                 "trajectory.x", "estimate.peak", "planner_D.D", "truth.peak"):
         assert key in rec["units"], key
@@ -157,6 +159,9 @@ def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
     np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
     assert rec["nominal_D"] == 0.52 and rec["mode"] is None
     assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
+    plan = rec["nominal_plan"]  # the plan the tracker drives, and how it was solved
+    assert plan["status"] == "successful" and plan["iterations"] > 0 and plan["t_f"] > 0
+    assert rec["units"]["nominal_plan.t_f"] == "s"
     assert max(rec["commands_replayed_max_difference"]) < 1e-9
     assert sorted(p.name for p in out.iterdir()) == ["drive.json", "drive.png"]
     # the frame step not given: the default for a drive this short, recorded as used
@@ -553,6 +558,14 @@ def test_the_first_non_finite_state_is_found_at_its_sample_time(capsys):
     from vehsim.cli.drive import nonfinite_status
 
     assert nonfinite_status(None) == 0 and capsys.readouterr().err == ""
+    from vehsim.cli.drive import plan_note
+
+    assert plan_note("tracking", None) is None
+    assert plan_note("tracking", {"status": "successful", "iterations": 40}) is None
+    note = plan_note("open-loop", {"status": "ip_max_iterations", "iterations": 500,
+                                   "message": "The interior-point method reached ..."})
+    assert note.startswith("vehsim drive: note: the nominal plan that --controller open-loop "
+                           "drives did not converge (ip_max_iterations after 500 iterations")
     assert nonfinite_status(0.8) == 1
     assert "nonfinite: the plant's state is not finite from t = 0.80 s" in capsys.readouterr().err
 

@@ -106,7 +106,8 @@ def controller(args, sc):
     its prior; with ``--pace-notes`` the map of the relative grip, `surface_map`, for both),
     the nominal friction or the true grip along the horizon (the oracle, as far ahead as
     ``--preview``); or
-    the nominal minimum-time drive (`nominal_primitive`) tracked or replayed."""
+    the nominal minimum-time drive (`nominal_primitive`) tracked or replayed, its solve's
+    outcome kept as ``args.nominal_plan`` (`plan_record`; None for the other controllers)."""
     from ..drive.scenarios import driver_settings, scenario_driver
 
     act = sc.plant.actuators
@@ -120,10 +121,13 @@ def controller(args, sc):
         )
 
         stages = max(40, int(round(sc.road.length / PLAN_STAGE_LENGTH)))
-        ref = primitive_reference(nominal_primitive(sc, num_stages=stages))
+        prim = nominal_primitive(sc, num_stages=stages)
+        args.nominal_plan = plan_record(prim)
+        ref = primitive_reference(prim)
         if args.controller == "open-loop":
             return open_loop_schedule(ref, act, sc.num_samples), None
         return PrimitiveTracker(reference=ref, lead=command_lead(act)), None
+    args.nominal_plan = None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
     settings = driver_settings(None if args.road_file else args.road, friction)
@@ -131,6 +135,16 @@ def controller(args, sc):
         settings["preview"] = args.preview
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
                            **settings)
+
+
+def plan_record(prim) -> dict:
+    """How a baseline's nominal plan was solved: its status and message (`RESULTS`), the
+    interior point's iterations and the plan's time [s]."""
+    from .._results import result_record
+
+    sol = prim.solution
+    return {**result_record(sol.result), "iterations": int(sol.iterations),
+            "t_f": float(prim.t_f)}
 
 
 def simulate(sc, driver, estimator, seed: int):

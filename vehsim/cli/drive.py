@@ -34,7 +34,8 @@ MIN_GRIP, MAX_GRIP = 0.1, 3.0
 from glare ice (0.052) to three times gravel's. Below the floor the tire is outside any
 road it was made for, and the drive's states soon become non-finite."""
 UNITS = {
-    "drive_time": "s", "nonfinite_from": "s", "max_distance_off_road": "m", "duration": "s",
+    "drive_time": "s", "nonfinite_from": "s", "nominal_plan.t_f": "s",
+    "nominal_plan.iterations": "1", "max_distance_off_road": "m", "duration": "s",
     "length": "m",
     "compute_time.p50": "s", "compute_time.p99": "s", "compute_time.max": "s",
     "compute_time.mean": "s", "compute_time.compile": "s", "sample_time": "s",
@@ -300,6 +301,9 @@ def _drive(args) -> int:
     wall = time.perf_counter() - t0
     print(f"drove in {wall:.1f} s (set-up, compilation and the drive); timing the "
           "controller sample by sample", file=sys.stderr, flush=True)
+    note = plan_note(args.controller, args.nominal_plan)
+    if note:
+        print(note, file=sys.stderr, flush=True)
     timing = controller_timing(driver, estimator, setup.first_measurement(sc, args.seed),
                                run.measurements)
     result = setup.outcome(sc, run)
@@ -315,7 +319,8 @@ def _drive(args) -> int:
         "controller": args.controller, "mode": (args.mode or "rti") if rh else None,
         "completed": result["completed"], "drive_time": result["drive_time"],
         "max_distance_off_road": result["max_distance_off_road"],
-        "nonfinite_from": nonfinite, "sample_time": T, "duration": sc.num_samples * T,
+        "nonfinite_from": nonfinite, "nominal_plan": args.nominal_plan,
+        "sample_time": T, "duration": sc.num_samples * T,
         "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
         "nominal_scale": nominal_scale(),
         **timing_record(timing["times"], T, timing["compile"]),
@@ -371,6 +376,17 @@ def _drive(args) -> int:
              f"{1e3 * ct['p99']:.2f} ms p99 per {1e3 * T:g} ms sample")
           + f"; wrote {', '.join(str(out / w) for w in written)}", file=sys.stderr)
     return nonfinite_status(nonfinite)
+
+
+def plan_note(controller: str, plan: dict | None) -> str | None:
+    """A line for stderr when a baseline's nominal plan (`plan_record`) did not converge: the
+    baseline then drives the solver's last iterate, which the drive's outcome alone would
+    not tell."""
+    if plan is None or plan["status"] == "successful":
+        return None
+    return (f"vehsim drive: note: the nominal plan that --controller {controller} drives did "
+            f"not converge ({plan['status']} after {plan['iterations']} iterations: "
+            f"{plan['message']}); it drives the solver's last iterate")
 
 
 def nonfinite_status(nonfinite: float | None) -> int:
