@@ -107,6 +107,13 @@ CASES = {
         "MFParams needs FZMIN <= FZMAX, got FZMIN = 5000, FZMAX = 100"),
     "a speed profile for negative friction": (
         lambda: speed_profile(_road(), -0.5), "speed_profile.D must lie in (0, inf), got -0.5"),
+    "an arc without its angle": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 10.0)], 4.0),
+        "road 'road': segment 1 must be ('arc', radius, angle_deg), got ('arc', 10.0)"),
+    "a clothoid with a value too many": (
+        lambda: vs.CentrelineRoad.from_segments([("clothoid", 10.0, 0.1, 2.0)], 4.0),
+        "segment 0 must be ('clothoid', length, end_curvature), got ('clothoid', 10.0, 0.1, "
+        "2.0)"),
     "a margin as wide as half the road": (
         lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10, margin=2.0),
         "margin=2 m leaves no road: it must be below half the road's width, 2 m where it is "

@@ -577,8 +577,13 @@ class CentrelineRoad(eqx.Module):
         k_prev = 0.0
         s_all, p_all, th_all, kl_all, kr_all = [0.0], [p0], [th0], [], []
         s0 = 0.0
+        forms = {"straight": "('straight', length)", "arc": "('arc', radius, angle_deg)",
+                 "clothoid": "('clothoid', length, end_curvature)"}
         for idx, seg in enumerate(segments):
-            kind = seg[0]
+            kind = seg[0] if isinstance(seg, tuple | list) and len(seg) else seg
+            if kind in forms and len(seg) != forms[kind].count(",") + 1:
+                raise ValueError(f"road {name!r}: segment {idx} must be {forms[kind]}, got "
+                                 f"{tuple(seg)!r}")
             if kind == "straight":
                 (length,) = seg[1:]
                 k_a = k_b = 0.0
