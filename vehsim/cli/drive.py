@@ -32,7 +32,7 @@ FORMATS = ("gif", "mp4")
 MIN_GRIP, MAX_GRIP = 0.1, 3.0
 """The peak frictions `--grip` and `--patch` take, relative to the nominal road's (0.52):
 from glare ice (0.052) to three times gravel's. Below the floor the tire is outside any
-road it was made for, and the drive's states soon become non-finite."""
+road it was made for (at 0.004 a drive on corner90 became non-finite within 0.8 s)."""
 UNITS = {
     "drive_time": "s", "nonfinite_from": "s", "nominal_plan.t_f": "s",
     "nominal_plan.iterations": "1", "max_distance_off_road": "m", "duration": "s",
