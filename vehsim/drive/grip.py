@@ -25,7 +25,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_positive
+from .._checks import check_finite, check_positive
 from .._fields import array_field
 from .._math import safe_hypot
 from ..tire.base import AbstractTire
@@ -85,6 +85,7 @@ class GripPatches(AbstractGripField):
             if jnp.shape(getattr(self, name)) != (n,):
                 raise ValueError(f"{owner}.{name} must have shape ({n},) like centres, got "
                                  f"{jnp.shape(getattr(self, name))}")
+        check_finite(owner, "centres", self.centres)
         check_positive(owner, "radii", self.radii)
         check_positive(owner, "scales", self.scales)
         check_positive(owner, "base", self.base)
@@ -121,7 +122,12 @@ class GripProfile(AbstractGripField):
             raise ValueError(f"{owner}.stations and scales must be vectors of one length >= 1,"
                              f" got shapes {shape} and {jnp.shape(self.scales)}")
         check_positive(owner, "scales", self.scales)
+        check_finite(owner, "stations", self.stations)
         check_positive(owner, "stations (their increments)", jnp.diff(self.stations))
+        if jnp.shape(self.origin) != (2,):
+            raise ValueError(f"{owner}.origin must have shape (2,), got {jnp.shape(self.origin)}")
+        check_finite(owner, "origin", self.origin)
+        check_finite(owner, "direction", self.direction)
 
     def station(self, x, y):
         """$s$ of the point $(x, y)$ [m]."""

@@ -965,7 +965,22 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.soft_stages is not None and self.corridor_penalty is None:
             raise ValueError("RecedingHorizonDriver.soft_stages needs corridor_penalty (the "
                              "soft corridor's cost, > 0), got None")
-        check_nonnegative("RecedingHorizonDriver", "velocity_std", self.velocity_std)
+        for name in ("velocity_std", "margin", "margin_grip_power", "rate_weight",
+                     "estimate_backoff", "slip_gain", "lead"):
+            check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
+        if not (isinstance(self.tol, int | float) and math.isfinite(self.tol)
+                and self.tol > 0):
+            raise ValueError("RecedingHorizonDriver.tol must be a number in (0, inf), got "
+                             f"{self.tol!r}")
+        for name in ("max_iterations", "init_iterations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"RecedingHorizonDriver.{name} must be an integer >= 1, got "
+                                 f"{value!r}")
+        if (isinstance(self.delay_samples, bool) or not isinstance(self.delay_samples, int)
+                or self.delay_samples < 0):
+            raise ValueError("RecedingHorizonDriver.delay_samples must be an integer >= 0, "
+                             f"got {self.delay_samples!r}")
         check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
                     allow_inf=True)  # inf: the whole horizon
         check_range("RecedingHorizonDriver", "replan_kkt", self.replan_kkt, lower=0.0,

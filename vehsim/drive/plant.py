@@ -29,7 +29,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from .._checks import check_positive
+from .._checks import check_finite, check_positive, check_range
 from .._fields import array_field
 from ..control.plant.integrate import integrate_sample
 from ..tire.base import AbstractTire
@@ -124,7 +124,11 @@ class DriveState(eqx.Module):
 def init_drive(plant: DrivePlant, vx=0.0, x=0.0, y=0.0, psi=0.0, u0=(0.0, 0.0, 0.0)
                ) -> DriveState:
     """The car driving straight at `vx` [m/s] from the pose `(x, y, psi)`, wheels rolling
-    freely, the actuators settled at `u0` = $(T_F, T_R, \\delta)$."""
+    freely, the actuators settled at `u0` = $(T_F, T_R, \\delta)$; `vx` at least 0 (the
+    drive's controllers drive forward), every value finite."""
+    check_range("init_drive", "vx", vx, lower=0.0)
+    for name, value in (("x", x), ("y", y), ("psi", psi), ("u0", u0)):
+        check_finite("init_drive", name, value)
     car = plant.nominal_car.init_state(vx=vx, x=x, y=y, psi=psi)
     return DriveState(jnp.zeros((), int), jnp.zeros(()), car, DriveActuatorState.init(u0))
 
