@@ -132,6 +132,10 @@ START_SPEEDS = {"corner90": 8.0, "uturn": 7.0, "sturn": 7.0, "stage": 12.0}
 TIME_BUDGETS = {"corner90": 6.0, "uturn": 9.0, "sturn": 9.0, "stage": 30.0}
 """Time budget [s] of each road's drives."""
 
+MAX_TIME_BUDGET = 3600.0
+"""The longest time budget [s] `drive_scenario` takes: an hour, 72,000 samples at 20 Hz,
+whose record a drive keeps in memory."""
+
 MINUS20_PEAK = 0.8
 """The `minus20` road's peak friction, a fraction of 0.52."""
 
@@ -260,6 +264,8 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
         settings = dict(FAST_ROAD_DRIVER)
     else:
         settings = dict(CORNER_DRIVER) if name in _CORNERS else dict(FILE_ROAD_DRIVER)
+    if friction is not None:
+        _check_name("friction", friction, ("estimate", "nominal", "oracle"))
     if friction == "estimate" and name in _CORNERS:
         settings["probe_distance"] = DRIVER_PROBE_DISTANCE
     return settings
@@ -327,12 +333,25 @@ def nominal_scale() -> float:
     return scale_for_peak(BENCHMARK_PEAK)
 
 
-@functools.lru_cache(maxsize=64)
 def scale_for_peak(peak: float) -> float:
-    r"""The friction scale $\lambda$ with $\mu^*(\lambda)$ = `peak` (`plant_peak`), by
-    `scale_of_peak` (bisection on $\log\lambda \in [\log 10^{-3}, \log 10]$, where $\mu^*$
+    r"""The friction scale $\lambda$ with $\mu^*(\lambda)$ = `peak` (one number; `plant_peak`),
+    by `scale_of_peak` (bisection on $\log\lambda \in [\log 10^{-3}, \log 10]$, where $\mu^*$
     increases, to rounding); a peak outside that range is refused."""
-    peak = float(peak)
+    return _scale_for_peak(_one_number("scale_for_peak", "peak", peak))
+
+
+def _one_number(owner: str, name: str, value) -> float:
+    """``value`` as a float, or a ``ValueError`` naming `name` when it is not one number."""
+    if np.ndim(value) != 0:
+        raise ValueError(f"{owner}: {name} must be one number, got shape {np.shape(value)}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}: {name} must be one number, got {value!r}") from None
+
+
+@functools.lru_cache(maxsize=64)
+def _scale_for_peak(peak: float) -> float:
     lo, hi = 1e-3, 10.0
     if not (plant_peak(lo) < peak < plant_peak(hi)):
         raise ValueError(f"scale_for_peak: peak must lie in ({plant_peak(lo):.4g}, "
@@ -351,10 +370,14 @@ def _scale(tire, peak, speed):
     return scale_of_peak(tire, peak, speed)
 
 
-@functools.lru_cache(maxsize=64)
 def plant_peak(scale: float) -> float:
-    r"""$\mu^*(\lambda)$ of the plant's tire on a road of friction scale `scale`
-    (`AxleGripEstimator.peak`, whose assumed tire is the plant's)."""
+    r"""$\mu^*(\lambda)$ of the plant's tire on a road of friction scale `scale` (one number;
+    `AxleGripEstimator.peak`, whose assumed tire is the plant's)."""
+    return _plant_peak(_one_number("plant_peak", "scale", scale))
+
+
+@functools.lru_cache(maxsize=64)
+def _plant_peak(scale: float) -> float:
     if not (math.isfinite(scale) and scale > 0):
         raise ValueError(f"plant_peak: scale must lie in (0, inf), got {scale:g}")
     return float(_peak(AxleGripEstimator(), jnp.asarray(float(scale))))
@@ -535,8 +558,9 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
     if not (math.isfinite(v0) and v0 > 0):
         raise ValueError(f"drive_scenario: start_speed must be > 0 m/s, got {v0:g}")
     budget = TIME_BUDGETS[road_name] if time_budget is None else float(time_budget)
-    if not (math.isfinite(budget) and budget > 0):
-        raise ValueError(f"drive_scenario: time_budget must be > 0 s, got {budget:g}")
+    if not (math.isfinite(budget) and 0 < budget <= MAX_TIME_BUDGET):
+        raise ValueError(f"drive_scenario: time_budget must lie in (0, {MAX_TIME_BUDGET:g}] s,"
+                         f" got {budget:g}")
     plant = DrivePlant(grip=grip.field, substeps=substeps,
                        actuators=DriveActuators() if actuators is None else actuators,
                        sensors=DriveSensors() if sensors is None else sensors)
