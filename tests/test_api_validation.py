@@ -2,6 +2,8 @@
 `ValueError` that names the function or field and the allowed range: before a solve that
 would spend its step budget, report success on nothing, or return NaN."""
 
+import functools
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -268,6 +270,106 @@ CASES |= {
         lambda: vs.fit_closed_loop(_record(), rtol=1.0),
         "ClosedLoopBraking.rtol must lie in (0, 1), got 1"),
 }
+
+
+@functools.lru_cache(maxsize=1)
+def _table():
+    return vs.RoadTable.from_road(_road(), 0.5)
+
+
+def _rh_driver(**kw):
+    return vs.RecedingHorizonDriver(_table(), **kw)
+
+
+def _patches(**kw):
+    return vs.GripPatches(**({"centres": jnp.array([[10.0, 0.0]]), "radii": jnp.array([3.0]),
+                              "scales": jnp.array([0.5])} | kw))
+
+
+CASES |= {
+    "a NaN corridor margin of the driver": (
+        lambda: _rh_driver(margin=np.nan), "RecedingHorizonDriver.margin must be finite"),
+    "a negative corridor margin of the driver": (
+        lambda: _rh_driver(margin=-0.1),
+        "RecedingHorizonDriver.margin must lie in [0, inf), got -0.1"),
+    "a NaN margin power of the driver": (
+        lambda: _rh_driver(margin_grip_power=np.nan),
+        "RecedingHorizonDriver.margin_grip_power must be finite"),
+    "a negative rate weight of the driver": (
+        lambda: _rh_driver(rate_weight=-1e-4),
+        "RecedingHorizonDriver.rate_weight must lie in [0, inf)"),
+    "a NaN backoff of the driver's estimate": (
+        lambda: _rh_driver(estimate_backoff=np.nan),
+        "RecedingHorizonDriver.estimate_backoff must be finite"),
+    "a negative slip gain of the driver": (
+        lambda: _rh_driver(slip_gain=-5.0), "RecedingHorizonDriver.slip_gain must lie in [0, inf)"),
+    "a NaN lead of the driver": (
+        lambda: _rh_driver(lead=np.nan), "RecedingHorizonDriver.lead must be finite"),
+    "a NaN tolerance of the driver": (
+        lambda: _rh_driver(tol=np.nan), "RecedingHorizonDriver.tol must be a number in (0, inf)"),
+    "a driver that plans first in no iterations": (
+        lambda: _rh_driver(init_iterations=0),
+        "RecedingHorizonDriver.init_iterations must be an integer >= 1, got 0"),
+    "a converged driver of no iterations": (
+        lambda: _rh_driver(mode="converged", max_iterations=0),
+        "RecedingHorizonDriver.max_iterations must be an integer >= 1, got 0"),
+    "a driver of negative delay": (
+        lambda: _rh_driver(delay_samples=-1),
+        "RecedingHorizonDriver.delay_samples must be an integer >= 0, got -1"),
+    "an icy patch at a NaN centre": (
+        lambda: _patches(centres=jnp.array([[np.nan, 0.0]])),
+        "GripPatches.centres must be finite"),
+    "a grip profile from a NaN origin": (
+        lambda: vs.GripProfile(stations=jnp.array([0.0, 10.0]), scales=jnp.array([1.0, 0.5]),
+                               origin=jnp.array([np.nan, 0.0])),
+        "GripProfile.origin must be finite"),
+    "a grip profile in a NaN direction": (
+        lambda: vs.GripProfile(stations=jnp.array([0.0, 10.0]), scales=jnp.array([1.0, 0.5]),
+                               direction=np.nan),
+        "GripProfile.direction must be finite"),
+    "a grip profile with a NaN station": (
+        lambda: vs.GripProfile(stations=jnp.array([np.nan]), scales=jnp.array([1.0])),
+        "GripProfile.stations must be finite"),
+    "a drive started at a NaN speed": (
+        lambda: vs.init_drive(vs.DrivePlant(), vx=np.nan), "init_drive.vx must be finite"),
+    "a drive started backwards": (
+        lambda: vs.init_drive(vs.DrivePlant(), vx=-5.0),
+        "init_drive.vx must lie in [0, inf), got -5"),
+    "a drive started at a NaN heading": (
+        lambda: vs.init_drive(vs.DrivePlant(), vx=5.0, psi=np.nan),
+        "init_drive.psi must be finite"),
+    "a scenario of a million hours": (
+        lambda: vs.drive_scenario("corner90", time_budget=1e12),
+        "drive_scenario: time_budget must lie in (0, 3600] s, got 1e+12"),
+    "the settings of an unknown planner friction": (
+        lambda: vs.driver_settings("corner90", "nope"),
+        "unknown friction 'nope'; allowed: estimate, nominal, oracle"),
+    "an estimator that asks more than the peak": (
+        lambda: vs.AxleGripEstimator(min_utilisation=2.0),
+        "AxleGripEstimator.min_utilisation must lie in (0, 1], got 2"),
+    "an estimator whose scale bounds cross": (
+        lambda: vs.AxleGripEstimator(scale_min=3.0, scale_max=0.5),
+        "AxleGripEstimator needs scale_min <= scale_max, got scale_min = 3, scale_max = 0.5"),
+    "an estimator of no load substeps": (
+        lambda: vs.AxleGripEstimator(load_substeps=0),
+        "AxleGripEstimator.load_substeps must be an integer >= 1, got 0"),
+    "the scale of a list of peaks": (
+        lambda: vs.scale_for_peak([0.5]),
+        "scale_for_peak: peak must be one number, got shape (1,)"),
+    "the plant peak of a word": (
+        lambda: vs.plant_peak("wet"), "plant_peak: scale must be one number, got 'wet'"),
+}
+
+
+def test_distance_off_a_road_of_a_point_that_is_not_finite_is_nan_or_inf():
+    """A NaN point is at NaN (not on the road, nor an index error), an infinite one at inf;
+    the finite points beside them keep their distances."""
+    road = _road()
+    d = road.distance_off_road([np.nan, 10.0, np.inf, 10.0], [0.0, 0.0, 0.0, 10.0])
+    assert np.isnan(d[0]) and d[1] == 0.0 and d[2] == np.inf
+    np.testing.assert_allclose(d[3], 8.0, atol=1e-9)
+    assert np.isnan(road.distance_off_road(np.nan, 0.0))
+    assert not road.on_road(np.nan, 0.0)
 
 
 @pytest.mark.parametrize("case", list(CASES), ids=list(CASES))

@@ -328,10 +328,18 @@ class CentrelineRoad(eqx.Module):
         the even-odd rule, inside or outside and the nearest side. Outside, and within a side's
         length of an edge, the nearest point of the exact edge curve is found by a
         golden-section search over the neighbouring arc lengths: its distance, and the side of
-        the edge the point is on, decide."""
+        the edge the point is on, decide. A point with a NaN coordinate is at NaN, one with
+        an infinite (and no NaN) coordinate at inf."""
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
-        shape = x.shape
         q = np.stack([x.ravel(), y.ravel()], axis=-1)
+        finite = np.all(np.isfinite(q), axis=-1)
+        out = np.where(np.any(np.isnan(q), axis=-1), np.nan, np.inf)
+        if np.any(finite):
+            out[finite] = self._finite_distance_off_road(q[finite])
+        return out.reshape(x.shape)
+
+    def _finite_distance_off_road(self, q):
+        """`distance_off_road` of finite points ``q`` (P, 2)."""
         s, left, right = self._edge_samples()
         m = len(s)
         # sides: left edge (s increasing), right edge (s increasing); caps for open roads
@@ -359,7 +367,7 @@ class CentrelineRoad(eqx.Module):
             at_end = ~self.closed & ((s_near <= 0.0) | (s_near >= self.length))
             off = np.where(at_end, ~inside[curve], outward)  # at a corner: the polygon's word
             out[curve] = np.where(off, d, 0.0)
-        return out.reshape(shape)
+        return out
 
     def _edge_distance(self, q, side, lo, hi):
         """Distance from points q to the edge curve (side +1 left, -1 right) near arc lengths
