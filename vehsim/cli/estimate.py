@@ -219,8 +219,10 @@ def _check_estimator_samples(args, samples: int, h: float) -> None:
     """Enough estimator samples in the record: at least `MIN_ESTIMATOR_SAMPLES`, and for
     the moving horizon more than one ``--window`` (checked here, before anything compiles,
     naming the options)."""
+    from ..control.estimation.recorded import estimator_sample_count
+
     T = h if args.sample_time is None else args.sample_time
-    n = -(-samples // max(round(T / h), 1))  # the record's samples at T, the first included
+    n = estimator_sample_count(samples, h, T)
     span = f"the record's {(samples - 1) * h:g} s"
     if n < MIN_ESTIMATOR_SAMPLES:
         raise ValueError(f"--sample-time {T:g} s leaves {n} estimator samples in {span}: at "

@@ -163,11 +163,25 @@ def _assumed_car(estimator) -> QuarterCar:
     return braking_quarter_car(tire)
 
 
+def estimator_decimation(record_step: float, sample_time: float) -> int:
+    """$n$: the estimator steps at every $n$-th sample of a record of step `record_step`
+    [s], its `sample_time` [s] in whole record steps (rounded, at least 1)."""
+    return max(int(round(sample_time / record_step)), 1)
+
+
+def estimator_sample_count(samples: int, record_step: float, sample_time: float) -> int:
+    """How many samples the estimator steps at in a record of `samples` samples of step
+    `record_step` [s] at its `sample_time` [s]: every `estimator_decimation`-th, the first
+    included."""
+    n = estimator_decimation(record_step, sample_time)
+    return -(-samples // n)
+
+
 def _estimator_samples(record: MeasuredBraking, hardware: BrakeHardware):
     """``(n, indices)``: the decimation and the record's samples the estimator steps at."""
     h = record.sample_time
     T = float(hardware.sample_time)
-    n = max(int(round(T / h)), 1)
+    n = estimator_decimation(h, T)
     if abs(n * h - T) > UNIFORM_TOLERANCE * h:
         raise ValueError(f"estimate_friction: hardware.sample_time ({T:g} s) must be a whole "
                          f"multiple of the record's step ({h:g} s)")
