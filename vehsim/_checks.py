@@ -8,6 +8,7 @@ batched and differentiated freely.
 from __future__ import annotations
 
 import math
+import numbers
 
 import jax
 import numpy as np
@@ -92,6 +93,13 @@ def check_integer(owner: str, name: str, x, *, lower: int = 0) -> None:
         raise ValueError(f"{owner}.{name} must be an integer >= {lower}, got {plain(v)}")
 
 
+def check_count(owner: str, name: str, value, *, lower: int = 1, sep: str = ".") -> None:
+    """Raise ``ValueError`` unless `value` is a Python (or NumPy) integer >= `lower`, not a
+    bool: a static count (steps, iterations, stages) that sizes a program."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lower:
+        raise ValueError(f"{owner}{sep}{name} must be an integer >= {lower}, got {value!r}")
+
+
 def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
     a, b = _values(x_small), _values(x_big)
@@ -137,16 +145,27 @@ def check_finite_signals(owner: str, **signals) -> None:
             raise ValueError(f"{owner}: {name} must be finite, got {bad:g}")
 
 
+MAX_SAMPLES = 1_000_000
+"""The most control samples `sample_count` allows a simulation: the loops keep every
+sample's signals in memory (a braking's at 1 ms: 1000 s)."""
+
+
 def sample_count(owner: str, duration, sample_time, substeps=1) -> int:
-    """The number of whole samples of ``sample_time`` in ``duration`` [s], at least 1;
-    raises ``ValueError`` naming `duration` (finite, > 0) or `substeps` (an integer >= 1)."""
+    """The number of whole samples of ``sample_time`` in ``duration`` [s], at least 1 and at
+    most `MAX_SAMPLES`; raises ``ValueError`` naming `duration` (finite, > 0) or `substeps`
+    (an integer >= 1)."""
     d = float(duration)
     if not (math.isfinite(d) and d > 0):
         raise ValueError(f"{owner}: duration [s] must lie in (0, inf), got {d:g}")
-    n = int(round(d / float(sample_time)))
+    T = float(sample_time)
+    n = round(d / T)
     if n < 1:
         raise ValueError(f"{owner}: duration ({d:g} s) must be at least half a sample "
-                         f"({float(sample_time):g} s)")
+                         f"({T:g} s)")
+    if n > MAX_SAMPLES:
+        raise ValueError(f"{owner}: duration ({d:g} s) is {n:.3g} samples of {T:g} s; at most "
+                         f"{MAX_SAMPLES:,} are simulated in one call (every sample's signals "
+                         f"are kept): at most {MAX_SAMPLES * T:g} s")
     if isinstance(substeps, bool) or not float(substeps).is_integer() or substeps < 1:
         raise ValueError(f"{owner}: substeps must be an integer >= 1, got {substeps!r}")
     return n

@@ -109,7 +109,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_nonnegative, check_order, check_positive, check_range
+from .._checks import check_count, check_nonnegative, check_order, check_positive, check_range
 from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_norm, safe_sqrt
 from ..tire.lugre2d import decay_rates
@@ -373,10 +373,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         check_range(owner, "min_utilisation", self.min_utilisation, lower=0.0, upper=1.0,
                     lower_open=True)
         check_order(owner, "scale_min", self.scale_min, "scale_max", self.scale_max)
-        if (isinstance(self.load_substeps, bool) or not isinstance(self.load_substeps, int)
-                or self.load_substeps < 1):
-            raise ValueError(f"{owner}.load_substeps must be an integer >= 1, got "
-                             f"{self.load_substeps!r}")
+        check_count(owner, "load_substeps", self.load_substeps)
 
     def init(self, measurement: DriveMeasurement) -> AxleGripState:
         """The prior $\\lambda_0$ with variance $P_0$ on both axles."""

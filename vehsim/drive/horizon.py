@@ -56,6 +56,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._checks import (
+    check_count,
     check_nonnegative,
     check_positive,
     check_range,
@@ -972,15 +973,9 @@ class RecedingHorizonDriver(AbstractDriveController):
                 and self.tol > 0):
             raise ValueError("RecedingHorizonDriver.tol must be a number in (0, inf), got "
                              f"{self.tol!r}")
-        for name in ("max_iterations", "init_iterations"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"RecedingHorizonDriver.{name} must be an integer >= 1, got "
-                                 f"{value!r}")
-        if (isinstance(self.delay_samples, bool) or not isinstance(self.delay_samples, int)
-                or self.delay_samples < 0):
-            raise ValueError("RecedingHorizonDriver.delay_samples must be an integer >= 0, "
-                             f"got {self.delay_samples!r}")
+        check_count("RecedingHorizonDriver", "max_iterations", self.max_iterations)
+        check_count("RecedingHorizonDriver", "init_iterations", self.init_iterations)
+        check_count("RecedingHorizonDriver", "delay_samples", self.delay_samples, lower=0)
         check_range("RecedingHorizonDriver", "preview", self.preview, lower=0.0,
                     allow_inf=True)  # inf: the whole horizon
         check_range("RecedingHorizonDriver", "replan_kkt", self.replan_kkt, lower=0.0,
