@@ -25,6 +25,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import PyTree
 
+from ._checks import check_count
 from .progress import advance
 
 
@@ -45,7 +46,10 @@ def num_members(members: PyTree) -> int:
 
 def pad_members(members: PyTree, multiple: int) -> PyTree:
     """Pad the leading (member) axis of every leaf to a multiple of `multiple` by repeating
-    the last member (drop the padding from the results with ``x[:n]``)."""
+    the last member (drop the padding from the results with ``x[:n]``); `multiple` an
+    integer >= 1."""
+    check_count("pad_members", "multiple", multiple, sep=": ")
+    multiple = int(multiple)
     n = num_members(members)
     n_pad = math.ceil(n / multiple) * multiple
     return jax.tree.map(

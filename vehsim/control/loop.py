@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray, PyTree
 
-from .._checks import sample_count
+from .._checks import check_count, check_range, sample_count
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._results import RESULTS, as_result
 from .._solution import AbstractSolution
@@ -194,7 +194,10 @@ def closed_loop(scenario: BrakingScenario, controller: AbstractBrakeController,
     """The braking of `scenario` under `controller` for `n_steps` samples (pure function:
     jit, vmap over scenarios, keys and array fields, grad with respect to any of them, in
     forward or reverse mode; the sample is checkpointed, so reverse mode stores one carry per
-    sample)."""
+    sample). `n_steps` and `substeps` are integers >= 1, `handback_speed` [m/s] >= 0."""
+    check_count("closed_loop", "n_steps", n_steps, sep=": ")
+    check_count("closed_loop", "substeps", substeps, sep=": ")
+    check_range("closed_loop", "handback_speed", handback_speed, lower=0.0)
     carry0 = (_init(scenario, observer, hardware), controller.init(hardware.max_torque))
     step = ft.partial(_sample, scenario, controller, observer, hardware, key, substeps, save,
                       jnp.asarray(handback_speed, dtype=float))
@@ -236,6 +239,7 @@ def simulate_braking(scenario: BrakingScenario, controller: AbstractBrakeControl
     hardware = realistic_hardware() if hardware is None else hardware
     key = jax.random.PRNGKey(0) if key is None else key
     n_steps = sample_count("simulate_braking", duration, hardware.sample_time, substeps)
+    check_range("simulate_braking", "handback_speed", handback_speed, lower=0.0)
     return _simulate(scenario, controller, observer, hardware, key, n_steps, int(substeps),
                      bool(save), jnp.asarray(handback_speed, dtype=float))
 
@@ -309,6 +313,7 @@ def simulate_braking_grid(scenarios: BrakingScenario, controllers,
     """
     hardware = realistic_hardware() if hardware is None else hardware
     n_steps = sample_count("simulate_braking_grid", duration, hardware.sample_time, substeps)
+    check_range("simulate_braking_grid", "handback_speed", handback_speed, lower=0.0)
     return _grid(scenarios, tuple(controllers), observers, hardware, keys, n_steps, int(substeps),
                  bool(save), jnp.asarray(handback_speed, dtype=float))
 
