@@ -50,6 +50,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._checks import (
+    check_count,
     check_integer,
     check_nonnegative,
     check_positive,
@@ -423,9 +424,31 @@ def fine_curvature(road, num_stages: int, substeps: int,
     return np.asarray(road.curvature(pts.reshape(-1)), float).reshape(num_stages, substeps, 3)
 
 
+def _require_centreline(owner: str, road,
+                        needs=("length", "curvature", "width_left", "width_right")) -> None:
+    """Refuse a road that is not a centre-line road, without what `owner` `needs` (a `Road`
+    of rectangular legs has no arc length or curvature)."""
+    missing = [a for a in needs if not hasattr(road, a)]
+    if missing:
+        raise TypeError(f"{owner} needs a centre-line road (a CentrelineRoad: "
+                        f"{', '.join(missing)}), got {type(road).__name__}")
+
+
+def _check_problem_settings(owner: str, num_stages, steps_per_stage, margin, tf_max,
+                            rate_weight) -> None:
+    """The settings of `from_road`: whole stage counts, a finite margin >= 0, a time budget
+    > 0 and a rate weight >= 0."""
+    check_count(owner, "num_stages", num_stages, lower=2)
+    check_count(owner, "steps_per_stage", steps_per_stage)
+    check_nonnegative(owner, "margin", margin)
+    check_positive(owner, "tf_max", tf_max)
+    check_nonnegative(owner, "rate_weight", rate_weight)
+
+
 def _check_road(road) -> None:
     """What the road-frame problem can pose: float64, an open road's gates at its ends, a
     closed road's full width and free speed, and a fixed gate speed above the floor."""
+    _require_centreline("the road-frame problem", road)
     require_float64("the road-frame problem",
                     "In float32 its solves stall (the residual stays near 0.4)")
     name = getattr(road, "name", "")
@@ -554,6 +577,8 @@ class CurvilinearManeuverOCP(AbstractCurvilinearOCP):
         jumps, `curvature_jumps`: the knots then include each jump, `stage_edges`), its
         arrays sampled with NumPy; ``margin`` [m] narrows the corridor on each side."""
         _check_objective(objective)
+        _check_problem_settings(cls.__name__, num_stages, steps_per_stage, margin, tf_max,
+                                rate_weight)
         return cls(vehicle=vehicle, objective=objective, tf_max=tf_max,
                    rate_weight=rate_weight,
                    **_common_fields(road, num_stages, steps_per_stage, margin))
@@ -636,6 +661,8 @@ class CurvilinearPointMassOCP(AbstractCurvilinearOCP):
                   tf_max: float = 60.0, rate_weight: float = 1e-6) -> CurvilinearPointMassOCP:
         """The point-mass problem on ``road`` (as `CurvilinearManeuverOCP.from_road`)."""
         _check_objective(objective)
+        _check_problem_settings(cls.__name__, num_stages, steps_per_stage, margin, tf_max,
+                                rate_weight)
         return cls(friction=friction, objective=objective, tf_max=tf_max,
                    rate_weight=rate_weight,
                    **_common_fields(road, num_stages, steps_per_stage, margin))
@@ -693,6 +720,8 @@ def speed_profile(road, D: float, fraction: float = 0.8, *, g: float = GRAVITY,
     $dv^2/ds = \pm 2\sqrt{(fDg)^2 - (v^2\kappa)^2}$. The start speed is the gate's if it
     fixes one (``start_speed`` overrides); a closed road is periodic (three laps, the middle
     one kept). **Returns:** (s, v)."""
+    _require_centreline("speed_profile", road, ("length", "curvature"))
+    check_positive("speed_profile", "g", g)
     L = float(road.length)
     closed = bool(getattr(road, "closed", False))
     laps = 3 if closed else 1
