@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._checks import check_positive, is_concrete
+from .._checks import check_count, check_positive, is_concrete
 from .._fields import array_field
 from .._math import safe_sqrt, wrap_angle
 from .unicycle import AbstractSystem, Chained, Pose, s_function
@@ -435,6 +435,9 @@ class MCloskeyMurray97Controller(AbstractChainedController):
     newton_steps: int = eqx.field(static=True, default=6)
 
     positive_gains: ClassVar[tuple[str, ...]] = ("k", "a", "omega")
+
+    def __check_init__(self):
+        check_count(type(self).__name__, "newton_steps", self.newton_steps)
 
     def __call__(self, t, x: Chained) -> Float[Array, 2]:
         rho = homogeneous_norm_newton(x, self.newton_steps)

@@ -43,7 +43,14 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._checks import check_nonnegative, check_positive, check_range, is_concrete, sample_count
+from .._checks import (
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_range,
+    is_concrete,
+    sample_count,
+)
 from .._controller_grid import grid_sample, split_groups, tile_groups
 from .._fields import array_field, bool_field, int_field
 from .._results import RESULTS
@@ -329,6 +336,16 @@ def _velocity(controller, system, t, pose):
     return controller.velocity(t, pose, system)
 
 
+def _check_poses(owner: str, name: str, poses, shape) -> None:
+    """Refuse start poses that are not finite (x, y, gamma) rows of `shape` (-1: any)."""
+    got = jnp.shape(poses)
+    if len(got) != len(shape) or any(s not in (-1, g) for s, g in zip(shape, got)):
+        want = "(3,)" if len(shape) == 1 else "(P, 3)"
+        raise ValueError(f"{owner}: {name} must have shape {want}, (x [m], y [m], gamma "
+                         f"[rad]), got {got}")
+    check_finite(owner, name, poses)
+
+
 def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0,
              key: PRNGKeyArray | None = None, plant: KheperaPlant | None = None,
              duration: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
@@ -343,6 +360,7 @@ def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0
     plant = realistic_plant() if plant is None else plant
     key = jax.random.PRNGKey(0) if key is None else key
     n_steps = sample_count("simulate_robot", duration, plant.sample_time, substeps)
+    _check_poses("simulate_robot", "pose0", pose0, (3,))
     return _simulate(controller, system, jnp.asarray(pose0, dtype=float), key, plant,
                      n_steps, int(substeps), bool(save))
 
@@ -430,6 +448,10 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     keys = jnp.asarray(keys)
     C, S = len(controllers), len(systems)
     n_steps = sample_count("simulate_robot_grid", duration, plant.sample_time, substeps)
+    _check_poses("simulate_robot_grid", "poses0", poses0, (-1, 3))
+    if not controllers or not systems:
+        raise ValueError("simulate_robot_grid needs at least one controller and one system, "
+                         f"got {len(controllers)} and {len(systems)}")
     static = (tuple(controllers), tuple(systems))
     progress = resolve(progress)
     shards = 1 if devices is None else max(1, len(devices))

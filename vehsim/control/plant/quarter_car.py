@@ -23,11 +23,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from ..._checks import check_positive
+from ..._checks import check_positive, check_range
 from ..._fields import array_field
 from ...tire.lugre import AbstractLongitudinalTire
 from ...vehicle.quarter_car import QuarterCar
@@ -54,8 +53,7 @@ class SurfaceChange(eqx.Module):
         check_positive("SurfaceChange", "length", self.length)
         for name in ("distance", "time"):
             value = getattr(self, name)
-            if not isinstance(value, jax.core.Tracer) and np.any(np.asarray(value) < 0):
-                raise ValueError(f"SurfaceChange.{name} must lie in [0, inf], got {value}")
+            check_range("SurfaceChange", name, value, lower=0.0, allow_inf=True)
 
 
 class BrakingScenario(eqx.Module):

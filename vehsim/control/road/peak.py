@@ -24,6 +24,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ..._checks import check_nonnegative, check_positive, check_range
 from ...tire.lugre import AbstractLongitudinalTire
 from ...tire.uniform_lumped import UniformLumpedLuGre
 
@@ -93,9 +94,18 @@ def _driving_magnitude(s, args):
     return driving_curve(tire, s, v, r)
 
 
+def _check_peak_search(owner, v, r, max_slip, upper_open) -> None:
+    check_nonnegative(owner, "v", v)
+    check_positive(owner, "r", r)
+    check_range(owner, "max_slip", max_slip, lower=0.0, upper=1.0, lower_open=True,
+                upper_open=upper_open)
+
+
 def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
     r"""Braking slip $s^* < 0$ of the largest braking force at speed `v`, and
-    $\mu^* = |\mu(s^*)|$; slips beyond `max_slip` in magnitude are not considered."""
+    $\mu^* = |\mu(s^*)|$; slips beyond `max_slip` in magnitude are not considered
+    (`max_slip` in (0, 1], 1: the locked wheel; `v` and `r` > 0)."""
+    _check_peak_search("peak_braking", v, r, max_slip, upper_open=False)
     args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
     lam = _argmax(_braking_magnitude, 0.0, float(max_slip), args)
     return -lam, _braking_magnitude(lam, args)
@@ -103,7 +113,9 @@ def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
 
 def peak_driving(tire: AbstractLongitudinalTire, v, max_slip=0.99, r=0.3):
     r"""Driving slip $s^* > 0$ of the largest traction force at speed `v` [m/s] of any tire
-    (`driving_curve`; wheel radius `r` [m]), and $\mu^*$."""
+    (`driving_curve`; wheel radius `r` [m]), and $\mu^*$; slips up to `max_slip` in (0, 1)
+    are considered (a driving slip of 1 is a wheel spinning on a car at rest)."""
+    _check_peak_search("peak_driving", v, r, max_slip, upper_open=True)
     args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
     s = _argmax(_driving_magnitude, 0.0, float(max_slip), args)
     return s, _driving_magnitude(s, args)
