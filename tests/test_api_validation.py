@@ -5,6 +5,7 @@ would spend its step budget, report success on nothing, or return NaN."""
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -359,6 +360,156 @@ CASES |= {
     "the plant peak of a word": (
         lambda: vs.plant_peak("wet"), "plant_peak: scale must be one number, got 'wet'"),
 }
+
+
+@functools.lru_cache(maxsize=1)
+def _mf():
+    return MFParams.from_tir(vs.read_tir(next(iter(vs.shipped_tires().values()))))
+
+
+def _closed_loop(**kw):
+    return vs.closed_loop(*_braking(), vs.realistic_hardware(), jax.random.PRNGKey(0),
+                          **(dict(n_steps=10) | kw))
+
+
+CASES |= {
+    "members padded to a fractional multiple": (
+        lambda: vs.pad_members(jnp.arange(5.0), 2.5),
+        "pad_members: multiple must be an integer >= 1, got 2.5"),
+    "members padded to a multiple of 0": (
+        lambda: vs.pad_members(jnp.arange(5.0), 0),
+        "pad_members: multiple must be an integer >= 1, got 0"),
+    "a closed loop of no substeps": (
+        lambda: _closed_loop(substeps=0), "closed_loop: substeps must be an integer >= 1, got 0"),
+    "a closed loop of no samples": (
+        lambda: _closed_loop(n_steps=0), "closed_loop: n_steps must be an integer >= 1, got 0"),
+    "a closed loop handing back at NaN": (
+        lambda: _closed_loop(handback_speed=np.nan), "closed_loop.handback_speed must be finite"),
+    "a braking handing back at a negative speed": (
+        lambda: simulate_braking(*_braking(), handback_speed=-1.0),
+        "simulate_braking.handback_speed must lie in [0, inf), got -1"),
+    "a braking of a billion seconds": (
+        lambda: simulate_braking(*_braking(), duration=1e9),
+        "simulate_braking: duration (1e+09 s) is 2e+11 samples of 0.005 s; at most 1,000,000"),
+    "a robot run of a billion seconds": (
+        lambda: _robot(duration=1e9), "simulate_robot: duration (1e+09 s) is"),
+    "a negative corridor margin in the road frame": (
+        lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10, margin=-1.0),
+        "CurvilinearPointMassOCP.margin must lie in [0, inf), got -1"),
+    "a NaN corridor margin of the car's problem": (
+        lambda: vs.CurvilinearManeuverOCP.from_road(_road(), vs.ReducedHalfCar(
+            vs.params.rally_gravel(), vs.rally_gravel_tire()), num_stages=10, margin=np.nan),
+        "CurvilinearManeuverOCP.margin must be finite"),
+    "a negative time budget in the road frame": (
+        lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10, tf_max=-1.0),
+        "CurvilinearPointMassOCP.tf_max must lie in (0, inf), got -1"),
+    "a NaN rate weight in the road frame": (
+        lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10, rate_weight=np.nan),
+        "CurvilinearPointMassOCP.rate_weight must be finite"),
+    "a fractional stage count in the road frame": (
+        lambda: vs.CurvilinearPointMassOCP.from_road(_road(), num_stages=10.0),
+        "CurvilinearPointMassOCP.num_stages must be an integer >= 2, got 10.0"),
+    "a speed profile without gravity": (
+        lambda: speed_profile(_road(), 0.5, g=0.0), "speed_profile.g must lie in (0, inf), got 0"),
+    "a NaN start pose of the robot": (
+        lambda: simulate_robot(DiscontinuousController(), SystemI(),
+                               jnp.array([np.nan, 0.1, 0.0]), plant=ideal_plant()),
+        "simulate_robot.pose0 must be finite"),
+    "a start pose of four values": (
+        lambda: simulate_robot(DiscontinuousController(), SystemI(), jnp.zeros(4),
+                               plant=ideal_plant()),
+        "simulate_robot: pose0 must have shape (3,), (x [m], y [m], gamma [rad]), got (4,)"),
+    "a robot grid of one-dimensional poses": (
+        lambda: vs.simulate_robot_grid([DiscontinuousController()], [SystemI()], jnp.zeros(3),
+                                       jnp.zeros((1, 2), jnp.uint32), plant=ideal_plant()),
+        "simulate_robot_grid: poses0 must have shape (P, 3)"),
+    "a driving peak searched up to a slip of 1": (
+        lambda: vs.peak_driving(vs.LumpedLuGre(P), 20.0, max_slip=1.0),
+        "peak_driving.max_slip must lie in (0, 1), got 1"),
+    "a braking peak searched past the locked wheel": (
+        lambda: vs.peak_braking(vs.LumpedLuGre(P), 20.0, max_slip=5.0),
+        "peak_braking.max_slip must lie in (0, 1], got 5"),
+    "a braking peak of a wheel of no radius": (
+        lambda: vs.peak_braking(vs.LumpedLuGre(P), 20.0, r=0.0),
+        "peak_braking.r must lie in (0, inf), got 0"),
+    "a surface change at a NaN distance": (
+        lambda: braking_scenario("dry_asphalt", change_to="ice", change_distance=np.nan),
+        "SurfaceChange.distance must lie in [0, inf], got nan"),
+    "a Magic Formula tire at a NaN camber": (
+        lambda: vs.MFTire(_mf(), camber=np.nan), "MFTire.camber must be finite"),
+    "a relaxed Magic Formula tire of no relaxation floor": (
+        lambda: vs.RelaxedMFTire(_mf(), sigma_min=0.0),
+        "RelaxedMFTire.sigma_min must lie in (0, inf), got 0"),
+    "a longitudinal Magic Formula tire at a NaN load": (
+        lambda: vs.MFLongitudinalTire(_mf(), Fz=np.nan), "MFLongitudinalTire.Fz must be finite"),
+    "a Magic Formula tire at a negative pressure": (
+        lambda: vs.MFTire(_mf(), pressure=-1.0), "MFTire.pressure must lie in (0, inf), got -1"),
+    "a Magic Formula summary at no load": (
+        lambda: vs.mf_summary(_mf(), Fz=0.0), "mf_summary.Fz must lie in (0, inf), got 0"),
+    "a tire under a negative load": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, Fz=-1.0),
+        "simulate_tire.Fz must lie in [0, inf), got -1"),
+    "steady forces under a negative load": (
+        lambda: vs.steady_state_forces(vs.params.lugre2d_bakker1987(), vs.UniformLoad(), 20.0,
+                                       0.05, 0.0, -1000.0),
+        "steady_state_forces.Fz must lie in [0, inf), got -1000"),
+    "a braking record in memory with a NaN speed": (
+        lambda: _braking_of(v=_record().v.at[3].set(np.nan)), "BrakingData.v must be finite"),
+    "a braking record in memory with time running back": (
+        lambda: _braking_of(t=_record().t[::-1]), "BrakingData.t must increase strictly"),
+    "a braking record in memory on a wheel of negative radius": (
+        lambda: _braking_of(r=jnp.asarray(-0.3)), "BrakingData.r must lie in (0, inf), got -0.3"),
+    "a braking record in memory with a negative load": (
+        lambda: _braking_of(F_n=-_record().F_n), "BrakingData.F_n must lie in [0, inf)"),
+    "an empty braking record in memory": (
+        lambda: vs.BrakingData(*(jnp.zeros(0),) * 5, r=0.3),
+        "BrakingData.t must be a 1-D array of at least 2 times [s], got shape (0,)"),
+    "a half car without load iterations": (
+        lambda: vs.HalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire(), suspension=False,
+                           load_iterations=0),
+        "HalfCar.load_iterations must be an integer >= 1, got 0"),
+    "a steady state in no Newton steps": (
+        lambda: vs.solve_steady_state(vs.LumpedLuGre(P), 20.0, 60.0, 0.3, steps=0),
+        "solve_steady_state: steps must be an integer >= 1, got 0"),
+    "a Burckhardt fit of no steps": (
+        lambda: vs.fit_burckhardt_family(max_steps=-1),
+        "fit_burckhardt_family: max_steps must be an integer >= 1, got -1"),
+    "a homogeneous-norm controller of no Newton steps": (
+        lambda: vs.MCloskeyMurray97Controller(newton_steps=0),
+        "MCloskeyMurray97Controller.newton_steps must be an integer >= 1, got 0"),
+    "a solve to a negative tolerance": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, rtol=-1.0),
+        "integrate.rtol must lie in (0, inf), got -1"),
+    "a solve of no steps": (
+        lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, max_steps=0),
+        "integrate: max_steps must be an integer >= 1, got 0"),
+}
+
+
+def test_write_tir_refuses_what_read_tir_would_and_writes_nothing(tmp_path):
+    tir = vs.read_tir(next(iter(vs.shipped_tires().values())))
+    out = tmp_path / "bad.tir"
+    with pytest.raises(vs.TirError, match="FNOMIN"):
+        vs.write_tir(out, tir.replace(FNOMIN=-5.0))
+    assert not out.exists()
+    vs.write_tir(out, tir)
+    assert vs.read_tir(out).get("FNOMIN") == tir.get("FNOMIN")
+
+
+def test_a_bad_pad_leaves_later_sweeps_working():
+    """A refused float multiple is refused before JAX sees it, so it cannot poison the
+    caches of the sweeps that follow in the same process."""
+    with pytest.raises(ValueError, match="multiple"):
+        vs.pad_members(jnp.arange(5.0), 2.5)
+    padded = vs.pad_members(jnp.arange(5.0), 2)
+    np.testing.assert_array_equal(padded, [0.0, 1.0, 2.0, 3.0, 4.0, 4.0])
+
+
+def test_road_frame_tools_refuse_a_road_of_rectangular_legs():
+    with pytest.raises(TypeError, match="speed_profile needs a centre-line road"):
+        speed_profile(vs.road("corner90"), 0.5)
+    with pytest.raises(TypeError, match="the road-frame problem needs a centre-line road"):
+        vs.CurvilinearPointMassOCP.from_road(vs.road("corner90"), num_stages=10)
 
 
 def test_distance_off_a_road_of_a_point_that_is_not_finite_is_nan_or_inf():

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import check_finite, check_nonnegative, check_positive, is_concrete
 from .._io import json_text, read_text, write_atomic_files
 
 
@@ -68,6 +69,23 @@ class BrakingData(eqx.Module):
             if x is not None and np.shape(x) != shape:
                 raise ValueError(f"BrakingData.{column} must have t's shape {shape} (one value "
                                  f"per sample), got {np.shape(x)}")
+        if len(shape) != 1 or shape[0] < 2:
+            raise ValueError(f"BrakingData.t must be a 1-D array of at least 2 times [s], got "
+                             f"shape {shape}")
+        # what load_braking and save_braking refuse in a file, refused in memory too
+        for column in ("t", "omega", "F_x"):
+            check_finite("BrakingData", column, getattr(self, column))
+        for column in NONNEGATIVE:
+            if getattr(self, column) is not None:
+                check_nonnegative("BrakingData", column, getattr(self, column))
+        if is_concrete(self.t) and np.any(np.diff(np.asarray(self.t)) <= 0):
+            i = int(np.argmax(np.diff(np.asarray(self.t)) <= 0)) + 1
+            raise ValueError(f"BrakingData.t must increase strictly, got {float(self.t[i]):g} "
+                             f"after {float(self.t[i - 1]):g} (index {i})")
+        check_positive("BrakingData", "r", self.r)
+        for name in ("m", "J"):
+            if getattr(self, name) is not None:
+                check_positive("BrakingData", name, getattr(self, name))
 
     @property
     def v_r(self):

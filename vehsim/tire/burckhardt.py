@@ -28,7 +28,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from .._checks import check_nonnegative, check_positive
+from .._checks import check_count, check_nonnegative, check_positive
 from .._fields import array_field
 from .._math import one_minus_exp_over, safe_abs
 from .lugre import AbstractLongitudinalTire, LuGreParams, relaxed_deflection_rate
@@ -87,6 +87,7 @@ def fit_errors(params: LuGreParams, name: str, speed: float = FIT_SPEED):
 def fit_burckhardt_family(max_steps: int = 500):
     """Least-squares fit of the family (module docstring) by optimistix's
     Levenberg-Marquardt. **Returns:** ``(u, params by road name, optx result)``."""
+    check_count("fit_burckhardt_family", "max_steps", max_steps, sep=": ")
 
     def residuals(u, _):
         return jnp.concatenate([fit_errors(p, n) for p, n in zip(family_params(u), BURCKHARDT)])

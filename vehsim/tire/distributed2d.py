@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import check_nonnegative
 from .._math import floor_transport, one_minus_exp_over, safe_abs, safe_div
 from .distributed import (
     chebyshev_nodes,
@@ -191,7 +192,8 @@ def slip_velocities(v, kappa, alpha):
 def steady_state_forces(params: LuGre2DParams, load: AbstractLoadDistribution, v, kappa, alpha,
                         Fz):
     r"""Steady $(F_x, F_y, M_z)$ [N, N, N m] at speed $v$ [m/s], slip ratio $\kappa$ and slip
-    angle $\alpha$ [rad] (the curves of Figs. 13-15)."""
+    angle $\alpha$ [rad] (the curves of Figs. 13-15); the load `Fz` [N] >= 0."""
+    check_nonnegative("steady_state_forces", "Fz", Fz)
     v_r, c = slip_velocities(v, kappa, alpha)
     mu = steady_state_mu_2d(params, load, v_r, c)
     return Fz * mu * jnp.stack([jnp.ones(()), jnp.ones(()), params.L])

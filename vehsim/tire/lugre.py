@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_order, check_positive, check_range
+from .._checks import check_count, check_order, check_positive, check_range
 from .._fields import array_field
 from .._math import safe_abs, safe_pow_abs
 
@@ -152,6 +152,7 @@ def solve_steady_state(tire: AbstractLongitudinalTire, v, omega, r, steps: int =
     e.g. a point contact at rest, $v_r = 0$) keeps its initial value. Jit-, vmap- and
     grad-safe; any state pytree (scalar or vector, e.g. `DistributedLuGre`'s nodes).
     """
+    check_count("solve_steady_state", "steps", steps, sep=": ")
     z, unravel = ravel_pytree(tire.init_state())
     if z.size == 0:
         return unravel(z)

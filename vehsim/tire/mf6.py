@@ -684,6 +684,17 @@ def _wheel_slips(params: MFParams, vx, vy, omega, r):
     return (omega * r - vx) / den, vy / den
 
 
+def _check_wheel_fields(tire) -> None:
+    """The fields the Magic Formula tires share: `camber` finite, `pressure` (when given),
+    `sigma_min` and `Fz` (when the tire has them) > 0."""
+    owner = type(tire).__name__
+    check_finite(owner, "camber", tire.camber)
+    for name in ("pressure", "sigma_min", "Fz"):
+        value = getattr(tire, name, None)
+        if value is not None:
+            check_positive(owner, name, value)
+
+
 class MFTire(AbstractTire):
     r"""A tyre property file's Magic Formula as a static `AbstractTire` (state of shape
     `(0,)`): $(F_x, F_y, M_z)$ = `mf_forces` at the wheel's slips.
@@ -701,6 +712,9 @@ class MFTire(AbstractTire):
     camber: Float[Array, ""] = array_field(default=0.0)
     pressure: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     limits: bool = eqx.field(static=True, default=True)
+
+    def __check_init__(self):
+        _check_wheel_fields(self)
 
     def init_state(self):
         return jnp.zeros((0,))
@@ -736,6 +750,9 @@ class RelaxedMFTire(AbstractTire):
     sigma_min: Float[Array, ""] = array_field(default=0.01)
     limits: bool = eqx.field(static=True, default=True)
     load_proportional: ClassVar[bool] = False
+
+    def __check_init__(self):
+        _check_wheel_fields(self)
 
     def init_state(self):
         return jnp.zeros((2,))
@@ -773,6 +790,9 @@ class MFLongitudinalTire(AbstractLongitudinalTire):
     sigma_min: Float[Array, ""] = array_field(default=0.01)
     limits: bool = eqx.field(static=True, default=True)
 
+    def __check_init__(self):
+        _check_wheel_fields(self)
+
     def _load(self):
         return self.params.FNOMIN if self.Fz is None else jnp.asarray(self.Fz, dtype=float)
 
@@ -807,6 +827,7 @@ def mf_summary(params: MFParams, Fz=None, p=None) -> dict:
     nominal pressure)."""
     P = params
     Fz = float(P.LFZO * P.FNOMIN) if Fz is None else float(Fz)
+    check_positive("mf_summary", "Fz", Fz)
     kappa = np.linspace(-1.0, 1.0, 2001)
     alpha = np.deg2rad(np.linspace(-30.0, 30.0, 2001))
     ox = mf_evaluate(P, kappa, 0.0, Fz, 0.0, p, limits=False)

@@ -590,10 +590,14 @@ def read_tir(path: str | os.PathLike) -> TirFile:
 
 
 def write_tir(path: str | os.PathLike, tir: TirFile) -> Path:
-    """Write `format_tir(tir)` to `path` atomically (a temporary file, then a rename)."""
+    """Write `format_tir(tir)` to `path` atomically (a temporary file, then a rename). A
+    file that `read_tir` would refuse (a value outside its range, a required key missing)
+    is refused first, with `read_tir`'s `TirError`, and nothing is written."""
     from .._io import write_atomic
 
-    return write_atomic(path, format_tir(tir).encode("latin-1"))
+    text = format_tir(tir)
+    parse_tir(text, source=str(path))
+    return write_atomic(path, text.encode("latin-1"))
 
 
 def shipped_tires() -> dict[str, Path]:

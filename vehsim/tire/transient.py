@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_finite_signals, check_positive, check_times
+from .._checks import check_finite_signals, check_nonnegative, check_positive, check_times
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from .._results import RESULTS, as_result
 from .._signals import as_signal
@@ -121,6 +121,8 @@ def simulate_tire(
     check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
     if not callable(r):
         check_positive("simulate_tire", "r", r)
+    if not callable(Fz):
+        check_nonnegative("simulate_tire", "Fz", Fz)
     ts = jnp.asarray(ts, dtype=float)
     longitudinal = isinstance(model, AbstractLongitudinalTire)
     if not (longitudinal or isinstance(model, AbstractTire)):

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
+from .._checks import check_count
 from .._math import safe_arctan2, safe_div
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
@@ -69,6 +70,7 @@ class HalfCar(AbstractVehicle):
     control_names: ClassVar[tuple[str, ...]] = ("T_F", "T_R", "delta")
 
     def __check_init__(self):
+        check_count("HalfCar", "load_iterations", self.load_iterations)
         if self.tire_R is not None:
             zF, zR = ravel_pytree(self.tire.init_state())[0], ravel_pytree(
                 self.tire_R.init_state())[0]

@@ -20,6 +20,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
+from ..._checks import check_nonnegative
 from ..._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from ..._results import RESULTS
 from ..lugre2d import decay_rates, relative_velocity_2d
@@ -171,6 +172,8 @@ def _forces(model, fz_s, t, m, m_dot, v_r):
 def _prepare(name, model, ts, vx, vy, omega, Fz, z0):
     if not isinstance(model, MomentLuGre2D):
         raise TypeError(f"{name} needs a MomentLuGre2D, got {type(model).__name__}")
+    if not callable(Fz):
+        check_nonnegative(name, "Fz", Fz)
     ts = jnp.asarray(ts, dtype=float)
     z0 = jnp.zeros(2) if z0 is None else jnp.asarray(z0, dtype=float)
     return ts, input_signals(ts, vx, vy, omega, Fz), z0
