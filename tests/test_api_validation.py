@@ -20,6 +20,7 @@ from vehsim.identify.braking import load_braking, save_braking, shipped_brakings
 from vehsim.optimal.curvilinear import speed_profile
 from vehsim.optimal.ip.solver import IPOptions
 from vehsim.optimal.primitives import point_mass_bound
+from vehsim.optimal.shooting import ManeuverOCP
 from vehsim.robot.controllers import DiscontinuousController
 from vehsim.robot.khepera import ideal_plant, simulate_robot
 from vehsim.robot.unicycle import SystemI
@@ -483,6 +484,47 @@ CASES |= {
     "a solve of no steps": (
         lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, max_steps=0),
         "integrate: max_steps must be an integer >= 1, got 0"),
+}
+
+
+CASES |= {
+    "a max-exit problem of a negative time budget": (
+        lambda: ManeuverOCP(vehicle=vs.ReducedHalfCar(vs.params.rally_gravel(),
+                                                      vs.rally_gravel_tire()),
+                            road=vs.road("corner90"), objective="max-exit", tf_max=-1.0),
+        "ManeuverOCP.tf_max must lie in (0, inf), got -1"),
+    "a gate at a NaN arc length": (
+        lambda: vs.Gate(s=np.nan, n_min=-1.0, n_max=1.0), "Gate.s must be finite, got nan"),
+    "a gate whose lateral bounds cross": (
+        lambda: vs.Gate(s=0.0, n_min=1.0, n_max=-1.0),
+        "Gate needs n_min <= n_max, got n_min = 1, n_max = -1"),
+    "a gate at a negative speed": (
+        lambda: vs.Gate(s=0.0, n_min=-1.0, n_max=1.0, speed=-3.0),
+        "Gate.speed must be None (free) or a speed in [0, inf) m/s, got -3.0"),
+    "a change of surface at a distance, to no surface": (
+        lambda: braking_scenario("dry_asphalt", change_distance=5.0),
+        "braking_scenario: change_distance and change_time place a change of surface: give "
+        "the surface with change_to"),
+    "a braking bound stopping at NaN": (
+        lambda: vs.actuated_limit(_braking()[0], vs.realistic_hardware(), stop_speed=np.nan),
+        "actuated_limit.stop_speed must be finite"),
+    "a braking bound stopping above the start speed": (
+        lambda: vs.actuated_limit(_braking()[0], vs.realistic_hardware(), stop_speed=100.0),
+        "actuated_limit needs stop_speed <= speed, got stop_speed = 100, speed = 30"),
+    "a speed-profile guess of no stages": (
+        lambda: vs.speed_profile_guess(_road(), vs.ReducedHalfCar(vs.params.rally_gravel(),
+                                                                 vs.rally_gravel_tire()), 0),
+        "speed_profile_guess: num_stages must be an integer >= 1, got 0"),
+    "an open-loop prediction of no substeps": (
+        lambda: vs.predict_open_loop(vs.LumpedLuGre(P), _record(), substeps=0),
+        "predict_open_loop: substeps must be an integer >= 1, got 0"),
+    "a road of negative friction scale": (
+        lambda: vs.scale_friction(vs.LumpedLuGre(P), -1.0),
+        "scale_friction.scale must lie in (0, inf), got -1"),
+    "a primitive from no seeds": (
+        lambda: vs.min_time_primitive("corner90", num_stages=10, starts=()),
+        "starts must be a whole number >= 1 or a non-empty sequence of (margin, friction "
+        "fraction) seeds, got an empty one"),
 }
 
 

@@ -279,7 +279,7 @@ def test_multistart_solves_every_start_in_one_call_and_keeps_the_best(corner_min
     assert rec["t_f_over_bound"] == pytest.approx(float(prim.t_f) / float(bound.t_f), rel=1e-14)
     assert [s["status"] for s in rec["starts"]] == result_name(starts.result)
     assert [s["objective"] for s in rec["starts"]] == pytest.approx(list(objective), rel=1e-12)
-    with pytest.raises(ValueError, match="starts must be at least 1"):
+    with pytest.raises(ValueError, match="starts must be an integer >= 1, got 0"):
         min_time_primitive("corner90", num_stages=M, steps_per_stage=1, starts=0)
     with pytest.raises(ValueError, match="objective must be 'min-time' or 'max-exit'"):
         primitive_options("fastest")

@@ -163,7 +163,8 @@ class RelativeGrip(AbstractGripField):
 def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     r"""`tire` on a road of friction scale $\lambda$ = `scale`: its friction coefficients
     times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$), the
-    rest unchanged (module docstring)."""
+    rest unchanged (module docstring); `scale` > 0."""
+    check_positive("scale_friction", "scale", scale)
     params = getattr(tire, "params", None)
     if isinstance(params, LuGre2DParams):
         return eqx.tree_at(lambda t: (t.params.mu_k, t.params.mu_s), tire,

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_integer
+from .._checks import check_count, check_integer
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel
 from .braking import BrakingData
@@ -37,6 +37,7 @@ def predict_open_loop(model: LumpedLuGre, data: BrakingData, substeps: int = 2, 
 
 def _forces(model: LumpedLuGre, data: Sequence[BrakingData], substeps: int, adjoint=None):
     """`predict_open_loop` of several brakings (one diffrax solve each)."""
+    check_count("predict_open_loop", "substeps", substeps, sep=": ")
     adjoint = dfx.RecursiveCheckpointAdjoint() if adjoint is None else adjoint
     out = []
     for d in data:

@@ -58,6 +58,17 @@ class Gate(eqx.Module):
     n_max: float = eqx.field(static=True)
     speed: float | None = eqx.field(static=True, default=None)
 
+    def __check_init__(self):
+        for name in ("s", "n_min", "n_max"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"Gate.{name} must be finite, got {getattr(self, name)!r}")
+        if self.n_min > self.n_max:
+            raise ValueError(f"Gate needs n_min <= n_max, got n_min = {self.n_min:g}, n_max = "
+                             f"{self.n_max:g}")
+        if self.speed is not None and not (math.isfinite(self.speed) and self.speed >= 0):
+            raise ValueError(f"Gate.speed must be None (free) or a speed in [0, inf) m/s, got "
+                             f"{self.speed!r}")
+
     @classmethod
     def at(cls, road: CentrelineRoad, s: float, *, n_min: float | None = None,
            n_max: float | None = None, speed: float | None = None) -> Gate:

@@ -766,6 +766,7 @@ def speed_profile_guess(road, car: ReducedHalfCar, num_stages: int, fraction: fl
     $1/v$. A closed road's knots carry the first knot's copy. ``edges``: the knots' arc
     lengths (default those of the problem on ``road``, `stage_edges`: uniform unless the
     road's curvature jumps)."""
+    check_count("speed_profile_guess", "num_stages", num_stages, sep=": ")
     D, g = _friction(car)
     s_fine, v_fine = speed_profile(road, D, fraction, g=g)
     L = float(road.length)
@@ -976,6 +977,7 @@ def resample_drive(prob: CurvilinearManeuverOCP, xs, num_stages,
     uniform)."""
     if isinstance(num_stages, AbstractCurvilinearOCP):
         num_stages, edges = num_stages.num_stages, _edges_of(num_stages)
+    check_count("resample_drive", "num_stages", num_stages, sep=": ")
     xs = np.asarray(xs, float)
     L = float(prob.length)
     s_old = prob.stage_edges()

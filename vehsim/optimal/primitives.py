@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import require_float64
+from .._checks import check_count, require_float64
 from .._results import result_name
 from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
@@ -146,8 +146,7 @@ def multistart_guesses(car: ReducedHalfCar, road: Road, n: int, num_stages: int,
     """``n`` starting guesses (knots (n, M+1, 10), controls (n, M, 3)) of different kinds:
     point-mass optima (`MULTISTART_SEEDS`, solved in one batched call) and constant-speed
     runs along the centreline (`CENTRELINE_SPEEDS`), alternating from the default seed."""
-    if n < 1:
-        raise ValueError(f"starts must be at least 1, got {n}")
+    check_count("multistart_guesses", "starts", n, sep=": ")
     n_seeds = min((n + 1) // 2, len(MULTISTART_SEEDS))
     n_lines = n - n_seeds
     if n_lines > len(CENTRELINE_SPEEDS):
@@ -222,6 +221,9 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     """The car's primitive: from point-mass seeds solved one after the other, or (an int
     ``starts``) from every start of `multistart_guesses` in one batched call."""
     require_float64("the car's primitive", _FLOAT32)
+    if not isinstance(starts, int) and guess is None and len(starts) == 0:
+        raise ValueError("starts must be a whole number >= 1 or a non-empty sequence of "
+                         "(margin, friction fraction) seeds, got an empty one")
     prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max, rate_weight,
                        corner_clearance, interior_points)
     if isinstance(starts, int) and guess is None:

@@ -267,6 +267,8 @@ class ManeuverOCP(AbstractManeuverOCP):
             )
         if self.num_stages < 2 or self.steps_per_stage < 1:
             raise ValueError("ManeuverOCP.num_stages must be >= 2 and steps_per_stage >= 1")
+        check_positive("ManeuverOCP", "tf_max", self.tf_max)
+        check_nonnegative("ManeuverOCP", "rate_weight", self.rate_weight)
         _check_between(type(self).__name__, self.corner_clearance, self.interior_points)
 
     def _rhs(self, X, v):
@@ -343,6 +345,7 @@ class PointMassOCP(AbstractManeuverOCP):
         check_positive("PointMassOCP", "friction", self.friction)
         check_positive("PointMassOCP", "tf_max", self.tf_max)
         check_nonnegative("PointMassOCP", "margin", self.margin)
+        check_nonnegative("PointMassOCP", "rate_weight", self.rate_weight)
         if self.num_stages < 2 or self.steps_per_stage < 1:
             raise ValueError("PointMassOCP.num_stages must be >= 2 and steps_per_stage >= 1")
         _check_between(type(self).__name__, self.corner_clearance, self.interior_points)

@@ -53,6 +53,9 @@ def braking_scenario(name: str, speed: float = 30.0, change_to: str | None = Non
     `name`, changing to the surface `change_to` at `change_distance` [m] or `change_time` [s]
     (`tire`: a plant tire other than the surface's, e.g. `other_tire(name)`, with the
     observer still built for the surface)."""
+    if change_to is None and not (math.isinf(change_distance) and math.isinf(change_time)):
+        raise ValueError("braking_scenario: change_distance and change_time place a change "
+                         "of surface: give the surface with change_to")
     first = surface(name)
     plant_tire = first.tire() if tire is None else tire
     change = None

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..._checks import check_nonnegative, check_order
 from ..._constants import GRAVITY
 from ..loop import STOP_SPEED
 from ..plant.hardware import ActuatorState, BrakeHardware, actuator_target, brake_torque
@@ -148,7 +149,10 @@ def actuated_limit(scenario: BrakingScenario, hardware: BrakeHardware,
     r"""``(bound_distance, bound_time)`` [m, s] of `scenario` on `hardware`: the physical
     limit with the tire force also capped by the brake torque the actuator builds under a
     full command from the onset (module docstring). Jitted; the onset's length in samples,
-    `ONSET` / `hardware.sample_time`, is static."""
+    `ONSET` / `hardware.sample_time`, is static. `stop_speed` [m/s] in [0, the scenario's
+    speed]."""
+    check_nonnegative("actuated_limit", "stop_speed", stop_speed)
+    check_order("actuated_limit", "stop_speed", stop_speed, "speed", scenario.speed)
     n_samples = max(1, math.ceil(ONSET / float(hardware.sample_time)))
     return _actuated(scenario, hardware, n_samples, stop_speed)
 
