@@ -2,6 +2,7 @@
 `ValueError` that names the function or field and the allowed range: before a solve that
 would spend its step budget, report success on nothing, or return NaN."""
 
+import dataclasses
 import functools
 
 import equinox as eqx
@@ -526,6 +527,42 @@ CASES |= {
         "starts must be a whole number >= 1 or a non-empty sequence of (margin, friction "
         "fraction) seeds, got an empty one"),
 }
+
+
+CASES |= {
+    "a peak estimator of a NaN prior": (
+        lambda: vs.PeakEstimator(prior=(np.nan, 23.99, 0.52)),
+        "PeakEstimator.prior c1 must be finite, got nan"),
+    "a peak estimator of two coefficients": (
+        lambda: vs.PeakEstimator(prior=(1.28, 23.99)),
+        "PeakEstimator.prior must be Burckhardt's (c1, c2, c3), got shape (2,)"),
+    "a Burckhardt belief of negative shape": (
+        lambda: vs.BurckhardtBelief(jnp.array([1.28, -23.99, 0.52])),
+        "BurckhardtBelief.params c2 must lie in (0, inf), got -23.99"),
+    "a mission from a NaN pose": (
+        lambda: vs.Mission("m", jnp.array([np.nan, 0.0, 0.0]), jnp.zeros(3)),
+        "Mission.pose0 must be finite"),
+    "a mission of negative spread": (
+        lambda: vs.Mission("m", jnp.zeros(3), jnp.array([0.1, -0.1, 0.0])),
+        "Mission.spread must lie in [0, inf)"),
+    "a surface whose condition range is reversed": (
+        lambda: dataclasses.replace(vs.surface("dry_asphalt"), theta_range=(4.0, 0.5)),
+        "Surface 'dry_asphalt' needs theta_range[0] <= theta_range[1], got theta_range[0] = 4"),
+    "a surface whose prior lies outside its range": (
+        lambda: dataclasses.replace(vs.surface("dry_asphalt"), prior_theta=100.0),
+        "Surface 'dry_asphalt'.prior_theta must lie in"),
+    "a compilation cache with a negative threshold": (
+        lambda: vs.enable_compilation_cache(min_compile_time=-1.0),
+        "enable_compilation_cache.min_compile_time must lie in [0, inf), got -1"),
+    "a sharded map along a second axis": (
+        lambda: vs.sharded_vmap(lambda x: x, in_axes=5),
+        "sharded_vmap: in_axes must be 0 (the member axis leads), None (not mapped)"),
+}
+
+
+def test_sharded_vmap_refuses_what_is_not_a_function():
+    with pytest.raises(TypeError, match="sharded_vmap needs a function to map, got int"):
+        vs.sharded_vmap(3)
 
 
 def test_write_tir_refuses_what_read_tir_would_and_writes_nothing(tmp_path):

@@ -55,6 +55,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._checks import check_nonnegative
 from ._io import write_atomic
 from .optimal.ip import IPOptions, IPSolution
 from .optimal.ip.solver import _solve, canonical_options, solution_tree, solve_arguments, solver_of
@@ -103,6 +104,7 @@ def enable_compilation_cache(path: str | os.PathLike | None = None,
 
     **Returns:** the cache folder.
     """
+    check_nonnegative("enable_compilation_cache", "min_compile_time", min_compile_time)
     path = Path(default_cache_dir() if path is None else path).expanduser().resolve()
     path.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_enable_compilation_cache", True)

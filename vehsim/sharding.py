@@ -128,6 +128,12 @@ def sharded_vmap(
     host callback per chunk; without `batch_size`, one per device).
     """
 
+    if not callable(fn):
+        raise TypeError(f"sharded_vmap needs a function to map, got {type(fn).__name__}")
+    axes = in_axes if isinstance(in_axes, tuple) else (in_axes,)
+    if not all(a is None or (type(a) is int and a == 0) for a in axes):
+        raise ValueError("sharded_vmap: in_axes must be 0 (the member axis leads), None (not "
+                         f"mapped), or a tuple of them (one per argument), got {in_axes!r}")
     if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) != batch_size
                                    or batch_size < 1):
         raise ValueError(f"batch_size must be an integer >= 1 (or None), got {batch_size!r}")

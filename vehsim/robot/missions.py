@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from .._checks import check_finite, check_nonnegative
 from .._fields import host_array_field
 
 
@@ -31,6 +32,14 @@ class Mission(eqx.Module):
     name: str = eqx.field(static=True)
     pose0: Float[Array, 3] = host_array_field()  # presets are built at import
     spread: Float[Array, 3] = host_array_field()
+
+    def __check_init__(self):
+        for name in ("pose0", "spread"):
+            if jnp.shape(getattr(self, name)) != (3,):
+                raise ValueError(f"Mission.{name} must have shape (3,), (x [m], y [m], gamma "
+                                 f"[rad]), got {jnp.shape(getattr(self, name))}")
+        check_finite("Mission", "pose0", self.pose0)
+        check_nonnegative("Mission", "spread", self.spread)
 
     def initial_poses(self, key: PRNGKeyArray, n: int) -> Float[Array, "n 3"]:
         """`n` initial poses: the nominal one, then `n - 1` perturbed ones."""

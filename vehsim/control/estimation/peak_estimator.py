@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ..._checks import check_positive, check_range
+from ..._checks import check_nonnegative, check_positive, check_range, is_concrete
 from ..._fields import array_field
 from ..._math import one_minus_exp_over, safe_abs
 from ...tire.lugre import AbstractLongitudinalTire, relative_velocity
@@ -73,6 +73,19 @@ def burckhardt_peak(c1, c2, c3):
     return lam, c1 * (1.0 - jnp.exp(-c2 * lam)) - c3 * lam
 
 
+def check_burckhardt(owner: str, name: str, coefficients) -> None:
+    r"""Refuse Burckhardt coefficients that are not $(c_1, c_2, c_3)$ (a last axis of 3) with
+    $c_1, c_2 > 0$ and $c_3 \ge 0$."""
+    if jnp.shape(coefficients)[-1:] != (3,):
+        raise ValueError(f"{owner}.{name} must be Burckhardt's (c1, c2, c3), got shape "
+                         f"{jnp.shape(coefficients)}")
+    c = jnp.moveaxis(jnp.asarray(coefficients), -1, 0) if is_concrete(coefficients) else None
+    if c is not None:
+        for i in (0, 1):
+            check_positive(owner, f"{name} c{i + 1}", c[i])
+        check_nonnegative(owner, f"{name} c3", c[2])
+
+
 class BurckhardtBelief(AbstractLongitudinalTire):
     r"""The tire the peak estimator believes in: Burckhardt's curve $(c_1, c_2, c_3)$ as the
     steady state of a transient slip with relaxation length `relaxation_length` (0.25 m),
@@ -81,6 +94,10 @@ class BurckhardtBelief(AbstractLongitudinalTire):
 
     params: Float[Array, " 3"]
     relaxation_length: Float[Array, ""] = array_field(default=0.25)
+
+    def __check_init__(self):
+        check_burckhardt("BurckhardtBelief", "params", self.params)
+        check_positive("BurckhardtBelief", "relaxation_length", self.relaxation_length)
 
     def init_state(self):
         return jnp.zeros(())
@@ -176,6 +193,7 @@ class PeakEstimator(AbstractFrictionEstimator):
 
     def __check_init__(self):
         owner = "PeakEstimator"
+        check_burckhardt(owner, "prior", self.prior)
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
         check_range(owner, "speed_injection", self.speed_injection, lower=0.0, upper=1.0)

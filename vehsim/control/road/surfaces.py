@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from ..._checks import check_range
+from ..._checks import check_order, check_range
 from ...tire.lugre import LuGreParams
 from ...tire.params import cdc1999
 from ...tire.uniform_lumped import UniformLumpedLuGre
@@ -64,6 +64,12 @@ class Surface:
     prior_theta: float
     source: str
     fit_error: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        lo, hi = self.theta_range
+        owner = f"Surface {self.name!r}"
+        check_order(owner, "theta_range[0]", lo, "theta_range[1]", hi)
+        check_range(owner, "prior_theta", self.prior_theta, lower=lo, upper=hi)
 
     def tire(self) -> UniformLumpedLuGre:
         """The plant's tire on this road."""
