@@ -560,6 +560,17 @@ CASES |= {
 }
 
 
+CASES |= {
+    "a quarter car started from a state of another shape": (
+        lambda: vs.simulate_quarter_car(_car(), TS, 800.0, 20.0, state0=jnp.zeros(3)),
+        "simulate_quarter_car: state0 must be shaped as QuarterCar.init_state(v0)"),
+    "a half car started from a state of another length": (
+        lambda: vs.simulate(vs.HalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire()), TS,
+                            jnp.zeros(3), jnp.zeros(5)),
+        "simulate: state0 must have shape (12,), the state of HalfCar, got (5,)"),
+}
+
+
 def test_sharded_vmap_refuses_what_is_not_a_function():
     with pytest.raises(TypeError, match="sharded_vmap needs a function to map, got int"):
         vs.sharded_vmap(3)

@@ -100,6 +100,17 @@ def check_count(owner: str, name: str, value, *, lower: int = 1, sep: str = ".")
         raise ValueError(f"{owner}{sep}{name} must be an integer >= {lower}, got {value!r}")
 
 
+def check_shaped_like(owner: str, name: str, given, reference, what: str) -> None:
+    """Raise ``ValueError`` unless the PyTree `given` has the structure and leaf shapes of
+    `reference` (`what` says where the reference comes from, e.g. ``LumpedLuGre.init_state()``)."""
+    if jax.tree.structure(given) != jax.tree.structure(reference) or any(
+            np.shape(a) != np.shape(b) for a, b in zip(jax.tree.leaves(given),
+                                                       jax.tree.leaves(reference))):
+        raise ValueError(f"{owner}: {name} must be shaped as {what}, "
+                         f"{jax.tree.map(np.shape, reference)}, got "
+                         f"{jax.tree.map(np.shape, given)}")
+
+
 def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
     a, b = _values(x_small), _values(x_big)

@@ -49,7 +49,11 @@ class Trajectory(AbstractSolution):
 
 def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
     """A NaN or inf in a concrete initial state or input array is refused by name: the
-    solver would otherwise spend its step budget and report `max_steps_reached`."""
+    solver would otherwise spend its step budget and report `max_steps_reached`. A state
+    of another length than the vehicle's is refused too."""
+    if jnp.shape(state0) != (vehicle.state_size,):
+        raise ValueError(f"simulate: state0 must have shape ({vehicle.state_size},), the state "
+                         f"of {type(vehicle).__name__}, got {jnp.shape(state0)}")
     for what, x, names in (("state0", state0, vehicle.state_names),
                            ("inputs", None if callable(inputs) else inputs,
                             vehicle.control_names)):

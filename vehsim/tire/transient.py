@@ -13,10 +13,15 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_finite_signals, check_nonnegative, check_positive, check_times
+from .._checks import (
+    check_finite_signals,
+    check_nonnegative,
+    check_positive,
+    check_shaped_like,
+    check_times,
+)
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
 from .._results import RESULTS, as_result
 from .._signals import as_signal
@@ -135,13 +140,8 @@ def simulate_tire(
     vx_s, vy_s, om_s, fz_s = signals
     y0 = model.init_state()
     if state0 is not None:
-        if jax.tree.structure(state0) != jax.tree.structure(y0) or any(
-                np.shape(a) != np.shape(b) for a, b in zip(jax.tree.leaves(state0),
-                                                           jax.tree.leaves(y0))):
-            raise ValueError(f"simulate_tire: state0 must be shaped as "
-                             f"{type(model).__name__}.init_state(), "
-                             f"{jax.tree.map(np.shape, y0)}, got "
-                             f"{jax.tree.map(np.shape, state0)}")
+        check_shaped_like("simulate_tire", "state0", state0, y0,
+                          f"{type(model).__name__}.init_state()")
         y0 = state0
 
     if longitudinal:

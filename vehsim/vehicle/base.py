@@ -27,6 +27,11 @@ class AbstractVehicle(eqx.Module):
     def signals(self, state: Float[Array, " n"], controls: Float[Array, " m"]) -> dict:
         """Named scalar signals (positions, velocities, sideslip, slips, forces, loads)."""
 
+    @property
+    def state_size(self) -> int:
+        """The length of the state vector (`state_names`, and the tires' states if any)."""
+        return len(self.state_names)
+
     def vector_field(self, t, state, controls):
         """diffrax-style ``f(t, y, args)`` with the controls as ``args``."""
         return self.f(state, controls)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_finite_signals, check_positive, check_times
+from .._checks import check_finite_signals, check_positive, check_shaped_like, check_times
 from .._constants import GRAVITY
 from .._fields import array_field
 from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
@@ -166,7 +166,12 @@ def simulate_quarter_car(
                          v0=None if state0 is not None else v0)
     ts = jnp.asarray(ts, dtype=float)
     Tb_fn = as_signal(ts, brake_torque)
-    y0 = car.init_state(v0, ts[0]) if state0 is None else state0
+    if state0 is None:
+        y0 = car.init_state(v0, ts[0])
+    else:  # v0 is ignored, and may be None
+        check_shaped_like("simulate_quarter_car", "state0", state0, car.init_state(0.0, ts[0]),
+                          "QuarterCar.init_state(v0)")
+        y0 = state0
 
     def vector_field(t, y, args):
         return car.dynamics(t, y, Tb_fn(t))
