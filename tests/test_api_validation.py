@@ -347,9 +347,6 @@ CASES |= {
     "the settings of an unknown planner friction": (
         lambda: vs.driver_settings("corner90", "nope"),
         "unknown friction 'nope'; allowed: estimate, nominal, oracle"),
-    "an estimator that asks more than the peak": (
-        lambda: vs.AxleGripEstimator(min_utilisation=2.0),
-        "AxleGripEstimator.min_utilisation must lie in (0, 1], got 2"),
     "an estimator whose scale bounds cross": (
         lambda: vs.AxleGripEstimator(scale_min=3.0, scale_max=0.5),
         "AxleGripEstimator needs scale_min <= scale_max, got scale_min = 3, scale_max = 0.5"),
@@ -481,10 +478,10 @@ CASES |= {
         "MCloskeyMurray97Controller.newton_steps must be an integer >= 1, got 0"),
     "a solve to a negative tolerance": (
         lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, rtol=-1.0),
-        "integrate.rtol must lie in (0, inf), got -1"),
+        "simulate_tire.rtol must lie in (0, inf), got -1"),
     "a solve of no steps": (
         lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, max_steps=0),
-        "integrate: max_steps must be an integer >= 1, got 0"),
+        "simulate_tire.max_steps must be an integer >= 1, got 0"),
 }
 
 
@@ -569,6 +566,16 @@ CASES |= {
                             jnp.zeros(3), jnp.zeros(5)),
         "simulate: state0 must have shape (12,), the state of HalfCar, got (5,)"),
 }
+
+
+def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
+    """The checks skip a tracer also inside a container (a start whose steering is traced),
+    and a count may be a NumPy or 0-d JAX integer."""
+    plant = vs.DrivePlant()
+    steer = jax.jit(lambda d: vs.init_drive(plant, vx=10.0, u0=(0.0, 0.0, d)).actuators.applied)
+    np.testing.assert_allclose(steer(0.1), [0.0, 0.0, 0.1])
+    for multiple in (np.int64(2), jnp.asarray(2)):
+        assert vs.pad_members(jnp.arange(5.0), multiple).shape == (6,)
 
 
 def test_sharded_vmap_refuses_what_is_not_a_function():

@@ -8,15 +8,16 @@ batched and differentiated freely.
 from __future__ import annotations
 
 import math
-import numbers
+import operator
 
 import jax
 import numpy as np
 
 
 def is_concrete(x) -> bool:
-    """True when ``x`` holds concrete numbers (not a tracer)."""
-    return not isinstance(x, jax.core.Tracer)
+    """True when ``x`` holds concrete numbers: neither a tracer nor a container of one
+    (a tuple of floats and a traced angle, say)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
 def _values(x) -> np.ndarray | None:
@@ -94,9 +95,14 @@ def check_integer(owner: str, name: str, x, *, lower: int = 0) -> None:
 
 
 def check_count(owner: str, name: str, value, *, lower: int = 1, sep: str = ".") -> None:
-    """Raise ``ValueError`` unless `value` is a Python (or NumPy) integer >= `lower`, not a
-    bool: a static count (steps, iterations, stages) that sizes a program."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lower:
+    """Raise ``ValueError`` unless `value` is an integer >= `lower` (a Python, NumPy or 0-d
+    JAX integer; not a bool): a static count (steps, iterations, stages) that sizes a
+    program."""
+    try:
+        count = None if isinstance(value, bool) else operator.index(value)
+    except TypeError:
+        count = None
+    if count is None or count < lower:
         raise ValueError(f"{owner}{sep}{name} must be an integer >= {lower}, got {value!r}")
 
 

@@ -128,7 +128,7 @@ def check_solver_settings(owner: str, *, rtol=None, atol=None, max_steps=None,
         if value is not None:
             check_positive(owner, name, value)
     if max_steps is not None:
-        check_count(owner, "max_steps", max_steps, sep=": ")
+        check_count(owner, "max_steps", max_steps)
 
 
 FORWARD_MODE_MESSAGE = (

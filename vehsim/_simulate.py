@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._checks import check_times, is_concrete
-from ._integrate import ATOL, MAX_STEPS, RTOL, integrate, solve_stats
+from ._integrate import ATOL, MAX_STEPS, RTOL, check_solver_settings, integrate, solve_stats
 from ._results import RESULTS, as_result
 from ._signals import as_controls
 from ._solution import AbstractSolution
@@ -120,6 +120,7 @@ def simulate(
     **Returns:** a `Trajectory`.
     """
     check_times("simulate", ts)
+    check_solver_settings("simulate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0)
     ts = jnp.asarray(ts, dtype=float)
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)

@@ -369,9 +369,6 @@ class AxleGripEstimator(AbstractGripEstimator):
             check_nonnegative(owner, "slip_velocity_std", self.slip_velocity_std)
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
-        # a fraction of the estimated peak: above 1 no sample would ever count
-        check_range(owner, "min_utilisation", self.min_utilisation, lower=0.0, upper=1.0,
-                    lower_open=True)
         check_order(owner, "scale_min", self.scale_min, "scale_max", self.scale_max)
         check_count(owner, "load_substeps", self.load_substeps)
 

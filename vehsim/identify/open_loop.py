@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_count, check_integer
+from .._checks import check_count
 from ..tire.lugre import LumpedLuGre
 from .base import AbstractBrakingModel
 from .braking import BrakingData
@@ -62,7 +62,7 @@ class OpenLoopBraking(AbstractBrakingModel):
     name: ClassVar[str] = "open_loop"
 
     def __check_init__(self):
-        check_integer("OpenLoopBraking", "substeps", self.substeps, lower=1)
+        check_count("OpenLoopBraking", "substeps", self.substeps)
 
     def predict_force(self, model, data):
         return _predict_open_loop_jit(model, data, self.substeps, adjoint=dfx.ForwardMode())

@@ -22,7 +22,14 @@ from .._checks import (
     check_shaped_like,
     check_times,
 )
-from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
+from .._integrate import (
+    DEFLECTION_ATOL,
+    MAX_STEPS,
+    RTOL,
+    check_solver_settings,
+    integrate,
+    solve_stats,
+)
 from .._results import RESULTS, as_result
 from .._signals import as_signal
 from .._solution import AbstractSolution
@@ -123,6 +130,7 @@ def simulate_tire(
     **Returns:** a `TireSolution`: `forces` $(F_x, F_y, M_z)$ and `mu` $= F_x/F_z$ at `ts`.
     """
     check_times("simulate_tire", ts)
+    check_solver_settings("simulate_tire", rtol=rtol, atol=atol, max_steps=max_steps)
     check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
     if not callable(r):
         check_positive("simulate_tire", "r", r)

@@ -26,7 +26,14 @@ from jaxtyping import Array, Float, PyTree
 from .._checks import check_finite_signals, check_positive, check_shaped_like, check_times
 from .._constants import GRAVITY
 from .._fields import array_field
-from .._integrate import DEFLECTION_ATOL, MAX_STEPS, RTOL, integrate, solve_stats
+from .._integrate import (
+    DEFLECTION_ATOL,
+    MAX_STEPS,
+    RTOL,
+    check_solver_settings,
+    integrate,
+    solve_stats,
+)
 from .._results import RESULTS, as_result
 from .._signals import as_signal
 from .._solution import AbstractSolution
@@ -162,6 +169,8 @@ def simulate_quarter_car(
     **Returns:** a `QuarterCarSolution` with $v$, $\omega$, $F_n$, $F_x$ at `ts`.
     """
     check_times("simulate_quarter_car", ts)
+    check_solver_settings("simulate_quarter_car", rtol=rtol, atol=atol, max_steps=max_steps,
+                          dt0=dt0)
     check_finite_signals("simulate_quarter_car", brake_torque=brake_torque,
                          v0=None if state0 is not None else v0)
     ts = jnp.asarray(ts, dtype=float)

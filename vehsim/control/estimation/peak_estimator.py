@@ -75,14 +75,14 @@ def burckhardt_peak(c1, c2, c3):
 
 def check_burckhardt(owner: str, name: str, coefficients) -> None:
     r"""Refuse Burckhardt coefficients that are not $(c_1, c_2, c_3)$ (a last axis of 3) with
-    $c_1, c_2 > 0$ and $c_3 \ge 0$."""
+    $c_2 > 0$ and $c_1, c_3 \ge 0$ (the fit clamps $c_1$ and $c_3$ at 0)."""
     if jnp.shape(coefficients)[-1:] != (3,):
         raise ValueError(f"{owner}.{name} must be Burckhardt's (c1, c2, c3), got shape "
                          f"{jnp.shape(coefficients)}")
     c = jnp.moveaxis(jnp.asarray(coefficients), -1, 0) if is_concrete(coefficients) else None
     if c is not None:
-        for i in (0, 1):
-            check_positive(owner, f"{name} c{i + 1}", c[i])
+        check_nonnegative(owner, f"{name} c1", c[0])
+        check_positive(owner, f"{name} c2", c[1])
         check_nonnegative(owner, f"{name} c3", c[2])
 
 

@@ -104,7 +104,7 @@ def _check_peak_search(owner, v, r, max_slip, upper_open) -> None:
 def peak_braking(tire: AbstractLongitudinalTire, v, r=0.3, max_slip=1.0):
     r"""Braking slip $s^* < 0$ of the largest braking force at speed `v`, and
     $\mu^* = |\mu(s^*)|$; slips beyond `max_slip` in magnitude are not considered
-    (`max_slip` in (0, 1], 1: the locked wheel; `v` and `r` > 0)."""
+    (`max_slip` in (0, 1], 1: the locked wheel; `v` >= 0, `r` > 0)."""
     _check_peak_search("peak_braking", v, r, max_slip, upper_open=False)
     args = (tire, jnp.asarray(v, dtype=float), jnp.asarray(r, dtype=float))
     lam = _argmax(_braking_magnitude, 0.0, float(max_slip), args)
