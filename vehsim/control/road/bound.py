@@ -90,8 +90,15 @@ def _two_surfaces(scenario: BrakingScenario, v0, v_stop, distance, time, cap=jnp
 
 
 @eqx.filter_jit
+def _check_stop_speed(owner: str, scenario: BrakingScenario, stop_speed) -> None:
+    check_nonnegative(owner, "stop_speed", stop_speed)
+    check_order(owner, "stop_speed", stop_speed, "speed", scenario.speed)
+
+
 def physical_limit(scenario: BrakingScenario, stop_speed: float = STOP_SPEED):
-    r"""``(bound_distance, bound_time)`` [m, s] of `scenario` (module docstring)."""
+    r"""``(bound_distance, bound_time)`` [m, s] of `scenario` (module docstring);
+    `stop_speed` [m/s] in [0, the scenario's speed]."""
+    _check_stop_speed("physical_limit", scenario, stop_speed)
     v0 = scenario.speed
     v_stop = jnp.asarray(stop_speed, dtype=v0.dtype)
     return _two_surfaces(scenario, v0, v_stop, scenario.change.distance, scenario.change.time)
@@ -151,8 +158,7 @@ def actuated_limit(scenario: BrakingScenario, hardware: BrakeHardware,
     full command from the onset (module docstring). Jitted; the onset's length in samples,
     `ONSET` / `hardware.sample_time`, is static. `stop_speed` [m/s] in [0, the scenario's
     speed]."""
-    check_nonnegative("actuated_limit", "stop_speed", stop_speed)
-    check_order("actuated_limit", "stop_speed", stop_speed, "speed", scenario.speed)
+    _check_stop_speed("actuated_limit", scenario, stop_speed)
     n_samples = max(1, math.ceil(ONSET / float(hardware.sample_time)))
     return _actuated(scenario, hardware, n_samples, stop_speed)
 
