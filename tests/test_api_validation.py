@@ -512,6 +512,9 @@ CASES |= {
     "a physical bound stopping at a negative speed": (
         lambda: vs.physical_limit(_braking()[0], stop_speed=-1.0),
         "physical_limit.stop_speed must lie in [0, inf), got -1"),
+    "a physical bound stopping above the start speed": (
+        lambda: vs.physical_limit(_braking()[0], stop_speed=31.0),
+        "physical_limit needs stop_speed <= speed, got stop_speed = 31, speed = 30"),
     "a speed-profile guess of no stages": (
         lambda: vs.speed_profile_guess(_road(), vs.ReducedHalfCar(vs.params.rally_gravel(),
                                                                  vs.rally_gravel_tire()), 0),

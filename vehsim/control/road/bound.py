@@ -89,16 +89,20 @@ def _two_surfaces(scenario: BrakingScenario, v0, v_stop, distance, time, cap=jnp
     return xa + xb, ta + tb
 
 
-@eqx.filter_jit
 def _check_stop_speed(owner: str, scenario: BrakingScenario, stop_speed) -> None:
     check_nonnegative(owner, "stop_speed", stop_speed)
     check_order(owner, "stop_speed", stop_speed, "speed", scenario.speed)
 
 
 def physical_limit(scenario: BrakingScenario, stop_speed: float = STOP_SPEED):
-    r"""``(bound_distance, bound_time)`` [m, s] of `scenario` (module docstring);
+    r"""``(bound_distance, bound_time)`` [m, s] of `scenario` (module docstring; jitted);
     `stop_speed` [m/s] in [0, the scenario's speed]."""
     _check_stop_speed("physical_limit", scenario, stop_speed)
+    return _physical_limit(scenario, stop_speed)
+
+
+@eqx.filter_jit
+def _physical_limit(scenario: BrakingScenario, stop_speed):
     v0 = scenario.speed
     v_stop = jnp.asarray(stop_speed, dtype=v0.dtype)
     return _two_surfaces(scenario, v0, v_stop, scenario.change.distance, scenario.change.time)
