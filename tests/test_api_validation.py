@@ -584,6 +584,12 @@ def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
         assert vs.pad_members(jnp.arange(5.0), multiple).shape == (6,)
 
 
+def test_parse_tir_refuses_what_is_not_text():
+    with pytest.raises(TypeError, match=r"parse_tir needs the file's text \(a str; read_tir "
+                                        r"reads a path\), got PosixPath"):
+        vs.parse_tir(next(iter(vs.shipped_tires().values())))
+
+
 def test_sharded_vmap_refuses_what_is_not_a_function():
     with pytest.raises(TypeError, match="sharded_vmap needs a function to map, got int"):
         vs.sharded_vmap(3)

@@ -426,7 +426,11 @@ def _value(text: str) -> Value:
 
 def parse_tir(text: str, source: str = "<text>") -> TirFile:
     """Parse the text of a tyre property file (module docstring); raise `TirError` naming
-    `source`, the line and the key of the first problem found."""
+    `source`, the line and the key of the first problem found (a `TypeError` for `text` that
+    is not a string: `read_tir` reads a file)."""
+    if not isinstance(text, str):
+        raise TypeError(f"parse_tir needs the file's text (a str; read_tir reads a path), got "
+                        f"{type(text).__name__}")
     lines = text.splitlines()
     preamble: list[str] = []
     sections: list[TirSection] = []
