@@ -584,6 +584,25 @@ def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
         assert vs.pad_members(jnp.arange(5.0), multiple).shape == (6,)
 
 
+@pytest.mark.parametrize(("build", "message"), [
+    (lambda: vs.QuarterCar("dry", mass=350.0, inertia=1.0, radius=0.3),
+     "QuarterCar.tire must be an AbstractLongitudinalTire, got str"),
+    (lambda: vs.HalfCar("x", vs.rally_gravel_tire()),
+     "HalfCar.params must be a HalfCarParams, got str"),
+    (lambda: vs.HalfCar(vs.params.rally_gravel(), vs.LumpedLuGre(P)),
+     "HalfCar.tire must be an AbstractTire, got LumpedLuGre"),
+    (lambda: vs.ReducedHalfCar(vs.params.rally_gravel(), "car"),
+     "ReducedHalfCar.tire must be an AbstractTire, got str"),
+    (lambda: vs.LumpedLuGre("dry"), "LumpedLuGre.params must be a LuGreParams, got str"),
+    (lambda: vs.MFTire(vs.params.table3()), "MFTire.params must be a MFParams, got LuGreParams"),
+], ids=["quarter car tire", "half car params", "half car 1-D tire", "reduced car tire",
+        "LuGre params", "MF params"])
+def test_models_of_the_wrong_kind_are_refused_naming_the_field(build, message):
+    with pytest.raises(TypeError) as err:
+        build()
+    assert message in str(err.value), str(err.value)
+
+
 def test_parse_tir_refuses_what_is_not_text():
     with pytest.raises(TypeError, match=r"parse_tir needs the file's text \(a str; read_tir "
                                         r"reads a path\), got PosixPath"):

@@ -117,6 +117,15 @@ def check_shaped_like(owner: str, name: str, given, reference, what: str) -> Non
                          f"{jax.tree.map(np.shape, given)}")
 
 
+def check_type(owner: str, name: str, value, kind: type, *, optional: bool = False) -> None:
+    """Raise ``TypeError`` unless `value` is a `kind` (or None, where `optional`): a model
+    of the wrong kind fails at once, naming the field, not deep inside a solve."""
+    if not (isinstance(value, kind) or (optional and value is None)):
+        article = "an" if kind.__name__[0] in "AEIOU" else "a"
+        raise TypeError(f"{owner}.{name} must be {article} {kind.__name__}"
+                        f"{' or None' if optional else ''}, got {type(value).__name__}")
+
+
 def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
     a, b = _values(x_small), _values(x_big)

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_count, check_order, check_positive, check_range
+from .._checks import check_count, check_order, check_positive, check_range, check_type
 from .._fields import array_field
 from .._math import safe_abs, safe_pow_abs
 
@@ -210,6 +210,7 @@ class LumpedLuGre(AbstractLongitudinalTire):
     kappa0: Float[Array, ...] = array_field(default=1.0)
 
     def __check_init__(self):
+        check_type("LumpedLuGre", "params", self.params, LuGreParams)
         check_range("LumpedLuGre", "kappa0", self.kappa0, lower=0.0)
 
     def init_state(self):

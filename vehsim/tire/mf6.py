@@ -99,6 +99,7 @@ from .._checks import (
     check_order,
     check_positive,
     check_range,
+    check_type,
 )
 from .._fields import array_field, float_array
 from .._math import safe_abs, safe_div, safe_pow_abs, safe_sqrt
@@ -688,6 +689,7 @@ def _check_wheel_fields(tire) -> None:
     """The fields the Magic Formula tires share: `camber` finite, `pressure` (when given),
     `sigma_min` and `Fz` (when the tire has them) > 0."""
     owner = type(tire).__name__
+    check_type(owner, "params", tire.params, MFParams)
     check_finite(owner, "camber", tire.camber)
     for name in ("pressure", "sigma_min", "Fz"):
         value = getattr(tire, name, None)

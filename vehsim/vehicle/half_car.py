@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._checks import check_count
+from .._checks import check_count, check_type
 from .._math import safe_arctan2, safe_div
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
@@ -70,6 +70,9 @@ class HalfCar(AbstractVehicle):
     control_names: ClassVar[tuple[str, ...]] = ("T_F", "T_R", "delta")
 
     def __check_init__(self):
+        check_type("HalfCar", "params", self.params, HalfCarParams)
+        check_type("HalfCar", "tire", self.tire, AbstractTire)
+        check_type("HalfCar", "tire_R", self.tire_R, AbstractTire, optional=True)
         check_count("HalfCar", "load_iterations", self.load_iterations)
         if self.tire_R is not None:
             zF, zR = ravel_pytree(self.tire.init_state())[0], ravel_pytree(

@@ -23,7 +23,13 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float, PyTree
 
-from .._checks import check_finite_signals, check_positive, check_shaped_like, check_times
+from .._checks import (
+    check_finite_signals,
+    check_positive,
+    check_shaped_like,
+    check_times,
+    check_type,
+)
 from .._constants import GRAVITY
 from .._fields import array_field
 from .._integrate import (
@@ -79,6 +85,7 @@ class QuarterCar(eqx.Module):
             self.Fn_static = jnp.asarray(self.Fn_static)
 
     def __check_init__(self):
+        check_type("QuarterCar", "tire", self.tire, AbstractLongitudinalTire)
         check_positive("QuarterCar", "mass", self.mass)
         check_positive("QuarterCar", "inertia", self.inertia)
         check_positive("QuarterCar", "radius", self.radius)

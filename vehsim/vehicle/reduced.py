@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._checks import check_type
 from .._math import safe_arctan2
 from ..tire.base import AbstractTire
 from .base import AbstractVehicle
@@ -64,6 +65,9 @@ class ReducedHalfCar(AbstractVehicle):
     control_names: ClassVar[tuple[str, ...]] = ("kappa_F", "kappa_R", "delta")
 
     def __check_init__(self):
+        check_type("ReducedHalfCar", "params", self.params, HalfCarParams)
+        check_type("ReducedHalfCar", "tire", self.tire, AbstractTire)
+        check_type("ReducedHalfCar", "tire_R", self.tire_R, AbstractTire, optional=True)
         for name, tire in (("tire", self.tire), ("tire_R", self.tire_R)):
             if tire is not None and jnp.shape(tire.init_state()) != (0,):
                 raise ValueError(
