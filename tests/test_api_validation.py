@@ -594,9 +594,10 @@ def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
     (lambda: vs.ReducedHalfCar(vs.params.rally_gravel(), "car"),
      "ReducedHalfCar.tire must be an AbstractTire, got str"),
     (lambda: vs.LumpedLuGre("dry"), "LumpedLuGre.params must be a LuGreParams, got str"),
+    (lambda: vs.LumpedLuGre(None), "LumpedLuGre.params must be a LuGreParams, got NoneType"),
     (lambda: vs.MFTire(vs.params.table3()), "MFTire.params must be a MFParams, got LuGreParams"),
 ], ids=["quarter car tire", "half car params", "half car 1-D tire", "reduced car tire",
-        "LuGre params", "MF params"])
+        "LuGre params", "no LuGre params", "MF params"])
 def test_models_of_the_wrong_kind_are_refused_naming_the_field(build, message):
     with pytest.raises(TypeError) as err:
         build()
