@@ -33,6 +33,8 @@ from collections.abc import Sequence
 import equinox as eqx
 import numpy as np
 
+from .._checks import check_finite, check_order
+
 
 SPACING = 0.5
 """Target spacing [m] of the knots that store the centre line."""
@@ -60,11 +62,8 @@ class Gate(eqx.Module):
 
     def __check_init__(self):
         for name in ("s", "n_min", "n_max"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"Gate.{name} must be finite, got {getattr(self, name)!r}")
-        if self.n_min > self.n_max:
-            raise ValueError(f"Gate needs n_min <= n_max, got n_min = {self.n_min:g}, n_max = "
-                             f"{self.n_max:g}")
+            check_finite("Gate", name, getattr(self, name))
+        check_order("Gate", "n_min", self.n_min, "n_max", self.n_max)
         if self.speed is not None and not (math.isfinite(self.speed) and self.speed >= 0):
             raise ValueError(f"Gate.speed must be None (free) or a speed in [0, inf) m/s, got "
                              f"{self.speed!r}")
