@@ -574,6 +574,87 @@ CASES |= {
 }
 
 
+CASES |= {
+    "a NaN time where the inputs jump": (
+        lambda: vs.simulate(_car(), TS, jnp.array([800.0]), _car().init_state(20.0),
+                            jump_ts=[np.nan]),
+        "simulate.jump_ts must be finite, got [nan]"),
+    "a reduced half car's rates of a state of another length": (
+        lambda: vs.ReducedHalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire()).f(
+            jnp.array([0.0, 0.0, 10.0]), jnp.zeros(3)),
+        "ReducedHalfCar.f: state must have shape (6,), the model's states, got shape (3,)"),
+    "a half car's rates of controls of another length": (
+        lambda: vs.HalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire()).f(
+            jnp.zeros(12), jnp.zeros(2)),
+        "HalfCar.f: controls must have shape (3,), the model's controls, got shape (2,)"),
+    "a 2D steady state of one relative velocity": (
+        lambda: vs.steady_state_mu_2d(vs.params.lugre2d_bakker1987(), vs.UniformLoad(), 1.0,
+                                      20.0),
+        "steady_state_mu_2d: v_r must have shape (2,), the longitudinal and lateral"),
+    "a robot with three motor time constants": (
+        lambda: vs.KheperaPlant(motor_time_constant=(0.06, 0.09, 0.1)),
+        "KheperaPlant.motor_time_constant must be one value or a (left, right) pair, got "
+        "shape (3,)"),
+    "a robot with one wheel scale in a list": (
+        lambda: vs.KheperaPlant(wheel_scale=(1.0,)),
+        "KheperaPlant.wheel_scale must be one value or a (left, right) pair, got shape (1,)"),
+    "a tone wheel with a fraction of a tooth": (
+        lambda: vs.BrakeHardware(encoder_pulses=2.5),
+        "BrakeHardware.encoder_pulses must be an integer >= 1, got [2.5]"),
+    "a sweep of no members": (
+        lambda: vs.sweep(lambda m: None, {"m": jnp.zeros(0)}, TS),
+        "a batch needs at least one member, got none (a leading axis of 0)"),
+}
+
+
+def test_options_switches_must_be_booleans():
+    """A string is truthy: ``verbose="no"`` would have printed the log."""
+    for name in ("verbose", "live", "best_iterate"):
+        with pytest.raises(TypeError, match=f"IPOptions.{name} must be True or False, got 'no'"):
+            IPOptions(**{name: "no"})
+    assert IPOptions(verbose=True).verbose
+
+
+def test_a_robot_plant_takes_one_value_for_both_wheels():
+    """A scalar pair field stays allowed (both wheels alike)."""
+    plant = vs.KheperaPlant(motor_time_constant=0.07, wheel_scale=1.0)
+    assert plant.motor_time_constant.shape == ()
+
+
+def test_a_numpy_integer_count_of_starts_is_a_multistart():
+    """``starts=np.int64(4)`` is a count of starts, as ``starts=4`` is, not a sequence of
+    seeds: it keeps the multistart's initial barrier."""
+    from vehsim.optimal.primitives import MAX_EXIT_MU0
+    for starts in (4, np.int64(4), jnp.asarray(4)):
+        assert float(vs.primitive_options("max-exit", starts).mu0) == 0.1
+    for starts in (None, 1, np.int64(1), [(0.5, 0.9)]):
+        assert float(vs.primitive_options("max-exit", starts).mu0) == MAX_EXIT_MU0
+
+
+def test_a_nan_transport_speed_gives_nan_not_a_locked_wheel():
+    params, load = vs.params.lugre2d_bakker1987(), vs.UniformLoad()
+    v_r = jnp.array([-2.0, 0.5])
+    assert np.all(np.isnan(vs.steady_state_mu_2d(params, load, v_r, jnp.nan)))
+    locked = vs.steady_state_mu_2d(params, load, v_r, 0.0)
+    assert np.all(np.isfinite(locked)) and np.all(locked != 0.0)
+
+
+def test_burckhardt_curve_is_odd_and_smooth_through_zero_slip():
+    """Driving slip mirrors braking slip (the formula itself grows as exp(c2 |slip|)); the
+    derivative at zero slip is c1 c2 - c3 from both sides and in both modes."""
+    c = jnp.array([1.2801, 23.99, 0.52])  # dry asphalt
+    lam = jnp.array([0.01, 0.1, 0.5, 1.0])
+    np.testing.assert_allclose(vs.burckhardt_mu(c, lam),
+                               c[0] * (1 - np.exp(-c[1] * lam)) - c[2] * lam, rtol=1e-14)
+    np.testing.assert_allclose(vs.burckhardt_mu(c, -lam), -vs.burckhardt_mu(c, lam), rtol=1e-14)
+    slope = float(c[0] * c[1] - c[2])
+    f = functools.partial(vs.burckhardt_mu, c)
+    assert float(jax.grad(f)(0.0)) == pytest.approx(slope, rel=1e-14)
+    assert float(jax.jvp(f, (0.0,), (1.0,))[1]) == pytest.approx(slope, rel=1e-14)
+    h = 1e-9
+    assert float((f(h) - f(-h)) / (2 * h)) == pytest.approx(slope, rel=1e-6)
+
+
 def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
     """The checks skip a tracer also inside a container (a start whose steering is traced),
     and a count may be a NumPy or 0-d JAX integer."""

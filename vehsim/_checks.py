@@ -94,15 +94,23 @@ def check_integer(owner: str, name: str, x, *, lower: int = 0) -> None:
         raise ValueError(f"{owner}.{name} must be an integer >= {lower}, got {plain(v)}")
 
 
+def is_count(value) -> bool:
+    """True for an integer of any kind that `operator.index` takes (Python, NumPy, 0-d JAX),
+    not a bool: what a count such as a number of starts may be, as against a sequence."""
+    if isinstance(value, bool):
+        return False
+    try:
+        operator.index(value)
+    except TypeError:
+        return False
+    return True
+
+
 def check_count(owner: str, name: str, value, *, lower: int = 1, sep: str = ".") -> None:
     """Raise ``ValueError`` unless `value` is an integer >= `lower` (a Python, NumPy or 0-d
     JAX integer; not a bool): a static count (steps, iterations, stages) that sizes a
     program."""
-    try:
-        count = None if isinstance(value, bool) else operator.index(value)
-    except TypeError:
-        count = None
-    if count is None or count < lower:
+    if not is_count(value) or operator.index(value) < lower:
         raise ValueError(f"{owner}{sep}{name} must be an integer >= {lower}, got {value!r}")
 
 

@@ -44,6 +44,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import operator
 import importlib.metadata
 import os
 import threading
@@ -55,7 +56,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._checks import check_nonnegative
+from ._checks import check_nonnegative, is_count
 from ._io import write_atomic
 from .optimal.ip import IPOptions, IPSolution
 from .optimal.ip.solver import _solve, canonical_options, solution_tree, solve_arguments, solver_of
@@ -407,7 +408,9 @@ def primitive_and_bound(road: str | Road = "corner90", objective: str = "min-tim
     options = primitive_options(objective, starts) if options is None else options
     prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max,
                        corner_clearance=corner_clearance, interior_points=interior_points)
-    batched = isinstance(starts, int)
+    batched = is_count(starts)
+    if batched:
+        starts = operator.index(starts)
     with ThreadPoolExecutor(1) as pool:
         if batched:
             canonical, n_dev = canonical_options(options), len(jax.devices())

@@ -32,7 +32,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PyTree
 
-from ._checks import check_count, check_positive
+from ._checks import check_count, check_finite, check_positive
 from ._results import RESULTS, as_result
 
 
@@ -98,7 +98,8 @@ def integrate(
 
     **Returns:** the diffrax `Solution`, its `result` a `vehsim.RESULTS` item.
     """
-    check_solver_settings("integrate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0)
+    check_solver_settings("integrate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
+                          jump_ts=jump_ts, step_ts=step_ts)
     if stepsize_controller is None:
         stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol)
     if (jump_ts is not None or step_ts is not None) and isinstance(
@@ -121,14 +122,17 @@ def integrate(
 
 
 def check_solver_settings(owner: str, *, rtol=None, atol=None, max_steps=None,
-                          dt0=None) -> None:
+                          dt0=None, jump_ts=None, step_ts=None) -> None:
     """Refuse settings no solve can use (concrete values only; None: not given): `rtol` and
-    `atol` > 0, `max_steps` an integer >= 1, `dt0` > 0."""
+    `atol` > 0, `max_steps` an integer >= 1, `dt0` > 0, `jump_ts` and `step_ts` finite."""
     for name, value in (("rtol", rtol), ("atol", atol), ("dt0", dt0)):
         if value is not None:
             check_positive(owner, name, value)
     if max_steps is not None:
         check_count(owner, "max_steps", max_steps)
+    for name, value in (("jump_ts", jump_ts), ("step_ts", step_ts)):
+        if value is not None:
+            check_finite(owner, name, value)
 
 
 FORWARD_MODE_MESSAGE = (

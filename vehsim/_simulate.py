@@ -120,7 +120,8 @@ def simulate(
     **Returns:** a `Trajectory`.
     """
     check_times("simulate", ts)
-    check_solver_settings("simulate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0)
+    check_solver_settings("simulate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
+                          jump_ts=jump_ts)
     ts = jnp.asarray(ts, dtype=float)
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)

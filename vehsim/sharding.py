@@ -41,6 +41,8 @@ def num_members(members: PyTree) -> int:
     n = {jnp.shape(x)[0] if jnp.ndim(x) else -1 for x in leaves}
     if len(n) != 1 or -1 in n:
         raise ValueError(f"every leaf of `members` needs the same leading axis, got sizes {n}")
+    if 0 in n:
+        raise ValueError("a batch needs at least one member, got none (a leading axis of 0)")
     return n.pop()
 
 

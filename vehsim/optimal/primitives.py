@@ -15,6 +15,7 @@ program is compiled, cached or overlapped with other work is the caller's choice
 
 from __future__ import annotations
 
+import operator
 import sys
 from collections.abc import Callable
 
@@ -23,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_count, require_float64
+from .._checks import check_count, is_count, require_float64
 from .._results import result_name
 from ..sharding import pad_members, sharded_vmap
 from ..tire.friction_ellipse import FrictionEllipseTire, rally_gravel_tire
@@ -67,7 +68,7 @@ def primitive_options(objective: str = "min-time", starts=None, **changes) -> IP
     `MAX_EXIT_MU0`; an int ``starts`` > 1 (a multi-start with centreline runs) keeps
     ``mu0 = 0.1``. Keyword ``changes`` override any field."""
     _check_objective(objective)
-    multistart = isinstance(starts, int) and starts > 1
+    multistart = is_count(starts) and operator.index(starts) > 1
     settings = dict(max_iter=500)
     if objective == "max-exit" and not multistart:
         settings["mu0"] = MAX_EXIT_MU0
@@ -221,12 +222,13 @@ def _solve_car(road, objective, car, num_stages, steps_per_stage, tf_max, option
     """The car's primitive: from point-mass seeds solved one after the other, or (an int
     ``starts``) from every start of `multistart_guesses` in one batched call."""
     require_float64("the car's primitive", _FLOAT32)
-    if not isinstance(starts, int) and guess is None and len(starts) == 0:
+    if not is_count(starts) and guess is None and len(starts) == 0:
         raise ValueError("starts must be a whole number >= 1 or a non-empty sequence of "
                          "(margin, friction fraction) seeds, got an empty one")
     prob = car_problem(road, objective, car, num_stages, steps_per_stage, tf_max, rate_weight,
                        corner_clearance, interior_points)
-    if isinstance(starts, int) and guess is None:
+    if is_count(starts) and guess is None:
+        starts = operator.index(starts)
         xs0, us0 = batched_starts(prob, starts)
         sols = solve_starts(prob, xs0, us0, canonical_options(options), starts_batch_size())
         return best_start(prob, sols, starts, options.verbose, throw)

@@ -126,6 +126,11 @@ class KheperaPlant(eqx.Module):
         for name in ("sample_time", "wheel_base", "pulses_per_meter", "speed_unit",
                      "speed_limit", "motor_time_constant", "wheel_scale", "wheel_base_scale"):
             check_positive(owner, name, getattr(self, name))
+        for name in ("motor_time_constant", "wheel_scale"):  # (left, right), or one for both
+            shape = jnp.shape(getattr(self, name))
+            if shape and shape[-1] != 2:
+                raise ValueError(f"KheperaPlant.{name} must be one value or a (left, right) "
+                                 f"pair, got shape {shape}")
         for name in ("delay_samples", "read_delay_samples"):
             value = getattr(self, name)
             check_range(owner, name, value, lower=0, upper=MAX_DELAY)

@@ -52,9 +52,15 @@ HELD = dict(sigma1=0.7, sigma2=0.0, mu_s=1.0, L=0.25)
 
 
 def burckhardt_mu(coefficients, slip):
-    r"""$\mu_B(\lambda)$ for $(c_1, c_2, c_3)$ at braking slip $\lambda = $ `slip` $\ge 0$."""
+    r"""$\mu_B(\lambda) = c_1(1 - e^{-c_2\lambda}) - c_3\lambda$ for $(c_1, c_2, c_3)$ at
+    braking slip $\lambda = $ `slip` $\ge 0$, continued as an odd function,
+    $\mu_B(-\lambda) = -\mu_B(\lambda)$, to driving slip (where the formula itself grows
+    as $e^{c_2|\lambda|}$); smooth at $\lambda = 0$ in both modes of differentiation."""
     c1, c2, c3 = coefficients
-    return c1 * (1.0 - jnp.exp(-c2 * slip)) - c3 * slip
+    braking = slip >= 0
+    lam_b = jnp.where(braking, slip, 0.0)  # double where: each branch only sees its own side
+    lam_d = jnp.where(braking, 0.0, slip)
+    return c1 * (jnp.where(braking, -jnp.expm1(-c2 * lam_b), jnp.expm1(c2 * lam_d))) - c3 * slip
 
 
 def fit_slips() -> np.ndarray:

@@ -165,8 +165,12 @@ def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_
 
     Gauss-Legendre quadrature of $z_{ss}q$ on panels split at the load's kinks and graded to
     the leading-edge boundary layers of thickness $1/k_i$, so that they are resolved at any
-    slip. The 2D counterpart of `vehsim.tire.steady_state.steady_state_mu`.
+    slip. The 2D counterpart of `vehsim.tire.steady_state.steady_state_mu`. `v_r` is the
+    pair $(v_{r,x}, v_{r,y})$ (batches: `jax.vmap`); a NaN transport speed `c` gives NaN.
     """
+    if jnp.shape(v_r) != (2,):
+        raise ValueError("steady_state_mu_2d: v_r must have shape (2,), the longitudinal and "
+                         f"lateral relative velocity, got shape {jnp.shape(v_r)}")
     C0 = decay_rates(params, v_r)
     c_safe = jnp.where(c > 0, c, 1.0)
     k = _layer_rates(C0, params.L, c_safe)
@@ -177,7 +181,8 @@ def steady_state_mu_2d(params: LuGre2DParams, load: AbstractLoadDistribution, v_
     m = params.sigma0[1] * ((wq * (0.5 - xi)) @ z[:, 1]) + params.sigma2[1] * v_r[1] * (
         wq @ (0.5 - xi)
     )
-    return jnp.stack([f[0], f[1], m])
+    # c > 0 is False for a NaN c, which would otherwise read as the locked wheel's c = 0
+    return jnp.where(jnp.isnan(c), jnp.nan, jnp.stack([f[0], f[1], m]))
 
 
 def slip_velocities(v, kappa, alpha):

@@ -6,6 +6,7 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
+import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 
@@ -31,6 +32,17 @@ class AbstractVehicle(eqx.Module):
     def state_size(self) -> int:
         """The length of the state vector (`state_names`, and the tires' states if any)."""
         return len(self.state_names)
+
+    def check_shapes(self, state, controls) -> None:
+        """Refuse a state or control vector of the wrong length (static shapes: this runs
+        under `jax.jit` and `jax.vmap` too, on one member's shapes)."""
+        for what, x, size, names in (("state", state, self.state_size, "states"),
+                                     ("controls", controls, len(self.control_names),
+                                      "controls")):
+            if jnp.shape(x) != (size,):
+                raise ValueError(
+                    f"{type(self).__name__}.f: {what} must have shape ({size},), the model's "
+                    f"{names}, got shape {jnp.shape(x)} (batches: jax.vmap)")
 
     def vector_field(self, t, state, controls):
         """diffrax-style ``f(t, y, args)`` with the controls as ``args``."""

@@ -159,6 +159,7 @@ class HalfCar(AbstractVehicle):
 
     def f(self, state: Float[Array, " n"], controls: Float[Array, " 3"]) -> Float[Array, " n"]:
         """Eqs. 49-60 (see the module docstring)."""
+        self.check_shapes(state, controls)
         p = self.params
         e = self._evaluate(state, controls)
         q, fF, fR = e["q"], e["fF"], e["fR"]

@@ -136,6 +136,7 @@ class ReducedHalfCar(AbstractVehicle):
 
     def f(self, state: Float[Array, " 6"], controls: Float[Array, " 3"]) -> Float[Array, " 6"]:
         r"""Eqs. 61-63 in body-frame velocities (see `vehsim.vehicle.planar`)."""
+        self.check_shapes(state, controls)
         fF, fR, _, _ = self._axle_forces(state, controls)
         return planar_rates(
             self.params, state[2], state[3], state[4], state[5], fF, fR, controls[2]

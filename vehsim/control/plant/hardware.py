@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._checks import check_nonnegative, check_positive, is_concrete
+from ..._checks import check_integer, check_nonnegative, check_positive, is_concrete
 from ..._fields import array_field, bool_field
 
 
@@ -72,6 +72,8 @@ class BrakeHardware(eqx.Module):
             value = _where_on(getattr(self, switch), getattr(self, name))
             if value is not None:
                 check_positive(owner, name, value)
+                if name == "encoder_pulses":  # teeth of the tone wheel
+                    check_integer(owner, name, value, lower=1)
         noise = _where_on(self.noise, self.speed_noise_std)
         if noise is not None:
             check_nonnegative(owner, "speed_noise_std", noise)

@@ -161,6 +161,10 @@ class IPOptions(eqx.Module):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
+        for name in ("verbose", "live", "best_iterate"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise TypeError(f"IPOptions.{name} must be True or False, got "
+                                f"{getattr(self, name)!r}")
         check_integer("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps, lower=1)
         check_integer("IPOptions", "max_iter", self.max_iter, lower=1)
         check_integer("IPOptions", "log_size", self.log_size, lower=1)
