@@ -44,8 +44,8 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
-import operator
 import importlib.metadata
+import operator
 import os
 import threading
 from collections.abc import Callable

@@ -162,7 +162,7 @@ class IPOptions(eqx.Module):
                 raise ValueError(f"IPOptions.{name} must be one of {allowed}, "
                                  f"got {getattr(self, name)!r}")
         for name in ("verbose", "live", "best_iterate"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
+            if not isinstance(getattr(self, name), bool | np.bool_):
                 raise TypeError(f"IPOptions.{name} must be True or False, got "
                                 f"{getattr(self, name)!r}")
         check_integer("IPOptions", "fresh_hessian_steps", self.fresh_hessian_steps, lower=1)
