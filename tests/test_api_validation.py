@@ -653,6 +653,9 @@ def test_burckhardt_curve_is_odd_and_smooth_through_zero_slip():
     assert float(jax.jvp(f, (0.0,), (1.0,))[1]) == pytest.approx(slope, rel=1e-14)
     h = 1e-9
     assert float((f(h) - f(-h)) / (2 * h)) == pytest.approx(slope, rel=1e-6)
+    # far out (exp(c2 |slip|) overflows on the other side's branch) still finite slopes
+    for lam in (-50.0, 50.0):
+        assert float(jax.grad(f)(lam)) == pytest.approx(-float(c[2]), rel=1e-12)
 
 
 def test_checks_pass_traced_values_and_whole_numbers_of_any_kind():
