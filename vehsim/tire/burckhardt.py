@@ -55,7 +55,8 @@ def burckhardt_mu(coefficients, slip):
     r"""$\mu_B(\lambda) = c_1(1 - e^{-c_2\lambda}) - c_3\lambda$ for $(c_1, c_2, c_3)$ at
     braking slip $\lambda = $ `slip` $\ge 0$, continued as an odd function,
     $\mu_B(-\lambda) = -\mu_B(\lambda)$, to driving slip (where the formula itself grows
-    as $e^{c_2|\lambda|}$); smooth at $\lambda = 0$ in both modes of differentiation."""
+    as $e^{c_2|\lambda|}$): its slope at $\lambda = 0$ is $c_1c_2 - c_3$ from both sides, and
+    in both modes of differentiation."""
     c1, c2, c3 = coefficients
     braking = slip >= 0
     lam_b = jnp.where(braking, slip, 0.0)  # double where: each branch only sees its own side
