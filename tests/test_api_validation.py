@@ -548,6 +548,12 @@ CASES |= {
     "a mission of negative spread": (
         lambda: vs.Mission("m", jnp.zeros(3), jnp.array([0.1, -0.1, 0.0])),
         "Mission.spread must lie in [0, inf)"),
+    "a mission of a pose of another shape": (
+        lambda: vs.Mission("m", (0.0, 0.1), (0.01, 0.01, 0.01)),
+        "Mission.pose0 must have shape (3,), (x [m], y [m], gamma [rad]), got (2,)"),
+    "a mission of a spread of another shape": (
+        lambda: vs.Mission("m", (0.0, 0.1, 0.0), (0.01, 0.01)),
+        "Mission.spread must have shape (3,), (x [m], y [m], gamma [rad]), got (2,)"),
     "a surface whose condition range is reversed": (
         lambda: dataclasses.replace(vs.surface("dry_asphalt"), theta_range=(4.0, 0.5)),
         "Surface 'dry_asphalt' needs theta_range[0] <= theta_range[1], got theta_range[0] = 4"),

@@ -44,7 +44,6 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._checks import (
-    check_finite,
     check_nonnegative,
     check_positive,
     check_range,
@@ -57,6 +56,7 @@ from .._results import RESULTS
 from ..progress import advance, progress_bar, resolve
 from ..sharding import pad_members, shard_members
 from .controllers import AbstractController
+from .missions import check_poses
 from .odometry import dead_reckon, delay_line_read, delay_line_write, encoder_counts
 from .scoring import RunStats
 from .unicycle import AbstractSystem, body_velocity, unicycle_step, wheel_speeds
@@ -341,16 +341,6 @@ def _velocity(controller, system, t, pose):
     return controller.velocity(t, pose, system)
 
 
-def _check_poses(owner: str, name: str, poses, shape) -> None:
-    """Refuse start poses that are not finite (x, y, gamma) rows of `shape` (-1: any)."""
-    got = jnp.shape(poses)
-    if len(got) != len(shape) or any(s not in (-1, g) for s, g in zip(shape, got)):
-        want = "(3,)" if len(shape) == 1 else "(P, 3)"
-        raise ValueError(f"{owner}: {name} must have shape {want}, (x [m], y [m], gamma "
-                         f"[rad]), got {got}")
-    check_finite(owner, name, poses)
-
-
 def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0,
              key: PRNGKeyArray | None = None, plant: KheperaPlant | None = None,
              duration: float = 40.0, substeps: int = 4, save: bool = True) -> RobotRun:
@@ -365,7 +355,7 @@ def simulate_robot(controller: AbstractController, system: AbstractSystem, pose0
     plant = realistic_plant() if plant is None else plant
     key = jax.random.PRNGKey(0) if key is None else key
     n_steps = sample_count("simulate_robot", duration, plant.sample_time, substeps)
-    _check_poses("simulate_robot", "pose0", pose0, (3,))
+    check_poses("simulate_robot", "pose0", pose0, (3,))
     return _simulate(controller, system, jnp.asarray(pose0, dtype=float), key, plant,
                      n_steps, int(substeps), bool(save))
 
@@ -453,7 +443,7 @@ def simulate_robot_grid(controllers: Sequence[AbstractController],
     keys = jnp.asarray(keys)
     C, S = len(controllers), len(systems)
     n_steps = sample_count("simulate_robot_grid", duration, plant.sample_time, substeps)
-    _check_poses("simulate_robot_grid", "poses0", poses0, (-1, 3))
+    check_poses("simulate_robot_grid", "poses0", poses0, (-1, 3))
     if not controllers or not systems:
         raise ValueError("simulate_robot_grid needs at least one controller and one system, "
                          f"got {len(controllers)} and {len(systems)}")

@@ -26,6 +26,16 @@ from .._checks import check_finite, check_nonnegative
 from .._fields import host_array_field
 
 
+def check_poses(owner: str, name: str, poses, shape, *, sep: str = ": ") -> None:
+    """Refuse poses that are not finite (x, y, gamma) rows of `shape` (-1: any length)."""
+    got = jnp.shape(poses)
+    if len(got) != len(shape) or any(s not in (-1, g) for s, g in zip(shape, got)):
+        want = "(3,)" if len(shape) == 1 else "(P, 3)"
+        raise ValueError(f"{owner}{sep}{name} must have shape {want}, (x [m], y [m], gamma "
+                         f"[rad]), got {got}")
+    check_finite(owner, name, poses)
+
+
 class Mission(eqx.Module):
     """An initial pose `pose0` [m, m, rad] and its Monte-Carlo `spread` (std per component)."""
 
@@ -35,10 +45,7 @@ class Mission(eqx.Module):
 
     def __check_init__(self):
         for name in ("pose0", "spread"):
-            if jnp.shape(getattr(self, name)) != (3,):
-                raise ValueError(f"Mission.{name} must have shape (3,), (x [m], y [m], gamma "
-                                 f"[rad]), got {jnp.shape(getattr(self, name))}")
-        check_finite("Mission", "pose0", self.pose0)
+            check_poses("Mission", name, getattr(self, name), (3,), sep=".")
         check_nonnegative("Mission", "spread", self.spread)
 
     def initial_poses(self, key: PRNGKeyArray, n: int) -> Float[Array, "n 3"]:
