@@ -244,3 +244,37 @@ def test_the_shipped_sample_reads_as_mf61_with_its_source_stated():
     assert "Project Chrono" in header and "BSD 3-Clause" in header
     params = MFParams.from_tir(tir)
     assert float(params.FNOMIN) == 3800.0 and float(params.version) == pytest.approx(6.1)
+
+
+def test_only_line_breaks_end_a_line_and_a_byte_order_mark_is_not_text(tmp_path):
+    """Lines end at \\n, \\r\\n or \\r: a latin-1 comment holding \\x85 (cp1252's ellipsis)
+    or a form feed stays one line, and the text round-trips; a UTF-8 byte order mark is
+    dropped; a UTF-16 file is refused as not text."""
+    text = SMALL.replace("! a small MF 6.1 file", "! a small\x85 MF 6.1\x0c file")
+    text = text.replace("$Magic Formula version number", "$Magic\x1cFormula version number")
+    assert format_tir(parse_tir(text)) == text
+    path = tmp_path / "odd.tir"
+    path.write_bytes(text.encode("latin-1"))
+    assert read_tir(path).version == "6.1"
+    path.write_bytes(b"\xef\xbb\xbf" + SMALL.encode("latin-1"))
+    assert read_tir(path).sections == parse_tir(SMALL).sections
+    path.write_bytes(SMALL.encode("utf-16"))
+    with pytest.raises(TirError, match="not a text file"):
+        read_tir(path)
+
+
+def test_a_fractional_version_and_a_word_for_a_slip_range_are_refused(tmp_path):
+    """FITTYP 6.1 is not version 6 (MF 5.2): it is refused, not truncated; the slip
+    ratio's range (KPUMIN, KPUMAX) must be numbers like every stated range."""
+    text = SMALL.replace("= 61 ", "= 6.1")
+    _refused(tmp_path, text, _line_of(text, "FITTYP"), "FITTYP", ["unknown Magic Formula "
+                                                                   "version", "6.1"])
+    text = SMALL.replace("[SLIP_ANGLE_RANGE]", "[LONG_SLIP_RANGE]\nKPUMIN = 'abc'\n"
+                         "KPUMAX = 1.5\n[SLIP_ANGLE_RANGE]")
+    _refused(tmp_path, text, _line_of(text, "KPUMIN"), "KPUMIN", ["must be a number", "abc"])
+
+
+def test_write_tir_refuses_what_is_not_a_property_file(tmp_path):
+    with pytest.raises(TypeError, match="write_tir.tir must be a TirFile, got str"):
+        write_tir(tmp_path / "a.tir", SMALL)
+    assert not (tmp_path / "a.tir").exists()

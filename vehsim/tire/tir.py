@@ -201,6 +201,11 @@ for _k in ("FREQ_LONG", "FREQ_LAT", "FREQ_YAW", "FREQ_WINDUP"):
 for _k in ("HMAX_LOCAL", "TIME_SWITCH_INTEG"):
     _DIMS[_k] = (0, 0, 0, 0, 1)
 
+_NUMERIC = set(_DIMS) | {k for pair in ORDERED_PAIRS for k in pair} | {
+    k for triple in WITHIN for k in triple}
+"""Keys whose value must be a number: the dimensional ones and those of the stated ranges
+(the slip ratio's ``KPUMIN``/``KPUMAX`` among them)."""
+
 _VERSIONS = {5: "5.2", 6: "5.2", 21: "5.2", 52: "5.2", 61: "6.1", 62: "6.2"}
 
 
@@ -431,7 +436,12 @@ def parse_tir(text: str, source: str = "<text>") -> TirFile:
     if not isinstance(text, str):
         raise TypeError(f"parse_tir needs the file's text (a str; read_tir reads a path), got "
                         f"{type(text).__name__}")
-    lines = text.splitlines()
+    # lines end at \n, \r\n or \r only (str.splitlines also splits at \x85, \x0b,
+    # \x0c and \x1c-\x1e, which a latin-1 file may hold in a comment); a leading byte
+    # order mark (an editor's UTF-8) is not text
+    lines = re.split(r"\r\n|\r|\n", text.removeprefix("\ufeff").removeprefix("\xef\xbb\xbf"))
+    if lines[-1] == "":  # the file's last newline ends its last line
+        lines.pop()
     preamble: list[str] = []
     sections: list[TirSection] = []
     current: tuple[str, int, str, list] | None = None
@@ -490,7 +500,8 @@ def _is_row(line: str) -> bool:
 def _version(tir: TirFile) -> str:
     e = tir.entry("FITTYP")
     if e is not None and e.value is not None:
-        if not isinstance(e.value, int | float) or int(e.value) not in _VERSIONS:
+        if (not isinstance(e.value, int | float) or not math.isfinite(e.value)
+                or e.value != int(e.value) or int(e.value) not in _VERSIONS):
             raise TirError(tir.source, e.line, "FITTYP",
                            f"unknown Magic Formula version {e.value!r} (known: 5, 6, 21, "
                            "52 for MF 5.2/PAC2002, 61 for MF 6.1, 62 for MF 6.2)")
@@ -524,7 +535,7 @@ def validate(tir: TirFile) -> None:
                            f"required by the MF {version} formulas but "
                            f"{'empty' if e is not None else 'missing'}")
     for name, e in tir.entries():
-        if name != "UNITS" and isinstance(e.value, str) and e.key.upper() in _DIMS:
+        if name != "UNITS" and isinstance(e.value, str) and e.key.upper() in _NUMERIC:
             raise TirError(tir.source, e.line, e.key, f"must be a number, got {e.value!r}")
     for key, (lo, hi, lo_open, hi_open, why) in RANGES.items():
         e = tir.entry(key)
@@ -590,15 +601,21 @@ def format_tir(tir: TirFile) -> str:
 def read_tir(path: str | os.PathLike) -> TirFile:
     """`parse_tir` of the file at `path` (messages name the file)."""
     path = Path(path)
-    return parse_tir(path.read_text(encoding="latin-1"), source=str(path))
+    data = path.read_bytes()
+    if b"\x00" in data:
+        raise TirError(str(path), None, None, "not a text file (it holds NUL bytes, as UTF-16 "
+                       "or binary files do): save it as ASCII, latin-1 or UTF-8 text")
+    return parse_tir(data.decode("latin-1"), source=str(path))
 
 
 def write_tir(path: str | os.PathLike, tir: TirFile) -> Path:
     """Write `format_tir(tir)` to `path` atomically (a temporary file, then a rename). A
     file that `read_tir` would refuse (a value outside its range, a required key missing)
     is refused first, with `read_tir`'s `TirError`, and nothing is written."""
+    from .._checks import check_type
     from .._io import write_atomic
 
+    check_type("write_tir", "tir", tir, TirFile)
     text = format_tir(tir)
     parse_tir(text, source=str(path))
     return write_atomic(path, text.encode("latin-1"))
