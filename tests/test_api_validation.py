@@ -156,6 +156,70 @@ def test_save_braking_refuses_what_load_braking_would_and_writes_nothing(tmp_pat
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(("name", "kw", "message"), [
+    ("run.json", {}, "run.json is the name of a side file; give the CSV's path"),
+    ("b.csv", {"digits": 2}, "save_braking: digits=2 round the record into one that "
+     "load_braking refuses (" ),
+    ("b.csv", {"digits": True}, "save_braking: digits must be an integer >= 1, got True"),
+    ("b.csv", {"digits": -1}, "save_braking: digits must be an integer >= 1, got -1"),
+    ("b.csv", {"metadata": {"r": -1, "units": 5}}, "save_braking: metadata may not set r, "
+     "units: the side file's wheel data and units come from the record"),
+], ids=["json-path", "ties", "bool-digits", "negative-digits", "reserved-metadata"])
+def test_save_braking_refuses_a_side_file_path_rounding_ties_and_reserved_metadata(
+        tmp_path, name, kw, message):
+    """What would lose the samples (a CSV written under the side file's name), write a
+    record `load_braking` refuses (times rounded into ties) or replace the checked wheel
+    data, is refused; nothing is written."""
+    with pytest.raises(ValueError) as err:
+        save_braking(_record(), tmp_path / name, **kw)
+    assert message in str(err.value), str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_csv_readers_take_old_mac_line_endings_and_name_an_unreadable_line(tmp_path):
+    """Lines ending in a lone \r (old Mac files) read as lines; a field past the csv
+    module's size limit is a ValueError naming the file and line, not `_csv.Error`."""
+    road = tmp_path / "r.csv"
+    road.write_bytes(b"x_m,y_m,w_tr_right_m,w_tr_left_m\r" + b"".join(
+        f"{5 * i},0,4,4\r".encode() for i in range(6)))
+    assert vs.read_road(road).length == pytest.approx(25.0, rel=1e-6)
+    src = next(iter(shipped_brakings().values()))
+    mac = tmp_path / "mac.csv"
+    mac.write_bytes(src.read_bytes().replace(b"\r\n", b"\n").replace(b"\n", b"\r"))
+    (tmp_path / "mac.json").write_bytes(src.with_suffix(".json").read_bytes())
+    np.testing.assert_array_equal(load_braking(mac).F_x, load_braking(src).F_x)
+    for path, head in ((road, "x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,4,4\n"),
+                       (mac, "t,v,omega,F_x,F_n\n")):
+        path.write_text(head + "1," + "9" * 200_000 + "\n")
+        reader = vs.read_road if path is road else load_braking
+        with pytest.raises(ValueError, match=rf"{path.name}:\d+: cannot read this line as CSV"):
+            reader(path)
+
+
+def test_a_side_file_number_past_the_double_range_is_refused_naming_the_key(tmp_path):
+    src = next(iter(shipped_brakings().values()))
+    (tmp_path / "b.csv").write_bytes(src.read_bytes())
+    (tmp_path / "b.json").write_text('{"r": 1' + "0" * 400 + "}")
+    with pytest.raises(ValueError, match=r"b.json: 'r' \[m\] must lie in \(0, 5\], got inf"):
+        load_braking(tmp_path / "b.csv")
+
+
+def test_load_result_names_a_json_file_that_is_not_utf8(tmp_path):
+    path = tmp_path / "b.json"
+    path.write_bytes(b"\xff\xfe{")
+    with pytest.raises(ValueError, match="b.json: not a JSON file vehsim wrote"):
+        vs.load_result(path)
+
+
+def test_write_road_refuses_what_read_road_could_not_read_back(tmp_path):
+    with pytest.raises(TypeError, match="write_road.road must be a CentrelineRoad, got str"):
+        vs.write_road(tmp_path / "r.csv", "notaroad")
+    road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 4.0, name="two\nlines")
+    with pytest.raises(ValueError, match="holds a line break"):
+        vs.write_road(tmp_path / "r.csv", road)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_save_braking_round_trips_the_pair(tmp_path):
     d = _record()
     save_braking(d, tmp_path / "b.csv", metadata={"source": "a test"})

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import csv
 import errno
+import io
 import json
 import math
 import os
@@ -91,6 +93,18 @@ def read_text(path: str | os.PathLike) -> str:
                          "save it as UTF-8 CSV") from None
     except OSError as e:  # a device error, no permission, ...: name the file
         raise ValueError(f"{path}: cannot read it ({e.strerror or e})") from None
+
+
+def csv_rows(path: str | os.PathLike) -> list[list[str]]:
+    """The rows of a CSV file (`read_text`): lines may end in ``\n``, ``\r\n`` or a lone
+    ``\r`` (old Mac files); what the `csv` module cannot read (a field past its size limit)
+    is refused naming the file and line."""
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    try:
+        return list(reader)
+    except csv.Error as e:
+        raise ValueError(f"{path}:{reader.line_num}: cannot read this line as CSV ({e})"
+                         ) from None
 
 
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> Path:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ._io import read_text
 from .labelled import units_of
 
 
@@ -130,8 +131,8 @@ def load_result(path: str | os.PathLike):
         raise FileNotFoundError(f"{path}: no such file")
     if suffix == ".json":
         try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
+            data = json.loads(read_text(path))
+        except (json.JSONDecodeError, ValueError) as e:  # JSON's errors; not UTF-8 text
             raise ValueError(f"{path}: not a JSON file vehsim wrote ({e})") from None
         return _arrays(data)
     if suffix == ".nc":

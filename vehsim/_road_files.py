@@ -10,15 +10,14 @@ docs/roads.md.
 
 from __future__ import annotations
 
-import csv
-import io
 import os
 import re
 from pathlib import Path
 
 import numpy as np
 
-from ._io import read_text, write_atomic
+from ._checks import check_type
+from ._io import csv_rows, write_atomic
 from .optimal.centreline import CentrelineRoad
 
 
@@ -51,8 +50,7 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
     path = Path(path)
     name = path.stem if name is None else name
     header, rows, lines = None, [], []
-    text = read_text(path)
-    for lineno, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
+    for lineno, fields in enumerate(csv_rows(path), start=1):
         if not fields or not "".join(fields).strip():
             continue
         if fields[0].lstrip().startswith("#"):
@@ -110,6 +108,10 @@ def write_road(path: str | os.PathLike, road: CentrelineRoad) -> Path:
     """Write ``road`` as a CSV file in the layout `read_road` reads (atomically): its centre
     line and widths at its knots (about every 0.5 m; a closed road's last knot, equal to the
     first, left out), to nanometres."""
+    check_type("write_road", "road", road, CentrelineRoad)
+    if any(c in road.name for c in "\r\n"):
+        raise ValueError(f"write_road: the road's name {road.name!r} holds a line break, "
+                         "which its header line cannot")
     s = road.knots[:-1] if road.closed else road.knots
     x, y = road.position(s)
     wr, wl = road.width_right(s), road.width_left(s)

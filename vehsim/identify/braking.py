@@ -23,8 +23,6 @@ file, the row (1-based data row; the header is row 0) and the column.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 from pathlib import Path
@@ -34,8 +32,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_finite, check_nonnegative, check_positive, is_concrete
-from .._io import json_text, read_text, write_atomic_files
+from .._checks import (
+    check_count,
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_type,
+    is_concrete,
+)
+from .._io import csv_rows, json_text, write_atomic_files
 
 
 REQUIRED_COLUMNS = ("t", "v", "omega", "F_x", "F_n")
@@ -133,12 +138,10 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
     """The `required` and present `optional` columns of the CSV, each value a finite number
     (in the columns `may_be_missing`, an empty field or ``nan`` reads as NaN: a missing
     sample)."""
-    reader = csv.reader(io.StringIO(read_text(path)))
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise ValueError(f"{path}: empty file (expected a header row)") from None
-    rows = list(reader)
+    rows = csv_rows(path)
+    if not rows:
+        raise ValueError(f"{path}: empty file (expected a header row)")
+    header, rows = [h.strip() for h in rows[0]], rows[1:]
     while rows and not rows[-1]:  # blank lines at the end of the file are not rows
         rows.pop()
     for col in required:
@@ -231,7 +234,10 @@ def read_side_file(path: str | Path) -> dict:
             continue
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ValueError(f"{side}: {key!r} must be a number, got {value!r}")
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer of hundreds of digits
+            x = math.inf
         if not (math.isfinite(x) and 0 < x <= upper):
             span = f"(0, {upper:g}]" if math.isfinite(upper) else "(0, inf)"
             raise ValueError(f"{side}: {key!r} [{UNITS[key]}] must lie in {span}, got {x:g}")
@@ -262,8 +268,19 @@ def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: 
     """Write `data` as CSV (``%.{digits}g``) plus its ``.json`` side file, both or neither,
     atomically. What `load_braking` would refuse (a NaN, time not increasing, a negative
     load, a radius outside its range, metadata that is not JSON) is refused before anything
-    is written."""
+    is written, as are `digits` that round the times into ties, `metadata` that would
+    replace the checked ``r``, ``m``, ``J`` or ``units``, and a `path` ending in ``.json``
+    (the side file's own name)."""
     path = Path(path)
+    check_type("save_braking", "data", data, BrakingData)
+    if path.suffix.lower() == ".json":
+        raise ValueError(f"save_braking: {path} is the name of a side file; give the CSV's "
+                         f"path ({path.with_suffix('.csv')}), its side file goes beside it")
+    check_count("save_braking", "digits", digits, sep=": ")
+    reserved = sorted({"r", "m", "J", "units"} & set(metadata or {}))
+    if reserved:
+        raise ValueError(f"save_braking: metadata may not set {', '.join(reserved)}: the side "
+                         "file's wheel data and units come from the record (checked); not saved")
     cols = list(REQUIRED_COLUMNS) + (["T_b"] if data.T_b is not None else [])
     values = {c: np.asarray(getattr(data, c), dtype=float) for c in cols}
     for c, a in values.items():
@@ -287,6 +304,11 @@ def save_braking(data: BrakingData, path, metadata: dict | None = None, digits: 
                          f"dicts): {e}; not saved") from None
     fmt = f"%.{digits}g"
     arrays = list(values.values())
+    try:  # what load_braking would read back
+        _check_columns(path, {c: np.char.mod(fmt, a).astype(float) for c, a in values.items()})
+    except ValueError as e:
+        raise ValueError(f"save_braking: digits={digits} round the record into one that "
+                         f"load_braking refuses ({e}); not saved") from None
     lines = [",".join(cols)] + [",".join(fmt % a[k] for a in arrays) for k in range(len(data))]
     write_atomic_files({path: "\n".join(lines) + "\n", path.with_suffix(".json"): side})
     return path
