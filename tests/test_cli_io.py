@@ -378,3 +378,24 @@ def test_a_command_in_process_leaves_the_callers_cache_settings(tmp_path, capsys
                      str(tmp_path / "out")])
     assert code == 2 and "w_tr_right_m must be > 0" in capsys.readouterr().err
     assert {name: getattr(jax.config, name) for name in CACHE_SETTINGS} == before
+
+
+@pytest.mark.parametrize("command", ["fit", "estimate"])
+def test_an_output_folder_that_would_replace_an_input_side_file_is_refused(command, tmp_path,
+                                                                           capsys):
+    """`vehsim estimate DIR/estimate.csv --out DIR` would write its results over the
+    record's side file (its wheel data): refused before any work, exit 2, the side file
+    untouched."""
+    from pathlib import Path
+
+    shipped = Path(_io.__file__).parent / "data" / "brakings" / "braking_1.csv"
+    record = tmp_path / f"{command}.csv"
+    record.write_bytes(shipped.read_bytes())
+    side = shipped.with_suffix(".json").read_bytes()
+    record.with_suffix(".json").write_bytes(side)
+    assert cli.main([command, str(record), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"writing {command}.json in {str(tmp_path)!r} would replace the side file of" in err
+    assert "Traceback" not in err, err
+    assert record.with_suffix(".json").read_bytes() == side
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{command}.csv", f"{command}.json"]

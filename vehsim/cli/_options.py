@@ -102,6 +102,21 @@ def _refuse_empty(option: str, path) -> None:
         raise ValueError(f"{option}: an empty file name")
 
 
+def outputs_spare_inputs(folder, names, inputs) -> None:
+    """Refuse, before any work, an output folder where one of the command's files `names`
+    would replace one of its `inputs` (a braking CSV) or an input's side file (``NAME.json``
+    beside ``NAME.csv``): ``vehsim estimate DIR/estimate.csv --out DIR`` would overwrite the
+    record's wheel data with its results."""
+    for name in names:
+        target = (Path(folder) / name).resolve()
+        for f in inputs:
+            f = Path(f).resolve()
+            if target in (f, f.with_suffix(".json")):
+                raise ValueError(f"--out: writing {name} in {str(folder)!r} would replace "
+                                 f"{'the input' if target == f else 'the side file of'} "
+                                 f"{str(f)!r}; give another output folder")
+
+
 def writable_output(option: str, path, kind: str) -> None:
     """Refuse, naming `option`, an output `path` that cannot be written, before any work:
     a `kind` 'folder' that exists as a file, a 'file' that exists as a folder, or one whose

@@ -275,6 +275,9 @@ def _estimate(args) -> int:
     args.window = args.window or 20
     args.starts = args.starts or 3
     tire, (lo, hi) = _assumed_tire(args)
+    from ._options import outputs_spare_inputs
+
+    outputs_spare_inputs(args.out, ("estimate.json", "estimate.png"), [args.data])
     record, extras = read_recorded_braking(args.data)
 
     import numpy as np

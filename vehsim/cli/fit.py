@@ -65,7 +65,9 @@ def _fit(args) -> int:
     from ..identify.parameters import UNITS as PARAMETER_UNITS
     from ..plot import force_histories_figure
     from ..reproduce.identify import VARIANTS, identify
+    from ._options import outputs_spare_inputs
 
+    outputs_spare_inputs(args.out, ("fit.json", "fit.png"), args.data + args.validate)
     train = [load_braking(f, r=args.radius) for f in args.data]
     validate = [load_braking(f, r=args.radius) for f in args.validate]
     if args.closed_loop:  # before anything is compiled
