@@ -4,6 +4,7 @@ would spend its step budget, report success on nothing, or return NaN."""
 
 import dataclasses
 import functools
+import re
 
 import equinox as eqx
 import jax
@@ -209,6 +210,19 @@ def test_load_result_names_a_json_file_that_is_not_utf8(tmp_path):
     path.write_bytes(b"\xff\xfe{")
     with pytest.raises(ValueError, match="b.json: not a JSON file vehsim wrote"):
         vs.load_result(path)
+
+
+def test_reader_options_of_the_wrong_kind_are_refused(tmp_path):
+    """`closed="no"` would read as a closed road, ``r=True`` as a 1 m wheel."""
+    road = tmp_path / "r.csv"
+    vs.write_road(road, _road())
+    for kw, message in (({"closed": "no"}, "read_road: closed must be True or False"),
+                        ({"smoothing": "abc"}, "read_road: smoothing [m] must be a number")):
+        with pytest.raises(TypeError, match=re.escape(message)):
+            vs.read_road(road, **kw)
+    assert vs.read_road(road, closed=np.bool_(False), smoothing=np.float64(0.0)).length > 0
+    with pytest.raises(ValueError, match="load_braking: r must be a number, got True"):
+        load_braking(next(iter(shipped_brakings().values())), r=True)
 
 
 def test_write_road_refuses_what_read_road_could_not_read_back(tmp_path):

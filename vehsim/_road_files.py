@@ -47,6 +47,10 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
     row with too few fields or a value that is not a number, and the checks of
     `CentrelineRoad.from_points` (its rows given as the file's lines).
     """
+    if not isinstance(closed, bool | np.bool_):  # "no" would read as a closed road
+        raise TypeError(f"read_road: closed must be True or False, got {closed!r}")
+    if isinstance(smoothing, bool) or not isinstance(smoothing, int | float | np.number):
+        raise TypeError(f"read_road: smoothing [m] must be a number, got {smoothing!r}")
     path = Path(path)
     name = path.stem if name is None else name
     header, rows, lines = None, [], []

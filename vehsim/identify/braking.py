@@ -250,6 +250,8 @@ def _read_wheel_data(path: Path, r: float | None) -> dict:
     side = path.with_suffix(".json")
     meta = read_side_file(path)  # its values checked there
     if r is not None:
+        if isinstance(r, bool):  # float(True) is a 1 m wheel
+            raise ValueError(f"load_braking: r must be a number, got {r!r}")
         try:
             meta["r"] = float(r)
         except (TypeError, ValueError):
