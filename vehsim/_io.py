@@ -96,7 +96,7 @@ def read_text(path: str | os.PathLike) -> str:
 
 
 def csv_rows(path: str | os.PathLike) -> list[list[str]]:
-    """The rows of a CSV file (`read_text`): lines may end in ``\n``, ``\r\n`` or a lone
+    r"""The rows of a CSV file (`read_text`): lines may end in ``\n``, ``\r\n`` or a lone
     ``\r`` (old Mac files); what the `csv` module cannot read (a field past its size limit)
     is refused naming the file and line."""
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
