@@ -786,8 +786,18 @@ def test_sharded_vmap_refuses_what_is_not_a_function():
 def test_write_tir_refuses_what_read_tir_would_and_writes_nothing(tmp_path):
     tir = vs.read_tir(next(iter(vs.shipped_tires().values())))
     out = tmp_path / "bad.tir"
+    with pytest.raises(vs.TirError, match="FNOMIN"):  # replace reads its result again
+        tir.replace(FNOMIN=-5.0)
+    # a TirFile changed behind replace's back (its entry's text edited)
+    sec = next(s for s in tir.sections if "FNOMIN" in s.entries)
+    e = sec.entries["FNOMIN"]
+    bad_entry = dataclasses.replace(e, value=-5.0, text=e.text.replace(str(e.value), "-5.0"))
+    bad_sec = dataclasses.replace(sec, items=tuple(bad_entry if it is e else it
+                                                   for it in sec.items))
+    bad = dataclasses.replace(tir, sections=tuple(bad_sec if s is sec else s
+                                                  for s in tir.sections))
     with pytest.raises(vs.TirError, match="FNOMIN"):
-        vs.write_tir(out, tir.replace(FNOMIN=-5.0))
+        vs.write_tir(out, bad)
     assert not out.exists()
     vs.write_tir(out, tir)
     assert vs.read_tir(out).get("FNOMIN") == tir.get("FNOMIN")

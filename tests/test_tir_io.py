@@ -278,3 +278,42 @@ def test_write_tir_refuses_what_is_not_a_property_file(tmp_path):
     with pytest.raises(TypeError, match="write_tir.tir must be a TirFile, got str"):
         write_tir(tmp_path / "a.tir", SMALL)
     assert not (tmp_path / "a.tir").exists()
+
+
+def test_a_key_in_two_sections_must_have_one_value_and_units_are_given_once(tmp_path):
+    """Readers differ in which of two entries they take (the first here, the last in
+    others), so a key in two sections with different values is refused; the same value
+    twice is kept. A second [UNITS] would be ignored by every lookup, so it is refused."""
+    text = SMALL.replace("[MODEL]\n", "[MODEL]\nFNOMIN = 3000\n")
+    _refused(tmp_path, text, _line_of(text, "FNOMIN                   = 4000"), "FNOMIN",
+             ["4000 here, in [VERTICAL]", "3000 in [MODEL] on line 10", "one value"])
+    same = parse_tir(SMALL.replace("[MODEL]\n", "[MODEL]\nFNOMIN = 4000.0\n"))
+    assert same.get("FNOMIN") == 4000.0
+    # replace changes every entry of the key, so the copy stays readable
+    changed = same.replace(FNOMIN=3500)
+    assert [e.value for _, e in changed.entries() if e.key == "FNOMIN"] == [3500, 3500]
+    text = SMALL.replace("[MODEL]\n", "[UNITS]\nLENGTH = 'mm'\n[MODEL]\n")
+    _refused(tmp_path, text, _line_of(text, "[MODEL]") - 2, None,
+             ["a second [UNITS] section", "first is on line 3"])
+
+
+def test_replace_puts_a_new_key_in_its_home_section_and_refuses_bad_values():
+    """MASS is both a unit's name in [UNITS] and the tyre's mass in [INERTIA]: a new MASS
+    goes to [INERTIA], where `get` finds it. The copy is read again from its text: its line
+    numbers are the written file's, and a value outside its range is refused there."""
+    tir = parse_tir(SMALL)
+    heavy = tir.replace(MASS=9.3)
+    assert heavy.get("MASS") == 9.3 and heavy.units["MASS"] == "kg"
+    assert heavy.section("INERTIA").entries["MASS"].line == len(SMALL.splitlines()) + 2
+    assert heavy.section("UNITS") == tir.section("UNITS")
+    with pytest.raises(TirError, match="PCY1: -1.0 is outside its stated range"):
+        tir.replace(PCY1=-1.0)
+    with pytest.raises(TypeError, match="replace: PDY1 must be a number, a string or None, "
+                                        "got bool"):
+        tir.replace(PDY1=True)
+    with pytest.raises(ValueError, match="replace: PDY1 must be finite, got nan"):
+        tir.replace(PDY1=math.nan)
+    with pytest.raises(ValueError, match="TYRESIDE's string 'LEFT\\\\nX' holds a line break"):
+        tir.replace(TYRESIDE="LEFT\nX")
+    with pytest.raises(ValueError, match="'1PDY' is not a key name"):
+        tir.replace(**{"1PDY": 1.0})

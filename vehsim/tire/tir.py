@@ -24,9 +24,10 @@ means MF 5.2. Anything else is refused.
 
 **Checks** (all raise `TirError` naming the file, the line and the key): a line that is
 neither a section, a key, a comment nor a row of a table section; a key given twice in a
-section; a unit or formula version this module does not know; a missing required key
-(`REQUIRED`); a value outside its stated range (`RANGES`: the ranges the Magic Formula
-states for its factors, e.g. the shape factors $C > 0$, and the file's own ranges:
+section, or in two sections with different values; a second ``[UNITS]``; a unit or
+formula version this module does not know; a missing required key (`REQUIRED`); a value
+outside its stated range (`RANGES`: the ranges the Magic Formula states for its factors,
+e.g. the shape factors $C > 0$, and the file's own ranges:
 ``FZMIN <= FNOMIN <= FZMAX``, ``PRESMIN <= INFLPRES, NOMPRES <= PRESMAX``, each minimum
 below its maximum). Keys this module does not know are kept, written back, and listed in
 `TirFile.unknown_keys`.
@@ -357,18 +358,38 @@ class TirFile:
 
     # -- changing values
     def replace(self, **values: Value) -> TirFile:
-        """A copy with the named keys set (in the units of the file); a key not present is
-        appended to the section `KNOWN_KEYS` puts it in (created at the end if needed)."""
+        """A copy with the named keys set (in the units of the file): every entry of a key
+        outside ``[UNITS]`` is changed, and a key not present is appended to the section
+        `KNOWN_KEYS` puts it in (``[INERTIA]`` for ``MASS``; created at the end if needed).
+
+        A value is a number, a string on one line, or None (present but empty). The copy is
+        read again from its text, so its line numbers are those of the written file and a
+        value outside its range raises `read_tir`'s `TirError`.
+        """
+        for key, value in values.items():
+            if not _KEY_NAME.fullmatch(key):
+                raise ValueError(f"TirFile.replace: {key!r} is not a key name (letters, "
+                                 "digits and _, not starting with a digit)")
+            if isinstance(value, bool) or not isinstance(value, int | float | str | None):
+                raise TypeError(f"TirFile.replace: {key} must be a number, a string or None, "
+                                f"got {type(value).__name__}")
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"TirFile.replace: {key} must be finite, got {value}")
+            if isinstance(value, str) and re.search(r"[\r\n]", value):
+                raise ValueError(f"TirFile.replace: {key}'s string {value!r} holds a line "
+                                 "break")
         sections = list(self.sections)
         for key, value in values.items():
             key_u = key.upper()
+            found = False
             for i, sec in enumerate(sections):
                 e = sec.entries.get(key_u)
                 if e is not None and sec.name != "UNITS":
                     sections[i] = _replace_entry(sec, e, value)
-                    break
-            else:
-                home = next((s for s, keys in KNOWN_KEYS.items() if key_u in keys), "USER")
+                    found = True
+            if not found:
+                home = next((s for s, keys in KNOWN_KEYS.items()
+                             if key_u in keys and s != "UNITS"), "USER")
                 new = TirEntry(key_u, value, "", 0, _entry_line(key_u, value, ""))
                 i = next((i for i, s in enumerate(sections) if s.name == home), None)
                 if i is None:
@@ -376,7 +397,8 @@ class TirFile:
                 else:
                     sections[i] = dataclasses.replace(sections[i],
                                                       items=sections[i].items + (new,))
-        return dataclasses.replace(self, sections=tuple(sections))
+        changed = dataclasses.replace(self, sections=tuple(sections))
+        return parse_tir(format_tir(changed), source=self.source)
 
 
 def _replace_entry(sec: TirSection, e: TirEntry, value: Value) -> TirSection:
@@ -388,6 +410,7 @@ def _replace_entry(sec: TirSection, e: TirEntry, value: Value) -> TirSection:
 
 _SECTION = re.compile(r"^\s*\[\s*([A-Za-z0-9_ ]+?)\s*\]\s*(?:[$!].*)?$")
 _KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(.*)$")
+_KEY_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eEdD][+-]?\d+)?$")
 
 
@@ -446,6 +469,7 @@ def parse_tir(text: str, source: str = "<text>") -> TirFile:
     sections: list[TirSection] = []
     current: tuple[str, int, str, list] | None = None
     seen: dict[tuple[str, str], int] = {}  # (section, KEY) -> line
+    values: dict[str, tuple] = {}  # KEY -> (section, line, value, text) where first given
 
     def close():
         if current is not None:
@@ -457,6 +481,10 @@ def parse_tir(text: str, source: str = "<text>") -> TirFile:
         if m:
             close()
             name = re.sub(r"\s+", "_", m.group(1).strip()).upper()
+            if name == "UNITS" and any(sec.name == "UNITS" for sec in sections):
+                raise TirError(source, n, None, "a second [UNITS] section (the first is on "
+                               f"line {next(s.line for s in sections if s.name == 'UNITS')}): "
+                               "one set of units applies to the whole file")
             current = (name, n, raw, [])
             continue
         if not raw.strip() or _is_comment(raw):
@@ -477,6 +505,14 @@ def parse_tir(text: str, source: str = "<text>") -> TirFile:
                 raise TirError(source, n, key, f"given twice in section [{name}] (first "
                                                f"on line {seen[name, key.upper()]})")
             seen[name, key.upper()] = n
+            first = values.get(key.upper())
+            if name != "UNITS" and first is not None and first[2] != value:
+                raise TirError(source, n, key,
+                               f"{value_text or 'empty'} here, in [{name}], but "
+                               f"{first[3] or 'empty'} in [{first[0]}] on line {first[1]}: "
+                               "a key given in two sections must have one value")
+            if name != "UNITS" and first is None:
+                values[key.upper()] = (name, n, value, value_text)
             items.append(TirEntry(key, value, comment, n, raw))
             continue
         if name in TABLE_SECTIONS or _is_row(raw):
