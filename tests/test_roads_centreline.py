@@ -351,6 +351,8 @@ def test_an_unclosed_closed_road_is_refused():
     ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1,1\n2,zero,1,1\n",
      r"bad.csv:4: y_m is not a number: 'zero'"),
     ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1\n", r"bad.csv:3: 3 fields"),
+    ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,5,0,1,1\n",
+     r"bad.csv:3: 5 fields, the header names 4 \(a decimal comma\?"),
     ("# c\nx_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1,1\n2,0,1,-1\n3,0,1,1\n",
      r"bad.csv: road 'bad': line 5, w_tr_left_m must be > 0 m"),
     ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1,1\n\n1,0,1,1\n3,0,1,1\n",
@@ -363,6 +365,16 @@ def test_bad_files_are_refused_naming_the_line(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(ValueError, match=match):
         read_road(path)
+
+
+def test_empty_trailing_fields_are_read(tmp_path):
+    """A spreadsheet's trailing commas are no extra data: the road reads as without them."""
+    rows = "".join(f"{2 * i},0,1,1{',' if i % 2 else ',,'}\n" for i in range(4))
+    text = "x_m,y_m,w_tr_right_m,w_tr_left_m\n" + rows
+    path = tmp_path / "trailing.csv"
+    path.write_text(text)
+    road = read_road(path)
+    assert road.length == pytest.approx(6.0)
 
 
 def test_the_shipped_circuit_loads_closed_with_its_published_length():

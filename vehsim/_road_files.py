@@ -4,8 +4,8 @@ circuits.
 The layout (TUMFTM racetrack-database): one row per centre-line point, columns ``x_m``,
 ``y_m`` (position [m]), ``w_tr_right_m``, ``w_tr_left_m`` (widths [m] from the centre line to
 the right and left edges), named by a header line, either a comment (``# x_m,y_m,...``) or a
-plain first line. Other ``#`` lines are comments; extra columns are ignored. See
-docs/roads.md.
+plain first line. Other ``#`` lines are comments; extra named columns are ignored, and a
+row with more fields than the header names is refused. See docs/roads.md.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
     - `smoothing`: as `CentrelineRoad.from_points` [m].
 
     **Raises:** `ValueError` naming the file and line for: no header, a missing column, a
-    row with too few fields or a value that is not a number, and the checks of
+    row with fewer fields than the header names or more (empty trailing fields aside), a value that is not a number, and the checks of
     `CentrelineRoad.from_points` (its rows given as the file's lines).
     """
     if not isinstance(closed, bool | np.bool_):  # "no" would read as a closed road
@@ -82,6 +82,9 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
         if len(fields) < len(header):
             raise ValueError(f"{path}:{lineno}: {len(fields)} fields, the header names "
                              f"{len(header)}")
+        if any(f.strip() for f in fields[len(header):]):  # 1,5 read as two numbers
+            raise ValueError(f"{path}:{lineno}: {len(fields)} fields, the header names "
+                             f"{len(header)} (a decimal comma? the decimal mark is '.')")
         row = []
         for col in COLUMNS:
             field = fields[header.index(col)].strip()
