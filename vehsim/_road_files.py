@@ -44,8 +44,9 @@ def read_road(path: str | os.PathLike, *, closed: bool = False, name: str | None
     - `smoothing`: as `CentrelineRoad.from_points` [m].
 
     **Raises:** `ValueError` naming the file and line for: no header, a missing column, a
-    row with fewer fields than the header names or more (empty trailing fields aside), a value that is not a number, and the checks of
-    `CentrelineRoad.from_points` (its rows given as the file's lines).
+    row with fewer fields than the header names or more (empty trailing fields aside), a
+    value that is not a number, and the checks of `CentrelineRoad.from_points` (its rows
+    given as the file's lines).
     """
     if not isinstance(closed, bool | np.bool_):  # "no" would read as a closed road
         raise TypeError(f"read_road: closed must be True or False, got {closed!r}")

@@ -481,10 +481,10 @@ def parse_tir(text: str, source: str = "<text>") -> TirFile:
         if m:
             close()
             name = re.sub(r"\s+", "_", m.group(1).strip()).upper()
-            if name == "UNITS" and any(sec.name == "UNITS" for sec in sections):
-                raise TirError(source, n, None, "a second [UNITS] section (the first is on "
-                               f"line {next(s.line for s in sections if s.name == 'UNITS')}): "
-                               "one set of units applies to the whole file")
+            units_line = next((s.line for s in sections if s.name == "UNITS"), None)
+            if name == "UNITS" and units_line is not None:
+                raise TirError(source, n, None, f"a second [UNITS] section (the first is on "
+                               f"line {units_line}): one set of units applies to the whole file")
             current = (name, n, raw, [])
             continue
         if not raw.strip() or _is_comment(raw):
