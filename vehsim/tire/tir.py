@@ -409,8 +409,8 @@ def _replace_entry(sec: TirSection, e: TirEntry, value: Value) -> TirSection:
 # --- parsing -------------------------------------------------------------------------------
 
 _SECTION = re.compile(r"^\s*\[\s*([A-Za-z0-9_ ]+?)\s*\]\s*(?:[$!].*)?$")
-_KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(.*)$")
 _KEY_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_KEY = re.compile(rf"^\s*({_KEY_NAME.pattern})\s*=\s*(.*)$")
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eEdD][+-]?\d+)?$")
 
 
