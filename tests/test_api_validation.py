@@ -783,6 +783,19 @@ def test_sharded_vmap_refuses_what_is_not_a_function():
         vs.sharded_vmap(3)
 
 
+def test_close_times_that_float32_rounds_into_one_say_so(tmp_path):
+    """With x64 off, times 10 microseconds apart at 1000 s round into one float32: the
+    record is refused naming float32 and the switch; in float64 it reads."""
+    path = tmp_path / "close.csv"
+    path.write_text("t,v,omega,F_x,F_n\n" + "".join(
+        f"{1000 + i * 1e-5:.5f},20,60,-100,3000\n" for i in range(5)))
+    assert len(vs.load_braking(path, r=0.3).t) == 5
+    with jax.enable_x64(False):
+        with pytest.raises(ValueError, match=r"BrakingData.t must increase strictly, got "
+                           r"1000 after 1000 \(index 1\): in float32, .*jax_enable_x64"):
+            vs.load_braking(path, r=0.3)
+
+
 def test_write_tir_refuses_what_read_tir_would_and_writes_nothing(tmp_path):
     tir = vs.read_tir(next(iter(vs.shipped_tires().values())))
     out = tmp_path / "bad.tir"

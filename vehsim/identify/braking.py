@@ -85,8 +85,12 @@ class BrakingData(eqx.Module):
                 check_nonnegative("BrakingData", column, getattr(self, column))
         if is_concrete(self.t) and np.any(np.diff(np.asarray(self.t)) <= 0):
             i = int(np.argmax(np.diff(np.asarray(self.t)) <= 0)) + 1
-            raise ValueError(f"BrakingData.t must increase strictly, got {float(self.t[i]):g} "
-                             f"after {float(self.t[i - 1]):g} (index {i})")
+            single = np.asarray(self.t).dtype == np.float32
+            raise ValueError(f"BrakingData.t must increase strictly, got {float(self.t[i]):.9g} "
+                             f"after {float(self.t[i - 1]):.9g} (index {i})"
+                             + (": in float32, times this close round into one; call "
+                                "jax.config.update('jax_enable_x64', True) first"
+                                if single else ""))
         check_positive("BrakingData", "r", self.r)
         for name in ("m", "J"):
             if getattr(self, name) is not None:
