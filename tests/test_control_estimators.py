@@ -361,24 +361,25 @@ def test_observer_exact_derivatives_at_a_locked_wheel():
     derivative (Jacobians held constant) is off the central differences by up to 3.6 % of
     an output's largest derivative there (measured); ``exact_derivatives=True`` gives the
     exact one, in both modes (reverse mode as one gradient of a weighted sum: its program
-    is the costly one to compile)."""
+    is the costly one to compile). The measurement's time enters after the steps: its
+    derivative is exact in both."""
     scenario, observer = braking_scenario("dry_asphalt", 30.0)
     car = scenario.car
     st0 = observer.init(jnp.asarray(0.0), jnp.asarray(30.0))
     exact = dataclasses.replace(observer, exact_derivatives=True)
 
-    def flat(p, ob=exact):  # p = (target torque [kN m], log theta, wheel speed [rad/s])
-        st = eqx.tree_at(lambda s: (s.log_theta, s.omega), st0, (p[1], p[2]))
-        out = ob.update(st, car, HARDWARE, 8, jnp.asarray(29.9), jnp.asarray(0.0), 0.0025,
-                        True, 2000.0, 1000.0 * p[0], 0.0)
+    def flat(p, ob=exact):  # p = (target torque [kN m], log theta, wheel speed [rad/s],
+        st = eqx.tree_at(lambda s: (s.log_theta, s.omega), st0, (p[1], p[2]))  # stamp [ms])
+        out = ob.update(st, car, HARDWARE, 8, jnp.asarray(29.9), jnp.asarray(0.0),
+                        1e-3 * p[3], True, 2000.0, 1000.0 * p[0], 0.0)
         return jnp.concatenate([jnp.atleast_1d(a) for a in jax.tree_util.tree_leaves(out)])
 
-    p = jnp.array([3.0, float(st0.log_theta), 0.0])
-    f, h = eqx.filter_jit(flat), np.array([1e-4, 1e-5, 1e-4])
+    p = jnp.array([3.0, float(st0.log_theta), 0.0, 2.5])
+    f, h = eqx.filter_jit(flat), np.array([1e-4, 1e-5, 1e-4, 1e-4])
     np.testing.assert_allclose(np.asarray(f(p)), np.asarray(eqx.filter_jit(flat)(p, observer)),
                                rtol=1e-14)  # the same values
     cd = np.stack([(np.asarray(f(p + h[i] * e)) - np.asarray(f(p - h[i] * e))) / (2 * h[i])
-                   for i, e in enumerate(np.eye(3))], axis=-1)
+                   for i, e in enumerate(np.eye(4))], axis=-1)
     scale = np.max(np.abs(cd), axis=1, keepdims=True) + 1e-12
     w = jnp.asarray(1.0 / scale[:, 0])
     fwd, rev = eqx.filter_jit(lambda p: (jax.jacfwd(flat)(p),
@@ -386,3 +387,7 @@ def test_observer_exact_derivatives_at_a_locked_wheel():
     np.testing.assert_allclose(np.asarray(fwd) / scale, cd / scale, atol=1e-6)
     np.testing.assert_allclose(np.asarray(rev), np.asarray(w) @ cd,
                                atol=1e-6 * np.max(np.abs(np.asarray(w) @ cd)))
+    frozen = np.asarray(eqx.filter_jit(jax.jacfwd(lambda q: flat(q, observer)))(p)) / scale
+    err = np.max(np.abs(frozen - cd / scale), axis=0)
+    assert np.max(np.abs(cd[:, 3])) > 1.0 and err[3] < 1e-6  # the stamp's: exact
+    assert 1e-3 < np.max(err[:3]) < 0.04  # the steps': frozen

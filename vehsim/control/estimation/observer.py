@@ -111,9 +111,11 @@ class FrictionObserver(AbstractFrictionEstimator):
     constant, as the plant's does: reverse mode then differentiates the tire model twice,
     not three times. That costs $10^{-4}$ to $9\times10^{-4}$ of each output's largest
     derivative in ordinary braking, but up to 4 % at a locked wheel, where the Jacobian
-    changes fastest. `exact_derivatives=True` differentiates the Jacobians too: the
-    update's derivative is then the exact one (to $10^{-8}$ of the central differences at
-    a locked wheel), with a larger program to compile.
+    changes fastest. The measurement's time stamp enters after the steps (the
+    interpolation to it): its derivative is exact either way, however stiff the wheel.
+    `exact_derivatives=True` differentiates the Jacobians too: the update's derivative is
+    then the exact one (to $10^{-8}$ of the central differences at a locked wheel), with a
+    larger program to compile.
     """
 
     model: AbstractRoadParametrisation = eqx.field(converter=as_parametrisation)
@@ -250,6 +252,9 @@ def _predict_along(observer, car, hardware, torque0, target, t0, stamp, x, d, *,
     return jax.jvp(predict, (x,), (d,))
 
 
+_STAMP = 6  # the position of `stamp` among `_predict_sensitivity`'s arguments
+
+
 @eqx.filter_custom_jvp
 def _predict_sensitivity(observer, car, hardware, torque0, target, t0, stamp, x, d, *, substeps,
                          unravel):
@@ -265,11 +270,23 @@ def _predict_sensitivity_jvp(primals, tangents, *, substeps, unravel):
     # derivative, `advance`): differentiating the Jacobian inside the sensitivity is a third
     # derivative of the tire model, most of the reverse-mode program for a change of the
     # derivative of the order of the steps' local error
-    out = _predict_sensitivity(*primals, substeps=substeps, unravel=unravel)
-    tangents = jax.tree_util.tree_map(
+    tangents = list(jax.tree_util.tree_map(
         lambda p, t: jnp.zeros_like(p) if t is None and eqx.is_inexact_array(p) else t,
-        primals, tangents, is_leaf=lambda a: a is None)
-    _, t_out = eqx.filter_jvp(
+        primals, tangents, is_leaf=lambda a: a is None))
+    # the measurement's time enters only the interpolation after the steps (`hermite`):
+    # its derivative is taken exactly, at no cost in the steps (through the frozen steps it
+    # would carry their error, times the wheel's stiff rate at a locked wheel)
+    stamp = jnp.asarray(primals[_STAMP], dtype=float)
+    stamp_tangent = jnp.zeros_like(stamp) if tangents[_STAMP] is None else tangents[_STAMP]
+    tangents[_STAMP] = jax.tree_util.tree_map(jnp.zeros_like, tangents[_STAMP])
+
+    def of_stamp(stamp):
+        p = list(primals)
+        p[_STAMP] = stamp
+        return _predict_along(*p, substeps=substeps, unravel=unravel, frozen_jacobian=False)
+
+    out, t_stamp = jax.jvp(of_stamp, (stamp,), (stamp_tangent,))
+    _, t_steps = eqx.filter_jvp(
         lambda *p: _predict_along(*p, substeps=substeps, unravel=unravel, frozen_jacobian=True),
-        primals, tangents)
-    return out, t_out
+        tuple(primals), tuple(tangents))
+    return out, jax.tree_util.tree_map(jnp.add, t_steps, t_stamp)
