@@ -50,6 +50,17 @@ $10^{-5}$-$10^{-3}$ m) or their moments: it keeps their error near `RTOL` relati
 MAX_STEPS = 100_000
 """Default step budget of every solve."""
 
+EQUILIBRIUM_DTMAX = 0.01
+r"""The largest step [s] of the quarter car's and a tire's adaptive solves
+(`simulate_quarter_car`, `simulate_tire`). The step-size control sees the motion's error,
+not its derivative's. From an exact equilibrium (a wheel at standstill, free rolling at
+zero slip) the motion's error is zero and the steps would lengthen without bound, while a
+derivative excites the tire's and the wheel's dynamics there: through steps of a third of
+a second the derivative of a braked quarter car at standstill was off the central
+differences by 2 to 3 times its largest entry, and a tire's at zero slip by 15 %. Steps of
+at most 10 ms resolve those dynamics (to 1e-4 and 1e-6) and cost a few steps where the
+solve would take fewer. `simulate` keeps no ceiling by default (docs/differentiating.md)."""
+
 
 def integrate(
     vector_field: Callable | dfx.AbstractTerm,
@@ -67,6 +78,7 @@ def integrate(
     step_ts=None,
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
     max_steps: int = MAX_STEPS,
+    dtmax: float | None = None,
     adjoint: dfx.AbstractAdjoint | None = None,
     saveat: dfx.SaveAt | None = None,
     throw: bool = True,
@@ -91,6 +103,7 @@ def integrate(
       an adaptive one is clipped to `jump_ts` and `step_ts` all the same (a
       `ConstantStepSize` is not: its steps land where they fall).
     - `max_steps`: the step budget.
+    - `dtmax`: the largest step of the default `PIDController` (default: none).
     - `adjoint`: a diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `saveat`: replaces ``SaveAt(ts=ts)`` (dense output, every step, a save function).
     - `throw`: raise if the solve fails; with ``throw=False`` check ``.result``.
@@ -99,9 +112,9 @@ def integrate(
     **Returns:** the diffrax `Solution`, its `result` a `vehsim.RESULTS` item.
     """
     check_solver_settings("integrate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
-                          jump_ts=jump_ts, step_ts=step_ts)
+                          jump_ts=jump_ts, step_ts=step_ts, dtmax=dtmax)
     if stepsize_controller is None:
-        stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol)
+        stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
     if (jump_ts is not None or step_ts is not None) and isinstance(
             stepsize_controller, dfx.AbstractAdaptiveStepSizeController):
         stepsize_controller = dfx.ClipStepSizeController(
@@ -122,10 +135,11 @@ def integrate(
 
 
 def check_solver_settings(owner: str, *, rtol=None, atol=None, max_steps=None,
-                          dt0=None, jump_ts=None, step_ts=None) -> None:
-    """Refuse settings no solve can use (concrete values only; None: not given): `rtol` and
-    `atol` > 0, `max_steps` an integer >= 1, `dt0` > 0, `jump_ts` and `step_ts` finite."""
-    for name, value in (("rtol", rtol), ("atol", atol), ("dt0", dt0)):
+                          dt0=None, jump_ts=None, step_ts=None, dtmax=None) -> None:
+    """Refuse settings no solve can use (concrete values only; None: not given): `rtol`,
+    `atol`, `dt0` and `dtmax` > 0, `max_steps` an integer >= 1, `jump_ts` and `step_ts`
+    finite."""
+    for name, value in (("rtol", rtol), ("atol", atol), ("dt0", dt0), ("dtmax", dtmax)):
         if value is not None:
             check_positive(owner, name, value)
     if max_steps is not None:

@@ -24,6 +24,7 @@ from .._checks import (
 )
 from .._integrate import (
     DEFLECTION_ATOL,
+    EQUILIBRIUM_DTMAX,
     MAX_STEPS,
     RTOL,
     check_solver_settings,
@@ -103,6 +104,7 @@ def simulate_tire(
     rtol: float = RTOL,
     atol: float = DEFLECTION_ATOL,
     max_steps: int = MAX_STEPS,
+    dtmax: float | None = EQUILIBRIUM_DTMAX,
     adjoint: dfx.AbstractAdjoint | None = None,
     throw: bool = True,
 ) -> TireSolution:
@@ -125,12 +127,16 @@ def simulate_tire(
       at large slip, rates up to $\theta\sigma_0|v_r|/g \sim 10^4$ 1/s).
     - `rtol`, `atol` (default `DEFLECTION_ATOL`: the states are deflections),
       `max_steps`, `adjoint`: as in every vehsim solve (`vehsim._integrate`).
+    - `dtmax`: the largest step [s] (default `EQUILIBRIUM_DTMAX`, 10 ms: at zero slip or at
+      standstill the motion's error alone would lengthen the steps past what a derivative
+      needs; None: unbounded).
     - `throw`: raise if the solve fails; with `throw=False` check `result`.
 
     **Returns:** a `TireSolution`: `forces` $(F_x, F_y, M_z)$ and `mu` $= F_x/F_z$ at `ts`.
     """
     check_times("simulate_tire", ts)
-    check_solver_settings("simulate_tire", rtol=rtol, atol=atol, max_steps=max_steps)
+    check_solver_settings("simulate_tire", rtol=rtol, atol=atol, max_steps=max_steps,
+                          dtmax=dtmax)
     check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
     if not callable(r):
         check_positive("simulate_tire", "r", r)
@@ -170,7 +176,7 @@ def simulate_tire(
         vector_field, ts, y0,
         solver=dfx.Kvaerno5() if solver is None else solver,  # stiff: see the docstring
         rtol=rtol, atol=atol, jump_ts=_sampled_jumps(ts, vx, vy, omega, Fz),
-        max_steps=max_steps, adjoint=adjoint, throw=throw,
+        max_steps=max_steps, dtmax=dtmax, adjoint=adjoint, throw=throw,
     )
     forces = jax.vmap(force_at)(ts, sol.ys)
     return TireSolution(ts=ts, state=sol.ys, forces=forces, inputs=inputs_at(ts, signals),

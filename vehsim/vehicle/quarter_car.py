@@ -34,6 +34,7 @@ from .._constants import GRAVITY
 from .._fields import array_field
 from .._integrate import (
     DEFLECTION_ATOL,
+    EQUILIBRIUM_DTMAX,
     MAX_STEPS,
     RTOL,
     check_solver_settings,
@@ -155,6 +156,7 @@ def simulate_quarter_car(
     atol: float = DEFLECTION_ATOL,
     dt0: float | None = None,
     max_steps: int = MAX_STEPS,
+    dtmax: float | None = EQUILIBRIUM_DTMAX,
     adjoint: dfx.AbstractAdjoint | None = None,
     throw: bool = True,
 ) -> QuarterCarSolution:
@@ -170,6 +172,9 @@ def simulate_quarter_car(
     - `dt0`: `None` for adaptive steps (`rtol`, `atol`; default `DEFLECTION_ATOL`: the
       state holds the tire's deflections), or a fixed step [s].
     - `max_steps`: the step budget (as every vehsim solve, `vehsim._integrate`).
+    - `dtmax`: the largest adaptive step [s] (default `EQUILIBRIUM_DTMAX`, 10 ms: from a
+      standstill or free rolling the motion's error alone would lengthen the steps past
+      what a derivative needs; None: unbounded).
     - `adjoint`: e.g. `diffrax.ForwardMode()` for Jacobians in least squares.
     - `throw`: raise if the solve fails; otherwise check `result`.
 
@@ -177,7 +182,7 @@ def simulate_quarter_car(
     """
     check_times("simulate_quarter_car", ts)
     check_solver_settings("simulate_quarter_car", rtol=rtol, atol=atol, max_steps=max_steps,
-                          dt0=dt0)
+                          dt0=dt0, dtmax=dtmax)
     check_finite_signals("simulate_quarter_car", brake_torque=brake_torque,
                          v0=None if state0 is not None else v0)
     ts = jnp.asarray(ts, dtype=float)
@@ -199,7 +204,7 @@ def simulate_quarter_car(
     sol = integrate(
         vector_field, ts, y0, solver=solver, dt0=dt0, rtol=rtol, atol=atol,
         stepsize_controller=None if dt0 is None else dfx.ConstantStepSize(),
-        max_steps=max_steps, adjoint=adjoint, throw=throw,
+        max_steps=max_steps, dtmax=dtmax, adjoint=adjoint, throw=throw,
     )
     ys = sol.ys
     Fx = jax.vmap(car.force)(ts, ys)
