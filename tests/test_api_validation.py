@@ -560,6 +560,11 @@ CASES |= {
     "a solve of no steps": (
         lambda: vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, max_steps=0),
         "simulate_tire.max_steps must be an integer >= 1, got 0"),
+    "a quarter car's step ceiling of zero": (
+        lambda: vs.simulate_quarter_car(
+            vs.QuarterCar(vs.LumpedLuGre(P), mass=400.0, inertia=1.2, radius=0.3), TS, 0.0,
+            20.0, dtmax=0.0),
+        "simulate_quarter_car.dtmax must lie in (0, inf), got 0"),
 }
 
 
