@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from vehsim._constants import GRAVITY
-from vehsim._integrate import EQUILIBRIUM_DTMAX
 from vehsim.params import table3
 from vehsim.tire.lugre import LumpedLuGre, PointLuGre, stribeck
 from vehsim.tire.magic_formula import magic_formula
@@ -139,14 +138,14 @@ def test_derivatives_from_an_exact_equilibrium_match_central_differences():
     ts = jnp.linspace(0.0, 1.2, 13)
     car = _lumped_car()
 
-    def run(x, dtmax=EQUILIBRIUM_DTMAX, adjoint=None):  # x = (torque [kN m], v0 [m/s])
-        sol = simulate_quarter_car(car, ts, 1000.0 * x[0], x[1], dtmax=dtmax, adjoint=adjoint)
+    def run(x, adjoint=None, **unbounded):  # x = (torque [kN m], v0 [m/s])
+        sol = simulate_quarter_car(car, ts, 1000.0 * x[0], x[1], adjoint=adjoint, **unbounded)
         return jnp.concatenate([sol.v, sol.omega, sol.Fx / 1000.0])
 
     f = jax.jit(run)
     fwd = jax.jit(jax.jacfwd(lambda x: run(x, adjoint=dfx.ForwardMode())))
     rev = jax.jit(jax.jacrev(run))
-    unbounded = jax.jit(jax.jacfwd(lambda x: run(x, None, dfx.ForwardMode())))
+    unbounded = jax.jit(jax.jacfwd(lambda x: run(x, dfx.ForwardMode(), dtmax=None)))
     for x in (jnp.array([1.0, 0.0]), jnp.array([0.0, 20.0])):
         cd = np.stack([(np.asarray(f(x + e)) - np.asarray(f(x - e))) / 2e-6
                        for e in 1e-6 * jnp.eye(2)], axis=-1)
