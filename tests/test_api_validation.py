@@ -6,6 +6,7 @@ import dataclasses
 import functools
 import re
 
+import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -35,6 +36,10 @@ TS = jnp.linspace(0.0, 0.1, 11)
 
 def _car():
     return vs.QuarterCar(vs.LumpedLuGre(P), mass=350.0, inertia=1.0, radius=0.3)
+
+
+def _half_car():
+    return vs.HalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire())
 
 
 def _braking():
@@ -660,6 +665,15 @@ CASES |= {
         lambda: vs.simulate(vs.HalfCar(vs.params.rally_gravel(), vs.rally_gravel_tire()), TS,
                             jnp.zeros(3), jnp.zeros(5)),
         "simulate: state0 must have shape (12,), the state of HalfCar, got (5,)"),
+    "a half car's step ceiling of zero": (
+        lambda: vs.simulate(_half_car(), TS, jnp.zeros(3), _half_car().init_state(vx=20.0),
+                            dtmax=0.0),
+        "simulate.dtmax must lie in (0, inf), got 0"),
+    "a step ceiling beside a step-size controller of one's own": (
+        lambda: vs.simulate(_half_car(), TS, jnp.zeros(3), _half_car().init_state(vx=20.0),
+                            dtmax=0.01, stepsize_controller=dfx.PIDController(1e-6, 1e-8)),
+        "simulate: dtmax bounds the default PIDController's steps; with a stepsize_controller"
+        " of your own, give the bound there"),
 }
 
 

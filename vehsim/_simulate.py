@@ -81,6 +81,7 @@ def simulate(
     jump_ts=None,
     stepsize_controller: dfx.AbstractStepSizeController | None = None,
     max_steps: int = MAX_STEPS,
+    dtmax: float | None = None,
     adjoint: dfx.AbstractAdjoint | None = None,
     dense: bool = False,
     throw: bool = True,
@@ -100,16 +101,21 @@ def simulate(
       the wheel-tire blocks are stiff (explicit steps of about a millisecond);
       ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
       steps; the cheaper choice at loose and moderate accuracy). Differentiating from an
-      exact equilibrium (free rolling at zero slip), `Tsit5`'s derivative can be wrong
-      while its result is successful; `ROS34PW2`'s is not (docs/differentiating.md).
+      exact equilibrium (free rolling at zero slip), either solver's derivative can be
+      wrong while its result is successful, unless `dtmax` bounds the steps.
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available (defaults: those
       of every vehsim solve, `vehsim._integrate`).
     - `jump_ts`: times where the inputs have kinks (the controller steps onto them);
       sampled inputs add `ts` themselves.
     - `stepsize_controller`: replaces the default ``PIDController(rtol, atol)`` (an
-      adaptive one is still clipped to `jump_ts` and the sample times, e.g.
-      ``PIDController(rtol, atol, dtmax=...)``).
+      adaptive one is still clipped to `jump_ts` and the sample times).
+    - `dtmax`: the largest step [s] of the default controller (default: none). Give one
+      to differentiate from an exact equilibrium (free rolling, standstill): the steps
+      follow the motion's error alone, which is zero there, and steps longer than the
+      tires' time constants make the derivative wrong while the result is successful.
+      `Tsit5` needs about its own step off the equilibrium (1 ms for the lumped LuGre half
+      car at 15 m/s), `ROS34PW2` 10 ms (docs/differentiating.md).
     - `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
     - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
@@ -121,7 +127,11 @@ def simulate(
     """
     check_times("simulate", ts)
     check_solver_settings("simulate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
-                          jump_ts=jump_ts)
+                          jump_ts=jump_ts, dtmax=dtmax)
+    if dtmax is not None and stepsize_controller is not None:
+        raise ValueError("simulate: dtmax bounds the default PIDController's steps; with a "
+                         "stepsize_controller of your own, give the bound there "
+                         "(diffrax.PIDController(rtol, atol, dtmax=...))")
     ts = jnp.asarray(ts, dtype=float)
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)
@@ -136,7 +146,8 @@ def simulate(
     sol = integrate(
         vector_field, ts, state0, solver=solver, dt0=dt0, rtol=rtol, atol=atol,
         jump_ts=jnp.sort(jnp.concatenate(jumps)) if jumps else None,
-        stepsize_controller=stepsize_controller, max_steps=max_steps, adjoint=adjoint,
+        stepsize_controller=stepsize_controller, max_steps=max_steps, dtmax=dtmax,
+        adjoint=adjoint,
         saveat=dfx.SaveAt(ts=ts, dense=dense), throw=throw, progress_meter=progress_meter,
     )
     controls = jax.vmap(u_fn)(ts, sol.ys)
