@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from vehsim import ROS34PW2, HalfCar, IsotropicLumpedLuGre, rally_gravel, simulate
+from vehsim import (
+    ROS34PW2,
+    HalfCar,
+    IsotropicLumpedLuGre,
+    rally_gravel,
+    rally_gravel_tire,
+    simulate,
+)
 from vehsim.params import cdc1999
 from vehsim.solvers import solve_small
 from vehsim.vehicle.maneuvers import brake_in_turn
@@ -284,10 +291,10 @@ def test_a_non_finite_start_is_refused_by_name():
 
 
 def test_derivative_from_steady_rolling_with_the_stiff_solver():
-    """From straight, nearly free rolling (a nearly steady motion, where an explicit adaptive solve's
-    steps grow past the wheel-tire modes' stability and its derivative goes wrong),
-    `ROS34PW2` gives d v_x(1 s)/d brake torque in both modes as central differences do
-    (docs/differentiating.md, "Explicit steps on a steady motion")."""
+    """From straight, nearly free rolling (a nearly steady motion, where an explicit
+    adaptive solve's steps would grow past the wheel-tire modes' stability without
+    `simulate`'s default ceiling), `ROS34PW2` gives d v_x(1 s)/d brake torque in both modes as central differences do
+    (docs/differentiating.md, "Steps on an exactly steady motion")."""
     car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
     ts = jnp.array([0.0, 1.0])
     solver = ROS34PW2(car.stiff_blocks)
@@ -308,30 +315,53 @@ def test_derivative_from_steady_rolling_with_the_stiff_solver():
     np.testing.assert_allclose([fwd, rev], fd, rtol=1e-3)
 
 
-def test_explicit_derivative_from_exact_free_rolling_needs_and_gets_a_step_ceiling():
-    """From exactly free rolling (zero slip, no torque: the motion's error is zero), the
-    default `Tsit5` solve's steps pass the tires' stability and its derivative d v_x(1 s)/d
-    brake torque is off by orders of magnitude with a successful result; `simulate`'s
-    `dtmax` of 1 ms (about its own step off the equilibrium) gives the central differences'
-    (docs/differentiating.md, "Steps on an exactly steady motion")."""
-    car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0))
+@pytest.mark.parametrize("tire", ["lumped LuGre", "static"])
+def test_explicit_derivative_from_exact_free_rolling_has_a_default_step_ceiling(tire):
+    """From exactly free rolling (zero slip, no torque: the motion's error is zero) an
+    explicit solve's steps pass the wheel-tire blocks' stability and its derivative d v_x(1 s)
+    /d brake torque is off by orders of magnitude with a successful result (dtmax = 1e9: -76
+    with the lumped LuGre tires, -2e8 with the static ones, against -0.0022); `simulate`'s
+    default ceiling (0.8 of `Tsit5`'s stability limit on the blocks at the start) gives the
+    central differences' (docs/differentiating.md, "Steps on an exactly steady motion")."""
+    car = HalfCar(rally_gravel(), IsotropicLumpedLuGre(cdc1999(), kappa0=1.0)
+                  if tire == "lumped LuGre" else rally_gravel_tire())
     ts = jnp.array([0.0, 1.0])
 
-    @jax.jit
-    def final_vx(brake, dtmax):  # one program for every ceiling (a traced dtmax)
+    @functools.partial(jax.jit, static_argnums=1)
+    def final_vx(brake, dtmax):
         u = lambda t, y: jnp.stack([-0.6 * brake, -0.4 * brake, 0.0 * brake])
         return simulate(car, ts, u, car.init_state(vx=15.0), dtmax=dtmax).states[-1, 3]
 
     eps = 1e-2
-    for dtmax, close in ((1e-3, True), (1e9, False)):
-        dtmax = jnp.asarray(dtmax)
+    for dtmax in (None, 1e9):
         fd = float((final_vx(eps, dtmax) - final_vx(-eps, dtmax)) / (2 * eps))
         grad = float(jax.grad(final_vx)(0.0, dtmax))
         assert -0.0024 < fd < -0.0021  # the solve itself is right either way
-        if close:  # the two sides' slopes at zero slip differ by 0.1 %
+        if dtmax is None:  # the two sides' slopes at zero slip differ by 0.1 %
             np.testing.assert_allclose(grad, fd, rtol=2e-3)
         else:
             assert not abs(grad - fd) < 10 * abs(fd)
+
+
+def test_stability_boundaries_and_the_spectral_radius_bound_match_their_closed_forms():
+    # the real-axis stability boundaries of explicit tableaus: Heun's and the midpoint
+    # rule's 2 (1 + z + z^2/2), Bosh3's 2.5127 (1 + z + z^2/2 + z^3/6), Tsit5's 3.51 (its
+    # polynomial's root, numpy); the spectral radius bound against LAPACK's eigenvalues on
+    # badly scaled blocks (a wheel-tire block's coupling is 1e6 times its diagonal), and
+    # zero for a nilpotent block
+    from vehsim._simulate import _spectral_radius_bound, stability_boundary
+
+    assert stability_boundary(dfx.Heun()) == pytest.approx(2.0, abs=1e-4)
+    assert stability_boundary(dfx.Midpoint()) == pytest.approx(2.0, abs=1e-4)
+    third = [r.real for r in np.roots([1 / 6, 1 / 2, 1, 2]) if abs(r.imag) < 1e-12]
+    assert stability_boundary(dfx.Bosh3()) == pytest.approx(-third[0], abs=1e-4)
+    assert 3.50 < stability_boundary(dfx.Tsit5()) < 3.51
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(4, 3, 3)) * np.array([1.0, 1e6, 1.0])[:, None]
+    rho = np.max(np.abs(np.linalg.eigvals(J)))
+    bound = float(_spectral_radius_bound(jnp.asarray(J)))
+    assert rho <= bound < 1.06 * rho
+    assert float(_spectral_radius_bound(jnp.asarray(np.triu(J, 1)))) == 0.0
 
 
 def test_forward_mode_through_the_default_adjoint_says_which_adjoint_to_pass():

@@ -59,7 +59,7 @@ derivative excites the tire's and the wheel's dynamics there: through steps of a
 a second the derivative of a braked quarter car at standstill was off the central
 differences by 2 to 3 times its largest entry, and a tire's at zero slip by 15 %. Steps of
 at most 10 ms resolve those dynamics (to 1e-4 and 1e-6) and cost a few steps where the
-solve would take fewer. `simulate` keeps no ceiling by default (docs/differentiating.md)."""
+solve would take fewer. `simulate` sets its own (`vehsim._simulate.stiffness_ceiling`)."""
 
 
 def integrate(

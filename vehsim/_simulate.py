@@ -6,6 +6,8 @@ and `jax.grad` apply to `simulate` end to end.
 
 from __future__ import annotations
 
+import functools
+
 import diffrax as dfx
 import equinox as eqx
 import jax
@@ -45,6 +47,85 @@ class Trajectory(AbstractSolution):
         if self.solution is None:
             raise ValueError("Trajectory.evaluate needs simulate(..., dense=True)")
         return self.solution.evaluate(t)
+
+
+STABILITY_FRACTION = 0.8
+r"""The fraction of an explicit solver's stability limit on the stiff wheel-tire blocks that
+`simulate` keeps its steps below by default (`stiffness_ceiling`)."""
+
+CEILING_FLOOR = 1e-4
+r"""The shortest default step ceiling [s]: where the blocks would ask for less (a static
+tire near standstill, whose slip stiffness grows as $1/v$: 1.3 µs at rest), `simulate`
+sets none, since $10^4$ steps a second and more would cost more than an explicit solve
+should; differentiate such starts with `ROS34PW2` or a `dtmax` of one's own."""
+
+
+def stability_boundary(solver: dfx.AbstractERK) -> float:
+    r"""The real-axis stability boundary $x^*$ of an explicit Runge-Kutta `solver` (its
+    Butcher tableau): the largest $x$ with $|R(-y)| \le 1$ for all $0 \le y \le x$,
+    $R$ its stability function (`Tsit5` 3.51, `Dopri5` 3.31, `Heun` 2.00)."""
+    return _tableau_boundary(type(solver))
+
+
+@functools.cache
+def _tableau_boundary(solver_type) -> float:
+    tableau = solver_type.tableau
+    z = -np.linspace(0.0, 20.0, 200_001)[1:]
+    ks = []
+    for row in ((), *tableau.a_lower):  # k_i = z (1 + sum_j a_ij k_j), stage by stage
+        ks.append(z * (1.0 + sum((a * k for a, k in zip(row, ks)), np.zeros_like(z))))
+    R = 1.0 + sum(b * k for b, k in zip(tableau.b_sol, ks))
+    unstable = np.abs(R) > 1.0 + 1e-12
+    return float(-z[np.argmax(unstable) - 1]) if unstable.any() else float(-z[-1])
+
+
+def _spectral_radius_bound(J: Float[Array, "b m m"], squarings: int = 8) -> Float[Array, ""]:
+    r"""$\max_b \|J_b^N\|^{1/N}$, $N = 2^{\text{squarings}}$, by repeated squaring with
+    rescaling: at least the spectral radius, and within $(m\,\kappa)^{1/N}$ of it
+    ($\kappa$ the eigenvectors' condition number; a wheel-tire block's is about $10^6$,
+    5 % at $N = 256$). Matrix products only, on any backend."""
+    log_c = jnp.zeros(J.shape[0], J.dtype)
+    A = J
+    for _ in range(squarings):
+        s = jnp.max(jnp.abs(A), axis=(-2, -1))
+        s = jnp.where(s > 0, s, 1.0)
+        A = A / s[:, None, None]
+        log_c = 2.0 * (log_c + jnp.log(s))
+        A = A @ A
+    n = 2.0**squarings
+    top = jnp.max(jnp.abs(A), axis=(-2, -1))
+    return jnp.max(jnp.where(top > 0, jnp.exp((log_c + jnp.log(jnp.where(top > 0, top, 1.0)))
+                                               / n), 0.0))
+
+
+def stiffness_ceiling(vehicle: AbstractVehicle, solver, u_fn, t0, state0):
+    r"""The default largest step of `simulate`: for an explicit Runge-Kutta `solver` and a
+    vehicle with stiff wheel-tire blocks (``vehicle.stiff_blocks``), `STABILITY_FRACTION`
+    of the solver's stability limit on those blocks at the start,
+    $0.8\,x^*/\rho(J_b(y_0))$ (`stability_boundary`), none (infinite) where that is below
+    `CEILING_FLOOR`; None for other solvers and vehicles.
+
+    The steps follow the motion's error alone. From an exact or near equilibrium (free
+    rolling, zero slip) that error is zero or tiny and the steps lengthen past the blocks'
+    stability, where the derivative, which excites the blocks, grows without bound while
+    the motion stays right: $\partial v_x(1\,\mathrm{s})/\partial T_b$ from free rolling
+    at 15 m/s was $-76$ with the lumped LuGre tires and $-2\times10^8$ with the static
+    ones, against $-0.0022$. Off the equilibrium the blocks' stability bounds the steps
+    anyway, so the ceiling costs few steps there. It is set by the stiffness at the start:
+    a static tire's grows as the car slows, so a motion that settles into a slower
+    equilibrium later is not covered, and one that speeds up from a slow start pays for
+    steps shorter than it needs. Its gradient is stopped."""
+    blocks = getattr(vehicle, "stiff_blocks", None)
+    solver = dfx.Tsit5() if solver is None else solver
+    if not blocks or not isinstance(solver, dfx.AbstractERK):
+        return None
+    idx = np.asarray(blocks)
+    y0 = jax.lax.stop_gradient(state0)
+    J = jax.jacfwd(lambda y: vehicle.f(y, u_fn(t0, y)))(y0)
+    rho = _spectral_radius_bound(J[idx[:, :, None], idx[:, None, :]])
+    ceiling = STABILITY_FRACTION * stability_boundary(solver) / rho
+    return jax.lax.stop_gradient(jnp.where((rho > 0) & (ceiling >= CEILING_FLOOR), ceiling,
+                                           jnp.inf))
 
 
 def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
@@ -100,9 +181,7 @@ def simulate(
     - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). With dynamic tires
       the wheel-tire blocks are stiff (explicit steps of about a millisecond);
       ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
-      steps; the cheaper choice at loose and moderate accuracy). Differentiating from an
-      exact equilibrium (free rolling at zero slip), either solver's derivative can be
-      wrong while its result is successful, unless `dtmax` bounds the steps.
+      steps; the cheaper choice at loose and moderate accuracy).
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available (defaults: those
       of every vehsim solve, `vehsim._integrate`).
@@ -110,12 +189,15 @@ def simulate(
       sampled inputs add `ts` themselves.
     - `stepsize_controller`: replaces the default ``PIDController(rtol, atol)`` (an
       adaptive one is still clipped to `jump_ts` and the sample times).
-    - `dtmax`: the largest step [s] of the default controller (default: none). Give one
-      to differentiate from an exact equilibrium (free rolling, standstill): the steps
-      follow the motion's error alone, which is zero there, and steps longer than the
-      tires' time constants make the derivative wrong while the result is successful.
-      `Tsit5` needs about its own step off the equilibrium (1 ms for the lumped LuGre half
-      car at 15 m/s), `ROS34PW2` 10 ms (docs/differentiating.md).
+    - `dtmax`: the largest step [s] of the default controller. The steps follow the
+      motion's error alone, which from an equilibrium (free rolling at zero slip) is zero,
+      and steps past the wheel-tire blocks' time constants then make the derivative wrong
+      while the result is successful. By default (None) an explicit solver on a vehicle
+      with ``stiff_blocks`` keeps 0.8 of its stability limit on those blocks at the start
+      (`stiffness_ceiling`; about 1.5 ms with the lumped LuGre tires, 20 ms with the
+      static ones at 15 m/s), which costs few steps off the equilibrium; other solvers
+      have none: give ``ROS34PW2`` 10 ms to differentiate from an equilibrium
+      (docs/differentiating.md).
     - `adjoint`: diffrax adjoint (default `RecursiveCheckpointAdjoint`).
     - `dense`: also keep the dense interpolant (`Trajectory.evaluate`).
     - `throw`: raise on solver failure; with ``throw=False`` check `Trajectory.result`
@@ -136,6 +218,8 @@ def simulate(
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)
     u_fn, sampled = as_controls(ts, inputs, len(vehicle.control_names))
+    if dtmax is None and stepsize_controller is None:
+        dtmax = stiffness_ceiling(vehicle, solver, u_fn, ts[0], state0)
 
     def vector_field(t, y, args):
         return vehicle.f(y, u_fn(t, y))
