@@ -12,13 +12,15 @@ from vehsim import (
     IsotropicLumpedLuGre,
     LinearTire,
     LumpedLuGre,
+    LumpedLuGre2D,
     ReducedHalfCar,
+    brake_in_turn,
     rally_gravel,
     rally_gravel_tire,
     simulate,
 )
 from vehsim._signals import as_controls
-from vehsim.params import cdc1999
+from vehsim.params import cdc1999, lugre2d_bakker1987
 
 
 TOL = dict(rtol=1e-10, atol=1e-10)
@@ -206,6 +208,24 @@ def test_a_lifted_axle_neither_grips_nor_pulls_the_body_down():
     np.testing.assert_allclose(float(rates[9]), float(FzF) / p.m - p.g, rtol=1e-12)
     sig = car.signals(state, jnp.zeros(3))
     assert float(sig["Fx_R"]) == 0.0 and float(sig["Fy_R"]) == 0.0
+
+
+def test_braked_in_a_turn_to_a_stop_on_dynamic_tires():
+    """Braking in a turn from 5 m/s until the car stands, dynamic tires, the default
+    explicit solver: the solve succeeds through the stop (a static tire's slips are
+    singular there), the torque-limited deceleration is the closed form of the wheel
+    equations 52-53 with the chassis, $\dot v = -(T_b/r)/(m + (I_F + I_R)/r^2)$ (the brake
+    below the grip, 0.03 rad of steer), and the car comes to rest without rolling back."""
+    p = rally_gravel()
+    car = HalfCar(p, LumpedLuGre2D(lugre2d_bakker1987()))
+    ts = jnp.linspace(0.0, 6.0, 61)
+    tr = run(car, ts, brake_in_turn(0.03, 1200.0, t_brake=2.0), car.init_state(vx=5.0))
+    assert bool(tr.ok)
+    v, vx = np.asarray(tr["speed"]), np.asarray(tr["vx"])
+    m, r, inertia = float(p.m), float(p.r), float(p.Iw_F + p.Iw_R)
+    decel = (v[25] - v[35]) / (ts[35] - ts[25])  # 2.5-3.5 s: full torque, wheels turning
+    np.testing.assert_allclose(decel, 1200.0 / r / (m + inertia / r**2), rtol=1e-4)
+    assert v[-1] < 1e-6 and vx.min() > -1e-9
 
 
 def test_input_forms():

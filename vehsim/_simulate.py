@@ -181,7 +181,11 @@ def simulate(
     - `solver`: diffrax solver, default `Tsit5` (explicit, adaptive). With dynamic tires
       the wheel-tire blocks are stiff (explicit steps of about a millisecond);
       ``ROS34PW2(vehicle.stiff_blocks)`` treats them linearly implicitly (order 3, larger
-      steps; the cheaper choice at loose and moderate accuracy).
+      steps; the cheaper choice at loose and moderate accuracy). A car braked to a stop
+      on static tires (`FrictionEllipseTire`) is stiff without bound as it stops (the
+      slips divide by $|\omega r|$, floored at 1 mm/s): 6 s of `brake_in_turn` from
+      5 m/s exhausts `Tsit5`'s steps, ``ROS34PW2`` needs about 63,000; the dynamic
+      tires (lumped LuGre) stop in about 1,000 `Tsit5` steps.
     - `rtol`, `atol`, `dt0`, `max_steps`: step-size control (PID) and step budget; a
       finite `max_steps` keeps reverse-mode differentiation available (defaults: those
       of every vehsim solve, `vehsim._integrate`).
