@@ -5,8 +5,10 @@ import dataclasses
 import numpy as np
 
 from vehsim.reproduce.robot import (
+    _WHY,
     HEADLINE_FINDINGS,
     SYSTEMS,
+    _count,
     headline_findings,
     report_letters,
     table2_agreement,
@@ -86,3 +88,11 @@ def test_headline_findings_follow_their_definitions():
         assert not headline_findings(changed, exact)[name]["reproduced"], name
     # runs that never settle count as infinitely slow: here controllers 1-4 are the slow ones
     assert headline_findings(unsettled, exact)["time_varying_slow"]["reproduced"] is False
+
+
+def test_the_report_counts_zero_crossings_in_singular_and_plural():
+    """The report's reason for a 'G' says "1 zero crossing" and "2 zero crossings"."""
+    why = lambda n: _WHY["G"].format(tc=3.2, cr=_count(n, "zero crossing"))
+    assert why(1) == ("it settles at t_c = 3.2 s but with 1 zero crossing of a coordinate or "
+                      "large peak inputs (so not E)")
+    assert "with 0 zero crossings of" in why(0) and "with 2 zero crossings of" in why(2)

@@ -149,10 +149,15 @@ _WHY = {
     "U": "it leaves the neighbourhood of the origin (worst position over the last 5 s "
          "{wp:.0f} mm, heading {wh:.0f} deg)",
     "S": "it settles only after t_c = {tc:.1f} s (> 20 s)",
-    "G": "it settles at t_c = {tc:.1f} s but with {cr} zero crossings of a coordinate or "
-         "large peak inputs (so not E)",
+    "G": "it settles at t_c = {tc:.1f} s but with {cr} of a coordinate or large peak inputs "
+         "(so not E)",
     "E": "it settles at t_c = {tc:.1f} s without oscillation",
 }
+
+
+def _count(n: int, noun: str) -> str:
+    """``n`` and ``noun``, plural unless ``n`` is 1 ("1 zero crossing", "2 zero crossings")."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _doc_time(c):
@@ -278,7 +283,7 @@ def _differences(ctx, new: _PlantScores) -> None:
                 why = _WHY[letters[m]].format(
                     rate=med(t.rate), wp=med(t.window_position_mm),
                     wh=med(t.window_heading_deg), tc=med(t.tc),
-                    cr=int(np.median(t.crossings[c, s, m])))
+                    cr=_count(int(np.median(t.crossings[c, s, m])), "zero crossing"))
                 out.append(
                     f"- Controller {c + 1}, System {sys_name}, {ROBOT_MISSIONS[m].name}: ours "
                     f"{letters[m]}, report {rep[m]}: {why} (scored on the odometry: "
