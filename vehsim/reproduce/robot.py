@@ -212,7 +212,8 @@ def reproduce(ctx) -> None:
     _agreement(ctx, new, previous)
     for c, fig_no in ((0, 4), (1, 5)):
         ctx.figure(_paths_figure(fig_run, c, fig_offset), f"fig{fig_no}_controller{c + 1}_paths",
-                   f"Fig. {fig_no}: paths of controller {c + 1} ({CONTROLLER_NAMES[c]}) from "
+                   f"Fig. {fig_no}: paths of controller {c + 1}, "
+                   f"{CONTROLLER_NAMES[c].split(' ', 1)[1]}, from "
                    "six initial poses (arrows: initial heading), 40 s each, on the Khepera "
                    "plant (true pose; the controller sees the odometry).")
 
