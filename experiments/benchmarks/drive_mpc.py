@@ -419,14 +419,16 @@ def main(argv=None):
         its = np.array([int(c.iterations) for c in infos])
         conv = np.array([bool(c.converged) for c in infos])
         res = drive_result(road, path)
-        results[mode] = (driver, cs, percentiles(times))
+        pct = percentiles(times)
+        results[mode] = (driver, cs, pct)
         if mode == "converged":
             converged_drive = (driver, infos)
-        emit(controller=f"vehsim-{mode}", **common, **percentiles(times),
+        period_ms = SAMPLE_TIME * 1e3
+        emit(controller=f"vehsim-{mode}", **common, **pct,
              # compute / period, as `vehsim drive`'s real_time_factor (< 1: real time); rows
              # before these fields carried real_time_factor_p99, period / p99
-             real_time_factor=round(float(np.median(times[1:])) / SAMPLE_TIME, 3),
-             p99_over_period=round(float(np.percentile(times[1:], 99)) / SAMPLE_TIME, 3),
+             real_time_factor=round(pct["p50_ms"] / period_ms, 3),
+             p99_over_period=round(pct["p99_ms"] / period_ms, 3),
              iterations_mean=round(float(its.mean()), 2), iterations_max=int(its.max()),
              converged_fraction=round(float(conv.mean()), 3),
              init_and_compile_s=round(t_init, 2), command_compile_s=round(t_compile, 2), **res)
