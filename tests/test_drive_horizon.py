@@ -667,6 +667,14 @@ def test_driver_passes_its_hessian_update_to_the_sample_solves():
     assert vs.RecedingHorizonDriver(table, mode="converged").options().reestimate_multipliers
     with pytest.raises(ValueError, match="RecedingHorizonDriver.hessian_update must be"):
         vs.RecedingHorizonDriver(table, hessian_update="never")
+    # the steps that take a fresh Hessian before it is kept: the samples' solves only (the
+    # first plan's takes one every step), and refused below 1 or as a fraction
+    two = vs.RecedingHorizonDriver(table, hessian_update="first", fresh_hessian_steps=2)
+    assert int(two.options().fresh_hessian_steps) == 2
+    assert int(two.options(first=True).fresh_hessian_steps) == 300
+    for bad, message in ((0, r"must lie in \[1, inf\)"), (1.5, "must be an integer")):
+        with pytest.raises(ValueError, match=f"fresh_hessian_steps {message}"):
+            vs.RecedingHorizonDriver(table, fresh_hessian_steps=bad)
     # the Jacobians kept with the Hessian: passed on, and refused without a kept Hessian
     kept = vs.RecedingHorizonDriver(table, hessian_update="first", jacobian_update="first")
     assert kept.options().jacobian_update == "first"

@@ -764,7 +764,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     fraction of the believed peak the plans use (a margin for what the planning model gets
     wrong: the plant's force at the planned slips, the loads' dynamics), `hessian_update`
     (static; 'every') the sample solves' `IPOptions.hessian_update` ('first': each
-    sample's first step's Hessian kept for its later passes, which then cost about a third),
+    sample's first step's Hessian kept for its later passes, which then cost about a third;
+    `fresh_hessian_steps` (1) the steps of a sample's solve that take a fresh one before it
+    is kept),
     `jacobian_update` (static; 'every') their `IPOptions.jacobian_update` ('first', with
     `hessian_update` 'first': the first step's Jacobians kept too, the later passes
     evaluating the stages' values and the Lagrangian's gradient only; docs/performance.md
@@ -914,6 +916,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     peak_fraction: Float[Array, ""] = array_field(default=1.0)
     hessian_update: str = eqx.field(static=True, default="every")
     jacobian_update: str = eqx.field(static=True, default="every")
+    fresh_hessian_steps: Int[Array, ""] = int_field(default=1)
     preview: Float[Array, ""] = array_field(default=math.inf)
     surface_map: bool = eqx.field(static=True, default=False)
     replan_kkt: Float[Array, ""] = array_field(default=math.inf)
@@ -985,6 +988,11 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"got {self.replan_iterations}")
         check_range("RecedingHorizonDriver", "replan_iterations", self.replan_iterations,
                     lower=1.0)
+        if not jnp.issubdtype(jnp.result_type(self.fresh_hessian_steps), jnp.integer):
+            raise ValueError("RecedingHorizonDriver.fresh_hessian_steps must be an integer "
+                             f">= 1, got {self.fresh_hessian_steps}")
+        check_range("RecedingHorizonDriver", "fresh_hessian_steps", self.fresh_hessian_steps,
+                    lower=1.0)
         if self.probe_distance is not None and self.friction != "estimate":
             raise ValueError("RecedingHorizonDriver.probe_distance is a test brake that "
                              "excites the grip estimator: it needs friction='estimate', got "
@@ -1047,7 +1055,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                          constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
                          log_size=8, hessian_update=self.hessian_update,
                          jacobian_update=self.jacobian_update,
-                         fresh_hessian_steps=jnp.where(first, self.init_iterations, 1),
+                         fresh_hessian_steps=jnp.where(first, self.init_iterations,
+                                                       self.fresh_hessian_steps),
                          reestimate_multipliers=first | (self.mode == "converged"))
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
