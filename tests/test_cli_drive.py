@@ -104,6 +104,9 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
     assert len(rec["trajectory"]["t"]) == n and rec["duration"] == pytest.approx(DURATION)
     assert rec["road"] == "corner90" and rec["controller"] == "rh" and rec["mode"] == "rti"
     assert rec["settings"]["seed"] == 3 and rec["settings"]["conditions"] == "icy"
+    # the corners' driver as it drove: its passes per sample and Hessian update
+    assert rec["settings"]["passes"] == vs.CORNER_DRIVER.get("iterations", 4)
+    assert rec["settings"]["keep_hessian"] is False
     assert rec["nominal_plan"] is None and rec["nonfinite_from"] is None
     for key in ("max_distance_off_road", "compute_time.p50", "compute_time.p99",
                 "trajectory.x", "estimate.peak", "planner_D.D", "truth.peak"):
@@ -192,6 +195,15 @@ BAD = {
     "mode without rh": (["--road", "corner90", "--controller", "tracking", "--mode", "rti"],
                         "--mode"),
     "preview without oracle": (["--road", "corner90", "--preview", "5"], "--preview"),
+    "one pass": (["--road", "corner90", "--passes", "1"],
+                 "--passes: must be an integer in [2, 100]"),
+    "fractional passes": (["--road", "corner90", "--passes", "4.5"], "--passes"),
+    "passes without rh": (["--road", "corner90", "--controller", "tracking", "--passes",
+                           "6"], "--passes applies to the receding-horizon controllers"),
+    "passes converged": (["--road", "corner90", "--mode", "converged", "--passes", "6"],
+                         "--passes sets the passes of a real-time iteration"),
+    "kept Hessian without rh": (["--road", "corner90", "--controller", "open-loop",
+                                 "--keep-hessian"], "--keep-hessian applies to"),
     "pace notes without rh": (["--road", "corner90", "--controller", "rh-oracle",
                                "--pace-notes"], "--pace-notes"),
     "negative preview": (["--road", "corner90", "--controller", "rh-oracle", "--preview",
@@ -474,6 +486,26 @@ def test_drive_gives_the_oracle_its_preview(given, preview):
     _check(args)
     driver, _ = setup.controller(args, setup.scenario(args, setup.road(args)))
     assert driver.friction == "oracle" and float(driver.preview) == preview
+
+
+@pytest.mark.parametrize("road, given, passes, kept", [
+    ("corner90", [], vs.CORNER_DRIVER.get("iterations", 4), False),
+    ("corner90", ["--passes", "6", "--keep-hessian"], 6, True),
+    ("stage", [], vs.FAST_ROAD_DRIVER["iterations"], True),
+    ("stage", ["--passes", "8", "--no-keep-hessian"], 8, False)])
+def test_drive_sets_the_passes_per_sample(road, given, passes, kept):
+    """``--passes`` and ``--keep-hessian`` reach the driver's `iterations` and
+    `hessian_update` over the road's settings (and nothing else of them), built without
+    compiling anything."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import _check
+
+    args = cli.build_parser().parse_args(["drive", "--road", road, *given])
+    _check(args)
+    driver, _ = setup.controller(args, setup.scenario(args, setup.road(args)))
+    assert driver.iterations == passes
+    assert driver.hessian_update == ("first" if kept else "every")
+    assert float(driver.margin) == vs.driver_settings(road)["margin"]
 
 
 def test_drive_gives_the_estimate_pace_notes():

@@ -105,7 +105,7 @@ def controller(args, sc):
     the receding-horizon driver with the estimate (`driver_estimator`: the nominal road as
     its prior; with ``--pace-notes`` the map of the relative grip, `surface_map`, for both),
     the nominal friction or the true grip along the horizon (the oracle, as far ahead as
-    ``--preview``); or
+    ``--preview``), with ``--passes`` and ``--keep-hessian`` over the road's settings; or
     the nominal minimum-time drive (`nominal_primitive`) tracked or replayed, its solve's
     outcome kept as ``args.nominal_plan`` (`plan_record`; None for the other controllers)."""
     from ..drive.scenarios import driver_settings, scenario_driver
@@ -133,6 +133,10 @@ def controller(args, sc):
     settings = driver_settings(None if args.road_file else args.road, friction)
     if args.preview is not None:
         settings["preview"] = args.preview
+    if getattr(args, "passes", None) is not None:
+        settings["iterations"] = args.passes
+    if getattr(args, "keep_hessian", None) is not None:
+        settings["hessian_update"] = "first" if args.keep_hessian else "every"
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
                            **settings)
 

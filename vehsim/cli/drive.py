@@ -29,6 +29,9 @@ RH_CONTROLLERS = ("rh", "rh-nominal", "rh-oracle")
 MODES = ("rti", "converged")
 CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
+MIN_PASSES, MAX_PASSES = 2, 100
+"""The interior-point passes per sample `--passes` takes (the last pass only evaluates the
+plan, so at least 2; at 100, the converged mode's cap, a sample is no longer real time)."""
 MIN_GRIP, MAX_GRIP = 0.1, 3.0
 """The peak frictions `--grip` and `--patch` take, relative to the nominal road's (0.52):
 from glare ice (0.052) to three times gravel's. Below the floor the tire is outside any
@@ -51,6 +54,7 @@ UNITS = {
     "compute_time.samples": "1", "start_speed": "m/s", "truth.t": "s", "truth.scale": "1",
     "solver.iterations": "1", "solver.converged": "1 (true or false)",
     "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
+    "settings.passes": "1 (interior-point passes per sample, rti mode)",
     "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
@@ -128,6 +132,17 @@ def register(subparsers) -> None:
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
+    p.add_argument("--passes", type=integer(MIN_PASSES, MAX_PASSES), default=None,
+                   metavar="N",
+                   help="with an rh controller in rti mode: interior-point passes per "
+                        f"sample, {MIN_PASSES} to {MAX_PASSES} (default: the road's driver, "
+                        "4 on the benchmark corners, 16 on the stage and on a road file; "
+                        "more passes cost compute per sample, docs/driver.md)")
+    p.add_argument("--keep-hessian", action=argparse.BooleanOptionalAction, default=None,
+                   help="with an rh controller: keep each sample's first Hessian for its "
+                        "later passes (cheaper passes) or take a fresh one every pass "
+                        "(default: the road's driver, fresh on the benchmark corners, kept "
+                        "on the stage and on a road file)")
     p.add_argument("--seed", type=integer(0, 2**31 - 1), default=None,
                    help="seed of the sensor noise (0; not with --no-noise)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
@@ -165,6 +180,14 @@ def _check(args) -> None:
     if args.mode is not None and args.controller not in RH_CONTROLLERS:
         raise ValueError(f"--mode applies to the receding-horizon controllers "
                          f"({', '.join(RH_CONTROLLERS)}), not --controller {args.controller}")
+    for option, value in (("--passes", args.passes), ("--keep-hessian", args.keep_hessian)):
+        if value is not None and args.controller not in RH_CONTROLLERS:
+            raise ValueError(f"{option} applies to the receding-horizon controllers "
+                             f"({', '.join(RH_CONTROLLERS)}), not --controller "
+                             f"{args.controller}")
+    if args.passes is not None and args.mode == "converged":
+        raise ValueError("--passes sets the passes of a real-time iteration (--mode rti); "
+                         "--mode converged iterates to tolerance")
     if args.pace_notes and args.controller != "rh":
         raise ValueError("--pace-notes carries the grip estimate along the road: it applies "
                          f"to --controller rh, not --controller {args.controller}")
@@ -340,7 +363,9 @@ def _drive(args) -> int:
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
                      "controller": args.controller, "pace_notes": args.pace_notes,
-                     "mode": args.mode,
+                     "mode": args.mode, "passes": getattr(driver, "iterations", None),
+                     "keep_hessian": (None if not rh
+                                      else getattr(driver, "hessian_update", None) == "first"),
                      "preview": (None if args.preview is None or math.isinf(args.preview)
                                  else args.preview), "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,
