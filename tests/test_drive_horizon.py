@@ -672,8 +672,8 @@ def test_driver_passes_its_hessian_update_to_the_sample_solves():
     two = vs.RecedingHorizonDriver(table, hessian_update="first", fresh_hessian_steps=2)
     assert int(two.options().fresh_hessian_steps) == 2
     assert int(two.options(first=True).fresh_hessian_steps) == 300
-    for bad, message in ((0, r"must lie in \[1, inf\)"), (1.5, "must be an integer")):
-        with pytest.raises(ValueError, match=f"fresh_hessian_steps {message}"):
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="fresh_hessian_steps must be an integer >= 1"):
             vs.RecedingHorizonDriver(table, fresh_hessian_steps=bad)
     # the Jacobians kept with the Hessian: passed on, and refused without a kept Hessian
     kept = vs.RecedingHorizonDriver(table, hessian_update="first", jacobian_update="first")

@@ -133,9 +133,9 @@ def controller(args, sc):
     settings = driver_settings(None if args.road_file else args.road, friction)
     if args.preview is not None:
         settings["preview"] = args.preview
-    if getattr(args, "passes", None) is not None:
+    if args.passes is not None:
         settings["iterations"] = args.passes
-    if getattr(args, "keep_hessian", None) is not None:
+    if args.keep_hessian is not None:
         settings["hessian_update"] = "first" if args.keep_hessian else "every"
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
                            **settings)

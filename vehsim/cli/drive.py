@@ -363,9 +363,9 @@ def _drive(args) -> int:
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
                      "controller": args.controller, "pace_notes": args.pace_notes,
-                     "mode": args.mode, "passes": getattr(driver, "iterations", None),
-                     "keep_hessian": (None if not rh
-                                      else getattr(driver, "hessian_update", None) == "first"),
+                     "mode": args.mode,
+                     "passes": driver.iterations if rh and driver.mode == "rti" else None,
+                     "keep_hessian": driver.hessian_update == "first" if rh else None,
                      "preview": (None if args.preview is None or math.isinf(args.preview)
                                  else args.preview), "seed": args.seed,
                      "noise": args.noise, "duration": args.duration,

@@ -57,6 +57,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._checks import (
     check_count,
+    check_integer,
     check_nonnegative,
     check_positive,
     check_range,
@@ -988,11 +989,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                              f"got {self.replan_iterations}")
         check_range("RecedingHorizonDriver", "replan_iterations", self.replan_iterations,
                     lower=1.0)
-        if not jnp.issubdtype(jnp.result_type(self.fresh_hessian_steps), jnp.integer):
-            raise ValueError("RecedingHorizonDriver.fresh_hessian_steps must be an integer "
-                             f">= 1, got {self.fresh_hessian_steps}")
-        check_range("RecedingHorizonDriver", "fresh_hessian_steps", self.fresh_hessian_steps,
-                    lower=1.0)
+        check_integer("RecedingHorizonDriver", "fresh_hessian_steps", self.fresh_hessian_steps,
+                      lower=1)
         if self.probe_distance is not None and self.friction != "estimate":
             raise ValueError("RecedingHorizonDriver.probe_distance is a test brake that "
                              "excites the grip estimator: it needs friction='estimate', got "
