@@ -177,10 +177,8 @@ def _check(args) -> None:
         args.seed = 0
     if args.closed and args.road_file is None:
         raise ValueError("--closed applies to --road-file (a scenario road knows its shape)")
-    if args.mode is not None and args.controller not in RH_CONTROLLERS:
-        raise ValueError(f"--mode applies to the receding-horizon controllers "
-                         f"({', '.join(RH_CONTROLLERS)}), not --controller {args.controller}")
-    for option, value in (("--passes", args.passes), ("--keep-hessian", args.keep_hessian)):
+    for option, value in (("--mode", args.mode), ("--passes", args.passes),
+                          ("--keep-hessian", args.keep_hessian)):
         if value is not None and args.controller not in RH_CONTROLLERS:
             raise ValueError(f"{option} applies to the receding-horizon controllers "
                              f"({', '.join(RH_CONTROLLERS)}), not --controller "
