@@ -221,7 +221,7 @@ def test_reader_options_of_the_wrong_kind_are_refused(tmp_path):
     """`closed="no"` would read as a closed road, ``r=True`` as a 1 m wheel."""
     road = tmp_path / "r.csv"
     vs.write_road(road, _road())
-    for kw, message in (({"closed": "no"}, "read_road: closed must be True or False"),
+    for kw, message in (({"closed": "no"}, "read_road: closed must be True, False or None"),
                         ({"smoothing": "abc"}, "read_road: smoothing [m] must be a number")):
         with pytest.raises(TypeError, match=re.escape(message)):
             vs.read_road(road, **kw)

@@ -66,6 +66,8 @@ GOOD = [(0, 0, 3, 3), (10, 0, 3, 3), (20, 0, 3, 3), (30, 0, 3, 3), (40, 0, 3, 3)
     ("closed benchmark", "--closed applies to --road-file"),
     ("start speed on a lap", "--start-speed applies to an open road"),
     ("max-exit lap", "max-exit needs an open road"),
+    ("max-exit on a file's lap", "(its '# closed: yes' line) names a lap"),
+    ("start speed on a file's lap", "--start-speed applies to an open road, and "),
     ("starts", "--starts and --live"),
     ("corner options", "--interior-points and --no-corner-clearance apply"),
     ("two roads", "not allowed with"),
@@ -74,6 +76,8 @@ GOOD = [(0, 0, 3, 3), (10, 0, 3, 3), (20, 0, 3, 3), (30, 0, 3, 3), (40, 0, 3, 3)
 def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case, match):
     out = tmp_path / "out"
     good = _bad_file(tmp_path, GOOD, "good")
+    ring = write_road(tmp_path / "ring.csv", CentrelineRoad.from_segments(
+        [("arc", 20.0, 360.0)], 6.0, closed=True, name="ring"))  # says it is closed
     argv = {
         "negative width": ["--road-file", _bad_file(tmp_path, GOOD[:2] + [(20, 0, -1, 3)]
                                                     + GOOD[3:], "negative")],
@@ -81,6 +85,9 @@ def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case
         "closed benchmark": ["corner90", "--closed"],
         "start speed on a lap": ["--track", "Oschersleben", "--start-speed", "5"],
         "max-exit lap": ["--road-file", good, "--closed", "--objective", "max-exit"],
+        "max-exit on a file's lap": ["--road-file", ring, "--objective", "max-exit",
+                                     "--tf-max", "5"],
+        "start speed on a file's lap": ["--road-file", ring, "--start-speed", "5"],
         "starts": ["--road-file", good, "--starts", "2"],
         "corner options": ["--road-file", good, "--interior-points", "2"],
         "two roads": ["corner90", "--road-file", good],
@@ -90,3 +97,43 @@ def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case
     assert code == 2 and match in err, err
     assert "Traceback" not in err
     assert not Path(out).exists()
+
+
+def test_a_road_file_says_whether_it_is_a_lap_and_where_its_gates_are(tmp_path, capsys,
+                                                                        monkeypatch):
+    """Both commands read a file's lap and gates as `write_road` wrote them (--closed only
+    forces a lap), and `vehsim optimise --start-speed` sets the speed of the file's start gate,
+    keeping its lateral interval: the road handed to the solver is captured (nothing solved)."""
+    from types import SimpleNamespace
+
+    from vehsim.cli import _drive_setup, optimise_road
+    from vehsim.optimal import curvilinear
+
+    ring = write_road(tmp_path / "ring.csv", CentrelineRoad.from_segments(
+        [("arc", 20.0, 360.0)], 6.0, closed=True, name="ring"))
+    args = SimpleNamespace(track=None, road_file=str(ring), closed=False, smoothing=0.0)
+    assert optimise_road.road_from_args(args).closed and _drive_setup.road(args).closed
+    plain = _bad_file(tmp_path, GOOD, "plain")  # a file without the line: open
+    assert not _drive_setup.road(SimpleNamespace(road_file=str(plain), closed=False)).closed
+
+    stage = CentrelineRoad.from_segments(CORNER, 8.0, name="gated")
+    stage = stage.with_gates(Gate.at(stage, 0.0, n_min=-1.0, n_max=1.0),
+                             Gate.at(stage, stage.length, n_min=-2.0, n_max=0.5, speed=9.0))
+    path = write_road(tmp_path / "gated.csv", stage)
+    seen = []
+
+    class Captured(Exception):
+        pass
+
+    def capture(road, *a, **k):
+        seen.append(road)
+        raise Captured
+
+    monkeypatch.setattr(curvilinear, "road_primitive", capture)
+    with pytest.raises(Captured):
+        cli.main(["--no-compilation-cache", "optimise", "--road-file", str(path),
+                  "--start-speed", "5", "--out", str(tmp_path / "out"), "--quiet"])
+    road = seen[0]
+    assert not road.closed
+    assert road.start == Gate(s=0.0, n_min=-1.0, n_max=1.0, speed=5.0)
+    assert road.end.lateral == pytest.approx((-2.0, 0.5)) and road.end.speed == 9.0

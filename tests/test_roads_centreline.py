@@ -65,6 +65,62 @@ def test_written_roads_read_back_as_the_same_curve(tmp_path, loop):
     np.testing.assert_allclose(road.width_left(s), loop.width_left(s), atol=1e-5)
 
 
+def test_written_roads_read_back_as_laps_or_stages_with_their_gates(tmp_path, loop):
+    """The file's comment lines carry what its columns cannot: a lap reads back as a lap and
+    a stage as a stage without being told, each with its gates (a lateral interval narrower
+    than the road, a fixed speed, a gate inside the road), and an argument overrides the
+    file's closed line."""
+    lap = read_road(write_road(tmp_path / "lap.csv", loop))
+    assert lap.closed
+    assert lap.start == Gate.at(lap, 0.0) and lap.end == Gate.at(lap, lap.length)
+    stage = CentrelineRoad.from_segments([("straight", 20.0), ("arc", 20.0, 90.0),
+                                          ("straight", 20.0)], 8.0, name="stage")
+    for start, end in [
+        (Gate.at(stage, 0.0, speed=8.0), Gate.at(stage, stage.length, n_min=-1.0, n_max=2.5)),
+        (Gate.at(stage, 12.5, n_min=0.5, n_max=3.0), Gate.at(stage, 60.0, speed=11.25)),
+    ]:
+        gated = stage.with_gates(start, end)
+        back = read_road(write_road(tmp_path / "stage.csv", gated))
+        assert not back.closed
+        for written, read in ((gated.start, back.start), (gated.end, back.end)):
+            # the end of the road is its end (the spline through the written points has
+            # its length to 1e-7 here); a gate inside it keeps its arc length
+            s = back.length if written.s == gated.length else written.s
+            assert read.s == pytest.approx(s, rel=1e-12, abs=1e-12)
+            assert read.lateral == pytest.approx(written.lateral, abs=1e-9)
+            assert read.speed == written.speed
+    assert not read_road(tmp_path / "lap.csv", closed=False).closed
+    said_open = tmp_path / "said_open.csv"
+    said_open.write_text((tmp_path / "lap.csv").read_text().replace("# closed: yes",
+                                                                    "# closed: no"))
+    assert not read_road(said_open).closed
+    assert read_road(said_open, closed=True).closed
+
+
+_BODY = "# x_m,y_m,w_tr_right_m,w_tr_left_m\n" + "".join(
+    f"{10 * i},0,3,3\n" for i in range(5))
+
+
+@pytest.mark.parametrize("meta, match", [
+    ("# closed: maybe\n", r"bad.csv:1: closed must be yes or no, got 'maybe'"),
+    ("# closed: no\n# closed: yes\n", r"bad.csv:2: closed given twice \(first on line "
+                                       r".*bad.csv:1\)"),
+    ("# start_gate: n_min=edge\n", r"bad.csv:1: start_gate: s=\.\.\. .* missing"),
+    ("# end_gate: s=end width=3\n", r"bad.csv:1: end_gate: 'width=3' is not one of s=\.\.\."),
+    ("# end_gate: s=end speed=fast\n", r"bad.csv:1: end_gate: speed must be a number or "
+                                       r"free, got 'fast'"),
+    ("# end_gate: s=end s=start\n", r"bad.csv:1: end_gate: s given twice"),
+    ("# start_gate: s=nan\n", r"bad.csv:1: start_gate: s must be finite"),
+    ("# c\n# start_gate: s=start n_max=4\n", r"bad.csv:2: start_gate: .*off the road"),
+    ("# end_gate: s=50\n", r"bad.csv:1: end_gate: .*gate at s = 50 m is off the road"),
+])
+def test_bad_closed_and_gate_lines_are_refused_naming_the_line(tmp_path, meta, match):
+    path = tmp_path / "bad.csv"
+    path.write_text(meta + _BODY)
+    with pytest.raises(ValueError, match=match):
+        read_road(path)
+
+
 @pytest.mark.parametrize("angle", [360.0, -360.0])
 def test_a_circle_from_segments_has_curvature_one_over_r_and_length_two_pi_r(angle):
     R, th0 = 25.0, 0.3

@@ -25,7 +25,8 @@ def road(args):
         from .._road_files import read_road
         from ._options import input_file
 
-        return read_road(input_file("--road-file", args.road_file), closed=args.closed)
+        return read_road(input_file("--road-file", args.road_file),
+                         closed=True if args.closed else None)  # else as the file says
     from ..drive.scenarios import scenario_road
 
     return scenario_road(args.road)

@@ -99,7 +99,8 @@ def register(subparsers) -> None:
                             "w_tr_right_m, w_tr_left_m; docs/roads.md), driven from its first "
                             "point (--closed: a circuit)")
     p.add_argument("--closed", action="store_true",
-                   help="with --road-file: the road is a circuit")
+                   help="with --road-file: the road is a circuit (default: as the file's "
+                        "'# closed:' line says, which vehsim's road files have; else open)")
     p.add_argument("--conditions", type=choice_of(CONDITIONS, "conditions"), default=None,
                    help="a named grip scenario instead of --grip/--patch: nominal, minus20 "
                         "(20 %% less grip everywhere), icy (a patch of half the grip on the "

@@ -45,7 +45,8 @@ def register(subparsers) -> None:
                        help="a circuit shipped with vehsim, driven as a lap")
     p.add_argument("--closed", action="store_true",
                    help="with --road-file: the road is a circuit and the drive a lap (periodic: "
-                        "it ends in the state it started)")
+                        "it ends in the state it started; default: as the file's '# closed:' "
+                        "line says, which vehsim's road files have; else open)")
     p.add_argument("--smoothing", type=number(0.0, 10.0, unit="m"), default=None,
                    help="with --road-file or --track: the rms distance [m] allowed between the "
                         "file's points and the smoothed centre line (0: through the points)")
@@ -108,11 +109,7 @@ def _optimise(args) -> int:
     if args.objective == "min-time" and args.tf_max is not None:
         raise ValueError("--tf-max is the time budget of --objective max-exit; the "
                          "minimum-time drive has none")
-    if args.objective == "max-exit" and args.tf_max is None and args.road_file is not None \
-            and not args.closed:  # a lap has no exit: refused with that reason below
-        raise ValueError("--objective max-exit on a road file needs --tf-max, the time "
-                         "budget [s] in (0, 60]: at least the road's minimum time "
-                         "(--objective min-time gives it)")
+    args.tf_max_given = args.tf_max is not None  # a road file's max-exit needs it
     if args.tf_max is None:  # the benchmark's budget (unused by min-time)
         args.tf_max = 4.0
     if args.road is None:

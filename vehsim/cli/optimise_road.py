@@ -37,7 +37,8 @@ def road_from_args(args):
 
     if args.track is not None:
         return track(args.track, smoothing=args.smoothing)
-    return read_road(input_file("--road-file", args.road_file), closed=args.closed,
+    return read_road(input_file("--road-file", args.road_file),
+                     closed=True if args.closed else None,  # else as the file says
                      smoothing=args.smoothing)
 
 
@@ -61,6 +62,16 @@ def default_stages(length: float) -> int:
     return int(min(MAX_STAGES, max(MIN_STAGES, math.ceil(length / STAGE_LENGTH))))
 
 
+def _refuse_on_a_lap(args, said: str) -> None:
+    """The options that need an open road, refused on the lap that ``said`` names."""
+    if args.start_speed is not None:
+        raise ValueError(f"--start-speed applies to an open road, and {said} names a lap (a "
+                         "lap ends in the state it starts, at a speed of its own)")
+    if args.objective == "max-exit":
+        raise ValueError(f"--objective max-exit needs an open road, and {said} names a lap "
+                         "(a lap has no exit); use --objective min-time")
+
+
 def optimise_road(args) -> int:
     import jax
 
@@ -81,19 +92,22 @@ def optimise_road(args) -> int:
         raise ValueError("--interior-points and --no-corner-clearance apply to the benchmark "
                          "roads' corners; on a road file the corridor holds at each step's "
                          "midpoint as well as at the nodes")
-    closed = args.closed or args.track is not None  # known before the road is read
-    if args.start_speed is not None and closed:
-        raise ValueError("--start-speed applies to an open road (a lap ends in the state "
-                         "it starts, at a speed of its own)")
-    if closed and args.objective == "max-exit":
-        raise ValueError("--objective max-exit needs an open road (a lap has no exit); "
-                         "leave out --closed or use --objective min-time")
-    road = road_from_args(args)
+    if args.closed or args.track is not None:  # known before the road is read
+        _refuse_on_a_lap(args, "--track" if args.track is not None else "--closed")
+    road = road_from_args(args)  # read and checked, nothing compiled: a file says if closed
+    if road.closed:
+        _refuse_on_a_lap(args, f"{args.road_file} (its '# closed: yes' line)")
+    if args.objective == "max-exit" and not args.tf_max_given:
+        raise ValueError("--objective max-exit on a road file needs --tf-max, the time "
+                         "budget [s] in (0, 60]: at least the road's minimum time "
+                         "(--objective min-time gives it)")
     _check_margin(road, args.margin)
     if args.start_speed is not None:
         from ..optimal.centreline import Gate
 
-        road = road.with_gates(Gate.at(road, 0.0, speed=args.start_speed), None)
+        g = road.start  # the file's start gate, at the speed asked for
+        road = road.with_gates(Gate.at(road, g.s, n_min=g.n_min, n_max=g.n_max,
+                                       speed=args.start_speed), road.end)
     stages = args.segments if args.segments is not None else default_stages(road.length)
     coarse = coarse_stages(road.length, stages)
     kind = "lap" if road.closed else "stage"
@@ -115,7 +129,7 @@ def optimise_road(args) -> int:
                                   num_stages=min(stages, 500), tf_max=args.tf_max, throw=False)
     rec = prim.record(bound)
     rec["wall_time_s"] = wall
-    rec["start_speed"] = args.start_speed
+    rec["start_speed"] = road.start.speed  # --start-speed, or the file's start gate
     out = Path(args.out)
     stem = f"{road.name}_{args.objective}"
     st = rec["states"]
