@@ -166,15 +166,6 @@ def simulate(sc, driver, estimator, seed: int):
     return run(jax.random.key(seed))
 
 
-def first_measurement(sc, seed: int):
-    """The measurement before the first sample (as `simulate_drive` draws it)."""
-    import jax
-
-    from ..drive.plant import measure_drive
-
-    return measure_drive(sc.plant, sc.state0, jax.random.fold_in(jax.random.key(seed), 0))
-
-
 def outcome(sc, run) -> dict:
     """``drive_time`` [s] (None: never crossed the end gate), ``max_distance_off_road`` [m]
     and ``completed`` (`drive_outcome` on the path at every integration step)."""

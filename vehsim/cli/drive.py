@@ -5,11 +5,10 @@ the controller's compute time per sample, the grip estimate and the planner's fr
 time, the settings), ``drive.png`` (`vehsim.plot.drive_figure`) and an animation
 ``drive.gif`` (`vehsim.plot.drive_animation`).
 
-The compute time is measured here, above the simulation: after the drive (one compiled
-scan), the controller's sample (the estimator's update on the new measurement, then the
-command) is compiled on its own and run sample by sample on the drive's recorded
-measurements, each call timed to its result (`controller_timing`); it issues the drive's
-commands again, so that what is timed is what drove.
+The compute time is measured here, above the simulation: the drive is `simulate_drive`'s,
+run one sample at a time (`timed_drive`), the controller's sample (the estimator's update on
+the new measurement, then the command) and the plant's each compiled once and called in
+turn, each controller call timed to its result, so that what is timed is what drove.
 """
 
 from __future__ import annotations
@@ -55,7 +54,6 @@ UNITS = {
     "solver.iterations": "1", "solver.converged": "1 (true or false)",
     "solver.kkt": "1 (the largest scaled residual)", "settings.seed": "1", "settings.frame_every": "1",
     "settings.passes": "1 (interior-point passes per sample, rti mode)",
-    "commands_replayed_max_difference": "N m, N m, rad (T_F, T_R, delta)",
     "settings.grip": "1 (relative to the nominal road)", "nominal_scale": "1",
     "nominal_D": "1", "settings.patches": "m, m, m, 1 (x, y, radius, scale)",
     "settings.preview": "m (how far ahead the oracle knows the grip, or the pace notes the "
@@ -217,56 +215,74 @@ def _patches_reach_road(road, patches) -> None:
                              f"{off:.1f} m, or a centre on the road)")
 
 
-def controller_timing(controller, estimator, m0, measurements, *, samples: int | None = None
-                      ) -> dict:
-    r"""The controller's compute time per sample, measured outside the drive's scan: the
-    sample ``(update the estimator with the new measurement, take its estimate, issue the
-    command)`` compiled on its own (`jax.jit`), called for the drive's recorded
-    `measurements` (a `DriveMeasurement` with a leading samples axis; `m0` the first one,
-    before the drive) one by one, each call timed until its command is ready. The first
-    sample (the controller's and the estimator's `init`, then the command) and the
-    compilations are timed apart (``compile``).
+def timed_drive(plant, controller, state0, key, num_samples: int, estimator=None) -> dict:
+    r"""The drive of `vehsim.simulate_drive` (the same samples, sensor noise and records,
+    with the poses at every integration step), run one sample at a time from here so that
+    the controller's compute time is that of the commands that drove.
 
-    **Returns** ``{"commands": (N, 3), "times": (N - 1,), "compile": s}``: the commands issued
-    (those of the drive, sample for sample) and the times [s]; ``samples``: time only the
-    first this many."""
+    Two compiled programs, called alternately: the controller's sample (the estimator's
+    update on the new measurement, its estimate, the command) and the plant's sample
+    (`drive_step`). Each controller call is timed until its command is ready; the first
+    sample (the controller's and the estimator's `init`, then the command) and the
+    compilations are timed apart (``compile``). The estimate after the last measurement
+    takes one more controller call, whose command is not issued and not timed.
+
+    **Returns** ``{"run": DriveRun, "times": (N - 1,), "compile": s}`` [s]."""
     import jax
     import numpy as np
 
-    n = int(jax.tree.leaves(measurements)[0].shape[0])
-    n = n if samples is None else min(n, samples)
+    from ..drive.plant import drive_step, measure_drive
+    from ..drive.simulate import DriveRun
+
+    info = getattr(controller, "info", None)
+
+    def recorded(cs):
+        return None if info is None else info(cs)
 
     @jax.jit
     def first(m):
         es = None if estimator is None else estimator.init(m)
         estimate = None if estimator is None else estimator.estimate(es)
         cs, command = controller.command(controller.init(m), m, estimate)
-        return cs, es, command
+        return cs, es, command, recorded(cs)
 
     @jax.jit
-    def step(cs, es, m):
+    def sample(cs, es, m):
         estimate = None
         if estimator is not None:
             es = estimator.update(es, m)
             estimate = estimator.estimate(es)
         cs, command = controller.command(cs, m, estimate)
-        return cs, es, command
+        return cs, es, command, recorded(cs), estimate
 
+    @jax.jit
+    def plant_sample(state, command):
+        return drive_step(plant, state, command, jax.random.fold_in(key, state.k + 1),
+                          substep_poses=True)
+
+    m0 = measure_drive(plant, state0, jax.random.fold_in(key, state0.k))
     t0 = time.perf_counter()
-    cs, es, command = jax.block_until_ready(first(m0))
-    step_compiled = step.lower(cs, es, m0).compile()
+    cs, es, command, record = jax.block_until_ready(first(m0))
+    sample_compiled = sample.lower(cs, es, m0).compile()
     compile_s = time.perf_counter() - t0
-    commands, times = [np.asarray(command)], []
-    with _progress("timing the controller", n - 1, "samples") as bar:
-        for k in range(n - 1):
-            m = jax.tree.map(lambda a, k=k: a[k], measurements)
+    plant_compiled = plant_sample.lower(state0, command).compile()
+    state, rows, times = state0, [], []
+    with _progress("driving", num_samples, "samples") as bar:
+        for k in range(num_samples):
+            state, m, poses = plant_compiled(state, command)
+            issued, issued_record = command, record
             t0 = time.perf_counter()
-            cs, es, command = jax.block_until_ready(step_compiled(cs, es, m))
-            times.append(time.perf_counter() - t0)
-            commands.append(np.asarray(command))
+            cs, es, command, record, estimate = jax.block_until_ready(
+                sample_compiled(cs, es, m))
+            if k < num_samples - 1:  # the last call only takes in the last measurement
+                times.append(time.perf_counter() - t0)
+            rows.append((state, m, issued, estimate, issued_record, poses))
             if bar is not None:
                 bar.advance(1)
-    return {"commands": np.stack(commands), "times": np.asarray(times), "compile": compile_s}
+    states, ms, commands, estimates, infos, poses = jax.tree.map(  # None stays None
+        lambda *a: np.stack(a), *rows)
+    return {"run": DriveRun(states, ms, commands, estimates, state, infos, poses),
+            "times": np.asarray(times), "compile": compile_s}
 
 
 def _progress(label: str, total: int, unit: str):
@@ -307,7 +323,7 @@ def _drive(args) -> int:
           f", {args.controller}" + (f" ({args.mode or 'rti'})" if rh else "") + f", {grip}, "
           f"{sc.num_samples} samples of {T:g} s; "
           + ("" if rh else "solving the nominal plan, then ")
-          + "compiling the drive (a minute or more on 2 cores), then running it",
+          + "compiling the controller (a minute or more on 2 cores), then driving",
           file=sys.stderr, flush=True)
     import jax
     import numpy as np
@@ -319,15 +335,13 @@ def _drive(args) -> int:
 
     t0 = time.perf_counter()
     driver, estimator = setup.controller(args, sc)
-    run = jax.block_until_ready(setup.simulate(sc, driver, estimator, args.seed))
-    wall = time.perf_counter() - t0
-    print(f"drove in {wall:.1f} s (set-up, compilation and the drive); timing the "
-          "controller sample by sample", file=sys.stderr, flush=True)
     note = plan_note(args.controller, args.nominal_plan)
     if note:
         print(note, file=sys.stderr, flush=True)
-    timing = controller_timing(driver, estimator, setup.first_measurement(sc, args.seed),
-                               run.measurements)
+    timing = timed_drive(sc.plant, driver, sc.state0, jax.random.key(args.seed),
+                         sc.num_samples, estimator)
+    run = timing["run"]
+    wall = time.perf_counter() - t0
     result = setup.outcome(sc, run)
     t = np.asarray(run.states.t)
     nonfinite = first_nonfinite_time(run.states, t)
@@ -346,8 +360,6 @@ def _drive(args) -> int:
         "start_speed": sc.start_speed, "nominal_D": BENCHMARK_PEAK,
         "nominal_scale": nominal_scale(),
         **timing_record(timing["times"], T, timing["compile"]),
-        "commands_replayed_max_difference": np.max(np.abs(
-            timing["commands"] - np.asarray(run.commands)), axis=0),
         "estimate": None if "peak_est" not in tr else {
             "t": tr["t"], "peak": tr["peak_est"], "peak_std": tr["peak_std"],
             "scale": tr["scale_est"], "scale_std": np.asarray(run.estimates.scale_std)},
