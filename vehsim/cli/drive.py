@@ -269,7 +269,8 @@ def timed_drive(plant, controller, state0, key, num_samples: int, estimator=None
     state, rows, times = state0, [], []
     with _progress("driving", num_samples, "samples") as bar:
         for k in range(num_samples):
-            state, m, poses = plant_compiled(state, command)
+            # the plant's sample finished before the controller's clock starts
+            state, m, poses = jax.block_until_ready(plant_compiled(state, command))
             issued, issued_record = command, record
             t0 = time.perf_counter()
             cs, es, command, record, estimate = jax.block_until_ready(
