@@ -109,7 +109,11 @@ def _optimise(args) -> int:
     if args.objective == "min-time" and args.tf_max is not None:
         raise ValueError("--tf-max is the time budget of --objective max-exit; the "
                          "minimum-time drive has none")
-    args.tf_max_given = args.tf_max is not None  # a road file's max-exit needs it
+    if args.objective == "max-exit" and args.tf_max is None and args.road_file is not None \
+            and not args.closed:  # a lap has no exit: refused with that reason below
+        raise ValueError("--objective max-exit on a road file needs --tf-max, the time "
+                         "budget [s] in (0, 60]: at least the road's minimum time "
+                         "(--objective min-time gives it)")
     if args.tf_max is None:  # the benchmark's budget (unused by min-time)
         args.tf_max = 4.0
     if args.road is None:

@@ -97,10 +97,6 @@ def optimise_road(args) -> int:
     road = road_from_args(args)  # read and checked, nothing compiled: a file says if closed
     if road.closed:
         _refuse_on_a_lap(args, f"{args.road_file} (its '# closed: yes' line)")
-    if args.objective == "max-exit" and not args.tf_max_given:
-        raise ValueError("--objective max-exit on a road file needs --tf-max, the time "
-                         "budget [s] in (0, 60]: at least the road's minimum time "
-                         "(--objective min-time gives it)")
     _check_margin(road, args.margin)
     if args.start_speed is not None:
         from ..optimal.centreline import Gate
