@@ -153,7 +153,9 @@ def plan_record(prim) -> dict:
 
 
 def simulate(sc, driver, estimator, seed: int):
-    """The drive (one compiled scan), with the poses at every integration step."""
+    """The drive in one compiled scan (`simulate_drive`), with the poses at every integration
+    step: the experiments' drives (`vehsim drive` runs `drive.timed_drive`, which times the
+    controller's samples)."""
     import jax
 
     from ..drive.simulate import simulate_drive

@@ -92,10 +92,11 @@ def optimise_road(args) -> int:
         raise ValueError("--interior-points and --no-corner-clearance apply to the benchmark "
                          "roads' corners; on a road file the corridor holds at each step's "
                          "midpoint as well as at the nodes")
-    if args.closed or args.track is not None:  # known before the road is read
+    said = args.closed or args.track is not None  # known before the road is read
+    if said:
         _refuse_on_a_lap(args, "--track" if args.track is not None else "--closed")
     road = road_from_args(args)  # read and checked, nothing compiled: a file says if closed
-    if road.closed:
+    if road.closed and not said:
         _refuse_on_a_lap(args, f"{args.road_file} (its '# closed: yes' line)")
     _check_margin(road, args.margin)
     if args.start_speed is not None:
