@@ -75,6 +75,7 @@ from ..optimal.curvilinear import (
     speed_profile,
 )
 from ..optimal.ip import IPOptions, IPSolution, interior_point
+from ..optimal.ip.implicit import implicit_solve
 from ..optimal.ip.problem import stage_layout
 from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
 from ..tire.lumped2d import LumpedLuGre2D
@@ -453,21 +454,33 @@ class HorizonOCP(CurvilinearManeuverOCP):
 RELAX_STAGES = 3
 """Stages over which the corridor is widened to hold a start outside it (`horizon_problem`)."""
 
+FIRST_RELAX_STAGES = 6
+"""`RELAX_STAGES` of a driver's first plan (`RecedingHorizonDriver.problem` with ``first``):
+it starts from the first position fix as measured, up to a metre from the car (its error's
+standard deviation `RecedingHorizonDriver.position_std`), with no fix yet to filter it, and
+over 3 stages of 2 m the widened corridor pinned such a start's next knot to its edge
+(docs/driver.md, "When the first plan does not converge")."""
+
+FALLBACK_SLIP = 10.0
+"""The slip bound of the first step of a first plan solved again in two steps
+(`RecedingHorizonDriver`): none in effect."""
+
 
 def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
                     margin_grip_power=0.0, corridor_penalty=None,
-                    soft_stages=None) -> HorizonOCP:
+                    soft_stages=None, relax_stages=RELAX_STAGES) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
     ``D_per_stage``).
 
     Curvature at each stage's RK4 points, corridor $(-w_r + m_k, w_l - m_k)$ at the knots
-    and midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
-    much as the start lies outside it plus 5 cm, so that a start off the corridor stays
-    feasible), $m_k = m \min(1, g_k)^p$ with $m$ = ``margin``, $p$ = ``margin_grip_power``
+    and midpoints (widened over the first ``relax_stages`` stages, `RELAX_STAGES` by
+    default, linearly to nothing, by as much as the start lies outside it plus 5 cm, so
+    that a start off the corridor stays feasible), $m_k = m \min(1, g_k)^p$ with $m$ =
+    ``margin``, $p$ = ``margin_grip_power``
     (0: the same margin everywhere) and $g_k$ the stage's `grip` below (the last stage's at
     the end knot). How far the car strays from its plan within a sample grows with the
     lateral force the planning model gets wrong, a fraction of the grip it plans with, and
@@ -476,7 +489,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with $\beta$ = ``terminal_backoff``,
     `grip` = ``D_per_stage`` / the vehicle's $D$;
     ``slip_limit`` (None: no bound) the bound on the axles' combined slip, widened over the
-    first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it (plus
+    first ``relax_stages`` stages as the corridor by as much as the start exceeds it (plus
     0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
     start, read from the last plan between its first two knots, crept up to the bound
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
@@ -498,7 +511,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     n0 = state8[0]
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
-    fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
+    fade = lambda s: jnp.clip(1.0 - (s - s0) / (relax_stages * h), 0.0, 1.0)
     widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
     nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
@@ -647,6 +660,40 @@ def no_derivative(x):
 @no_derivative.defjvp
 def _no_derivative_jvp(primals, tangents):
     raise TypeError(RTI_DERIVATIVE_MESSAGE)
+
+
+def _solve_in_steps(prob, xs0, us0, options, multipliers, retry) -> IPSolution:
+    r"""`interior_point` of ``prob`` from the guess; where ``retry`` and that solve did not
+    converge, solved again in two steps: without the slip bound (`FALLBACK_SLIP`) from the
+    same guess, then with it from that plan. The second step's plan is returned where it
+    converged, the first solve's otherwise, with the iterations of all three. The
+    slip-bounded problem from a cold guess can stall under a growing regularisation where
+    the same problem from the unbounded plan converges in some 30 iterations (docs/driver.md,
+    "When the first plan does not converge"). One solve in a loop of one pass (three where
+    it retries): the program holds the interior point once."""
+
+    def solve(step, xs, us):
+        limit = jnp.where(step == 1, FALLBACK_SLIP, prob.slip_limit)
+        p = eqx.tree_at(lambda q: q.slip_limit, prob, limit)
+        return interior_point(p, xs, us, options, throw=False, multipliers=multipliers)
+
+    blank = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                         eqx.filter_eval_shape(solve, 0, xs0, us0))
+
+    def more(carry):
+        step, first, _, _ = carry
+        return (step == 0) | (retry & ~first.converged & (step < 3))
+
+    def attempt(carry):
+        step, first, last, iterations = carry
+        sol = solve(step, jnp.where(step == 2, last.xs, xs0), jnp.where(step == 2, last.us, us0))
+        first = jax.tree.map(lambda a, b: jnp.where(step == 0, a, b), sol, first)
+        return step + 1, first, sol, iterations + sol.iterations
+
+    step, first, last, iterations = jax.lax.while_loop(
+        more, attempt, (jnp.zeros((), int), blank, blank, jnp.zeros((), int)))
+    sol = jax.tree.map(lambda a, b: jnp.where((step == 3) & last.converged, a, b), last, first)
+    return eqx.tree_at(lambda q: q.iterations, sol, iterations)
 
 
 PLANNER_FIT_SPEED = 12.0
@@ -1119,8 +1166,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
         return jnp.clip(D, 0.05, 2.0)
 
-    def problem(self, s0, state8, D) -> HorizonOCP:
-        """`horizon_problem` with this driver's settings."""
+    def problem(self, s0, state8, D, first=False) -> HorizonOCP:
+        """`horizon_problem` with this driver's settings; ``first`` (a boolean, or a boolean
+        array: one program for both): the first plan's, whose corridor holds a start
+        outside it over `FIRST_RELAX_STAGES` stages."""
+        relax = RELAX_STAGES if first is False else jnp.where(first, FIRST_RELAX_STAGES,
+                                                               RELAX_STAGES)
         return horizon_problem(self.table, self.vehicle, s0, state8, D, horizon=self.horizon,
                                margin=self.margin, rate_weight=self.rate_weight,
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
@@ -1128,7 +1179,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                                slip_limit=self.slip_limit,
                                margin_grip_power=self.margin_grip_power,
                                corridor_penalty=self.corridor_penalty,
-                               soft_stages=self.soft_stages)
+                               soft_stages=self.soft_stages, relax_stages=relax)
 
     def cold_guess(self, s0, state8, D):
         """`profile_guess` with this driver's horizon (and a zero slack with
@@ -1166,13 +1217,21 @@ class RecedingHorizonDriver(AbstractDriveController):
         y, _ = jax.lax.scan(step, y, None, length=steps)
         return y
 
-    def _solve(self, prob, xs0, us0, options, multipliers=None) -> IPSolution:
+    def _solve(self, prob, xs0, us0, options, multipliers=None, retry=False) -> IPSolution:
         """The plan (the guess kept where the solve broke down). A converged-mode plan is
         differentiated by the implicit function theorem (`interior_point`'s ``implicit``);
-        a real-time iteration's refuses derivatives (`RTI_DERIVATIVE_MESSAGE`)."""
+        a real-time iteration's refuses derivatives (`RTI_DERIVATIVE_MESSAGE`). Where
+        ``retry`` (the first plan) and the solve did not converge, it is solved again in two
+        steps (`_solve_in_steps`)."""
         implicit = self.mode == "converged"
-        sol = interior_point(prob, xs0, us0, options, throw=False, multipliers=multipliers,
-                             implicit=implicit)
+        if prob.slip_limit is None or retry is False:
+            sol = interior_point(prob, xs0, us0, options, throw=False,
+                                 multipliers=multipliers, implicit=implicit)
+        elif implicit:
+            sol = implicit_solve(prob, (xs0, us0, options, multipliers, retry),
+                                 solve=_solve_in_steps)
+        else:
+            sol = _solve_in_steps(prob, xs0, us0, options, multipliers, retry)
         ok = jnp.all(jnp.isfinite(sol.xs)) & jnp.all(jnp.isfinite(sol.us))
         guard = (lambda a: a) if implicit else no_derivative
         xs = guard(jnp.where(ok, sol.xs, xs0))
@@ -1282,14 +1341,15 @@ class RecedingHorizonDriver(AbstractDriveController):
         D = self.planner_friction(s_pred, estimate, speeds)
         guess = self.cold_guess(s_pred, state8, D)
         xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
-        prob = self.problem(s_pred, state8, D)
+        prob = self.problem(s_pred, state8, D, first)
         duals = None
         if self.warm_duals:
             lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
                                            s_pred - state.s_plan, self.horizon)
             # a plan that did not converge has no multipliers to trust: the cold start
             duals = lam, nu, jnp.where(state.converged & ~cold, z, 0.0)
-        sol = self._solve(prob, xs0, us0, self.options(first, cold & ~first), duals)
+        sol = self._solve(prob, xs0, us0, self.options(first, cold & ~first), duals,
+                          retry=first)
         X, u = self.plan_point(sol.xs, sol.us)
         probing = jnp.asarray(False)
         if self.probe_distance is not None:  # a test brake while the grip is not known
@@ -1424,7 +1484,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         first = k == 0
         cold = first or bool(info["kkt"][k - 1] > self.replan_kkt)
         s0, state8, D = info["plan_s"][k, 0], info["start"][k], info["D"][k]
-        prob = self.problem(s0, state8, D)
+        prob = self.problem(s0, state8, D, first)
         if cold:
             xs0, us0 = self.cold_guess(s0, state8, D)
         else:
