@@ -713,8 +713,9 @@ def test_a_first_plan_that_stalls_is_solved_again_without_then_with_the_slip_bou
 
 def test_the_commands_solve_retries_the_first_plan_only(monkeypatch):
     """The command's solve is `_solve_in_steps` with the slip bound, asked to retry where
-    there is no plan yet (the first plan) and not after; without the bound the plain
-    solve."""
+    there is no plan yet (the first plan) and not after, on the first plan's problem (a
+    start 0.24 m off the corridor still widens it at the fourth knot, past `RELAX_STAGES`);
+    without the bound the plain solve."""
     import vehsim.drive.horizon as horizon
 
     table, plant = _straight_and_quiet_plant()
@@ -722,16 +723,19 @@ def test_the_commands_solve_retries_the_first_plan_only(monkeypatch):
     seen = []
 
     def spy(prob, xs0, us0, options, multipliers, retry):
-        seen.append(retry)
+        seen.append((retry, prob.corridor[3, 1]))
         return vs.interior_point(prob, xs0, us0, options, throw=False, multipliers=multipliers)
 
     monkeypatch.setattr(horizon, "_solve_in_steps", spy)
-    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
+    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4, margin=0.4)
+    m0 = eqx.tree_at(lambda m: m.y, m0, m0.y + 1.84)  # the corridor's edge at 1.6 m
     state = driver.init(m0)
     for planned in (False, True):
         given = eqx.tree_at(lambda st: st.planned, state, jnp.asarray(planned))
-        retry = jax.jit(lambda st: (driver.command(st, m0, None), seen[-1])[1])(given)
+        retry, edge = jax.jit(lambda st: (driver.command(st, m0, None), seen[-1])[1])(given)
         assert bool(retry) == (not planned)
+        if not planned:  # 1.6 + 0.29 (1 - 15 m / 30 m)
+            np.testing.assert_allclose(float(edge), 1.6 + 0.145, atol=1e-9)
     unbounded = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4, slip_limit=None)
     count = len(seen)
     jax.make_jaxpr(lambda st: unbounded.command(st, m0, None))(unbounded.init(m0))
