@@ -797,7 +797,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the position filter assumes for a GNSS fix and for each axis of the measured velocity
     over ground, `filter_position`; 0.3 and 0.1), `steer_rate` [rad/s] and
     `steer_limit` [rad] (the steering actuator's), `sample_time` [s] and `delay_samples`
-    (static; the actuators' delay), `init_iterations` (cap of the first plan's solve),
+    (static; the actuators' delay), `init_iterations` (cap of the first plan's solve, and
+    of each of its two steps where it is solved again: `_solve_in_steps`),
     `warm_start` (static): 'primal' (the shifted plan; the multipliers start afresh, the
     least-squares estimate) or 'primal-dual' (also the previous plan's multipliers, shifted
     by `shift_multipliers`, where that plan converged: `interior_point`'s
