@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import vehsim as vs
-from vehsim.drive.horizon import FIRST_RELAX_STAGES, RELAX_STAGES
+from vehsim.drive.horizon import RELAX_STAGES
 
 
 pytestmark = pytest.mark.xdist_group("drive")
@@ -673,7 +673,7 @@ def test_a_first_plan_that_stalls_is_solved_again_without_then_with_the_slip_bou
     options = driver.options(first)
 
     def solve(state8, retry):
-        prob = driver.problem(s0, state8, D, first)
+        prob = driver.problem(s0, state8, D)
         xs0, us0 = driver.cold_guess(s0, state8, D)
         sol = driver._solve(prob, xs0, us0, options, None, retry=retry)
         slips = jax.vmap(lambda X: vs.axle_slips(driver.vehicle, X[:8]))(sol.xs)
@@ -713,9 +713,8 @@ def test_a_first_plan_that_stalls_is_solved_again_without_then_with_the_slip_bou
 
 def test_the_commands_solve_retries_the_first_plan_only(monkeypatch):
     """The command's solve is `_solve_in_steps` with the slip bound, asked to retry where
-    there is no plan yet (the first plan) and not after, on the first plan's problem (a
-    start 0.24 m off the corridor still widens it at the fourth knot, past `RELAX_STAGES`);
-    without the bound the plain solve."""
+    there is no plan yet (the first plan) and not after; without the bound the plain
+    solve."""
     import vehsim.drive.horizon as horizon
 
     table, plant = _straight_and_quiet_plant()
@@ -723,52 +722,20 @@ def test_the_commands_solve_retries_the_first_plan_only(monkeypatch):
     seen = []
 
     def spy(prob, xs0, us0, options, multipliers, retry):
-        seen.append((retry, prob.corridor[3, 1]))
+        seen.append(retry)
         return vs.interior_point(prob, xs0, us0, options, throw=False, multipliers=multipliers)
 
     monkeypatch.setattr(horizon, "_solve_in_steps", spy)
-    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4, margin=0.4)
-    m0 = eqx.tree_at(lambda m: m.y, m0, m0.y + 1.84)  # the corridor's edge at 1.6 m
+    driver = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4)
     state = driver.init(m0)
     for planned in (False, True):
         given = eqx.tree_at(lambda st: st.planned, state, jnp.asarray(planned))
-        retry, edge = jax.jit(lambda st: (driver.command(st, m0, None), seen[-1])[1])(given)
+        retry = jax.jit(lambda st: (driver.command(st, m0, None), seen[-1])[1])(given)
         assert bool(retry) == (not planned)
-        if not planned:  # 1.6 + 0.29 (1 - 15 m / 30 m)
-            np.testing.assert_allclose(float(edge), 1.6 + 0.145, atol=1e-9)
     unbounded = vs.RecedingHorizonDriver(table, horizon=20.0, num_stages=4, slip_limit=None)
     count = len(seen)
     jax.make_jaxpr(lambda st: unbounded.command(st, m0, None))(unbounded.init(m0))
     assert len(seen) == count
-
-
-def test_the_first_plan_holds_a_start_off_the_corridor_over_more_stages():
-    """The first plan starts from the first position fix, unfiltered: a start outside the
-    corridor widens the first plan's corridor over `FIRST_RELAX_STAGES` stages, a later
-    plan's over `RELAX_STAGES`, linearly from the start's offset plus 5 cm to nothing
-    (`horizon_problem`); a start inside it leaves both corridors as they are."""
-    table, _ = _straight_and_quiet_plant()
-    driver = vs.RecedingHorizonDriver(table, horizon=24.0, num_stages=12, margin=0.4)
-    D = jnp.full(12, 0.52)
-    edge = 2.0 - 0.4  # the half width less the margin
-    h = 2.0
-    for n0 in (1.84, -1.84):
-        state8 = jnp.asarray([n0, 0.0, 8.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-        excess = abs(n0) - edge + 0.05
-        for first, stages in ((jnp.asarray(True), FIRST_RELAX_STAGES),
-                              (jnp.asarray(False), RELAX_STAGES), (False, RELAX_STAGES)):
-            prob = driver.problem(0.0, state8, D, first)
-            s = h * np.arange(13)
-            widened = edge + excess * np.clip(1.0 - s / (stages * h), 0.0, 1.0)
-            np.testing.assert_allclose(np.asarray(prob.corridor), np.stack([-widened, widened], 1),
-                                       rtol=0, atol=1e-12)
-            mids = edge + excess * np.clip(1.0 - (s[:-1] + 1.0) / (stages * h), 0.0, 1.0)
-            np.testing.assert_allclose(np.asarray(prob.corridor_mid[:, 0]),
-                                       np.stack([-mids, mids], 1), rtol=0, atol=1e-12)
-    inside = jnp.asarray([0.3, 0.0, 8.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(np.asarray(driver.problem(0.0, inside, D, True).corridor),
-                                  np.asarray(driver.problem(0.0, inside, D).corridor))
-    assert FIRST_RELAX_STAGES > RELAX_STAGES
 
 
 def test_driver_passes_its_hessian_update_to_the_sample_solves():

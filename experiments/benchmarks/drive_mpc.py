@@ -193,7 +193,7 @@ class DompcDriver:
         s, X5 = d._measured_state(m, jnp.stack([m.x, m.y]), s_guess)
         state8 = jnp.concatenate([X5, inputs])
         D = d.planner_friction(s, None, jnp.hypot(X5[2], X5[3]))
-        prob = d.problem(s, state8, D, first=True)
+        prob = d.problem(s, state8, D)
         guess = profile_guess(d.table, d.vehicle, s, state8, D, horizon=d.horizon)
         return s, inputs, state8, prob, guess
 

@@ -454,13 +454,6 @@ class HorizonOCP(CurvilinearManeuverOCP):
 RELAX_STAGES = 3
 """Stages over which the corridor is widened to hold a start outside it (`horizon_problem`)."""
 
-FIRST_RELAX_STAGES = 6
-"""`RELAX_STAGES` of a driver's first plan (`RecedingHorizonDriver.problem` with ``first``):
-it starts from the first position fix as measured, up to a metre from the car (its error's
-standard deviation `RecedingHorizonDriver.position_std`), with no fix yet to filter it, and
-over 3 stages of 2 m the widened corridor pinned such a start's next knot to its edge
-(docs/driver.md, "When the first plan does not converge")."""
-
 FALLBACK_SLIP = 10.0
 """The slip bound of the first step of a first plan solved again in two steps
 (`RecedingHorizonDriver`): none in effect."""
@@ -470,17 +463,16 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
                     margin_grip_power=0.0, corridor_penalty=None,
-                    soft_stages=None, relax_stages=RELAX_STAGES) -> HorizonOCP:
+                    soft_stages=None) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
     ``D_per_stage``).
 
     Curvature at each stage's RK4 points, corridor $(-w_r + m_k, w_l - m_k)$ at the knots
-    and midpoints (widened over the first ``relax_stages`` stages, `RELAX_STAGES` by
-    default, linearly to nothing, by as much as the start lies outside it plus 5 cm, so
-    that a start off the corridor stays feasible), $m_k = m \min(1, g_k)^p$ with $m$ =
-    ``margin``, $p$ = ``margin_grip_power``
+    and midpoints (widened over the first `RELAX_STAGES` stages, linearly to nothing, by as
+    much as the start lies outside it plus 5 cm, so that a start off the corridor stays
+    feasible), $m_k = m \min(1, g_k)^p$ with $m$ = ``margin``, $p$ = ``margin_grip_power``
     (0: the same margin everywhere) and $g_k$ the stage's `grip` below (the last stage's at
     the end knot). How far the car strays from its plan within a sample grows with the
     lateral force the planning model gets wrong, a fraction of the grip it plans with, and
@@ -489,7 +481,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     $|v(H)| \le \beta\sqrt{D_{M-1}}\,v_1(s_0 + H)$ with $\beta$ = ``terminal_backoff``,
     `grip` = ``D_per_stage`` / the vehicle's $D$;
     ``slip_limit`` (None: no bound) the bound on the axles' combined slip, widened over the
-    first ``relax_stages`` stages as the corridor by as much as the start exceeds it (plus
+    first `RELAX_STAGES` stages as the corridor by as much as the start exceeds it (plus
     0.02 at the fixed first knot only: with the slack on the later knots too, each sample's
     start, read from the last plan between its first two knots, crept up to the bound
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
@@ -511,7 +503,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     n0 = state8[0]
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
-    fade = lambda s: jnp.clip(1.0 - (s - s0) / (relax_stages * h), 0.0, 1.0)
+    fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
     widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
     nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
@@ -1167,12 +1159,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
         return jnp.clip(D, 0.05, 2.0)
 
-    def problem(self, s0, state8, D, first=False) -> HorizonOCP:
-        """`horizon_problem` with this driver's settings; ``first`` (a boolean, or a boolean
-        array: one program for both): the first plan's, whose corridor holds a start
-        outside it over `FIRST_RELAX_STAGES` stages."""
-        relax = RELAX_STAGES if first is False else jnp.where(first, FIRST_RELAX_STAGES,
-                                                               RELAX_STAGES)
+    def problem(self, s0, state8, D) -> HorizonOCP:
+        """`horizon_problem` with this driver's settings."""
         return horizon_problem(self.table, self.vehicle, s0, state8, D, horizon=self.horizon,
                                margin=self.margin, rate_weight=self.rate_weight,
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
@@ -1180,7 +1168,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                                slip_limit=self.slip_limit,
                                margin_grip_power=self.margin_grip_power,
                                corridor_penalty=self.corridor_penalty,
-                               soft_stages=self.soft_stages, relax_stages=relax)
+                               soft_stages=self.soft_stages)
 
     def cold_guess(self, s0, state8, D):
         """`profile_guess` with this driver's horizon (and a zero slack with
@@ -1342,7 +1330,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         D = self.planner_friction(s_pred, estimate, speeds)
         guess = self.cold_guess(s_pred, state8, D)
         xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
-        prob = self.problem(s_pred, state8, D, first)
+        prob = self.problem(s_pred, state8, D)
         duals = None
         if self.warm_duals:
             lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
@@ -1476,7 +1464,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         converge failed. The problem is the one at the recorded start and $D$; the guess and
         multipliers are the previous plan's shifted by the distance between the two plans'
         starts (the multipliers only where that plan converged), or the cold start for the
-        first plan and for a re-plan (`replan_kkt`). The same problem solved in another
+        first plan and for a re-plan (`replan_kkt`); a first plan that the drive solved again
+        (`_solve_in_steps`) is rebuilt as its first solve. The same problem solved in another
         program may take more or fewer iterations than it did in the drive: these solves are
         sensitive to rounding (docs/performance.md)."""
         n = len(info["iterations"])
@@ -1485,7 +1474,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         first = k == 0
         cold = first or bool(info["kkt"][k - 1] > self.replan_kkt)
         s0, state8, D = info["plan_s"][k, 0], info["start"][k], info["D"][k]
-        prob = self.problem(s0, state8, D, first)
+        prob = self.problem(s0, state8, D)
         if cold:
             xs0, us0 = self.cold_guess(s0, state8, D)
         else:
