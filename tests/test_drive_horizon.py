@@ -682,8 +682,8 @@ def test_a_first_plan_that_stalls_is_solved_again_without_then_with_the_slip_bou
     # XLA's default code generation: whether a cold solve stalls depends on its rounding
     args = (jnp.asarray(state8), jnp.asarray(True))
     program = jax.jit(solve).lower(*args).compile(compiler_options=default_codegen)
-    # the recorded start, and starts near it: on one machine the first solve stalled from
-    # 5 of these 7 (at the cap of 300), and solved again it converged from all 7
+    # the recorded start, and seven near it: on one machine the first solve stalled from
+    # 5 of these 8 (at the cap of 300), and solved again it converged from all 8
     starts = [state8] + [[n, 0.0, vx, vy, 0.0, 0.0, 0.0, 0.0] for n, vx, vy in (
         (0.0, 8.0, 0.0), (-0.1, 8.0, 0.0), (0.1, 8.0, 0.0), (0.0, 8.0, 0.02), (-0.2, 8.0, 0.0),
         (0.0, 9.0, 0.0), (0.0, 7.0, 0.0))]
