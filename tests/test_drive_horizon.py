@@ -663,7 +663,7 @@ def test_a_first_plan_that_stalls_is_solved_again_without_then_with_the_slip_bou
     slip bound with the 0.4 m margin) converges when solved again in two steps, without the
     slip bound and then with it from that plan: a plan within the bound past the widened
     stages and within the corridor, the iterations those of all three solves. Where the
-    first solve converges (the car on the centre line) nothing is solved again."""
+    first solve converges, nothing is solved again."""
     sc = vs.drive_scenario("corner90", "nominal")
     driver, _ = vs.scenario_driver(sc, "estimate", pace_notes=True,
                                    **vs.driver_settings("corner90", "estimate"))

@@ -672,19 +672,19 @@ def _solve_in_steps(prob, xs0, us0, options, multipliers, retry) -> IPSolution:
     blank = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
                          eqx.filter_eval_shape(solve, 0, xs0, us0))
 
-    def more(carry):
-        step, first, _, _ = carry
-        return (step == 0) | (retry & ~first.converged & (step < 3))
+    def more(carry):  # step 0: the solve; steps 1 and 2 where it retries
+        step, once, _, _ = carry
+        return (step == 0) | (retry & ~once.converged & (step < 3))
 
     def attempt(carry):
-        step, first, last, iterations = carry
+        step, once, last, iterations = carry
         sol = solve(step, jnp.where(step == 2, last.xs, xs0), jnp.where(step == 2, last.us, us0))
-        first = jax.tree.map(lambda a, b: jnp.where(step == 0, a, b), sol, first)
-        return step + 1, first, sol, iterations + sol.iterations
+        once = jax.tree.map(lambda a, b: jnp.where(step == 0, a, b), sol, once)
+        return step + 1, once, sol, iterations + sol.iterations
 
-    step, first, last, iterations = jax.lax.while_loop(
+    step, once, last, iterations = jax.lax.while_loop(
         more, attempt, (jnp.zeros((), int), blank, blank, jnp.zeros((), int)))
-    sol = jax.tree.map(lambda a, b: jnp.where((step == 3) & last.converged, a, b), last, first)
+    sol = jax.tree.map(lambda a, b: jnp.where((step == 3) & last.converged, a, b), last, once)
     return eqx.tree_at(lambda q: q.iterations, sol, iterations)
 
 
