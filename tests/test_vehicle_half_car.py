@@ -211,7 +211,7 @@ def test_a_lifted_axle_neither_grips_nor_pulls_the_body_down():
 
 
 def test_braked_in_a_turn_to_a_stop_on_dynamic_tires():
-    """Braking in a turn from 5 m/s until the car stands, dynamic tires, the default
+    r"""Braking in a turn from 5 m/s until the car stands, dynamic tires, the default
     explicit solver: the solve succeeds through the stop (a static tire's slips are
     singular there), the torque-limited deceleration is the closed form of the wheel
     equations 52-53 with the chassis, $\dot v = -(T_b/r)/(m + (I_F + I_R)/r^2)$ (the brake

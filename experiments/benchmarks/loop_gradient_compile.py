@@ -1,4 +1,4 @@
-"""Benchmark: what it costs to build the closed braking loop's programs, plain, forward mode
+r"""Benchmark: what it costs to build the closed braking loop's programs, plain, forward mode
 and reverse mode (docs/differentiating.md).
 
 The example of docs/differentiating.md: the stopping distance of a braking from 30 m/s on dry

@@ -1,4 +1,4 @@
-"""Benchmark: method-of-moments ODE (eqs. 39-48) vs the distributed PDE (eqs. 31-34).
+r"""Benchmark: method-of-moments ODE (eqs. 39-48) vs the distributed PDE (eqs. 31-34).
 
 Same transient for both: a step to (alpha, kappa) at v = 20 m/s from an undeflected patch
 (report Fig. 17), 30 ms (three patch transit times), forces saved every 0.5 ms; and the slip
