@@ -201,66 +201,34 @@ estimate on the benchmark corners: a test brake on the first 2 m."""
 
 def driver_settings(name: str | None, friction: str | None = None) -> dict:
     r"""`RecedingHorizonDriver` settings for the scenario road called ``name`` (None: a
-    road from a file).
+    road from a file); ``friction`` the planner's friction of `scenario_driver`.
 
-    - The stage (driven at 12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`, 16 interior-point
-      passes per sample that keep the sample's first Hessian (``hessian_update='first'``)
-      and 90 % of the believed peak. With the defaults (4 passes, the
-      whole peak) the plans at those speeds are still far from converged (KKT residual
-      10-500) and the car, weaving across the road, spun in the 20 m corner with every
-      friction; even converged plans at the whole peak left the road (the planning model's
-      tire is not the plant's). With fewer passes the plans braking into the first corner
-      were lost at times and the car ran over the apex's inside edge; 16 passes that keep
-      the first Hessian complete every noisy stage measured and fit the 50 ms period with
-      room, since a solve stops at a stalled line search (`RESULTS.ip_line_search_failed`)
-      rather than repeat a failed step. And a corridor margin of 0.3 m (the default 0.2 m
-      lost about twice as many drives). The measurements: docs/drive.md ("Passes on the
-      stage", "A 0.3 m margin on the stage").
-    - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`, a corridor
-      margin of 0.4 m that narrows in proportion to the planned grip below the planning
-      car's (`margin_grip_power` 1: 0.21-0.23 m on the icy patch, 0.34-0.38 m at 20 % less
-      grip). At the default 0.2 m the car at the road's limit ran 5-30 cm past the planned
-      path's margin often enough to fail a third of the drives, but a wide margin
-      everywhere lost the icy apex, which asks for the road's width. Over 16 noise seeds
-      on the four grips, the estimate with pace notes completed 171 of 192 drives, against
-      129 at 0.2 m, 152 at 0.3 m and 155 at 0.4 m everywhere (the icy ones 37 of 48,
-      against 27 and 21 at 0.3 m and 0.4 m), the median nominal drives 0.6-1.8 % slower
-      than at 0.3 m.
-    - A road from a file (None, or a name that is not a scenario road's): `FILE_ROAD_DRIVER`,
-      measured on the shipped circuit (Oschersleben: 3.7 km, about 11 m wide, straights
-      driven at 35-47 m/s): the stage's 16 passes that keep each sample's first Hessian
-      and its friction margin, a corridor margin of 0.5 m, the terminal speed bound at
-      85 % (`terminal_backoff`), a plan whose KKT residual passes 100 planned again from
-      the cold start (`replan_kkt`) in at most 40 passes (`replan_iterations`), the axles'
-      combined slip bounded by 0.10 (`slip_limit`; the plant's tire peaks at 3.4-3.7 %
-      slip at 30-40 m/s, where at 0.15 it has 82 % of its peak and the planner's tire
-      96 %) and a soft corridor of 1 s/m (`corridor_penalty`). With the defaults the car
-      left the road 344 m in, at 34 m/s; without the slip bound and the soft corridor it
-      left it on one of two noise seeds (1.02 m), braking into a corner at 14 % rear
-      slip. With these and 8 fresh passes, six noise seeds lapped in 163.6-164.7 s and
-      never left the road in 200 s of driving (with the slip bound alone, 166.5-167.5 s),
-      but 1.8 % of the samples were re-plans of up to 40 passes, past the 50 ms period at
-      p99; with the 16 kept-Hessian passes they lapped in 163.3-163.9 s, never off, with a
-      third of the re-plans, and six more seeds did the same (docs/driver.md).
+    - The stage (12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`. At those speeds 4 passes per
+      sample leave the plans far from converged, so a sample takes 16 passes that keep its
+      first Hessian (they fit the 50 ms period); the planner uses 90 % of the believed peak,
+      since the planning tire is not the plant's; the corridor margin is 0.3 m.
+    - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`. A car at
+      the road's limit runs some tens of centimetres past its planned path, so the corridor
+      margin is 0.4 m; it narrows in proportion to the planned grip below the planning
+      car's (`margin_grip_power` 1: about 0.22 m on the icy patch), since an icy apex needs
+      the road's width.
+    - A road from a file (None, or a name that is not a scenario road's):
+      `FILE_ROAD_DRIVER`, for circuits driven at 35-47 m/s: the stage's passes and friction
+      margin, a 0.5 m corridor margin, the terminal speed bound at 85 %
+      (`terminal_backoff`), a plan whose KKT residual passes 100 planned again from the
+      cold start (`replan_kkt`, at most 40 passes), the axles' combined slip bounded by 0.10
+      (`slip_limit`: the plant's tire peaks at 3-4 % slip at those speeds) and a soft
+      corridor (`corridor_penalty`).
 
     Every road's settings have the traction control (`traction_limit`
-    `DRIVER_TRACTION_LIMIT`, 0.9): without it the plans' torques spun the plant's wheels to
-    slips of 1.6-3.4 on every corner's exit (and to 29 on one drive); with it no wheel's slip
-    passed 0.24 on the benchmark corners (seed 0), and over 16 noise seeds in one vectorised
-    call the oracle completed 186 of the 192 corner drives (179 without), the estimate with
-    pace notes 188 (189), and 191 with the drives one after another.
+    `DRIVER_TRACTION_LIMIT`): the plans' torques otherwise spin the plant's wheels up on the
+    corners' exits. With ``friction`` = "estimate" on the benchmark corners the driver also
+    brakes the front axle on the first `DRIVER_PROBE_DISTANCE` metres
+    (`RecedingHorizonDriver.probe_distance`), so that the estimator knows the grip before
+    the first corner; the stage's first corner teaches it soon enough.
 
-    With ``friction`` = "estimate" (the planner's friction, `scenario_driver`) on the
-    benchmark corners, also a test brake on the first `DRIVER_PROBE_DISTANCE` metres
-    (`RecedingHorizonDriver.probe_distance`). On seed 0 it took the estimate with pace
-    notes on the corners with 20 % less grip from 5.7-6.3 % slower than the oracle to
-    0.2-1.2 %, and cost 1.1-1.9 % on the nominal ones (-0.5 % to +0.6 % without it); over
-    16 noise seeds the notes completed 187 of 192 corner drives with it, 171 without (the
-    oracle: 179). On the stage it gained nothing (its first corner teaches the estimator
-    soon enough; with it the 20 % slippier stage took 1 % longer and the estimate alone
-    left the rising one), so the stage has none.
-
-    The measurements: docs/driver.md."""
+    What each setting was measured against (drives completed over noise seeds, times
+    against the oracle): docs/driver.md."""
     if name == "stage":
         settings = dict(FAST_ROAD_DRIVER)
     else:
@@ -287,13 +255,11 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
     and `sliding_slip` = `DRIVER_SLIDING_SLIP` (0.1; the estimator's default: off).
 
     The driver accelerates out of the start at 1-2 % slip, where the LuGre curve is steep
-    and the measured slip noisy and lagging the force: with half the peak as the gate those
-    samples pulled a correct prior 25 % low within 0.2 s, and the plans with it left the
-    road (8 of 9 drives on the benchmark corners' nominal, minus20 and rising grips; 7 of 9
-    completed with 0.7, docs/driver.md). The price: a road much worse than believed is
-    learnt only once an axle uses 70 % of the *believed* peak, which a road of less than
+    and the measured slip noisy and lagging the force; with half the peak as the gate those
+    samples pull a correct prior low, hence 70 %. The price: a road much worse than believed
+    is learnt only once an axle uses 70 % of the *believed* peak, which a road of less than
     70 % of it never gives; there the axles slide, and the samples where an axle's combined
-    slip reaches 10 % count too (their effect on the scenarios: docs/driver.md).
+    slip reaches 10 % count too. The measurements: docs/driver.md.
 
     ``surface``: the map of the road's relative grip (`AxleGripEstimator.surface`, e.g.
     `DriveScenario.surface_map`), relative to the surface the prior describes (the scenarios'
