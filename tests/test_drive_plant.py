@@ -199,3 +199,46 @@ def test_forward_gradient_of_final_x_wrt_torque(run_schedule):
     assert np.isfinite(fwd) and fwd > 0
     np.testing.assert_allclose(fwd, fd, rtol=1e-4)
     # reverse mode works too, but its compilation takes minutes: not tested here
+
+
+def test_a_magic_formulas_road_friction_factors_scale_its_peaks_not_its_stiffness():
+    """`scale_friction` on a Magic Formula (the shipped .tir file) multiplies LMUX and LMUY:
+    on a road of scale 0.6 the pure-slip peaks of $F_x$ and $F_y$ are 0.6 times the
+    nominal ones and the slopes at zero slip are the same to the vertical shifts (as for
+    LuGre, where they are the same exactly); a
+    tire it cannot scale is refused, naming the families it can."""
+    from vehsim.tire.tir import read_tir, shipped_tires
+
+    P = vs.MFParams.from_tir(read_tir(shipped_tires()["sample_185_80R14_mf61"]))
+    tire = vs.MFTire(P)
+    lam, Fz, V, r = 0.6, 3500.0, 15.0, 0.3
+
+    def forces(t, kappa, tan_alpha):
+        return jax.vmap(lambda k, a: t.forces(t.init_state(), V, a * V, (1.0 + k) * V / r,
+                                              r, Fz))(kappa, tan_alpha)
+
+    k = jnp.linspace(-0.6, 0.6, 4801)
+    a = jnp.tan(jnp.linspace(-0.5, 0.5, 4001))
+    scaled = vs.scale_friction(tire, lam)
+    for t, ratio in ((tire, 1.0), (scaled, lam)):
+        Fx = forces(t, k, 0.0 * k)[:, 0]
+        Fy = forces(t, 0.0 * a, a)[:, 1]
+        if ratio == 1.0:
+            peaks = float(jnp.max(jnp.abs(Fx))), float(jnp.max(jnp.abs(Fy)))
+        else:
+            np.testing.assert_allclose(float(jnp.max(jnp.abs(Fx))), lam * peaks[0], rtol=1e-4)
+            np.testing.assert_allclose(float(jnp.max(jnp.abs(Fy))), lam * peaks[1], rtol=1e-4)
+    # the slopes at zero slip: the stiffnesses, which LMUX and LMUY leave alone (they move
+    # only through the vertical shifts, which scale with the peaks: measured 0.19 % in Fx)
+    for i, (kk, aa) in enumerate(((1.0, 0.0), (0.0, 1.0))):
+        stiff = [jax.jacfwd(lambda s: forces(t, kk * s, aa * s)[:, i])(jnp.zeros(1))[0, 0]
+                 for t in (tire, scaled)]
+        assert abs(float(stiff[0])) > 1e4
+        np.testing.assert_allclose(float(stiff[1]), float(stiff[0]), rtol=5e-3)
+    # the relaxed tire is scaled the same way, and the plant takes either
+    relaxed = vs.scale_friction(vs.RelaxedMFTire(P), lam)
+    assert float(relaxed.params.LMUX) == pytest.approx(lam * float(P.LMUX))
+    assert float(relaxed.params.LMUY) == pytest.approx(lam * float(P.LMUY))
+    vs.DrivePlant(tire=vs.RelaxedMFTire(P))
+    with pytest.raises(TypeError, match="Magic Formula"):
+        vs.scale_friction(vs.LinearTire(5e4, 4e4), 0.5)

@@ -6,7 +6,8 @@ LuGre family this is the road-condition parameter of the report, $\theta = 1/\la
 bristle decay of eq. 22 (eq. 27 in combined slip), $\theta\sigma_0|v_r|/g(v_r)$, is the same
 for $\mu\to\lambda\mu$ as for $\theta\to\theta/\lambda$, so the single-contact steady-state
 curve is $\lambda$ times the nominal one, stretched by $\lambda$ along the slip axis (peak
-$\lambda\mu^*$, same initial slope, eq. 19). The lumped tire's contact-patch edge term does
+$\lambda\mu^*$, same initial slope, eq. 19); a Magic Formula's road-friction factors LMUX
+and LMUY do the same for it. The lumped tire's contact-patch edge term does
 not scale, so its peak is not proportional to $\lambda$ (`scale_for_peak` finds the
 $\lambda$ of a peak). The half-car of eqs. 49-60 reads the field at
 each axle's contact point separately (`DrivePlant`), so the two axles can be on different
@@ -31,6 +32,7 @@ from .._math import safe_hypot
 from ..tire.base import AbstractTire
 from ..tire.lugre import LuGreParams
 from ..tire.lugre2d import LuGre2DParams
+from ..tire.mf6 import MFParams
 
 
 class AbstractGripField(eqx.Module):
@@ -162,8 +164,11 @@ class RelativeGrip(AbstractGripField):
 
 def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     r"""`tire` on a road of friction scale $\lambda$ = `scale`: its friction coefficients
-    times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$), the
-    rest unchanged (module docstring); `scale` > 0."""
+    times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$; a
+    Magic Formula's `MFParams`, `MFTire` and `RelaxedMFTire`: its road-friction factors
+    $\lambda_{\mu x}, \lambda_{\mu y}$, LMUX and LMUY, which scale the peaks $D_x, D_y$
+    and the vertical shifts, not the slip stiffnesses: peak $\lambda$ times, the same
+    initial slope, as for LuGre), the rest unchanged (module docstring); `scale` > 0."""
     check_positive("scale_friction", "scale", scale)
     params = getattr(tire, "params", None)
     if isinstance(params, LuGre2DParams):
@@ -172,5 +177,8 @@ def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     if isinstance(params, LuGreParams):
         return eqx.tree_at(lambda t: (t.params.mu_c, t.params.mu_s), tire,
                            (scale * params.mu_c, scale * params.mu_s))
-    raise TypeError(f"scale_friction needs a LuGre tire (params LuGre2DParams or LuGreParams),"
-                    f" got {type(tire).__name__}")
+    if isinstance(params, MFParams):
+        return eqx.tree_at(lambda t: (t.params.LMUX, t.params.LMUY), tire,
+                           (scale * params.LMUX, scale * params.LMUY))
+    raise TypeError("scale_friction needs a LuGre tire (params LuGre2DParams or LuGreParams) "
+                    f"or a Magic Formula (params MFParams), got {type(tire).__name__}")
