@@ -28,11 +28,26 @@ def _commands():
     return jnp.stack([300.0 + 0 * k, 600.0 + 20.0 * k, 0.04 * jnp.sin(0.5 * k)], axis=1)
 
 
-def test_ideal_plant_agrees_with_half_car(run_schedule):
-    plant = _quiet(actuators=vs.ideal_actuators())
+def _sample_magic_formula():
+    from vehsim.tire.tir import read_tir, shipped_tires
+
+    return vs.MFParams.from_tir(read_tir(shipped_tires()["sample_185_80R14_mf61"]))
+
+
+@pytest.mark.parametrize("tire", ["lugre", "magic-formula"])
+def test_ideal_plant_agrees_with_half_car(run_schedule, tire):
+    """The plant with ideal actuators against the half car integrated adaptively under the
+    same command table: on its own LuGre tire, and on a Magic Formula with relaxed slips
+    (the shipped .tir file, a tire of another family) on a road of friction scale 0.5
+    (`scale_friction`: its LMUX and LMUY halved)."""
+    changes = {}
+    if tire == "magic-formula":
+        changes = dict(tire=vs.RelaxedMFTire(_sample_magic_formula(), limits=False),
+                       grip=vs.UniformGrip(scale=0.5))
+    plant = _quiet(actuators=vs.ideal_actuators(), **changes)
     s0 = vs.init_drive(plant, vx=15.0)
     run = run_schedule(plant, vs.CommandSchedule(_commands()), s0, jax.random.key(0))
-    car = plant.nominal_car
+    car = plant.car_at(s0.car)
     T = float(plant.actuators.sample_time)
     table = _commands()
 
@@ -207,9 +222,7 @@ def test_a_magic_formulas_road_friction_factors_scale_its_peaks_not_its_stiffnes
     nominal ones and the slopes at zero slip are the same to the vertical shifts (as for
     LuGre, where they are the same exactly); a
     tire it cannot scale is refused, naming the families it can."""
-    from vehsim.tire.tir import read_tir, shipped_tires
-
-    P = vs.MFParams.from_tir(read_tir(shipped_tires()["sample_185_80R14_mf61"]))
+    P = _sample_magic_formula()
     tire = vs.MFTire(P)
     lam, Fz, V, r = 0.6, 3500.0, 15.0, 0.3
 
