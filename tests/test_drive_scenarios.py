@@ -115,6 +115,26 @@ def test_nominal_scale_gives_the_plant_a_peak_of_052():
     assert _peak_by_scan(0.52 / vs.plant_peak(1.0)) > 0.57
 
 
+def test_a_scenario_on_a_tire_of_another_family():
+    """``drive_scenario(..., tire=)``: the plant runs on the given tire (a relaxed Magic
+    Formula from the shipped .tir file), its initial state has that tire's states (2 per
+    axle, where the LuGre plant's has its own), the grip field is the scenario's; a tire
+    `scale_friction` cannot scale is refused before anything is built."""
+    from vehsim.tire.tir import read_tir, shipped_tires
+
+    mf = vs.RelaxedMFTire(vs.MFParams.from_tir(
+        read_tir(shipped_tires()["sample_185_80R14_mf61"])), limits=False)
+    lugre = vs.drive_scenario("corner90", "icy")
+    sc = vs.drive_scenario("corner90", "icy", tire=mf)
+    assert sc.plant.tire is mf
+    assert sc.state0.car.shape[0] == lugre.state0.car.shape[0] - 2 * (
+        lugre.plant.tire.init_state().shape[0] - 2)
+    np.testing.assert_array_equal(sc.state0.car[:10], lugre.state0.car[:10])
+    assert sc.plant.grip is sc.grip.field
+    with pytest.raises(TypeError, match="scale_friction needs"):
+        vs.drive_scenario("corner90", tire=vs.LinearTire(5e4, 4e4))
+
+
 @pytest.fixture(scope="module")
 def grips(roads):
     return {(r, g): vs.scenario_grip(g, roads[r]) for r in ROAD_NAMES for g in GRIP_NAMES}

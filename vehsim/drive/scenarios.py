@@ -77,6 +77,7 @@ from jaxtyping import Array, Float
 from .._fields import array_field
 from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
+from ..tire.base import AbstractTire
 from .actuators import DriveActuators
 from .estimator import AxleGripEstimator, scale_of_peak
 from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
@@ -510,10 +511,13 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                    actuators: DriveActuators | None = None,
                    sensors: DriveSensors | None = None, start_speed: float | None = None,
                    time_budget: float | None = None, substeps: int = 40,
-                   table_spacing: float = 0.1, table_points: int | None = None
-                   ) -> DriveScenario:
+                   table_spacing: float = 0.1, table_points: int | None = None,
+                   tire: AbstractTire | None = None) -> DriveScenario:
     """The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
-    default `DriveActuators` and `DriveSensors` unless given, `substeps` integration steps
+    default `DriveActuators` and `DriveSensors` unless given, on `tire` (default the
+    `DrivePlant`'s lumped 2D LuGre; any tire `scale_friction` scales, e.g. a Magic Formula
+    from a .tir file: a plant of another tire family than the drivers assume; its road
+    scales $\lambda$ are the grip's), `substeps` integration steps
     per sample, the start speed [m/s] (default `START_SPEEDS`) and the time budget [s]
     (default `TIME_BUDGETS`); the road table at `table_spacing` [m] with `table_points`
     samples (default just enough; more pad it, so that tables of different roads batch)."""
@@ -530,7 +534,8 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                          f" got {budget:g}")
     plant = DrivePlant(grip=grip.field, substeps=substeps,
                        actuators=DriveActuators() if actuators is None else actuators,
-                       sensors=DriveSensors() if sensors is None else sensors)
+                       sensors=DriveSensors() if sensors is None else sensors,
+                       **({} if tire is None else {"tire": tire}))
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road, table_spacing, table_points)
