@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import json
 import math
@@ -78,7 +79,13 @@ import numpy as np  # noqa: E402
 
 import vehsim as vs  # noqa: E402
 from vehsim.drive.horizon import BACK_EXTENSION, EXTENSION  # noqa: E402
-from vehsim.drive.scenarios import GRIP_NAMES, ROAD_NAMES, TIME_BUDGETS, main_corner  # noqa: E402
+from vehsim.drive.scenarios import (  # noqa: E402
+    BENCHMARK_PEAK,
+    GRIP_NAMES,
+    ROAD_NAMES,
+    TIME_BUDGETS,
+    main_corner,
+)
 
 
 DRIVERS = ("open-loop", "tracking", "rh-nominal", "rh-oracle", "rh-estimate",
@@ -110,9 +117,46 @@ def common_sizes(roads) -> tuple[float, int]:
     return budget, points
 
 
+PLANT_TIRE: list = ["lugre"]
+"""The plant's tire (``--plant-tire``): 'lugre' (the scenarios' lumped 2D LuGre) or 'mf'
+(`mf_plant_tire`)."""
+
+
+@functools.cache
+def mf_plant_tire() -> vs.RelaxedMFTire:
+    r"""A tire of another family for the plant (``--plant-tire mf``): the shipped .tir
+    file's Magic Formula 6.1 with its relaxation lengths (`RelaxedMFTire`, the file's ranges
+    not applied: the half car's axle carries more than one wheel's load), its road-friction
+    factors LMUX and LMUY set so that on the nominal road (friction scale
+    $\lambda_0$ = `scale_for_peak`(0.52), which `scale_friction` multiplies them by) its
+    pure-slip peaks $\max F_x/F_z$ and $\max F_y/F_z$ at the rally car's static front
+    axle load are 0.52, the LuGre plant's peak at 20 m/s. The curves' shapes (peak slip,
+    fall-off, combined slip, load and speed dependence) are the Magic Formula's, which
+    neither the estimator nor the planner assumes."""
+    from vehsim.tire.tir import read_tir, shipped_tires
+
+    P = vs.MFParams.from_tir(read_tir(shipped_tires()["sample_185_80R14_mf61"]))
+    car = vs.rally_gravel()
+    Fz = float(car.m * car.g * car.lR / (car.lF + car.lR))
+    tire = vs.MFTire(P, limits=False)
+    V, r = 20.0, float(car.r)
+    k = jnp.linspace(0.0, 1.0, 20001)
+    a = jnp.tan(jnp.linspace(0.0, 1.2, 20001))
+    f = jax.vmap(lambda kk, aa: tire.forces(tire.init_state(), V, aa * V, (1.0 + kk) * V / r,
+                                            r, Fz))
+    mux = float(jnp.max(jnp.abs(f(k, 0.0 * k)[:, 0]))) / Fz
+    muy = float(jnp.max(jnp.abs(f(0.0 * a, a)[:, 1]))) / Fz
+    lam0 = vs.scale_for_peak(BENCHMARK_PEAK)
+    P = eqx.tree_at(lambda q: (q.LMUX, q.LMUY), P,
+                    (P.LMUX * BENCHMARK_PEAK / (lam0 * mux),
+                     P.LMUY * BENCHMARK_PEAK / (lam0 * muy)))
+    return vs.RelaxedMFTire(P, limits=False)
+
+
 def scenario(road, grip, budget, points):
     return vs.drive_scenario(road, grip, time_budget=budget, table_points=points,
-                             table_spacing=SPACING)
+                             table_spacing=SPACING,
+                             tire=mf_plant_tire() if PLANT_TIRE[0] == "mf" else None)
 
 
 def make_driver(kind: str, sc, reference):
@@ -208,6 +252,8 @@ def scenario_table(args):
                         rec = run_one(kind, sc, reference, args.seed)
                     rec = dict(road=road, grip=grip, driver=kind, seed=args.seed,
                                num_samples=sc.num_samples, **rec)
+                    if PLANT_TIRE[0] != "lugre":
+                        rec["plant_tire"] = PLANT_TIRE[0]
                     if kind.startswith("rh-") or kind == "bound-driver":
                         rec["driver_settings"] = settings_for(
                             road, "rh-oracle" if kind == "bound-driver" else kind)
@@ -308,6 +354,8 @@ def monte_carlo(args):
                    num_samples=num_samples, compile_s=t_compile, run_s=t_run,
                    departure_checks=check, per_scenario={},
                    seeds=[args.mc_first_seed, args.mc_first_seed + args.monte_carlo - 1])
+    if PLANT_TIRE[0] != "lugre":
+        summary["plant_tire"] = PLANT_TIRE[0]
     if args.mc_driver.startswith("rh-"):
         summary["driver_settings"] = {r: settings_for(r, args.mc_driver) for r in args.roads}
     if args.previews:
@@ -385,6 +433,9 @@ def main(argv=None):
     ap.add_argument("--previews", nargs="+", type=float, metavar="M",
                     help="Monte Carlo of rh-oracle only: also over these previews [m] "
                          "(`RecedingHorizonDriver.preview`; inf: the whole horizon)")
+    ap.add_argument("--plant-tire", choices=("lugre", "mf"), default="lugre",
+                    help="the plant's tire: the scenarios' lumped LuGre, or a Magic Formula "
+                         "of the same peak on the nominal road (mf_plant_tire)")
     ap.add_argument("--driver-settings", type=json.loads, default={}, metavar="JSON",
                     help="RecedingHorizonDriver settings over driver_settings' on every road, "
                          'e.g. \'{"iterations": 8, "hessian_update": "first"}\'')
@@ -394,6 +445,7 @@ def main(argv=None):
         ap.error("--driver-settings must be a JSON object of RecedingHorizonDriver fields ("
                  + ", ".join(sorted(fields)) + f"), got {args.driver_settings!r}")
     SETTINGS.update(args.driver_settings)
+    PLANT_TIRE[0] = args.plant_tire
     if args.mc_map is None:
         args.mc_map = "map" if jax.default_backend() == "cpu" else "vmap"
     if args.previews and args.mc_driver != "rh-oracle":

@@ -513,7 +513,7 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                    time_budget: float | None = None, substeps: int = 40,
                    table_spacing: float = 0.1, table_points: int | None = None,
                    tire: AbstractTire | None = None) -> DriveScenario:
-    """The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
+    r"""The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
     default `DriveActuators` and `DriveSensors` unless given, on `tire` (default the
     `DrivePlant`'s lumped 2D LuGre; any tire `scale_friction` scales, e.g. a Magic Formula
     from a .tir file: a plant of another tire family than the drivers assume; its road
