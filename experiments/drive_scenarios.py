@@ -51,10 +51,12 @@ Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
        [--grips nominal ...] [--drivers open-loop tracking ...] [--quick] [--seed 0]
        [--out PATH] [--monte-carlo 16 [--mc-driver tracking] [--mc-only]
        [--previews 0 5 inf] [--mc-first-seed 0] [--mc-map map] [--mc-replay-failures]]
-       [--driver-settings JSON]
+       [--driver-settings JSON] [--plant-tire mf]
 
 ``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
 `driver_settings`'s, on every road (recorded with each row).
+``--plant-tire mf``: the plant on a tire of another family than the drivers assume, a Magic
+Formula of the same peak on the nominal road (`mf_plant_tire`; rows marked ``plant_tire``).
 """
 
 from __future__ import annotations
