@@ -284,100 +284,20 @@ def _scale_of_peak_jvp(steps, primals, tangents):
     return lam, lam * d_theta
 
 
-class AxleGripState(eqx.Module):
-    r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
-    heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
-    the last utilised friction `mu_used`, model friction `mu_model`, combined slip `slip`
-    ($\|v_r\|/\max(|V|, v_{min})$), gain `gain` and the change detector's statistic
-    `change_statistic` $g$ (each (2,))."""
+class AbstractAxleEstimator(AbstractGripEstimator):
+    r"""A grip estimator that reads each axle's utilised friction from the measurements
+    (module docstring, "Utilised friction"): the measurement half shared by the estimators
+    of this module, whatever they then fit to it. Needs the nominal car `params`, the brake
+    smoothing `omega_eps` [rad/s], the speed `min_speed` [m/s] below which a slip is not
+    measured, the load model (`dynamic_loads`, `load_substeps`) and the optional map of the
+    road's relative grip `surface`."""
 
-    log_scale: Float[Array, " 2"]
-    variance: Float[Array, " 2"]
-    last: DriveMeasurement
-    suspension: Float[Array, " 4"]
-    mu_used: Float[Array, " 2"]
-    mu_model: Float[Array, " 2"]
-    slip: Float[Array, " 2"]
-    gain: Float[Array, " 2"]
-    change_statistic: Float[Array, " 2"]
-
-
-class AxleGripEstimator(AbstractGripEstimator):
-    r"""The per-axle grip estimator of the module docstring.
-
-    **Fields:** `params` (the nominal `HalfCarParams`, default `rally_gravel()`), `tire`
-    (the assumed `LumpedLuGre2D`, default the plant's), `prior_scale` $\lambda_0$ (1),
-    `initial_variance` $P_0$ of $\log\lambda$ (0.09), `max_variance` $P_{max}$ (0.25),
-    `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sigma_\mu$ of the utilised friction
-    (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
-    `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
-    at least this fraction of the estimated peak at its speed), `sliding_slip` (None: off;
-    a number: a sample also counts where the axle's combined slip $\|v_r\|/\|V\|$ is at
-    least this, sliding far past the peak's few percent, whatever friction it uses: on a
-    road much worse than believed the axles never reach the gate, but they slide),
-    `slip_velocity_std` $\sigma_v$ [m/s] (None: the measured relative velocity taken as
-    exact; a number: the standard deviation of each of its components, weighing each
-    sample by the slope it is read on, module docstring; the function `slip_velocity_std`
-    gives it for a set of sensors), `omega_eps` [rad/s] (the plant's brake smoothing,
-    0.5), the change detector's
-    `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
-    `reference_speed` [m/s] of the reported peak (`REFERENCE_SPEED`, 20), `dynamic_loads` (True: the
-    suspension's loads; False: quasi-static), `load_substeps` (10), `surface` (None, or an
-    `AbstractGripField`: the map of the road's relative grip of the module docstring;
-    `prior_scale`, `scale_min` and `scale_max` are then those of the multiplier $c$).
-    """
-
-    params: HalfCarParams = eqx.field(default_factory=rally_gravel)
-    tire: LumpedLuGre2D = eqx.field(default_factory=lambda: LumpedLuGre2D(lugre2d_bakker1987()))
-    prior_scale: Float[Array, ""] = array_field(default=1.0)
-    initial_variance: Float[Array, ""] = array_field(default=0.09)
-    max_variance: Float[Array, ""] = array_field(default=0.25)
-    forgetting: Float[Array, ""] = array_field(default=0.97)
-    noise_std: Float[Array, ""] = array_field(default=0.05)
-    max_step: Float[Array, ""] = array_field(default=0.2)
-    scale_min: Float[Array, ""] = array_field(default=0.1)
-    scale_max: Float[Array, ""] = array_field(default=3.0)
-    min_speed: Float[Array, ""] = array_field(default=3.0)
-    min_utilisation: Float[Array, ""] = array_field(default=0.5)
-    sliding_slip: Float[Array, ""] | None = eqx.field(
-        default=None, converter=lambda x: None if x is None else float_array(x))
-    slip_velocity_std: Float[Array, ""] | None = eqx.field(
-        default=None, converter=lambda x: None if x is None else float_array(x))
-    omega_eps: Float[Array, ""] = array_field(default=0.5)
-    change_drift: Float[Array, ""] = array_field(default=10.0)
-    change_threshold: Float[Array, ""] = array_field(default=80.0)
-    reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
-    dynamic_loads: bool = eqx.field(static=True, default=True)
-    load_substeps: int = eqx.field(static=True, default=10)
-    surface: AbstractGripField | None = None
-
-    def __check_init__(self):
-        owner = "AxleGripEstimator"
-        if not isinstance(self.tire, LumpedLuGre2D):
-            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
-                            f"{type(self.tire).__name__}")
-        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
-            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
-                            f"of the road's relative grip), got {type(self.surface).__name__}")
-        for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
-                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
-                     "omega_eps", "change_drift", "change_threshold", "reference_speed"):
-            check_positive(owner, name, getattr(self, name))
-        if self.sliding_slip is not None:
-            check_positive(owner, "sliding_slip", self.sliding_slip)
-        if self.slip_velocity_std is not None:
-            check_nonnegative(owner, "slip_velocity_std", self.slip_velocity_std)
-        check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
-                    lower_open=True)
-        check_order(owner, "scale_min", self.scale_min, "scale_max", self.scale_max)
-        check_count(owner, "load_substeps", self.load_substeps)
-
-    def init(self, measurement: DriveMeasurement) -> AxleGripState:
-        """The prior $\\lambda_0$ with variance $P_0$ on both axles."""
-        z = jnp.zeros(2)
-        lam = jnp.log(self.prior_scale) * jnp.ones(2)
-        return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement,
-                             jnp.zeros(4), z, z, z, z, z)
+    params: eqx.AbstractVar[HalfCarParams]
+    omega_eps: eqx.AbstractVar[Float[Array, ""]]
+    min_speed: eqx.AbstractVar[Float[Array, ""]]
+    dynamic_loads: eqx.AbstractVar[bool]
+    load_substeps: eqx.AbstractVar[int]
+    surface: eqx.AbstractVar[AbstractGripField | None]
 
     def _loads(self, q):
         p = self.params
@@ -459,6 +379,122 @@ class AxleGripEstimator(AbstractGripEstimator):
         return jnp.log(jnp.stack([self.surface.scale_at(m.x + p.lF * c, m.y + p.lF * s),
                                   self.surface.scale_at(m.x - p.lR * c, m.y - p.lR * s)]))
 
+    def sample_friction(self, suspension, m0: DriveMeasurement, m1: DriveMeasurement):
+        r"""``(mu, slip, v_r, c, suspension)``: `utilised_friction` over the sample from `m0`
+        to `m1` with the loads of the load model (from the heave and pitch `suspension`,
+        returned at the sample's end)."""
+        dt = jnp.where(m1.t > m0.t, m1.t - m0.t, 0.0)
+        if self.dynamic_loads:
+            Fz, suspension = self.axle_loads(suspension, m0.ax, m1.ax, dt)
+        else:
+            Fz = None
+        return (*self.utilised_friction(m0, m1, Fz), suspension)
+
+    def measurable(self, m0: DriveMeasurement, m1: DriveMeasurement):
+        r"""Per axle, whether the sample from `m0` to `m1` measures a force: both ends above
+        `min_speed`, time advancing, and not a braked wheel near lock (its brake torque is
+        not what it transmits: the $\tanh$ brake within the wheel-speed noise of its lock
+        speed, below $5\omega_\epsilon$ at either end)."""
+        valid = (m1.speed > self.min_speed) & (m0.speed > self.min_speed) & (m1.t > m0.t)
+        locked = jnp.minimum(jnp.abs(m0.omega), jnp.abs(m1.omega)) < 5 * self.omega_eps
+        return valid & ((m1.torque >= 0) | ~locked)
+
+
+class AxleGripState(eqx.Module):
+    r"""$\vartheta = \log\lambda$ and its variance $P$ per axle, the last measurement, the
+    heave and pitch `suspension` $(z, \dot z, \theta, \dot\theta)$ of the load model, and
+    the last utilised friction `mu_used`, model friction `mu_model`, combined slip `slip`
+    ($\|v_r\|/\max(|V|, v_{min})$), gain `gain` and the change detector's statistic
+    `change_statistic` $g$ (each (2,))."""
+
+    log_scale: Float[Array, " 2"]
+    variance: Float[Array, " 2"]
+    last: DriveMeasurement
+    suspension: Float[Array, " 4"]
+    mu_used: Float[Array, " 2"]
+    mu_model: Float[Array, " 2"]
+    slip: Float[Array, " 2"]
+    gain: Float[Array, " 2"]
+    change_statistic: Float[Array, " 2"]
+
+
+class AxleGripEstimator(AbstractAxleEstimator):
+    r"""The per-axle grip estimator of the module docstring.
+
+    **Fields:** `params` (the nominal `HalfCarParams`, default `rally_gravel()`), `tire`
+    (the assumed `LumpedLuGre2D`, default the plant's), `prior_scale` $\lambda_0$ (1),
+    `initial_variance` $P_0$ of $\log\lambda$ (0.09), `max_variance` $P_{max}$ (0.25),
+    `forgetting` $\gamma\in(0, 1]$ (0.97), `noise_std` $\sigma_\mu$ of the utilised friction
+    (0.05), `max_step` $\Delta_{max}$ (0.2), `scale_min`, `scale_max` (0.1, 3),
+    `min_speed` [m/s] (3), `min_utilisation` (0.5: an axle's data count only where it uses
+    at least this fraction of the estimated peak at its speed), `sliding_slip` (None: off;
+    a number: a sample also counts where the axle's combined slip $\|v_r\|/\|V\|$ is at
+    least this, sliding far past the peak's few percent, whatever friction it uses: on a
+    road much worse than believed the axles never reach the gate, but they slide),
+    `slip_velocity_std` $\sigma_v$ [m/s] (None: the measured relative velocity taken as
+    exact; a number: the standard deviation of each of its components, weighing each
+    sample by the slope it is read on, module docstring; the function `slip_velocity_std`
+    gives it for a set of sensors), `omega_eps` [rad/s] (the plant's brake smoothing,
+    0.5), the change detector's
+    `change_drift` $\delta$ (10) and `change_threshold` $h$ (80; `inf` turns it off),
+    `reference_speed` [m/s] of the reported peak (`REFERENCE_SPEED`, 20), `dynamic_loads` (True: the
+    suspension's loads; False: quasi-static), `load_substeps` (10), `surface` (None, or an
+    `AbstractGripField`: the map of the road's relative grip of the module docstring;
+    `prior_scale`, `scale_min` and `scale_max` are then those of the multiplier $c$).
+    """
+
+    params: HalfCarParams = eqx.field(default_factory=rally_gravel)
+    tire: LumpedLuGre2D = eqx.field(default_factory=lambda: LumpedLuGre2D(lugre2d_bakker1987()))
+    prior_scale: Float[Array, ""] = array_field(default=1.0)
+    initial_variance: Float[Array, ""] = array_field(default=0.09)
+    max_variance: Float[Array, ""] = array_field(default=0.25)
+    forgetting: Float[Array, ""] = array_field(default=0.97)
+    noise_std: Float[Array, ""] = array_field(default=0.05)
+    max_step: Float[Array, ""] = array_field(default=0.2)
+    scale_min: Float[Array, ""] = array_field(default=0.1)
+    scale_max: Float[Array, ""] = array_field(default=3.0)
+    min_speed: Float[Array, ""] = array_field(default=3.0)
+    min_utilisation: Float[Array, ""] = array_field(default=0.5)
+    sliding_slip: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
+    slip_velocity_std: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
+    omega_eps: Float[Array, ""] = array_field(default=0.5)
+    change_drift: Float[Array, ""] = array_field(default=10.0)
+    change_threshold: Float[Array, ""] = array_field(default=80.0)
+    reference_speed: Float[Array, ""] = array_field(default=REFERENCE_SPEED)
+    dynamic_loads: bool = eqx.field(static=True, default=True)
+    load_substeps: int = eqx.field(static=True, default=10)
+    surface: AbstractGripField | None = None
+
+    def __check_init__(self):
+        owner = "AxleGripEstimator"
+        if not isinstance(self.tire, LumpedLuGre2D):
+            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
+                            f"{type(self.tire).__name__}")
+        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
+            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
+                            f"of the road's relative grip), got {type(self.surface).__name__}")
+        for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
+                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
+                     "omega_eps", "change_drift", "change_threshold", "reference_speed"):
+            check_positive(owner, name, getattr(self, name))
+        if self.sliding_slip is not None:
+            check_positive(owner, "sliding_slip", self.sliding_slip)
+        if self.slip_velocity_std is not None:
+            check_nonnegative(owner, "slip_velocity_std", self.slip_velocity_std)
+        check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
+                    lower_open=True)
+        check_order(owner, "scale_min", self.scale_min, "scale_max", self.scale_max)
+        check_count(owner, "load_substeps", self.load_substeps)
+
+    def init(self, measurement: DriveMeasurement) -> AxleGripState:
+        """The prior $\\lambda_0$ with variance $P_0$ on both axles."""
+        z = jnp.zeros(2)
+        lam = jnp.log(self.prior_scale) * jnp.ones(2)
+        return AxleGripState(lam, self.initial_variance * jnp.ones(2), measurement,
+                             jnp.zeros(4), z, z, z, z, z)
+
     def _axle_mu(self, th, vr, cc):
         return safe_norm(scaled_steady_state_mu(self.tire, jnp.exp(th), vr, cc))
 
@@ -478,12 +514,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         return self.slip_velocity_std**2 * jax.vmap(one)(log_scale, v_r, c)
 
     def update(self, state: AxleGripState, m: DriveMeasurement) -> AxleGripState:
-        dt = jnp.where(m.t > state.last.t, m.t - state.last.t, 0.0)
-        if self.dynamic_loads:
-            Fz, susp = self.axle_loads(state.suspension, state.last.ax, m.ax, dt)
-        else:
-            Fz, susp = None, state.suspension
-        mu, slip, v_r, c = self.utilised_friction(state.last, m, Fz)
+        mu, slip, v_r, c, susp = self.sample_friction(state.suspension, state.last, m)
         # the road under the axles over the sample: c r, r the map's (1 without one)
         log_road = state.log_scale + 0.5 * (self.log_surface(state.last) + self.log_surface(m))
         h, H = jax.jvp(lambda th: self.model_mu(th, v_r, c), (log_road,), (jnp.ones(2),))
@@ -492,12 +523,7 @@ class AxleGripEstimator(AbstractGripEstimator):
         informative = mu >= self.min_utilisation * peak
         if self.sliding_slip is not None:  # or sliding far past the believed peak's slip
             informative = informative | (slip >= self.sliding_slip)
-        valid = (m.speed > self.min_speed) & (state.last.speed > self.min_speed) & (
-            m.t > state.last.t) & informative
-        # a braked wheel near lock: its brake torque is not what it transmits (tanh model
-        # within the wheel-speed noise of its lock speed): no force measured
-        locked = jnp.minimum(jnp.abs(state.last.omega), jnp.abs(m.omega)) < 5 * self.omega_eps
-        valid = valid & ((m.torque >= 0) | ~locked)
+        valid = self.measurable(state.last, m) & informative
         P = jnp.minimum(state.variance / self.forgetting, self.max_variance)
         R = self.noise_std**2 + self.slip_variance(log_road, v_r, c)
         e = mu - h

@@ -73,6 +73,26 @@ def burckhardt_peak(c1, c2, c3):
     return lam, c1 * (1.0 - jnp.exp(-c2 * lam)) - c3 * lam
 
 
+def fit_burckhardt(shapes, prior, ridge, weight, mu, slip):
+    r"""``(coefficients, error)``: for each $c_2$ of `shapes` (G,), the $(c_1, c_3) \ge 0$
+    of Burckhardt's curve $c_1(1 - e^{-c_2\lambda}) - c_3\lambda$ minimising
+    $\sum_j w_j(\mu_j - \mu_B(\lambda_j))^2 + \rho\|(c_1, c_3) - (c_1, c_3)_0\|^2$ over the
+    points (`slip` $\lambda_j$, `mu` $\mu_j$, `weight` $w_j$), $\rho$ = `ridge` and $(c_1,
+    c_3)_0$ those of `prior` $(c_1, c_2, c_3)$ (linear least squares per $c_2$, clamped at
+    0), shape (G, 2), and that sum at the clamped coefficients, shape (G,)."""
+    p = jnp.stack([prior[0], prior[2]])
+
+    def one(c2):
+        phi = jnp.stack([1.0 - jnp.exp(-c2 * slip), -slip], axis=-1)  # (B, 2)
+        A = phi.T @ (weight[:, None] * phi) + ridge * jnp.eye(2)
+        b = phi.T @ (weight * mu) + ridge * p
+        c = jnp.maximum(jnp.linalg.solve(A, b), 0.0)
+        e = mu - phi @ c
+        return c, jnp.sum(weight * e * e) + ridge * jnp.sum((c - p) ** 2)
+
+    return jax.vmap(one)(shapes)
+
+
 def check_burckhardt(owner: str, name: str, coefficients) -> None:
     r"""Refuse Burckhardt coefficients that are not $(c_1, c_2, c_3)$ (a last axis of 3) with
     $c_2 > 0$ and $c_1, c_3 \ge 0$ (the fit clamps $c_1$ and $c_3$ at 0)."""
@@ -226,17 +246,7 @@ class PeakEstimator(AbstractFrictionEstimator):
 
     def _fit(self, weight, bin_mu, bin_slip):
         """Weighted least squares of every member on the binned curve, with the ridge."""
-        prior = jnp.stack([self.prior[0], self.prior[2]])
-
-        def one(c2):
-            phi = jnp.stack([1.0 - jnp.exp(-c2 * bin_slip), -bin_slip], axis=-1)  # (B, 2)
-            A = phi.T @ (weight[:, None] * phi) + self.ridge * jnp.eye(2)
-            b = phi.T @ (weight * bin_mu) + self.ridge * prior
-            c = jnp.maximum(jnp.linalg.solve(A, b), 0.0)
-            e = bin_mu - phi @ c
-            return c, jnp.sum(weight * e * e) + self.ridge * jnp.sum((c - prior) ** 2)
-
-        return jax.vmap(one)(self.shapes)
+        return fit_burckhardt(self.shapes, self.prior, self.ridge, weight, bin_mu, bin_slip)
 
     def update(self, state: PeakEstimatorState, car: QuarterCar, hardware: BrakeHardware,
                substeps: int, v, omega, stamp, fresh, torque0, target, t0):
