@@ -377,6 +377,10 @@ from .drive.actuators import (
     DriveActuatorState as DriveActuatorState,
     ideal_actuators as ideal_actuators,
 )
+from .drive.axle_peak import (
+    AxlePeakEstimator as AxlePeakEstimator,
+    AxlePeakState as AxlePeakState,
+)
 from .drive.baselines import (
     PrimitiveReference as PrimitiveReference,
     PrimitiveTracker as PrimitiveTracker,
@@ -387,6 +391,7 @@ from .drive.baselines import (
     primitive_reference as primitive_reference,
 )
 from .drive.estimator import (
+    AbstractAxleEstimator as AbstractAxleEstimator,
     AbstractGripEstimator as AbstractGripEstimator,
     AxleGripEstimator as AxleGripEstimator,
     AxleGripState as AxleGripState,

@@ -834,7 +834,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
     narrower than `probe_std` (0.25); `traction_limit` $\rho$ (in (0, 1]; 0.9; None: off)
-    the traction control (below).
+    the traction control (below); `peak_model` (static): 'plant' (the stages' peak of
+    `plant_tire` at their speeds, below) or 'estimated' (with 'estimate' only: every stage
+    plans with the estimate's `GripEstimate.peak` itself, the smaller axle's less
+    `estimate_backoff` times its `peak_std`, times the map's ratio with `surface_map`;
+    no tire shape, no speed dependence: for a shape-free estimator such as
+    `AxlePeakEstimator` on a plant whose tire is not `plant_tire`'s family).
 
     **The test brake.** The estimator learns only where an axle uses most of the grip it
     believes in (`driver_estimator`), and a driver that trusts its prior first does so
@@ -972,6 +977,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     probe_std: Float[Array, ""] = array_field(default=0.25)
     traction_limit: Float[Array, ""] | None = eqx.field(
         default=0.9, converter=lambda x: None if x is None else float_array(x))
+    peak_model: str = eqx.field(static=True, default="plant")
 
     def __check_init__(self):
         require_float64("RecedingHorizonDriver",
@@ -992,6 +998,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.jacobian_update == "first" and self.hessian_update != "first":
             raise ValueError("RecedingHorizonDriver.jacobian_update='first' needs "
                              f"hessian_update='first', got {self.hessian_update!r}")
+        if self.peak_model not in ("plant", "estimated"):
+            raise ValueError("RecedingHorizonDriver.peak_model must be 'plant' or 'estimated', "
+                             f"got {self.peak_model!r}")
+        if self.peak_model == "estimated" and self.friction != "estimate":
+            raise ValueError("RecedingHorizonDriver.peak_model='estimated' plans with the "
+                             "estimate's peak: it needs friction='estimate', got "
+                             f"{self.friction!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
                              f"'estimate', got {self.friction!r}")
@@ -1148,6 +1161,10 @@ class RecedingHorizonDriver(AbstractDriveController):
             ratio = jnp.log(self.table.scale_at(seen)) - jnp.log(self.table.scale_at(s0))
         else:
             ratio = jnp.zeros(M)
+
+        if self.peak_model == "estimated":  # the estimate's peak itself, at every speed
+            lower = estimate.peak - self.estimate_backoff * estimate.peak_std
+            return jnp.clip(jnp.min(lower) * jnp.exp(ratio), 0.05, 2.0)
 
         def axle(th, sd):
             def stage(v, r):

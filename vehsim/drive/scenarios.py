@@ -79,7 +79,8 @@ from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from ..tire.base import AbstractTire
 from .actuators import DriveActuators
-from .estimator import AxleGripEstimator, scale_of_peak
+from .axle_peak import AxlePeakEstimator
+from .estimator import AbstractGripEstimator, AxleGripEstimator, scale_of_peak
 from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
 from .horizon import RecedingHorizonDriver, RoadTable
 from .plant import DrivePlant, DriveState, init_drive
@@ -242,6 +243,10 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
     return settings
 
 
+ESTIMATORS = ("axle-grip", "axle-peak")
+"""The kinds of `driver_estimator`: `AxleGripEstimator` (the plant's tire family assumed)
+and the shape-free `AxlePeakEstimator`."""
+
 DRIVER_MIN_UTILISATION = 0.7
 """`AxleGripEstimator.min_utilisation` of `driver_estimator`."""
 
@@ -250,7 +255,8 @@ DRIVER_SLIDING_SLIP = 0.1
 
 
 def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
-                     surface: AbstractGripField | None = None) -> AxleGripEstimator:
+                     surface: AbstractGripField | None = None, kind: str = "axle-grip"
+                     ) -> AxleGripEstimator | AxlePeakEstimator:
     r"""The grip estimator of the receding-horizon driver's scenarios: `AxleGripEstimator`
     with the prior of the road whose peak at 20 m/s is ``prior_peak`` (`scale_for_peak`)
     and `min_utilisation` = `DRIVER_MIN_UTILISATION` (0.7, the estimator's default 0.5)
@@ -265,15 +271,22 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
 
     ``surface``: the map of the road's relative grip (`AxleGripEstimator.surface`, e.g.
     `DriveScenario.surface_map`), relative to the surface the prior describes (the scenarios'
-    maps: the road's best surface, so that the map only warns)."""
+    maps: the road's best surface, so that the map only warns).
+
+    ``kind``: "axle-grip" (the above) or "axle-peak": the shape-free `AxlePeakEstimator`
+    with the prior peak ``prior_peak`` (for a plant whose tire is not of the LuGre family;
+    its driver plans with the estimated peak itself, `scenario_driver`)."""
+    _check_name("kind", kind, ESTIMATORS)
+    if kind == "axle-peak":
+        return AxlePeakEstimator(prior_peak=prior_peak, surface=surface)
     return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
                              min_utilisation=DRIVER_MIN_UTILISATION,
                              sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
 
 
 def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
-                    pace_notes: bool = False, **settings
-                    ) -> tuple[RecedingHorizonDriver, AxleGripEstimator | None]:
+                    pace_notes: bool = False, estimator: str = "axle-grip", **settings
+                    ) -> tuple[RecedingHorizonDriver, AbstractGripEstimator | None]:
     r"""``(driver, estimator)``: the `RecedingHorizonDriver` of ``scenario`` with the
     planner's ``friction`` ("estimate", "nominal" or "oracle"), paced to the plant's
     actuators (their `sample_time`, and their delay in whole samples: the driver predicts
@@ -283,8 +296,14 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
     ``pace_notes``: the driver and the estimator share `DriveScenario.surface_map` (the
     driver's table carries it as its `scale` column, `RecedingHorizonDriver.surface_map`).
     ``settings``: further `RecedingHorizonDriver` fields, e.g. ``driver_settings(road)``
-    (not applied here: a road from a file named like a scenario's is not that road)."""
+    (not applied here: a road from a file named like a scenario's is not that road).
+    ``estimator``: the kind of `driver_estimator` ("axle-grip" or "axle-peak"; with
+    "axle-peak" the driver plans with the estimated peak itself,
+    `RecedingHorizonDriver.peak_model` "estimated")."""
     _check_name("friction", friction, ("estimate", "nominal", "oracle"))
+    _check_name("estimator", estimator, ESTIMATORS)
+    if estimator == "axle-peak" and friction == "estimate":
+        settings = {"peak_model": "estimated"} | settings
     notes = scenario.surface_map() if pace_notes else None
     act = scenario.plant.actuators
     table = scenario.table if notes is None else scenario.table.with_grip(notes)
@@ -292,8 +311,9 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
                                    sample_time=act.sample_time,
                                    delay_samples=int(act.delay_samples()[0]),
                                    surface_map=notes is not None, **settings)
-    estimator = driver_estimator(surface=notes) if friction == "estimate" else None
-    return driver, estimator
+    if friction != "estimate":
+        return driver, None
+    return driver, driver_estimator(surface=notes, kind=estimator)
 
 
 def nominal_scale() -> float:

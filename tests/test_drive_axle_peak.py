@@ -1,0 +1,149 @@
+"""The shape-free axle peak estimator: it finds the peak of curves of families it does not
+assume, holds its prior where the data do not reach the peak, and the driver that plans with
+its peak uses it as it stands."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+
+
+SIGMA = 0.05  # the utilised friction's noise, as the estimator's default assumes
+
+
+def _magic_formula(s):
+    """A pure-slip Magic Formula curve (B 8, C 1.65, D 0.45, E 0.3): peak 0.45 at 20 % slip,
+    a fall of a quarter by slip 1 (not of Burckhardt's family)."""
+    Bs = 8.0 * s
+    return 0.45 * jnp.sin(1.65 * jnp.arctan(Bs - 0.3 * (Bs - jnp.arctan(Bs))))
+
+
+def _lugre(s):
+    """The drive plant's LuGre on the nominal road in braking at 20 m/s (peak 0.52 at 4 % slip)."""
+    tire, V = vs.DrivePlant().tire, 20.0
+    lam = vs.nominal_scale()
+    v_r = jnp.stack([-s * V, 0.0 * s])
+    return jnp.linalg.norm(vs.scaled_steady_state_mu(tire, lam, v_r, (1.0 - s) * V))
+
+
+def _true_peak(curve):
+    s = jnp.linspace(1e-3, 1.0, 20001)
+    mu = jax.vmap(curve)(s)
+    return float(jnp.max(mu)), float(s[jnp.argmax(mu)])
+
+
+def _run(est, curve, slips, key=0):
+    """The estimator's per-axle step over samples at ``slips``, the friction the curve's
+    plus noise of standard deviation `SIGMA`: ``(log peak, variance, peak slip)`` after
+    each."""
+    B, G = est.bins, est.shapes.shape[0]
+    noise = SIGMA * jax.random.normal(jax.random.key(key), slips.shape)
+    c0 = jnp.broadcast_to(jnp.stack([est.prior[0], est.prior[2]]), (G, 2))
+    carry0 = (jnp.zeros(B), jnp.zeros(B), jnp.zeros(B), c0,
+              jnp.abs(jnp.log(est.shapes / est.prior[1])) * 1e-9, jnp.zeros(()))
+
+    def step(carry, x):
+        s, e = x
+        out = est.curve_step(*carry, curve(s) + e, s, jnp.asarray(True))
+        return out[:6], out[6:]
+
+    return jax.lax.scan(step, carry0, (slips, noise))[1]
+
+
+def _sweeps(top, n=8, points=25):
+    """``n`` braking sweeps from 2 % slip to ``top``."""
+    return jnp.tile(jnp.linspace(0.02, top, points), n)
+
+
+@pytest.mark.parametrize("curve", [_magic_formula, _lugre], ids=["magic-formula", "lugre"])
+def test_finds_the_peak_of_a_curve_of_another_family(curve):
+    est = vs.AxlePeakEstimator(prior_peak=0.8)  # far from both curves' peaks
+    peak, s_peak = _true_peak(curve)
+    log_peak, var, s_star = _run(est, curve, _sweeps(min(1.0, 4 * s_peak)))
+    # 200 samples through the peak and past it: within 5 % of the true peak, the belief's
+    # standard deviation a few percent, the fitted peak's slip near the true one
+    np.testing.assert_allclose(np.exp(float(log_peak[-1])), peak, rtol=0.05)
+    assert float(jnp.sqrt(var[-1])) < 0.05
+    np.testing.assert_allclose(float(s_star[-1]), s_peak, rtol=0.5)
+
+
+def test_holds_its_prior_below_the_peak():
+    """Data at slips well below the peak (at most a third of its slip) leave the belief at
+    the prior, with the prior's width: the curve says nothing about a peak it has not
+    reached."""
+    est = vs.AxlePeakEstimator(prior_peak=0.6)
+    _, s_peak = _true_peak(_magic_formula)
+    log_peak, var, _ = _run(est, _magic_formula, _sweeps(s_peak / 3))
+    np.testing.assert_allclose(np.exp(np.asarray(log_peak)), 0.6, rtol=0.02)
+    np.testing.assert_allclose(np.sqrt(np.asarray(var[-1])), 0.3, rtol=0.05)
+
+
+def test_a_change_of_road_is_learnt_within_a_few_sweeps():
+    """A road whose peak halves after 8 sweeps: the change detector discounts the old curve
+    and the belief is within 10 % of the new peak 4 sweeps later."""
+    est = vs.AxlePeakEstimator()
+    peak, s_peak = _true_peak(_magic_formula)
+    slips = _sweeps(3 * s_peak, n=12)
+    half = jnp.arange(slips.shape[0]) >= 8 * 25
+    curve_noise = SIGMA * jax.random.normal(jax.random.key(1), slips.shape)
+    mu = jnp.where(half, 0.5, 1.0) * _magic_formula(slips) + curve_noise
+    B, G = est.bins, est.shapes.shape[0]
+    carry = (jnp.zeros(B), jnp.zeros(B), jnp.zeros(B),
+             jnp.broadcast_to(jnp.stack([est.prior[0], est.prior[2]]), (G, 2)),
+             jnp.abs(jnp.log(est.shapes / est.prior[1])) * 1e-9, jnp.zeros(()))
+
+    def step(carry, x):
+        out = est.curve_step(*carry, x[0], x[1], jnp.asarray(True))
+        return out[:6], out[6]
+
+    _, log_peak = jax.lax.scan(step, carry, (mu, slips))
+    np.testing.assert_allclose(np.exp(float(log_peak[8 * 25 - 1])), peak, rtol=0.05)
+    np.testing.assert_allclose(np.exp(float(log_peak[-1])), 0.5 * peak, rtol=0.10)
+
+
+def test_the_estimated_peak_model_plans_with_the_estimate_itself():
+    """`peak_model='estimated'`: every stage's D is the smaller axle's estimated peak (less
+    the backoff's standard deviations), whatever the stages' speeds; the 'plant' model's D
+    rises as the speed falls (the LuGre peak)."""
+    table = vs.RoadTable.from_road(vs.scenario_road("corner90"), spacing=0.5)
+    est = vs.GripEstimate(scale=jnp.array([0.4, 0.5]), scale_std=jnp.array([0.04, 0.05]),
+                          peak=jnp.array([0.47, 0.41]), peak_std=jnp.array([0.02, 0.03]))
+    speeds = jnp.linspace(4.0, 16.0, 30)
+    shape_free = vs.RecedingHorizonDriver(table=table, friction="estimate",
+                                          peak_model="estimated", estimate_backoff=1.0)
+    D = np.asarray(shape_free.planner_friction(jnp.asarray(0.0), est, speeds))
+    np.testing.assert_allclose(D, 0.41 - 0.03, rtol=1e-12)
+    lugre = vs.RecedingHorizonDriver(table=table, friction="estimate")
+    D_lugre = np.asarray(lugre.planner_friction(jnp.asarray(0.0), est, speeds))
+    assert D_lugre[0] > D_lugre[-1] * 1.05  # slower stages, more grip
+
+
+def test_the_estimated_peak_model_needs_an_estimate():
+    table = vs.RoadTable.from_road(vs.scenario_road("corner90"), spacing=0.5)
+    with pytest.raises(ValueError, match="peak_model='estimated'.*friction='estimate'"):
+        vs.RecedingHorizonDriver(table=table, friction="oracle", peak_model="estimated")
+    with pytest.raises(ValueError, match="peak_model must be 'plant' or 'estimated'"):
+        vs.RecedingHorizonDriver(table=table, friction="estimate", peak_model="lugre")
+
+
+def test_scenario_driver_with_the_shape_free_estimator():
+    sc = vs.drive_scenario("corner90", "minus20")
+    driver, est = vs.scenario_driver(sc, "estimate", pace_notes=True, estimator="axle-peak")
+    assert isinstance(est, vs.AxlePeakEstimator) and driver.peak_model == "estimated"
+    assert est.surface is not None
+    driver, est = vs.scenario_driver(sc, "estimate")
+    assert isinstance(est, vs.AxleGripEstimator) and driver.peak_model == "plant"
+    with pytest.raises(ValueError, match="unknown estimator 'peak'; allowed: axle-grip, "
+                                         "axle-peak"):
+        vs.scenario_driver(sc, "estimate", estimator="peak")
+
+
+def test_refuses_bad_settings():
+    with pytest.raises(ValueError, match="AxlePeakEstimator.prior_peak"):
+        vs.AxlePeakEstimator(prior_peak=-0.1)
+    with pytest.raises(ValueError, match="AxlePeakEstimator.forgetting"):
+        vs.AxlePeakEstimator(forgetting=1.5)
+    with pytest.raises(ValueError, match="AxlePeakEstimator.bins"):
+        vs.AxlePeakEstimator(bins=1)
