@@ -119,6 +119,9 @@ def common_sizes(roads) -> tuple[float, int]:
     return budget, points
 
 
+ESTIMATOR: list = ["axle-grip"]
+"""The estimating drivers' estimator (``--estimator``, `driver_estimator`'s kinds)."""
+
 PLANT_TIRE: list = ["lugre"]
 """The plant's tire (``--plant-tire``): 'lugre' (the scenarios' lumped 2D LuGre) or 'mf'
 (`mf_plant_tire`)."""
@@ -169,7 +172,7 @@ def make_driver(kind: str, sc, reference):
     if kind == "tracking":
         return vs.PrimitiveTracker(reference=reference, lead=vs.command_lead(act)), None
     return vs.scenario_driver(sc, kind.split("-")[1], pace_notes=kind == "rh-estimate-map",
-                              **settings_for(sc.road.name, kind))
+                              estimator=ESTIMATOR[0], **settings_for(sc.road.name, kind))
 
 
 @eqx.filter_jit
@@ -256,6 +259,8 @@ def scenario_table(args):
                                num_samples=sc.num_samples, **rec)
                     if PLANT_TIRE[0] != "lugre":
                         rec["plant_tire"] = PLANT_TIRE[0]
+                    if ESTIMATOR[0] != "axle-grip" and "estimate" in kind:
+                        rec["estimator"] = ESTIMATOR[0]
                     if kind.startswith("rh-") or kind == "bound-driver":
                         rec["driver_settings"] = settings_for(
                             road, "rh-oracle" if kind == "bound-driver" else kind)
@@ -358,6 +363,8 @@ def monte_carlo(args):
                    seeds=[args.mc_first_seed, args.mc_first_seed + args.monte_carlo - 1])
     if PLANT_TIRE[0] != "lugre":
         summary["plant_tire"] = PLANT_TIRE[0]
+    if ESTIMATOR[0] != "axle-grip" and "estimate" in args.mc_driver:
+        summary["estimator"] = ESTIMATOR[0]
     if args.mc_driver.startswith("rh-"):
         summary["driver_settings"] = {r: settings_for(r, args.mc_driver) for r in args.roads}
     if args.previews:
@@ -438,6 +445,10 @@ def main(argv=None):
     ap.add_argument("--plant-tire", choices=("lugre", "mf"), default="lugre",
                     help="the plant's tire: the scenarios' lumped LuGre, or a Magic Formula "
                          "of the same peak on the nominal road (mf_plant_tire)")
+    ap.add_argument("--estimator", choices=("axle-grip", "axle-peak"),
+                    default="axle-grip",
+                    help="the estimating drivers' estimator: axle-grip (the LuGre family "
+                         "assumed) or axle-peak (shape-free; the driver plans with its peak)")
     ap.add_argument("--driver-settings", type=json.loads, default={}, metavar="JSON",
                     help="RecedingHorizonDriver settings over driver_settings' on every road, "
                          'e.g. \'{"iterations": 8, "hessian_update": "first"}\'')
@@ -448,6 +459,7 @@ def main(argv=None):
                  + ", ".join(sorted(fields)) + f"), got {args.driver_settings!r}")
     SETTINGS.update(args.driver_settings)
     PLANT_TIRE[0] = args.plant_tire
+    ESTIMATOR[0] = args.estimator
     if args.mc_map is None:
         args.mc_map = "map" if jax.default_backend() == "cpu" else "vmap"
     if args.previews and args.mc_driver != "rh-oracle":
