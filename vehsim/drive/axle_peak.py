@@ -156,9 +156,11 @@ class AxlePeakEstimator(AbstractAxleEstimator):
             raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
                             f"of the road's relative grip), got {type(self.surface).__name__}")
         for name in ("prior_peak", "prior_std", "shapes", "ridge", "noise_std", "min_slip",
-                     "min_speed", "omega_eps", "change_drift", "change_threshold",
+                     "min_speed", "omega_eps", "change_drift",
                      "reference_speed"):
             check_positive(owner, name, getattr(self, name))
+        check_range(owner, "change_threshold", self.change_threshold, lower=0.0, lower_open=True,
+                    allow_inf=True)  # inf: no change detection
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
         check_range(owner, "change_discount", self.change_discount, lower=0.0, upper=1.0)

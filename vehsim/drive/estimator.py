@@ -477,8 +477,10 @@ class AxleGripEstimator(AbstractAxleEstimator):
                             f"of the road's relative grip), got {type(self.surface).__name__}")
         for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
                      "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
-                     "omega_eps", "change_drift", "change_threshold", "reference_speed"):
+                     "omega_eps", "change_drift", "reference_speed"):
             check_positive(owner, name, getattr(self, name))
+        check_range(owner, "change_threshold", self.change_threshold, lower=0.0, lower_open=True,
+                    allow_inf=True)  # inf: no change detection
         if self.sliding_slip is not None:
             check_positive(owner, "sliding_slip", self.sliding_slip)
         if self.slip_velocity_std is not None:

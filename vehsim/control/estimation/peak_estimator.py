@@ -220,9 +220,11 @@ class PeakEstimator(AbstractFrictionEstimator):
         if self.bins < 2:
             raise ValueError(f"PeakEstimator.bins must be at least 2, got {self.bins}")
         check_range(owner, "change_discount", self.change_discount, lower=0.0, upper=1.0)
-        for name in ("shapes", "ridge", "noise_variance", "change_drift", "change_threshold",
+        for name in ("shapes", "ridge", "noise_variance", "change_drift",
                      "min_slip", "min_speed", "relaxation_length"):
             check_positive(owner, name, getattr(self, name))
+        check_range(owner, "change_threshold", self.change_threshold, lower=0.0, lower_open=True,
+                    allow_inf=True)  # inf: no change detection
 
     def _estimate(self, coefficients, error, slip):
         best = jnp.argmin(error)
