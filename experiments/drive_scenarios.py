@@ -445,10 +445,11 @@ def main(argv=None):
     ap.add_argument("--plant-tire", choices=("lugre", "mf"), default="lugre",
                     help="the plant's tire: the scenarios' lumped LuGre, or a Magic Formula "
                          "of the same peak on the nominal road (mf_plant_tire)")
-    ap.add_argument("--estimator", choices=("axle-grip", "axle-peak"),
+    ap.add_argument("--estimator", choices=vs.drive.scenarios.ESTIMATORS,
                     default="axle-grip",
                     help="the estimating drivers' estimator: axle-grip (the LuGre family "
-                         "assumed) or axle-peak (shape-free; the driver plans with its peak)")
+                         "assumed), axle-peak (shape-free; the driver plans with its peak) or "
+                         "cautious (both; the driver plans with the smaller peak)")
     ap.add_argument("--driver-settings", type=json.loads, default={}, metavar="JSON",
                     help="RecedingHorizonDriver settings over driver_settings' on every road, "
                          'e.g. \'{"iterations": 8, "hessian_update": "first"}\'')

@@ -2,6 +2,7 @@
 assume, holds its prior where the data do not reach the peak, and the driver that plans with
 its peak uses it as it stands."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -133,7 +134,7 @@ def test_the_estimated_peak_model_needs_an_estimate():
     table = vs.RoadTable.from_road(vs.scenario_road("corner90"), spacing=0.5)
     with pytest.raises(ValueError, match="peak_model='estimated'.*friction='estimate'"):
         vs.RecedingHorizonDriver(table=table, friction="oracle", peak_model="estimated")
-    with pytest.raises(ValueError, match="peak_model must be 'plant' or 'estimated'"):
+    with pytest.raises(ValueError, match="peak_model must be 'plant', 'estimated' or 'cautious'"):
         vs.RecedingHorizonDriver(table=table, friction="estimate", peak_model="lugre")
 
 
@@ -187,3 +188,43 @@ def test_a_map_refers_the_curve_to_its_reference_surface():
         np.testing.assert_allclose(float(e.scale[0]), r * float(ref), rtol=1e-9)
     np.testing.assert_allclose(used[1], 2.0 * used[0], rtol=1e-12)
     assert np.all(used[0] > 0.1)
+
+
+def test_the_cautious_peak_model_plans_with_the_smaller_peak():
+    """`peak_model='cautious'`: each stage's D is the smaller of the 'plant' model's (the
+    LuGre peak of the estimate's scale at the stage's speed, higher at the slow stages) and
+    the estimate's peak; here the peak bounds the slow stages and not the fast ones."""
+    table = vs.RoadTable.from_road(vs.scenario_road("corner90"), spacing=0.5)
+    lam = vs.nominal_scale()
+    est = vs.GripEstimate(scale=jnp.array([lam, lam]), scale_std=jnp.array([0.0, 0.0]),
+                          peak=jnp.array([0.58, 0.6]), peak_std=jnp.array([0.0, 0.0]))
+    speeds = jnp.linspace(4.0, 20.0, 30)
+    plant = vs.RecedingHorizonDriver(table=table, friction="estimate")
+    cautious = vs.RecedingHorizonDriver(table=table, friction="estimate", peak_model="cautious")
+    D_plant = np.asarray(plant.planner_friction(jnp.asarray(0.0), est, speeds))
+    D = np.asarray(cautious.planner_friction(jnp.asarray(0.0), est, speeds))
+    np.testing.assert_allclose(D, np.minimum(D_plant, 0.58), rtol=1e-12)
+    assert D_plant[0] > 0.58 > D_plant[-1]  # both sides of the bound are exercised
+
+
+def test_the_cautious_estimator_carries_both_beliefs():
+    sc = vs.drive_scenario("corner90", "minus20")
+    driver, est = vs.scenario_driver(sc, "estimate", pace_notes=True, estimator="cautious")
+    assert isinstance(est, vs.CautiousGripEstimator) and driver.peak_model == "cautious"
+    assert est.model.surface is not None and est.shape_free.surface is not None
+    est = vs.CautiousGripEstimator(vs.AxleGripEstimator(prior_scale=0.2),
+                                   vs.AxlePeakEstimator(prior_peak=0.45))
+    m = vs.measure_drive(sc.plant, sc.state0, jax.random.key(0))
+    m1 = eqx.tree_at(lambda q: q.t, m, m.t + 0.05)
+    e = est.estimate(est.update(est.init(m), m1))
+    a = est.model.estimate(est.model.update(est.model.init(m), m1))
+    b = est.shape_free.estimate(est.shape_free.update(est.shape_free.init(m), m1))
+    np.testing.assert_array_equal(np.asarray(e.scale), np.asarray(a.scale))
+    np.testing.assert_array_equal(np.asarray(e.peak), np.asarray(b.peak))
+    np.testing.assert_allclose(np.asarray(e.peak), 0.45)
+    assert np.all(np.abs(np.asarray(a.peak) - 0.45) > 0.05)  # the two beliefs differ
+    signals = est.signals(est.init(m))
+    assert "scale_F" in signals and "free_peak_F" in signals
+    with pytest.raises(TypeError, match="CautiousGripEstimator.shape_free must be a "
+                                        "AxlePeakEstimator"):
+        vs.CautiousGripEstimator(shape_free=vs.AxleGripEstimator())

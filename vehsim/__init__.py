@@ -380,6 +380,8 @@ from .drive.actuators import (
 from .drive.axle_peak import (
     AxlePeakEstimator as AxlePeakEstimator,
     AxlePeakState as AxlePeakState,
+    CautiousGripEstimator as CautiousGripEstimator,
+    CautiousGripState as CautiousGripState,
 )
 from .drive.baselines import (
     PrimitiveReference as PrimitiveReference,

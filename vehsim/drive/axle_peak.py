@@ -65,7 +65,15 @@ from ..tire.burckhardt import BURCKHARDT
 from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.params import lugre2d_bakker1987
 from ..vehicle.params import HalfCarParams, rally_gravel
-from .estimator import REFERENCE_SPEED, AbstractAxleEstimator, GripEstimate, scale_of_peak
+from .estimator import (
+    REFERENCE_SPEED,
+    AbstractAxleEstimator,
+    AbstractGripEstimator,
+    AxleGripEstimator,
+    AxleGripState,
+    GripEstimate,
+    scale_of_peak,
+)
 from .grip import AbstractGripField
 from .sensors import DriveMeasurement
 
@@ -255,3 +263,55 @@ class AxlePeakEstimator(AbstractAxleEstimator):
             out[f"slip_{axle}"] = state.slip[i]
         return out
 
+
+
+class CautiousGripState(eqx.Module):
+    """The states of `CautiousGripEstimator`'s two estimators: `model` and `shape_free`."""
+
+    model: AxleGripState
+    shape_free: AxlePeakState
+
+
+class CautiousGripEstimator(AbstractGripEstimator):
+    r"""Two beliefs run side by side on the same measurements: `model`, an
+    `AxleGripEstimator` (the friction scale of the tire it assumes: exact on that tire's
+    family, its peak rising as the speed falls as the LuGre peak does), and `shape_free`, an
+    `AxlePeakEstimator` (the peak itself, from the measured curve: no tire assumed, no speed
+    dependence). The estimate carries the first's `scale` and `scale_std` and the second's
+    `peak` and `peak_std`; `RecedingHorizonDriver(peak_model='cautious')` plans each stage
+    with the smaller of the two peaks they give there. On the assumed tire's family the
+    model's peak is right and the shape-free one a check on it; on another family the
+    model's peak at the corners' speeds can be far above the plant's (the LuGre peak at
+    8 m/s is 15 % above its peak at 20 m/s; a Magic Formula's is not), and the shape-free
+    one bounds it.
+
+    **Fields:** `model` (default `AxleGripEstimator()`), `shape_free` (default
+    `AxlePeakEstimator()`); give them the same `surface` map."""
+
+    model: AxleGripEstimator = eqx.field(default_factory=AxleGripEstimator)
+    shape_free: AxlePeakEstimator = eqx.field(default_factory=AxlePeakEstimator)
+
+    def __check_init__(self):
+        for name, kind in (("model", AxleGripEstimator), ("shape_free", AxlePeakEstimator)):
+            if not isinstance(getattr(self, name), kind):
+                raise TypeError(f"CautiousGripEstimator.{name} must be a {kind.__name__}, got "
+                                f"{type(getattr(self, name)).__name__}")
+
+    def init(self, measurement: DriveMeasurement) -> CautiousGripState:
+        return CautiousGripState(self.model.init(measurement), self.shape_free.init(measurement))
+
+    def update(self, state: CautiousGripState, m: DriveMeasurement) -> CautiousGripState:
+        return CautiousGripState(self.model.update(state.model, m),
+                                 self.shape_free.update(state.shape_free, m))
+
+    def estimate(self, state: CautiousGripState) -> GripEstimate:
+        """The model's `scale`, `scale_std`; the shape-free `peak`, `peak_std`."""
+        a = self.model.estimate(state.model)
+        b = self.shape_free.estimate(state.shape_free)
+        return GripEstimate(a.scale, a.scale_std, b.peak, b.peak_std)
+
+    def signals(self, state: CautiousGripState) -> dict:
+        """The model's signals, and the shape-free one's prefixed `free_`."""
+        out = dict(self.model.signals(state.model))
+        out.update({f"free_{k}": v for k, v in self.shape_free.signals(state.shape_free).items()})
+        return out

@@ -839,7 +839,10 @@ class RecedingHorizonDriver(AbstractDriveController):
     plans with the estimate's `GripEstimate.peak` itself, the smaller axle's less
     `estimate_backoff` times its `peak_std`, times the map's ratio with `surface_map`;
     no tire shape, no speed dependence: for a shape-free estimator such as
-    `AxlePeakEstimator` on a plant whose tire is not `plant_tire`'s family).
+    `AxlePeakEstimator` on a plant whose tire is not `plant_tire`'s family) or 'cautious'
+    (each stage the smaller of the two: the 'plant' peak of the estimate's `scale` and the
+    'estimated' one of its `peak`; for `CautiousGripEstimator`, whose `scale` is a
+    model-based estimator's and whose `peak` a shape-free one's).
 
     **The test brake.** The estimator learns only where an axle uses most of the grip it
     believes in (`driver_estimator`), and a driver that trusts its prior first does so
@@ -998,12 +1001,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.jacobian_update == "first" and self.hessian_update != "first":
             raise ValueError("RecedingHorizonDriver.jacobian_update='first' needs "
                              f"hessian_update='first', got {self.hessian_update!r}")
-        if self.peak_model not in ("plant", "estimated"):
-            raise ValueError("RecedingHorizonDriver.peak_model must be 'plant' or 'estimated', "
-                             f"got {self.peak_model!r}")
-        if self.peak_model == "estimated" and self.friction != "estimate":
-            raise ValueError("RecedingHorizonDriver.peak_model='estimated' plans with the "
-                             "estimate's peak: it needs friction='estimate', got "
+        if self.peak_model not in ("plant", "estimated", "cautious"):
+            raise ValueError("RecedingHorizonDriver.peak_model must be 'plant', 'estimated' or "
+                             f"'cautious', got {self.peak_model!r}")
+        if self.peak_model != "plant" and self.friction != "estimate":
+            raise ValueError(f"RecedingHorizonDriver.peak_model={self.peak_model!r} plans with "
+                             "the estimate's peak: it needs friction='estimate', got "
                              f"{self.friction!r}")
         if self.friction not in ("nominal", "oracle", "estimate"):
             raise ValueError("RecedingHorizonDriver.friction must be 'nominal', 'oracle' or "
@@ -1162,9 +1165,10 @@ class RecedingHorizonDriver(AbstractDriveController):
         else:
             ratio = jnp.zeros(M)
 
-        if self.peak_model == "estimated":  # the estimate's peak itself, at every speed
-            lower = estimate.peak - self.estimate_backoff * estimate.peak_std
-            return jnp.clip(jnp.min(lower) * jnp.exp(ratio), 0.05, 2.0)
+        lower = estimate.peak - self.estimate_backoff * estimate.peak_std
+        measured = jnp.min(lower) * jnp.exp(ratio)  # the estimate's peak, at every speed
+        if self.peak_model == "estimated":
+            return jnp.clip(measured, 0.05, 2.0)
 
         def axle(th, sd):
             def stage(v, r):
@@ -1174,6 +1178,8 @@ class RecedingHorizonDriver(AbstractDriveController):
             return jax.vmap(stage)(V, ratio)
 
         D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
+        if self.peak_model == "cautious":
+            D = jnp.minimum(D, measured)
         return jnp.clip(D, 0.05, 2.0)
 
     def problem(self, s0, state8, D) -> HorizonOCP:

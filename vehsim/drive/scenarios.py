@@ -79,7 +79,7 @@ from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from ..tire.base import AbstractTire
 from .actuators import DriveActuators
-from .axle_peak import AxlePeakEstimator
+from .axle_peak import AxlePeakEstimator, CautiousGripEstimator
 from .estimator import AbstractGripEstimator, AxleGripEstimator, scale_of_peak
 from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
 from .horizon import RecedingHorizonDriver, RoadTable
@@ -243,9 +243,9 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
     return settings
 
 
-ESTIMATORS = ("axle-grip", "axle-peak")
-"""The kinds of `driver_estimator`: `AxleGripEstimator` (the plant's tire family assumed)
-and the shape-free `AxlePeakEstimator`."""
+ESTIMATORS = ("axle-grip", "axle-peak", "cautious")
+"""The kinds of `driver_estimator`: `AxleGripEstimator` (the plant's tire family assumed),
+the shape-free `AxlePeakEstimator`, and both (`CautiousGripEstimator`)."""
 
 DRIVER_MIN_UTILISATION = 0.7
 """`AxleGripEstimator.min_utilisation` of `driver_estimator`."""
@@ -273,15 +273,18 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
     `DriveScenario.surface_map`), relative to the surface the prior describes (the scenarios'
     maps: the road's best surface, so that the map only warns).
 
-    ``kind``: "axle-grip" (the above) or "axle-peak": the shape-free `AxlePeakEstimator`
-    with the prior peak ``prior_peak`` (for a plant whose tire is not of the LuGre family;
-    its driver plans with the estimated peak itself, `scenario_driver`)."""
+    ``kind``: "axle-grip" (the above), "axle-peak" (the shape-free `AxlePeakEstimator` with
+    the prior peak ``prior_peak``: for a plant whose tire is not of the LuGre family; its
+    driver plans with the estimated peak itself, `scenario_driver`) or "cautious" (both, in
+    a `CautiousGripEstimator`; its driver plans with the smaller of their peaks)."""
     _check_name("kind", kind, ESTIMATORS)
+    shape_free = AxlePeakEstimator(prior_peak=prior_peak, surface=surface)
     if kind == "axle-peak":
-        return AxlePeakEstimator(prior_peak=prior_peak, surface=surface)
-    return AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
-                             min_utilisation=DRIVER_MIN_UTILISATION,
-                             sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
+        return shape_free
+    model = AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
+                              min_utilisation=DRIVER_MIN_UTILISATION,
+                              sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
+    return model if kind == "axle-grip" else CautiousGripEstimator(model, shape_free)
 
 
 def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
@@ -297,13 +300,15 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
     driver's table carries it as its `scale` column, `RecedingHorizonDriver.surface_map`).
     ``settings``: further `RecedingHorizonDriver` fields, e.g. ``driver_settings(road)``
     (not applied here: a road from a file named like a scenario's is not that road).
-    ``estimator``: the kind of `driver_estimator` ("axle-grip" or "axle-peak"; with
-    "axle-peak" the driver plans with the estimated peak itself,
-    `RecedingHorizonDriver.peak_model` "estimated")."""
+    ``estimator``: the kind of `driver_estimator` ("axle-grip", "axle-peak" or "cautious";
+    with "axle-peak" the driver plans with the estimated peak itself,
+    `RecedingHorizonDriver.peak_model` "estimated", with "cautious" with the smaller of the
+    two estimators' peaks, `peak_model` "cautious")."""
     _check_name("friction", friction, ("estimate", "nominal", "oracle"))
     _check_name("estimator", estimator, ESTIMATORS)
-    if estimator == "axle-peak" and friction == "estimate":
-        settings = {"peak_model": "estimated"} | settings
+    if estimator != "axle-grip" and friction == "estimate":
+        model = "estimated" if estimator == "axle-peak" else "cautious"
+        settings = {"peak_model": model} | settings
     notes = scenario.surface_map() if pace_notes else None
     act = scenario.plant.actuators
     table = scenario.table if notes is None else scenario.table.with_grip(notes)
