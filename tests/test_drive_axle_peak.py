@@ -157,6 +157,13 @@ def test_refuses_bad_settings():
         vs.AxlePeakEstimator(forgetting=1.5)
     with pytest.raises(ValueError, match="AxlePeakEstimator.bins"):
         vs.AxlePeakEstimator(bins=1)
+    with pytest.raises(TypeError, match="AxlePeakEstimator.tire must be a LumpedLuGre2D"):
+        vs.AxlePeakEstimator(tire=vs.LinearTire(1e5, 8e4))
+    with pytest.raises(ValueError, match=r"AxleGripEstimator.change_threshold must lie in \(0"):
+        vs.AxleGripEstimator(change_threshold=0.0)
+    # an infinite threshold, which the estimators' docstrings name as "off", is accepted
+    for make in (vs.AxlePeakEstimator, vs.AxleGripEstimator, vs.PeakEstimator):
+        assert np.isinf(float(make(change_threshold=float("inf")).change_threshold))
 
 
 def test_a_map_refers_the_curve_to_its_reference_surface():

@@ -58,7 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_count, check_positive, check_range
+from .._checks import check_positive, check_range
 from .._fields import array_field
 from ..control.estimation.peak_estimator import burckhardt_peak, fit_burckhardt
 from ..tire.burckhardt import BURCKHARDT
@@ -157,24 +157,14 @@ class AxlePeakEstimator(AbstractAxleEstimator):
 
     def __check_init__(self):
         owner = "AxlePeakEstimator"
-        if not isinstance(self.tire, LumpedLuGre2D):
-            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
-                            f"{type(self.tire).__name__}")
-        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
-            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
-                            f"of the road's relative grip), got {type(self.surface).__name__}")
-        for name in ("prior_peak", "prior_std", "shapes", "ridge", "noise_std", "min_slip",
-                     "min_speed", "omega_eps", "change_drift",
-                     "reference_speed"):
+        self.check_shared(owner)
+        for name in ("prior_peak", "prior_std", "shapes", "ridge", "noise_std", "min_slip"):
             check_positive(owner, name, getattr(self, name))
-        check_range(owner, "change_threshold", self.change_threshold, lower=0.0, lower_open=True,
-                    allow_inf=True)  # inf: no change detection
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
         check_range(owner, "change_discount", self.change_discount, lower=0.0, upper=1.0)
         if not isinstance(self.bins, int) or self.bins < 2:
             raise ValueError(f"{owner}.bins must be an integer >= 2, got {self.bins!r}")
-        check_count(owner, "load_substeps", self.load_substeps)
 
     def _member(self, coefficients, error):
         best = jnp.argmin(error)

@@ -90,7 +90,7 @@ believed either, and a driver that plans with the lower edge of the belief then 
 slower than the road allows; below `min_speed` nothing is measured (the slip is
 ill-defined) and the same holds. **Blind
 spots:** a tire whose shape differs from the assumed one is read as the best-fitting
-$\lambda$ of the wrong shape (biased); the loads follow the suspension's
+$\lambda$ of the wrong shape (biased; `AxlePeakEstimator` assumes no shape); the loads follow the suspension's
 dynamics only as far as the nominal suspension and the measured $a_x$ describe them
 (no road profile, no unmeasured pitch disturbance), the force is the sample's mean against
 the slip at its midpoint, so fast transients (a wheel locking within a sample) read as noise; a brake
@@ -289,8 +289,10 @@ class AbstractAxleEstimator(AbstractGripEstimator):
     (module docstring, "Utilised friction"): the measurement half shared by the estimators
     of this module, whatever they then fit to it. Needs the nominal car `params`, the brake
     smoothing `omega_eps` [rad/s], the speed `min_speed` [m/s] below which a slip is not
-    measured, the load model (`dynamic_loads`, `load_substeps`) and the optional map of the
-    road's relative grip `surface`."""
+    measured, the load model (`dynamic_loads`, `load_substeps`), the optional map of the
+    road's relative grip `surface`, a `tire` (the `LumpedLuGre2D` its friction scales refer
+    to), a change detector (`change_drift`, `change_threshold`) and the `reference_speed`
+    of its reported peak."""
 
     params: eqx.AbstractVar[HalfCarParams]
     omega_eps: eqx.AbstractVar[Float[Array, ""]]
@@ -298,6 +300,10 @@ class AbstractAxleEstimator(AbstractGripEstimator):
     dynamic_loads: eqx.AbstractVar[bool]
     load_substeps: eqx.AbstractVar[int]
     surface: eqx.AbstractVar[AbstractGripField | None]
+    tire: eqx.AbstractVar[LumpedLuGre2D]
+    change_drift: eqx.AbstractVar[Float[Array, ""]]
+    change_threshold: eqx.AbstractVar[Float[Array, ""]]
+    reference_speed: eqx.AbstractVar[Float[Array, ""]]
 
     def _loads(self, q):
         p = self.params
@@ -378,6 +384,22 @@ class AbstractAxleEstimator(AbstractGripEstimator):
         c, s = jnp.cos(m.psi), jnp.sin(m.psi)
         return jnp.log(jnp.stack([self.surface.scale_at(m.x + p.lF * c, m.y + p.lF * s),
                                   self.surface.scale_at(m.x - p.lR * c, m.y - p.lR * s)]))
+
+    def check_shared(self, owner: str) -> None:
+        """Refuse a `tire` that is not a `LumpedLuGre2D`, a `surface` that is not a map, a
+        nonpositive `min_speed`, `omega_eps`, `change_drift`, `reference_speed` or
+        `change_threshold` (inf: no change detection), a `load_substeps` below 1."""
+        if not isinstance(self.tire, LumpedLuGre2D):
+            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
+                            f"{type(self.tire).__name__}")
+        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
+            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
+                            f"of the road's relative grip), got {type(self.surface).__name__}")
+        for name in ("min_speed", "omega_eps", "change_drift", "reference_speed"):
+            check_positive(owner, name, getattr(self, name))
+        check_range(owner, "change_threshold", self.change_threshold, lower=0.0,
+                    lower_open=True, allow_inf=True)
+        check_count(owner, "load_substeps", self.load_substeps)
 
     def sample_friction(self, suspension, m0: DriveMeasurement, m1: DriveMeasurement):
         r"""``(mu, slip, v_r, c, suspension)``: `utilised_friction` over the sample from `m0`
@@ -469,18 +491,10 @@ class AxleGripEstimator(AbstractAxleEstimator):
 
     def __check_init__(self):
         owner = "AxleGripEstimator"
-        if not isinstance(self.tire, LumpedLuGre2D):
-            raise TypeError(f"{owner}.tire must be a LumpedLuGre2D, got "
-                            f"{type(self.tire).__name__}")
-        if self.surface is not None and not isinstance(self.surface, AbstractGripField):
-            raise TypeError(f"{owner}.surface must be None or an AbstractGripField (a map "
-                            f"of the road's relative grip), got {type(self.surface).__name__}")
+        self.check_shared(owner)
         for name in ("prior_scale", "initial_variance", "max_variance", "noise_std",
-                     "max_step", "scale_min", "scale_max", "min_speed", "min_utilisation",
-                     "omega_eps", "change_drift", "reference_speed"):
+                     "max_step", "scale_min", "scale_max", "min_utilisation"):
             check_positive(owner, name, getattr(self, name))
-        check_range(owner, "change_threshold", self.change_threshold, lower=0.0, lower_open=True,
-                    allow_inf=True)  # inf: no change detection
         if self.sliding_slip is not None:
             check_positive(owner, "sliding_slip", self.sliding_slip)
         if self.slip_velocity_std is not None:
@@ -488,7 +502,6 @@ class AxleGripEstimator(AbstractAxleEstimator):
         check_range(owner, "forgetting", self.forgetting, lower=0.0, upper=1.0,
                     lower_open=True)
         check_order(owner, "scale_min", self.scale_min, "scale_max", self.scale_max)
-        check_count(owner, "load_substeps", self.load_substeps)
 
     def init(self, measurement: DriveMeasurement) -> AxleGripState:
         """The prior $\\lambda_0$ with variance $P_0$ on both axles."""
