@@ -201,6 +201,10 @@ BAD = {
                                  "--keep-hessian"], "--keep-hessian applies to"),
     "pace notes without rh": (["--road", "corner90", "--controller", "rh-oracle",
                                "--pace-notes"], "--pace-notes"),
+    "estimator without rh": (["--road", "corner90", "--controller", "rh-nominal",
+                              "--estimator", "axle-peak"], "--estimator chooses the grip"),
+    "unknown estimator": (["--road", "corner90", "--estimator", "burckhardt"],
+                          "--estimator"),
     "negative preview": (["--road", "corner90", "--controller", "rh-oracle", "--preview",
                           "-1"], "--preview"),
     "negative seed": (["--road", "corner90", "--seed", "-1"],
@@ -551,6 +555,25 @@ def test_drive_gives_the_estimate_pace_notes():
     _check(args)
     driver, estimator = setup.controller(args, setup.scenario(args, setup.road(args)))
     assert not driver.surface_map and estimator.surface is None
+
+
+def test_drive_chooses_the_grip_estimator():
+    """``--estimator``: the kinds of `driver_estimator`, the driver's peak model with them;
+    the default the LuGre family's."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import ESTIMATORS, _check
+
+    assert ESTIMATORS == vs.drive.scenarios.ESTIMATORS
+    expected = {None: (vs.AxleGripEstimator, "plant"),
+                "axle-peak": (vs.AxlePeakEstimator, "estimated"),
+                "cautious": (vs.CautiousGripEstimator, "cautious")}
+    for kind, (cls, model) in expected.items():
+        extra = [] if kind is None else ["--estimator", kind]
+        args = cli.build_parser().parse_args(["drive", "--road", "corner90", "--pace-notes",
+                                              *extra])
+        _check(args)
+        driver, estimator = setup.controller(args, setup.scenario(args, setup.road(args)))
+        assert type(estimator) is cls and driver.peak_model == model
 
 
 def test_figure_shades_the_test_brake(small_run):

@@ -139,7 +139,7 @@ def controller(args, sc):
     if args.keep_hessian is not None:
         settings["hessian_update"] = "first" if args.keep_hessian else "every"
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
-                           **settings)
+                           estimator=args.estimator or "axle-grip", **settings)
 
 
 def plan_record(prim) -> dict:

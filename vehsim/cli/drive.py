@@ -26,6 +26,7 @@ ROADS = ("corner90", "uturn", "sturn", "stage")
 CONTROLLERS = ("rh", "rh-nominal", "rh-oracle", "tracking", "open-loop")
 RH_CONTROLLERS = ("rh", "rh-nominal", "rh-oracle")
 MODES = ("rti", "converged")
+ESTIMATORS = ("axle-grip", "axle-peak", "cautious")  # `driver_estimator`'s kinds
 CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
 MIN_PASSES, MAX_PASSES = 2, 100
@@ -128,6 +129,11 @@ def register(subparsers) -> None:
                         "road's surfaces compare (the grip relative to the road's best "
                         "surface, as pace notes give it: they only warn), not their level; "
                         "--preview limits how far ahead")
+    p.add_argument("--estimator", type=choice_of(ESTIMATORS, "estimator"), default=None,
+                   help="with --controller rh: axle-grip (the plant's LuGre family assumed, "
+                        "the default), axle-peak (shape-free: the measured curve's peak, "
+                        "planned with at every speed) or cautious (both; each stage planned "
+                        "with the smaller peak)")
     p.add_argument("--mode", type=choice_of(MODES, "mode"), default=None,
                    help="with an rh controller: rti (a few interior-point iterations per "
                         "sample, the default) or converged (to tolerance)")
@@ -188,6 +194,9 @@ def _check(args) -> None:
     if args.pace_notes and args.controller != "rh":
         raise ValueError("--pace-notes carries the grip estimate along the road: it applies "
                          f"to --controller rh, not --controller {args.controller}")
+    if args.estimator is not None and args.controller != "rh":
+        raise ValueError("--estimator chooses the grip estimator: it applies to --controller "
+                         f"rh, not --controller {args.controller}")
     if args.preview is not None and not (args.controller == "rh-oracle" or args.pace_notes):
         raise ValueError("--preview limits what the oracle (or the pace notes) know ahead: it "
                          "applies to --controller rh-oracle or --pace-notes, not --controller "
@@ -375,6 +384,8 @@ def _drive(args) -> int:
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
                      "controller": args.controller, "pace_notes": args.pace_notes,
+                     "estimator": (args.estimator or "axle-grip") if args.controller == "rh"
+                     else None,
                      "mode": args.mode,
                      "passes": driver.iterations if rh and driver.mode == "rti" else None,
                      "keep_hessian": driver.hessian_update == "first" if rh else None,
