@@ -256,7 +256,7 @@ DRIVER_SLIDING_SLIP = 0.1
 
 def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
                      surface: AbstractGripField | None = None, kind: str = "axle-grip"
-                     ) -> AxleGripEstimator | AxlePeakEstimator:
+                     ) -> AbstractGripEstimator:
     r"""The grip estimator of the receding-horizon driver's scenarios: `AxleGripEstimator`
     with the prior of the road whose peak at 20 m/s is ``prior_peak`` (`scale_for_peak`)
     and `min_utilisation` = `DRIVER_MIN_UTILISATION` (0.7, the estimator's default 0.5)
