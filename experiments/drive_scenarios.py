@@ -310,8 +310,7 @@ def monte_carlo(args):
     num_samples = meta[0][3].num_samples
     # the estimators differ between roads only by their surface maps: batched where they
     # have one, else the one estimator is a constant of the program
-    mapped = ests[0] is not None and any(getattr(e, "surface", None) is not None for e in
-                                         (ests[0], getattr(ests[0], "model", None)))
+    mapped = ests[0] is not None and ests[0].surface is not None
     batch = (stack(plants), stack(ctrls), stack(states), jnp.stack(keys), stack(tables),
              stack(gates), stack(ests) if mapped else None)
 

@@ -39,11 +39,8 @@ def _run(est, curve, slips, key=0):
     """The estimator's per-axle step over samples at ``slips``, the friction the curve's
     plus noise of standard deviation `SIGMA`: ``(log peak, variance, peak slip)`` after
     each."""
-    B, G = est.bins, est.shapes.shape[0]
     noise = SIGMA * jax.random.normal(jax.random.key(key), slips.shape)
-    c0 = jnp.broadcast_to(jnp.stack([est.prior[0], est.prior[2]]), (G, 2))
-    carry0 = (jnp.zeros(B), jnp.zeros(B), jnp.zeros(B), c0,
-              jnp.abs(jnp.log(est.shapes / est.prior[1])) * 1e-9, jnp.zeros(()))
+    carry0 = est.empty_curve()
 
     def step(carry, x):
         s, e = x
@@ -89,10 +86,7 @@ def _changed_road(est):
     after = jnp.arange(slips.shape[0]) >= 8 * 25
     noise = SIGMA * jax.random.normal(jax.random.key(1), slips.shape)
     mu = jnp.where(after, 0.4, 1.0) * _magic_formula(slips) + noise
-    B, G = est.bins, est.shapes.shape[0]
-    carry = (jnp.zeros(B), jnp.zeros(B), jnp.zeros(B),
-             jnp.broadcast_to(jnp.stack([est.prior[0], est.prior[2]]), (G, 2)),
-             jnp.abs(jnp.log(est.shapes / est.prior[1])) * 1e-9, jnp.zeros(()))
+    carry = est.empty_curve()
 
     def step(carry, x):
         out = est.curve_step(*carry, x[0], x[1], jnp.asarray(True))

@@ -171,17 +171,23 @@ class AxlePeakEstimator(AbstractAxleEstimator):
         c1, c3 = coefficients[best, 0], coefficients[best, 1]
         return c1, self.shapes[best], c3
 
-    def init(self, measurement: DriveMeasurement) -> AxlePeakState:
-        """An empty curve, every member at the prior's $(c_1, c_3)$ (the prior's nearest
-        $c_2$ the best), the belief the prior's on both axles."""
+    def empty_curve(self):
+        r"""One axle's curve before any data, as `curve_step` takes it: ``(weight, bin_mu,
+        bin_slip, coefficients, error, g)``, the bins empty, every member at the prior's
+        $(c_1, c_3)$ (the prior's nearest $c_2$ the best), the change statistic 0."""
         G, B = self.shapes.shape[0], self.bins
-        c = jnp.broadcast_to(jnp.stack([self.prior[0], self.prior[2]]), (2, G, 2))
-        error = jnp.broadcast_to(jnp.abs(jnp.log(self.shapes / self.prior[1])) * 1e-9, (2, G))
-        zb, z = jnp.zeros((2, B)), jnp.zeros(2)
+        c = jnp.broadcast_to(jnp.stack([self.prior[0], self.prior[2]]), (G, 2))
+        error = jnp.abs(jnp.log(self.shapes / self.prior[1])) * 1e-9
+        zb = jnp.zeros(B)
+        return zb, zb, zb, c, error, jnp.zeros(())
+
+    def init(self, measurement: DriveMeasurement) -> AxlePeakState:
+        """`empty_curve` on both axles, the belief the prior's."""
+        curve = jax.tree.map(lambda x: jnp.broadcast_to(x, (2, *x.shape)), self.empty_curve())
+        z = jnp.zeros(2)
         s_star, _ = burckhardt_peak(*self.prior)
-        return AxlePeakState(zb, zb, zb, c, error, z, jnp.log(self.prior_peak) + z,
-                             self.prior_std**2 + z, s_star + z, z, z, measurement,
-                             jnp.zeros(4))
+        return AxlePeakState(*curve, jnp.log(self.prior_peak) + z, self.prior_std**2 + z,
+                             s_star + z, z, z, measurement, jnp.zeros(4))
 
     def curve_step(self, weight, bin_mu, bin_slip, coefficients, error, g, mu, slip,
                    informative):
@@ -286,6 +292,11 @@ class CautiousGripEstimator(AbstractGripEstimator):
             if not isinstance(getattr(self, name), kind):
                 raise TypeError(f"CautiousGripEstimator.{name} must be a {kind.__name__}, got "
                                 f"{type(getattr(self, name)).__name__}")
+
+    @property
+    def surface(self) -> AbstractGripField | None:
+        """The map of the road's relative grip: the model's."""
+        return self.model.surface
 
     def init(self, measurement: DriveMeasurement) -> CautiousGripState:
         return CautiousGripState(self.model.init(measurement), self.shape_free.init(measurement))

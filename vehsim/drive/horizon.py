@@ -1165,10 +1165,11 @@ class RecedingHorizonDriver(AbstractDriveController):
         else:
             ratio = jnp.zeros(M)
 
-        lower = estimate.peak - self.estimate_backoff * estimate.peak_std
-        measured = jnp.min(lower) * jnp.exp(ratio)  # the estimate's peak, at every speed
-        if self.peak_model == "estimated":
-            return jnp.clip(measured, 0.05, 2.0)
+        if self.peak_model != "plant":  # the estimate's peak itself, at every speed
+            lower = estimate.peak - self.estimate_backoff * estimate.peak_std
+            measured = jnp.min(lower) * jnp.exp(ratio)
+            if self.peak_model == "estimated":
+                return jnp.clip(measured, 0.05, 2.0)
 
         def axle(th, sd):
             def stage(v, r):
