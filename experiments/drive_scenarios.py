@@ -56,7 +56,8 @@ Usage: PYTHONPATH=. python experiments/drive_scenarios.py [--roads corner90 ...]
 ``--driver-settings '{"iterations": 8}'``: receding-horizon settings over
 `driver_settings`'s, on every road (recorded with each row).
 ``--plant-tire mf``: the plant on a tire of another family than the drivers assume, a Magic
-Formula of the same peak on the nominal road (`mf_plant_tire`; rows marked ``plant_tire``).
+Formula with the scenario's peak on every surface (`mf_plant_tire`; rows marked
+``plant_tire``).
 """
 
 from __future__ import annotations
@@ -130,32 +131,15 @@ PLANT_TIRE: list = ["lugre"]
 @functools.cache
 def mf_plant_tire() -> vs.RelaxedMFTire:
     r"""A tire of another family for the plant (``--plant-tire mf``): the shipped .tir
-    file's Magic Formula 6.1 with its relaxation lengths (`RelaxedMFTire`, the file's ranges
-    not applied: the half car's axle carries more than one wheel's load), its road-friction
-    factors LMUX and LMUY set so that on the nominal road (friction scale
-    $\lambda_0$ = `scale_for_peak`(0.52), which `scale_friction` multiplies them by) its
-    pure-slip peaks $\max F_x/F_z$ and $\max F_y/F_z$ at the rally car's static front
-    axle load are 0.52, the LuGre plant's peak at 20 m/s. The curves' shapes (peak slip,
-    fall-off, combined slip, load and speed dependence) are the Magic Formula's, which
-    neither the estimator nor the planner assumes."""
-    from vehsim.tire.tir import read_tir, shipped_tires
+    file's Magic Formula 6.1 with its relaxation lengths (`vs.mf_plant_tire`), its pure-slip
+    peaks at the rally car's static front axle load the nominal road's 0.52; on the other
+    surfaces the scenario's peaks (`vs.peak_surface_factor`, which `drive_scenario` gives
+    the plant). The curves' shapes (peak slip, fall-off, combined slip, load and speed
+    dependence) are the Magic Formula's, which neither the estimator nor the planner
+    assumes."""
+    from vehsim.tire.tir import shipped_tires
 
-    P = vs.MFParams.from_tir(read_tir(shipped_tires()["sample_185_80R14_mf61"]))
-    car = vs.rally_gravel()
-    Fz = float(car.m * car.g * car.lR / (car.lF + car.lR))
-    tire = vs.MFTire(P, limits=False)
-    V, r = 20.0, float(car.r)
-    k = jnp.linspace(0.0, 1.0, 20001)
-    a = jnp.tan(jnp.linspace(0.0, 1.2, 20001))
-    f = jax.vmap(lambda kk, aa: tire.forces(tire.init_state(), V, aa * V, (1.0 + kk) * V / r,
-                                            r, Fz))
-    mux = float(jnp.max(jnp.abs(f(k, 0.0 * k)[:, 0]))) / Fz
-    muy = float(jnp.max(jnp.abs(f(0.0 * a, a)[:, 1]))) / Fz
-    lam0 = vs.scale_for_peak(BENCHMARK_PEAK)
-    P = eqx.tree_at(lambda q: (q.LMUX, q.LMUY), P,
-                    (P.LMUX * BENCHMARK_PEAK / (lam0 * mux),
-                     P.LMUY * BENCHMARK_PEAK / (lam0 * muy)))
-    return vs.RelaxedMFTire(P, limits=False)
+    return vs.mf_plant_tire(shipped_tires()["sample_185_80R14_mf61"], BENCHMARK_PEAK)
 
 
 def scenario(road, grip, budget, points):

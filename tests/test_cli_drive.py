@@ -22,12 +22,14 @@ from vehsim.plot import (
     drive_trace,
     frame_every_for,
 )
+from vehsim.tire.tir import shipped_tires
 
 
 # its own worker group: its drives are the command line's programs, which no other drive test
 # compiles, so sharing the drive tests' worker only lengthens that worker
 pytestmark = pytest.mark.xdist_group("drive_cli")
 
+SAMPLE_TIR = shipped_tires()["sample_185_80R14_mf61"]
 PNG = b"\x89PNG\r\n\x1a\n"
 GIF = (b"GIF87a", b"GIF89a")
 SEGMENTS = [("straight", 10.0), ("arc", 25.0, 30.0), ("straight", 10.0)]
@@ -90,11 +92,11 @@ def test_drive_test_brakes_until_the_front_axle_knows_the_grip(rh_drive):
 
 @pytest.fixture(scope="module")
 def tracking_drive(road_file, tmp_path_factory):
-    """The nominal plan tracked on a road file of 80 % of the nominal grip: (output folder,
-    record)."""
+    """The nominal plan tracked on a road file of 80 % of the nominal grip, the plant on the
+    shipped .tir file's Magic Formula: (output folder, record)."""
     out = tmp_path_factory.mktemp("tracking")
     return out, _drive(["--road-file", road_file, "--controller", "tracking", "--grip", 0.8,
-                        "--duration", 0.5, "--no-animation"], out)
+                        "--plant-tire", SAMPLE_TIR, "--duration", 0.5, "--no-animation"], out)
 
 
 def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
@@ -149,10 +151,13 @@ def test_drive_writes_the_documented_record_figure_and_animation(rh_drive):
 
 def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
     """--grip 0.8 of the nominal road: the true peak under both axles is 0.8 x 0.52 = 0.416
-    (the scale solved for it, the peak not being proportional to it); no estimator, no
-    planner, no animation."""
+    (the scale solved for it, the peak not being proportional to it; the Magic Formula
+    plant's too, `test_drive_puts_the_plant_on_the_tire_given`); no estimator, no planner,
+    no animation."""
     out, rec = tracking_drive
     assert set(rec) == KEYS
+    assert rec["settings"]["plant_tire"] == str(SAMPLE_TIR)
+    assert rec["nonfinite_from"] is None and np.all(np.isfinite(rec["trajectory"]["x"]))
     peak = np.asarray(rec["truth"]["peak"])
     assert peak.shape == (10, 2)
     np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
@@ -205,6 +210,10 @@ BAD = {
                               "--estimator", "axle-peak"], "--estimator chooses the grip"),
     "unknown estimator": (["--road", "corner90", "--estimator", "burckhardt"],
                           "--estimator"),
+    "missing plant tire": (["--road", "corner90", "--plant-tire", "{tmp}/none.tir"],
+                           "--plant-tire: no such file"),
+    "plant tire a folder": (["--road", "corner90", "--plant-tire", "{tmp}"],
+                            "--plant-tire: "),
     "negative preview": (["--road", "corner90", "--controller", "rh-oracle", "--preview",
                           "-1"], "--preview"),
     "negative seed": (["--road", "corner90", "--seed", "-1"],
@@ -234,6 +243,54 @@ def test_bad_option_exits_2_naming_it_and_writes_nothing(case, tmp_path, capsys,
     assert option in err, err
     assert "Traceback" not in err
     assert sorted(p.name for p in tmp_path.rglob("*")) == [], "a file was written"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("x_m,y_m\n0,0\n", "is not a tyre property file"),
+    ("[MDI_HEADER]\nFILE_TYPE = 'tir'\n[MODEL]\nFITTYP = 61\nLONGVL = abc\n",
+     "--plant-tire {path}: {path}:"),
+])
+def test_a_bad_plant_tire_file_exits_2_naming_the_option(text, message, tmp_path_factory,
+                                                         capsys):
+    """A file that is not a .tir, or a .tir that cannot be read (the reader's message, with
+    the file and line), is refused before anything compiles, naming ``--plant-tire``."""
+    folder = tmp_path_factory.mktemp("tires")
+    path = folder / ("tire.csv" if "x_m" in text else "broken.tir")
+    path.write_text(text)
+    out = folder / "out"
+    code, err = _run(["drive", "--road", "corner90", "--plant-tire", path, "--out", out],
+                     capsys)
+    assert code == 2 and "Traceback" not in err, err
+    assert message.format(path=path) in err and "--plant-tire" in err, err
+    assert not out.exists()
+
+
+def test_drive_puts_the_plant_on_the_tire_given(tmp_path):
+    """``--plant-tire``: lugre (default) the LuGre plant on the grip's scales; a shipped
+    .tir file's name, or any .tir file's path, its Magic Formula (`mf_plant_tire`) with the
+    scenario's peak on every surface (`peak_surface_factor`); built without driving."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import SHIPPED_TIRE_NAMES, _check
+
+    assert SHIPPED_TIRE_NAMES == tuple(shipped_tires())
+    copy = tmp_path / "mine.tir"
+    copy.write_text(SAMPLE_TIR.read_text())
+    want = vs.mf_plant_tire(SAMPLE_TIR)
+    for given in ([], ["--plant-tire", "lugre"], ["--plant-tire", SHIPPED_TIRE_NAMES[0]],
+                  ["--plant-tire", str(copy)]):
+        args = cli.build_parser().parse_args(["drive", "--road", "corner90", "--grip", "0.8",
+                                              *given])
+        _check(args)
+        sc = setup.scenario(args, setup.road(args))
+        plant = sc.plant
+        if given[1:] in ([], ["lugre"]):
+            assert type(plant.tire) is vs.LumpedLuGre2D and plant.surface_factor is None
+            continue
+        assert type(plant.tire) is vs.RelaxedMFTire
+        assert float(plant.tire.params.LMUX) == float(want.params.LMUX)
+        lam = plant.grip_scales(sc.state0.car)[0]
+        # the Magic Formula's factor gives it the peak asked for, 0.8 of the nominal road's
+        assert float(plant.surface_factor(lam)) == pytest.approx(0.8, rel=1e-4)
 
 
 def test_mp4_without_ffmpeg_is_refused_before_driving(tmp_path, capsys, monkeypatch):

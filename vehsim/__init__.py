@@ -409,6 +409,7 @@ from .drive.grip import (
     GripPatches as GripPatches,
     GripProfile as GripProfile,
     RelativeGrip as RelativeGrip,
+    SurfaceFactor as SurfaceFactor,
     UniformGrip as UniformGrip,
     scale_friction as scale_friction,
 )
@@ -441,6 +442,10 @@ from .drive.plant import (
     init_drive as init_drive,
     measure_drive as measure_drive,
 )
+from .drive.plant_tires import (
+    mf_plant_tire as mf_plant_tire,
+    peak_surface_factor as peak_surface_factor,
+)
 from .drive.scenarios import (
     CORNER_DRIVER as CORNER_DRIVER,
     DRIVER_PROBE_DISTANCE as DRIVER_PROBE_DISTANCE,
@@ -456,6 +461,7 @@ from .drive.scenarios import (
     main_corner as main_corner,
     nominal_scale as nominal_scale,
     plant_peak as plant_peak,
+    plant_surface_factor as plant_surface_factor,
     scale_for_peak as scale_for_peak,
     scenario_driver as scenario_driver,
     scenario_grip as scenario_grip,

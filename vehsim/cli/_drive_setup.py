@@ -4,7 +4,9 @@ controller and estimator, the drive itself and its outcome.
 The grip options are peaks relative to the nominal road's: ``--grip 0.8`` is a road whose
 peak friction is 0.8 x 0.52 (`vehsim.drive.scenarios.scale_for_peak` gives its scale,
 since the tire's peak is not proportional to the friction scale), as the ``minus20``
-scenario; ``--patch X,Y,R,0.5`` a patch of peak 0.26, as the ``icy`` one.
+scenario; ``--patch X,Y,R,0.5`` a patch of peak 0.26, as the ``icy`` one. So they are on a
+plant of another tire family (``--plant-tire FILE.tir``): its Magic Formula has these peaks
+on every surface (`vehsim.drive.plant_tires`).
 """
 
 from __future__ import annotations
@@ -55,6 +57,38 @@ MAX_DURATION = 600.0
 """The longest drive [s]: ``--duration``'s upper limit, and the cap of a road file's default."""
 
 
+def plant_tire(args):
+    """The plant's tire of ``--plant-tire``: None for lugre (the `DrivePlant`'s default), or
+    the Magic Formula of a .tir file (a path, or a shipped file's name) made the nominal
+    road's peak (`mf_plant_tire`), which the scenario's plant puts on every surface by its
+    peak (`plant_surface_factor`). The file is read and checked here, before anything
+    compiles."""
+    if args.plant_tire == "lugre":
+        return None
+    from ..drive.plant_tires import mf_plant_tire
+    from ..drive.scenarios import BENCHMARK_PEAK
+    from ..tire.mf6 import MFParams
+    from ..tire.tir import read_tir, shipped_tires
+    from ._options import input_file
+
+    shipped = shipped_tires()
+    path = shipped.get(args.plant_tire)
+    if path is None:
+        from pathlib import Path
+
+        if not Path(args.plant_tire).exists():
+            raise ValueError(f"--plant-tire: no such file {args.plant_tire!r}; give lugre, a "
+                             ".tir file's path or a shipped tire: " + ", ".join(shipped))
+        path = input_file("--plant-tire", args.plant_tire)
+        if path.suffix.lower() != ".tir":
+            raise ValueError(f"--plant-tire: {str(path)!r} is not a tyre property file; give "
+                             "lugre, a .tir file or one of " + ", ".join(sorted(shipped)))
+    try:
+        return mf_plant_tire(MFParams.from_tir(read_tir(path)), BENCHMARK_PEAK)
+    except ValueError as e:  # a malformed file (TirError names its line), or no peak
+        raise ValueError(f"--plant-tire {args.plant_tire}: {e}") from None
+
+
 def scenario(args, road):
     """The `DriveScenario` of the options: the road and its table (the scale column the true
     friction scale), its grip (with the true peak along the centre line), the plant (sensors
@@ -73,9 +107,11 @@ def scenario(args, road):
         TIME_BUDGETS,
         DriveScenario,
         ScenarioGrip,
+        plant_surface_factor,
     )
     from ..drive.sensors import DriveSensors
 
+    tire = plant_tire(args)
     field = _field(args, road)
     num = max(2, int(math.ceil(road.length / 0.25)) + 1)
     s = np.linspace(0.0, road.length, num)
@@ -85,7 +121,9 @@ def scenario(args, road):
         jnp.asarray(x), jnp.asarray(y))
     name = args.conditions or "custom"
     grip = ScenarioGrip(name=name, field=field, arc_length=jnp.asarray(s), peak=peak)
-    plant = DrivePlant(grip=field, sensors=DriveSensors(noise_on=args.noise))
+    plant = DrivePlant(grip=field, sensors=DriveSensors(noise_on=args.noise),
+                       **({} if tire is None else {"tire": tire}),
+                       surface_factor=plant_surface_factor(tire))
     v0 = START_SPEEDS.get(args.road, START_SPEED) if args.road else START_SPEED
     budget = args.duration
     if budget is None:

@@ -29,6 +29,8 @@ MODES = ("rti", "converged")
 ESTIMATORS = ("axle-grip", "axle-peak", "cautious")  # `driver_estimator`'s kinds
 CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
+SHIPPED_TIRE_NAMES = ("sample_185_80R14_mf61",)
+"""The .tir files shipped with vehsim that ``--plant-tire`` takes by name (`shipped_tires`)."""
 MIN_PASSES, MAX_PASSES = 2, 100
 """The interior-point passes per sample `--passes` takes (the last pass only evaluates the
 plan, so at least 2; at 100, the converged mode's cap, a sample is no longer real time)."""
@@ -113,6 +115,13 @@ def register(subparsers) -> None:
     p.add_argument("--patch", type=patch, action="append", default=[], metavar="X,Y,R,SCALE",
                    help="a circular patch of radius R [m] centred at (X, Y) [m] whose peak "
                         "friction is SCALE times the nominal road's; repeat for several")
+    p.add_argument("--plant-tire", default="lugre", metavar="TIRE",
+                   help="the plant's tire: lugre (the report's lumped 2D LuGre, the family "
+                        "the drivers assume; default), or a Magic Formula tyre property file "
+                        "(.tir, or the shipped " + ", ".join(SHIPPED_TIRE_NAMES) + "), its "
+                        "peaks made the nominal road's 0.52 at the car's static front axle "
+                        "load and each surface's peak on the others, the curves' shapes the "
+                        "file's (docs/drive.md)")
     p.add_argument("--controller", type=choice_of(CONTROLLERS, "controller"), default="rh",
                    help="rh: receding horizon with the grip estimate (default); rh-nominal: "
                         "with the nominal friction; rh-oracle: with the true grip along the "
@@ -331,7 +340,8 @@ def _drive(args) -> int:
     T = sc.sample_time
     print(f"vehsim drive {road.name}: a {road.length:.1f} m {'lap' if road.closed else 'road'}"
           f", {args.controller}" + (f" ({args.mode or 'rti'})" if rh else "") + f", {grip}, "
-          f"{sc.num_samples} samples of {T:g} s; "
+          + ("" if args.plant_tire == "lugre" else f"the plant's tire {Path(args.plant_tire).name}, ")
+          + f"{sc.num_samples} samples of {T:g} s; "
           + ("" if rh else "solving the nominal plan, then ")
           + "compiling the controller (a minute or more on 2 cores), then driving",
           file=sys.stderr, flush=True)
@@ -381,6 +391,7 @@ def _drive(args) -> int:
         "trajectory": {**{k: tr[k] for k in ("t", "x", "y", "psi", "speed", "s", "n")},
                        "slip": tr["slip_true"]},
         "settings": {"road": args.road, "road_file": args.road_file, "closed": args.closed,
+                     "plant_tire": args.plant_tire,
                      "conditions": args.conditions, "grip": args.grip,
                      "patches": [list(p) for p in args.patch],
                      "controller": args.controller, "pace_notes": args.pace_notes,

@@ -24,9 +24,10 @@ import abc
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_finite, check_positive
+from .._checks import check_finite, check_positive, is_concrete, plain
 from .._fields import array_field
 from .._math import safe_hypot
 from ..tire.base import AbstractTire
@@ -160,6 +161,39 @@ class RelativeGrip(AbstractGripField):
 
     def scale_at(self, x, y):
         return self.field.scale_at(x, y) / self.reference
+
+
+class SurfaceFactor(eqx.Module):
+    r"""How a tire of another family is put on a road given in the LuGre plant's friction
+    scales: on a surface of scale $\lambda$ its friction is scaled (`scale_friction`) by
+    $m(\lambda)$ instead of $\lambda$, piecewise linear through the knots (`scales`,
+    `factors`) and constant past the ends (`DrivePlant.surface_factor`).
+    `vehsim.peak_surface_factor` gives the $m$ under which a Magic Formula, whose peak is
+    proportional to its friction factors, has on every surface the LuGre plant's peak
+    relative to the nominal road: the scenarios are stated as peaks, not scales.
+
+    **Fields:** `scales` $\lambda_j$ (n >= 2, increasing), `factors` $m_j > 0$ (n).
+    """
+
+    scales: Float[Array, " n"] = array_field()
+    factors: Float[Array, " n"] = array_field()
+
+    def __check_init__(self):
+        if self.scales.ndim != 1 or self.scales.shape[0] < 2:
+            raise ValueError("SurfaceFactor.scales must be a vector of at least 2 scales, got "
+                             f"shape {self.scales.shape}")
+        if self.factors.shape != self.scales.shape:
+            raise ValueError(f"SurfaceFactor.factors must have the shape of scales "
+                             f"{self.scales.shape}, got {self.factors.shape}")
+        check_positive("SurfaceFactor", "scales", self.scales)
+        check_positive("SurfaceFactor", "factors", self.factors)
+        if is_concrete(self.scales) and not np.all(np.diff(np.asarray(self.scales)) > 0):
+            raise ValueError("SurfaceFactor.scales must increase strictly, got "
+                             f"{plain(self.scales)}")
+
+    def __call__(self, scale):
+        r"""$m(\lambda)$ at the scale(s) `scale`."""
+        return jnp.interp(scale, self.scales, self.factors)
 
 
 def scale_friction(tire: AbstractTire, scale) -> AbstractTire:

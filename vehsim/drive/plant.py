@@ -44,7 +44,7 @@ from .actuators import (
     applied,
     mean_applied,
 )
-from .grip import AbstractGripField, UniformGrip, scale_friction
+from .grip import AbstractGripField, SurfaceFactor, UniformGrip, scale_friction
 from .sensors import DriveMeasurement, DriveSensors, measure
 
 
@@ -57,7 +57,10 @@ class DrivePlant(eqx.Module):
     `UniformGrip()`), `actuators` (`DriveActuators`), `sensors` (`DriveSensors`),
     `suspension` (True: eqs. 54-60; False: quasi-static loads), `substeps` (integration
     steps per control sample, 40: 1.25 ms at 20 Hz), `omega_eps` $\omega_\epsilon$ [rad/s]
-    (brake-torque smoothing, 0.5).
+    (brake-torque smoothing, 0.5), `surface_factor` (None: the tire's friction scaled by the
+    grip's $\lambda$ itself, the report's $\theta = 1/\lambda$ for the LuGre family; a
+    `SurfaceFactor` $m$: by $m(\lambda)$, for a tire of another family put on the same
+    surfaces by their peaks, `peak_surface_factor`).
     """
 
     params: HalfCarParams = eqx.field(default_factory=rally_gravel)
@@ -68,6 +71,7 @@ class DrivePlant(eqx.Module):
     suspension: bool = eqx.field(static=True, default=True)
     substeps: int = eqx.field(static=True, default=40)
     omega_eps: Float[Array, ""] = array_field(default=0.5)
+    surface_factor: SurfaceFactor | None = None
 
     def __check_init__(self):
         if not isinstance(self.substeps, int) or self.substeps < 1:
@@ -90,6 +94,8 @@ class DrivePlant(eqx.Module):
     def car_at(self, state) -> HalfCar:
         """The half-car with each axle's tire on the grip under it at `state`."""
         lamF, lamR = self.grip_scales(state)
+        if self.surface_factor is not None:
+            lamF, lamR = self.surface_factor(lamF), self.surface_factor(lamR)
         return HalfCar(self.params, scale_friction(self.tire, lamF),
                        scale_friction(self.tire, lamR), suspension=self.suspension)
 

@@ -78,12 +78,14 @@ from .._fields import array_field
 from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from ..tire.base import AbstractTire
+from ..tire.mf6 import MFParams
 from .actuators import DriveActuators
 from .axle_peak import AxlePeakEstimator, CautiousGripEstimator
 from .estimator import AbstractGripEstimator, AxleGripEstimator, scale_of_peak
-from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip
+from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip, SurfaceFactor
 from .horizon import RecedingHorizonDriver, RoadTable
 from .plant import DrivePlant, DriveState, init_drive
+from .plant_tires import peak_surface_factor
 from .sensors import DriveSensors
 
 
@@ -321,6 +323,15 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
     return driver, driver_estimator(surface=notes, kind=estimator)
 
 
+def plant_surface_factor(tire: AbstractTire | None) -> SurfaceFactor | None:
+    """The `DrivePlant.surface_factor` that puts `tire` on the scenarios' surfaces: None
+    (their scales themselves) for a LuGre tire or None (the default LuGre), the peaks'
+    `peak_surface_factor` for a Magic Formula (params `MFParams`)."""
+    if isinstance(getattr(tire, "params", None), MFParams):
+        return peak_surface_factor(nominal_scale())
+    return None
+
+
 def nominal_scale() -> float:
     r"""$\lambda_0$: the plant tire's friction scale whose peak is the benchmark's
     $D = 0.52$ (`scale_for_peak`)."""
@@ -541,9 +552,11 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
                    tire: AbstractTire | None = None) -> DriveScenario:
     r"""The scenario `road_name` x `grip_name` (`ROAD_NAMES` x `GRIP_NAMES`): plant with the
     default `DriveActuators` and `DriveSensors` unless given, on `tire` (default the
-    `DrivePlant`'s lumped 2D LuGre; any tire `scale_friction` scales, e.g. a Magic Formula
-    from a .tir file: a plant of another tire family than the drivers assume; its road
-    scales $\lambda$ are the grip's), `substeps` integration steps
+    `DrivePlant`'s lumped 2D LuGre; any tire `scale_friction` scales: a LuGre tire meets the
+    grip's scales $\lambda$ themselves; a Magic Formula, given with its friction on the
+    nominal road (`mf_plant_tire`), meets every surface with the peak the scenario states,
+    through `peak_surface_factor`: a plant of another tire family than the drivers
+    assume, on the same roads), `substeps` integration steps
     per sample, the start speed [m/s] (default `START_SPEEDS`) and the time budget [s]
     (default `TIME_BUDGETS`); the road table at `table_spacing` [m] with `table_points`
     samples (default just enough; more pad it, so that tables of different roads batch)."""
@@ -561,7 +574,8 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
     plant = DrivePlant(grip=grip.field, substeps=substeps,
                        actuators=DriveActuators() if actuators is None else actuators,
                        sensors=DriveSensors() if sensors is None else sensors,
-                       **({} if tire is None else {"tire": tire}))
+                       **({} if tire is None else {"tire": tire}),
+                       surface_factor=plant_surface_factor(tire))
     x0, y0 = road.position(0.0)
     state0 = init_drive(plant, vx=v0, x=float(x0), y=float(y0), psi=float(road.heading(0.0)))
     table = RoadTable.from_road(road, table_spacing, table_points)

@@ -1,0 +1,117 @@
+"""A tire of another family on the drive plant: the Magic Formula of a .tir file meets every
+surface of a scenario with the peak the scenario states (`vehsim.drive.plant_tires`)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vehsim as vs
+from vehsim.drive.plant_tires import _pure_peaks
+from vehsim.tire.tir import read_tir, shipped_tires
+
+
+SAMPLE = shipped_tires()["sample_185_80R14_mf61"]
+CAR = vs.rally_gravel()
+FZ_FRONT = float(CAR.m * CAR.g * CAR.lR / (CAR.lF + CAR.lR))
+
+
+def pure_peaks(tire, Fz=FZ_FRONT):
+    """The pure-slip peaks (mu_x, mu_y) of a Magic Formula tire at load Fz, 20 m/s."""
+    return tuple(float(v) for v in _pure_peaks(vs.MFTire(tire.params, limits=False), Fz,
+                                               float(CAR.r)))
+
+
+@pytest.fixture(scope="module")
+def mf():
+    return vs.mf_plant_tire(SAMPLE)
+
+
+def test_mf_plant_tire_has_the_peak_asked_for_on_the_nominal_road(mf):
+    """Both pure-slip peaks at the static front axle load are the peak asked for (default
+    the nominal 0.52), whichever way the file is given; the curves' shape is the file's
+    (the peak slip does not move with the friction factors), and its relaxation lengths
+    make it a dynamic tire."""
+    assert isinstance(mf, vs.RelaxedMFTire) and not mf.limits
+    np.testing.assert_allclose(pure_peaks(mf), (0.52, 0.52), rtol=1e-6)
+    raw = vs.MFParams.from_tir(read_tir(SAMPLE))
+    assert pure_peaks(vs.RelaxedMFTire(raw, limits=False))[0] > 0.8  # the file's own road
+    for given in (str(SAMPLE), read_tir(SAMPLE), raw):
+        other = vs.mf_plant_tire(given, 0.7)
+        np.testing.assert_allclose(pure_peaks(other), (0.7, 0.7), rtol=1e-6)
+        np.testing.assert_allclose(float(other.params.LMUX / mf.params.LMUX), 0.7 / 0.52,
+                                   rtol=1e-12)
+    with pytest.raises(ValueError, match="peak must"):
+        vs.mf_plant_tire(SAMPLE, 0.0)
+    with pytest.raises(TypeError, match="mf_plant_tire: tir must be"):
+        vs.mf_plant_tire(vs.params.lugre2d_bakker1987())
+
+
+def test_peak_surface_factor_is_the_lugre_peaks_ratio():
+    r"""$m(\lambda) = \mu^*(\lambda)/\mu^*(\lambda_0)$: exactly 1 on the nominal road, the
+    LuGre plant's peak ratio between its knots (against `plant_peak`, a separate
+    evaluation), increasing, constant past its ends."""
+    lam0 = vs.nominal_scale()
+    m = vs.peak_surface_factor(lam0)
+    assert float(m(lam0)) == 1.0
+    for lam in (0.03, 0.1771, 0.3066, 0.55, 1.3):
+        assert float(m(lam)) == pytest.approx(vs.plant_peak(lam) / 0.52, rel=2e-4)
+    # the LuGre peak is not proportional to the scale: on the icy patch's scale
+    icy = vs.scale_for_peak(0.26)
+    assert float(m(icy)) == pytest.approx(0.5, rel=2e-4) and icy / lam0 < 0.45
+    assert np.all(np.diff(np.asarray(m.factors)) > 0)
+    assert float(m(1e-6)) == float(m.factors[0]) and float(m(100.0)) == float(m.factors[-1])
+    assert float(m.scales[0]) < 0.007 < 1.5 < float(m.scales[-1])  # ice to 3x gravel
+    # differentiable where the plant reads it
+    g = jax.grad(lambda x: m(x))(jnp.asarray(0.3))
+    assert np.isfinite(float(g)) and float(g) > 0
+
+
+@pytest.mark.parametrize("grip", ["minus20", "icy", "rising"])
+def test_mf_plant_meets_each_surface_with_the_scenarios_peak(mf, grip):
+    """On the scenario's plant (`drive_scenario(tire=...)`) the Magic Formula under an axle
+    has the scenario's peak there (`ScenarioGrip.peak`, the LuGre plant's): 20 % less, half
+    on the icy patch, 60 % at the rising road's start. Scaled by the grip's LuGre scale
+    itself it would be 4 %, 12 % and 9 % lower."""
+    sc = vs.drive_scenario("corner90", grip, tire=mf)
+    plant = sc.plant
+    assert isinstance(plant.surface_factor, vs.SurfaceFactor)
+    road = sc.road
+    s_low = {"minus20": 0.5 * road.length, "icy": float(np.mean(vs.main_corner("corner90"))),
+             "rising": 0.0}[grip]
+    x, y = road.position(s_low)
+    # the car placed with its front axle on that point of the centre line
+    psi = float(road.heading(s_low))
+    state = sc.state0.car.at[:3].set(jnp.asarray([float(x) - float(CAR.lF) * np.cos(psi),
+                                                  float(y) - float(CAR.lF) * np.sin(psi),
+                                                  psi]))
+    front = plant.car_at(state).tire
+    want = float(sc.grip.peak_at(s_low))
+    assert want == pytest.approx({"minus20": 0.416, "icy": 0.26, "rising": 0.312}[grip],
+                                 rel=0.01)
+    np.testing.assert_allclose(pure_peaks(front), (want, want), rtol=1e-3)
+    unmatched = vs.scale_friction(mf, plant.grip_scales(state)[0] / vs.nominal_scale())
+    assert pure_peaks(unmatched)[0] < 0.97 * want
+
+
+def test_a_lugre_plant_meets_the_scales_themselves():
+    """The default tire, or any LuGre one, is scaled by the grip's scale (the report's
+    theta = 1/lambda): no surface factor."""
+    assert vs.drive_scenario("corner90", "icy").plant.surface_factor is None
+    lugre = vs.LumpedLuGre2D(vs.params.lugre2d_bakker1987())
+    assert vs.drive_scenario("corner90", "icy", tire=lugre).plant.surface_factor is None
+    assert vs.plant_surface_factor(None) is None
+
+
+@pytest.mark.parametrize("scales, factors, field", [
+    ([1.0], [1.0], "scales must be a vector of at least 2"),
+    ([1.0, 2.0], [1.0, 2.0, 3.0], "factors must have the shape"),
+    ([1.0, 0.5], [1.0, 2.0], "scales must increase strictly"),
+    ([0.0, 0.5], [1.0, 2.0], "scales"),
+    ([0.5, 1.0], [1.0, -2.0], "factors"),
+])
+def test_surface_factor_refuses_bad_knots_naming_the_field(scales, factors, field):
+    with pytest.raises(ValueError, match="SurfaceFactor.*" + field):
+        vs.SurfaceFactor(scales=jnp.asarray(scales), factors=jnp.asarray(factors))
+    with pytest.raises(ValueError, match="reference_scale"):
+        vs.peak_surface_factor(0.0)
