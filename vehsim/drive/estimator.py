@@ -189,8 +189,11 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     (`scaled_steady_state_mu`) of `tire` on a road of friction scale $\lambda$ = `scale` in
     pure braking at the ground speed $V$ = `speed` [m/s] ($v_r = (-\kappa V, 0)$, $c = (1 -
     \kappa)V$; $\kappa$ on 96 points from 1/96 to 1, the largest refined by a parabola
-    through it and its neighbours: a peak at a slip below 1/96, on a road far below
-    $\lambda = 0.1$ or at high speed, is read about 1 % low).
+    through it and its neighbours). Against 4001 slips from $10^{-5}$
+    (`vehsim.drive.plant_tires.dense_peak`, at 20 m/s): within 0.03 % on the nominal
+    road's 0.52 and above, 0.2 % at 0.416, 0.6 % high at the icy patch's 0.26, within
+    0.9 % down to 0.1; the peaks of the most slippery roads lie at slips below 1/96 and
+    are read low, 8.7 % at 0.052 (a road whose peak is 0.057).
 
     The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
     peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
