@@ -72,13 +72,17 @@ def _lugre_peak(lam, V=20.0):
 
 def test_peak_surface_factor_is_the_lugre_peaks_ratio():
     r"""$m(\lambda) = \mu^*(\lambda)/\mu^*(\lambda_0)$: exactly 1 on the nominal road, the
-    LuGre plant's peak ratio (scipy's maximisation) between its knots, increasing, constant
+    LuGre plant's peak ratio (scipy's maximisation) at its knots to 1e-9 and within 1e-5
+    between them, increasing, constant
     past its ends; `plant_peak`'s 96-point reading within 0.7 % of it from the icy patch's
     road up."""
     lam0 = vs.nominal_scale()
     m = vs.peak_surface_factor(lam0)
     assert float(m(lam0)) == 1.0
     ref0 = _lugre_peak(lam0)
+    for k in (-150, -40, 17, 60):  # at the knots, the tire's own ratio to rounding
+        lam = lam0 * 2.0 ** (k / 32)
+        assert float(m(lam)) == pytest.approx(_lugre_peak(lam) / ref0, rel=1e-9), k
     for lam in (0.01, 0.03, 0.1771, 0.3066, 0.55, 1.3):
         want = _lugre_peak(lam) / ref0
         assert float(m(lam)) == pytest.approx(want, rel=1e-5), lam
