@@ -160,7 +160,12 @@ def test_tracking_record_reports_the_grip_asked_for(tracking_drive):
     assert rec["nonfinite_from"] is None and np.all(np.isfinite(rec["trajectory"]["x"]))
     peak = np.asarray(rec["truth"]["peak"])
     assert peak.shape == (10, 2)
-    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=1e-8)
+    # the Magic Formula made 0.52 on the nominal road, times the LuGre peak's ratio on the
+    # scale solved for 0.416, which peak_friction's 96 slips read 0.16 % high there
+    m = vs.peak_surface_factor(vs.nominal_scale())
+    np.testing.assert_allclose(peak, 0.52 * float(m(vs.scale_for_peak(0.8 * 0.52))),
+                               rtol=1e-6)
+    np.testing.assert_allclose(peak, 0.8 * 0.52, rtol=2e-3)
     assert rec["nominal_D"] == 0.52 and rec["mode"] is None
     assert rec["estimate"] is None and rec["planner_D"] is None and rec["solver"] is None
     plan = rec["nominal_plan"]  # the plan the tracker drives, and how it was solved
@@ -290,7 +295,9 @@ def test_drive_puts_the_plant_on_the_tire_given(tmp_path):
         assert float(plant.tire.params.LMUX) == float(want.params.LMUX)
         lam = plant.grip_scales(sc.state0.car)[0]
         # the Magic Formula's factor gives it the peak asked for, 0.8 of the nominal road's
-        assert float(plant.surface_factor(lam)) == pytest.approx(0.8, rel=1e-4)
+        # (of the tire's own peak; 0.16 % below peak_friction's reading, which solved lam)
+        assert float(plant.surface_factor(lam)) == pytest.approx(0.8, rel=2e-3)
+        assert float(plant.surface_factor(lam)) != 1.0
 
 
 def test_mp4_without_ffmpeg_is_refused_before_driving(tmp_path, capsys, monkeypatch):

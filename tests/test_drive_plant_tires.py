@@ -151,3 +151,34 @@ def test_surface_factor_refuses_bad_knots_naming_the_field(scales, factors, fiel
         vs.SurfaceFactor(scales=jnp.asarray(scales), factors=jnp.asarray(factors))
     with pytest.raises(ValueError, match="reference_scale"):
         vs.peak_surface_factor(0.0)
+
+
+def test_plant_peaks_are_each_tires_own(mf):
+    """`plant_peaks` (the drive figure's truth): the LuGre plant's peak_friction; a Magic
+    Formula's pure-slip peak at the static front axle load times its friction factor, the
+    surface factor's where the plant has one, the scale itself where not; another tire is
+    refused by name."""
+    from vehsim.drive.plant_tires import plant_peaks
+
+    lam = jnp.asarray([[0.2, 0.4], [0.3066, 0.9]])
+    lugre = vs.DrivePlant()
+    want = [[float(vs.peak_friction(lugre.tire, x, 20.0)) for x in row] for row in lam]
+    np.testing.assert_allclose(plant_peaks(lugre, lam), want, rtol=1e-12)
+    factor = vs.peak_surface_factor(vs.nominal_scale())
+    matched = vs.DrivePlant(tire=mf, surface_factor=factor)
+    got = np.asarray(plant_peaks(matched, lam))
+    for (i, j), x in np.ndenumerate(np.asarray(lam)):  # against the scaled tire's own curve
+        scaled = vs.scale_friction(mf, factor(x))
+        assert got[i, j] == pytest.approx(pure_peaks(scaled)[0], rel=1e-6)
+    plain = np.asarray(plant_peaks(vs.DrivePlant(tire=mf), lam))
+    np.testing.assert_allclose(plain, pure_peaks(mf)[0] * np.asarray(lam), rtol=1e-12)
+    with pytest.raises(TypeError, match="plant_peaks knows.*LinearTire"):
+        plant_peaks(_linear_plant(), lam)
+
+
+def _linear_plant():
+    """A plant whose tire plant_peaks does not know (DrivePlant refuses a tire it cannot
+    scale, so the tire is swapped in after construction)."""
+    import equinox as eqx
+
+    return eqx.tree_at(lambda p: p.tire, vs.DrivePlant(), vs.LinearTire(5e4, 4e4))

@@ -409,8 +409,8 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     ``t``, ``x``, ``y``, ``psi``, ``speed`` (true), ``s``, ``n`` (Frenet coordinates of the
     centre of gravity on `road`), ``command`` and ``applied`` $(T_F, T_R, \delta)$ (N, 3),
     ``scale_true`` $\lambda$ under the (front, rear) axle (N, 2) and ``peak_true``
-    $\mu^*(\lambda)$ there (the plant tire's peak on that road,
-    `AxleGripEstimator.peak`; N, 2), ``slip_true`` the wheels' longitudinal slip
+    $\mu^*(\lambda)$ there (the plant tire's peak on that road at 20 m/s,
+    `vehsim.drive.plant_tires.plant_peaks`; N, 2), ``slip_true`` the wheels' longitudinal slip
     $\kappa_i = \omega_i r/V_{ix} - 1$ (front, rear; N, 2: a spinning wheel above 1, a
     locked one at -1); with an estimator ``scale_est``, ``peak_est``,
     ``peak_std`` (N, 2); with a planner that reports them (``run.controller_info``, as
@@ -421,10 +421,11 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     brake (`RecedingHorizonDriver.probe_distance`). `upto`: only the first this many
     samples (e.g. up to the end of the road).
     """
+    import equinox as eqx
     import jax
     import jax.numpy as jnp
 
-    from .drive.estimator import AxleGripEstimator
+    from .drive.plant_tires import plant_peaks
 
     def cut(tree):  # the first `upto` samples of a per-sample record
         return tree if upto is None else jax.tree.map(lambda a: a[:upto], tree)
@@ -435,8 +436,7 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     s, n = road.to_frenet(x, y)
     lam_F, lam_R = jax.vmap(plant.grip_scales)(states.car)
     lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
-    est = AxleGripEstimator(params=plant.params, tire=plant.tire)
-    peak = np.asarray(jax.jit(jax.vmap(jax.vmap(est.peak)))(lam))
+    peak = np.asarray(eqx.filter_jit(plant_peaks)(plant, lam))
 
     def slips(car, u):
         sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))

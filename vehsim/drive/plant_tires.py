@@ -29,11 +29,13 @@ import numpy as np
 
 from .._checks import check_range
 from .._math import safe_div, safe_norm
+from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.mf6 import MFParams, MFTire, RelaxedMFTire
 from ..tire.tir import TirFile, read_tir
 from ..vehicle.params import HalfCarParams, rally_gravel
-from .estimator import AxleGripEstimator, scaled_steady_state_mu
+from .estimator import AxleGripEstimator, peak_friction, scaled_steady_state_mu
 from .grip import SurfaceFactor
+from .plant import DrivePlant
 
 
 REFERENCE_SPEED = 20.0
@@ -138,3 +140,25 @@ def _pure_peaks(tire, Fz, r):
     fx = jax.vmap(forces)(kappa, 0.0 * kappa)[:, 0]
     fy = jax.vmap(forces)(0.0 * tan_alpha, tan_alpha)[:, 1]
     return jnp.max(jnp.abs(fx)) / Fz, jnp.max(jnp.abs(fy)) / Fz
+
+
+def plant_peaks(plant: DrivePlant, scales):
+    r"""The true peak friction at 20 m/s of `plant`'s tire on surfaces of the grip's scales
+    `scales` (any shape): for a LuGre tire its $\mu^*(\lambda)$ (`peak_friction`); for a
+    Magic Formula its pure-slip longitudinal peak at the car's static front axle load on
+    its own road times its friction factor there ($m(\lambda)$ with a `surface_factor`,
+    else $\lambda$): a Magic Formula's peak is proportional to LMUX. Other tires are
+    refused, naming theirs."""
+    scales = jnp.asarray(scales, float)
+    tire = plant.tire
+    if isinstance(tire, LumpedLuGre2D):
+        flat = jax.vmap(lambda lam: peak_friction(tire, lam, REFERENCE_SPEED))(scales.ravel())
+        return flat.reshape(scales.shape)
+    if isinstance(getattr(tire, "params", None), MFParams):
+        car = plant.params
+        Fz = car.m * car.g * car.lR / (car.lF + car.lR)
+        mux = _pure_peaks(MFTire(tire.params, limits=False), Fz, car.r)[0]
+        factor = scales if plant.surface_factor is None else plant.surface_factor(scales)
+        return mux * factor
+    raise TypeError("plant_peaks knows the peaks of a LumpedLuGre2D and of a Magic Formula "
+                    f"(params MFParams), got {type(tire).__name__}")
