@@ -203,11 +203,18 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     0.1 m/s, -1830 at $10^{-6}$): below `PEAK_SPEED_FLOOR`, standstill included, the peak
     is the one at that floor, with slope 0."""
     V = jnp.maximum(speed, PEAK_SPEED_FLOOR)
-    kappa = jnp.linspace(0.0, 1.0, 97)[1:]
+    return braking_peak_on(tire, scale, V, jnp.linspace(0.0, 1.0, 97)[1:])
+
+
+def braking_peak_on(tire: LumpedLuGre2D, scale, speed, kappa):
+    r"""The largest steady-state friction $\|\mu_{ss}\|$ of `tire` on a road of friction
+    scale `scale` in pure braking at `speed` [m/s] over the slips `kappa` (increasing), the
+    largest refined by a parabola through it and its neighbours (in the grid's index: for a
+    geometric grid, in $\log\kappa$). `peak_friction`'s grid is 96 uniform slips."""
 
     def mu_at(kap):
-        v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
-        return safe_norm(scaled_steady_state_mu(tire, scale, v_r, (1.0 - kap) * V))
+        v_r = jnp.stack([-kap * speed, jnp.zeros_like(kap)])
+        return safe_norm(scaled_steady_state_mu(tire, scale, v_r, (1.0 - kap) * speed))
 
     mus = jax.vmap(mu_at)(kappa)
     i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)

@@ -28,12 +28,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import check_range
-from .._math import safe_div, safe_norm
 from ..tire.lumped2d import LumpedLuGre2D
 from ..tire.mf6 import MFParams, MFTire, RelaxedMFTire
 from ..tire.tir import TirFile, read_tir
 from ..vehicle.params import HalfCarParams, rally_gravel
-from .estimator import AxleGripEstimator, peak_friction, scaled_steady_state_mu
+from .estimator import AxleGripEstimator, braking_peak_on, peak_friction
 from .grip import SurfaceFactor
 from .plant import DrivePlant
 
@@ -85,18 +84,8 @@ def dense_peak(tire, scale, speed):
     $\kappa$ geometrically spaced from $10^{-5}$ to 1, the largest refined by a parabola
     through it and its neighbours in $\log\kappa$: within $10^{-9}$ of a bounded scalar
     maximisation on every road at 20 m/s (set-up work, not for every sample)."""
-    kappa = jnp.geomspace(1e-5, 1.0, 4001)
-    V = jnp.asarray(speed, float)
-
-    def mu_at(kap):
-        v_r = jnp.stack([-kap * V, jnp.zeros_like(kap)])
-        return safe_norm(scaled_steady_state_mu(tire, scale, v_r, (1.0 - kap) * V))
-
-    mus = jax.vmap(mu_at)(kappa)
-    i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)
-    a, b, c = mus[i - 1], mus[i], mus[i + 1]
-    shift = jnp.clip(safe_div(0.5 * (a - c), a - 2.0 * b + c), -1.0, 1.0)
-    return b - 0.25 * (a - c) * shift
+    return braking_peak_on(tire, scale, jnp.asarray(speed, float),
+                           jnp.geomspace(1e-5, 1.0, 4001))
 
 
 def mf_plant_tire(tir: TirFile | MFParams | str | os.PathLike, peak: float = 0.52, *,
