@@ -14,8 +14,9 @@ v_{min})$ per axle, as `AxleGripEstimator` measures them (`AbstractAxleEstimator
 equations 52-53, the lateral equations 50-51, the suspension's loads of eqs. 54-60). With a
 map of the road's relative grip $r$ (`surface`), $\mu_i$ is divided by the map's $\bar r_i$
 under the axle over the sample (the geometric mean of its two ends): the curve is that of the
-map's reference surface, and the map's ratios are taken as ratios of peaks (exact for a tire
-whose road-friction factors scale its forces, as `scale_friction` does to a Magic Formula).
+map's reference surface, and the map's ratios are taken as ratios of peaks (exact for a map
+of peak ratios; a map of the LuGre plant's friction scales, as the scenarios' pace notes are,
+is not one: their icy patch's 0.44 is a peak ratio of 0.50).
 
 **The curve.** As `vehsim.PeakEstimator` does for a braked wheel, per axle: `bins` bins over
 the slip (edges $(j/B)^2$ on $[0, 1]$) hold the running means of $\mu$ and $s$ that fell in
