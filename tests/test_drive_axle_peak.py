@@ -163,8 +163,7 @@ def test_refuses_bad_settings():
 def test_a_map_refers_the_curve_to_its_reference_surface():
     """With a map of the relative grip $r$ the measured friction is divided by $r$ under
     the axle (the curve of the map's reference surface), and the reported peak is the
-    belief times $r$ under the car; `scale` is the tire's friction scale of the reference
-    peak times $r$."""
+    belief times $r$ under the car; `scale` is the tire's friction scale of that peak."""
     V, g, mu = 6.0, 9.81, 0.3
 
     def sample(t):
@@ -185,8 +184,8 @@ def test_a_map_refers_the_curve_to_its_reference_surface():
         r = 1.0 if est.surface is None else 0.5
         np.testing.assert_allclose(np.asarray(e.peak), r * np.exp(np.asarray(state.log_peak)),
                                    rtol=1e-12)
-        ref = vs.scale_of_peak(est.tire, np.exp(np.asarray(state.log_peak[0])))
-        np.testing.assert_allclose(float(e.scale[0]), r * float(ref), rtol=1e-9)
+        ref = vs.scale_of_peak(est.tire, r * np.exp(np.asarray(state.log_peak[0])))
+        np.testing.assert_allclose(float(e.scale[0]), float(ref), rtol=1e-9)
     np.testing.assert_allclose(used[1], 2.0 * used[0], rtol=1e-12)
     assert np.all(used[0] > 0.1)
 
@@ -229,3 +228,43 @@ def test_the_cautious_estimator_carries_both_beliefs():
     with pytest.raises(TypeError, match="CautiousGripEstimator.shape_free must be a "
                                         "AxlePeakEstimator"):
         vs.CautiousGripEstimator(shape_free=vs.AxleGripEstimator())
+
+
+def test_pace_notes_reach_the_shape_free_parts_as_peak_ratios():
+    """The scenarios' pace notes are ratios of the LuGre plant's friction scales (0.44 on
+    the icy patch); the shape-free estimator gets them as ratios of its peaks (`PeakRatios`:
+    0.50 there, the scenario's half the grip) and the driver's 'estimated' peak carries the
+    measured peak along the map by peak ratios too; the LuGre estimator keeps the scale
+    ratios it multiplies scales by."""
+    sc = vs.drive_scenario("corner90", "icy")
+    notes = sc.surface_map()
+    s_apex = float(np.mean(vs.main_corner("corner90")))
+    x, y = sc.road.position(s_apex)
+    x, y = jnp.asarray(float(x)), jnp.asarray(float(y))
+    scale_ratio = float(notes.scale_at(x, y))
+    peak_ratio = float(sc.grip.peak_at(s_apex)) / 0.52
+    assert scale_ratio == pytest.approx(0.44, abs=0.01) and peak_ratio == pytest.approx(
+        0.5, abs=0.01)
+    for kind in ("axle-peak", "cautious"):
+        driver, est = vs.scenario_driver(sc, "estimate", pace_notes=True, estimator=kind)
+        free = est if kind == "axle-peak" else est.shape_free
+        assert isinstance(free.surface, vs.PeakRatios)
+        assert float(free.surface.scale_at(x, y)) == pytest.approx(peak_ratio, rel=7e-3)
+        if kind == "cautious":
+            assert float(est.model.surface.scale_at(x, y)) == scale_ratio
+            continue
+        # the driver: a measured peak of 0.5 on the nominal surface at the start, carried
+        # to the stages over the patch
+        lam = vs.nominal_scale()
+        e = vs.GripEstimate(scale=jnp.array([lam, lam]), scale_std=jnp.zeros(2),
+                            peak=jnp.array([0.5, 0.5]), peak_std=jnp.zeros(2))
+        assert driver.peak_model == "estimated"
+        driver = eqx.tree_at(lambda d: d.estimate_backoff, driver, jnp.asarray(0.0))
+        s0 = jnp.asarray(s_apex - 0.5 * float(driver.horizon))
+        D = np.asarray(driver.planner_friction(s0, e, jnp.full(driver.num_stages, 8.0)))
+        ratios = np.asarray(driver.table.scale_at(s0 + float(driver.horizon) / driver.num_stages
+                                                  * (np.arange(driver.num_stages) + 0.5)))
+        k = int(np.argmin(ratios))
+        assert ratios[k] == pytest.approx(scale_ratio, abs=0.01)
+        want = 0.5 * vs.plant_peak(lam * ratios[k]) / vs.plant_peak(lam)
+        assert D[k] == pytest.approx(want, rel=1e-7) and D[k] > 0.5 * ratios[k] * 1.1

@@ -408,6 +408,7 @@ from .drive.grip import (
     AbstractGripField as AbstractGripField,
     GripPatches as GripPatches,
     GripProfile as GripProfile,
+    PeakRatios as PeakRatios,
     RelativeGrip as RelativeGrip,
     SurfaceFactor as SurfaceFactor,
     UniformGrip as UniformGrip,

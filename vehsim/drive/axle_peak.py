@@ -14,9 +14,9 @@ v_{min})$ per axle, as `AxleGripEstimator` measures them (`AbstractAxleEstimator
 equations 52-53, the lateral equations 50-51, the suspension's loads of eqs. 54-60). With a
 map of the road's relative grip $r$ (`surface`), $\mu_i$ is divided by the map's $\bar r_i$
 under the axle over the sample (the geometric mean of its two ends): the curve is that of the
-map's reference surface, and the map's ratios are taken as ratios of peaks (exact for a map
-of peak ratios; a map of the LuGre plant's friction scales, as the scenarios' pace notes are,
-is not one: their icy patch's 0.44 is a peak ratio of 0.50).
+map's reference surface. The map's ratios are ratios of peaks: a map of the LuGre plant's
+friction scales, as the scenarios' pace notes are, is turned into one by `PeakRatios`
+(their icy patch's scale ratio 0.44 is a peak ratio of 0.50; `driver_estimator` does it).
 
 **The curve.** As `vehsim.PeakEstimator` does for a braked wheel, per axle: `bins` bins over
 the slip (edges $(j/B)^2$ on $[0, 1]$) hold the running means of $\mu$ and $s$ that fell in
@@ -122,8 +122,8 @@ class AxlePeakEstimator(AbstractAxleEstimator):
     `min_slip` (0.02), `min_speed` [m/s] (3), `omega_eps` [rad/s] (0.5), the change
     detector's `change_drift` $\delta$ (5), `change_threshold` $h$ (100; `inf` turns it off)
     and `change_discount` (0.05), `dynamic_loads` (True), `load_substeps` (10), `surface`
-    (None or an `AbstractGripField`), `tire` (the `LumpedLuGre2D` through which `scale` is
-    reported) and `reference_speed` [m/s] (20).
+    (None or an `AbstractGripField` of peak ratios, e.g. `PeakRatios`), `tire` (the
+    `LumpedLuGre2D` through which `scale` is reported) and `reference_speed` [m/s] (20).
     """
 
     params: HalfCarParams = eqx.field(default_factory=rally_gravel)
@@ -243,8 +243,7 @@ class AxlePeakEstimator(AbstractAxleEstimator):
         log_r = self.log_surface(state.last)
         peak = jnp.exp(state.log_peak + log_r)
         std = jnp.sqrt(state.variance)
-        scale = jax.vmap(lambda p: scale_of_peak(self.tire, p, self.reference_speed))(
-            jnp.exp(state.log_peak)) * jnp.exp(log_r)
+        scale = jax.vmap(lambda p: scale_of_peak(self.tire, p, self.reference_speed))(peak)
         return GripEstimate(scale, scale * std, peak, peak * std)
 
     def signals(self, state: AxlePeakState) -> dict:
@@ -283,7 +282,9 @@ class CautiousGripEstimator(AbstractGripEstimator):
     one bounds it.
 
     **Fields:** `model` (default `AxleGripEstimator()`), `shape_free` (default
-    `AxlePeakEstimator()`); give them the same `surface` map."""
+    `AxlePeakEstimator()`); give them the same map of the road's relative grip, the model
+    as scale ratios and the shape-free one as peak ratios (`PeakRatios`; `driver_estimator`
+    does)."""
 
     model: AxleGripEstimator = eqx.field(default_factory=AxleGripEstimator)
     shape_free: AxlePeakEstimator = eqx.field(default_factory=AxlePeakEstimator)

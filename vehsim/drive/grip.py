@@ -196,6 +196,26 @@ class SurfaceFactor(eqx.Module):
         return jnp.interp(scale, self.scales, self.factors)
 
 
+class PeakRatios(AbstractGripField):
+    r"""A map of friction-scale ratios $r(x, y)$ (`ratios`, e.g. the pace notes'
+    `RelativeGrip`) read as ratios of the LuGre plant's peaks at the level $\lambda_{ref}$ =
+    `reference`: $m(\lambda_{ref}\,r)$, $m$ = `factor` (`peak_surface_factor` of
+    $\lambda_{ref}$, so $m(\lambda_{ref}) = 1$). The LuGre peak is not proportional to
+    its scale (the icy patch's scale ratio 0.44 is a peak ratio of 0.50), so a shape-free
+    estimator, which divides measured friction by the map, needs these
+    (`AxlePeakEstimator.surface`)."""
+
+    ratios: AbstractGripField
+    factor: SurfaceFactor
+    reference: Float[Array, ""] = array_field(default=1.0)
+
+    def __check_init__(self):
+        check_positive("PeakRatios", "reference", self.reference)
+
+    def scale_at(self, x, y):
+        return self.factor(self.reference * self.ratios.scale_at(x, y))
+
+
 def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     r"""`tire` on a road of friction scale $\lambda$ = `scale`: its friction coefficients
     times $\lambda$ (`LuGre2DParams`: $\mu_k, \mu_s$; `LuGreParams`: $\mu_c, \mu_s$; a

@@ -837,7 +837,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the traction control (below); `peak_model` (static): 'plant' (the stages' peak of
     `plant_tire` at their speeds, below) or 'estimated' (with 'estimate' only: every stage
     plans with the estimate's `GripEstimate.peak` itself, the smaller axle's less
-    `estimate_backoff` times its `peak_std`, times the map's ratio with `surface_map`;
+    `estimate_backoff` times its `peak_std`, times the map's ratio with `surface_map` (as a
+    ratio of `plant_tire`'s peaks at the estimate's scale);
     no tire shape, no speed dependence: for a shape-free estimator such as
     `AxlePeakEstimator` on a plant whose tire is not `plant_tire`'s family) or 'cautious'
     (each stage the smaller of the two: the 'plant' peak of the estimate's `scale` and the
@@ -1122,6 +1123,17 @@ class RecedingHorizonDriver(AbstractDriveController):
         scale, speeds = jnp.broadcast_arrays(scale, speeds)
         return jax.vmap(lambda lam, v: peak_friction(self.plant_tire, lam, v))(scale, speeds)
 
+    def _peak_ratios(self, scale, log_ratio):
+        r"""The map's scale ratios $e^{\rho_k}$ from the car's surface (friction scale
+        `scale`) as ratios of `plant_tire`'s peaks at `reference_speed`:
+        $\mu^*(\lambda e^{\rho_k})/\mu^*(\lambda)$ (1 without a map). The LuGre peak is not
+        proportional to its scale (the icy patch's scale ratio 0.44 is a peak ratio of 0.50)."""
+        if not self.surface_map:
+            return jnp.ones_like(log_ratio)
+        lam = scale * jnp.exp(jnp.concatenate([log_ratio, jnp.zeros(1)]))
+        peaks = self._peaks(lam, self.reference_speed)
+        return peaks[:-1] / peaks[-1]
+
     def _stage_speed(self, speeds):
         M = self.num_stages
         if self.peak_speed is None:
@@ -1167,7 +1179,7 @@ class RecedingHorizonDriver(AbstractDriveController):
 
         if self.peak_model != "plant":  # the estimate's peak itself, at every speed
             lower = estimate.peak - self.estimate_backoff * estimate.peak_std
-            measured = jnp.min(lower) * jnp.exp(ratio)
+            measured = jnp.min(lower) * self._peak_ratios(jnp.min(estimate.scale), ratio)
             if self.peak_model == "estimated":
                 return jnp.clip(measured, 0.05, 2.0)
 

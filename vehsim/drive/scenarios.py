@@ -82,7 +82,14 @@ from ..tire.mf6 import MFParams
 from .actuators import DriveActuators
 from .axle_peak import AxlePeakEstimator, CautiousGripEstimator
 from .estimator import AbstractGripEstimator, AxleGripEstimator, scale_of_peak
-from .grip import AbstractGripField, GripPatches, GripProfile, RelativeGrip, SurfaceFactor
+from .grip import (
+    AbstractGripField,
+    GripPatches,
+    GripProfile,
+    PeakRatios,
+    RelativeGrip,
+    SurfaceFactor,
+)
 from .horizon import RecedingHorizonDriver, RoadTable
 from .plant import DrivePlant, DriveState, init_drive
 from .plant_tires import peak_surface_factor
@@ -273,17 +280,22 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
 
     ``surface``: the map of the road's relative grip (`AxleGripEstimator.surface`, e.g.
     `DriveScenario.surface_map`), relative to the surface the prior describes (the scenarios'
-    maps: the road's best surface, so that the map only warns).
+    maps: the road's best surface, so that the map only warns), as ratios of friction
+    scales; the shape-free estimator gets it as ratios of peaks (`PeakRatios` at the
+    prior's scale).
 
     ``kind``: "axle-grip" (the above), "axle-peak" (the shape-free `AxlePeakEstimator` with
     the prior peak ``prior_peak``: for a plant whose tire is not of the LuGre family; its
     driver plans with the estimated peak itself, `scenario_driver`) or "cautious" (both, in
     a `CautiousGripEstimator`; its driver plans with the smaller of their peaks)."""
     _check_name("kind", kind, ESTIMATORS)
-    shape_free = AxlePeakEstimator(prior_peak=prior_peak, surface=surface)
+    lam_prior = scale_for_peak(prior_peak)
+    shape_free = AxlePeakEstimator(prior_peak=prior_peak, surface=None if surface is None else
+                                   PeakRatios(surface, peak_surface_factor(lam_prior),
+                                              lam_prior))
     if kind == "axle-peak":
         return shape_free
-    model = AxleGripEstimator(prior_scale=scale_for_peak(prior_peak),
+    model = AxleGripEstimator(prior_scale=lam_prior,
                               min_utilisation=DRIVER_MIN_UTILISATION,
                               sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
     return model if kind == "axle-grip" else CautiousGripEstimator(model, shape_free)
