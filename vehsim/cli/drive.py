@@ -411,7 +411,8 @@ def _drive(args) -> int:
     status = (f"completed in {result['drive_time']:.2f} s" if result["completed"] else
               "crossed the end in " + f"{result['drive_time']:.2f} s" if result["drive_time"]
               else "did not reach the end")
-    who = args.controller + (" with pace notes" if args.pace_notes else "")
+    who = (args.controller + (" with pace notes" if args.pace_notes else "")
+           + ("" if args.plant_tire == "lugre" else f" (plant tire {Path(args.plant_tire).stem})"))
     title = (f"{road.name}, {who}: {status}, off the road "
              f"{100 * result['max_distance_off_road']:.1f} cm")
     write_json_and_figure(out / "drive.json", with_units(rec, UNITS), out / "drive.png",
