@@ -421,7 +421,6 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     brake (`RecedingHorizonDriver.probe_distance`). `upto`: only the first this many
     samples (e.g. up to the end of the road).
     """
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
 
@@ -436,7 +435,7 @@ def drive_trace(road, run, plant, upto: int | None = None) -> dict:
     s, n = road.to_frenet(x, y)
     lam_F, lam_R = jax.vmap(plant.grip_scales)(states.car)
     lam = np.stack([np.asarray(lam_F), np.asarray(lam_R)], -1)
-    peak = np.asarray(eqx.filter_jit(plant_peaks)(plant, lam))
+    peak = np.asarray(plant_peaks(plant, lam))
 
     def slips(car, u):
         sig = plant.car_at(car).signals(car, plant.wheel_torques(car, u))

@@ -12,6 +12,7 @@ on every surface (`vehsim.drive.plant_tires`).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 
 START_SPEED = 8.0
@@ -74,15 +75,13 @@ def plant_tire(args):
     shipped = shipped_tires()
     path = shipped.get(args.plant_tire)
     if path is None:
-        from pathlib import Path
-
         if not Path(args.plant_tire).exists():
             raise ValueError(f"--plant-tire: no such file {args.plant_tire!r}; give lugre, a "
                              ".tir file's path or a shipped tire: " + ", ".join(shipped))
         path = input_file("--plant-tire", args.plant_tire)
         if path.suffix.lower() != ".tir":
             raise ValueError(f"--plant-tire: {str(path)!r} is not a tyre property file; give "
-                             "lugre, a .tir file or one of " + ", ".join(sorted(shipped)))
+                             "lugre, a .tir file or one of " + ", ".join(shipped))
     try:
         return mf_plant_tire(MFParams.from_tir(read_tir(path)), BENCHMARK_PEAK)
     except ValueError as e:  # a malformed file (TirError names its line), or no peak

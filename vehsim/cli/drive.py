@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..tire.tir import shipped_tires
 from ._drive_setup import MAX_DURATION
 
 
@@ -29,7 +30,7 @@ MODES = ("rti", "converged")
 ESTIMATORS = ("axle-grip", "axle-peak", "cautious")  # `driver_estimator`'s kinds
 CONDITIONS = ("nominal", "minus20", "icy", "rising")
 FORMATS = ("gif", "mp4")
-SHIPPED_TIRE_NAMES = ("sample_185_80R14_mf61",)
+SHIPPED_TIRE_NAMES = tuple(shipped_tires())
 """The .tir files shipped with vehsim that ``--plant-tire`` takes by name (`shipped_tires`)."""
 MIN_PASSES, MAX_PASSES = 2, 100
 """The interior-point passes per sample `--passes` takes (the last pass only evaluates the

@@ -107,7 +107,7 @@ def mf_plant_tire(tir: TirFile | MFParams | str | os.PathLike, peak: float = 0.5
         raise TypeError("mf_plant_tire: tir must be a TirFile, a path to a .tir file or "
                         f"MFParams, got {type(tir).__name__}")
     car = rally_gravel() if params is None else params
-    Fz = float(car.m * car.g * car.lR / (car.lF + car.lR))
+    Fz = float(car.static_loads()[0])
     mux, muy = (float(v) for v in _pure_peaks(MFTire(P, limits=False), Fz, float(car.r)))
     if not (mux > 0 and muy > 0 and np.isfinite(mux) and np.isfinite(muy)):
         raise ValueError(f"mf_plant_tire: the file's pure-slip peaks at {Fz:.0f} N are "
@@ -131,6 +131,7 @@ def _pure_peaks(tire, Fz, r):
     return jnp.max(jnp.abs(fx)) / Fz, jnp.max(jnp.abs(fy)) / Fz
 
 
+@eqx.filter_jit
 def plant_peaks(plant: DrivePlant, scales):
     r"""The true peak friction at 20 m/s of `plant`'s tire on surfaces of the grip's scales
     `scales` (any shape): for a LuGre tire its $\mu^*(\lambda)$ (`peak_friction`); for a
@@ -145,7 +146,7 @@ def plant_peaks(plant: DrivePlant, scales):
         return flat.reshape(scales.shape)
     if isinstance(getattr(tire, "params", None), MFParams):
         car = plant.params
-        Fz = car.m * car.g * car.lR / (car.lF + car.lR)
+        Fz = car.static_loads()[0]
         mux = _pure_peaks(MFTire(tire.params, limits=False), Fz, car.r)[0]
         factor = scales if plant.surface_factor is None else plant.surface_factor(scales)
         return mux * factor

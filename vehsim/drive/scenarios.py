@@ -290,15 +290,15 @@ def driver_estimator(prior_peak: float = BENCHMARK_PEAK,
     a `CautiousGripEstimator`; its driver plans with the smaller of their peaks)."""
     _check_name("kind", kind, ESTIMATORS)
     lam_prior = scale_for_peak(prior_peak)
-    shape_free = AxlePeakEstimator(prior_peak=prior_peak, surface=None if surface is None else
-                                   PeakRatios(surface, peak_surface_factor(lam_prior),
-                                              lam_prior))
-    if kind == "axle-peak":
-        return shape_free
     model = AxleGripEstimator(prior_scale=lam_prior,
                               min_utilisation=DRIVER_MIN_UTILISATION,
                               sliding_slip=DRIVER_SLIDING_SLIP, surface=surface)
-    return model if kind == "axle-grip" else CautiousGripEstimator(model, shape_free)
+    if kind == "axle-grip":
+        return model
+    shape_free = AxlePeakEstimator(prior_peak=prior_peak, surface=None if surface is None else
+                                   PeakRatios(surface, peak_surface_factor(lam_prior),
+                                              lam_prior))
+    return shape_free if kind == "axle-peak" else CautiousGripEstimator(model, shape_free)
 
 
 def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
