@@ -16,6 +16,7 @@ output of stage $k$, so derivatives are taken per stage under one `vmap`.
 from __future__ import annotations
 
 import abc
+import functools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -173,32 +174,40 @@ def stage_function(prob: AbstractStagewiseNLP, lay: StageLayout,
     NaN (the double-`where` rule)."""
     M, nx = lay.M, lay.nx
     anchors = jax.lax.stop_gradient((ys[0, :nx], ys[M, :nx], ys[M - 1, nx:]))
+    return functools.partial(_stage_vector, prob, lay, anchors)
 
-    def pad(v, n):
-        return jnp.concatenate([v, jnp.zeros((n - v.shape[0],), v.dtype)])
 
-    def vec(y, k):
-        x, u = y[:nx], y[nx:]
-        x_first, x_last, u_last = anchors
-        km = jnp.minimum(k, M - 1)
-        u = jnp.where(k < M, u, u_last)
-        x_initial = jnp.where(k == 0, x, x_first)
-        x_terminal = jnp.where(k == M, x, x_last)
-        F, h = prob.transition_and_path(x, u, km)
-        cost = jnp.where(k < M, prob.stage_cost(x, u, km), 0.0) + jnp.where(
-            k == M, prob.terminal_cost(x_terminal), 0.0
-        )
-        e0 = pad(prob.initial_equality(x_initial), lay.ne)
-        eT = pad(prob.terminal_equality(x_terminal), lay.ne)
-        e = jnp.where(k == 0, e0, jnp.where(k == M, eT, 0.0))
-        i0 = prob.initial_inequality(x_initial)
-        iT = prob.terminal_inequality(x_terminal)
-        g = jnp.concatenate(
-            [jnp.where(k < M, h, 1.0), jnp.where(k == 0, i0, 1.0), jnp.where(k == M, iT, 1.0)]
-        )
-        return jnp.concatenate([jnp.reshape(cost, (1,)), F, e, g])
+def _pad(v, n):
+    return jnp.concatenate([v, jnp.zeros((n - v.shape[0],), v.dtype)])
 
-    return vec
+
+@eqx.filter_jit
+def _stage_vector(prob, lay, anchors, y, k):
+    """`stage_function`'s vector at ``(y, k)``. A jitted function of fixed identity: the
+    solver differentiates and evaluates the stage vector several times per iteration (values,
+    Jacobians, the Hessian, the line search's trials), and each use then reuses its traced
+    program (and JAX's cached transformations of it) instead of tracing the problem's Python
+    again. XLA inlines the call: the compiled program computes the same numbers."""
+    M, nx = lay.M, lay.nx
+    x, u = y[:nx], y[nx:]
+    x_first, x_last, u_last = anchors
+    km = jnp.minimum(k, M - 1)
+    u = jnp.where(k < M, u, u_last)
+    x_initial = jnp.where(k == 0, x, x_first)
+    x_terminal = jnp.where(k == M, x, x_last)
+    F, h = prob.transition_and_path(x, u, km)
+    cost = jnp.where(k < M, prob.stage_cost(x, u, km), 0.0) + jnp.where(
+        k == M, prob.terminal_cost(x_terminal), 0.0
+    )
+    e0 = _pad(prob.initial_equality(x_initial), lay.ne)
+    eT = _pad(prob.terminal_equality(x_terminal), lay.ne)
+    e = jnp.where(k == 0, e0, jnp.where(k == M, eT, 0.0))
+    i0 = prob.initial_inequality(x_initial)
+    iT = prob.terminal_inequality(x_terminal)
+    g = jnp.concatenate(
+        [jnp.where(k < M, h, 1.0), jnp.where(k == 0, i0, 1.0), jnp.where(k == M, iT, 1.0)]
+    )
+    return jnp.concatenate([jnp.reshape(cost, (1,)), F, e, g])
 
 
 def problem_sizes(prob: AbstractStagewiseNLP) -> dict[str, int]:
