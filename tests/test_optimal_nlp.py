@@ -214,6 +214,44 @@ def test_iteration_limit_reports_result_and_residuals(bang_bang):
         interior_point(prob, xs0, us0, IPOptions(max_iter=3))
 
 
+class CappedRestToRest(RestToRest):
+    """`RestToRest` with its final time at most ``tmax``: infeasible below the bang-bang
+    optimum $2\\sqrt{L/a_{max}}$ (2.83 s)."""
+
+    tmax: jax.Array = eqx.field(converter=jnp.asarray, default=1.0)
+
+    def path_inequality(self, x, u, k):
+        return jnp.concatenate([super().path_inequality(x, u, k), (self.tmax - x[4])[None]])
+
+
+def test_a_solve_stuck_at_a_violation_it_cannot_reduce_says_the_problem_is_infeasible():
+    """t_f <= 1 s where the optimum is 2.83 s: the violation stalls near 3.5 by the 30th
+    pass, so a solve of 60 passes ends `ip_locally_infeasible` with that violation; one of
+    25 (still reducing it) and a feasible solve that cannot meet an unreachable ``tol``
+    (violation below ``constr_tol``) end `ip_max_iterations`; with t_f <= 2.9 s it
+    converges."""
+    from vehsim.optimal.ip.solver import INFEASIBLE_PASSES
+
+    M = 12
+    infeasible = CappedRestToRest(num_stages=M, tmax=1.0)
+    sol = interior_point(infeasible, *_guess(M), IPOptions(max_iter=60), throw=False)
+    assert sol.result == RESULTS.ip_locally_infeasible and int(sol.iterations) == 60
+    assert float(sol.inf_pr) == pytest.approx(3.5, rel=1e-6)
+    with pytest.raises(RuntimeError, match="probably infeasible"):
+        interior_point(infeasible, *_guess(M), IPOptions(max_iter=60))
+    assert f"last {INFEASIBLE_PASSES} passes" in RESULTS[RESULTS.ip_locally_infeasible]
+    early = interior_point(infeasible, *_guess(M), IPOptions(max_iter=25), throw=False)
+    assert early.result == RESULTS.ip_max_iterations and float(early.inf_pr) > 3.5
+    feasible = interior_point(CappedRestToRest(num_stages=M, tmax=2.9), *_guess(M),
+                              IPOptions(max_iter=60), throw=False)
+    assert feasible.converged
+    np.testing.assert_allclose(float(feasible.objective), 2 * np.sqrt(10.0 / 5.0), rtol=1e-6)
+    unreachable = interior_point(CappedRestToRest(num_stages=M, tmax=2.9), *_guess(M),
+                                 IPOptions(max_iter=60, tol=1e-300), throw=False)
+    assert unreachable.result == RESULTS.ip_max_iterations
+    assert float(unreachable.inf_pr) <= 1e-9
+
+
 def _random_kkt(rng, M, nx, nu, ne, definite):
     """A random KKT matrix of the stage structure: W symmetric (positive definite with
     graded eigenvalues if `definite`, else indefinite: its control block shifted down by

@@ -16,7 +16,7 @@ def test_case_names_are_read_from_the_enumerations():
     names = result_names()
     for parent in (lx.RESULTS, optx.RESULTS, dfx.RESULTS):
         assert set(result_names(parent)) <= set(names)
-    assert names[-4:] == ("ip_max_iterations", "ip_line_search_failed",
+    assert names[-5:] == ("ip_max_iterations", "ip_locally_infeasible", "ip_line_search_failed",
                           "ip_newton_system_failed", "not_identifiable")
     assert len(set(names)) == len(names) == len(RESULTS)
     for name in names:

@@ -22,6 +22,14 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
         "The interior-point method reached its iteration limit before the scaled KKT error "
         "met its tolerance. Increase `IPOptions.max_iter`, or start from a better guess."
     )
+    ip_locally_infeasible = (
+        "The interior-point method reached its iteration limit with the constraint violation "
+        "above `IPOptions.constr_tol` and not reduced by 1 % over its last 25 passes: "
+        "the constraints are probably infeasible near this iterate "
+        "(a final time too short for the road, a bound that contradicts the boundary "
+        "conditions). More iterations are unlikely to help: relax the constraints, or start from a "
+        "guess that meets them."
+    )
     ip_line_search_failed = (
         "The interior-point line search accepted no step on consecutive passes, with the "
         "multipliers not re-estimated (`IPOptions.reestimate_multipliers` off): the solve "

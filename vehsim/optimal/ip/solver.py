@@ -34,7 +34,13 @@ Newton direction, and ends the solve with `RESULTS.ip_newton_system_failed` at i
 
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
 together. A solve that reaches ``max_iter`` ends with a pass that takes no step: it tests
-convergence at the iterate returned, from values and Jacobians only (no Hessian).
+convergence at the iterate returned, from values and Jacobians only (no Hessian). Where the
+constraint violation is then above ``constr_tol`` and no pass of the last
+`INFEASIBLE_PASSES` reduced it by 1 %, the result is `RESULTS.ip_locally_infeasible`
+rather than `RESULTS.ip_max_iterations`: more iterations would not help (IPOPT's "converged
+to a point of local infeasibility"; here a diagnosis of the passes made, not a proof, since
+the method has no restoration phase). Only the result differs: the iterate, its residuals
+and the log are those of the limit.
 """
 
 from __future__ import annotations
@@ -96,6 +102,12 @@ STALLED_PASSES = 2
 re-estimate its multipliers (the first is retried without its filter)."""
 INITIAL_SLACK = 1e-2
 """Initial slacks are at least $\\min(10^{-2}, 10\\mu_0)$."""
+INFEASIBLE_PASSES = 25
+"""A solve that reaches ``max_iter`` with its constraint violation above ``constr_tol``, and
+not reduced by `VIOLATION_PROGRESS` over its last 25 passes, ends with
+`RESULTS.ip_locally_infeasible` rather than `RESULTS.ip_max_iterations`."""
+VIOLATION_PROGRESS = 0.01
+"""The relative reduction of the constraint violation that counts as progress."""
 
 
 class IPOptions(eqx.Module):
@@ -208,7 +220,8 @@ class IPSolution(eqx.Module):
     """Result of `interior_point`: knots ``xs`` (M+1, nx), controls ``us`` (M, nu),
     multipliers (``lam`` of the defects, ``nu`` of the equalities, ``z`` of the
     inequalities), ``result`` (`vehsim.RESULTS`: ``successful``, ``ip_max_iterations``,
-    ``ip_line_search_failed``, ``ip_newton_system_failed`` or ``nonfinite``),
+    ``ip_locally_infeasible``, ``ip_line_search_failed``, ``ip_newton_system_failed`` or
+    ``nonfinite``),
     ``iterations``, the final ``objective`` and residuals (``inf_pr``: max constraint
     violation, ``inf_du``: max Lagrangian-gradient entry, ``compl``: max
     complementarity), the iteration ``log`` (`IPLog`) and the slacks ``s`` of the
@@ -263,7 +276,9 @@ class IPState(eqx.Module):
     (false after runaway multipliers: the next pass re-estimates them), and the
     ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``;
     ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
-    trial; ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
+    trial; ``violation_anchor``: the constraint violation at the last pass that reduced it by
+    `VIOLATION_PROGRESS`, and ``passes_without_progress`` since (`INFEASIBLE_PASSES`);
+    ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
     KKT error so far, its residuals and objective (`_Best`); ``jacobians`` (with
     ``jacobian_update='first'``, else None): the stage derivatives of the last pass, whose
     Jacobians the kept passes reuse."""
@@ -282,6 +297,8 @@ class IPState(eqx.Module):
     residuals: Residuals
     log: IPLog
     failed_searches: Int[Array, ""]
+    violation_anchor: Float[Array, ""]
+    passes_without_progress: Int[Array, ""]
     best: _Best | None = None
     jacobians: StageDerivatives | None = None
 
@@ -544,6 +561,7 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),
         log=IPLog.empty(options.log_size), failed_searches=jnp.asarray(0),
+        violation_anchor=inf, passes_without_progress=jnp.asarray(0),
     )
     if options.best_iterate:
         state = eqx.tree_at(lambda st: st.best, state,
@@ -647,6 +665,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                                 jnp.where(failed, st.failed_searches + 1, 0))
     stalled = ((failed_searches >= STALLED_PASSES) & ~options.reestimate_multipliers
                & ~converged)
+    anchor, without_progress = _violation_progress(st, res.inf_pr, setup)
     # no Newton direction at all (every regularisation refused): the next pass would fail again
     unsolved = ~step.solved & ~converged
     # keep the iterate whose residuals are reported when the loop ends on this pass
@@ -666,6 +685,7 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                           _outcome(converged, finite))),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
         residuals=res, log=log, failed_searches=failed_searches,
+        violation_anchor=anchor, passes_without_progress=without_progress,
         best=None if st.best is None else st.best.update(it, res, d.objective),
         jacobians=None if st.jacobians is None else d,
     )
@@ -676,9 +696,23 @@ def _converged(res, options: IPOptions):
     return (res.error <= options.tol) & (res.inf_pr <= options.constr_tol)
 
 
-def _outcome(converged, finite) -> RESULTS:
+def _outcome(converged, finite, infeasible=False) -> RESULTS:
+    """The result of a pass: converged, not finite, or (at the iteration limit) stuck at a
+    violation it does not reduce (``infeasible``) or not."""
+    stopped = RESULTS.where(infeasible, RESULTS.ip_locally_infeasible, RESULTS.ip_max_iterations)
     return RESULTS.where(converged, RESULTS.successful,
-                         RESULTS.where(finite, RESULTS.ip_max_iterations, RESULTS.nonfinite))
+                         RESULTS.where(finite, stopped, RESULTS.nonfinite))
+
+
+def _violation_progress(st: IPState, inf_pr, setup=False):
+    """The violation anchor and the passes without progress after a pass at violation
+    ``inf_pr``: progress is a violation below $(1 - $`VIOLATION_PROGRESS`$)$ times the
+    anchor, which then moves to it (a setup pass counts for nothing)."""
+    progress = inf_pr < (1.0 - VIOLATION_PROGRESS) * st.violation_anchor
+    anchor = jnp.where(progress & ~setup, inf_pr, st.violation_anchor)
+    count = jnp.where(setup, st.passes_without_progress,
+                      jnp.where(progress, 0, st.passes_without_progress + 1))
+    return anchor, count
 
 
 def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
@@ -701,11 +735,14 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
         jax.debug.callback(_print_row, st.iteration, d.objective, res.inf_pr, res.inf_du,
                            st.mu, zero, zero, 0)
     finite = jnp.isfinite(res.error) & jnp.isfinite(d.objective)
+    anchor, without_progress = _violation_progress(st, res.inf_pr)
+    infeasible = (without_progress >= INFEASIBLE_PASSES) & (res.inf_pr > options.constr_tol)
     st = eqx.tree_at(
-        lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
+        lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log,
+                   s.violation_anchor, s.passes_without_progress), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
-         _outcome(converged, finite),
-         d.objective, res, log))
+         _outcome(converged, finite, infeasible),
+         d.objective, res, log, anchor, without_progress))
     if st.best is None:
         return st
     return eqx.tree_at(lambda s: s.best, st, st.best.update(it, res, d.objective))
