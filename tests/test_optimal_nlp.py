@@ -252,6 +252,26 @@ def test_a_solve_stuck_at_a_violation_it_cannot_reduce_says_the_problem_is_infea
     assert float(unreachable.inf_pr) <= 1e-9
 
 
+def test_a_violation_falling_slowly_is_progress_and_a_flat_one_is_not():
+    """The passes-without-progress count (`_violation_progress`): a violation falling 0.6 %
+    a pass makes 1 % every second pass (the count never passes 1); a flat one counts every
+    pass after the first; a setup pass (multipliers re-estimated) leaves it as it is."""
+    from vehsim.optimal.ip.solver import _violation_progress
+
+    def counts(violations, setups=()):
+        st = types.SimpleNamespace(violation_anchor=jnp.inf, passes_without_progress=0)
+        out = []
+        for i, v in enumerate(violations):
+            anchor, count = _violation_progress(st, jnp.asarray(v), i in setups)
+            st = types.SimpleNamespace(violation_anchor=anchor, passes_without_progress=count)
+            out.append(int(count))
+        return out
+
+    assert max(counts(10.0 * 0.994 ** np.arange(100))) == 1
+    assert counts(np.full(30, 3.5)) == list(range(30))
+    assert counts([3.5, 3.5, 1.0, 3.5], setups=(2,)) == [0, 1, 1, 2]
+
+
 def _random_kkt(rng, M, nx, nu, ne, definite):
     """A random KKT matrix of the stage structure: W symmetric (positive definite with
     graded eigenvalues if `definite`, else indefinite: its control block shifted down by
