@@ -37,7 +37,7 @@ together. A solve that reaches ``max_iter`` ends with a pass that takes no step:
 convergence at the iterate returned, from values and Jacobians only (no Hessian). Where the
 constraint violation is then above ``constr_tol`` and no pass of the last
 `INFEASIBLE_PASSES` reduced it by 1 %, the result is `RESULTS.ip_locally_infeasible`
-rather than `RESULTS.ip_max_iterations`: more iterations would not help (IPOPT's "converged
+rather than `RESULTS.ip_max_iterations`: more iterations would probably not help (IPOPT's "converged
 to a point of local infeasibility"; here a diagnosis of the passes made, not a proof, since
 the method has no restoration phase). Only the result differs: the iterate, its residuals
 and the log are those of the limit.
@@ -706,8 +706,9 @@ def _outcome(converged, finite, infeasible=False) -> RESULTS:
 
 def _violation_progress(st: IPState, inf_pr, setup=False):
     """The violation anchor and the passes without progress after a pass at violation
-    ``inf_pr``: progress is a violation below $(1 - $`VIOLATION_PROGRESS`$)$ times the
-    anchor, which then moves to it (a setup pass counts for nothing)."""
+    ``inf_pr``: progress is a violation below the anchor by more than the fraction
+    `VIOLATION_PROGRESS` of it, and moves the anchor there (a setup pass counts for
+    nothing)."""
     progress = inf_pr < (1.0 - VIOLATION_PROGRESS) * st.violation_anchor
     anchor = jnp.where(progress & ~setup, inf_pr, st.violation_anchor)
     count = jnp.where(setup, st.passes_without_progress,
