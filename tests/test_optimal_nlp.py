@@ -253,23 +253,20 @@ def test_a_solve_stuck_at_a_violation_it_cannot_reduce_says_the_problem_is_infea
 
 
 def test_a_violation_falling_slowly_is_progress_and_a_flat_one_is_not():
-    """The passes-without-progress count (`_violation_progress`): a violation falling 0.6 %
-    a pass makes 1 % every second pass (the count never passes 1); a flat one counts every
-    pass after the first; a setup pass (multipliers re-estimated) leaves it as it is."""
-    from vehsim.optimal.ip.solver import _violation_progress
+    """The passes-without-progress count over a log (`passes_without_progress`): a
+    violation falling 0.6 % a pass makes 1 % every second pass (the count never passes 1);
+    a flat one counts every pass after the first; entries past ``last`` are not read; a log
+    shorter than ``last`` gives 0."""
+    from vehsim.optimal.ip.solver import passes_without_progress
 
-    def counts(violations, setups=()):
-        st = types.SimpleNamespace(violation_anchor=jnp.inf, passes_without_progress=0)
-        out = []
-        for i, v in enumerate(violations):
-            anchor, count = _violation_progress(st, jnp.asarray(v), i in setups)
-            st = types.SimpleNamespace(violation_anchor=anchor, passes_without_progress=count)
-            out.append(int(count))
-        return out
-
-    assert max(counts(10.0 * 0.994 ** np.arange(100))) == 1
-    assert counts(np.full(30, 3.5)) == list(range(30))
-    assert counts([3.5, 3.5, 1.0, 3.5], setups=(2,)) == [0, 1, 1, 2]
+    slow = jnp.asarray(10.0 * 0.994 ** np.arange(100))
+    assert max(int(passes_without_progress(slow, k)) for k in range(100)) == 1
+    flat = jnp.full(30, 3.5)
+    assert [int(passes_without_progress(flat, k)) for k in range(30)] == list(range(30))
+    log = jnp.asarray([3.5, 3.5, 3.5, 1.0, jnp.nan])
+    assert int(passes_without_progress(log, 2)) == 2
+    assert int(passes_without_progress(log, 3)) == 0
+    assert int(passes_without_progress(flat, 30)) == 0
 
 
 def _random_kkt(rng, M, nx, nu, ne, definite):

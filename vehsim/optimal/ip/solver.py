@@ -105,7 +105,9 @@ INITIAL_SLACK = 1e-2
 INFEASIBLE_PASSES = 25
 """A solve that reaches ``max_iter`` with its constraint violation above ``constr_tol``, and
 not reduced by `VIOLATION_PROGRESS` over its last 25 passes, ends with
-`RESULTS.ip_locally_infeasible` rather than `RESULTS.ip_max_iterations`."""
+`RESULTS.ip_locally_infeasible` rather than `RESULTS.ip_max_iterations`. Judged from the
+iteration log (`passes_without_progress`): a solve of more passes than ``log_size`` is
+not judged."""
 VIOLATION_PROGRESS = 0.01
 """The relative reduction of the constraint violation that counts as progress."""
 
@@ -276,9 +278,7 @@ class IPState(eqx.Module):
     (false after runaway multipliers: the next pass re-estimates them), and the
     ``objective`` and ``residuals`` at the iterate (from the last pass), with the ``log``;
     ``failed_searches``: the passes in a row, up to the last, whose line search accepted no
-    trial; ``violation_anchor``: the constraint violation at the last pass that reduced it by
-    `VIOLATION_PROGRESS`, and ``passes_without_progress`` since (`INFEASIBLE_PASSES`);
-    ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
+    trial; ``best`` (with ``best_iterate``, else None): the iterate of the smallest scaled
     KKT error so far, its residuals and objective (`_Best`); ``jacobians`` (with
     ``jacobian_update='first'``, else None): the stage derivatives of the last pass, whose
     Jacobians the kept passes reuse."""
@@ -297,8 +297,6 @@ class IPState(eqx.Module):
     residuals: Residuals
     log: IPLog
     failed_searches: Int[Array, ""]
-    violation_anchor: Float[Array, ""]
-    passes_without_progress: Int[Array, ""]
     best: _Best | None = None
     jacobians: StageDerivatives | None = None
 
@@ -561,7 +559,6 @@ def _initial_state(prob, lay: StageLayout, xs0, us0, options: IPOptions,
         residuals=Residuals(inf_pr=inf, inf_du=inf, compl=inf, error=inf,
                             optimality=inf, s_c=jnp.asarray(1.0)),
         log=IPLog.empty(options.log_size), failed_searches=jnp.asarray(0),
-        violation_anchor=inf, passes_without_progress=jnp.asarray(0),
     )
     if options.best_iterate:
         state = eqx.tree_at(lambda st: st.best, state,
@@ -665,7 +662,6 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                                 jnp.where(failed, st.failed_searches + 1, 0))
     stalled = ((failed_searches >= STALLED_PASSES) & ~options.reestimate_multipliers
                & ~converged)
-    anchor, without_progress = _violation_progress(st, res.inf_pr, setup)
     # no Newton direction at all (every regularisation refused): the next pass would fail again
     unsolved = ~step.solved & ~converged
     # keep the iterate whose residuals are reported when the loop ends on this pass
@@ -685,7 +681,6 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
                           _outcome(converged, finite))),
         multipliers_ready=~reset | (options.multiplier_init == "zero"), objective=d.objective,
         residuals=res, log=log, failed_searches=failed_searches,
-        violation_anchor=anchor, passes_without_progress=without_progress,
         best=None if st.best is None else st.best.update(it, res, d.objective),
         jacobians=None if st.jacobians is None else d,
     )
@@ -704,16 +699,26 @@ def _outcome(converged, finite, infeasible=False) -> RESULTS:
                          RESULTS.where(finite, stopped, RESULTS.nonfinite))
 
 
-def _violation_progress(st: IPState, inf_pr, setup=False):
-    """The violation anchor and the passes without progress after a pass at violation
-    ``inf_pr``: progress is a violation below the anchor by more than the fraction
-    `VIOLATION_PROGRESS` of it, and moves the anchor there (a setup pass counts for
-    nothing)."""
-    progress = inf_pr < (1.0 - VIOLATION_PROGRESS) * st.violation_anchor
-    anchor = jnp.where(progress & ~setup, inf_pr, st.violation_anchor)
-    count = jnp.where(setup, st.passes_without_progress,
-                      jnp.where(progress, 0, st.passes_without_progress + 1))
-    return anchor, count
+def passes_without_progress(inf_pr: Float[Array, " L"], last) -> Int[Array, ""]:
+    """The passes, up to entry ``last`` of the logged violations ``inf_pr``, since the last
+    that made progress: a violation below the anchor (the violation of the last pass that
+    made progress; at first infinite) by more than the fraction `VIOLATION_PROGRESS` of it.
+    Read from the log after the loop, so that the loop's program is untouched; a pass that
+    only re-estimates the multipliers is not logged. 0 where the log is shorter than
+    ``last`` (nothing to judge by)."""
+
+    def step(carry, entry):
+        anchor, count = carry
+        i, violation = entry
+        progress = violation < (1.0 - VIOLATION_PROGRESS) * anchor
+        logged = i <= last
+        return (jnp.where(logged & progress, violation, anchor),
+                jnp.where(logged, jnp.where(progress, 0, count + 1), count)), None
+
+    size = inf_pr.shape[0]
+    (_, count), _ = jax.lax.scan(step, (jnp.asarray(jnp.inf, inf_pr.dtype), jnp.asarray(0)),
+                                 (jnp.arange(size), inf_pr))
+    return jnp.where(last < size, count, 0)
 
 
 def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -> IPState:
@@ -736,14 +741,13 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
         jax.debug.callback(_print_row, st.iteration, d.objective, res.inf_pr, res.inf_du,
                            st.mu, zero, zero, 0)
     finite = jnp.isfinite(res.error) & jnp.isfinite(d.objective)
-    anchor, without_progress = _violation_progress(st, res.inf_pr)
-    infeasible = (without_progress >= INFEASIBLE_PASSES) & (res.inf_pr > options.constr_tol)
+    infeasible = ((passes_without_progress(log.inf_pr, st.iteration) >= INFEASIBLE_PASSES)
+                  & (res.inf_pr > options.constr_tol))
     st = eqx.tree_at(
-        lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log,
-                   s.violation_anchor, s.passes_without_progress), st,
+        lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
          _outcome(converged, finite, infeasible),
-         d.objective, res, log, anchor, without_progress))
+         d.objective, res, log))
     if st.best is None:
         return st
     return eqx.tree_at(lambda s: s.best, st, st.best.update(it, res, d.objective))
