@@ -25,10 +25,9 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
     ip_locally_infeasible = (
         "The interior-point method reached its iteration limit with the constraint violation "
         "above `IPOptions.constr_tol` and not reduced by 1 % over its last 25 passes: "
-        "the constraints are probably infeasible near this iterate "
-        "(a final time too short for the road, a bound that contradicts the boundary "
-        "conditions). More iterations are unlikely to help: relax the constraints, or start from a "
-        "guess that meets them."
+        "the constraints are probably infeasible near this iterate (a final time too short "
+        "for the road, a bound that contradicts the boundary conditions). More iterations "
+        "are unlikely to help: relax the constraints, or start from a guess that meets them."
     )
     ip_line_search_failed = (
         "The interior-point line search accepted no step on consecutive passes, with the "

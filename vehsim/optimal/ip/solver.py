@@ -37,10 +37,10 @@ together. A solve that reaches ``max_iter`` ends with a pass that takes no step:
 convergence at the iterate returned, from values and Jacobians only (no Hessian). Where the
 constraint violation is then above ``constr_tol`` and no pass of the last
 `INFEASIBLE_PASSES` reduced it by 1 %, the result is `RESULTS.ip_locally_infeasible`
-rather than `RESULTS.ip_max_iterations`: more iterations would probably not help (IPOPT's "converged
-to a point of local infeasibility"; here a diagnosis of the passes made, not a proof, since
-the method has no restoration phase). Only the result differs: the iterate, its residuals
-and the log are those of the limit.
+rather than `RESULTS.ip_max_iterations`: more iterations would probably not help (IPOPT's
+"converged to a point of local infeasibility"; here a diagnosis of the passes made, not a
+proof, since the method has no restoration phase). Only the result differs: the iterate,
+its residuals and the log are those of the limit.
 """
 
 from __future__ import annotations
