@@ -2,12 +2,15 @@
 round trip, files against roads built in code, validation messages, the shipped circuit."""
 
 import math
+import re
+import warnings
 
 import numpy as np
 import pytest
 
 import vehsim as vs
 from vehsim import CentrelineRoad, Gate, read_road, write_road
+from vehsim.optimal.centreline import _crossing, _segments_cross
 
 
 def _wavy_loop(n=60):
@@ -332,6 +335,70 @@ def test_an_open_road_passing_again_through_its_start_is_refused():
     with pytest.raises(ValueError, match=r"'lobes': the centre line crosses itself: between "
                                          r"s = 0 and [\d.]+ m .*\(at s = 0 m and s = "):
         CentrelineRoad.from_points(x, y, np.full(80, 3.0), np.full(80, 3.0), name="lobes")
+
+
+def _straight_with_a_loop(length: float, radius: float = 2.0):
+    """A straight of ``length`` [m] with a loop of ``radius`` [m] in its middle (the loop's
+    ends pass each other 0.3 m apart, so the centre line crosses itself once)."""
+    half = np.arange(0.0, length / 2, 1.0)
+    t = np.linspace(0.6, 2 * np.pi - 0.6, 12)
+    x = np.concatenate([half, length / 2 + radius * np.sin(t), half + length / 2 + 2.0])
+    y = np.concatenate([np.zeros_like(half), radius * (1 - np.cos(t)),
+                        np.full_like(half, 0.3)])
+    return x, y
+
+
+def test_a_small_loop_on_a_long_road_is_refused_at_the_knots_resolution():
+    """A 2 m loop in the middle of a 1 km and of a 4 km straight (2,000 and 8,000 knots):
+    refused naming the loop's two passes, as on a short road. The straights on either side
+    (thousands of parallel, collinear segments) are read without a warning."""
+    for length in (1000.0, 4000.0):
+        x, y = _straight_with_a_loop(length)
+        w = np.full(len(x), 0.4)
+        with pytest.raises(ValueError, match=r"'loop': the centre line crosses itself: between "
+                                             r"s = (\d+)\.\d+ and [\d.]+ m and between s = ") as e:
+            CentrelineRoad.from_points(x, y, w, w, name="loop")
+        s_a, s_b = (float(v) for v in re.findall(r"\(at s = ([\d.]+) m and s = ([\d.]+) m",
+                                                 str(e.value))[0])
+        assert abs(s_a - length / 2) < 3.0 and 0 < s_b - s_a < 15.0, (length, str(e.value))
+    x = np.arange(0.0, 4000.0, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow in the parallel segments' division
+        road = CentrelineRoad.from_points(x, np.sin(x / 200.0), np.ones_like(x),
+                                          np.ones_like(x), name="long")
+    assert road.length > 3999.0
+
+
+def test_crossing_search_finds_every_crossing_of_random_polylines():
+    """The grid search against every pair of segments, on random walks that cross
+    themselves often, rarely or never (their step 1-3 m, some turns sharp): the same first
+    crossing, or none, for each."""
+    rng = np.random.default_rng(0)
+    found = 0
+    for k in range(60):
+        n = int(rng.integers(5, 120))
+        turn = rng.normal(0.0, [0.05, 0.4, 1.2][k % 3], n)
+        step = rng.uniform(1.0, 3.0, n)
+        heading = np.cumsum(turn)
+        p = np.cumsum(np.stack([step * np.cos(heading), step * np.sin(heading)], 1), 0)
+        closed = bool(k % 5 == 0)
+        expected = None
+        for i in range(n - 1):  # every pair, first by i then by j
+            js = [j for j in range(i + 2, n - 1) if not (closed and i == 0 and j == n - 2)]
+            if not js:
+                continue
+            hit, t, u = _segments_cross(p[i], p[i + 1], p[js], p[np.array(js) + 1])
+            if hit.any():
+                m = int(np.argmax(hit))
+                expected = (i, js[m], float(t[m]), float(u[m]))
+                break
+        got = _crossing(p, closed)
+        assert (got is None) == (expected is None), (k, got, expected)
+        if got is not None:
+            found += 1
+            assert got[:2] == expected[:2], (k, got, expected)
+            np.testing.assert_allclose(got[2:], expected[2:], rtol=0, atol=1e-12)
+    assert 10 < found < 55, found  # both kinds of walk were drawn
 
 
 @pytest.mark.parametrize("key, value", [("x", 9e300), ("y", -2e7), ("width_left", 5e3)])

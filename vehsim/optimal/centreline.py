@@ -770,28 +770,73 @@ and circuits are a few tens of kilometres)."""
 
 
 def _segments_cross(p1, p2, q1, q2):
-    """Whether segments p1-p2 and each q1-q2 intersect (and where, as a fraction along
-    p1-p2), a crossing at or a rounding error beyond an end included (a centre line that
-    passes again through one of its knots)."""
+    """Whether segments p1-p2 and q1-q2 intersect (and where, as fractions along each), a
+    crossing at or a rounding error beyond an end included (a centre line that passes again
+    through one of its knots). The arguments broadcast: (2,) or (N, 2) each."""
     r = p2 - p1
     sv = q2 - q1
-    den = r[0] * sv[:, 1] - r[1] * sv[:, 0]
+    den = r[..., 0] * sv[..., 1] - r[..., 1] * sv[..., 0]
     qp = q1 - p1
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qp[:, 0] * sv[:, 1] - qp[:, 1] * sv[:, 0]) / den
-        u = (qp[:, 0] * r[1] - qp[:, 1] * r[0]) / den
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t = (qp[..., 0] * sv[..., 1] - qp[..., 1] * sv[..., 0]) / den
+        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / den
     tol = 1e-9
     hit = ((np.abs(den) > 1e-15) & (t >= -tol) & (t <= 1 + tol) & (u >= -tol)
            & (u <= 1 + tol))
     # parallel segments on one line that overlap (a centre line doubling back on itself)
-    rr = float(r @ r)
-    off_line = np.abs(qp[:, 0] * r[1] - qp[:, 1] * r[0]) / max(np.sqrt(rr), 1e-300)
-    a0, a1 = (qp @ r) / rr, ((q2 - p1) @ r) / rr
+    rr = np.sum(r * r, axis=-1)
+    off_line = (np.abs(qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0])
+                / np.maximum(np.sqrt(rr), 1e-300))
+    a0, a1 = np.sum(qp * r, axis=-1) / rr, np.sum((q2 - p1) * r, axis=-1) / rr
     overlap = np.minimum(np.maximum(a0, a1), 1.0) - np.maximum(np.minimum(a0, a1), 0.0)
     along = (np.abs(den) <= 1e-15) & (off_line <= tol * (1.0 + np.sqrt(rr))) & (overlap > tol)
     t = np.where(along, np.clip(np.maximum(np.minimum(a0, a1), 0.0), 0.0, 1.0), t)
     u = np.where(along, 0.0, u)
     return hit | along, np.clip(t, 0.0, 1.0), np.clip(u, 0.0, 1.0)
+
+
+def _crossing(points: np.ndarray, closed: bool) -> tuple[int, int, float, float] | None:
+    """The first crossing (in the order of the first segment, then the second) of two
+    segments of the polyline through ``points`` that are not neighbours, as the segments'
+    indices and the fractions along each, or None. Every segment is tested against those
+    that share a cell of a grid as fine as the longest segment (a crossing lies in a cell
+    both segments' bounding boxes touch), so a long road is checked at its knots' resolution
+    in time about linear in their number."""
+    a, b = points[:-1], points[1:]
+    n = len(a)
+    h = float(np.max(np.linalg.norm(b - a, axis=1)))
+    lo = np.minimum(a, b) - 1e-6 * h
+    hi = np.maximum(a, b) + 1e-6 * h
+    origin = lo.min(axis=0)
+    c0 = np.floor((lo - origin) / h).astype(np.int64)
+    c1 = np.floor((hi - origin) / h).astype(np.int64)  # at most 2 cells apart on each axis
+    ny = int(c1[:, 1].max()) + 1
+    seg, key = [], []
+    for dx in range(3):
+        for dy in range(3):
+            cx, cy = c0[:, 0] + dx, c0[:, 1] + dy
+            ok = (cx <= c1[:, 0]) & (cy <= c1[:, 1])
+            seg.append(np.nonzero(ok)[0])
+            key.append(cx[ok] * ny + cy[ok])
+    seg, key = np.concatenate(seg), np.concatenate(key)
+    order = np.lexsort((seg, key))
+    seg, key = seg[order], key[order]
+    pairs = []
+    for d in range(1, len(seg)):  # the entries d apart within a cell, sorted by segment
+        same = key[d:] == key[:-d]
+        if not same.any():
+            break
+        pairs.append(np.stack([seg[:-d][same], seg[d:][same]], axis=1))
+    if not pairs:
+        return None
+    i, j = np.unique(np.concatenate(pairs), axis=0).T  # i < j
+    keep = (j >= i + 2) & ~(closed & (i == 0) & (j == n - 1))  # neighbours share a knot
+    i, j = i[keep], j[keep]
+    hit, t, u = _segments_cross(a[i], b[i], a[j], b[j])
+    if not hit.any():
+        return None
+    k = int(np.argmax(hit))  # np.unique sorted the pairs by i, then j
+    return int(i[k]), int(j[k]), float(t[k]), float(u[k])
 
 
 def _assemble(name, closed, s_k, p, tan, acc_s, acc_e, widths, slopes) -> CentrelineRoad:
@@ -828,25 +873,14 @@ def _validate(road: CentrelineRoad) -> None:
                 f"road {name!r}: {key} {w[i]:g} m reaches the radius of curvature "
                 f"{1 / abs(kappa[i]):g} m at s = {s[i]:.6g} m (the {side} edge folds over "
                 f"itself: n kappa = {fold[i]:.3g} >= 1)")
-    # self-intersection of the centre line (a polyline through at most 1000 of the knots)
-    n_seg = len(road.knots) - 1
-    step = max(1, -(-n_seg // 1000))
-    idx = np.arange(0, n_seg + 1, step)
-    if idx[-1] != n_seg:
-        idx = np.append(idx, n_seg)
-    pts, sk = road.points[idx], road.knots[idx]
-    m = len(pts) - 1
-    for i in range(m - 2):
-        j0 = i + 2
-        j1 = m - 1 if (road.closed and i == 0) else m  # closed: the last side touches the first
-        if j1 <= j0:
-            continue
-        hit, t, u = _segments_cross(pts[i], pts[i + 1], pts[j0:j1], pts[j0 + 1:j1 + 1])
-        if np.any(hit):
-            j = j0 + int(np.argmax(hit))
-            s_a = sk[i] + t[j - j0] * (sk[i + 1] - sk[i])
-            s_b = sk[j] + u[j - j0] * (sk[j + 1] - sk[j])
-            raise ValueError(
-                f"road {name!r}: the centre line crosses itself: between s = {sk[i]:.6g} and "
-                f"{sk[i + 1]:.6g} m and between s = {sk[j]:.6g} and {sk[j + 1]:.6g} m "
-                f"(at s = {round(s_a, 6):.6g} m and s = {round(s_b, 6):.6g} m)")
+    # self-intersection of the centre line (the polyline through its knots)
+    crossing = _crossing(road.points, road.closed)
+    if crossing is not None:
+        i, j, t, u = crossing
+        sk = road.knots
+        s_a = sk[i] + t * (sk[i + 1] - sk[i])
+        s_b = sk[j] + u * (sk[j + 1] - sk[j])
+        raise ValueError(
+            f"road {name!r}: the centre line crosses itself: between s = {sk[i]:.6g} and "
+            f"{sk[i + 1]:.6g} m and between s = {sk[j]:.6g} and {sk[j + 1]:.6g} m "
+            f"(at s = {round(s_a, 6):.6g} m and s = {round(s_b, 6):.6g} m)")
