@@ -154,17 +154,24 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(command, tm
     ('["r"]', "must be a JSON object"), ('{"r": true}', "'r' must be a number"),
     ('{"r": 1e308}', "'r' [m] must lie in (0, 5]"),
     ('{"r": 0.3, "J": -1}', "'J' [kg m^2] must lie in (0, inf), got -1"),
+    ("[" * 100_000 + "]" * 100_000, "invalid JSON side file: nested too deeply"),
+    ('{"r": ' + "9" * 5000 + "}", "invalid JSON side file: Exceeds the limit"),
+    (None, "the record's side file is a folder"),
 ])
 def test_a_bad_side_file_is_refused_naming_it(command, side, message, tmp_path, capsys):
     """The record's side file (NAME.json) must be a JSON object of positive numbers, the
     radius within --radius's range: otherwise exit 2 naming the file and the key, not a
-    traceback, a fit of r = 1 (true) or a nonfinite one (1e308)."""
+    traceback (JSON nested past Python's recursion limit, an integer past its digit limit),
+    a fit of r = 1 (true), a nonfinite one (1e308) or the default wheel (a folder)."""
     from pathlib import Path
 
     shipped = Path(_io.__file__).parent / "data" / "brakings" / "braking_1.csv"
     record = tmp_path / "braking.csv"
     record.write_text(shipped.read_text())
-    (tmp_path / "braking.json").write_text(side)
+    if side is None:  # a folder where the side file goes: not silently the default wheel
+        (tmp_path / "braking.json").mkdir()
+    else:
+        (tmp_path / "braking.json").write_text(side)
     assert cli.main([command, str(record), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "braking.json" in err and message in err and "Traceback" not in err, err

@@ -222,11 +222,23 @@ def read_side_file(path: str | Path) -> dict:
     object whose `r`, `m`, `J` (each optional) are numbers in (0, `SIDE_RANGES`]; ``{}``
     when there is no side file. A bad file is refused naming it and the key."""
     side = Path(path).with_suffix(".json")
+    if side.is_dir():  # not a side file the record lacks: one that cannot be read
+        raise ValueError(f"{side}: the record's side file is a folder; it must be a JSON "
+                         "file of the wheel data, or absent")
     if not side.is_file():
         return {}
     try:
-        meta = json.loads(side.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        text = side.read_text()
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{side}: invalid JSON side file: {e}") from None
+    except OSError as e:
+        raise ValueError(f"{side}: cannot read the side file: {e.strerror}") from None
+    try:
+        meta = json.loads(text)
+    except RecursionError:
+        raise ValueError(f"{side}: invalid JSON side file: nested too deeply; it must be a "
+                         "JSON object of numbers") from None
+    except ValueError as e:  # a JSONDecodeError, or an integer of thousands of digits
         raise ValueError(f"{side}: invalid JSON side file: {e}") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{side}: the side file must be a JSON object such as "
