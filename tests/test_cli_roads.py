@@ -72,6 +72,9 @@ GOOD = [(0, 0, 3, 3), (10, 0, 3, 3), (20, 0, 3, 3), (30, 0, 3, 3), (40, 0, 3, 3)
     ("corner options", "--interior-points and --no-corner-clearance apply"),
     ("two roads", "not allowed with"),
     ("no road", "one of the arguments"),
+    ("fast gate", "fast.csv: the start_gate's speed 1e+06 m/s must lie in [1, 100] m/s"),
+    ("standing gate", "standing.csv: the end_gate's speed 0 m/s must lie in [1, 100] m/s"),
+    ("gate inside", "inside.csv: road 'inside': the start gate is at s = 10 m"),
 ])
 def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case, match):
     out = tmp_path / "out"
@@ -92,11 +95,22 @@ def test_bad_roads_and_options_are_refused_before_solving(tmp_path, capsys, case
         "corner options": ["--road-file", good, "--interior-points", "2"],
         "two roads": ["corner90", "--road-file", good],
         "no road": [],
+        **{case: ["--road-file", _gated_file(tmp_path, name, line)] for case, name, line in (
+            ("fast gate", "fast", "# start_gate: s=start speed=1e6"),
+            ("standing gate", "standing", "# end_gate: s=end speed=0"),
+            ("gate inside", "inside", "# start_gate: s=10"))},
     }[case]
     code, err = _run(["optimise", *argv, "--out", out], capsys)
     assert code == 2 and match in err, err
-    assert "Traceback" not in err
+    assert "Traceback" not in err and "compiling" not in err  # refused before
     assert not Path(out).exists()
+
+
+def _gated_file(tmp_path, name, line):
+    """The good road's file with a gate line the road-frame problem cannot pose."""
+    path = _bad_file(tmp_path, GOOD, name)
+    path.write_text(line + "\n" + path.read_text())
+    return path
 
 
 def test_a_road_file_says_whether_it_is_a_lap_and_where_its_gates_are(tmp_path, capsys,

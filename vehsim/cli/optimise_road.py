@@ -57,6 +57,27 @@ def _check_margin(road, margin: float) -> None:
                          "narrowest")
 
 
+GATE_SPEEDS = (1.0, 100.0)
+"""The speeds [m/s] a road file's gate may fix: the range of ``--start-speed``."""
+
+
+def _check_gates(road, where: str) -> None:
+    """The road's gates as the road-frame problem can pose them (at the road's ends, a lap's
+    free, speeds above its floor) and their speeds in `GATE_SPEEDS`, checked before anything
+    compiles and refused naming the file (``where``)."""
+    from ..optimal.curvilinear import _check_road
+
+    lo, hi = GATE_SPEEDS
+    for which, gate in (("start", road.start), ("end", road.end)):
+        if gate.speed is not None and not lo <= gate.speed <= hi:
+            raise ValueError(f"{where}: the {which}_gate's speed {gate.speed:g} m/s must lie in "
+                             f"[{lo:g}, {hi:g}] m/s (the range of --start-speed)")
+    try:
+        _check_road(road)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
 def default_stages(length: float) -> int:
     """Stages for a road of ``length`` [m]: one per `STAGE_LENGTH`, within the limits."""
     return int(min(MAX_STAGES, max(MIN_STAGES, math.ceil(length / STAGE_LENGTH))))
@@ -105,6 +126,7 @@ def optimise_road(args) -> int:
         g = road.start  # the file's start gate, at the speed asked for
         road = road.with_gates(Gate.at(road, g.s, n_min=g.n_min, n_max=g.n_max,
                                        speed=args.start_speed), road.end)
+    _check_gates(road, args.road_file if args.track is None else f"--track {args.track}")
     stages = args.segments if args.segments is not None else default_stages(road.length)
     coarse = coarse_stages(road.length, stages)
     kind = "lap" if road.closed else "stage"
