@@ -232,6 +232,24 @@ def test_show_text_and_another_load(capsys):
             "there") in capsys.readouterr().err
 
 
+def test_show_refuses_a_file_whose_formula_overflows_naming_its_largest_coefficient(
+        tmp_path, capsys):
+    """PDX1 = 1e308 (within a float, past what the formula can multiply): exit 2 naming the
+    numbers that are not finite and the coefficient, in text and JSON; not NaN with exit 0."""
+    text = Path(SAMPLE_PATH).read_text()
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if t.startswith("PDX1 "))
+    bad = tmp_path / "huge.tir"
+    bad.write_text("\n".join(t if not t.startswith("PDX1 ") else "PDX1 = 1e308"
+                             for t in text.splitlines()) + "\n")
+    for json_flag in ([], ["--json"]):
+        assert main(["tire", "show", str(bad), *json_flag]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "", captured.out
+        assert (f"{bad}: the Magic Formula is not finite at {FZ0:g} N (peak_mu_x_driving, "
+                "peak_mu_x_braking, longitudinal_slip_stiffness_N)") in captured.err
+        assert f"largest coefficient: PDX1 = 1e+308 (line {line})" in captured.err
+
+
 def test_show_says_where_a_curve_has_no_peak_inside_the_search(tmp_path, capsys):
     """A lateral shape factor below 1 (PCY1 = 0.8) makes |F_y| rise all the way to the
     search's 30 deg: the summary says that its value is the largest at the edge, not a peak;

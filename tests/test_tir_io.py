@@ -235,6 +235,9 @@ def test_values_outside_their_stated_ranges_are_refused(tmp_path):
              ["outside the file's stated range", "PRESMIN, PRESMAX"])
     text = SMALL.replace("FNOMIN                   = 4000", "FNOMIN                   = 'x'")
     _refused(tmp_path, text, _line_of(text, "FNOMIN"), "FNOMIN", ["must be a number"])
+    # a coefficient or scaling factor as text: its line named when the file is read
+    text = SMALL.replace("PDX1                     = 1.1", "PDX1                     = 'abc'")
+    _refused(tmp_path, text, _line_of(text, "PDX1"), "PDX1", ["must be a number", "'abc'"])
 
 
 def test_the_shipped_sample_reads_as_mf61_with_its_source_stated():

@@ -182,12 +182,33 @@ def _show(args) -> int:
     if args.load is not None:
         _check_loads("--load", [args.load], params, lowest="zero")
     s = tire_summary(tir, params, args.load)
+    _check_finite(tir, s)
     print(json.dumps(_jsonable(s), indent=2) if args.json else summary_text(s))
     if args.load is not None and args.load < float(params.FZMIN):
         print(f"note: --load {args.load:g} N is below the file's FZMIN ({float(params.FZMIN):g} "
               "N): the formula is evaluated there, outside the loads it was fitted on",
               file=sys.stderr)
     return 0
+
+
+_SUMMARY_NUMBERS = ("peak_mu_x_driving", "peak_mu_x_braking", "peak_mu_y",
+                    "cornering_stiffness_N_per_rad", "longitudinal_slip_stiffness_N",
+                    "K_ya_N_per_rad", "K_xk_N")
+"""The summary's numbers that the Magic Formula computes."""
+
+
+def _check_finite(tir, summary: dict) -> None:
+    """A file whose formulas overflow (a coefficient of 1e308) is refused naming the numbers
+    that are not finite and the file's largest coefficient, rather than shown as NaN."""
+    bad = [k for k in _SUMMARY_NUMBERS if not math.isfinite(float(summary[k]))]
+    if not bad:
+        return
+    coefficients = [(abs(e.value), e) for name, e in tir.entries()
+                    if name.upper().endswith("_COEFFICIENTS") and isinstance(e.value, int | float)]
+    _, e = max(coefficients, key=lambda c: c[0], default=(0.0, None))
+    largest = "" if e is None else f"; its largest coefficient: {e.key} = {e.value:g} (line {e.line})"
+    raise ValueError(f"{tir.source}: the Magic Formula is not finite at {summary['load_N']:g} N "
+                     f"({', '.join(bad)}): a coefficient too large to evaluate{largest}")
 
 
 def tire_curves(params) -> dict:

@@ -205,7 +205,8 @@ for _k in ("HMAX_LOCAL", "TIME_SWITCH_INTEG"):
 _NUMERIC = set(_DIMS) | {k for pair in ORDERED_PAIRS for k in pair} | {
     k for triple in WITHIN for k in triple}
 """Keys whose value must be a number: the dimensional ones and those of the stated ranges
-(the slip ratio's ``KPUMIN``/``KPUMAX`` among them)."""
+(the slip ratio's ``KPUMIN``/``KPUMAX`` among them), besides every key of a section whose
+name ends in ``_COEFFICIENTS`` (the formulas' coefficients and scaling factors)."""
 
 _VERSIONS = {5: "5.2", 6: "5.2", 21: "5.2", 52: "5.2", 61: "6.1", 62: "6.2"}
 
@@ -571,7 +572,8 @@ def validate(tir: TirFile) -> None:
                            f"required by the MF {version} formulas but "
                            f"{'empty' if e is not None else 'missing'}")
     for name, e in tir.entries():
-        if name != "UNITS" and isinstance(e.value, str) and e.key.upper() in _NUMERIC:
+        if name != "UNITS" and isinstance(e.value, str) and (
+                e.key.upper() in _NUMERIC or name.upper().endswith("_COEFFICIENTS")):
             raise TirError(tir.source, e.line, e.key, f"must be a number, got {e.value!r}")
     for key, (lo, hi, lo_open, hi_open, why) in RANGES.items():
         e = tir.entry(key)
