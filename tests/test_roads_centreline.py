@@ -337,6 +337,19 @@ def test_an_open_road_passing_again_through_its_start_is_refused():
         CentrelineRoad.from_points(x, y, np.full(80, 3.0), np.full(80, 3.0), name="lobes")
 
 
+def test_widths_whose_spline_dips_below_zero_are_refused_saying_why():
+    """Widths alternating between 0.1 and 50 m, every one positive: the cubic spline
+    through them overshoots below zero between the points, refused with that reason (not
+    as a width the file does not hold)."""
+    x = np.arange(12) * 2.0
+    w = np.where(np.arange(12) % 2 == 0, 0.1, 50.0)
+    with pytest.raises(ValueError, match=r"'osc': width_(right|left) is -[\d.]+ m at s = "
+                                         r"[\d.]+ m; must be > 0 \(the widths between the "
+                                         r"points are a cubic spline through theirs, which "
+                                         r"overshoots"):
+        CentrelineRoad.from_points(x, 0.1 * x, w, w, name="osc")
+
+
 def _straight_with_a_loop(length: float, radius: float = 2.0):
     """A straight of ``length`` [m] with a loop of ``radius`` [m] in its middle (the loop's
     ends pass each other 0.3 m apart, so the centre line crosses itself once)."""

@@ -861,7 +861,9 @@ def _validate(road: CentrelineRoad) -> None:
         if np.any(w <= 0):
             i = int(np.argmax(w <= 0))
             raise ValueError(f"road {name!r}: {key} is {w[i]:g} m at s = {s[i]:.6g} m; must "
-                             "be > 0")
+                             "be > 0 (the widths between the points are a cubic spline "
+                             "through theirs, which overshoots where they change abruptly: "
+                             "smooth the widths there, or give more points)")
     # the boundary folds where a width reaches the radius of curvature: n kappa >= 1
     kappa = road.curvature(s)
     for key, w, sign, side in (("width_left", wl, 1.0, "left"),
