@@ -363,20 +363,22 @@ def _straight_with_a_loop(length: float, radius: float = 2.0):
 
 def test_a_small_loop_on_a_long_road_is_refused_at_the_knots_resolution():
     """A 2 m loop in the middle of a 1 km and of a 4 km straight (2,000 and 8,000 knots):
-    refused naming the loop's two passes, as on a short road. The straights on either side
-    (thousands of parallel, collinear segments) are read without a warning."""
+    refused naming the loop's two passes, as on a short road, and without a numerical
+    warning (the straights on either side: thousands of parallel, collinear segments)."""
     for length in (1000.0, 4000.0):
         x, y = _straight_with_a_loop(length)
         w = np.full(len(x), 0.4)
         with pytest.raises(ValueError, match=r"'loop': the centre line crosses itself: between "
-                                             r"s = (\d+)\.\d+ and [\d.]+ m and between s = ") as e:
+                                             r"s = (\d+)\.\d+ and [\d.]+ m and between s = ") as e, \
+                warnings.catch_warnings():
+            warnings.simplefilter("error")
             CentrelineRoad.from_points(x, y, w, w, name="loop")
         s_a, s_b = (float(v) for v in re.findall(r"\(at s = ([\d.]+) m and s = ([\d.]+) m",
                                                  str(e.value))[0])
         assert abs(s_a - length / 2) < 3.0 and 0 < s_b - s_a < 15.0, (length, str(e.value))
     x = np.arange(0.0, 4000.0, 1.0)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no overflow in the parallel segments' division
+        warnings.simplefilter("error")
         road = CentrelineRoad.from_points(x, np.sin(x / 200.0), np.ones_like(x),
                                           np.ones_like(x), name="long")
     assert road.length > 3999.0
