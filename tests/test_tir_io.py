@@ -230,6 +230,24 @@ def test_values_outside_their_stated_ranges_are_refused(tmp_path):
                                                                "(0, inf)", "4.E21"])
     text = SMALL.replace("FZMAX                    = 10000", "FZMAX                    = 50")
     _refused(tmp_path, text, _line_of(text, "FZMAX"), "FZMAX", ["below FZMIN"])
+    # a load range, slip ratio range or slip angle range with no width, a negative load;
+    # a file measured at one pressure may give it as both ends of its range
+    text = SMALL.replace("FZMAX                    = 10000", "FZMAX                    = 100")
+    _refused(tmp_path, text, _line_of(text, "FZMAX"), "FZMAX", ["equals FZMIN", "no width"])
+    text = SMALL.replace("ALPMAX                   = 0.5", "ALPMAX                   = -0.5")
+    _refused(tmp_path, text, _line_of(text, "ALPMAX"), "ALPMAX", ["equals ALPMIN"])
+    text = SMALL.replace("[SLIP_ANGLE_RANGE]", "[LONG_SLIP_RANGE]\nKPUMIN = 0.1\n"
+                         "KPUMAX = 0.1\n[SLIP_ANGLE_RANGE]")
+    _refused(tmp_path, text, _line_of(text, "KPUMAX"), "KPUMAX", ["equals KPUMIN"])
+    text = SMALL.replace("FZMIN                    = 100", "FZMIN                    = -100")
+    _refused(tmp_path, text, _line_of(text, "FZMIN"), "FZMIN", ["outside its stated range",
+                                                                 "not negative"])
+    path = tmp_path / "one_pressure.tir"
+    path.write_text(SMALL.replace("PRESMIN                  = 150000",
+                                  "PRESMIN                  = 220000")
+                    .replace("PRESMAX                  = 300000",
+                             "PRESMAX                  = 220000"))
+    assert read_tir(path).get("PRESMAX") == 220000
     text = SMALL.replace("NOMPRES                  = 220000", "NOMPRES                  = 5e5")
     _refused(tmp_path, text, _line_of(text, "NOMPRES"), "NOMPRES",
              ["outside the file's stated range", "PRESMIN, PRESMAX"])

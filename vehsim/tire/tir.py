@@ -28,8 +28,9 @@ section, or in two sections with different values; a second ``[UNITS]``; a unit 
 formula version this module does not know; a missing required key (`REQUIRED`); a value
 outside its stated range (`RANGES`: the ranges the Magic Formula states for its factors,
 e.g. the shape factors $C > 0$, and the file's own ranges:
-``FZMIN <= FNOMIN <= FZMAX``, ``PRESMIN <= INFLPRES, NOMPRES <= PRESMAX``, each minimum
-below its maximum). Keys this module does not know are kept, written back, and listed in
+``FZMIN <= FNOMIN <= FZMAX``, ``PRESMIN <= INFLPRES, NOMPRES <= PRESMAX``, ``FZMIN >= 0``,
+each minimum at most its maximum, and below it for the load, slip ratio and slip angle:
+the ranges the curves are fitted and shown on). Keys this module does not know are kept, written back, and listed in
 `TirFile.unknown_keys`.
 """
 
@@ -137,6 +138,7 @@ REQUIRED["6.2"] = REQUIRED["6.1"]
 # load, radius, pressure, the speeds and the load scaling.
 RANGES: dict[str, tuple[float, float, bool, bool, str]] = {
     "FNOMIN": (0.0, math.inf, True, False, "the nominal load is positive"),
+    "FZMIN": (0.0, math.inf, False, False, "a wheel load is not negative"),
     "UNLOADED_RADIUS": (0.0, math.inf, True, False, "the free radius is positive"),
     "NOMPRES": (0.0, math.inf, True, False, "the nominal pressure is positive"),
     "INFLPRES": (0.0, math.inf, True, False, "the inflation pressure is positive"),
@@ -152,6 +154,9 @@ RANGES: dict[str, tuple[float, float, bool, bool, str]] = {
 # pairs (low, high) that must be ordered, and values that must lie between them
 ORDERED_PAIRS = (("FZMIN", "FZMAX"), ("PRESMIN", "PRESMAX"), ("KPUMIN", "KPUMAX"),
                  ("ALPMIN", "ALPMAX"), ("CAMMIN", "CAMMAX"))
+# the pairs that span the curves fitted and shown, so must have a width; a file measured
+# at one pressure or one camber may give that value as both ends of its range
+STRICT_PAIRS = (("FZMIN", "FZMAX"), ("KPUMIN", "KPUMAX"), ("ALPMIN", "ALPMAX"))
 WITHIN = (("FNOMIN", "FZMIN", "FZMAX"), ("NOMPRES", "PRESMIN", "PRESMAX"),
           ("INFLPRES", "PRESMIN", "PRESMAX"))
 
@@ -591,10 +596,17 @@ def validate(tir: TirFile) -> None:
                            f"({why})")
     for lo_key, hi_key in ORDERED_PAIRS:
         lo, hi = tir.get(lo_key), tir.get(hi_key)
-        if lo is not None and hi is not None and not lo <= hi:
-            e = tir.entry(hi_key)
+        if lo is None or hi is None:
+            continue
+        e = tir.entry(hi_key)
+        if not lo <= hi:
             raise TirError(tir.source, e.line, hi_key,
                            f"{tir.raw(hi_key)} is below {lo_key} = {tir.raw(lo_key)}")
+        if lo == hi and (lo_key, hi_key) in STRICT_PAIRS:
+            raise TirError(tir.source, e.line, hi_key,
+                           f"{tir.raw(hi_key)} equals {lo_key}: the range the curves are "
+                           "fitted and shown on has no width (its minimum must be below "
+                           "its maximum)")
     for key, lo_key, hi_key in WITHIN:
         v, lo, hi = tir.get(key), tir.get(lo_key), tir.get(hi_key)
         if v is None:
