@@ -166,6 +166,9 @@ def test_characteristics_dispatch_to_their_formulas_in_the_report_signs():
         np.testing.assert_allclose(got, np.stack([out.Fx, out.Fy, out.Mz], -1), rtol=1e-13)
     char = tire_characteristic(P)
     assert char.nominal_load() == FZ0 and char.fit_loads() == (1900.0, 3800.0, 5700.0)
+    # a narrow load range clips two of the three loads to one: that load is fitted once
+    narrow = tire_characteristic(eqx.tree_at(lambda p: p.FZMAX, P, jnp.asarray(3000.0)))
+    assert narrow.fit_loads() == (1900.0, 3000.0)
     alpha = np.asarray(char.slip_grid()[1])
     np.testing.assert_allclose(alpha, -alpha[::-1])
     with pytest.raises(TypeError, match="got str"):
@@ -248,6 +251,14 @@ def test_show_refuses_a_file_whose_formula_overflows_naming_its_largest_coeffici
         assert (f"{bad}: the Magic Formula is not finite at {FZ0:g} N (peak_mu_x_driving, "
                 "peak_mu_x_braking, longitudinal_slip_stiffness_N)") in captured.err
         assert f"largest coefficient: PDX1 = 1e+308 (line {line})" in captured.err
+    # plot and fit-lugre refuse it the same way, before drawing or compiling, writing nothing
+    for command in (["plot", "--out", str(tmp_path / "c.png")],
+                    ["fit-lugre", "--out", str(tmp_path / "f.json")]):
+        assert main(["tire", command[0], str(bad), *command[1:]]) == 2
+        err = capsys.readouterr().err
+        assert f"{bad}: the Magic Formula is not finite at {FZ0:g} N" in err, err
+        assert f"PDX1 = 1e+308 (line {line})" in err and "compiling" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["huge.tir"]
 
 
 def test_show_says_where_a_curve_has_no_peak_inside_the_search(tmp_path, capsys):

@@ -199,7 +199,8 @@ _SUMMARY_NUMBERS = ("peak_mu_x_driving", "peak_mu_x_braking", "peak_mu_y",
 
 def _check_finite(tir, summary: dict) -> None:
     """A file whose formulas overflow (a coefficient of 1e308) is refused naming the numbers
-    that are not finite and the file's largest coefficient, rather than shown as NaN."""
+    that are not finite and the file's largest coefficient, rather than shown, drawn or
+    fitted as NaN (`summary` a `tire_summary`)."""
     bad = [k for k in _SUMMARY_NUMBERS if not math.isfinite(float(summary[k]))]
     if not bad:
         return
@@ -270,6 +271,7 @@ def _plot(args) -> int:
     writable_output("--out" if args.out else "--out (its default, FILE's name with "
                     "_curves.png in the current folder)", out, "file")
     tir, params = read_tire(args.file)
+    _check_finite(tir, tire_summary(tir, params, None))
     curves = tire_curves(params)
     fig = tire_curves_figure(curves, title=f"{Path(args.file).name}: Magic Formula "
                              f"{float(params.version):.1f} (ISO-W axes, the file's ranges "
@@ -327,6 +329,7 @@ def _fit_lugre(args) -> int:
     tir, params = read_tire(args.file)
     if loads is not None:
         _check_loads("--loads", loads, params)
+    _check_finite(tir, tire_summary(tir, params, None))
     print(f"vehsim tire fit-lugre: {args.file}, Magic Formula {float(params.version):.1f}, "
           f"at most {args.max_steps} Levenberg-Marquardt steps", file=sys.stderr, flush=True)
     fit, record = fit_lugre_to(params, args.speed, loads, args.max_steps)

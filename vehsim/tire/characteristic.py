@@ -106,7 +106,7 @@ class MFCharacteristic(AbstractCharacteristic):
     (`limits`).
 
     Fitted by default at $0.5, 1, 1.5\,F'_{z0}$ ($F'_{z0} = \lambda_{Fz0}F_{z0}$, the
-    reference; kept within [``FZMIN``, ``FZMAX``]), on the slip ratios of
+    reference; kept within [``FZMIN``, ``FZMAX``], each distinct load once), on the slip ratios of
     `default_slip_grid` and slip angles of both signs, $0.5° \le |\alpha| \le 20°$ (its
     shifts make the curves not odd), each kept within the file's valid ranges.
     """
@@ -125,7 +125,9 @@ class MFCharacteristic(AbstractCharacteristic):
 
     def fit_loads(self) -> tuple[float, ...]:
         lo, hi = float(self.params.FZMIN), float(self.params.FZMAX)
-        return tuple(float(np.clip(f * self.nominal_load(), lo, hi)) for f in (0.5, 1.0, 1.5))
+        # distinct: a narrow [FZMIN, FZMAX] clips two of them to the same load
+        return tuple(dict.fromkeys(float(np.clip(f * self.nominal_load(), lo, hi))
+                                   for f in (0.5, 1.0, 1.5)))
 
     def slip_grid(self):
         P = self.params
