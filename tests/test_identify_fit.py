@@ -409,6 +409,24 @@ def test_standard_errors_from_the_singular_values_of_the_jacobian():
     assert all(np.isnan(v) for v in standard_errors(J, r, names, np.inf).values())
 
 
+def test_forces_in_absurd_units_are_not_identifiable_not_successful(brakings):
+    """Forces recorded 1e297 times too large: the residuals, scaled by the peak force, barely
+    depend on the parameters, so the solver stops at once where the gradient is 0; its
+    standard errors overflow. The fit says not_identifiable, naming the largest force and
+    the units, with no overflow warning, rather than successful at the initial guess."""
+    import warnings
+
+    data = [eqx.tree_at(lambda x: x.F_x, brakings[name], brakings[name].F_x * 1e297)
+            for name in ("braking_1", "braking_2")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = fit_open_loop(data, n_starts=N_STARTS, throw=False)
+    assert res.result == RESULTS.not_identifiable and not res.converged
+    assert not all(np.isfinite(list(res.std_errors.values())))
+    assert "standard errors are not finite" in res.message
+    assert "check the force's units" in res.message and "e+30" in res.message
+
+
 def test_fewer_samples_than_free_parameters_are_not_identifiable():
     """Three samples cannot determine six parameters, however well conditioned their three
     singular values are (a 3 x 6 Jacobian of full row rank): the condition number is

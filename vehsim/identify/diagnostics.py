@@ -45,7 +45,8 @@ def force_errors(F_pred, F_meas) -> dict[str, float]:
     F_pred, F_meas = np.asarray(F_pred), np.asarray(F_meas)
     e = F_pred - F_meas
     peak = float(np.max(np.abs(F_meas)))
-    rms = float(np.sqrt(np.mean(e**2)))
+    with np.errstate(over="ignore"):  # inf for forces past 1e154 N
+        rms = float(np.sqrt(np.mean(e**2)))
     return {
         "rms_error_N": rms,
         "rms_error_rel_peak": rms / peak,
@@ -98,7 +99,8 @@ def standard_errors(J, r, names: Sequence[str], condition_number: float) -> dict
     _, sv, vt = np.linalg.svd(J, full_matrices=False)
     if not sv[-1] > 0:
         return {n: math.nan for n in names}
-    var = float(np.sum(r**2) / (N - p)) * np.sum((vt / sv[:, None]) ** 2, axis=0)
+    with np.errstate(over="ignore"):  # inf where the residuals barely move: `outcome`
+        var = float(np.sum(r**2) / (N - p)) * np.sum((vt / sv[:, None]) ** 2, axis=0)
     return {n: float(math.sqrt(var[i])) for i, n in enumerate(names)}
 
 
@@ -149,12 +151,15 @@ def stationary(diag: Diagnostics, gtol: float = GTOL, ftol: float = FTOL) -> boo
 
 
 def outcome(diag: Diagnostics, loss: float, theta, solver_result: RESULTS) -> RESULTS:
-    """The fit's `RESULTS` item: `nonfinite`, `not_identifiable`, else `successful` where
-    the solver converged or the optimum is `stationary`, else the solver's own result."""
+    """The fit's `RESULTS` item: `nonfinite`, `not_identifiable` (the Jacobian's condition
+    number, or standard errors that are not finite: residuals the parameters barely move,
+    as forces recorded in the wrong units give), else `successful` where the solver
+    converged or the optimum is `stationary`, else the solver's own result."""
     if not (np.isfinite(loss) and np.all(np.isfinite(theta))):
         return RESULTS.nonfinite
     if (not np.isfinite(diag.condition_number) or diag.condition_number > MAX_CONDITION_NUMBER
-            or diag.singular_values[0] == 0.0):
+            or diag.singular_values[0] == 0.0
+            or not np.all(np.isfinite(list(diag.std_errors.values())))):
         return RESULTS.not_identifiable
     if bool(is_successful(solver_result)) or stationary(diag):
         return RESULTS.successful

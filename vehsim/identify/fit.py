@@ -11,6 +11,7 @@ in four steps: prepare (check the arguments), solve, diagnose, assemble the `Fit
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -117,6 +118,11 @@ class FitResult:
         if bool(self.result == RESULTS.nonfinite):
             return "the fit produced non-finite values"
         if bool(self.result == RESULTS.not_identifiable):
+            if not all(math.isfinite(v) for v in self.std_errors.values()):
+                measured = max(e["peak_force_measured_N"] for e in self.errors.values())
+                return ("parameters not identifiable from these data: their standard errors "
+                        "are not finite, the residuals barely depend on them (the largest "
+                        f"measured |F_x| is {measured:.3g} N: check the force's units)")
             return (f"parameters not identifiable from these data (Jacobian condition number "
                     f"{self.condition_number:.3g}; is there slip excitation?)")
         return (f"Levenberg-Marquardt stopped after {self.num_steps} steps: "
@@ -419,8 +425,9 @@ def _assemble(problem: _Problem, braking, core: _FitCore, diag: Diagnostics,
     values = dict(zip(PARAMETER_NAMES, core.theta.tolist()))
     loss = float(0.5 * np.sum(r**2))  # data term only (without the prior)
     forces = braking.fitted_forces(core.model, problem.anon, r, problem.scales)
-    rms_F = float(np.sqrt(np.mean(np.concatenate(
-        [(F - np.asarray(d.F_x)) ** 2 for F, d in zip(forces, problem.data)]))))
+    with np.errstate(over="ignore"):  # inf for forces past 1e154 N
+        rms_F = float(np.sqrt(np.mean(np.concatenate(
+            [(F - np.asarray(d.F_x)) ** 2 for F, d in zip(forces, problem.data)]))))
     theta = core.theta[[PARAMETER_NAMES.index(n) for n in names]]
     solver_result = jax.tree.map(lambda x: x[best], core.results)
     return FitResult(
