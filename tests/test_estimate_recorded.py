@@ -289,6 +289,14 @@ GOOD_ROWS = "0.000,20,66.6,0\n0.001,20,66.5,10\n0.002,20,66.4,20\n0.003,20,66.3,
     ("t,v,omega,T_b\n" + GOOD_ROWS.replace("0.002,", "0.0025,"), [],
      "row 3, column 't': time must increase uniformly (steps within 1 % of the mean 0.001 s), "
      "got 0.0025 after 0.001;"),
+    # a time column in milliseconds (steps of 10 s) or in units of 1e-12 s
+    ("t,v,omega,T_b\n" + "".join(f"{10 * i},20,66.6,0\n" for i in range(4)), [],
+     "row 2, column 't': the sample step is 10 s; it must lie in [1e-05, 1] s (100 kHz to "
+     "1 Hz): is the time in seconds?"),
+    ("t,v,omega,T_b\n" + "".join(f"{i}e-12,20,66.6,0\n" for i in range(4)), [],
+     "row 2, column 't': the sample step is 1e-12 s; it must lie in [1e-05, 1] s"),
+    ("t,v,omega,T_b\n" + GOOD_ROWS, ["--sample-time", "2"],
+     "argument --sample-time: must be a finite number in [1e-05, 1] s, got '2'"),
     ("t,v,omega,T_b\n" + GOOD_ROWS.replace("0.000,20,66.6", "0.000,20,"), [],
      "row 1, column 'omega': the first sample starts the estimators"),
     ("t,v,omega,T_b\n" + GOOD_ROWS.replace(",20\n", ",-20\n"), [],
