@@ -286,6 +286,10 @@ GOOD_ROWS = "0.000,20,66.6,0\n0.001,20,66.5,10\n0.002,20,66.4,20\n0.003,20,66.3,
     ("t,v,omega\n0,20,66,\n", [], "column 'T_b': missing required column"),
     ("t,v,omega,T_b\n" + GOOD_ROWS.replace("0.002,20,", "0.002,fast,"), [],
      "row 3, column 'v': not a number: 'fast'"),
+    ("t,v,omega,T_b\n" + GOOD_ROWS.replace("0.002,20,", "0.002,2_0,"), [],
+     "row 3, column 'v': not a number: '2_0'"),  # Python's float reads 20
+    ("t,v,omega,T_b\n" + GOOD_ROWS, ["--mass", "3_50"],
+     "argument --mass: must be a finite number in (0, inf) kg, got '3_50'"),
     ("t,v,omega,T_b\n" + GOOD_ROWS.replace("0.002,", "0.0025,"), [],
      "row 3, column 't': time must increase uniformly (steps within 1 % of the mean 0.001 s), "
      "got 0.0025 after 0.001;"),

@@ -486,6 +486,14 @@ def test_an_unclosed_closed_road_is_refused():
 @pytest.mark.parametrize("text, match", [
     ("1,2,3\n4,5,6\n", r"bad.csv:1: no header line"),
     ("# x_m,y_m,w_tr_right_m\n0,0,1\n", r"missing column\(s\) w_tr_left_m"),
+    ("# x_m,y_m,w_tr_right_m\n", r"missing column\(s\) w_tr_left_m"),  # and no rows
+    # what Python's float reads but a data file does not mean: digit groups, other digits
+    ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1,1\n2,4_0,1,1\n",
+     r"bad.csv:4: y_m is not a number: '4_0'"),
+    ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,\uff11,1\n",
+     r"bad.csv:3: w_tr_right_m is not a number: '\uff11'"),
+    ("# end_gate: s=1_0\nx_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n",
+     r"bad.csv:1: end_gate: s must be a number or"),
     ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1,1\n2,zero,1,1\n",
      r"bad.csv:4: y_m is not a number: 'zero'"),
     ("x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,1,1\n1,0,1\n", r"bad.csv:3: 3 fields"),

@@ -9,6 +9,7 @@ import io
 import json
 import math
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +19,21 @@ import numpy as np
 
 
 T = TypeVar("T")
+
+_DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+_SPECIAL = ("nan", "inf", "infinity")
+
+
+def parse_number(text: str) -> float:
+    """The number a data file's cell or an option writes: a decimal number (ASCII digits, a
+    point, an exponent) or Python's ``nan`` and ``inf`` words, which callers refuse where a
+    value must be finite. Raises `ValueError` for anything else, including what Python's
+    `float` reads but a data file does not mean: digit groups (``4_0`` is 40 to Python) and
+    digits of other scripts."""
+    t = text.strip()
+    if _DECIMAL.fullmatch(t) or t.lower().lstrip("+-") in _SPECIAL:
+        return float(t)
+    raise ValueError(f"not a number: {text!r}")
 
 
 def _process_umask() -> int:

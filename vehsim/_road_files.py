@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ._checks import check_type
-from ._io import csv_rows, write_atomic
+from ._io import csv_rows, parse_number, write_atomic
 from .optimal.centreline import CentrelineRoad
 
 
@@ -66,7 +66,7 @@ def _meta_line(meta: dict, key: str, value: str, where: str) -> None:
             gate[name] = field.lower()
             continue
         try:
-            number = float(field)
+            number = parse_number(field)
         except ValueError:
             raise ValueError(f"{where}: {key}: {name} must be a number or "
                              f"{' or '.join(_WORDS[name])}, got {field!r}") from None
@@ -109,6 +109,16 @@ def _gate_text(road: CentrelineRoad, gate) -> str:
 def _header(fields: list[str]) -> list[str] | None:
     names = [f.strip() for f in fields]
     return names if {"x_m", "y_m"} <= set(names) else None
+
+
+def _check_header(path: Path, header: list[str]) -> None:
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found "
+                         f"{', '.join(header)}")
+    twice = sorted({c for c in COLUMNS if header.count(c) > 1})
+    if twice:
+        raise ValueError(f"{path}: column(s) {', '.join(twice)} named twice in the header")
 
 
 def read_road(path: str | os.PathLike, *, closed: bool | None = None, name: str | None = None,
@@ -162,13 +172,7 @@ def read_road(path: str | os.PathLike, *, closed: bool | None = None, name: str 
                 raise ValueError(f"{path}:{lineno}: missing column(s) {', '.join(missing)}; "
                                  f"found {', '.join(header)}")
             continue
-        missing = [c for c in COLUMNS if c not in header]
-        if missing:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found "
-                             f"{', '.join(header)}")
-        twice = sorted({c for c in COLUMNS if header.count(c) > 1})
-        if twice:
-            raise ValueError(f"{path}: column(s) {', '.join(twice)} named twice in the header")
+        _check_header(path, header)
         if len(fields) < len(header):
             raise ValueError(f"{path}:{lineno}: {len(fields)} fields, the header names "
                              f"{len(header)}")
@@ -179,13 +183,14 @@ def read_road(path: str | os.PathLike, *, closed: bool | None = None, name: str 
         for col in COLUMNS:
             field = fields[header.index(col)].strip()
             try:
-                row.append(float(field))
+                row.append(parse_number(field))
             except ValueError:
                 raise ValueError(f"{path}:{lineno}: {col} is not a number: {field!r}") from None
         rows.append(row)
         lines.append(lineno)
     if header is None:
         raise ValueError(f"{path}: no header line naming the columns {', '.join(COLUMNS)}")
+    _check_header(path, header)  # a commented header and no rows
     data = np.asarray(rows, float).reshape(-1, 4)
     if closed is None:
         closed = meta.get("closed", (None, False))[1]

@@ -39,8 +39,10 @@ def number(lower: float | None = None, upper: float | None = None, *, lower_open
     what = "a number (or inf)" if allow_inf else "a finite number"
 
     def parse(text: str) -> float:
+        from .._io import parse_number
+
         try:
-            x = float(text)
+            x = parse_number(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"must be {what} in {allowed}, got {text!r}") \
                 from None

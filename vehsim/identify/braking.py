@@ -40,7 +40,7 @@ from .._checks import (
     check_type,
     is_concrete,
 )
-from .._io import csv_rows, json_text, write_atomic_files
+from .._io import csv_rows, json_text, parse_number, write_atomic_files
 
 
 REQUIRED_COLUMNS = ("t", "v", "omega", "F_x", "F_n")
@@ -168,7 +168,7 @@ def _read_columns(path: Path, required=REQUIRED_COLUMNS, optional=OPTIONAL_COLUM
                 values[c][i - 1] = math.nan
                 continue
             try:
-                x = float(text)
+                x = parse_number(text)
             except ValueError:
                 _fail(path, i, c, f"not a number: {text!r}")
             if not math.isfinite(x):
