@@ -374,7 +374,8 @@ def test_bad_options_and_a_missing_file_in_a_real_process(tmp_path, capsys):
     """Bad option values exit 2 naming the option before anything is written; a missing
     file in a real process: exit 2, one line naming it, no traceback."""
     out = tmp_path / "fit.json"
-    for args in (["--loads", "3800,-1"], ["--loads", "3800,x"], ["--speed", "0"],
+    for args in (["--loads", "3800,-1"], ["--loads", "3800,x"], ["--loads", "3_800"],
+                 ["--speed", "0"],
                  ["--max-steps", "0"], ["--out", str(tmp_path / "fit.png")]):
         assert main(["tire", "fit-lugre", str(SAMPLE_PATH), "--out", str(out), *args]) == 2
         assert args[0] in capsys.readouterr().err

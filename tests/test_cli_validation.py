@@ -34,6 +34,8 @@ BAD = {
     "nan duration": (["sweep", "--duration", "nan"], "--duration"),
     "axis given twice": (["sweep", "--set", "m=1200", "--set", "m=1400"], "--set m"),
     "axis value not finite": (["sweep", "--set", "m=1200,inf"], "--set m"),
+    "axis value in digit groups": (["sweep", "--set", "m=1_200"],
+                                   "--set m: values must be numbers, got '1_200'"),
     "output extension": (["sweep", "--out", "{tmp}/s.csv"], "--out"),
     "negative speed on an axis": (["sweep", "--set", "speed=-3,2", "--out", "{tmp}/s.json"],
                                   "speed"),
@@ -94,6 +96,8 @@ BAD = {
     "a missing road file to drive": (["drive", "--road-file", "{tmp}/nope.csv"], "--road-file"),
     "a patch at minus infinity": (["drive", "--road", "corner90", "--patch", "-inf,2,3,0.5"],
                                   "--patch: must be X,Y,RADIUS,SCALE"),
+    "a patch in digit groups": (["drive", "--road", "corner90", "--patch", "1_0,2,3,0.5"],
+                                "--patch: must be X,Y,RADIUS,SCALE"),
     "frames without an animation": (["drive", "--road", "corner90", "--frame-every", "5",
                                      "--no-animation"], "--frame-every"),
     # estimate

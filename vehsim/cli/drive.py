@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+from .._io import parse_number
 from ..tire.tir import shipped_tires
 from ._drive_setup import MAX_DURATION
 
@@ -71,7 +72,7 @@ def patch(text: str) -> tuple[float, float, float, float]:
     rule = (f"must be X,Y,RADIUS,SCALE: four finite numbers, the centre [m], RADIUS > 0 m and "
             f"SCALE in [{MIN_GRIP:g}, {MAX_GRIP:g}] (relative to the nominal road)")
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(parse_number(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{rule}, got {text!r}") from None
     if len(values) != 4 or not all(math.isfinite(v) for v in values):

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .._io import parse_number
 from ._options import number
 
 
@@ -82,7 +83,7 @@ def parse_axes(items: list[str]) -> dict[str, list[float]]:
             raise ValueError(f"--set {name}: the axis is given twice; list its values in one "
                              f"flag, --set {name}=V1,V2,...")
         try:
-            axes[name] = [float(v) for v in values.split(",")]
+            axes[name] = [parse_number(v) for v in values.split(",")]
         except ValueError:
             raise ValueError(f"--set {name}: values must be numbers, got {values!r}") from None
         if not all(math.isfinite(v) for v in axes[name]):

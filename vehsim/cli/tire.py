@@ -283,10 +283,12 @@ def _plot(args) -> int:
 
 
 def _parse_loads(text):
+    from .._io import parse_number
+
     if text is None:
         return None
     try:
-        loads = [float(v) for v in text.split(",")]
+        loads = [parse_number(v) for v in text.split(",")]
     except ValueError:
         raise ValueError(f"--loads expects F1,F2,... in N, got {text!r}") from None
     for v in loads:
