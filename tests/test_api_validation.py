@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import vehsim as vs
+from vehsim.cli import main
 from vehsim.control.controllers.braking import RuleBasedABS
 from vehsim.control.estimation.mhe import MovingHorizonEstimator
 from vehsim.control.experiments.half_car_abs import turn_scenario
@@ -813,6 +814,25 @@ def test_close_times_that_float32_rounds_into_one_say_so(tmp_path):
         with pytest.raises(ValueError, match=r"BrakingData.t must increase strictly, got "
                            r"1000 after 1000 \(index 1\): in float32, .*jax_enable_x64"):
             vs.load_braking(path, r=0.3)
+
+
+def test_a_braking_timed_in_other_units_is_refused_on_reading_and_on_saving(tmp_path):
+    """Times in milliseconds read as seconds (a 2 s step) or in units of 1e-9 s: refused
+    naming column t and the step, by load_braking and by save_braking (what load_braking
+    would refuse is not saved), and by vehsim fit."""
+    for scale, step in ((1000.0, "2 s"), (1e-6, "2e-09 s")):
+        path = tmp_path / "b.csv"
+        path.write_text("t,v,omega,F_x,F_n\n" + "".join(
+            f"{i * 0.002 * scale!r},20,60,-100,3000\n" for i in range(5)))
+        message = (f"{path}: row 2, column 't': the sample step is {step}; it must lie in "
+                   "[1e-05, 1] s (100 kHz to 1 Hz): is the time in seconds?")
+        with pytest.raises(ValueError) as err:
+            load_braking(path, r=0.3)
+        assert str(err.value) == message
+        assert main(["fit", str(path), "--radius", "0.3", "--out", str(tmp_path / "o")]) == 2
+        with pytest.raises(ValueError, match="the sample step is"):
+            save_braking(_record(t=_record().t * scale), tmp_path / "saved.csv")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["b.csv"]
 
 
 def test_write_tir_refuses_what_read_tir_would_and_writes_nothing(tmp_path):

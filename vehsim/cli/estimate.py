@@ -28,11 +28,7 @@ from pathlib import Path
 
 
 ESTIMATORS = ("observer", "mhe", "peak")
-STEP_RANGE = (1e-5, 1.0)
-"""The sample steps [s] of a record and of the estimator (``--sample-time``): from 100 kHz
-to 1 Hz. A step outside is most likely a time column in another unit (milliseconds read
-as seconds, or the reverse), where the estimators would integrate the wheel across seconds
-at a step or follow it for microseconds."""
+
 REQUIRED = ("t", "v", "omega", "T_b")
 OPTIONAL = ("F_x", "F_n", "theta")
 UNITS = {"t_s": "s", "theta": "1", "theta_se": "1", "peak_slip": "1", "peak_mu": "1",
@@ -42,6 +38,7 @@ UNITS = {"t_s": "s", "theta": "1", "theta_se": "1", "peak_slip": "1", "peak_mu":
 
 
 def register(subparsers) -> None:
+    from .._constants import SAMPLE_STEP_RANGE
     from ._options import choice_of, integer, number
 
     p = subparsers.add_parser(
@@ -75,7 +72,7 @@ def register(subparsers) -> None:
                    help="wheel inertia [kg m^2] (default: side file, else 1.0)")
     p.add_argument("--normal-load", type=number(0.0, lower_open=True, unit="N"), default=None,
                    help="normal load [N] (default: the mean of F_n if recorded, else m g)")
-    p.add_argument("--sample-time", type=number(*STEP_RANGE, unit="s"), default=None,
+    p.add_argument("--sample-time", type=number(*SAMPLE_STEP_RANGE, unit="s"), default=None,
                    help="the estimator's step [s], a whole multiple of the record's "
                         "(default: the record's step)")
     p.add_argument("--window", type=integer(2, 100_000), default=None,
@@ -101,6 +98,7 @@ def read_recorded_braking(path) -> tuple:
         _read_columns,
         braking_path,
         check_magnitudes,
+        check_sample_step,
         read_side_file,
     )
 
@@ -115,10 +113,7 @@ def read_recorded_braking(path) -> tuple:
         _fail(path, k + 1, "t", f"time must increase uniformly (steps within 1 % of the mean "
               f"{np.mean(dt):g} s), got {values['t'][k]:g} after {values['t'][k - 1]:g}; "
               "resample the record first")
-    h = (values["t"][-1] - values["t"][0]) / (n - 1)
-    if not STEP_RANGE[0] <= h <= STEP_RANGE[1]:
-        _fail(path, 2, "t", f"the sample step is {h:g} s; it must lie in [{STEP_RANGE[0]:g}, "
-              f"{STEP_RANGE[1]:g}] s (100 kHz to 1 Hz): is the time in seconds?")
+    check_sample_step(path, values["t"])
     if math.isnan(values["omega"][0]):
         _fail(path, 1, "omega", "the first sample starts the estimators and must be present")
     check_magnitudes(path, values)

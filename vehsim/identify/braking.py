@@ -40,6 +40,7 @@ from .._checks import (
     check_type,
     is_concrete,
 )
+from .._constants import SAMPLE_STEP_RANGE
 from .._io import csv_rows, json_text, parse_number, write_atomic_files
 
 
@@ -187,8 +188,18 @@ def braking_path(path) -> Path:
     return path
 
 
+def check_sample_step(path, t) -> None:
+    """Refuse a record whose mean step lies outside `SAMPLE_STEP_RANGE`, naming column t."""
+    h = (float(t[-1]) - float(t[0])) / (len(t) - 1)
+    lo, hi = SAMPLE_STEP_RANGE
+    if not lo <= h <= hi:
+        _fail(path, 2, "t", f"the sample step is {h:g} s; it must lie in [{lo:g}, {hi:g}] s "
+              "(100 kHz to 1 Hz): is the time in seconds?")
+
+
 def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
-    """At least 3 rows, time strictly increasing, speed, load and torque not negative."""
+    """At least 3 rows, time strictly increasing at a mean step in `SAMPLE_STEP_RANGE`,
+    speed, load and torque not negative."""
     if len(values["t"]) < 3:
         raise ValueError(f"{path}: need at least 3 data rows, got {len(values['t'])}")
     dt = np.diff(values["t"])
@@ -196,6 +207,7 @@ def _check_columns(path: Path, values: dict[str, np.ndarray]) -> None:
         i = int(np.argmax(dt <= 0)) + 2
         _fail(path, i, "t", f"time must increase strictly, got {float(values['t'][i - 1]):g} after "
               f"{float(values['t'][i - 2]):g}")
+    check_sample_step(path, values["t"])
     check_magnitudes(path, values)
 
 
