@@ -230,6 +230,10 @@ def test_values_outside_their_stated_ranges_are_refused(tmp_path):
                                                                "(0, inf)", "4.E21"])
     text = SMALL.replace("FZMAX                    = 10000", "FZMAX                    = 50")
     _refused(tmp_path, text, _line_of(text, "FZMAX"), "FZMAX", ["below FZMIN"])
+    for pdx1 in ("0", "-1.1"):  # no longitudinal grip, or a force against the slip
+        text = SMALL.replace("PDX1                     = 1.1", f"PDX1 = {pdx1}")
+        _refused(tmp_path, text, _line_of(text, "PDX1"), "PDX1", ["outside its stated range",
+                                                                   "(0, inf)", "4.E13"])
     # a load range, slip ratio range or slip angle range with no width, a negative load;
     # a file measured at one pressure may give it as both ends of its range
     text = SMALL.replace("FZMAX                    = 10000", "FZMAX                    = 100")

@@ -135,7 +135,8 @@ REQUIRED["6.2"] = REQUIRED["6.1"]
 
 # Stated ranges: key -> (lower, upper, lower_open, upper_open, what states it). The shape
 # factors are positive (Pacejka 2012, 4.E11, 4.E21, 4.E41: "(> 0)"), so are the nominal
-# load, radius, pressure, the speeds and the load scaling.
+# load, radius, pressure, the speeds, the load scaling and the longitudinal friction PDX1
+# (the lateral PDY1 is not: its sign follows the file's axes).
 RANGES: dict[str, tuple[float, float, bool, bool, str]] = {
     "FNOMIN": (0.0, math.inf, True, False, "the nominal load is positive"),
     "FZMIN": (0.0, math.inf, False, False, "a wheel load is not negative"),
@@ -146,6 +147,8 @@ RANGES: dict[str, tuple[float, float, bool, bool, str]] = {
     "VXLOW": (0.0, math.inf, True, False, "the low-speed threshold is positive"),
     "LFZO": (0.0, math.inf, True, False, "the load scaling factor is positive"),
     "PCX1": (0.0, math.inf, True, False, "C_x > 0 (4.E11)"),
+    "PDX1": (0.0, math.inf, True, False, "the longitudinal friction at the nominal load, "
+                                         "mu_x of 4.E13, is positive: D_x = mu_x F_z (4.E12)"),
     "PCY1": (0.0, math.inf, True, False, "C_y > 0 (4.E21)"),
     "QCZ1": (0.0, math.inf, True, False, "C_t > 0 (4.E41)"),
     "PKY2": (0.0, math.inf, True, False, "the load of peak cornering stiffness is positive "
