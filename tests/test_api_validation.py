@@ -141,6 +141,13 @@ def test_a_shipped_magic_formula_file_and_the_default_pass_the_checks():
         MFParams.from_tir(vs.read_tir(path))
 
 
+def _measured():
+    """A short braking as a recorder writes it."""
+    t = np.linspace(0.0, 0.2, 201)
+    v = 30.0 - 15.0 * t
+    return vs.MeasuredBraking(t, v, v / 0.3 * 0.92, np.full_like(t, 800.0))
+
+
 def _record(**changes):
     d = load_braking(next(iter(shipped_brakings().values())))
     for name, value in changes.items():
@@ -611,6 +618,18 @@ CASES |= {
     "an open-loop prediction of no substeps": (
         lambda: vs.predict_open_loop(vs.LumpedLuGre(P), _record(), substeps=0),
         "predict_open_loop: substeps must be an integer >= 1, got 0"),
+    "an estimate of no substeps": (
+        lambda: vs.estimate_friction(_measured(), vs.FrictionObserver(vs.LumpedLuGre(P)),
+                                     substeps=0),
+        "estimate_friction: substeps must be an integer >= 1, got 0"),
+    "an estimate of fractional substeps": (
+        lambda: vs.estimate_friction(_measured(), vs.FrictionObserver(vs.LumpedLuGre(P)),
+                                     substeps=2.7),
+        "estimate_friction: substeps must be an integer >= 1, got 2.7"),
+    "a moving-horizon stride of a fraction": (
+        lambda: vs.estimate_friction(_measured(), vs.MovingHorizonEstimator(vs.LumpedLuGre(P)),
+                                     stride=2.5),
+        "estimate_friction: stride must be an integer >= 1, got 2.5"),
     "a road of negative friction scale": (
         lambda: vs.scale_friction(vs.LumpedLuGre(P), -1.0),
         "scale_friction.scale must lie in (0, inf), got -1"),

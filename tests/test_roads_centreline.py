@@ -472,6 +472,9 @@ def test_gates_off_the_road_are_refused(loop):
     ([("spiral", 3.0)], "unknown kind 'spiral'"),
     ([("arc", -5.0, 90.0)], r"segment 0 \(arc\): radius must be > 0 m, got -5"),
     ([("straight", 5.0), ("straight", 0.0)], r"segment 1 \(straight\) has length 0 m"),
+    ([("straight", 50.0), ("clothoid", 20.0, float("nan"))],
+     r"segment 1 \(clothoid\): end_curvature must be finite \[1/m\], got nan"),
+    ([("clothoid", 20.0, float("inf"))], r"segment 0 \(clothoid\): end_curvature must be finite"),
 ])
 def test_bad_segments_are_refused(segs, match):
     with pytest.raises(ValueError, match=match):

@@ -614,6 +614,9 @@ class CentrelineRoad(eqx.Module):
                 k_a = k_b = math.copysign(1.0 / radius, angle)
             elif kind == "clothoid":
                 length, k_b = (float(v) for v in seg[1:])
+                if not math.isfinite(k_b):
+                    raise ValueError(f"road {name!r}: segment {idx} ({kind}): end_curvature "
+                                     f"must be finite [1/m], got {k_b:g}")
                 k_a = k_prev
             else:
                 raise ValueError(f"road {name!r}: segment {idx}: unknown kind {kind!r}; "

@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._checks import is_concrete
+from ..._checks import check_count, is_concrete
 from ..._fields import array_field
 from ..._results import RESULTS
 from ...vehicle.quarter_car import QuarterCar
@@ -268,6 +268,9 @@ def estimate_friction(record: MeasuredBraking,
         raise TypeError(f"estimate_friction: estimator must be a FrictionObserver, a "
                         f"PeakEstimator or a MovingHorizonEstimator, got "
                         f"{type(estimator).__name__}")
+    check_count("estimate_friction", "substeps", substeps, sep=": ")
+    if stride is not None:
+        check_count("estimate_friction", "stride", stride, sep=": ")
     car = _assumed_car(estimator) if car is None else car
     hardware = ideal_hardware(sample_time=record.sample_time) if hardware is None else hardware
     _check_hardware(hardware)
@@ -279,9 +282,6 @@ def estimate_friction(record: MeasuredBraking,
         return _run(estimator, car, hardware, int(substeps), BrakingRecord.from_signals(s))
     N = s["ts"].size
     stride = max(estimator.window // 2, 1) if stride is None else int(stride)
-    if stride < 1:
-        raise ValueError(f"estimate_friction: stride must be a positive number of samples, got "
-                         f"{stride}")
     if N <= estimator.window:
         raise ValueError(f"estimate_friction: the record has {N} estimator samples, fewer than "
                          f"one window of {estimator.window} + 1")
