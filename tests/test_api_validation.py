@@ -618,6 +618,15 @@ CASES |= {
     "an open-loop prediction of no substeps": (
         lambda: vs.predict_open_loop(vs.LumpedLuGre(P), _record(), substeps=0),
         "predict_open_loop: substeps must be an integer >= 1, got 0"),
+    "a fit holding kappa0 at NaN": (
+        lambda: vs.fit_open_loop(_record(), fixed={"kappa0": float("nan")}),
+        "fixed.kappa0 must be finite, got nan"),
+    "a fit holding kappa0 below 0": (
+        lambda: vs.fit_open_loop(_record(), fixed={"kappa0": -1.0}),
+        "fixed.kappa0 must lie in [0, inf), got -1"),
+    "a fit holding mu_c at 0": (
+        lambda: vs.fit_closed_loop(_record(), fixed={"mu_c": 0.0}),
+        "fixed.mu_c must lie in (0, inf), got 0"),
     "an estimate of no substeps": (
         lambda: vs.estimate_friction(_measured(), vs.FrictionObserver(vs.LumpedLuGre(P)),
                                      substeps=0),

@@ -208,7 +208,8 @@ def fit_open_loop(data, init: LumpedLuGre | None = None, *, free=DEFAULT_FREE, f
       fixed quantities (`L`, and `alpha`, `theta` unless freed).
     - `free`: names to fit (default sigma0, sigma1, mu_c, mu_s, v_s, kappa0; sigma2 stays
       at the initial guess unless freed, see `DEFAULT_FREE`; alpha, theta may be freed).
-    - `fixed`: ``{name: value}`` held fixed (e.g. ``{"kappa0": 1.0}``, report Fig. 10).
+    - `fixed`: ``{name: value}`` held fixed (e.g. ``{"kappa0": 1.0}``, report Fig. 10): a
+      finite number, positive, or 0 for `MAY_BE_HELD_AT_0` (checked before anything runs).
     - `n_starts`, `spread`, `key`: multi-start: the initial guess plus `n_starts - 1` starts
       at $\log\theta_0 + $ `spread` $\cdot N(0, 1)$, all solved in one vmapped call.
     - `tol`: Levenberg-Marquardt `rtol` = `atol`; `max_steps` its step limit.
@@ -284,6 +285,11 @@ def _check_options(n_starts, spread, tol, max_steps, prior_weight) -> None:
     check_nonnegative("fit", "prior_weight", prior_weight)
 
 
+MAY_BE_HELD_AT_0 = ("sigma1", "sigma2", "kappa0")
+"""The quantities a fit may hold at 0 (damping or the lumped term switched off); every other
+one is held at a positive value."""
+
+
 def _prepare(data, init, free, fixed) -> _Problem:
     """The arguments checked, the initial guess with the fixed values, the scales."""
     data = [data] if isinstance(data, BrakingData) else list(data)
@@ -294,6 +300,11 @@ def _prepare(data, init, free, fixed) -> _Problem:
     for n in list(fixed) + list(free):
         if n not in PARAMETER_NAMES:
             raise ValueError(f"unknown parameter {n!r}; known: {list(PARAMETER_NAMES)}")
+    for n, v in fixed.items():  # before `with_values`, which skips the models' checks
+        if isinstance(v, bool) or not isinstance(v, int | float | np.number | np.ndarray
+                                                  | jax.Array):
+            raise TypeError(f"fixed.{n} must be a number, got {type(v).__name__}")
+        check_range("fixed", n, v, lower=0.0, lower_open=n not in MAY_BE_HELD_AT_0)
     if fixed:
         model = with_values(model, fixed)
     names = tuple(n for n in PARAMETER_NAMES if n in free and n not in fixed)
