@@ -11,6 +11,7 @@ import pytest
 import scipy.linalg
 
 from vehsim import (
+    RESULTS,
     ROS34PW2,
     HalfCar,
     IsotropicLumpedLuGre,
@@ -341,6 +342,21 @@ def test_explicit_derivative_from_exact_free_rolling_has_a_default_step_ceiling(
             np.testing.assert_allclose(grad, fd, rtol=2e-3)
         else:
             assert not abs(grad - fd) < 10 * abs(fd)
+
+
+def test_a_static_tire_car_starts_from_rest_without_a_ceiling_as_under_jit():
+    """From rest the static tire's slip stiffness asks for steps below `CEILING_FLOOR`, so
+    the default sets no ceiling: eagerly (where the ceiling is concrete, and was refused as
+    a dtmax of inf, a setting never given) as under `jax.jit` (where it is traced), to the
+    same states; the drive torque moves the car forwards."""
+    car = HalfCar(rally_gravel(), rally_gravel_tire())
+    ts = jnp.linspace(0.0, 1.0, 11)
+    u = jnp.array([200.0, 200.0, 0.0])
+    eager = simulate(car, ts, u, car.init_state(vx=0.0))
+    traced = jax.jit(lambda y0: simulate(car, ts, u, y0).states)(car.init_state(vx=0.0))
+    assert eager.result == RESULTS.successful
+    np.testing.assert_allclose(eager.states, traced, rtol=1e-9, atol=1e-12)
+    assert np.all(np.diff(np.asarray(eager["vx"])) > 0)
 
 
 def test_stability_boundaries_and_the_spectral_radius_bound_match_their_closed_forms():

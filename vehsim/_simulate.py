@@ -224,6 +224,8 @@ def simulate(
     u_fn, sampled = as_controls(ts, inputs, len(vehicle.control_names))
     if dtmax is None and stepsize_controller is None:
         dtmax = stiffness_ceiling(vehicle, solver, u_fn, ts[0], state0)
+        if dtmax is not None and is_concrete(dtmax) and not np.isfinite(dtmax):
+            dtmax = None  # no ceiling (a static tire near standstill): not a setting to refuse
 
     def vector_field(t, y, args):
         return vehicle.f(y, u_fn(t, y))
