@@ -343,6 +343,9 @@ def test_recorded_braking_refuses_what_the_estimators_cannot_use():
     with pytest.raises(ValueError, match="MeasuredBraking.v must be finite, got nan at "
                                          "sample 2"):
         MeasuredBraking(t, np.where(np.arange(5) == 2, np.nan, 1.0), ones, ones)
+    with pytest.raises(ValueError, match=r"MeasuredBraking.v must be >= 0 \(the forward speed "
+                                         r"of a braking\), got -1.0 at sample 0"):
+        MeasuredBraking(t, -ones, ones, ones)
     with pytest.raises(ValueError, match="MeasuredBraking.omega: the first sample"):
         MeasuredBraking(t, ones, np.where(np.arange(5) == 0, np.nan, 1.0), ones)
     with pytest.raises(ValueError, match=r"MeasuredBraking.torque must have the shape of t"):

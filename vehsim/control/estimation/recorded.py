@@ -76,7 +76,7 @@ def nonuniform_step(t) -> int | None:
 
 class MeasuredBraking(eqx.Module):
     r"""A recorded braking (module docstring): times `t` [s] (uniform), vehicle speed `v`
-    [m/s], wheel speed `omega` [rad/s] (NaN where missing), brake torque `torque` [N m]
+    [m/s] ($\ge 0$), wheel speed `omega` [rad/s] (NaN where missing), brake torque `torque` [N m]
     ($\ge 0$, as it acted), and optionally the friction force `F_x` and the normal load
     `F_n` [N] (`None` when not recorded). All arrays one-dimensional of one length, at
     least 3 samples."""
@@ -119,11 +119,12 @@ class MeasuredBraking(eqx.Module):
         if np.isnan(float(self.omega[0])):
             raise ValueError(f"{owner}.omega: the first sample starts the estimators and must "
                              "be present, got NaN")
-        for name in ("torque", "F_n"):
+        for name, what in (("v", "the forward speed of a braking"), ("torque", "a magnitude"),
+                           ("F_n", "a magnitude")):
             a = getattr(self, name)
             if a is not None and np.any(np.asarray(a) < 0):
                 k = int(np.argmax(np.asarray(a) < 0))
-                raise ValueError(f"{owner}.{name} must be >= 0 (a magnitude), got "
+                raise ValueError(f"{owner}.{name} must be >= 0 ({what}), got "
                                  f"{float(a[k])} at sample {k}")
 
     @property
