@@ -627,6 +627,13 @@ CASES |= {
     "a fit holding mu_c at 0": (
         lambda: vs.fit_closed_loop(_record(), fixed={"mu_c": 0.0}),
         "fixed.mu_c must lie in (0, inf), got 0"),
+    "a drive table too coarse for the road's corners": (
+        lambda: vs.drive_scenario("corner90", table_spacing=1e300),
+        "RoadTable.from_road: spacing must lie in (0, 1] m (the table resolves the road's "
+        "corners), got 1e+300"),
+    "a drive starting faster than the planners' cap": (
+        lambda: vs.drive_scenario("corner90", start_speed=1e300),
+        "drive_scenario: start_speed must lie in (0, 80] m/s, got 1e+300"),
     "an estimate of no substeps": (
         lambda: vs.estimate_friction(_measured(), vs.FrictionObserver(vs.LumpedLuGre(P)),
                                      substeps=0),

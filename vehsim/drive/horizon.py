@@ -90,6 +90,9 @@ EXTENSION = 60.0
 """Length [m] of the straight that extends an open road past its end in a `RoadTable`."""
 BACK_EXTENSION = 5.0
 """Length [m] of the straight before an open road's start in a `RoadTable`."""
+MAX_SPACING = 1.0
+"""The largest spacing [m] of a `RoadTable`: its samples must resolve the road's corners
+and the position search around the guess (`SEARCH_DISTANCE` each side)."""
 SEARCH_DISTANCE = 4.0
 """Distance [m] on each side of the guess over which `RoadTable.to_frenet` compares
 samples."""
@@ -142,15 +145,16 @@ class RoadTable(eqx.Module):
     @classmethod
     def from_road(cls, road, spacing: float = 0.1, num_points: int | None = None, *,
                   scale: float = 1.0, extension: float = EXTENSION) -> RoadTable:
-        """The table of ``road`` (a `CentrelineRoad`) at ``spacing`` [m] (a closed road:
-        the nearest spacing that divides its length). ``num_points``: the number of samples
+        """The table of ``road`` (a `CentrelineRoad`) at ``spacing`` [m] (at most
+        `MAX_SPACING`; a closed road: the nearest spacing that divides its length). ``num_points``: the number of samples
         (default: just enough); more pad the table (an open road's end straight grows, a
         closed road repeats its last sample), fewer are refused. ``scale``: the constant
         friction scale column (`with_grip` sets a varying one); ``extension`` [m]: the
         straight past an open road's end (at least the horizon)."""
         spacing = float(spacing)
-        if not (math.isfinite(spacing) and spacing > 0):
-            raise ValueError(f"RoadTable.from_road: spacing must be > 0 m, got {spacing}")
+        if not (math.isfinite(spacing) and 0 < spacing <= MAX_SPACING):
+            raise ValueError(f"RoadTable.from_road: spacing must lie in (0, {MAX_SPACING:g}] m "
+                             f"(the table resolves the road's corners), got {spacing:g}")
         L = float(road.length)
         closed = bool(getattr(road, "closed", False))
         if closed:

@@ -143,6 +143,10 @@ START_SPEEDS = {"corner90": 8.0, "uturn": 7.0, "sturn": 7.0, "stage": 12.0}
 TIME_BUDGETS = {"corner90": 6.0, "uturn": 9.0, "sturn": 9.0, "stage": 30.0}
 """Time budget [s] of each road's drives."""
 
+MAX_START_SPEED = 80.0
+"""The highest start speed [m/s] `drive_scenario` takes: the planners' speed cap
+(`vehsim.optimal.curvilinear.SPEED_CAP`), 288 km/h."""
+
 MAX_TIME_BUDGET = 3600.0
 """The longest time budget [s] `drive_scenario` takes: an hour, 72,000 samples at 20 Hz,
 whose record a drive keeps in memory."""
@@ -577,8 +581,9 @@ def drive_scenario(road_name: str, grip_name: str = "nominal", *,
     road = scenario_road(road_name)
     grip = scenario_grip(grip_name, road)
     v0 = START_SPEEDS[road_name] if start_speed is None else float(start_speed)
-    if not (math.isfinite(v0) and v0 > 0):
-        raise ValueError(f"drive_scenario: start_speed must be > 0 m/s, got {v0:g}")
+    if not (math.isfinite(v0) and 0 < v0 <= MAX_START_SPEED):
+        raise ValueError(f"drive_scenario: start_speed must lie in (0, {MAX_START_SPEED:g}] "
+                         f"m/s, got {v0:g}")
     budget = TIME_BUDGETS[road_name] if time_budget is None else float(time_budget)
     if not (math.isfinite(budget) and 0 < budget <= MAX_TIME_BUDGET):
         raise ValueError(f"drive_scenario: time_budget must lie in (0, {MAX_TIME_BUDGET:g}] s,"
