@@ -174,6 +174,31 @@ def test_bad_member_values_are_refused_before_the_run(capsys, tmp_path):
     assert "--set m=-5: HalfCarParams.m must lie in (0, inf), got -5" in capsys.readouterr().err
 
 
+def test_members_set_with_tree_at_meet_the_constructors_checks_before_the_run():
+    """The scenario of docs/sweeps.md edits the car with `eqx.tree_at`, which runs no
+    construction check: a NaN mass, a negative peak friction or a NaN start speed is still
+    refused before the run with the single model's error, not run into max_steps_reached
+    or a successful drive on negative grip."""
+    base = HalfCar(rally_gravel(), rally_gravel_tire())
+
+    def scenario(member):
+        car = eqx.tree_at(lambda c: (c.params.m, c.tire.D), base, (member["m"], member["D"]))
+        return car, step_steer(0.06, t_step=0.2), car.init_state(vx=member["speed"])
+
+    traces = eqx.debug.get_num_traces(_sweep_run)
+    ts = jnp.linspace(0.0, 1.0, 3)
+    for grid, message in (
+            (dict(m=[1200.0, np.nan], D=[0.5, 0.6], speed=[10.0, 20.0]),
+             r"^m=nan: HalfCarParams\.m must be finite, got nan$"),
+            (dict(m=[1450.0, 1200.0], D=[0.5, -1.0], speed=[10.0, 20.0]),
+             r"^D=-1: FrictionEllipseTire\.D must lie in \(0, inf\), got -1$"),
+            (dict(m=[1450.0, 1200.0], D=[0.5, 0.6], speed=[10.0, np.nan]),
+             r"^speed=nan: simulate: state0 must be finite; non-finite values in vx, ")):
+        with pytest.raises(ValueError, match=message):
+            sweep(scenario, sweep_grid(**grid), ts)
+    assert eqx.debug.get_num_traces(_sweep_run) == traces  # nothing was compiled or run
+
+
 def test_cli_sweep_notes_a_lifted_axle_and_writes_netcdf_for_an_upper_case_suffix(tmp_path,
                                                                                 capsys):
     """Braking in a turn with the centre of mass 30 m up lifts both axles' loads below 0

@@ -7,6 +7,7 @@ batched and differentiated freely.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import operator
 
@@ -211,3 +212,33 @@ def require_float64(what: str, why: str) -> None:
     if not jax.config.jax_enable_x64:
         raise ValueError(f"{what} needs float64: call jax.config.update('jax_enable_x64', "
                          f"True) first. {why}")
+
+
+def recheck_modules(tree) -> None:
+    """Run the construction checks (``__check_init__``) of every `eqx.Module` in `tree`, its
+    submodules first: a model edited with `eqx.tree_at`, which builds no new module and so
+    runs none of them, meets the checks its values would meet in its constructor (the
+    concrete ones; traced values are not looked at, as in the constructors)."""
+    import equinox as eqx
+
+    seen = set()
+
+    def visit(x):
+        if isinstance(x, eqx.Module):
+            if id(x) in seen:
+                return
+            seen.add(id(x))
+            for f in dataclasses.fields(x):
+                visit(getattr(x, f.name, None))
+            for cls in reversed(type(x).__mro__):
+                check = cls.__dict__.get("__check_init__")
+                if check is not None:
+                    check(x)
+        elif isinstance(x, list | tuple):
+            for y in x:
+                visit(y)
+        elif isinstance(x, dict):
+            for y in x.values():
+                visit(y)
+
+    visit(tree)

@@ -24,9 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
-from ._checks import check_times
+from ._checks import check_times, recheck_modules
 from ._results import RESULTS
-from ._simulate import Trajectory, simulate
+from ._simulate import Trajectory, _check_finite_start, simulate
 from .progress import progress_bar, resolve
 from .sharding import gather_members, num_members, pad_members, put_members, sharded_vmap
 
@@ -85,7 +85,9 @@ def check_members(scenario: Callable, members: PyTree) -> None:
     r"""Build `scenario` eagerly for every value each leaf of `members` takes (the other
     leaves at their first member's value), or for every member when that is fewer: the
     models' construction checks then see concrete numbers and raise their `ValueError`
-    (naming the field and its allowed range) before any batched work. The error is
+    (naming the field and its allowed range) before any batched work. Models the scenario
+    edits with `eqx.tree_at` meet the same checks (`recheck_modules`), and the start state
+    and input arrays must be finite, as `simulate` requires. The error is
     prefixed with the member's leaf and value that raised it (``m=-1: HalfCarParams.m must
     ...``), or with the member's index when every member is probed."""
     n = num_members(members)
@@ -95,14 +97,20 @@ def check_members(scenario: Callable, members: PyTree) -> None:
     first = [a[0] for a in arrays]
     probes = []
     for i, a in enumerate(arrays):
-        _, where = np.unique(a.reshape(n, -1), axis=0, return_index=True)
+        where = {}  # each distinct value's first member, NaN one value (np.unique's are not)
+        for j, row in enumerate(a.reshape(n, -1)):
+            where.setdefault(np.ascontiguousarray(row).tobytes(), j)
         probes += [(f"{names[i]}={_value_text(a[j])}", first[:i] + [a[j]] + first[i + 1:])
-                   for j in sorted(where)]
+                   for j in sorted(where.values())]
     if len(probes) > n:
         probes = [(f"member {j}", [a[j] for a in arrays]) for j in range(n)]
     for label, probe in probes:
         try:
-            scenario(jax.tree.unflatten(treedef, [jnp.asarray(x) for x in probe]))
+            built = scenario(jax.tree.unflatten(treedef, [jnp.asarray(x) for x in probe]))
+            recheck_modules(built)  # models edited with eqx.tree_at ran no checks
+            if isinstance(built, tuple) and len(built) == 3:
+                vehicle, inputs, state0 = built
+                _check_finite_start(vehicle, jnp.asarray(state0, dtype=float), inputs)
         except ValueError as e:
             raise ValueError(f"{label}: {e}") from None
 
