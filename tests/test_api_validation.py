@@ -627,6 +627,12 @@ CASES |= {
     "a fit holding mu_c at 0": (
         lambda: vs.fit_closed_loop(_record(), fixed={"mu_c": 0.0}),
         "fixed.mu_c must lie in (0, inf), got 0"),
+    "a control function that is NaN at the start": (
+        lambda: vs.simulate(vs.HalfCar(vs.rally_gravel(), vs.rally_gravel_tire()),
+                            jnp.linspace(0.0, 1.0, 3), lambda t, y: jnp.array([0.0, 0.0, jnp.nan]),
+                            vs.HalfCar(vs.rally_gravel(), vs.rally_gravel_tire()).init_state(
+                                vx=15.0)),
+        "simulate: inputs(t0, state0) must be finite; non-finite values in delta"),
     "a drive table too coarse for the road's corners": (
         lambda: vs.drive_scenario("corner90", table_spacing=1e300),
         "RoadTable.from_road: spacing must lie in (0, 1] m (the table resolves the road's "

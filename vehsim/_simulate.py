@@ -149,6 +149,19 @@ def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
         raise ValueError(f"simulate: {what} must be finite; non-finite values in {named}")
 
 
+def _check_finite_controls(vehicle: AbstractVehicle, u0) -> None:
+    """A control function whose value at the start is not finite is refused by name, as a
+    constant input is (`_check_finite_start`), rather than spending the step budget."""
+    if not is_concrete(u0):
+        return
+    v = np.asarray(u0, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(v)):
+        named = ", ".join(vehicle.control_names[c] if c < len(vehicle.control_names) else str(c)
+                          for c in np.flatnonzero(~np.isfinite(v)))
+        raise ValueError(f"simulate: inputs(t0, state0) must be finite; non-finite values in "
+                         f"{named}")
+
+
 def simulate(
     vehicle: AbstractVehicle,
     ts: Float[Array, " T"],
@@ -222,6 +235,8 @@ def simulate(
     state0 = jnp.asarray(state0, dtype=float)
     _check_finite_start(vehicle, state0, inputs)
     u_fn, sampled = as_controls(ts, inputs, len(vehicle.control_names))
+    if callable(inputs) and is_concrete(state0) and is_concrete(ts):
+        _check_finite_controls(vehicle, u_fn(ts[0], state0))
     if dtmax is None and stepsize_controller is None:
         dtmax = stiffness_ceiling(vehicle, solver, u_fn, ts[0], state0)
         if dtmax is not None and is_concrete(dtmax) and not np.isfinite(dtmax):

@@ -146,11 +146,12 @@ class RoadTable(eqx.Module):
     def from_road(cls, road, spacing: float = 0.1, num_points: int | None = None, *,
                   scale: float = 1.0, extension: float = EXTENSION) -> RoadTable:
         """The table of ``road`` (a `CentrelineRoad`) at ``spacing`` [m] (at most
-        `MAX_SPACING`; a closed road: the nearest spacing that divides its length). ``num_points``: the number of samples
-        (default: just enough); more pad the table (an open road's end straight grows, a
-        closed road repeats its last sample), fewer are refused. ``scale``: the constant
-        friction scale column (`with_grip` sets a varying one); ``extension`` [m]: the
-        straight past an open road's end (at least the horizon)."""
+        `MAX_SPACING`; a closed road: the nearest spacing that divides its length).
+        ``num_points``: the number of samples (default: just enough); more pad the table
+        (an open road's end straight grows, a closed road repeats its last sample), fewer
+        are refused. ``scale``: the constant friction scale column (`with_grip` sets a
+        varying one); ``extension`` [m]: the straight past an open road's end (at least
+        the horizon)."""
         spacing = float(spacing)
         if not (math.isfinite(spacing) and 0 < spacing <= MAX_SPACING):
             raise ValueError(f"RoadTable.from_road: spacing must lie in (0, {MAX_SPACING:g}] m "
