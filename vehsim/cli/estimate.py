@@ -331,11 +331,29 @@ def _estimate(args) -> int:
               f"({args.data}); compiling and running...", file=sys.stderr, flush=True)
     est = estimate_friction(record, estimator, car, hardware, stride=args.stride)
     _write(args, record, extras, est, car, hardware, h)
+    import jax
+
     from ._status import exit_status
 
-    # status 1 where any estimate failed: the recorded brakings' estimates all succeed, and
-    # the summary's final estimate is the last successful one, which a failure leaves stale
-    return exit_status("estimate", est.result)
+    # status 1 where any estimate failed: the summary's final estimate is the last successful
+    # one, which a failure leaves stale. The leading estimates that are not identifiable (the
+    # observer's before the data outweigh its prior, windows before the braking starts) are
+    # the start, not a failure, where a successful estimate follows them
+    start = _leading_unidentified(est.result)
+    return exit_status("estimate", jax.tree.map(lambda a: a[start:], est.result))
+
+
+def _leading_unidentified(result) -> int:
+    """How many of the first estimates are `not_identifiable` before a successful one (0
+    where none is successful after them)."""
+    import numpy as np
+
+    from .._results import is_successful, result_name
+
+    names = np.asarray(result_name(result), dtype=object)
+    k = int(np.argmax(names != "not_identifiable")) if np.any(names != "not_identifiable") \
+        else names.size
+    return k if k < names.size and bool(np.asarray(is_successful(result))[k]) else 0
 
 
 def _write(args, record, extras, est, car, hardware, h) -> dict:

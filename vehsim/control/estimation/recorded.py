@@ -61,6 +61,12 @@ from .peak_estimator import PeakEstimator
 UNIFORM_TOLERANCE = 0.01
 """Largest relative deviation of a record's time step from its mean step."""
 
+INFORMED_FRACTION = 0.5
+r"""The observer's estimate counts from the first sample at which its covariance $P$ is at
+most this fraction of the prior's $P_0$: where the data have carried at least as much
+information on $\vartheta$ as the prior ($1/P \ge 2/P_0$). Before, the estimate rests
+mostly on the prior, and its result is `not_identifiable`."""
+
 
 def nonuniform_step(t) -> int | None:
     """The index $k$ of the first sample whose step $t_k - t_{k-1}$ is not positive or
@@ -143,8 +149,11 @@ class FrictionEstimate(eqx.Module):
     standard error `theta_se` (module docstring), or for a `PeakEstimator` (which assumes
     no tire) the estimated peak of the force-slip curve, `peak_slip` ($s^* < 0$) and
     `peak_mu` ($\mu^* > 0$), the fields it lacks `None`; and `result` (a `vehsim.RESULTS`
-    item per time: `nonfinite` where a sample-by-sample estimate is not finite, the
-    window's result for the moving-horizon estimator, e.g. `not_identifiable`)."""
+    item per time: `nonfinite` where a sample-by-sample estimate is not finite; for the
+    observer, `not_identifiable` until its covariance first falls to `INFORMED_FRACTION` of
+    the prior's (no excitation yet: standing still, rolling without braking, or no wheel
+    speed measured); the window's result for the moving-horizon estimator, e.g.
+    `not_identifiable`)."""
 
     ts: Float[Array, " N"]
     result: RESULTS
@@ -235,10 +244,16 @@ def _run(estimator: AbstractFrictionEstimator, car, hardware, substeps,
     if isinstance(estimator, FrictionObserver):
         theta, P = states.theta, states.covariance
         values = dict(theta=theta, theta_se=theta * jnp.sqrt(P))
+        # informed from the first sample whose covariance the data have brought to
+        # INFORMED_FRACTION of the prior's or below, on
+        informed = jnp.cumsum(P <= INFORMED_FRACTION * estimator.initial_covariance) > 0
     else:
         values = dict(peak_slip=states.peak_slip, peak_mu=states.peak_mu)
+        informed = jnp.ones(record.ts.shape, dtype=bool)
     ok = jnp.all(jnp.stack([jnp.isfinite(a) for a in values.values()]), axis=0)
-    result = jax.vmap(lambda o: RESULTS.where(o, RESULTS.successful, RESULTS.nonfinite))(ok)
+    result = jax.vmap(lambda o, i: RESULTS.where(
+        o, RESULTS.where(i, RESULTS.successful, RESULTS.not_identifiable),
+        RESULTS.nonfinite))(ok, informed)
     return FrictionEstimate(record.ts, result, **values)
 
 
