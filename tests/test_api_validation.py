@@ -923,6 +923,59 @@ def test_distance_off_a_road_of_a_point_that_is_not_finite_is_nan_or_inf():
     assert not road.on_road(np.nan, 0.0)
 
 
+CASES |= {
+    # text and truth values, which NumPy reads as numbers, are refused where numbers go
+    "a friction level as text": (
+        lambda: vs.LuGreParams(**{**{f.name: getattr(P, f.name)
+                                     for f in dataclasses.fields(vs.LuGreParams)},
+                                  "mu_c": "0.5"}),
+        "LuGreParams.mu_c must be a number or an array of numbers, got '0.5'"),
+    "an iteration cap of True": (
+        lambda: IPOptions(max_iter=True), "IPOptions.max_iter must be an integer >= 1, got True"),
+    "a tolerance as text": (
+        lambda: IPOptions(tol="1e-8"), "IPOptions.tol must be a number, got '1e-8'"),
+    "a straight's length as text": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", "50")], 4.0),
+        "road 'road': segment 0 must be ('straight', length) with numbers, got ('straight', "
+        "'50')"),
+    "an arc's angle of True": (
+        lambda: vs.CentrelineRoad.from_segments([("arc", 20.0, True)], 4.0),
+        "segment 0 must be ('arc', radius, angle_deg) with numbers"),
+    "a width pair of one value": (
+        lambda: vs.CentrelineRoad.from_segments([("straight", 50.0)], (4.0,)),
+        "road 'road': width must be a number or a pair (width_right, width_left) [m], got "
+        "(4.0,)"),
+    "a smoothing past the points' length": (
+        lambda: vs.CentrelineRoad.from_points(np.linspace(0.0, 100.0, 30), np.zeros(30),
+                                              np.full(30, 4.0), np.full(30, 4.0),
+                                              smoothing=1e300),
+        "road 'road': smoothing must lie in [0, 100] m (the points' path length), got 1e+300"),
+    "a fit seeded with text": (
+        lambda: vs.fit_open_loop(_record(), key="a"),
+        "fit.key must be an integer >= 0, got 'a'"),
+    "a primitive's guess of the wrong shape": (
+        lambda: vs.min_time_primitive("corner90", num_stages=10,
+                                      guess=(np.zeros((3, 10)), np.zeros((10, 3)))),
+        "guess must be a pair (xs, us) of knots (11, 10) and controls (10, 3) for 10 stages, "
+        "got ((3, 10), (10, 3))"),
+}
+
+
+def test_diffrax_settings_given_by_name_are_refused_naming_the_setting():
+    car = _half_car()
+    for key, value, kind in (("solver", "Tsit5", "AbstractSolver"),
+                             ("adjoint", "forward", "AbstractAdjoint"),
+                             ("stepsize_controller", 1e-3, "AbstractStepSizeController"),
+                             ("progress_meter", True, "AbstractProgressMeter")):
+        with pytest.raises(TypeError, match=re.escape(
+                f"simulate.{key} must be a diffrax.{kind} (e.g. diffrax.")):
+            vs.simulate(car, TS, jnp.zeros(3), car.init_state(vx=20.0), **{key: value})
+    with pytest.raises(TypeError, match=re.escape("simulate_quarter_car.solver must be a")):
+        vs.simulate_quarter_car(_car(), TS, 800.0, 20.0, solver="Tsit5")
+    with pytest.raises(TypeError, match=re.escape("simulate_tire.adjoint must be a")):
+        vs.simulate_tire(vs.LumpedLuGre(P), TS, 20.0, 60.0, 0.3, adjoint="forward")
+
+
 @pytest.mark.parametrize("case", list(CASES), ids=list(CASES))
 def test_bad_values_are_refused_naming_the_field_and_its_range(case):
     call, message = CASES[case]

@@ -21,7 +21,24 @@ def is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
-def _values(x) -> np.ndarray | None:
+def is_numeric(x) -> bool:
+    """False for text and truth values, scalars or arrays of them (a string, bytes, a bool,
+    an array of strings or bools): NumPy reads ``"0.5"`` and ``True`` as numbers, a
+    parameter must not."""
+    if isinstance(x, str | bytes | bool | np.bool_):
+        return False
+    if isinstance(x, list | tuple):
+        return all(is_numeric(e) for e in x)
+    kind = getattr(getattr(x, "dtype", None), "kind", None)
+    return not (isinstance(kind, str) and kind in "bUS")
+
+
+def _values(x, label: str, kind: str = "a number") -> np.ndarray | None:
+    """``x`` as a float array (None for a tracer); `label` names it and `kind` says what it
+    must be in the error that refuses text or truth values."""
+    if not is_numeric(x):
+        shown = np.asarray(x).tolist() if is_concrete(x) else x
+        raise ValueError(f"{label} must be {kind}, got {shown!r}")
     if not is_concrete(x):
         return None
     return np.asarray(x, dtype=float)
@@ -38,14 +55,14 @@ def plain(x) -> str:
 
 def check_finite(owner: str, name: str, x) -> None:
     """Raise ``ValueError`` if ``x`` has a NaN or inf."""
-    v = _values(x)
+    v = _values(x, f"{owner}.{name}")
     if v is not None and not np.all(np.isfinite(v)):
         raise ValueError(f"{owner}.{name} must be finite, got {plain(v)}")
 
 
 def check_not_nan(owner: str, name: str, x) -> None:
     """Raise ``ValueError`` if ``x`` has a NaN (an infinity is a value here)."""
-    v = _values(x)
+    v = _values(x, f"{owner}.{name}")
     if v is not None and np.any(np.isnan(v)):
         raise ValueError(f"{owner}.{name} must be a number (or +-inf), got {plain(v)}")
 
@@ -63,7 +80,7 @@ def check_range(
 ) -> None:
     """Raise ``ValueError`` naming the field and the allowed range if ``x`` is outside it;
     `allow_inf`: an infinite upper end of the range is a value (NaN is never one)."""
-    v = _values(x)
+    v = _values(x, f"{owner}.{name}")
     if v is None:
         return
     if not allow_inf:
@@ -88,7 +105,7 @@ def check_nonnegative(owner: str, name: str, x) -> None:
 
 def check_integer(owner: str, name: str, x, *, lower: int = 0) -> None:
     """Raise ``ValueError`` unless ``x`` is a whole number >= `lower` (a concrete one)."""
-    v = _values(x)
+    v = _values(x, f"{owner}.{name}", f"an integer >= {lower}")
     if v is None:
         return
     if not (np.all(np.isfinite(v)) and np.all(v == np.round(v)) and np.all(v >= lower)):
@@ -137,7 +154,7 @@ def check_type(owner: str, name: str, value, kind: type, *, optional: bool = Fal
 
 def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
     """Raise ``ValueError`` unless ``x_small <= x_big`` (e.g. mu_c <= mu_s)."""
-    a, b = _values(x_small), _values(x_big)
+    a, b = _values(x_small, f"{owner}.{small}"), _values(x_big, f"{owner}.{big}")
     if a is None or b is None:
         return
     if not np.all(a <= b):
@@ -148,7 +165,7 @@ def check_order(owner: str, small: str, x_small, big: str, x_big) -> None:
 def check_times(owner: str, ts) -> None:
     """Raise ``ValueError`` unless concrete save times ``ts`` are a non-empty 1-D array,
     finite and non-decreasing (a solve runs from ``ts[0]`` to ``ts[-1]``)."""
-    v = _values(ts)
+    v = _values(ts, f"{owner}: ts")
     if v is None:
         return
     if v.ndim != 1 or v.size == 0:

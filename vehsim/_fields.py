@@ -13,10 +13,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import is_numeric
+
 
 def float_array(x):
     """``x`` as a strongly typed floating-point array (float64 when x64 is on); a value
     that is not numeric is refused with a `ValueError` naming the field where it can."""
+    if not is_numeric(x):  # NumPy would read "0.5" and True as numbers
+        raise ValueError(f"{_field_being_converted()} must be a number or an array of "
+                         f"numbers, got {x!r}")
     try:
         return jnp.asarray(x, dtype=jnp.result_type(float))
     except (TypeError, ValueError) as e:

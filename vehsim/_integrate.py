@@ -112,7 +112,9 @@ def integrate(
     **Returns:** the diffrax `Solution`, its `result` a `vehsim.RESULTS` item.
     """
     check_solver_settings("integrate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
-                          jump_ts=jump_ts, step_ts=step_ts, dtmax=dtmax)
+                          jump_ts=jump_ts, step_ts=step_ts, dtmax=dtmax, solver=solver,
+                          stepsize_controller=stepsize_controller, adjoint=adjoint,
+                          progress_meter=progress_meter)
     if stepsize_controller is None:
         stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
     if (jump_ts is not None or step_ts is not None) and isinstance(
@@ -135,10 +137,20 @@ def integrate(
 
 
 def check_solver_settings(owner: str, *, rtol=None, atol=None, max_steps=None,
-                          dt0=None, jump_ts=None, step_ts=None, dtmax=None) -> None:
+                          dt0=None, jump_ts=None, step_ts=None, dtmax=None, solver=None,
+                          stepsize_controller=None, adjoint=None, progress_meter=None) -> None:
     """Refuse settings no solve can use (concrete values only; None: not given): `rtol`,
     `atol`, `dt0` and `dtmax` > 0, `max_steps` an integer >= 1, `jump_ts` and `step_ts`
-    finite."""
+    finite; `solver`, `stepsize_controller`, `adjoint` and `progress_meter` diffrax's
+    objects of their kinds (``diffrax.Tsit5()``, not the name ``"Tsit5"``)."""
+    for name, value, kind in (("solver", solver, dfx.AbstractSolver),
+                              ("stepsize_controller", stepsize_controller,
+                               dfx.AbstractStepSizeController),
+                              ("adjoint", adjoint, dfx.AbstractAdjoint),
+                              ("progress_meter", progress_meter, dfx.AbstractProgressMeter)):
+        if value is not None and not isinstance(value, kind):
+            raise TypeError(f"{owner}.{name} must be a diffrax.{kind.__name__} (e.g. "
+                            f"diffrax.{_EXAMPLES[name]}), got {value!r}")
     for name, value in (("rtol", rtol), ("atol", atol), ("dt0", dt0), ("dtmax", dtmax)):
         if value is not None:
             check_positive(owner, name, value)
@@ -147,6 +159,10 @@ def check_solver_settings(owner: str, *, rtol=None, atol=None, max_steps=None,
     for name, value in (("jump_ts", jump_ts), ("step_ts", step_ts)):
         if value is not None:
             check_finite(owner, name, value)
+
+
+_EXAMPLES = {"solver": "Tsit5()", "stepsize_controller": "PIDController(rtol=1e-8, atol=1e-8)",
+             "adjoint": "ForwardMode()", "progress_meter": "TqdmProgressMeter()"}
 
 
 FORWARD_MODE_MESSAGE = (

@@ -226,7 +226,9 @@ def simulate(
     """
     check_times("simulate", ts)
     check_solver_settings("simulate", rtol=rtol, atol=atol, max_steps=max_steps, dt0=dt0,
-                          jump_ts=jump_ts, dtmax=dtmax)
+                          jump_ts=jump_ts, dtmax=dtmax, solver=solver,
+                          stepsize_controller=stepsize_controller, adjoint=adjoint,
+                          progress_meter=progress_meter)
     if dtmax is not None and stepsize_controller is not None:
         raise ValueError("simulate: dtmax bounds the default PIDController's steps; with a "
                          "stepsize_controller of your own, give the bound there "

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._checks import check_integer, check_nonnegative, check_range
+from .._checks import check_count, check_integer, check_nonnegative, check_range
 from .._results import RESULTS, is_successful, result_message, result_name, result_record
 from ..progress import progress_bar, resolve
 from ..tire.lugre import LumpedLuGre
@@ -263,7 +263,7 @@ class _Problem(NamedTuple):
 def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, spread, key, tol,
          max_steps, throw, verbose, prior_weight, progress=None) -> FitResult:
     t_start = time.perf_counter()
-    _check_options(n_starts, spread, tol, max_steps, prior_weight)
+    _check_options(n_starts, spread, key, tol, max_steps, prior_weight)
     problem = _prepare(data, init, free, fixed)
     core = _solve(problem, braking, n_starts, spread, key, tol, max_steps, prior_weight,
                   verbose, t_start, resolve(progress))
@@ -276,9 +276,10 @@ def _fit(data, init, free, fixed, braking: AbstractBrakingModel, n_starts, sprea
     return result
 
 
-def _check_options(n_starts, spread, tol, max_steps, prior_weight) -> None:
+def _check_options(n_starts, spread, key, tol, max_steps, prior_weight) -> None:
     """The fit's numeric options in their ranges, before anything is compiled."""
     check_integer("fit", "n_starts", n_starts, lower=1)
+    check_count("fit", "key", key, lower=0)  # the starts' random seed
     check_nonnegative("fit", "spread", spread)
     check_range("fit", "tol", tol, lower=0.0, upper=1.0, lower_open=True, upper_open=True)
     check_integer("fit", "max_steps", max_steps, lower=1)

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import equinox as eqx
 import numpy as np
 
-from .._checks import check_finite, check_order
+from .._checks import check_finite, check_order, is_numeric
 
 
 SPACING = 0.5
@@ -499,9 +499,13 @@ class CentrelineRoad(eqx.Module):
                     f"{chord[-1]:.4g} m from its first, {chord[-1] / typical:.0f} times the "
                     f"points' median spacing ({typical:.4g} m): is it an open road?")
         u = np.concatenate([[0.0], np.cumsum(chord)])
+        # an RMS distance beyond the points' path length would flatten any road (and
+        # overflow the spline's sum of squares)
+        if not (is_numeric(smoothing) and np.ndim(smoothing) == 0
+                and 0 <= float(smoothing) <= u[-1]):
+            raise ValueError(f"road {name!r}: smoothing must lie in [0, {u[-1]:.6g}] m (the "
+                             f"points' path length), got {smoothing!r}")
         smoothing = float(smoothing)
-        if not (math.isfinite(smoothing) and smoothing >= 0):
-            raise ValueError(f"road {name!r}: smoothing must be >= 0 m, got {smoothing:g}")
         tck, _ = splprep([pts_c[:, 0], pts_c[:, 1]], u=u, k=3, s=len(u) * smoothing**2,
                          per=1 if closed else 0, quiet=1)
         U = u[-1]
@@ -576,6 +580,9 @@ class CentrelineRoad(eqx.Module):
         road must end where it starts, with the same heading (mod $2\pi$). The gates are the
         default ones (`with_gates` sets others).
         """
+        if not (is_numeric(width) and np.shape(width) in ((), (2,))):
+            raise ValueError(f"road {name!r}: width must be a number or a pair (width_right, "
+                             f"width_left) [m], got {width!r}")
         if np.ndim(width) == 0:
             wr = wl = 0.5 * float(width)
         else:
@@ -602,6 +609,9 @@ class CentrelineRoad(eqx.Module):
             if kind in forms and len(seg) != forms[kind].count(",") + 1:
                 raise ValueError(f"road {name!r}: segment {idx} must be {forms[kind]}, got "
                                  f"{tuple(seg)!r}")
+            if kind in forms and not all(is_numeric(v) and np.ndim(v) == 0 for v in seg[1:]):
+                raise ValueError(f"road {name!r}: segment {idx} must be {forms[kind]} with "
+                                 f"numbers, got {tuple(seg)!r}")
             if kind == "straight":
                 (length,) = seg[1:]
                 k_a = k_b = 0.0

@@ -188,6 +188,14 @@ def car_guesses(prob: ManeuverOCP, starts=DEFAULT_STARTS, guess=None,
     ``starts`` (`car_guess`, each seed solved by ``solver``; within 98 % of the time budget
     for max-exit), or ``[guess]``."""
     if guess is not None:
+        M, nx, nu = prob.num_stages, prob.state_size, prob.control_size
+        shapes = ((M + 1, nx), (M, nu))
+        if not (isinstance(guess, tuple | list) and len(guess) == 2
+                and all(np.shape(a) == s for a, s in zip(guess, shapes))):
+            got = (tuple(np.shape(a) for a in guess) if isinstance(guess, tuple | list)
+                   else type(guess).__name__)
+            raise ValueError(f"guess must be a pair (xs, us) of knots {shapes[0]} and "
+                             f"controls {shapes[1]} for {M} stages, got {got}")
         return [guess]
     guesses = []
     for margin, frac in starts:

@@ -136,7 +136,7 @@ def simulate_tire(
     """
     check_times("simulate_tire", ts)
     check_solver_settings("simulate_tire", rtol=rtol, atol=atol, max_steps=max_steps,
-                          dtmax=dtmax)
+                          dtmax=dtmax, solver=solver, adjoint=adjoint)
     check_finite_signals("simulate_tire", vx=vx, omega=omega, r=r, vy=vy, Fz=Fz)
     if not callable(r):
         check_positive("simulate_tire", "r", r)

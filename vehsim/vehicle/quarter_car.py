@@ -182,7 +182,7 @@ def simulate_quarter_car(
     """
     check_times("simulate_quarter_car", ts)
     check_solver_settings("simulate_quarter_car", rtol=rtol, atol=atol, max_steps=max_steps,
-                          dt0=dt0, dtmax=dtmax)
+                          dt0=dt0, dtmax=dtmax, solver=solver, adjoint=adjoint)
     check_finite_signals("simulate_quarter_car", brake_torque=brake_torque,
                          v0=None if state0 is not None else v0)
     ts = jnp.asarray(ts, dtype=float)
