@@ -6,6 +6,10 @@ $$z_{ss}(\xi) = \operatorname{sgn}(v_r)\frac{g}{\theta\sigma_0}\bigl(1-e^{-k\xi}
 The second form is smooth through $v_r = 0$ and is what we evaluate while the wheel rolls;
 for a locked wheel ($c = 0$) the profile is the point-model value $\operatorname{sgn}(v_r)g/(\theta\sigma_0)$
 (report remark after eq. 16).
+
+The closed forms are pure elementwise functions for use under ``jit``, ``vmap`` and ``grad``:
+they check nothing, and a NaN slip, speed or radius gives a NaN force (the modules that
+hold the parameters check them when they are built).
 """
 
 from __future__ import annotations

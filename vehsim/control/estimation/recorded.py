@@ -48,6 +48,7 @@ from jaxtyping import Array, Float
 from ..._checks import check_count, is_concrete
 from ..._fields import array_field
 from ..._results import RESULTS
+from ...identify.braking import NONNEGATIVE
 from ...vehicle.quarter_car import QuarterCar
 from ..plant.hardware import BrakeHardware, ideal_hardware
 from ..plant.integrate import SUBSTEPS
@@ -125,7 +126,7 @@ class MeasuredBraking(eqx.Module):
         if np.isnan(float(self.omega[0])):
             raise ValueError(f"{owner}.omega: the first sample starts the estimators and must "
                              "be present, got NaN")
-        for name, what in (("v", "the forward speed of a braking"), ("torque", "a magnitude"),
+        for name, what in (("v", NONNEGATIVE["v"]), ("torque", "a magnitude"),
                            ("F_n", "a magnitude")):
             a = getattr(self, name)
             if a is not None and np.any(np.asarray(a) < 0):
