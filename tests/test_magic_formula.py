@@ -14,8 +14,11 @@ from vehsim.tire.base import AbstractTire
 from vehsim.tire.magic_formula import (
     MagicFormula1987,
     MagicFormula1987Params,
+    aligning_coefficients,
     combined_forces,
     combined_forces as _combined_forces,
+    lateral_coefficients,
+    longitudinal_coefficients,
     pure_aligning_moment,
     pure_lateral_force,
     pure_longitudinal_force,
@@ -143,3 +146,22 @@ def test_tire_interface_signs_units_and_gradients():
 def test_bad_coefficients_raise():
     with pytest.raises(ValueError, match="b must have 8"):
         MagicFormula1987Params(a=np.zeros(13), b=np.zeros(7), c=np.zeros(13))
+
+
+def test_load_derivative_at_no_load_is_the_mean_of_the_one_sided_slopes():
+    """At F_z = 0 the forces are 0 for F_z <= 0 and rise linearly above: both modes give the
+    mean of the one-sided slopes, which a central difference gives, for the combined forces
+    and the aligning moment (each was 0: B filled with 0 at D = 0, and the trail's 0/0),
+    and B keeps its limit (the value at 1e-9 N)."""
+    tire = MagicFormula1987(MF)
+    h = 1e-6
+    for f in (lambda fz: tire.forces(jnp.zeros(0), 20.0, -1.0, 60.0, 0.3, fz),
+              lambda fz: combined_forces(MF, -0.1, 0.05, fz)):
+        central = (f(h) - f(-h)) / (2 * h)
+        right = (f(h) - f(0.0)) / h
+        assert np.all(np.abs(np.asarray(right)) > 1e-4)  # a slope there is to get
+        for mode in (jax.jacrev, jax.jacfwd):
+            np.testing.assert_allclose(mode(f)(0.0), central, rtol=1e-6)
+    for coefficients in (lateral_coefficients, longitudinal_coefficients, aligning_coefficients):
+        np.testing.assert_allclose(coefficients(MF, 0.0)[0], coefficients(MF, 1e-9)[0],
+                                   rtol=1e-9)

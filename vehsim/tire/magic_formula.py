@@ -71,13 +71,25 @@ class MagicFormula1987Params(eqx.Module):
 
 def magic_formula(x, B, C, D, E):
     r"""$D\sin(C\arctan(Bx - E(Bx - \arctan Bx)))$."""
+    return D * _shape(x, B, C, E)
+
+
+def _shape(x, B, C, E):
+    """The Magic Formula over its peak $D$: $\sin(C\arctan(Bx - E(Bx - \arctan Bx)))$."""
     bx = B * x
-    return D * jnp.sin(C * jnp.arctan(bx - E * (bx - jnp.arctan(bx))))
+    return jnp.sin(C * jnp.arctan(bx - E * (bx - jnp.arctan(bx))))
 
 
 def _load_kN(Fz):
-    Fz = jnp.asarray(Fz, dtype=float) / 1000.0
-    return jnp.where(Fz > 0, Fz, 0.0)
+    """The load in kN, 0 for a wheel off the ground; at exactly 0 its derivative is the mean
+    of the one-sided ones (1/2000 per N), as a central difference gives."""
+    return jnp.maximum(jnp.asarray(Fz, dtype=float) / 1000.0, 0.0)
+
+
+def _stiffness_factor(BCD, C, D, limit):
+    """$B = BCD/(CD)$, and where $D = 0$ (no load) its limit as $F_z \to 0^+$, `limit`, so
+    that the force's load derivative there is its right-hand slope, not 0."""
+    return jnp.where(D == 0, limit, safe_div(BCD, C * D))
 
 
 def lateral_coefficients(params: MagicFormula1987Params, Fz):
@@ -86,7 +98,8 @@ def lateral_coefficients(params: MagicFormula1987Params, Fz):
     D = a[0] * fz**2 + a[1] * fz
     BCD = a[2] * jnp.sin(a[3] * jnp.arctan(a[4] * fz))
     E = a[5] * fz**2 + a[6] * fz + a[7]
-    return safe_div(BCD, params.C_y * D), params.C_y, D, E
+    limit = safe_div(a[2] * a[3] * a[4], params.C_y * a[1])
+    return _stiffness_factor(BCD, params.C_y, D, limit), params.C_y, D, E
 
 
 def _exponential_stiffness_coefficients(p, C, Fz):
@@ -97,7 +110,7 @@ def _exponential_stiffness_coefficients(p, C, Fz):
     D = p[0] * fz**2 + p[1] * fz
     BCD = (p[2] * fz**2 + p[3] * fz) * jnp.exp(-p[4] * fz)
     E = p[5] * fz**2 + p[6] * fz + p[7]
-    return safe_div(BCD, C * D), C, D, E
+    return _stiffness_factor(BCD, C, D, safe_div(p[3], C * p[1])), C, D, E
 
 
 def longitudinal_coefficients(params: MagicFormula1987Params, Fz):
@@ -133,7 +146,6 @@ def combined_forces_tan(params: MagicFormula1987Params, kappa, tan_alpha, Fz):
     alpha_eq = jnp.arctan(sigma)
     fx0 = pure_longitudinal_force(params, sigma, Fz)
     fy0 = pure_lateral_force(params, alpha_eq, Fz)
-    mz0 = pure_aligning_moment(params, alpha_eq, Fz)
     # sigma_i / |sigma| * F0(|sigma|): F0 is odd with F0(0) = 0, so F0(s)/s is smooth; use
     # the slope at 0 where sigma = 0 (value 0, finite gradient).
     Bx, Cx, Dx, _ = longitudinal_coefficients(params, Fz)
@@ -142,9 +154,16 @@ def combined_forces_tan(params: MagicFormula1987Params, kappa, tan_alpha, Fz):
     slope_y = jnp.rad2deg(1.0) * By * Cy * Dy
     fx = kappa * jnp.where(sigma == 0, slope_x, safe_div(fx0, sigma))
     fy = tan_alpha * jnp.where(sigma == 0, slope_y, safe_div(fy0, sigma))
-    Bz, Cz, Dz, _ = aligning_coefficients(params, Fz)
-    trail0 = safe_div(Bz * Cz * Dz, By * Cy * Dy)
-    trail = jnp.where(sigma == 0, trail0, safe_div(mz0, fy0))
+    # the trail M_z0 / F_y0 with the peaks' ratio D_z / D_y = (c1 F_z + c2) / (a1 F_z + a2)
+    # taken out, so that it keeps its limit as the load goes to 0
+    Bz, Cz, _, Ez = aligning_coefficients(params, Fz)
+    fz = _load_kN(Fz)
+    peaks = safe_div(params.c[0] * fz + params.c[1], params.a[0] * fz + params.a[1])
+    _, _, _, Ey = lateral_coefficients(params, Fz)
+    alpha_deg = jnp.rad2deg(alpha_eq)
+    trail0 = peaks * safe_div(Bz * Cz, By * Cy)
+    trail = jnp.where(sigma == 0, trail0, peaks * safe_div(_shape(alpha_deg, Bz, Cz, Ez),
+                                                           _shape(alpha_deg, By, Cy, Ey)))
     return jnp.stack([fx, fy, trail * fy], axis=-1)
 
 
