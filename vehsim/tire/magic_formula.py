@@ -75,7 +75,7 @@ def magic_formula(x, B, C, D, E):
 
 
 def _shape(x, B, C, E):
-    """The Magic Formula over its peak $D$: $\sin(C\arctan(Bx - E(Bx - \arctan Bx)))$."""
+    r"""The Magic Formula over its peak $D$: $\sin(C\arctan(Bx - E(Bx - \arctan Bx)))$."""
     bx = B * x
     return jnp.sin(C * jnp.arctan(bx - E * (bx - jnp.arctan(bx))))
 
@@ -87,7 +87,7 @@ def _load_kN(Fz):
 
 
 def _stiffness_factor(BCD, C, D, limit):
-    """$B = BCD/(CD)$, and where $D = 0$ (no load) its limit as $F_z \to 0^+$, `limit`, so
+    r"""$B = BCD/(CD)$, and where $D = 0$ (no load) its limit as $F_z \to 0^+$, `limit`, so
     that the force's load derivative there is its right-hand slope, not 0."""
     return jnp.where(D == 0, limit, safe_div(BCD, C * D))
 
