@@ -351,9 +351,8 @@ def _leading_unidentified(result) -> int:
     from .._results import is_successful, result_name
 
     names = np.asarray(result_name(result), dtype=object)
-    k = int(np.argmax(names != "not_identifiable")) if np.any(names != "not_identifiable") \
-        else names.size
-    return k if k < names.size and bool(np.asarray(is_successful(result))[k]) else 0
+    k = int(np.argmax(names != "not_identifiable"))  # 0 where all are: not a success
+    return k if bool(np.asarray(is_successful(result))[k]) else 0
 
 
 def _write(args, record, extras, est, car, hardware, h) -> dict:
