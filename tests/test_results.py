@@ -16,8 +16,8 @@ def test_case_names_are_read_from_the_enumerations():
     names = result_names()
     for parent in (lx.RESULTS, optx.RESULTS, dfx.RESULTS):
         assert set(result_names(parent)) <= set(names)
-    assert names[-5:] == ("ip_max_iterations", "ip_locally_infeasible", "ip_line_search_failed",
-                          "ip_newton_system_failed", "not_identifiable")
+    assert names[-6:] == ("ip_max_iterations", "ip_locally_infeasible", "ip_line_search_failed",
+                          "ip_newton_system_failed", "not_identifiable", "step_size_collapsed")
     assert len(set(names)) == len(names) == len(RESULTS)
     for name in names:
         assert result_name(getattr(RESULTS, name)) == name

@@ -108,6 +108,43 @@ def test_throw_raises_with_the_message_and_no_throw_returns_the_result():
             jax.block_until_ready(eqx.filter_jit(lambda: run(max_steps=2))())
 
 
+def _nan_after(t, y, args):
+    """A decay whose vector field is NaN after t = 0.35."""
+    return jnp.where(t > 0.35, jnp.nan, -y)
+
+
+COLLAPSED_MESSAGE = "The adaptive step size was rejected down to its floor"
+
+
+def test_a_vector_field_that_turns_nan_stops_at_the_step_floor():
+    """Past t = 0.35 every step is rejected: the default control's floor (`DTMIN_FRACTION` of
+    the span) ends the solve within a few dozen steps as `step_size_collapsed`, with the
+    states saved before it finite and those after it inf, where without the floor it would
+    spend the whole budget and say `max_steps_reached`. A controller of the caller's own
+    keeps diffrax's behaviour."""
+    ts = jnp.linspace(0.0, 1.0, 11)
+    sol = integrate(_nan_after, ts, jnp.ones(2), throw=False)
+    assert vs.result_name(sol.result) == "step_size_collapsed"
+    assert int(sol.stats["num_steps"]) < 200
+    ys = np.asarray(sol.ys)
+    np.testing.assert_allclose(ys[:4], np.exp(-np.asarray(ts[:4]))[:, None] * np.ones(2),
+                               rtol=1e-7)
+    assert np.all(np.isinf(ys[4:]))
+    with pytest.raises(Exception, match=COLLAPSED_MESSAGE):
+        integrate(_nan_after, ts, jnp.ones(2))
+    own = integrate(_nan_after, ts, jnp.ones(2), max_steps=500, throw=False,
+                    stepsize_controller=dfx.PIDController(rtol=RTOL, atol=ATOL))
+    assert vs.result_name(own.result) == "max_steps_reached"
+    # through a simulation: a feedback whose steering turns NaN after 0.07 s
+    car = vs.HalfCar(vs.rally_gravel(), vs.rally_gravel_tire())
+    tr = vs.simulate(car, jnp.linspace(0.0, 0.2, 5),
+                     lambda t, y: jnp.where(t > 0.07, jnp.nan, 0.0) * jnp.ones(3),
+                     car.init_state(vx=20.0), throw=False)
+    assert vs.result_name(tr.result) == "step_size_collapsed"
+    assert int(tr.stats["num_steps"]) < 1000
+    assert np.all(np.isfinite(np.asarray(tr.states[:2]))) and np.all(np.isinf(tr.states[2:]))
+
+
 def test_history_budget_is_its_own():
     """The history solve of `simulate_moments_history` has its own step budget: too small,
     it fails whatever the moment solve's budget."""

@@ -6,7 +6,9 @@ with one set of defaults:
 
 - **solver** `Tsit5` (explicit Runge-Kutta of order 5(4), adaptive);
 - **step-size control** ``PIDController(rtol=RTOL, atol=ATOL)``, `RTOL` = `ATOL` = 1e-8,
-  clipped to land steps on `jump_ts` (kinks and jumps of the inputs) and `step_ts`;
+  clipped to land steps on `jump_ts` (kinks and jumps of the inputs) and `step_ts`, with a
+  floor of `DTMIN_FRACTION` of the time span: a step size rejected down to it ends the solve
+  as `RESULTS.step_size_collapsed` (a vector field that is not finite past some time);
 - **step budget** `MAX_STEPS` = 100 000: finite, so that reverse-mode differentiation is
   available (`RecursiveCheckpointAdjoint` keeps $O(\sqrt{\text{max\_steps}})$
   checkpoints); only dense or per-step saving allocates buffers of that length;
@@ -29,6 +31,7 @@ from collections.abc import Callable
 
 import diffrax as dfx
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PyTree
 
@@ -49,6 +52,15 @@ $10^{-5}$-$10^{-3}$ m) or their moments: it keeps their error near `RTOL` relati
 
 MAX_STEPS = 100_000
 """Default step budget of every solve."""
+
+DTMIN_FRACTION = 1e-12
+r"""The floor of the default step-size control's steps, as a fraction of the time span
+$|t_1 - t_0|$. An accepted step never shrinks the next one, so only rejected steps reach it,
+and a finite vector field rejects steps only to meet the tolerances, far above it. Where
+the vector field is NaN or inf just past the time reached (a control function that turns
+NaN, a state outside the model's domain), each step is rejected and shrunk until the time no longer advances: without
+the floor the solve then spends its whole step budget and reports `max_steps_reached`; with
+it, it stops within a few dozen steps as `RESULTS.step_size_collapsed`."""
 
 EQUILIBRIUM_DTMAX = 0.01
 r"""The largest step [s] of the quarter car's and a tire's adaptive solves
@@ -115,8 +127,12 @@ def integrate(
                           jump_ts=jump_ts, step_ts=step_ts, dtmax=dtmax, solver=solver,
                           stepsize_controller=stepsize_controller, adjoint=adjoint,
                           progress_meter=progress_meter)
-    if stepsize_controller is None:
-        stepsize_controller = dfx.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
+    default_control = stepsize_controller is None
+    if default_control:
+        span = jax.lax.stop_gradient(
+            jnp.abs((ts[-1] if t1 is None else t1) - (ts[0] if t0 is None else t0)))
+        stepsize_controller = _StepFloor(dfx.PIDController(rtol=rtol, atol=atol, dtmax=dtmax),
+                                         DTMIN_FRACTION * span)
     if (jump_ts is not None or step_ts is not None) and isinstance(
             stepsize_controller, dfx.AbstractAdaptiveStepSizeController):
         stepsize_controller = dfx.ClipStepSizeController(
@@ -130,6 +146,9 @@ def integrate(
             raise TypeError(FORWARD_MODE_MESSAGE) from e
         raise
     result = as_result(sol.result)
+    if default_control:  # the floor is this module's: its own case, saying what reaches it
+        result = RESULTS.where(result == RESULTS.dt_min_reached, RESULTS.step_size_collapsed,
+                               result)
     sol = eqx.tree_at(lambda s: s.result, sol, result)
     if throw:
         sol = result.error_if(sol, result != RESULTS.successful)
@@ -170,6 +189,40 @@ FORWARD_MODE_MESSAGE = (
     "adjoint (diffrax.RecursiveCheckpointAdjoint, reverse mode only): pass "
     "adjoint=diffrax.ForwardMode(), or differentiate in reverse mode (jax.grad, jax.jacrev)")
 """The error of a forward-mode derivative through `integrate` with its default adjoint."""
+
+
+class _StepFloor(dfx.AbstractAdaptiveStepSizeController):
+    """An adaptive controller whose rejected step proposing a next step shorter than `dtmin`
+    ends the solve (`dt_min_reached`). The wrapped controller's steps are left exactly as
+    they are (diffrax's own ``dtmin`` clips them, and the compiled program's rounding with
+    them): the floor only reads them."""
+
+    controller: dfx.AbstractAdaptiveStepSizeController
+    dtmin: Float[Array, ""]
+
+    @property
+    def rtol(self):
+        return self.controller.rtol
+
+    @property
+    def atol(self):
+        return self.controller.atol
+
+    @property
+    def norm(self):  # pyright: ignore[reportIncompatibleMethodOverride]
+        return self.controller.norm
+
+    def wrap(self, direction):
+        return _StepFloor(self.controller.wrap(direction), self.dtmin)
+
+    def init(self, *args, **kwargs):
+        return self.controller.init(*args, **kwargs)
+
+    def adapt_step_size(self, *args, **kwargs):
+        keep, t0, t1, jump, state, result = self.controller.adapt_step_size(*args, **kwargs)
+        result = dfx.RESULTS.where(~keep & (t1 - t0 < self.dtmin), dfx.RESULTS.dt_min_reached,
+                                   result)
+        return keep, t0, t1, jump, state, result
 
 
 def _diffeqsolve(vector_field, solver, ts, t0, t1, dt0, y0, args, saveat, stepsize_controller,

@@ -45,6 +45,13 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
         "The data do not determine the parameters: the Jacobian (in relative parameters) is "
         "numerically rank deficient. Is there slip excitation in the data?"
     )
+    step_size_collapsed = (
+        "The adaptive step size was rejected down to its floor (`DTMIN_FRACTION` of the time "
+        "span) and the time stopped advancing: the vector field is not finite (NaN or inf) "
+        "just past the last time reached (a control function or input that turns NaN there, "
+        "a state outside the model's domain), or the solution blows up in finite time. The "
+        "saved states after that time are inf."
+    )
 
 
 def result_names(enumeration=RESULTS) -> tuple[str, ...]:

@@ -130,8 +130,9 @@ def stiffness_ceiling(vehicle: AbstractVehicle, solver, u_fn, t0, state0):
 
 def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
     """A NaN or inf in a concrete initial state or input array is refused by name: the
-    solver would otherwise spend its step budget and report `max_steps_reached`. A state
-    of another length than the vehicle's is refused too."""
+    solver would otherwise reject its first step down to the floor and report
+    `step_size_collapsed`, naming nothing. A state of another length than the vehicle's is
+    refused too."""
     if jnp.shape(state0) != (vehicle.state_size,):
         raise ValueError(f"simulate: state0 must have shape ({vehicle.state_size},), the state "
                          f"of {type(vehicle).__name__}, got {jnp.shape(state0)}")
@@ -151,7 +152,7 @@ def _check_finite_start(vehicle: AbstractVehicle, state0, inputs) -> None:
 
 def _check_finite_controls(vehicle: AbstractVehicle, u0) -> None:
     """A control function whose value at the start is not finite is refused by name, as a
-    constant input is (`_check_finite_start`), rather than spending the step budget."""
+    constant input is (`_check_finite_start`), rather than failing at its first step."""
     if not is_concrete(u0):
         return
     v = np.asarray(u0, dtype=float).reshape(-1)
