@@ -181,8 +181,7 @@ def test_observer_tracks_theta_before_and_after_the_change(noisy):
     # not identified until the data outweigh the prior (measured: 0.08 s, while the
     # estimate still reads 1.4 to 2 times the truth), then throughout, the change included
     assert 0 < est.ts[informed] < 0.1 and np.all(ok[informed:])
-    assert np.all(np.asarray(est.result._value)[:informed]
-                  == RESULTS.not_identifiable._value)
+    assert np.all(np.asarray(est.result == RESULTS.not_identifiable)[:informed])
     assert np.all(est.theta[:informed] > 1.3 * THETA_DRY)
     assert np.all(np.isfinite(est.theta_se))
     assert est.ts.size == round(DURATION / T_EST) + 1 and est.theta[0] == PRIOR
@@ -440,7 +439,7 @@ def test_observer_says_not_identifiable_where_the_record_cannot_tell(case):
         omega[1:] = np.nan
     torque = np.zeros(t.size) if case != "no wheel speed" else torque_profile(t)
     est = estimate_friction(MeasuredBraking(t, v, omega, torque), OBSERVER, CAR, HARDWARE)
-    assert np.all(np.asarray(est.result._value) == RESULTS.not_identifiable._value)
+    assert np.all(np.asarray(est.result == RESULTS.not_identifiable))
     assert np.all(np.isfinite(np.asarray(est.theta)))
 
 
