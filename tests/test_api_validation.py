@@ -101,6 +101,12 @@ CASES = {
     "a negative initial barrier": (
         lambda: IPOptions(mu0=-0.1), "IPOptions.mu0 must lie in (0, inf)"),
     "a negative tolerance": (lambda: IPOptions(tol=-1.0), "IPOptions.tol must lie in (0, inf)"),
+    "a backward error accepted of 1": (
+        lambda: IPOptions(backward_error_singular=1.0),
+        "IPOptions.backward_error_singular must lie in (0, 1), got 1"),
+    "a backward error accepted as text": (
+        lambda: IPOptions(backward_error_singular="1e-5"),
+        "IPOptions.backward_error_singular must be a number, got '1e-5'"),
     "a fractional iteration cap": (
         lambda: IPOptions(max_iter=2.5), "IPOptions.max_iter must be an integer >= 1, got 2.5"),
     "no log": (lambda: IPOptions(log_size=0), "IPOptions.log_size must be an integer >= 1"),

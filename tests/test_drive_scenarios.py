@@ -333,6 +333,20 @@ def test_jax_departure_is_exact_metres_off_the_road(name):
     np.testing.assert_allclose(got, exact, atol=2e-4)
 
 
+def test_the_nominal_reference_takes_the_drives_newton_acceptance(monkeypatch):
+    """The nominal primitive (the open-loop replay's and the tracker's reference, the offline
+    bound's start) is solved with the drive's `PLAN_BACKWARD_ERROR`, as the driver's plans
+    are, not the library primitives' default."""
+    import vehsim.drive.baselines as baselines
+    from vehsim.drive.horizon import PLAN_BACKWARD_ERROR
+
+    seen = {}
+    monkeypatch.setattr(baselines, "road_primitive", lambda road, **kw: seen.update(kw))
+    baselines.nominal_primitive(vs.drive_scenario("corner90", "nominal"))
+    assert seen["options"].backward_error_singular == PLAN_BACKWARD_ERROR
+    assert int(seen["options"].max_iter) == 500
+
+
 # ---- the drive and the open-loop replay ----------------------------------------------------
 
 

@@ -228,7 +228,8 @@ def test_a_solve_stuck_at_a_violation_it_cannot_reduce_says_the_problem_is_infea
     """t_f <= 1 s where the optimum is 2.83 s: the violation stalls near 3.5 by the 30th
     pass, so a solve of 60 passes ends `ip_locally_infeasible` with that violation; one of
     25 (still reducing it) and a feasible solve that cannot meet an unreachable ``tol``
-    (violation below ``constr_tol``) end `ip_max_iterations`; with t_f <= 2.9 s it
+    (violation below ``constr_tol``, or flat at rounding far below the starting one, above
+    an unreachable ``constr_tol``) end `ip_max_iterations`; with t_f <= 2.9 s it
     converges."""
     from vehsim.optimal.ip.solver import INFEASIBLE_PASSES
 
@@ -250,6 +251,12 @@ def test_a_solve_stuck_at_a_violation_it_cannot_reduce_says_the_problem_is_infea
                                  IPOptions(max_iter=60, tol=1e-300), throw=False)
     assert unreachable.result == RESULTS.ip_max_iterations
     assert float(unreachable.inf_pr) <= 1e-9
+    # a violation brought down to rounding and flat there, above an unreachable constr_tol:
+    # near a feasible point, not infeasible
+    near = interior_point(CappedRestToRest(num_stages=M, tmax=2.9), *_guess(M),
+                          IPOptions(max_iter=60, tol=1e-300, constr_tol=1e-300), throw=False)
+    assert near.result == RESULTS.ip_max_iterations
+    assert 0.0 < float(near.inf_pr) < 1e-9
 
 
 def test_a_violation_falling_slowly_is_progress_and_a_flat_one_is_not():
@@ -348,6 +355,22 @@ def test_checked_solve_refines_an_inaccurate_solve_and_rejects_one_refinement_ca
     assert bool(ok)
     err = np.max(np.abs(np.asarray(sol).reshape(-1) - ref))
     assert err < 1e-3 * np.max(np.abs(first.reshape(-1) - ref))  # the refined solution
+
+    # a solver too poor for one refinement to reach the tolerance (relative error 3e-3): the
+    # refined solve is accepted where its backward error is below `singular` (IPOPT's
+    # residual_ratio_singular, the interior point's default 1e-5), refused above it, and
+    # refused by default (`singular` the tolerance itself)
+    monkeypatch.setattr(kkt, "riccati_solve", lambda F, K, b: exact_solve(F, K, b) * (1 + 3e-3))
+    first = kkt.riccati_solve(F, K, rhs)
+    refined = first + kkt.riccati_solve(F, K, rhs - K.matvec(first))
+    scale = np.max(np.asarray(K.matvec(refined, absolute=True) + jnp.abs(rhs)))
+    backward = np.max(np.abs(np.asarray(rhs - K.matvec(refined)))) / scale
+    assert 1e-9 < backward < 1e-5
+    for singular, accepted in ((None, False), (backward / 2, False), (2 * backward, True),
+                               (kkt.BACKWARD_ERROR_SINGULAR, True)):
+        sol, ok, F = kkt.checked_solve(lay, K, rhs, singular)
+        assert bool(F.ok) and bool(ok) == accepted, singular
+    np.testing.assert_allclose(np.asarray(sol), np.asarray(refined), rtol=1e-12)
 
     monkeypatch.setattr(kkt, "backward_error_tol", lambda dtype: 0.0)  # none meets it
     sol, ok, F = kkt.checked_solve(lay, K, rhs)
@@ -1056,6 +1079,29 @@ def test_functions_undefined_where_they_are_masked_keep_the_hessian_finite(case)
     assert int(sols[0].iterations) < 30
 
 
+def test_a_refined_solve_is_accepted_up_to_the_singular_backward_error(monkeypatch):
+    """Every Newton solve made inaccurate on purpose (a relative error of 3e-3: one step of
+    refinement leaves a backward error near 1e-6): the default acceptance (IPOPT's 1e-5)
+    converges to the exact solve's optimum, and ``backward_error_singular=1e-10`` refuses
+    every factorisation."""
+    from vehsim.optimal.ip import kkt
+
+    class Inaccurate(DoubleIntegrator):  # a program of its own: the patch is traced into it
+        pass
+
+    M = 6
+    args = (jnp.zeros((M + 1, 2)), jnp.zeros((M, 1)))
+    ref = interior_point(DoubleIntegrator(num_stages=M, bound=1.0), *args)
+    exact_solve = kkt.riccati_solve
+    monkeypatch.setattr(kkt, "riccati_solve", lambda F, K, b: exact_solve(F, K, b) * (1 + 3e-3))
+    sol = interior_point(Inaccurate(num_stages=M, bound=1.0), *args, throw=False)
+    assert sol.result == RESULTS.successful
+    assert float(sol.objective) == pytest.approx(float(ref.objective), rel=1e-8)
+    strict = interior_point(Inaccurate(num_stages=M, bound=1.0), *args,
+                            IPOptions(backward_error_singular=1e-10), throw=False)
+    assert strict.result == RESULTS.ip_newton_system_failed
+
+
 def test_a_newton_system_no_regularisation_solves_ends_the_solve(monkeypatch):
     """Every factorisation refused (forced: no solve is accurate enough): the solve stops
     on its first pass with `ip_newton_system_failed`, not at its iteration limit."""
@@ -1066,14 +1112,15 @@ def test_a_newton_system_no_regularisation_solves_ends_the_solve(monkeypatch):
 
     monkeypatch.setattr(kkt, "backward_error_tol", lambda dtype: 0.0)
     M = 6
+    refused = IPOptions(backward_error_singular=1e-300)
     sol = interior_point(Refused(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
-                         jnp.zeros((M, 1)), throw=False)
+                         jnp.zeros((M, 1)), refused, throw=False)
     assert sol.result == RESULTS.ip_newton_system_failed
     assert int(sol.iterations) <= 1
     assert int(sol.log.factorisations[0]) == kkt.MAX_FACTORISATIONS
     with pytest.raises(RuntimeError, match="could not solve its Newton system"):
         interior_point(Refused(num_stages=M, bound=1.0), jnp.zeros((M + 1, 2)),
-                       jnp.zeros((M, 1)))
+                       jnp.zeros((M, 1)), refused)
 
 
 def test_a_float32_solve_accepts_the_backward_error_of_its_precision():

@@ -24,7 +24,8 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore
     )
     ip_locally_infeasible = (
         "The interior-point method reached its iteration limit with the constraint violation "
-        "above `IPOptions.constr_tol` and not reduced by 1 % over its last 25 passes: "
+        "above `IPOptions.constr_tol`, not reduced by 1 % over its last 25 passes and never "
+        "below a thousandth of the starting one: "
         "the constraints are probably infeasible near this iterate (a final time too short "
         "for the road, a bound that contradicts the boundary conditions). More iterations "
         "are unlikely to help: relax the constraints, or start from a guess that meets them."

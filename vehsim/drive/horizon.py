@@ -76,6 +76,7 @@ from ..optimal.curvilinear import (
 )
 from ..optimal.ip import IPOptions, IPSolution, interior_point
 from ..optimal.ip.implicit import implicit_solve
+from ..optimal.ip.kkt import BACKWARD_ERROR_TOL
 from ..optimal.ip.problem import stage_layout
 from ..optimal.shooting import KAPPA_MAX, KAPPA_MIN, SPEED_FLOOR
 from ..tire.lumped2d import LumpedLuGre2D
@@ -98,6 +99,13 @@ SEARCH_DISTANCE = 4.0
 samples."""
 NEWTON_STEPS = 4
 """Newton steps of `RoadTable.to_frenet` after the search."""
+PLAN_BACKWARD_ERROR = BACKWARD_ERROR_TOL
+"""`IPOptions.backward_error_singular` of every drive solve (the driver's plans, the nominal
+reference and the offline bounds): a Newton solve is accepted only where it reaches the
+refinement's own tolerance, 1e-10, where the offline primitives accept IPOPT's 1e-5. The
+closed-loop figures of docs/driver.md were measured with it; the looser acceptance, which
+regularises less where the factorisation loses accuracy, is not measured on the closed
+loop."""
 
 
 # ---- the road as arrays -----------------------------------------------------------------
@@ -1112,12 +1120,14 @@ class RecedingHorizonDriver(AbstractDriveController):
         first = first | replan
         # a real-time iteration does a fixed work per sample: no uncounted re-estimates
         return IPOptions(max_iter=jnp.where(first, cold_cap, cap), tol=self.tol,
-                         constr_tol=self.tol, mu0=jnp.where(first, IPOptions().mu0, self.barrier),
+                         constr_tol=self.tol,
+                         mu0=jnp.where(first, IPOptions().mu0, self.barrier),
                          log_size=8, hessian_update=self.hessian_update,
                          jacobian_update=self.jacobian_update,
                          fresh_hessian_steps=jnp.where(first, self.init_iterations,
                                                        self.fresh_hessian_steps),
-                         reestimate_multipliers=first | (self.mode == "converged"))
+                         reestimate_multipliers=first | (self.mode == "converged"),
+                         backward_error_singular=PLAN_BACKWARD_ERROR)
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
         """`stage_speeds` of the plan ``xs``."""

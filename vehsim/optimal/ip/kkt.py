@@ -49,8 +49,13 @@ MAX_FACTORISATIONS = 40
 MULTIPLIER_INIT_MAX = 1e3
 """Largest accepted least-squares initial multiplier (IPOPT's ``constr_mult_init_max``)."""
 BACKWARD_ERROR_TOL = 1e-10
-"""Largest accepted componentwise backward error of the solve (Oettli-Prager) in float64;
-in a lower precision, 1000 times its machine epsilon where that is larger."""
+"""Componentwise backward error (Oettli-Prager) below which a first solve is not refined,
+in float64; in a lower precision, 1000 times its machine epsilon where that is larger
+(IPOPT's ``residual_ratio_max``)."""
+BACKWARD_ERROR_SINGULAR = 1e-5
+"""Largest componentwise backward error of a refined solve that is accepted (IPOPT's
+``residual_ratio_singular``, the default of `IPOptions.backward_error_singular`): above it
+the factor counts as singular and the regularisation grows."""
 
 
 class Iterate(eqx.Module):
@@ -227,12 +232,15 @@ def _split_step(lay: StageLayout, d: StageDerivatives, sol, g, s):
     return dy, ds, sol[:, ny : ny + nx] * mk.lam, sol[:, ny + nx :] * mk.eq
 
 
-def _backward_error_ok(K: KKTMatrix, sol, rhs):
-    """Whether the componentwise backward error (Oettli-Prager) of ``sol`` is below
-    `BACKWARD_ERROR_TOL` (for the residual's precision); also the residual."""
+def _backward_error_ok(K: KKTMatrix, sol, rhs, tol: float | None = None):
+    """Whether the componentwise backward error (Oettli-Prager) of ``sol`` is below ``tol``
+    (default `BACKWARD_ERROR_TOL` for the residual's precision; never below it); also the
+    residual."""
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
-    return jnp.max(jnp.abs(res)) <= backward_error_tol(res.dtype) * jnp.max(scale), res
+    tol = backward_error_tol(res.dtype) if tol is None else max(tol,
+                                                                backward_error_tol(res.dtype))
+    return jnp.max(jnp.abs(res)) <= tol * jnp.max(scale), res
 
 
 def backward_error_tol(dtype) -> float:
@@ -241,16 +249,17 @@ def backward_error_tol(dtype) -> float:
     return max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(dtype).eps))
 
 
-def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
+def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = None):
     """Factor and solve; ``ok`` when the inertia is the expected one (every Cholesky factor
-    of the Riccati recursion exists) and the componentwise backward error (Oettli-Prager) is
-    below `BACKWARD_ERROR_TOL`, after one step of iterative refinement where the first
-    solve misses it. A factor of the wrong inertia is not used for a solve."""
+    of the Riccati recursion exists) and the solve is accurate: a first solve whose
+    componentwise backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`, or else one
+    step of iterative refinement whose backward error is below ``singular`` (default
+    `BACKWARD_ERROR_TOL` too). A factor of the wrong inertia is not used for a solve."""
     F = riccati_factor(K)
 
     def refine(sol, res):
         sol = sol + riccati_solve(F, K, res)
-        return sol, _backward_error_ok(K, sol, rhs)[0]
+        return sol, _backward_error_ok(K, sol, rhs, singular)[0]
 
     def solve():
         sol = riccati_solve(F, K, rhs)
@@ -264,10 +273,11 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs):
 
 
 def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
-                       delta_last, try_zero=True) -> InertiaCorrection:
+                       delta_last, try_zero=True, singular=None) -> InertiaCorrection:
     """Inertia correction: $\\delta = 0$ first (unless ``try_zero`` is false), then
     `DELTA_FIRST` (or the last $\\delta$ over `DELTA_DECREASE`), growing until
-    `checked_solve` accepts (at most `MAX_FACTORISATIONS`); the final loop state."""
+    `checked_solve` accepts (at most `MAX_FACTORISATIONS`; ``singular``: its refined solve's
+    largest backward error); the final loop state."""
     d_first = jnp.where(
         delta_last == 0.0, DELTA_FIRST, jnp.maximum(DELTA_MIN, delta_last / DELTA_DECREASE)
     )
@@ -281,7 +291,7 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
         i = n + jnp.where(try_zero, 0, 1)  # the place in the sequence 0, d_first, ...
         delta = jnp.where(i == 0, 0.0, jnp.where(i == 1, d_first, st.delta * growth))
         K = kkt_matrix(lay, W0, d, delta)
-        sol, ok, F = checked_solve(lay, K, rhs)
+        sol, ok, F = checked_solve(lay, K, rhs, singular)
         return InertiaCorrection(delta=delta, solution=sol, ok=ok, factorisations=n + 1,
                                  factor=F, matrix=K)
 
@@ -295,11 +305,12 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last,
-                least_squares=False, try_zero=True) -> NewtonStep:
+                least_squares=False, try_zero=True, singular=None) -> NewtonStep:
     """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
     regularisation that gives the right inertia (``delta_last``: the previous one;
     ``try_zero``: a traced flag, false to start from ``delta_last`` over `DELTA_DECREASE`
-    where $\\delta = 0$ is known to fail).
+    where $\\delta = 0$ is known to fail; ``singular``: the largest backward error of a
+    refined solve, `checked_solve`).
 
     Where ``least_squares`` (a traced flag), the same factorisation solves the system of
     `_least_squares_system` instead: ``dlam``, ``dnu`` are then the least-squares
@@ -310,7 +321,8 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     rhs = jnp.where(least_squares, rhs_ls, rhs)
     W0 = jnp.where(least_squares, W_ls, W0)
     delta_last = jnp.where(least_squares, 0.0, delta_last)
-    corrected = _regularised_solve(lay, W0, d, rhs, delta_last, try_zero | least_squares)
+    corrected = _regularised_solve(lay, W0, d, rhs, delta_last, try_zero | least_squares,
+                                   singular)
     dy, ds, dlam, dnu = _split_step(lay, d, corrected.solution, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)

@@ -35,8 +35,9 @@ Newton direction, and ends the solve with `RESULTS.ip_newton_system_failed` at i
 The whole solve is one `lax.while_loop`: it compiles once, and `vmap` runs a batch of problems
 together. A solve that reaches ``max_iter`` ends with a pass that takes no step: it tests
 convergence at the iterate returned, from values and Jacobians only (no Hessian). Where the
-constraint violation is then above ``constr_tol`` and no pass of the last
-`INFEASIBLE_PASSES` reduced it by 1 %, the result is `RESULTS.ip_locally_infeasible`
+constraint violation is then above ``constr_tol``, no pass of the last `INFEASIBLE_PASSES`
+reduced it by 1 % and none of the log brought it below `VIOLATION_REACHED` of the starting
+one, the result is `RESULTS.ip_locally_infeasible`
 rather than `RESULTS.ip_max_iterations`: more iterations would probably not help (IPOPT's
 "converged to a point of local infeasibility"; here a diagnosis of the passes made, not a
 proof, since the method has no restoration phase). Only the result differs: the iterate,
@@ -56,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..._checks import check_integer, check_positive, is_concrete
+from ..._checks import check_integer, check_positive, check_range, is_concrete
 from ..._derivative_modes import forward_mode_only
 from ..._fields import array_field, bool_field, int_field
 from ..._results import RESULTS, as_result, result_message
@@ -70,6 +71,7 @@ from .derivatives import (
 )
 from .implicit import implicit_solve
 from .kkt import (
+    BACKWARD_ERROR_SINGULAR,
     Iterate,
     NewtonStep,
     Residuals,
@@ -110,6 +112,10 @@ iteration log (`passes_without_progress`): a solve of more passes than ``log_siz
 not judged."""
 VIOLATION_PROGRESS = 0.01
 """The relative reduction of the constraint violation that counts as progress."""
+VIOLATION_REACHED = 1e-3
+"""A solve that brought its constraint violation below this fraction of the starting one at
+any pass is not judged infeasible however long it stalls: it has been near a feasible point
+and is stuck on optimality (the dual infeasibility), and ends `RESULTS.ip_max_iterations`."""
 
 
 class IPOptions(eqx.Module):
@@ -148,7 +154,14 @@ class IPOptions(eqx.Module):
     residuals, objective and multipliers, instead of the last one (its ``result``,
     ``iterations`` and ``log`` unchanged): for a plan that is used whatever the outcome, such
     as a receding-horizon controller's, where the iterates of a solve that does not settle
-    can wander far from the nearly converged ones it passed (off: the last iterate)."""
+    can wander far from the nearly converged ones it passed (off: the last iterate);
+    ``backward_error_singular``: the largest componentwise backward error of a Newton solve
+    after its step of iterative refinement that is accepted (`BACKWARD_ERROR_SINGULAR`,
+    1e-5, IPOPT's ``residual_ratio_singular``); above it the factor counts as singular and
+    the regularisation grows. A solve is refined only where its first backward error
+    exceeds `BACKWARD_ERROR_TOL` (1e-10). Setting it to 1e-10 as well accepts only solves
+    that reach that: where the factorisation loses accuracy, more regularised and shorter
+    steps, on a path that follows the compiled program's rounding."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -165,6 +178,7 @@ class IPOptions(eqx.Module):
     verbose: bool = eqx.field(static=True, default=False)
     live: bool = eqx.field(static=True, default=False)
     best_iterate: bool = eqx.field(static=True, default=False)
+    backward_error_singular: float = eqx.field(static=True, default=BACKWARD_ERROR_SINGULAR)
 
     def __check_init__(self):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
@@ -184,6 +198,8 @@ class IPOptions(eqx.Module):
         check_integer("IPOptions", "log_size", self.log_size, lower=1)
         for name in ("tol", "constr_tol", "mu0"):
             check_positive("IPOptions", name, getattr(self, name))
+        check_range("IPOptions", "backward_error_singular", self.backward_error_singular,
+                    lower=0.0, upper=1.0, lower_open=True, upper_open=True)
         if self.jacobian_update == "first" and self.hessian_update != "first":
             raise ValueError("IPOptions.jacobian_update='first' keeps the Jacobians with the "
                              "Hessian: it needs hessian_update='first', got "
@@ -628,7 +644,8 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     # a kept Hessian whose last step needed a regularisation almost surely needs one again
     # (only the barrier's curvature changed): the correction starts from it, not from 0
     try_zero = ~(frozen & (st.delta_step > 0) & (st.delta_last > 0))
-    step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup, try_zero=try_zero)
+    step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup, try_zero=try_zero,
+                       singular=options.backward_error_singular)
     tau = jnp.maximum(TAU_MIN, 1.0 - mu)
     mg = lay.masks().g
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
@@ -742,7 +759,8 @@ def _final_evaluation(prob, lay: StageLayout, options: IPOptions, st: IPState) -
                            st.mu, zero, zero, 0)
     finite = jnp.isfinite(res.error) & jnp.isfinite(d.objective)
     infeasible = ((passes_without_progress(log.inf_pr, st.iteration) >= INFEASIBLE_PASSES)
-                  & (res.inf_pr > options.constr_tol))
+                  & (res.inf_pr > options.constr_tol)
+                  & (jnp.nanmin(log.inf_pr) > VIOLATION_REACHED * log.inf_pr[0]))
     st = eqx.tree_at(
         lambda s: (s.iteration, s.done, s.result, s.objective, s.residuals, s.log), st,
         (st.iteration + jnp.where(converged, 0, 1), jnp.asarray(True),
