@@ -39,6 +39,7 @@ def test_road_file_drive_is_the_library_drive(tmp_path, capsys):
     road = road.with_gates(Gate.at(road, 0.0, speed=8.0), None)
     lib = road_primitive(road, num_stages=40)
     assert rec["status"] == "successful" and not rec["closed"]
+    assert (rec["segments"], rec["steps_per_stage"]) == (40, 1)
     assert rec["t_f"] == pytest.approx(float(lib.t_f), rel=1e-9)
     assert rec["units"]["max_corridor_violation_between_nodes"] == "m"
     v = lib.violations()

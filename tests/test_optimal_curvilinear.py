@@ -278,6 +278,32 @@ def test_the_library_road_gives_the_stand_in_drive(corner):
     np.testing.assert_allclose(other.cartesian()["x"], prim.cartesian()["x"], atol=1e-6)
 
 
+def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
+    """``coarse_stages``: the drive starts from the coarse solution where that converged (the
+    same optimum, from another first iterate), and from the speed profile where it did not
+    (two iterations: the first iterate is the direct solve's); the primitive and its record
+    say which."""
+    from vehsim.optimal.ip import IPOptions
+
+    road, prim = corner
+    warm = road_primitive(road, num_stages=M_OPEN, coarse_stages=20)
+    assert bool(warm.coarse.converged) and bool(warm.solution.converged)
+    assert float(warm.t_f) == pytest.approx(float(prim.t_f), rel=1e-7)
+    first = float(prim.solution.log.objective[0])
+    assert abs(float(warm.solution.log.objective[0]) - first) > 1e-3
+    rec = warm.record()["coarse"]
+    assert (rec["segments"], rec["status"], rec["started_from"]) == (20, "successful", True)
+    assert rec["iterations"] == int(warm.coarse.iterations)
+    short = road_primitive(road, num_stages=M_OPEN, coarse_stages=20, throw=False,
+                           options=IPOptions(max_iter=2))
+    assert not bool(short.coarse.converged)
+    assert float(short.solution.log.objective[0]) == pytest.approx(first, rel=1e-12)
+    rec = short.record()["coarse"]
+    assert (rec["status"], rec["iterations"], rec["started_from"]) == (
+        "ip_max_iterations", 2, False)
+    assert "coarse" not in prim.record()
+
+
 def test_closed_lap_is_periodic(lap):
     road, prim = lap
     assert bool(prim.solution.converged)

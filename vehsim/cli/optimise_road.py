@@ -144,6 +144,13 @@ def optimise_road(args) -> int:
                           options=options, throw=False)
     jax.block_until_ready(prim.solution.xs)
     wall = time.perf_counter() - t0
+    if prim.coarse is not None and not bool(prim.coarse.converged):
+        from .._results import result_name
+
+        print(f"vehsim optimise {road.name}: the first solve, on {coarse} stages, stopped with "
+              f"{result_name(prim.coarse.result)} after {int(prim.coarse.iterations)} "
+              f"iterations; the {stages} stages started from the speed profile instead",
+              file=sys.stderr)
     bound = road_point_mass_bound(road, args.objective, D=args.friction,
                                   num_stages=min(stages, 500), tf_max=args.tf_max, throw=False)
     rec = prim.record(bound)

@@ -856,13 +856,16 @@ class RoadPrimitive(AbstractSolvedDrive):
     """A drive solved on a centre-line road: ``problem`` (`CurvilinearManeuverOCP` or
     `CurvilinearPointMassOCP`), its interior-point ``solution`` and the ``road``. The same
     reading as `Primitive`: ``t_f`` [s], ``exit_speed`` [m/s], ``result``, `nodes`, `time`,
-    `signals` (with the Cartesian pose), `violations`, and `solution_record`."""
+    `signals` (with the Cartesian pose), `violations`, and `solution_record`. ``coarse``: the
+    solution of `road_primitive`'s coarse solve where it made one (the fine solve started from
+    it where it converged, else from the speed profile)."""
 
     problem: Any
     solution: IPSolution
     road: Any
     runner: Callable = eqx.field(static=True, default=run_program)
     starts: IPSolution | None = None
+    coarse: IPSolution | None = None
 
     def nodes(self):
         """States at every integration node (M S + 1, nx), uniform in s."""
@@ -948,7 +951,13 @@ class RoadPrimitive(AbstractSolvedDrive):
                    **result_record(sol.result), iterations=int(sol.iterations),
                    residuals=dict(inf_pr=float(sol.inf_pr), inf_du=float(sol.inf_du),
                                   compl=float(sol.compl)),
-                   segments=self.problem.num_stages, nodes=len(sig["x"]))
+                   segments=self.problem.num_stages,
+                   steps_per_stage=self.problem.steps_per_stage, nodes=len(sig["x"]))
+        if self.coarse is not None:
+            rec["coarse"] = dict(segments=int(self.coarse.xs.shape[0] - 1),
+                                 **result_record(self.coarse.result),
+                                 iterations=int(self.coarse.iterations),
+                                 started_from=bool(self.coarse.converged))
         v = self.violations()
         rec["violations"] = v
         rec["max_corridor_violation"] = v["corridor"]
@@ -1038,6 +1047,7 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
                                             num_stages=num_stages,
                                             steps_per_stage=steps_per_stage, margin=margin,
                                             tf_max=tf_max, rate_weight=rate_weight)
+    coarse = None
     if guess is None and coarse_stages is not None and coarse_stages < num_stages:
         coarse = road_primitive(road, objective, car=car, num_stages=coarse_stages,
                                 steps_per_stage=steps_per_stage, margin=margin, tf_max=tf_max,
@@ -1053,4 +1063,5 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
             xs0 = xs0.at[:, 8].multiply(jnp.minimum(1.0, 0.98 * tf_max / xs0[-1, 8]))
             guess = (xs0, us0)
     sol = solver(prob, *guess, options, throw=throw)
-    return RoadPrimitive(problem=prob, solution=sol, road=road)
+    return RoadPrimitive(problem=prob, solution=sol, road=road,
+                         coarse=None if coarse is None else coarse.solution)
