@@ -51,6 +51,26 @@ def test_road_file_drive_is_the_library_drive(tmp_path, capsys):
     assert "40 stages" in err and "wrote" in err
 
 
+def test_a_first_solve_that_stops_short_is_said_and_recorded(tmp_path, capsys, monkeypatch):
+    """A road long enough for a coarse first solve (here forced onto the corner, 20 stages)
+    whose first solve stops at --max-iter: the command says that the drive started from the
+    speed profile instead, and the record's ``coarse`` says so too."""
+    from vehsim.cli import optimise_road
+
+    path = tmp_path / "corner.csv"
+    write_road(path, CentrelineRoad.from_segments(CORNER, 8.0, name="corner"))
+    monkeypatch.setattr(optimise_road, "coarse_stages", lambda length, stages: 20)
+    out = tmp_path / "out"
+    code, err = _run(["optimise", "--road-file", path, "--segments", 40, "--start-speed", 8,
+                      "--max-iter", 2, "--out", out, "--quiet"], capsys)
+    assert code == 1, err
+    assert ("the first solve, on 20 stages, stopped with ip_max_iterations after 2 "
+            "iterations; the 40 stages started from the speed profile instead") in err
+    rec = json.loads((out / "corner_min-time.json").read_text())["coarse"]
+    assert (rec["segments"], rec["status"], rec["started_from"]) == (
+        20, "ip_max_iterations", False)
+
+
 def _bad_file(tmp_path, rows, name="bad"):
     path = tmp_path / f"{name}.csv"
     path.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n"
