@@ -58,9 +58,10 @@ r"""The floor of the default step-size control's steps, as a fraction of the tim
 $|t_1 - t_0|$. An accepted step never shrinks the next one, so only rejected steps reach it,
 and a finite vector field rejects steps only to meet the tolerances, far above it. Where
 the vector field is NaN or inf just past the time reached (a control function that turns
-NaN, a state outside the model's domain), each step is rejected and shrunk until the time no longer advances: without
-the floor the solve then spends its whole step budget and reports `max_steps_reached`; with
-it, it stops within a few dozen steps as `RESULTS.step_size_collapsed`."""
+NaN, a state outside the model's domain), each step is rejected and shrunk until the time no
+longer advances: without the floor the solve then spends its whole step budget and reports
+`max_steps_reached`; with it, it stops within a few dozen steps as
+`RESULTS.step_size_collapsed`."""
 
 EQUILIBRIUM_DTMAX = 0.01
 r"""The largest step [s] of the quarter car's and a tire's adaptive solves

@@ -238,8 +238,8 @@ def _backward_error_ok(K: KKTMatrix, sol, rhs, tol: float | None = None):
     residual."""
     res = rhs - K.matvec(sol)
     scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
-    tol = backward_error_tol(res.dtype) if tol is None else max(tol,
-                                                                backward_error_tol(res.dtype))
+    floor = backward_error_tol(res.dtype)
+    tol = floor if tol is None else max(tol, floor)
     return jnp.max(jnp.abs(res)) <= tol * jnp.max(scale), res
 
 
