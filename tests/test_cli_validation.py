@@ -5,7 +5,10 @@ seconds and the sweep's axis check is the only one that builds a model)."""
 
 import argparse
 import csv
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -361,6 +364,25 @@ def test_a_cpu_device_count_jax_cannot_start_with_is_refused(value, tmp_path, ca
     for fine in ("2", "-1", "-2", ""):  # a count, JAX's "not set" (negative), empty
         monkeypatch.setenv("JAX_NUM_CPU_DEVICES", fine)
         assert cli._jax_environment_error() is None
+
+
+@pytest.mark.parametrize("how", ["program", "library"])
+def test_a_cpu_device_count_jax_cannot_read_is_refused_before_jax_starts(how):
+    """JAX's own import refuses a JAX_NUM_CPU_DEVICES that is not a number with a traceback;
+    vehsim's import names the variable and its range first: as the command line's error
+    (status 2, no traceback) under the ``vehsim`` program, as a ValueError in a library."""
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES="two")
+    args = ["-m", "vehsim", "--version"] if how == "program" else ["-c", "import vehsim"]
+    done = subprocess.run([sys.executable, *args], env=env, capture_output=True, text=True,
+                          timeout=120)
+    message = "JAX_NUM_CPU_DEVICES='two': must be a whole number >= 1"
+    if how == "program":
+        assert done.returncode == 2 and done.stdout == "", done
+        assert done.stderr.startswith(f"vehsim: error: {message}"), done.stderr
+        assert "Traceback" not in done.stderr
+    else:
+        assert done.returncode == 1 and f"ValueError: {message}" in done.stderr, done.stderr
+        assert "jax_num_cpu_devices" not in done.stderr  # refused before JAX's import
 
 
 def test_a_mass_too_small_for_the_torques_is_named_as_the_load_s_source(tmp_path, capsys):

@@ -13,9 +13,13 @@ like, before the first computation.
 
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
 
-from ._xla_cpu import configure_xla_cpu as configure_xla_cpu
+from ._xla_cpu import (
+    configure_xla_cpu as configure_xla_cpu,
+    refuse_unreadable_environment as _refuse_unreadable_environment,
+)
 
 
+_refuse_unreadable_environment()  # a JAX setting JAX's own import would refuse, named
 configure_xla_cpu()  # before JAX starts its CPU backend; see its docstring for the scope
 
 from . import params as params

@@ -18,6 +18,7 @@ fusion emitters, which compile slower than the older code generator.
 """
 
 import os
+import sys
 
 
 FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler"
@@ -91,3 +92,51 @@ def _switch_off(flag: str, environ) -> bool:
         return False
     environ["XLA_FLAGS"] = f"{flags} {flag}=false".strip()
     return True
+
+
+CPU_DEVICES_VARIABLE = "JAX_NUM_CPU_DEVICES"
+
+
+def cpu_devices_error(environ=os.environ) -> str | None:
+    """What is wrong with ``$JAX_NUM_CPU_DEVICES`` (the CPU devices JAX makes; ``vehsim
+    optimise --help`` suggests setting it), if anything. JAX refuses a value that is not a
+    whole number at its import, with a traceback; it reads a negative count as "not set", and
+    takes 0, then fails to start its CPU backend at the first computation."""
+    value = environ.get(CPU_DEVICES_VARIABLE)
+    if value is None or value.strip() == "":
+        return None
+    try:
+        count = int(value)
+    except ValueError:
+        count = 0
+    if count != 0:
+        return None
+    return (f"{CPU_DEVICES_VARIABLE}={value!r}: must be a whole number >= 1 (the CPU devices "
+            "JAX makes), or unset for one")
+
+
+def refuse_unreadable_environment(environ=os.environ) -> None:
+    """Before JAX is imported: a ``$JAX_NUM_CPU_DEVICES`` that is not a whole number, which
+    JAX's own import would refuse with a traceback, is refused here with the variable named
+    (`ValueError`). Under the ``vehsim`` program (its console script, or ``python -m
+    vehsim``) the message goes to stderr as the command line's errors do, with exit status 2.
+    A count of 0 passes here: the command line refuses it before its first computation."""
+    value = environ.get(CPU_DEVICES_VARIABLE, "").strip()
+    try:
+        int(value or "1")
+    except ValueError:
+        problem = cpu_devices_error(environ)
+        if _command_line():
+            sys.stderr.write(f"vehsim: error: {problem}\n")
+            raise SystemExit(2) from None
+        raise ValueError(problem) from None
+
+
+def _command_line() -> bool:
+    """Whether this process is the ``vehsim`` program (its console script, or ``python -m
+    vehsim``), importing the package before its own code runs."""
+    name = os.path.basename(sys.argv[0]) if sys.argv else ""
+    if name in ("vehsim", "vehsim.exe", "vehsim-script.py"):
+        return True
+    orig = list(getattr(sys, "orig_argv", []))
+    return any(a == "-m" and b == "vehsim" for a, b in zip(orig, orig[1:]))

@@ -60,23 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _jax_environment_error() -> str | None:
-    """What is wrong with ``$JAX_NUM_CPU_DEVICES`` (which ``optimise --help`` suggests
-    setting), if anything: JAX refuses a word that is not a number at import (its own
-    error), reads a negative count as "not set", and takes 0, then fails to start its CPU
-    backend at the first computation with a traceback."""
-    import os
+    """What is wrong with ``$JAX_NUM_CPU_DEVICES``, if anything (`cpu_devices_error`)."""
+    from .._xla_cpu import cpu_devices_error
 
-    value = os.environ.get("JAX_NUM_CPU_DEVICES")
-    if value is None or value.strip() == "":
-        return None
-    try:
-        count = int(value)
-    except ValueError:
-        return None  # JAX's import has refused it already
-    if count != 0:
-        return None
-    return (f"JAX_NUM_CPU_DEVICES={value!r}: must be a whole number >= 1 (the CPU devices JAX "
-            "makes), or unset for one")
+    return cpu_devices_error()
 
 
 def main(argv: list[str] | None = None) -> int:
