@@ -107,6 +107,9 @@ CASES = {
     "a backward error accepted as text": (
         lambda: IPOptions(backward_error_singular="1e-5"),
         "IPOptions.backward_error_singular must be a number, got '1e-5'"),
+    "no refinement step": (
+        lambda: IPOptions(max_refinement_steps=0),
+        "IPOptions.max_refinement_steps must be an integer >= 1, got 0"),
     "a fractional iteration cap": (
         lambda: IPOptions(max_iter=2.5), "IPOptions.max_iter must be an integer >= 1, got 2.5"),
     "no log": (lambda: IPOptions(log_size=0), "IPOptions.log_size must be an integer >= 1"),

@@ -759,13 +759,15 @@ def test_driver_passes_its_hessian_update_to_the_sample_solves():
     assert vs.RecedingHorizonDriver(table, mode="converged").options().reestimate_multipliers
     # every sample solve accepts a Newton solve only at the refinement's own tolerance, the
     # setting the drive's figures were measured with (the offline primitives take IPOPT's)
-    from vehsim.drive.horizon import PLAN_BACKWARD_ERROR
+    from vehsim.drive.horizon import PLAN_BACKWARD_ERROR, PLAN_REFINEMENT_STEPS
     from vehsim.optimal.ip.kkt import BACKWARD_ERROR_TOL
 
     assert PLAN_BACKWARD_ERROR == BACKWARD_ERROR_TOL < vs.IPOptions().backward_error_singular
+    assert PLAN_REFINEMENT_STEPS == 1 < vs.IPOptions().max_refinement_steps
     for options in (frozen.options(), frozen.options(first=True),
                     frozen.options(replan=True)):
         assert options.backward_error_singular == PLAN_BACKWARD_ERROR
+        assert options.max_refinement_steps == PLAN_REFINEMENT_STEPS
     with pytest.raises(ValueError, match="RecedingHorizonDriver.hessian_update must be"):
         vs.RecedingHorizonDriver(table, hessian_update="never")
     # the steps that take a fresh Hessian before it is kept: the samples' solves only (the

@@ -338,12 +338,13 @@ def test_the_nominal_reference_takes_the_drives_newton_acceptance(monkeypatch):
     bound's start) is solved with the drive's `PLAN_BACKWARD_ERROR`, as the driver's plans
     are, not the library primitives' default."""
     import vehsim.drive.baselines as baselines
-    from vehsim.drive.horizon import PLAN_BACKWARD_ERROR
+    from vehsim.drive.horizon import PLAN_BACKWARD_ERROR, PLAN_REFINEMENT_STEPS
 
     seen = {}
     monkeypatch.setattr(baselines, "road_primitive", lambda road, **kw: seen.update(kw))
     baselines.nominal_primitive(vs.drive_scenario("corner90", "nominal"))
     assert seen["options"].backward_error_singular == PLAN_BACKWARD_ERROR
+    assert seen["options"].max_refinement_steps == PLAN_REFINEMENT_STEPS
     assert int(seen["options"].max_iter) == 500
 
 

@@ -2,6 +2,7 @@
 
 import re
 import types
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -1082,8 +1083,9 @@ def test_functions_undefined_where_they_are_masked_keep_the_hessian_finite(case)
 def test_a_refined_solve_is_accepted_up_to_the_singular_backward_error(monkeypatch):
     """Every Newton solve made inaccurate on purpose (a relative error of 3e-3: one step of
     refinement leaves a backward error near 1e-6): the default acceptance (IPOPT's 1e-5)
-    converges to the exact solve's optimum, and ``backward_error_singular=1e-10`` refuses
-    every factorisation."""
+    converges to the exact solve's optimum; ``backward_error_singular=1e-10`` with one
+    refinement step refuses every factorisation, and with IPOPT's 10 steps (each gains the
+    same factor) accepts them."""
     from vehsim.optimal.ip import kkt
 
     class Inaccurate(DoubleIntegrator):  # a program of its own: the patch is traced into it
@@ -1098,8 +1100,54 @@ def test_a_refined_solve_is_accepted_up_to_the_singular_backward_error(monkeypat
     assert sol.result == RESULTS.successful
     assert float(sol.objective) == pytest.approx(float(ref.objective), rel=1e-8)
     strict = interior_point(Inaccurate(num_stages=M, bound=1.0), *args,
-                            IPOptions(backward_error_singular=1e-10), throw=False)
+                            IPOptions(backward_error_singular=1e-10, max_refinement_steps=1),
+                            throw=False)
     assert strict.result == RESULTS.ip_newton_system_failed
+    refined = interior_point(Inaccurate(num_stages=M, bound=1.0), *args,
+                             IPOptions(backward_error_singular=1e-10), throw=False)
+    assert refined.result == RESULTS.successful
+    assert float(refined.objective) == pytest.approx(float(ref.objective), rel=1e-8)
+
+
+def test_refinement_recovers_the_row_a_periodic_lap_s_riccati_solve_misses(default_codegen):
+    """The KKT system of a periodic lap (the oval of tests/test_optimal_curvilinear.py, 50
+    stages, pass 200 of its solve under the command line's code generator; the 9 rows of the
+    periodic end are condensed with $-\delta_c$, and the last stage has 3 controls) is
+    ill-conditioned at the regularisation 0.01, where its inertia is right. Under the command
+    line's code generator the Riccati solve missed one row of the third stage from the end (a
+    backward error of 0.7 on the machine that recorded it, 1e-6 under XLA's default) and one
+    refinement step left 7e-5, above IPOPT's 1e-5, so the regularisation grew to 3-30 and
+    the solve crept. Refined as IPOPT refines (up to 10 steps), the solve is accepted and
+    agrees with a dense LU solve of the same matrix."""
+    from vehsim.optimal.ip import kkt
+
+    data = np.load(Path(__file__).parent / "data" / "periodic_oval_kkt_pass_200.npz")
+    delta = 0.01
+    W = data["W0"] + delta * np.einsum("ki,ij->kij", data["y_mask"], np.eye(data["W0"].shape[1]))
+    K = KKTMatrix(W=jnp.asarray(W), A=jnp.asarray(data["A"]), Je=jnp.asarray(data["Je"]),
+                  dl=jnp.asarray(data["dl"]), de=jnp.asarray(data["de"]))
+    rhs = jnp.asarray(data["rhs"])
+    # the dense peer: K assembled column by column from its block products, then LU
+    n = rhs.size
+    cols = [np.asarray(K.matvec(jnp.asarray(np.eye(n)[j].reshape(rhs.shape)))).ravel()
+            for j in range(n)]
+    dense = np.linalg.solve(np.stack(cols, 1), np.asarray(rhs).ravel()).reshape(rhs.shape)
+
+    def solves(K, rhs):
+        first = riccati_solve(riccati_factor(K), K, rhs)
+        one = kkt.checked_solve(None, K, rhs, kkt.BACKWARD_ERROR_SINGULAR, steps=1)
+        ten = kkt.checked_solve(None, K, rhs, kkt.BACKWARD_ERROR_SINGULAR,
+                                steps=kkt.MAX_REFINEMENT_STEPS)
+        return (kkt._backward_error(K, first, rhs)[0], one[0], kkt._backward_error(K, one[0], rhs)[0],
+                ten[0], ten[1], kkt._backward_error(K, ten[0], rhs)[0], ten[2].ok)
+
+    # the command line's code generation (the suite's LLVM passes back on)
+    program = jax.jit(solves).lower(K, rhs).compile(compiler_options=default_codegen)
+    first_error, _, one_error, sol, ok, error, inertia = program(K, rhs)
+    assert bool(inertia)
+    assert float(first_error) > 1e-8  # ill-conditioned: an accurate solve's is 1e-16
+    assert bool(ok) and float(error) <= min(float(one_error), kkt.BACKWARD_ERROR_SINGULAR)
+    assert np.max(np.abs(np.asarray(sol) - dense)) <= 1e-6 * np.max(np.abs(dense))
 
 
 def test_a_newton_system_no_regularisation_solves_ends_the_solve(monkeypatch):

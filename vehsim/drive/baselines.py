@@ -53,7 +53,7 @@ from ..optimal.shooting import DELTA_MAX
 from ..vehicle.params import HalfCarParams, rally_gravel
 from ..vehicle.planar import axle_velocities
 from .actuators import DriveActuators
-from .horizon import PLAN_BACKWARD_ERROR, horizon_problem, stage_speeds
+from .horizon import PLAN_BACKWARD_ERROR, PLAN_REFINEMENT_STEPS, horizon_problem, stage_speeds
 from .scenarios import BENCHMARK_PEAK, DriveScenario
 from .sensors import DriveMeasurement
 from .simulate import AbstractDriveController, CommandSchedule
@@ -187,10 +187,11 @@ def nominal_primitive(scenario: DriveScenario, D: float = BENCHMARK_PEAK, **kwar
     receding-horizon driver's default planning car) with one peak $D$ on the scenario's road
     from the drive's start (`DriveScenario.primitive_road`); `kwargs` go to `road_primitive`
     (default ``num_stages`` 100, one per 2 m on the stage; ``options`` its default
-    ``max_iter=500``, with the drive's `PLAN_BACKWARD_ERROR`)."""
+    ``max_iter=500``, with the drive's `PLAN_BACKWARD_ERROR` and `PLAN_REFINEMENT_STEPS`)."""
     kwargs.setdefault("num_stages", max(100, int(round(scenario.road.length / 2.0))))
     kwargs.setdefault("options", IPOptions(max_iter=500,
-                                           backward_error_singular=PLAN_BACKWARD_ERROR))
+                                           backward_error_singular=PLAN_BACKWARD_ERROR,
+                                           max_refinement_steps=PLAN_REFINEMENT_STEPS))
     return road_primitive(scenario.primitive_road(), car=rally_gravel_car(D), throw=False,
                           **kwargs)
 
@@ -216,7 +217,8 @@ def _bound_solve(table, car, length, rate_weight, xs0, us0, D_stage, limits):
                            slip_limit=limits["slip_limit"],
                            margin_grip_power=limits["margin_grip_power"])
     # from a solution nearby: a small first barrier keeps its active set
-    options = IPOptions(max_iter=500, mu0=1e-3, backward_error_singular=PLAN_BACKWARD_ERROR)
+    options = IPOptions(max_iter=500, mu0=1e-3, backward_error_singular=PLAN_BACKWARD_ERROR,
+                        max_refinement_steps=PLAN_REFINEMENT_STEPS)
     return prob, interior_point(prob, xs0, us0, options, throw=False)
 
 

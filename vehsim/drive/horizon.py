@@ -106,6 +106,10 @@ refinement's own tolerance, 1e-10, where the offline primitives accept IPOPT's 1
 closed-loop figures of docs/driver.md were measured with it; the looser acceptance, which
 regularises less where the factorisation loses accuracy, is not measured on the closed
 loop."""
+PLAN_REFINEMENT_STEPS = 1
+"""`IPOptions.max_refinement_steps` of every drive solve: one step of iterative refinement,
+as the closed-loop figures of docs/driver.md were measured (the offline primitives refine
+up to IPOPT's 10 steps)."""
 
 
 # ---- the road as arrays -----------------------------------------------------------------
@@ -1127,7 +1131,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                          fresh_hessian_steps=jnp.where(first, self.init_iterations,
                                                        self.fresh_hessian_steps),
                          reestimate_multipliers=first | (self.mode == "converged"),
-                         backward_error_singular=PLAN_BACKWARD_ERROR)
+                         backward_error_singular=PLAN_BACKWARD_ERROR,
+                         max_refinement_steps=PLAN_REFINEMENT_STEPS)
 
     def stage_speeds(self, xs) -> Float[Array, " M"]:
         """`stage_speeds` of the plan ``xs``."""

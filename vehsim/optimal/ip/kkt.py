@@ -56,6 +56,12 @@ BACKWARD_ERROR_SINGULAR = 1e-5
 """Largest componentwise backward error of a refined solve that is accepted (IPOPT's
 ``residual_ratio_singular``, the default of `IPOptions.backward_error_singular`): above it
 the factor counts as singular and the regularisation grows."""
+MAX_REFINEMENT_STEPS = 10
+"""Most steps of iterative refinement of a Newton solve (IPOPT's ``max_refinement_steps``,
+the default of `IPOptions.max_refinement_steps`)."""
+REFINEMENT_IMPROVEMENT = 0.999999999
+"""Refinement stops at a step that does not bring the backward error below this fraction
+of the last one (IPOPT's ``residual_improvement_factor``)."""
 
 
 class Iterate(eqx.Module):
@@ -249,17 +255,54 @@ def backward_error_tol(dtype) -> float:
     return max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(dtype).eps))
 
 
-def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = None):
+def _backward_error(K: KKTMatrix, sol, rhs):
+    """The componentwise backward error (Oettli-Prager) of ``sol`` and its residual."""
+    res = rhs - K.matvec(sol)
+    scale = jnp.max(K.matvec(sol, absolute=True) + jnp.abs(rhs))
+    return jnp.max(jnp.abs(res)) / jnp.where(scale > 0, scale, 1.0), res
+
+
+def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = None,
+                  steps: int = 1):
     """Factor and solve; ``ok`` when the inertia is the expected one (every Cholesky factor
     of the Riccati recursion exists) and the solve is accurate: a first solve whose
-    componentwise backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`, or else one
-    step of iterative refinement whose backward error is below ``singular`` (default
-    `BACKWARD_ERROR_TOL` too). A factor of the wrong inertia is not used for a solve."""
+    componentwise backward error (Oettli-Prager) is below `BACKWARD_ERROR_TOL`, or else up
+    to ``steps`` steps of iterative refinement, as IPOPT refines: until that error is below
+    `BACKWARD_ERROR_TOL` or a step no longer reduces it (`REFINEMENT_IMPROVEMENT`), the
+    most accurate solution kept and accepted where its error is below ``singular`` (default
+    `BACKWARD_ERROR_TOL` too). A factor of the wrong inertia is not used for a solve.
+
+    One step suffices where the factor is accurate. A terminal equality of more rows than the
+    last stage has controls (a periodic lap's end, condensed with $-\delta_c$) makes the
+    Riccati recursion's last stages ill-conditioned: the first solve can then miss a row
+    entirely, and each step gains a few digits."""
     F = riccati_factor(K)
 
     def refine(sol, res):
-        sol = sol + riccati_solve(F, K, res)
-        return sol, _backward_error_ok(K, sol, rhs, singular)[0]
+        if steps == 1:
+            sol = sol + riccati_solve(F, K, res)
+            return sol, _backward_error_ok(K, sol, rhs, singular)[0]
+        floor = backward_error_tol(res.dtype)
+
+        def more(c):
+            _, _, error, last, n, _, best_error = c
+            return ((n < steps) & (error > floor) & (error < REFINEMENT_IMPROVEMENT * last)
+                    & (best_error > floor))
+
+        def step(c):
+            sol, res, error, _, n, best, best_error = c
+            sol = sol + riccati_solve(F, K, res)
+            new_error, res = _backward_error(K, sol, rhs)
+            better = new_error < best_error
+            return (sol, res, new_error, error, n + 1, jnp.where(better, sol, best),
+                    jnp.where(better, new_error, best_error))
+
+        error, _ = _backward_error(K, sol, rhs)
+        inf = jnp.asarray(jnp.inf, error.dtype)
+        c = jax.lax.while_loop(more, step, (sol, res, error, inf, 0, sol, error))
+        best, best_error = c[5], c[6]
+        tol = floor if singular is None else max(singular, floor)
+        return best, best_error <= tol
 
     def solve():
         sol = riccati_solve(F, K, rhs)
@@ -273,11 +316,12 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = 
 
 
 def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
-                       delta_last, try_zero=True, singular=None) -> InertiaCorrection:
+                       delta_last, try_zero=True, singular=None,
+                       refinement_steps: int = 1) -> InertiaCorrection:
     """Inertia correction: $\\delta = 0$ first (unless ``try_zero`` is false), then
     `DELTA_FIRST` (or the last $\\delta$ over `DELTA_DECREASE`), growing until
     `checked_solve` accepts (at most `MAX_FACTORISATIONS`; ``singular``: its refined solve's
-    largest backward error); the final loop state."""
+    largest backward error, after at most ``refinement_steps`` steps); the final loop state."""
     d_first = jnp.where(
         delta_last == 0.0, DELTA_FIRST, jnp.maximum(DELTA_MIN, delta_last / DELTA_DECREASE)
     )
@@ -291,7 +335,7 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
         i = n + jnp.where(try_zero, 0, 1)  # the place in the sequence 0, d_first, ...
         delta = jnp.where(i == 0, 0.0, jnp.where(i == 1, d_first, st.delta * growth))
         K = kkt_matrix(lay, W0, d, delta)
-        sol, ok, F = checked_solve(lay, K, rhs, singular)
+        sol, ok, F = checked_solve(lay, K, rhs, singular, refinement_steps)
         return InertiaCorrection(delta=delta, solution=sol, ok=ok, factorisations=n + 1,
                                  factor=F, matrix=K)
 
@@ -305,12 +349,13 @@ def _regularised_solve(lay: StageLayout, W0, d: StageDerivatives, rhs,
 
 
 def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_last,
-                least_squares=False, try_zero=True, singular=None) -> NewtonStep:
+                least_squares=False, try_zero=True, singular=None,
+                refinement_steps: int = 1) -> NewtonStep:
     """The primal-dual Newton direction at ``it`` for barrier ``mu``, with the smallest
     regularisation that gives the right inertia (``delta_last``: the previous one;
     ``try_zero``: a traced flag, false to start from ``delta_last`` over `DELTA_DECREASE`
     where $\\delta = 0$ is known to fail; ``singular``: the largest backward error of a
-    refined solve, `checked_solve`).
+    refined solve, after at most ``refinement_steps`` steps, `checked_solve`).
 
     Where ``least_squares`` (a traced flag), the same factorisation solves the system of
     `_least_squares_system` instead: ``dlam``, ``dnu`` are then the least-squares
@@ -322,7 +367,7 @@ def newton_step(lay: StageLayout, it: Iterate, d: StageDerivatives, mu, delta_la
     W0 = jnp.where(least_squares, W_ls, W0)
     delta_last = jnp.where(least_squares, 0.0, delta_last)
     corrected = _regularised_solve(lay, W0, d, rhs, delta_last, try_zero | least_squares,
-                                   singular)
+                                   singular, refinement_steps)
     dy, ds, dlam, dnu = _split_step(lay, d, corrected.solution, d.g, it.s)
     sg = jnp.where(mg > 0, it.s, 1.0)
     Sigma = jnp.where(mg > 0, it.z / sg, 0.0)

@@ -72,6 +72,7 @@ from .derivatives import (
 from .implicit import implicit_solve
 from .kkt import (
     BACKWARD_ERROR_SINGULAR,
+    MAX_REFINEMENT_STEPS,
     Iterate,
     NewtonStep,
     Residuals,
@@ -156,12 +157,15 @@ class IPOptions(eqx.Module):
     as a receding-horizon controller's, where the iterates of a solve that does not settle
     can wander far from the nearly converged ones it passed (off: the last iterate);
     ``backward_error_singular``: the largest componentwise backward error of a Newton solve
-    after its step of iterative refinement that is accepted (`BACKWARD_ERROR_SINGULAR`,
-    1e-5, IPOPT's ``residual_ratio_singular``); above it the factor counts as singular and
-    the regularisation grows. A solve is refined only where its first backward error
-    exceeds `BACKWARD_ERROR_TOL` (1e-10). Setting it to 1e-10 as well accepts only solves
-    that reach that: where the factorisation loses accuracy, more regularised and shorter
-    steps, on a path that follows the compiled program's rounding."""
+    after iterative refinement that is accepted (`BACKWARD_ERROR_SINGULAR`, 1e-5, IPOPT's
+    ``residual_ratio_singular``); above it the factor counts as singular and the
+    regularisation grows. A solve is refined only where its first backward error exceeds
+    `BACKWARD_ERROR_TOL` (1e-10), by at most ``max_refinement_steps`` steps
+    (`MAX_REFINEMENT_STEPS`, 10, IPOPT's ``max_refinement_steps``; each stops refining where
+    the error stops falling). Setting ``backward_error_singular`` to 1e-10 as well accepts
+    only solves that reach that, and one refinement step refines as the solver did before
+    it refined as IPOPT does: where the factorisation loses accuracy, more regularised and
+    shorter steps, on a path that follows the compiled program's rounding."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
@@ -179,6 +183,7 @@ class IPOptions(eqx.Module):
     live: bool = eqx.field(static=True, default=False)
     best_iterate: bool = eqx.field(static=True, default=False)
     backward_error_singular: float = eqx.field(static=True, default=BACKWARD_ERROR_SINGULAR)
+    max_refinement_steps: int = eqx.field(static=True, default=MAX_REFINEMENT_STEPS)
 
     def __check_init__(self):
         for name, allowed in (("multiplier_init", ("least-squares", "zero")),
@@ -200,6 +205,7 @@ class IPOptions(eqx.Module):
             check_positive("IPOptions", name, getattr(self, name))
         check_range("IPOptions", "backward_error_singular", self.backward_error_singular,
                     lower=0.0, upper=1.0, lower_open=True, upper_open=True)
+        check_integer("IPOptions", "max_refinement_steps", self.max_refinement_steps, lower=1)
         if self.jacobian_update == "first" and self.hessian_update != "first":
             raise ValueError("IPOptions.jacobian_update='first' keeps the Jacobians with the "
                              "Hessian: it needs hessian_update='first', got "
@@ -645,7 +651,8 @@ def _iteration(prob, lay: StageLayout, options: IPOptions, st: IPState,
     # (only the barrier's curvature changed): the correction starts from it, not from 0
     try_zero = ~(frozen & (st.delta_step > 0) & (st.delta_last > 0))
     step = newton_step(lay, it, d, mu, st.delta_last, least_squares=setup, try_zero=try_zero,
-                       singular=options.backward_error_singular)
+                       singular=options.backward_error_singular,
+                       refinement_steps=options.max_refinement_steps)
     tau = jnp.maximum(TAU_MIN, 1.0 - mu)
     mg = lay.masks().g
     alpha_max = fraction_to_boundary(it.s, step.ds, mg, tau)
