@@ -1112,7 +1112,7 @@ def test_a_refined_solve_is_accepted_up_to_the_singular_backward_error(monkeypat
 def test_refinement_recovers_the_row_a_periodic_lap_s_riccati_solve_misses(default_codegen):
     """The KKT system of a periodic lap (the oval of tests/test_optimal_curvilinear.py, 50
     stages, pass 200 of its solve under the command line's code generator; the 9 rows of the
-    periodic end are condensed with $-\delta_c$, and the last stage has 3 controls) is
+    periodic end are condensed with $-\\delta_c$, and the last stage has 3 controls) is
     ill-conditioned at the regularisation 0.01, where its inertia is right. Under the command
     line's code generator the Riccati solve missed one row of the third stage from the end (a
     backward error of 0.7 on the machine that recorded it, 1e-6 under XLA's default) and one

@@ -273,7 +273,7 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = 
     `BACKWARD_ERROR_TOL` too). A factor of the wrong inertia is not used for a solve.
 
     One step suffices where the factor is accurate. A terminal equality of more rows than the
-    last stage has controls (a periodic lap's end, condensed with $-\delta_c$) makes the
+    last stage has controls (a periodic lap's end, condensed with $-\\delta_c$) makes the
     Riccati recursion's last stages ill-conditioned: the first solve can then miss a row
     entirely, and each step gains a few digits."""
     F = riccati_factor(K)

@@ -161,11 +161,12 @@ class IPOptions(eqx.Module):
     ``residual_ratio_singular``); above it the factor counts as singular and the
     regularisation grows. A solve is refined only where its first backward error exceeds
     `BACKWARD_ERROR_TOL` (1e-10), by at most ``max_refinement_steps`` steps
-    (`MAX_REFINEMENT_STEPS`, 10, IPOPT's ``max_refinement_steps``; each stops refining where
-    the error stops falling). Setting ``backward_error_singular`` to 1e-10 as well accepts
-    only solves that reach that, and one refinement step refines as the solver did before
-    it refined as IPOPT does: where the factorisation loses accuracy, more regularised and
-    shorter steps, on a path that follows the compiled program's rounding."""
+    (`MAX_REFINEMENT_STEPS`, 10, IPOPT's ``max_refinement_steps``; refinement stops where the
+    error stops falling). Setting ``backward_error_singular`` to 1e-10 as well accepts only
+    solves that reach that, and ``max_refinement_steps=1`` refines once (the drive's
+    solves, `vehsim.drive.horizon.PLAN_REFINEMENT_STEPS`): where the factorisation loses
+    accuracy, more regularised and shorter steps, on a path that follows the compiled
+    program's rounding."""
 
     tol: float = eqx.field(static=True, default=1e-8)
     constr_tol: float = eqx.field(static=True, default=1e-9)
