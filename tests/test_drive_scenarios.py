@@ -335,8 +335,9 @@ def test_jax_departure_is_exact_metres_off_the_road(name):
 
 def test_the_nominal_reference_takes_the_drives_newton_acceptance(monkeypatch):
     """The nominal primitive (the open-loop replay's and the tracker's reference, the offline
-    bound's start) is solved with the drive's `PLAN_BACKWARD_ERROR`, as the driver's plans
-    are, not the library primitives' default."""
+    bound's start) and the offline bound's solves are solved with the drive's
+    `PLAN_BACKWARD_ERROR` and `PLAN_REFINEMENT_STEPS`, as the driver's plans are, not the
+    library primitives' defaults."""
     import vehsim.drive.baselines as baselines
     from vehsim.drive.horizon import PLAN_BACKWARD_ERROR, PLAN_REFINEMENT_STEPS
 
@@ -346,6 +347,10 @@ def test_the_nominal_reference_takes_the_drives_newton_acceptance(monkeypatch):
     assert seen["options"].backward_error_singular == PLAN_BACKWARD_ERROR
     assert seen["options"].max_refinement_steps == PLAN_REFINEMENT_STEPS
     assert int(seen["options"].max_iter) == 500
+    bound = baselines.bound_options()  # the offline bound's solves: the same acceptance
+    assert bound.backward_error_singular == PLAN_BACKWARD_ERROR
+    assert bound.max_refinement_steps == PLAN_REFINEMENT_STEPS
+    assert float(bound.mu0) == 1e-3 and int(bound.max_iter) == 500
 
 
 # ---- the drive and the open-loop replay ----------------------------------------------------

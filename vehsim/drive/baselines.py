@@ -216,10 +216,15 @@ def _bound_solve(table, car, length, rate_weight, xs0, us0, D_stage, limits):
                            steer_rate=limits["steer_rate"], steer_limit=limits["steer_limit"],
                            slip_limit=limits["slip_limit"],
                            margin_grip_power=limits["margin_grip_power"])
-    # from a solution nearby: a small first barrier keeps its active set
-    options = IPOptions(max_iter=500, mu0=1e-3, backward_error_singular=PLAN_BACKWARD_ERROR,
-                        max_refinement_steps=PLAN_REFINEMENT_STEPS)
-    return prob, interior_point(prob, xs0, us0, options, throw=False)
+    return prob, interior_point(prob, xs0, us0, bound_options(), throw=False)
+
+
+def bound_options() -> IPOptions:
+    """The options of `offline_bound`'s solves: from a solution nearby, so a small first
+    barrier (1e-3) that keeps its active set; the drive's `PLAN_BACKWARD_ERROR` and
+    `PLAN_REFINEMENT_STEPS`, as the driver's plans."""
+    return IPOptions(max_iter=500, mu0=1e-3, backward_error_singular=PLAN_BACKWARD_ERROR,
+                     max_refinement_steps=PLAN_REFINEMENT_STEPS)
 
 
 def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver=None,
