@@ -285,9 +285,8 @@ def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = 
         floor = backward_error_tol(res.dtype)
 
         def more(c):
-            _, _, error, last, n, _, best_error = c
-            return ((n < steps) & (error > floor) & (error < REFINEMENT_IMPROVEMENT * last)
-                    & (best_error > floor))
+            _, _, error, last, n, _, _ = c
+            return (n < steps) & (error > floor) & (error < REFINEMENT_IMPROVEMENT * last)
 
         def step(c):
             sol, res, error, _, n, best, best_error = c
