@@ -547,6 +547,29 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     assert setup.controller(args, sc)[0].probe_distance is None
 
 
+@pytest.mark.parametrize("given, kept", [([], False), (["--keep-hessian"], True),
+                                         (["--no-keep-hessian"], False)])
+def test_a_converged_drive_takes_a_fresh_hessian_unless_asked_to_keep_it(given, kept,
+                                                                          road_file):
+    """A road from a file keeps each sample's first Hessian in rti mode (a real-time
+    iteration's economy); ``--mode converged`` takes a fresh one every pass unless
+    ``--keep-hessian`` says otherwise: with the kept Hessian 332 of the 386 converged solves
+    of docs/cli.md's example ran to their cap of 100 passes, with a fresh one 2."""
+    from vehsim.cli import _drive_setup as setup
+    from vehsim.cli.drive import _check
+
+    where = ["drive", "--road-file", str(road_file), "--controller", "rh-oracle"]
+    rti = cli.build_parser().parse_args(where)
+    _check(rti)
+    sc = setup.scenario(rti, setup.road(rti))
+    assert setup.controller(rti, sc)[0].hessian_update == "first"
+    args = cli.build_parser().parse_args([*where, "--mode", "converged", *given])
+    _check(args)
+    driver = setup.controller(args, sc)[0]
+    assert driver.mode == "converged"
+    assert driver.hessian_update == ("first" if kept else "every")
+
+
 @pytest.mark.parametrize("given, preview", [([], math.inf), (["--preview", "10"], 10.0),
                                             (["--preview", "0"], 0.0)])
 def test_drive_gives_the_oracle_its_preview(given, preview):

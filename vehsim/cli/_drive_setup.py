@@ -175,6 +175,10 @@ def controller(args, sc):
         settings["iterations"] = args.passes
     if args.keep_hessian is not None:
         settings["hessian_update"] = "first" if args.keep_hessian else "every"
+    elif args.mode == "converged":
+        # a kept Hessian is a real-time iteration's economy (a fixed number of cheap
+        # passes); a solve to tolerance takes Newton's steps, or it creeps to its cap
+        settings["hessian_update"] = "every"
     return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
                            estimator=args.estimator or "axle-grip", **settings)
 

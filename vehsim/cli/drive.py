@@ -157,8 +157,9 @@ def register(subparsers) -> None:
     p.add_argument("--keep-hessian", action=argparse.BooleanOptionalAction, default=None,
                    help="with an rh controller: keep each sample's first Hessian for its "
                         "later passes (cheaper passes) or take a fresh one every pass "
-                        "(default: the road's driver, fresh on the benchmark corners, kept "
-                        "on the stage and on a road file)")
+                        "(default: fresh with --mode converged; in rti mode the road's "
+                        "driver, fresh on the benchmark corners, kept on the stage and on a "
+                        "road file)")
     p.add_argument("--seed", type=integer(0, 2**31 - 1), default=None,
                    help="seed of the sensor noise (0; not with --no-noise)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
