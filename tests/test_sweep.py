@@ -85,12 +85,12 @@ def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
     procs = [subprocess.Popen(
         [sys.executable, "-m", "vehsim", *grid, "--coordinator", f"127.0.0.1:{port}",
          "--num-processes", "2", "--process-id", str(i), "--out", str(tmp_path / "two.nc")],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for i in range(2)]
     try:
         out = tmp_path / "sweep.json"
         rc = main(grid + ["--out", str(out)])
-        logs = [p.communicate(timeout=600)[0] for p in procs]
+        outs, logs = zip(*(p.communicate(timeout=600) for p in procs))
     finally:
         for p in procs:
             p.kill()
@@ -106,6 +106,9 @@ def test_cli_sweep_json_and_the_same_sweep_on_two_processes(tmp_path, capsys):
     assert yaw[0] < yaw[1] < yaw[2]  # more steering, more yaw
     print("\n".join(f"--- process {i}:\n{log}" for i, log in enumerate(logs)))
     assert [p.returncode for p in procs] == [0, 0], logs
+    # a sweep writes its file and nothing on stdout, not even the collectives' connection
+    # lines (gloo prints "[Gloo] Rank 0 is connected ..." on the C library's stdout)
+    assert outs == ("", ""), outs
     assert "of 2 processes (this is process 1)" in logs[1]
     assert "sweep: 100% (2/2 members)," in logs[0]  # each process runs its own half,
     assert "sweep: 100% (2/2 members, 1 of them padding)" in logs[1]  # the padding its last

@@ -193,14 +193,17 @@ def _sweep(args: argparse.Namespace) -> int:
     return exit_status("sweep", res.result)
 
 
-_BOOT = ("import json, sys\nimport jax\ntry:\n"
+_BOOT = ("import json, os, sys\nos.dup2(2, 1)\nimport jax\ntry:\n"
          "    jax.distributed.initialize(**json.loads(sys.argv[1]))\n"
          "except (ValueError, RuntimeError) as e:\n"
          "    print(f'vehsim: error: --distributed: the multi-process runtime did not start: {e}',"
          " file=sys.stderr)\n    sys.exit(2)\n"
          "from vehsim.cli import main\nsys.exit(main(sys.argv[2:]))")
 """The restarted process: JAX's multi-process runtime first (a failure to start it, such as
-no cluster detected, ends with exit status 2 and its reason), then the command."""
+no cluster detected, ends with exit status 2 and its reason), then the command. Its stdout
+is joined to stderr first: a sweep writes nothing there, and the CPU collectives (gloo)
+print their connection line ("[Gloo] Rank 0 is connected to ...") on the C library's
+stdout, where a log and its data would mix."""
 
 
 def check_process_ids(args: argparse.Namespace) -> None:
