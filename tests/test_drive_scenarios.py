@@ -231,6 +231,26 @@ def test_scenario_driver_is_paced_to_the_plant_and_shares_the_pace_notes():
         vs.scenario_driver(sc, "guess")
 
 
+@pytest.mark.parametrize("road", ["stage", "corner90", None])
+def test_a_converged_drivers_settings_take_a_fresh_hessian(road):
+    """`driver_settings` with ``mode``: the real-time settings keep what the road's driver
+    keeps (the stage and a road file keep each sample's first Hessian), a converged driver
+    takes a fresh Hessian every pass whatever the road (a kept one makes its solves creep to
+    their cap), and `scenario_driver` builds the driver of that mode from them alone."""
+    base = vs.driver_settings(road)
+    assert "mode" not in base
+    assert vs.driver_settings(road, mode="rti") == base | {"mode": "rti"}
+    conv = vs.driver_settings(road, "oracle", mode="converged")
+    assert conv == base | {"mode": "converged", "hessian_update": "every"}
+    sc = vs.drive_scenario(road or "sturn", "nominal")
+    driver, _ = vs.scenario_driver(sc, "oracle", **conv)
+    assert driver.mode == "converged" and driver.hessian_update == "every"
+    assert vs.scenario_driver(sc, "oracle", **vs.driver_settings(road, mode="rti"))[
+        0].hessian_update == base.get("hessian_update", "every")
+    with pytest.raises(ValueError, match="unknown mode 'fast'; allowed: rti, converged"):
+        vs.driver_settings(road, mode="fast")
+
+
 def test_drive_time_interpolates_the_gate_crossing():
     road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 2.0)
     h = 0.1

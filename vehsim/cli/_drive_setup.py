@@ -168,18 +168,15 @@ def controller(args, sc):
     args.nominal_plan = None
     friction = {"rh": "estimate", "rh-nominal": "nominal", "rh-oracle": "oracle"}[
         args.controller]
-    settings = driver_settings(None if args.road_file else args.road, friction)
+    settings = driver_settings(None if args.road_file else args.road, friction,
+                               mode=args.mode or "rti")
     if args.preview is not None:
         settings["preview"] = args.preview
     if args.passes is not None:
         settings["iterations"] = args.passes
     if args.keep_hessian is not None:
         settings["hessian_update"] = "first" if args.keep_hessian else "every"
-    elif args.mode == "converged":
-        # a kept Hessian is a real-time iteration's economy (a fixed number of cheap
-        # passes); a solve to tolerance takes Newton's steps, or it creeps to its cap
-        settings["hessian_update"] = "every"
-    return scenario_driver(sc, friction, pace_notes=args.pace_notes, mode=args.mode or "rti",
+    return scenario_driver(sc, friction, pace_notes=args.pace_notes,
                            estimator=args.estimator or "axle-grip", **settings)
 
 

@@ -214,9 +214,16 @@ DRIVER_PROBE_DISTANCE = 2.0
 estimate on the benchmark corners: a test brake on the first 2 m."""
 
 
-def driver_settings(name: str | None, friction: str | None = None) -> dict:
+def driver_settings(name: str | None, friction: str | None = None,
+                    mode: str | None = None) -> dict:
     r"""`RecedingHorizonDriver` settings for the scenario road called ``name`` (None: a
-    road from a file); ``friction`` the planner's friction of `scenario_driver`.
+    road from a file); ``friction`` the planner's friction of `scenario_driver`; ``mode``
+    (None: the settings of the real-time iteration, the drivers' default, without a
+    ``mode`` key) "rti" or "converged", returned as the settings' ``mode``. A converged
+    driver takes a fresh Hessian every pass (``hessian_update`` "every"): keeping a sample's
+    first Hessian is the economy of a fixed number of real-time passes, and a solve run to
+    its tolerance with it converges linearly and mostly reaches its cap (on a road file's
+    drive 332 of 386 solves, against 2 with a fresh one; docs/performance.md).
 
     - The stage (12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`. At those speeds 4 passes per
       sample leave the plans far from converged, so a sample takes 16 passes that keep its
@@ -253,6 +260,11 @@ def driver_settings(name: str | None, friction: str | None = None) -> dict:
         _check_name("friction", friction, ("estimate", "nominal", "oracle"))
     if friction == "estimate" and name in _CORNERS:
         settings["probe_distance"] = DRIVER_PROBE_DISTANCE
+    if mode is not None:
+        _check_name("mode", mode, ("rti", "converged"))
+        settings["mode"] = mode
+        if mode == "converged":
+            settings["hessian_update"] = "every"
     return settings
 
 
