@@ -242,11 +242,10 @@ def _backward_error_ok(K: KKTMatrix, sol, rhs, tol: float | None = None):
     """Whether the componentwise backward error (Oettli-Prager) of ``sol`` is below ``tol``
     (default `BACKWARD_ERROR_TOL` for the residual's precision; never below it); also the
     residual."""
-    res = rhs - K.matvec(sol)
-    scale = K.matvec(sol, absolute=True) + jnp.abs(rhs)
+    res, largest, scale = _residual_and_scale(K, sol, rhs)
     floor = backward_error_tol(res.dtype)
     tol = floor if tol is None else max(tol, floor)
-    return jnp.max(jnp.abs(res)) <= tol * jnp.max(scale), res
+    return largest <= tol * scale, res
 
 
 def backward_error_tol(dtype) -> float:
@@ -255,11 +254,17 @@ def backward_error_tol(dtype) -> float:
     return max(BACKWARD_ERROR_TOL, 1e3 * float(jnp.finfo(dtype).eps))
 
 
+def _residual_and_scale(K: KKTMatrix, sol, rhs):
+    """The residual $r = b - K\,x$ of ``sol``, $\max|r|$ and the largest entry of the
+    Oettli-Prager scale $|K||x| + |b|$ (the componentwise backward error is their ratio)."""
+    res = rhs - K.matvec(sol)
+    return res, jnp.max(jnp.abs(res)), jnp.max(K.matvec(sol, absolute=True) + jnp.abs(rhs))
+
+
 def _backward_error(K: KKTMatrix, sol, rhs):
     """The componentwise backward error (Oettli-Prager) of ``sol`` and its residual."""
-    res = rhs - K.matvec(sol)
-    scale = jnp.max(K.matvec(sol, absolute=True) + jnp.abs(rhs))
-    return jnp.max(jnp.abs(res)) / jnp.where(scale > 0, scale, 1.0), res
+    res, largest, scale = _residual_and_scale(K, sol, rhs)
+    return largest / jnp.where(scale > 0, scale, 1.0), res
 
 
 def checked_solve(lay: StageLayout, K: KKTMatrix, rhs, singular: float | None = None,
