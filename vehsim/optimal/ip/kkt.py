@@ -255,7 +255,7 @@ def backward_error_tol(dtype) -> float:
 
 
 def _residual_and_scale(K: KKTMatrix, sol, rhs):
-    """The residual $r = b - K\,x$ of ``sol``, $\max|r|$ and the largest entry of the
+    """The residual $r = b - K\\,x$ of ``sol``, $\\max|r|$ and the largest entry of the
     Oettli-Prager scale $|K||x| + |b|$ (the componentwise backward error is their ratio)."""
     res = rhs - K.matvec(sol)
     return res, jnp.max(jnp.abs(res)), jnp.max(K.matvec(sol, absolute=True) + jnp.abs(rhs))
