@@ -1150,6 +1150,52 @@ def test_refinement_recovers_the_row_a_periodic_lap_s_riccati_solve_misses(defau
     assert np.max(np.abs(np.asarray(sol) - dense)) <= 1e-6 * np.max(np.abs(dense))
 
 
+def test_refinement_stops_at_the_floor_and_keeps_its_most_accurate_solution(monkeypatch):
+    """`checked_solve`'s refinement loop, its solves made inexact on purpose (each a fraction
+    of the exact correction, so each step scales the residual by a known factor):
+    - a solve that returns 0.9 of the exact correction leaves a tenth of the residual per
+      step; the loop stops at the first step whose backward error is at the floor
+      (`BACKWARD_ERROR_TOL`), not at its step limit;
+    - a solve that overshoots once the residual is small (3 times the correction: the
+      residual doubles and flips sign) ends the loop there, and the solution returned is the
+      step before it, the most accurate one, not the last."""
+    from vehsim.optimal.ip import kkt
+
+    # the periodic lap's KKT blocks, its end's equality rows regularised by -1 instead of
+    # -1e-9 and its primal ones by 1: well conditioned, a Riccati solve exact to rounding
+    data = np.load(Path(__file__).parent / "data" / "periodic_oval_kkt_pass_200.npz")
+    W = data["W0"] + np.einsum("ki,ij->kij", data["y_mask"], np.eye(data["W0"].shape[1]))
+    K = KKTMatrix(W=jnp.asarray(W), A=jnp.asarray(data["A"]), Je=jnp.asarray(data["Je"]),
+                  dl=jnp.asarray(data["dl"]), de=-jnp.ones_like(jnp.asarray(data["de"])))
+    rhs = jnp.asarray(data["rhs"])
+    exact = kkt.riccati_solve(kkt.riccati_factor(K), K, rhs)
+    assert float(kkt._backward_error(K, exact, rhs)[0]) < 1e-13
+    exact_solve = kkt.riccati_solve
+    floor = kkt.backward_error_tol(rhs.dtype)
+
+    def refined(fraction):
+        monkeypatch.setattr(kkt, "riccati_solve",
+                            lambda F, K, b: fraction(b) * exact_solve(F, K, b))
+        sol, ok, _ = kkt.checked_solve(None, K, rhs, 1e-5, steps=kkt.MAX_REFINEMENT_STEPS)
+        return sol, bool(ok), float(kkt._backward_error(K, sol, rhs)[0])
+
+    first = float(kkt._backward_error(K, 0.9 * exact, rhs)[0])
+    steps = int(np.ceil(np.log10(first / floor)))  # a tenth per step: the first at the floor
+    assert 1 < steps < kkt.MAX_REFINEMENT_STEPS  # the limit would refine further
+    sol, ok, error = refined(lambda b: 0.9)
+    # (the backward error's scale |K||x| + |b| grows by a ninth as x nears the solution)
+    assert ok and error == pytest.approx(first * 0.1 ** steps, rel=0.15)
+    assert 0.1 * floor < error <= floor
+
+    big = float(jnp.max(jnp.abs(rhs)))  # the first solve's residual is 0.1 of it, the next 0.01
+    sol, ok, error = refined(lambda b: jnp.where(jnp.max(jnp.abs(b)) > 0.05 * big, 0.9, 3.0))
+    assert error == pytest.approx(0.1 * first, rel=0.15)  # one step in: the best
+    overshot = float(kkt._backward_error(K, sol + 3.0 * exact_solve(
+        kkt.riccati_factor(K), K, rhs - K.matvec(sol)), rhs)[0])
+    assert overshot == pytest.approx(2.0 * error, rel=0.15)  # the step after it, not kept
+    assert not ok  # 4e-3 or so, above the accepted 1e-5
+
+
 def test_a_newton_system_no_regularisation_solves_ends_the_solve(monkeypatch):
     """Every factorisation refused (forced: no solve is accurate enough): the solve stops
     on its first pass with `ip_newton_system_failed`, not at its iteration limit."""
