@@ -188,12 +188,12 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     r"""$\mu^*(\lambda, V)$: the largest steady-state friction $\|\mu_{ss}\|$
     (`scaled_steady_state_mu`) of `tire` on a road of friction scale $\lambda$ = `scale` in
     pure braking at the ground speed $V$ = `speed` [m/s] ($v_r = (-\kappa V, 0)$, $c = (1 -
-    \kappa)V$; $\kappa$ on 96 points from 1/96 to 1, the largest refined by a parabola
-    through it and its neighbours). Against 4001 slips from $10^{-5}$
-    (`vehsim.drive.plant_tires.dense_peak`, at 20 m/s): within 0.03 % on the nominal
-    road's 0.52 and above, 0.2 % at 0.416, 0.6 % high at the icy patch's 0.26, within
-    0.9 % down to 0.1; the peaks of the most slippery roads lie at slips below 1/96 and
-    are read low, 8.7 % at 0.052 (a road whose peak is 0.057).
+    \kappa)V$; $\kappa$ on `peak_slips`, the largest refined by a parabola through it and
+    its neighbours). Against 4001 slips from $10^{-5}$ (`vehsim.drive.plant_tires.
+    dense_peak`), on roads whose peaks run from 0.008 to 2.3: within 0.1 % where the peak
+    is 0.52 or above, 0.8 % down to 0.26 and 0.9 % below, at 4, 20 and 40 m/s; on the
+    slippery roads, whose peaks lie at slips below 1/96, within 0.5 % (the 96 uniform slips
+    alone read them up to 10 % low below a peak of 0.1 at 20 m/s, 27 % at 40 m/s).
 
     The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
     peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
@@ -203,14 +203,24 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     0.1 m/s, -1830 at $10^{-6}$): below `PEAK_SPEED_FLOOR`, standstill included, the peak
     is the one at that floor, with slope 0."""
     V = jnp.maximum(speed, PEAK_SPEED_FLOOR)
-    return braking_peak_on(tire, scale, V, jnp.linspace(0.0, 1.0, 97)[1:])
+    return braking_peak_on(tire, scale, V, peak_slips())
+
+
+def peak_slips() -> Float[Array, " 112"]:
+    r"""`peak_friction`'s slips, increasing: 96 uniform from 1/96 to 1 and below them 16
+    geometrically spaced from $10^{-4}$, where the peaks of slippery roads lie. A largest
+    friction sampled at 2/96 or above is refined from the uniform slips alone (the parabola
+    through it and its neighbours), as without the slips below: those change only the peaks
+    sampled largest at 1/96 or below."""
+    return jnp.concatenate([jnp.geomspace(1e-4, 1.0 / 96, 17)[:-1],
+                            jnp.linspace(0.0, 1.0, 97)[1:]])
 
 
 def braking_peak_on(tire: LumpedLuGre2D, scale, speed, kappa):
     r"""The largest steady-state friction $\|\mu_{ss}\|$ of `tire` on a road of friction
     scale `scale` in pure braking at `speed` [m/s] over the slips `kappa` (increasing), the
     largest refined by a parabola through it and its neighbours (in the grid's index: for a
-    geometric grid, in $\log\kappa$). `peak_friction`'s grid is 96 uniform slips."""
+    geometric grid, in $\log\kappa$). `peak_friction`'s grid is `peak_slips`."""
 
     def mu_at(kap):
         v_r = jnp.stack([-kap * speed, jnp.zeros_like(kap)])
