@@ -54,7 +54,7 @@ def test_peak_depends_on_the_speed():
 def test_peak_friction_reads_the_slippery_roads_and_leaves_the_others_as_they_were():
     """On roads whose peaks lie at slips below the uniform grid's first (1/96: peaks of 0.1
     and less, more so at speed) `peak_friction` is within 0.5 % of the dense scan, where the
-    96 uniform slips alone read them 10-27 % low; where the largest sampled friction is at
+    96 uniform slips alone read them up to 22 % low; where the largest sampled friction is at
     2/96 or above, its value is the uniform slips' to the last digit (the slips below the
     grid change nothing there: the drives' peaks)."""
     from vehsim.drive.estimator import braking_peak_on

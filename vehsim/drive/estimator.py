@@ -193,7 +193,7 @@ def peak_friction(tire: LumpedLuGre2D, scale, speed):
     dense_peak`), on roads whose peaks run from 0.008 to 2.3: within 0.1 % where the peak
     is 0.52 or above, 0.8 % down to 0.26 and 0.9 % below, at 4, 20 and 40 m/s; on the
     slippery roads, whose peaks lie at slips below 1/96, within 0.5 % (the 96 uniform slips
-    alone read them up to 10 % low below a peak of 0.1 at 20 m/s, 27 % at 40 m/s).
+    alone read them up to 21 % low at 20 m/s and 27 % at 40 m/s).
 
     The LuGre friction rises as the sliding speed falls (the Stribeck curve, eq. 21), so the
     peak depends on $V$: on the road whose peak is 0.52 at 20 m/s it is 0.56 at 12 m/s and
