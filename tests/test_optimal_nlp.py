@@ -1152,7 +1152,8 @@ def test_refinement_recovers_the_row_a_periodic_lap_s_riccati_solve_misses(defau
 
 def test_refinement_stops_at_the_floor_and_keeps_its_most_accurate_solution(monkeypatch):
     """`checked_solve`'s refinement loop, its solves made inexact on purpose (each a fraction
-    of the exact correction, so each step scales the residual by a known factor):
+    of the exact correction, so each step scales the residual by a known factor), and the
+    backward error it measures them by (of x = 0: exactly 1):
     - a solve that returns 0.9 of the exact correction leaves a tenth of the residual per
       step; the loop stops at the first step whose backward error is at the floor
       (`BACKWARD_ERROR_TOL`), not at its step limit;
@@ -1170,6 +1171,10 @@ def test_refinement_stops_at_the_floor_and_keeps_its_most_accurate_solution(monk
     rhs = jnp.asarray(data["rhs"])
     exact = kkt.riccati_solve(kkt.riccati_factor(K), K, rhs)
     assert float(kkt._backward_error(K, exact, rhs)[0]) < 1e-13
+    # the Oettli-Prager scale |K||x| + |b| counts |b|: x = 0 leaves the residual b, an error
+    # of exactly 1 (|K||x| alone would be 0 there)
+    assert float(jnp.max(jnp.abs(rhs))) != 1.0
+    assert float(kkt._backward_error(K, jnp.zeros_like(rhs), rhs)[0]) == 1.0
     exact_solve = kkt.riccati_solve
     floor = kkt.backward_error_tol(rhs.dtype)
 
