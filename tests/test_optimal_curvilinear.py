@@ -418,3 +418,87 @@ def test_guess_and_resampling_follow_the_problems_knots():
     xs2, us2 = (np.asarray(a) for a in resample_drive(prob, xs, prob))
     np.testing.assert_allclose(xs2, xs, atol=1e-12)
     np.testing.assert_allclose(us2, us, atol=1e-9)
+
+
+def _knots(lay, seed=0):
+    """Knots near a car at 12 m/s on the centre line, every state and control perturbed (a
+    closed road's periodic copy too): a point of the problems' domain."""
+    rng = np.random.default_rng(seed)
+    x = np.array([0.1, 0.02, 12.0, 0.3, 0.2, 0.01, 0.02, 0.03, 1.0])
+    xs = np.concatenate([x, x[:8]])[: lay.nx]
+    ys = np.concatenate([np.broadcast_to(xs, (lay.M + 1, lay.nx)), np.zeros((lay.M + 1, lay.nu))],
+                        1)
+    return jnp.asarray(ys + 0.05 * rng.standard_normal(ys.shape))
+
+
+def test_the_hessian_skips_the_directions_declared_linear_and_gives_the_same_numbers(
+        monkeypatch):
+    """`linear_variables`: the time (and a closed road's periodic copy, a horizon problem's
+    corridor slack) is declared, `check_linear_variables` confirms each declaration (the
+    Hessian with random weights on every output has zero rows there) and refuses a wrong
+    one. On a closed lap, 9 of the 20 directions, the stage derivatives take the Hessian
+    along the other 11 only (`curved_variables`), and every value, Jacobian and Hessian is
+    the full computation's (to rounding: bit for bit under XLA's default code generation,
+    within 1e-12 under the command line's, which the tests use); where the declared share is below
+    `LINEAR_SHARE_MIN` (a horizon problem's 1 of 12) every direction is taken."""
+    from vehsim import drive_scenario, horizon_problem
+    from vehsim.optimal.ip import derivatives as dv, problem as pm
+
+    car = rally_gravel_car()
+    lap = CurvilinearManeuverOCP.from_road(_ArcsRoad(OVAL, 8.0, closed=True), car, num_stages=8)
+    open_road = CurvilinearManeuverOCP.from_road(_ArcsRoad(CORNER, 8.0, start_speed=8.0), car,
+                                                 num_stages=8)
+    table = drive_scenario("corner90", "nominal").table
+    state8 = jnp.asarray([0.1, 0.02, 12.0, 0.3, 0.2, 0.01, 0.02, 0.03])
+    hard = horizon_problem(table, car, 5.0, state8, jnp.full(6, 0.52), horizon=20.0)
+    soft = horizon_problem(table, car, 5.0, state8, jnp.full(6, 0.52), horizon=20.0,
+                           corridor_penalty=1.0, soft_stages=3)
+    assert lap.linear_variables() == (8, *range(9, 17))
+    assert open_road.linear_variables() == hard.linear_variables() == (8,)
+    assert soft.linear_variables() == (8, 12)
+    for prob in (lap, open_road, hard, soft):
+        dv.check_linear_variables(prob, _knots(pm.stage_layout(prob)))
+
+    class Wrong(type(hard)):  # the speed vx declared linear: it is not
+        def linear_variables(self):
+            return (2, 8)
+
+    wrong = Wrong(**{f: getattr(hard, f) for f in hard.__dataclass_fields__})
+    with pytest.raises(ValueError, match=r"declares y\[2\], but the stage functions curve"):
+        dv.check_linear_variables(wrong, _knots(pm.stage_layout(wrong)))
+
+    class Bad(type(hard)):
+        def linear_variables(self):
+            return (8, 8)
+
+    bad = Bad(**{f: getattr(hard, f) for f in hard.__dataclass_fields__})
+    with pytest.raises(ValueError, match=r"must be distinct indices into y = \(x, u\), 0..11"):
+        pm.curved_variables(bad, pm.stage_layout(bad))
+
+    lay = pm.stage_layout(lap)
+    assert pm.curved_variables(lap, lay) == (*range(8), 17, 18, 19)
+    assert pm.curved_variables(hard, pm.stage_layout(hard)) is None  # 1 of 12: all taken
+    taken = []
+    forward_over_reverse = dv._forward_over_reverse
+    monkeypatch.setattr(dv, "_forward_over_reverse",
+                        lambda vec, y, k, w, curved=None: taken.append(curved)
+                        or forward_over_reverse(vec, y, k, w, curved))
+
+    class Full(type(lap)):
+        def linear_variables(self):
+            return ()
+
+    full = Full(**{f: getattr(lap, f) for f in lap.__dataclass_fields__})
+    ys = _knots(lay, seed=1)
+    rng = np.random.default_rng(2)
+    lam, nu, z = (jnp.asarray(rng.standard_normal((lay.M + 1, n)))
+                  for n in (lay.nx, lay.ne, lay.ng))
+    split, every = (jax.jit(lambda ys, lam, nu, z, p=p: dv.stage_derivatives(p, lay, ys, lam,
+                                                                             nu, z))(
+        ys, lam, nu, z) for p in (lap, full))
+    assert taken == [pm.curved_variables(lap, lay), None]
+    for name in ("objective", "c", "e", "g", "grad_f", "A", "Je", "Jg", "H"):
+        a, b = np.asarray(getattr(split, name)), np.asarray(getattr(every, name))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.max(np.abs(b), initial=0.0))
+    assert float(jnp.max(jnp.abs(split.H[:, 8:17]))) == 0.0
+    assert float(jnp.max(jnp.abs(split.H))) > 1.0  # the curved part is there

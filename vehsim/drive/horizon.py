@@ -400,6 +400,12 @@ class HorizonOCP(CurvilinearManeuverOCP):
             raise ValueError("HorizonOCP.soft_stages needs corridor_penalty (the soft "
                              "corridor's cost, > 0), got None")
 
+    def linear_variables(self) -> tuple[int, ...]:
+        """The time, and with a soft corridor its slack (additive in the corridor rows and
+        the objective)."""
+        slack = () if self.corridor_penalty is None else (self.state_size + 3,)
+        return (*super().linear_variables(), *slack)
+
     def _slip_constraints(self, X, limit):
         r"""`axle_slips` $\le$ ``limit`` for both axles, as the polynomial
         $\ell^2(1 + \kappa_i)^2V_{ix}^2 - \kappa_i^2V_{ix}^2 - V_{iy}^2 \ge 0$."""

@@ -266,6 +266,12 @@ class AbstractCurvilinearOCP(AbstractStagewiseNLP):
         """States compared by the periodic conditions (all but $t$; 0 for an open road)."""
         return self.physical_size - 1 if self.closed else 0
 
+    def linear_variables(self) -> tuple[int, ...]:
+        """The time $t$ (it only accumulates $1/\\dot s$ and enters the objective or a bound
+        linearly) and a closed road's periodic copy (constant, compared linearly)."""
+        p, q = self.physical_size, self.periodic_size
+        return (p - 1, *range(p, p + q))
+
     @property
     def step(self):
         """RK4 step in s [m] of the uniform grid."""

@@ -14,7 +14,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .problem import AbstractStagewiseNLP, StageLayout, stage_function
+from .problem import (
+    AbstractStagewiseNLP,
+    StageLayout,
+    curved_variables,
+    stage_function,
+    stage_layout,
+)
 
 
 class StageDerivatives(eqx.Module):
@@ -64,16 +70,33 @@ def _forward_over_forward(vec, y, k):
     return v, J, T
 
 
-def _forward_over_reverse(vec, y, k, w):
+def _forward_over_reverse(vec, y, k, w, curved=None):
     """Value, Jacobian and the Hessian of $w \\cdot v$ in one forward pass over the reverse
     pass: the tangents of the gradient of the weighted stage Lagrangian are its Hessian,
-    those of the primal outputs the Jacobian (one traced derivative instead of two)."""
+    those of the primal outputs the Jacobian (one traced derivative instead of two).
+
+    ``curved`` (indices, or None for all): the directions the forward-over-reverse pass
+    takes; along the others (`linear_variables`) the Hessian's columns are zero and the
+    Jacobian's columns come from a forward pass of the values alone."""
 
     def grad_and_value(yy):
         v, pullback = jax.vjp(lambda z: vec(z, k), yy)
         return (pullback(w)[0], v), v
 
-    (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
+    if curved is None:
+        (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
+        return V, J, H
+    n = y.shape[0]
+    straight = [i for i in range(n) if i not in curved]
+    basis = jnp.eye(n, dtype=y.dtype)
+    # as `jax.jacfwd`: the tangents batched, their axis last
+    _, (H_c, J_c), V = jax.vmap(lambda t: jax.jvp(grad_and_value, (y,), (t,), has_aux=True),
+                                out_axes=(None, -1, None))(basis[jnp.asarray(curved)])
+    J_s = jax.vmap(lambda t: jax.jvp(lambda z: vec(z, k), (y,), (t,))[1],
+                   out_axes=-1)(basis[jnp.asarray(straight)])
+    curved, straight = jnp.asarray(curved), jnp.asarray(straight)
+    H = jnp.zeros((n, n), H_c.dtype).at[:, curved].set(H_c)
+    J = jnp.zeros((V.shape[0], n), J_c.dtype).at[:, curved].set(J_c).at[:, straight].set(J_s)
     return V, J, H
 
 
@@ -159,5 +182,39 @@ def stage_derivatives(
         V, J, T = jax.vmap(lambda y, k: _forward_over_forward(vec, y, k))(ys, ks)
         H = jnp.einsum("ko,koij->kij", w, T)
     else:
-        V, J, H = jax.vmap(lambda y, k, ww: _forward_over_reverse(vec, y, k, ww))(ys, ks, w)
+        curved = curved_variables(prob, lay)
+        V, J, H = jax.vmap(lambda y, k, ww: _forward_over_reverse(vec, y, k, ww, curved))(
+            ys, ks, w)
     return _assemble(lay, masks, ys, V, J, 0.5 * (H + jnp.swapaxes(H, 1, 2)))
+
+
+def check_linear_variables(prob: AbstractStagewiseNLP, ys: Float[Array, "M+1 ny"],
+                           tol: float = 0.0, seed: int = 0) -> None:
+    """Raise ValueError unless the stage functions of ``prob`` have no curvature along its
+    `linear_variables` at the knots ``ys``: the Hessian of the stage Lagrangian, taken along
+    every direction with random weights on every output (so no output's curvature can
+    cancel another's), has zero rows for them, to within ``tol`` of its largest entry. A
+    check of a problem's declaration (run it at a few points of its domain), not for a
+    solve."""
+    lay = stage_layout(prob)
+    curved = curved_variables(prob, lay, 0.0)
+    if curved is None:  # nothing declared
+        return
+    linear = [i for i in range(lay.ny) if i not in curved]
+    n_out = 1 + lay.nx + lay.ne + lay.ng
+    w = jax.random.normal(jax.random.key(seed), (lay.M + 1, n_out), ys.dtype)
+
+    @jax.jit
+    def hessians(ys, w):
+        vec = stage_function(prob, lay, ys)
+        return jax.vmap(lambda y, k, ww: _forward_over_reverse(vec, y, k, ww)[2])(
+            ys, jnp.arange(lay.M + 1), w)
+
+    H = hessians(ys, w)
+    largest = float(jnp.max(jnp.where(jnp.isfinite(H), jnp.abs(H), 0.0)))
+    for i in linear:
+        row = float(jnp.max(jnp.abs(H[:, i, :])))
+        if not row <= tol * largest:
+            raise ValueError(f"{type(prob).__name__}.linear_variables() declares y[{i}], but "
+                             f"the stage functions curve along it: a second derivative of "
+                             f"{row:.3g} (largest {largest:.3g})")
