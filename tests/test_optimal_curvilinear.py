@@ -438,8 +438,7 @@ def test_the_hessian_skips_the_directions_declared_linear_and_gives_the_same_num
     Hessian with random weights on every output has zero rows there) and refuses a wrong
     one. On a closed lap, 9 of the 20 directions, the stage derivatives take the Hessian
     along the other 11 only (`curved_variables`), and every value, Jacobian and Hessian is
-    the full computation's (to rounding: bit for bit under XLA's default code generation,
-    within 1e-12 under the command line's, which the tests use); where the declared share is below
+    the full computation's to rounding (1e-12: XLA fuses the two passes differently); where the declared share is below
     `LINEAR_SHARE_MIN` (a horizon problem's 1 of 12) every direction is taken."""
     from vehsim import drive_scenario, horizon_problem
     from vehsim.optimal.ip import derivatives as dv, problem as pm
@@ -456,7 +455,11 @@ def test_the_hessian_skips_the_directions_declared_linear_and_gives_the_same_num
     assert lap.linear_variables() == (8, *range(9, 17))
     assert open_road.linear_variables() == hard.linear_variables() == (8,)
     assert soft.linear_variables() == (8, 12)
-    for prob in (lap, open_road, hard, soft):
+    point_lap = CurvilinearPointMassOCP.from_road(_ArcsRoad(OVAL, 8.0, closed=True),
+                                                  num_stages=8)
+    assert point_lap.linear_variables() == (3, 4, 5, 6)  # of 9: skipped
+    assert pm.curved_variables(point_lap, pm.stage_layout(point_lap)) == (0, 1, 2, 7, 8)
+    for prob in (lap, open_road, hard, soft, point_lap):
         dv.check_linear_variables(prob, _knots(pm.stage_layout(prob)))
 
     class Wrong(type(hard)):  # the speed vx declared linear: it is not

@@ -203,6 +203,7 @@ from .optimal.ip import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     IPOptions as IPOptions,
     IPSolution as IPSolution,
+    check_linear_variables as check_linear_variables,
     compile_interior_point as compile_interior_point,
     interior_point as interior_point,
     print_iteration_log as print_iteration_log,

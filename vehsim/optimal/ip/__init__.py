@@ -14,6 +14,7 @@ the barrier parameter follows the monotone Fiacco-McCormick rule (`solver`). A f
 band (a dense column coupling every defect is what ruins sparse solvers).
 """
 
+from .derivatives import check_linear_variables as check_linear_variables
 from .problem import (
     AbstractStagewiseNLP as AbstractStagewiseNLP,
     problem_sizes as problem_sizes,

@@ -190,11 +190,10 @@ def stage_function(prob: AbstractStagewiseNLP, lay: StageLayout,
 LINEAR_SHARE_MIN = 0.25
 """The share of $y_k$'s directions that `linear_variables` must declare for the Hessian to
 skip them (`curved_variables`). Their Jacobian columns then take a forward pass of their own,
-which on a CPU costs about what one skipped direction saves: measured, a horizon problem's
-stage derivatives with 1 of 12 directions skipped took 1.62 ms against 1.58 ms (no gain),
-a closed lap's with 9 of 20 skipped 2.77 ms against 3.62 ms (one core), the same numbers
-bit for bit under XLA's default code generation (within 1e-12 under the command line's,
-`vehsim._xla_cpu.prefer_fast_compilation`, which fuses the two passes differently)."""
+which on a CPU costs about what one skipped direction saves: a horizon problem's one linear
+direction (of 12) is not worth it, a closed lap's nine (of 20) are (docs/performance.md,
+"Linear directions skipped in the Hessian"). Skipping changes how XLA fuses the pass, so the
+numbers agree to rounding, not always bit for bit."""
 
 
 def curved_variables(prob: AbstractStagewiseNLP, lay: StageLayout,
