@@ -1023,6 +1023,67 @@ class Decay(AbstractStagewiseNLP):
         return jnp.stack([x[0] + 5.0])
 
 
+class LinearBudget(AbstractStagewiseNLP):
+    """A linear program: x_{k+1} = x_k + 0.1 u_k from x_0 = 0, 0 <= u_k <= 1, x_M >= 0.5,
+    minimise sum u_k (optimum 5); every variable declared linear."""
+
+    num_stages: int = eqx.field(static=True)
+    state_size: int = eqx.field(static=True, default=1)
+    control_size: int = eqx.field(static=True, default=1)
+
+    def transition(self, x, u, k):
+        return x + 0.1 * u
+
+    def stage_cost(self, x, u, k):
+        return u[0]
+
+    def path_inequality(self, x, u, k):
+        return jnp.stack([u[0], 1.0 - u[0]])
+
+    def initial_equality(self, x):
+        return x
+
+    def terminal_inequality(self, x):
+        return x - 0.5
+
+    def linear_variables(self):
+        return (0, 1)
+
+
+def test_a_problem_linear_in_every_variable_has_no_hessian_and_solves():
+    """`linear_variables` naming every variable (a linear program): the stage derivatives
+    take no second-derivative pass (the Hessian zero, the Jacobians those of the full
+    computation) and the interior point reaches the optimum, 5; a problem that declares a
+    variable it curves along (the double integrator's control, in a quadratic cost) is
+    refused by `check_linear_variables`."""
+    from vehsim.optimal.ip import derivatives as dv
+    from vehsim.optimal.ip.problem import curved_variables, stage_layout
+
+    M = 8
+    lp = LinearBudget(num_stages=M)
+    lay = stage_layout(lp)
+    assert curved_variables(lp, lay) == ()
+    ys = jnp.asarray(np.random.default_rng(0).uniform(0.1, 0.9, (M + 1, 2)))
+    lam, nu, z = (jnp.ones((M + 1, n)) for n in (lay.nx, lay.ne, lay.ng))
+    d = dv.stage_derivatives(lp, lay, ys, lam, nu, z)
+    full = dv.stage_derivatives(lp, lay, ys, lam, nu, z, hessian="forward-over-forward")
+    assert float(jnp.max(jnp.abs(d.H))) == 0.0 == float(jnp.max(jnp.abs(full.H)))
+    for name in ("A", "Je", "Jg", "grad_f", "c", "g"):
+        np.testing.assert_array_equal(np.asarray(getattr(d, name)), np.asarray(getattr(full,
+                                                                                      name)))
+    dv.check_linear_variables(lp, ys)
+    sol = interior_point(lp, jnp.zeros((M + 1, 1)), jnp.full((M, 1), 0.5), IPOptions())
+    assert float(sol.objective) == pytest.approx(5.0, abs=1e-6)
+
+    class Curved(DoubleIntegrator):
+        def linear_variables(self):
+            return (2,)  # the control u: its cost 0.1 u^2 curves
+
+    bad = Curved(num_stages=M)
+    with pytest.raises(ValueError, match=r"declares y\[2\], but the stage functions curve"):
+        dv.check_linear_variables(bad, jnp.ones((M + 1, 3)))
+
+
 class SquareRootExit(AbstractStagewiseNLP):
     """From x_0 = 0, u_k in [0, 1]: maximise sqrt(x_M) against the effort, a terminal
     cost undefined (infinite slope) at the fixed first knot."""

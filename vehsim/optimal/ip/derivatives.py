@@ -87,6 +87,9 @@ def _forward_over_reverse(vec, y, k, w, curved=None):
         (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
         return V, J, H
     n = y.shape[0]
+    if not curved:  # affine in every variable: no curvature at all
+        J, V = jax.jacfwd(lambda z: (vec(z, k), vec(z, k)), has_aux=True)(y)
+        return V, J, jnp.zeros((n, n), J.dtype)
     straight = [i for i in range(n) if i not in curved]
     basis = jnp.eye(n, dtype=y.dtype)
     # as `jax.jacfwd`: the tangents batched, their axis last
