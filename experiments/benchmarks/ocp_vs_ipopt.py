@@ -354,12 +354,18 @@ def long_problems(stages, road_name: str = "rally", coarse_above: int = 300) -> 
         program = compile_interior_point(prob, xs0, us0, options)
         wall, sol = _best_time(lambda: program(prob, xs0, us0, options, throw=False), 2)
         ours = RoadPrimitive(problem=prob, solution=sol, road=road)
+        # IPOPT's transcription states a lap's periodicity as X(L) = X(0) without vehsim's
+        # copy of the start state (the last 8 of its 17): it gets the 9 physical states, and
+        # its solution gets the copy back for the re-integration
+        p = prob.physical_size
         ip = _casadi_spatial.ipopt_solve(road_arrays(prob), LIMITS, "min-time",
-                                         float(car.tire.D), np.asarray(xs0), np.asarray(us0),
-                                         rate_weight=float(prob.rate_weight),
+                                         float(car.tire.D), np.asarray(xs0)[:, :p],
+                                         np.asarray(us0), rate_weight=float(prob.rate_weight),
                                          mu_init=float(options.mu0))
+        ip_xs = np.concatenate([ip["xs"], np.broadcast_to(
+            ip["xs"][:1, :prob.periodic_size], (ip["xs"].shape[0], prob.periodic_size))], 1)
         theirs = RoadPrimitive(problem=prob, solution=eqx.tree_at(
-            lambda s: (s.xs, s.us), sol, (jax.numpy.asarray(ip["xs"]),
+            lambda s: (s.xs, s.us), sol, (jax.numpy.asarray(ip_xs),
                                           jax.numpy.asarray(ip["us"]))), road=road)
         its = int(sol.iterations)
         row = dict(problem=f"{road.name}:min-time", stages=M, vehsim_status=str(sol.message),
