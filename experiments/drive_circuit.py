@@ -14,7 +14,7 @@ The measured lines are in experiments/drive_circuit_results.jsonl (docs/driver.m
 from a file").
 
 Usage: PYTHONPATH=. python experiments/drive_circuit.py [--settings '{"margin": 0.5}'
-       | --defaults] [--seeds 0 1] [--duration 200] [--out FILE]
+       | --defaults] [--mode rti|converged] [--seeds 0 1] [--duration 200] [--out FILE]
 """
 
 from __future__ import annotations
@@ -90,12 +90,22 @@ def main():
     ap.add_argument("--settings", type=json.loads, default=None,
                     help="RecedingHorizonDriver settings (JSON); default FILE_ROAD_DRIVER")
     ap.add_argument("--defaults", action="store_true", help="the driver's own defaults")
+    ap.add_argument("--mode", choices=("rti", "converged"), default=None,
+                    help="the file road's settings in this mode (`driver_settings(None, "
+                         "mode=...)`: 'converged' takes a fresh Hessian every pass, as "
+                         "`vehsim drive --mode converged` does); --settings are laid over them")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=200.0)
     ap.add_argument("--out", default=None, help="also append the lines to this file")
     a = ap.parse_args()
-    settings = {} if a.defaults else (vs.driver_settings(None) if a.settings is None
-                                      else a.settings)
+    if a.mode is not None and a.defaults:
+        ap.error("--mode takes the file road's settings and --defaults the driver's own: "
+                 "give one of them")
+    if a.mode is not None:
+        settings = vs.driver_settings(None, mode=a.mode) | (a.settings or {})
+    else:
+        settings = {} if a.defaults else (vs.driver_settings(None) if a.settings is None
+                                          else a.settings)
     for seed in a.seeds:
         line = json.dumps(drive(settings, seed, a.duration))
         print(line, flush=True)
