@@ -31,17 +31,25 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import vehsim as vs  # noqa: E402
-from vehsim.cli import _drive_setup as setup  # noqa: E402
+from vehsim.cli import _drive_setup as setup, drive as drive_command  # noqa: E402
 from vehsim.drive.metrics import drive_path  # noqa: E402
 from vehsim.plot import drive_trace  # noqa: E402
 
 
+def _drive_arguments(argv: list[str]) -> argparse.Namespace:
+    """`vehsim drive`'s arguments for ``argv``, every other option at its default (parsed by
+    the command's own parser, so an option it gains later has its default here too)."""
+    parser = argparse.ArgumentParser()
+    drive_command.register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["drive", *argv])
+    drive_command._check(args)  # the command's checks, and the defaults it fills in
+    return args
+
+
 def drive(settings: dict, seed: int, duration: float) -> dict:
     path = vs.shipped_tracks()["Oschersleben"]
-    args = argparse.Namespace(road=None, road_file=str(path), closed=True, conditions=None,
-                              grip=1.0, patch=[], noise=True, duration=duration,
-                              controller="rh", preview=None, pace_notes=False, mode=None,
-                              seed=seed)
+    args = _drive_arguments(["--road-file", str(path), "--closed", "--duration", str(duration),
+                             "--seed", str(seed)])
     road = setup.road(args)
     sc = setup.scenario(args, road)
     settings = dict(settings)
