@@ -1023,9 +1023,9 @@ class Decay(AbstractStagewiseNLP):
         return jnp.stack([x[0] + 5.0])
 
 
-class LinearBudget(AbstractStagewiseNLP):
-    """A linear program: x_{k+1} = x_k + 0.1 u_k from x_0 = 0, 0 <= u_k <= 1, x_M >= 0.5,
-    minimise sum u_k (optimum 5); every variable declared linear."""
+class SquareRootExit(AbstractStagewiseNLP):
+    """From x_0 = 0, u_k in [0, 1]: maximise sqrt(x_M) against the effort, a terminal
+    cost undefined (infinite slope) at the fixed first knot."""
 
     num_stages: int = eqx.field(static=True)
     state_size: int = eqx.field(static=True, default=1)
@@ -1035,13 +1035,27 @@ class LinearBudget(AbstractStagewiseNLP):
         return x + 0.1 * u
 
     def stage_cost(self, x, u, k):
-        return u[0]
+        return u @ u
+
+    def terminal_cost(self, x):
+        return -jnp.sqrt(x[0])
 
     def path_inequality(self, x, u, k):
         return jnp.stack([u[0], 1.0 - u[0]])
 
     def initial_equality(self, x):
         return x
+
+
+class LinearBudget(SquareRootExit):
+    """A linear program on `SquareRootExit`'s dynamics, bounds and start: x_M >= 0.5,
+    minimise sum u_k (optimum 5); every variable declared linear."""
+
+    def stage_cost(self, x, u, k):
+        return u[0]
+
+    def terminal_cost(self, x):
+        return jnp.zeros(())
 
     def terminal_inequality(self, x):
         return x - 0.5
@@ -1082,30 +1096,6 @@ def test_a_problem_linear_in_every_variable_has_no_hessian_and_solves():
     bad = Curved(num_stages=M)
     with pytest.raises(ValueError, match=r"declares y\[2\], but the stage functions curve"):
         dv.check_linear_variables(bad, jnp.ones((M + 1, 3)))
-
-
-class SquareRootExit(AbstractStagewiseNLP):
-    """From x_0 = 0, u_k in [0, 1]: maximise sqrt(x_M) against the effort, a terminal
-    cost undefined (infinite slope) at the fixed first knot."""
-
-    num_stages: int = eqx.field(static=True)
-    state_size: int = eqx.field(static=True, default=1)
-    control_size: int = eqx.field(static=True, default=1)
-
-    def transition(self, x, u, k):
-        return x + 0.1 * u
-
-    def stage_cost(self, x, u, k):
-        return u @ u
-
-    def terminal_cost(self, x):
-        return -jnp.sqrt(x[0])
-
-    def path_inequality(self, x, u, k):
-        return jnp.stack([u[0], 1.0 - u[0]])
-
-    def initial_equality(self, x):
-        return x
 
 
 def test_problems_without_inequalities_or_controls_solve():
