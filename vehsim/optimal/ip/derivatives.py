@@ -87,17 +87,22 @@ def _forward_over_reverse(vec, y, k, w, curved=None):
         (H, J), V = jax.jacfwd(grad_and_value, has_aux=True)(y)
         return V, J, H
     n = y.shape[0]
+
+    def value_twice(z):  # the value as the aux output: one evaluation
+        v = vec(z, k)
+        return v, v
+
     if not curved:  # affine in every variable: no curvature at all
-        J, V = jax.jacfwd(lambda z: (vec(z, k), vec(z, k)), has_aux=True)(y)
+        J, V = jax.jacfwd(value_twice, has_aux=True)(y)
         return V, J, jnp.zeros((n, n), J.dtype)
     straight = [i for i in range(n) if i not in curved]
+    curved, straight = jnp.asarray(curved), jnp.asarray(straight)
     basis = jnp.eye(n, dtype=y.dtype)
     # as `jax.jacfwd`: the tangents batched, their axis last
     _, (H_c, J_c), V = jax.vmap(lambda t: jax.jvp(grad_and_value, (y,), (t,), has_aux=True),
-                                out_axes=(None, -1, None))(basis[jnp.asarray(curved)])
+                                out_axes=(None, -1, None))(basis[curved])
     J_s = jax.vmap(lambda t: jax.jvp(lambda z: vec(z, k), (y,), (t,))[1],
-                   out_axes=-1)(basis[jnp.asarray(straight)])
-    curved, straight = jnp.asarray(curved), jnp.asarray(straight)
+                   out_axes=-1)(basis[straight])
     H = jnp.zeros((n, n), H_c.dtype).at[:, curved].set(H_c)
     J = jnp.zeros((V.shape[0], n), J_c.dtype).at[:, curved].set(J_c).at[:, straight].set(J_s)
     return V, J, H
