@@ -438,8 +438,9 @@ def test_the_hessian_skips_the_directions_declared_linear_and_gives_the_same_num
     Hessian with random weights on every output has zero rows there) and refuses a wrong
     one. On a closed lap, 9 of the 20 directions, the stage derivatives take the Hessian
     along the other 11 only (`curved_variables`), and every value, Jacobian and Hessian is
-    the full computation's to rounding (1e-12: XLA fuses the two passes differently); where the declared share is below
-    `LINEAR_SHARE_MIN` (a horizon problem's 1 of 12) every direction is taken."""
+    the full computation's to rounding (1e-12: XLA fuses the two passes differently); where
+    the declared share is below `LINEAR_SHARE_MIN` (a horizon problem's 1 of 12) every
+    direction is taken."""
     from vehsim import drive_scenario, horizon_problem
     from vehsim.optimal.ip import derivatives as dv, problem as pm
 
