@@ -200,8 +200,8 @@ def check_linear_variables(prob: AbstractStagewiseNLP, ys: Float[Array, "M+1 ny"
                            tol: float = 0.0, seed: int = 0) -> None:
     """Raise ValueError unless the stage functions of ``prob`` have no curvature along its
     `linear_variables` at the knots ``ys``: the Hessian of the stage Lagrangian, taken along
-    every direction with random weights on every output (so no output's curvature can
-    cancel another's), has zero rows for them, to within ``tol`` of its largest entry. A
+    every direction with random multipliers on every row in use (so no output's curvature
+    can cancel another's), has zero rows for them, to within ``tol`` of its largest entry. A
     check of a problem's declaration (run it at a few points of its domain), not for a
     solve."""
     lay = stage_layout(prob)
@@ -209,8 +209,10 @@ def check_linear_variables(prob: AbstractStagewiseNLP, ys: Float[Array, "M+1 ny"
     if curved is None:  # nothing declared
         return
     linear = [i for i in range(lay.ny) if i not in curved]
-    n_out = 1 + lay.nx + lay.ne + lay.ng
-    w = jax.random.normal(jax.random.key(seed), (lay.M + 1, n_out), ys.dtype)
+    keys = jax.random.split(jax.random.key(seed), 3)
+    lam, nu, z = (jax.random.normal(key, (lay.M + 1, n), ys.dtype)
+                  for key, n in zip(keys, (lay.nx, lay.ne, lay.ng)))
+    w = _lagrangian_weights(lay, lay.masks(), lam, nu, z)  # the solver's weighting, random
 
     @jax.jit
     def hessians(ys, w):
