@@ -103,8 +103,15 @@ class ReducedHalfCar(AbstractVehicle):
         if tire_F.load_proportional and tire_R.load_proportional:
             # each tire once, at unit load: the loads are then exact (`load_transfer`), and
             # the second derivatives of the optimal-control solver cost half as much
-            unit_F = tire_F.forces(s0, VFx, VFy, omF, r, 1.0)
-            unit_R = tire_R.forces(s0, VRx, VRy, omR, r, 1.0)
+            if self.tire_R is None:
+                # one tire on both axles: one evaluation over the pair, so that the
+                # compiled derivatives run each of its operations once, on both axles
+                unit_F, unit_R = jax.vmap(
+                    lambda vx, vy, om: tire_F.forces(s0, vx, vy, om, r, 1.0))(
+                    jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy]), jnp.stack([omF, omR]))
+            else:
+                unit_F = tire_F.forces(s0, VFx, VFy, omF, r, 1.0)
+                unit_R = tire_R.forces(s0, VRx, VRy, omR, r, 1.0)
             FzF, FzR = load_transfer(self.params, front_body_x(unit_F[0], unit_F[1], delta),
                                      unit_R[0])
             return unit_F * FzF, unit_R * FzR, FzF, FzR
