@@ -133,3 +133,41 @@ def test_load_proportional_tires_give_the_load_transfer_iteration_s_model():
                 np.testing.assert_allclose(jax.jacfwd(fast.f, argnum)(STATE, u),
                                            jax.jacfwd(general.f, argnum)(STATE, u),
                                            rtol=1e-11, atol=1e-9)
+
+
+def test_one_tire_on_both_axles_is_evaluated_once_for_the_pair():
+    """A car whose two axles share one load-proportional tire (no `tire_R`) evaluates it
+    once, over the pair of axles: the traced program holds one tire evaluation, not two
+    (what makes the solvers' compiled derivatives cheaper), and the loads, forces, rates
+    and the rates' first and second derivatives equal those of the same tire given for
+    each axle (`tire_R`), which evaluates it per axle, to rounding."""
+    for tire in (rally_gravel_tire(), LinearTire(c_kappa=10.0, c_alpha=8.0)):
+        calls = []
+
+        class Counted(type(tire)):
+            def forces(self, state, vx, vy, omega, r, Fz):
+                calls.append(jnp.shape(vx))
+                return super().forces(state, vx, vy, omega, r, Fz)
+
+        counted = Counted(**{f.name: getattr(tire, f.name) for f in dataclasses.fields(tire)})
+        shared = ReducedHalfCar(rally_gravel(), counted)
+        apart = ReducedHalfCar(rally_gravel(), counted, tire_R=counted)
+        for model, traced in ((shared, [()]), (apart, [(), ()])):
+            calls.clear()
+            jax.make_jaxpr(model.f)(STATE, CONTROLS)
+            assert calls == traced, (type(tire).__name__, calls)
+        weights = jnp.array([0.3, -1.1, 0.7, 1.9, -0.4, 2.3])
+        for u in [CONTROLS, jnp.array([-0.5, -0.3, -0.1]), jnp.array([0.6, 0.9, 0.5])]:
+            np.testing.assert_allclose(shared.normal_loads(STATE, u),
+                                       apart.normal_loads(STATE, u), rtol=1e-14)
+            for a, b in zip(shared.tire_forces(STATE, u), apart.tire_forces(STATE, u)):
+                np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-10)
+            np.testing.assert_allclose(shared.f(STATE, u), apart.f(STATE, u), rtol=1e-14,
+                                       atol=1e-12)
+            for argnum in (0, 1):
+                np.testing.assert_allclose(jax.jacfwd(shared.f, argnum)(STATE, u),
+                                           jax.jacfwd(apart.f, argnum)(STATE, u),
+                                           rtol=1e-12, atol=1e-10)
+            hess = [jax.hessian(lambda x, m=m: weights @ m.f(x[:6], x[6:]))(
+                jnp.concatenate([STATE, u])) for m in (shared, apart)]
+            np.testing.assert_allclose(hess[0], hess[1], rtol=1e-11, atol=1e-9)

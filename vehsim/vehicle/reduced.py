@@ -48,8 +48,11 @@ class ReducedHalfCar(AbstractVehicle):
     - `params`: `HalfCarParams` (the suspension fields are not used).
     - `tire`: a *static* `AbstractTire` (empty friction state), for the front axle and,
       unless `tire_R` is given, the rear; e.g. `FrictionEllipseTire` (the maneuvers' tire) or
-      `LinearTire`.
-    - `tire_R`: the rear tire if it differs (static too).
+      `LinearTire`. A load-proportional tire on both axles (no `tire_R`) is evaluated
+      once, over the pair of axles (`jax.vmap`), so that compiled derivatives run each of
+      its operations once.
+    - `tire_R`: the rear tire if it differs (static too; then each axle's tire is
+      evaluated on its own).
     - `load_iterations`: fixed-point iterations of the load transfer (`quasi_static_loads`)
       for tires whose forces are not proportional to the load; with load-proportional tires
       (`AbstractTire.load_proportional`) each tire is evaluated once, at unit load, and the
