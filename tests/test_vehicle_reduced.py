@@ -110,8 +110,24 @@ def test_linear_tire_and_invalid_tire():
         ReducedHalfCar(rally_gravel(), _Dyn(c_kappa=1.0, c_alpha=1.0))
 
 
+CONTROL_SET = (CONTROLS, jnp.array([-0.5, -0.3, -0.1]), jnp.array([0.6, 0.9, 0.5]))
+
+
+def _assert_same_car(a, b, u, *, rtol, atol, jac_rtol, jac_atol):
+    """Cars ``a`` and ``b`` give the same loads, tire forces (``atol`` [N]), rates and the
+    rates' Jacobians at `STATE` and controls ``u``."""
+    np.testing.assert_allclose(a.normal_loads(STATE, u), b.normal_loads(STATE, u), rtol=rtol)
+    for fa, fb in zip(a.tire_forces(STATE, u), b.tire_forces(STATE, u)):
+        np.testing.assert_allclose(fa, fb, rtol=rtol, atol=atol)
+    np.testing.assert_allclose(a.f(STATE, u), b.f(STATE, u), rtol=rtol, atol=1e-12)
+    for argnum in (0, 1):
+        np.testing.assert_allclose(jax.jacfwd(a.f, argnum)(STATE, u),
+                                   jax.jacfwd(b.f, argnum)(STATE, u), rtol=jac_rtol,
+                                   atol=jac_atol)
+
+
 def test_load_proportional_tires_give_the_load_transfer_iteration_s_model():
-    """Load-proportional tires are evaluated once per axle, at unit load: the loads, forces,
+    """Load-proportional tires are evaluated at unit load, not per load: the loads, forces,
     rates and the rates' Jacobian equal those of the general path (the tire at the static
     loads, the 2x2 load transfer, the tire again at the solved loads) to rounding."""
     for tire in (rally_gravel_tire(), LinearTire(c_kappa=10.0, c_alpha=8.0)):
@@ -122,17 +138,9 @@ def test_load_proportional_tires_give_the_load_transfer_iteration_s_model():
         general = ReducedHalfCar(rally_gravel(), General(**{f.name: getattr(tire, f.name)
                                                              for f in dataclasses.fields(tire)}))
         assert fast.tire.load_proportional and not general.tire.load_proportional
-        for u in [CONTROLS, jnp.array([-0.5, -0.3, -0.1]), jnp.array([0.6, 0.9, 0.5])]:
-            np.testing.assert_allclose(fast.normal_loads(STATE, u),
-                                       general.normal_loads(STATE, u), rtol=1e-13)
-            for a, b in zip(fast.tire_forces(STATE, u), general.tire_forces(STATE, u)):
-                np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-9)
-            np.testing.assert_allclose(fast.f(STATE, u), general.f(STATE, u), rtol=1e-13,
-                                       atol=1e-12)
-            for argnum in (0, 1):
-                np.testing.assert_allclose(jax.jacfwd(fast.f, argnum)(STATE, u),
-                                           jax.jacfwd(general.f, argnum)(STATE, u),
-                                           rtol=1e-11, atol=1e-9)
+        for u in CONTROL_SET:
+            _assert_same_car(fast, general, u, rtol=1e-13, atol=1e-9, jac_rtol=1e-11,
+                             jac_atol=1e-9)
 
 
 def test_one_tire_on_both_axles_is_evaluated_once_for_the_pair():
@@ -157,17 +165,9 @@ def test_one_tire_on_both_axles_is_evaluated_once_for_the_pair():
             jax.make_jaxpr(model.f)(STATE, CONTROLS)
             assert calls == traced, (type(tire).__name__, calls)
         weights = jnp.array([0.3, -1.1, 0.7, 1.9, -0.4, 2.3])
-        for u in [CONTROLS, jnp.array([-0.5, -0.3, -0.1]), jnp.array([0.6, 0.9, 0.5])]:
-            np.testing.assert_allclose(shared.normal_loads(STATE, u),
-                                       apart.normal_loads(STATE, u), rtol=1e-14)
-            for a, b in zip(shared.tire_forces(STATE, u), apart.tire_forces(STATE, u)):
-                np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-10)
-            np.testing.assert_allclose(shared.f(STATE, u), apart.f(STATE, u), rtol=1e-14,
-                                       atol=1e-12)
-            for argnum in (0, 1):
-                np.testing.assert_allclose(jax.jacfwd(shared.f, argnum)(STATE, u),
-                                           jax.jacfwd(apart.f, argnum)(STATE, u),
-                                           rtol=1e-12, atol=1e-10)
+        for u in CONTROL_SET:
+            _assert_same_car(shared, apart, u, rtol=1e-14, atol=1e-10, jac_rtol=1e-12,
+                             jac_atol=1e-10)
             hess = [jax.hessian(lambda x, m=m: weights @ m.f(x[:6], x[6:]))(
                 jnp.concatenate([STATE, u])) for m in (shared, apart)]
             np.testing.assert_allclose(hess[0], hess[1], rtol=1e-11, atol=1e-9)
