@@ -19,8 +19,8 @@ and prints where).
 
 from __future__ import annotations
 
+import argparse
 import math
-import sys
 from pathlib import Path
 
 from vehsim._io import write_atomic
@@ -150,7 +150,9 @@ def make(src_path: str) -> str:
 
 
 if __name__ == "__main__":
-    text = make(sys.argv[1])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("source", help="Project Chrono's mf_185_80R14.tir (PAC2002)")
+    text = make(ap.parse_args().source)
     write_atomic(OUT, text)
     read_tir(OUT)  # it reads back
     print(OUT)

@@ -12,8 +12,8 @@ Run: python experiments/tir_survey.py FILE.tir [FILE.tir ...]
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 from pathlib import Path
 
 import jax
@@ -42,5 +42,7 @@ def survey(path: str) -> dict:
 
 
 if __name__ == "__main__":
-    for arg in sys.argv[1:]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("files", nargs="+", metavar="FILE.tir", help="tyre property files")
+    for arg in ap.parse_args().files:
         print(json.dumps(survey(arg)), flush=True)

@@ -7,6 +7,8 @@ degree whose force error stays below 1e-3 of the peak is then timed against the 
 Run: python experiments/benchmarks/distributed_vs_lumped.py
 """
 
+import argparse
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,4 +65,5 @@ def main():
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()
     main()

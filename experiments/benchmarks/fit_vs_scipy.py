@@ -37,6 +37,7 @@ Run:  PYTHONPATH=. python experiments/benchmarks/fit_vs_scipy.py
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -315,4 +316,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()
     raise SystemExit(main())

@@ -253,6 +253,7 @@ reaching 1e-3. The harness gain is real but shared: calling through jax.jit on t
 arrays instead of eqx.filter_jit saves ~80 us per call on both sides.
 """
 
+import argparse
 import json
 import os
 import sys
@@ -662,8 +663,18 @@ def main_batch(quick=False, steps_only=False):
 
 
 if __name__ == "__main__":
-    quick, steps_only = "--quick" in sys.argv, "--steps-only" in sys.argv
-    if "--batch-only" not in sys.argv:
-        main(quick=quick, steps_only=steps_only)
-    if "--no-batch" not in sys.argv:
-        main_batch(quick=quick, steps_only=steps_only)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="one case (alpha 4 deg), 5 repeats, the batches on the step only")
+    ap.add_argument("--steps-only", action="store_true",
+                    help="the steps only, no ramped slip angles")
+    group = ap.add_mutually_exclusive_group()
+    group.add_argument("--batch-only", action="store_true", help="the batched runs only")
+    group.add_argument("--no-batch", action="store_true", help="the per-call runs only")
+    ap.add_argument("--async-dispatch", action="store_true",
+                    help="JAX's asynchronous CPU dispatch (read at import: docstring)")
+    args = ap.parse_args()
+    if not args.batch_only:
+        main(quick=args.quick, steps_only=args.steps_only)
+    if not args.no_batch:
+        main_batch(quick=args.quick, steps_only=args.steps_only)
