@@ -54,7 +54,8 @@ def test_road_file_drive_is_the_library_drive(tmp_path, capsys):
 def test_a_first_solve_that_stops_short_is_said_and_recorded(tmp_path, capsys, monkeypatch):
     """A road long enough for a coarse first solve (here forced onto the corner, 20 stages)
     whose first solve stops at --max-iter: the command says that the drive started from the
-    speed profile instead, and the record's ``coarse`` says so too."""
+    speed profile instead, and the record's ``coarse`` says so too; or, where the first
+    solve's best iterate is taken, that it started from that, with its infeasibility."""
     from vehsim.cli import optimise_road
 
     path = tmp_path / "corner.csv"
@@ -69,6 +70,17 @@ def test_a_first_solve_that_stops_short_is_said_and_recorded(tmp_path, capsys, m
     rec = json.loads((out / "corner_min-time.json").read_text())["coarse"]
     assert (rec["segments"], rec["status"], rec["started_from"]) == (
         20, "ip_max_iterations", False)
+    # a first solve whose best iterate is taken (here every one): the command says so
+    from vehsim.optimal import curvilinear
+
+    monkeypatch.setattr(curvilinear, "coarse_start", lambda sol, violation: True)
+    code, err = _run(["optimise", "--road-file", path, "--segments", 40, "--start-speed", 8,
+                      "--max-iter", 2, "--out", out, "--quiet"], capsys)
+    assert code == 1, err
+    inf_pr = json.loads((out / "corner_min-time.json").read_text())["coarse"]["inf_pr"]
+    assert ("the first solve, on 20 stages, stopped with ip_max_iterations after 2 "
+            f"iterations; the 40 stages started from its best iterate (primal "
+            f"infeasibility {inf_pr:.1e})") in err, err
 
 
 def _bad_file(tmp_path, rows, name="bad"):

@@ -16,6 +16,7 @@ import pytest
 from vehsim import CentrelineRoad, Gate
 from vehsim._constants import GRAVITY as G
 from vehsim.optimal.curvilinear import (
+    COARSE_START_VIOLATION,
     CurvilinearManeuverOCP,
     CurvilinearPointMassOCP,
     resample_drive,
@@ -280,9 +281,10 @@ def test_the_library_road_gives_the_stand_in_drive(corner):
 
 def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
     """``coarse_stages``: the drive starts from the coarse solution where that converged (the
-    same optimum, from another first iterate), and from the speed profile where it did not
-    (two iterations: the first iterate is the direct solve's); the primitive and its record
-    say which."""
+    same optimum, from another first iterate); where it stopped short, from its best iterate
+    if that is within ``coarse_violation`` (one iteration short of convergence), else from
+    the speed profile (two iterations, or a bound of 0: the first iterate is the direct
+    solve's); the primitive and its record say which."""
     from vehsim.optimal.ip import IPOptions
 
     road, prim = corner
@@ -301,7 +303,26 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
     rec = short.record()["coarse"]
     assert (rec["status"], rec["iterations"], rec["started_from"]) == (
         "ip_max_iterations", 2, False)
+    assert rec["inf_pr"] > COARSE_START_VIOLATION and short.started_from_coarse is False
     assert "coarse" not in prim.record()
+    # one iteration short: the best iterate is nearly feasible, and the drive starts there
+    # (its first iterate the resampled best one, near the converged start's), unless the
+    # bound is 0
+    n = int(warm.coarse.iterations) - 1
+    near = road_primitive(road, num_stages=M_OPEN, coarse_stages=20, throw=False,
+                          options=IPOptions(max_iter=n))
+    assert not bool(near.coarse.converged) and near.started_from_coarse is True
+    rec = near.record()["coarse"]
+    assert (rec["status"], rec["iterations"], rec["started_from"]) == (
+        "ip_max_iterations", n, True)
+    assert 0.0 < rec["inf_pr"] <= COARSE_START_VIOLATION
+    start = float(near.solution.log.objective[0])
+    assert abs(start - first) > 1e-3
+    assert start == pytest.approx(float(warm.solution.log.objective[0]), rel=1e-3)
+    none = road_primitive(road, num_stages=M_OPEN, coarse_stages=20, throw=False,
+                          options=IPOptions(max_iter=n), coarse_violation=0.0)
+    assert none.started_from_coarse is False and not none.record()["coarse"]["started_from"]
+    assert float(none.solution.log.objective[0]) == pytest.approx(first, rel=1e-12)
 
 
 def test_closed_lap_is_periodic(lap):

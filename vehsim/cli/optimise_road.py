@@ -105,7 +105,7 @@ def optimise_road(args) -> int:
     from .optimise import MAX_ITER_OPTION, UNITS
 
     units = {**UNITS, "length": "m", "s": "m", "states.n": "m", "states.xi": "rad",
-             "violations.speed_floor": "m/s", "start_speed": "m/s"}
+             "violations.speed_floor": "m/s", "start_speed": "m/s", "coarse.inf_pr": "1"}
     if args.starts != 1 or args.live:
         raise ValueError("--starts and --live apply to the benchmark roads; a road file or "
                          "track starts from its speed profile")
@@ -147,10 +147,11 @@ def optimise_road(args) -> int:
     if prim.coarse is not None and not bool(prim.coarse.converged):
         from .._results import result_name
 
+        start = (f"its best iterate (primal infeasibility {float(prim.coarse.inf_pr):.1e})"
+                 if prim.started_from_coarse else "the speed profile instead")
         print(f"vehsim optimise {road.name}: the first solve, on {coarse} stages, stopped with "
               f"{result_name(prim.coarse.result)} after {int(prim.coarse.iterations)} "
-              f"iterations; the {stages} stages started from the speed profile instead",
-              file=sys.stderr)
+              f"iterations; the {stages} stages started from {start}", file=sys.stderr)
     bound = road_point_mass_bound(road, args.objective, D=args.friction,
                                   num_stages=min(stages, 500), tf_max=args.tf_max, throw=False)
     rec = prim.record(bound)
