@@ -285,7 +285,7 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
     if that is within ``coarse_violation`` (one iteration short of convergence), else from
     the speed profile (two iterations, or a bound of 0: the first iterate is the direct
     solve's); the primitive and its record say which."""
-    from vehsim.optimal.ip import IPOptions
+    from vehsim.optimal.ip import IPOptions, interior_point
 
     road, prim = corner
     warm = road_primitive(road, num_stages=M_OPEN, coarse_stages=20)
@@ -323,6 +323,15 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
                           options=IPOptions(max_iter=n), coarse_violation=0.0)
     assert none.started_from_coarse is False and not none.record()["coarse"]["started_from"]
     assert float(none.solution.log.objective[0]) == pytest.approx(first, rel=1e-12)
+    # the first solve keeps its best iterate, the fine one does not need to
+    kept = []
+
+    def recording(prob, xs0, us0, options, throw=True):
+        kept.append(options.best_iterate)
+        return interior_point(prob, xs0, us0, options, throw=throw)
+
+    road_primitive(road, num_stages=M_OPEN, coarse_stages=20, solver=recording)
+    assert kept == [True, False]
 
 
 def test_closed_lap_is_periodic(lap):
