@@ -63,6 +63,7 @@ def solve(road, name: str, M: int, bound: bool, coarse: int | None) -> dict:
     from vehsim.optimal.curvilinear import (
         CurvilinearManeuverOCP,
         RoadPrimitive,
+        coarse_start,
         resample_drive,
         road_point_mass_bound,
         road_primitive,
@@ -76,8 +77,9 @@ def solve(road, name: str, M: int, bound: bool, coarse: int | None) -> dict:
     prob = CurvilinearManeuverOCP.from_road(road, car, num_stages=M)
     xs0, us0 = speed_profile_guess(road, car, M)
     if coarse is not None and coarse < M:  # start from the coarse solution (road_primitive)
-        first = road_primitive(road, car=car, num_stages=coarse, options=options, throw=False)
-        if bool(first.solution.converged):
+        first = road_primitive(road, car=car, num_stages=coarse, throw=False,
+                               options=IPOptions(max_iter=500, best_iterate=True))
+        if coarse_start(first.solution):
             xs0, us0 = resample_drive(first.problem, first.solution.xs, prob)
             options = IPOptions(max_iter=500, mu0=1e-3)
     t0 = time.perf_counter()
