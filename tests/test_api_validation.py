@@ -705,6 +705,10 @@ CASES |= {
     "a sharded map along a second axis": (
         lambda: vs.sharded_vmap(lambda x: x, in_axes=5),
         "sharded_vmap: in_axes must be 0 (the member axis leads), None (not mapped)"),
+    "a road primitive's first-solve start bound below zero": (
+        lambda: vs.road_primitive(vs.CentrelineRoad.from_segments([("straight", 20.0)], 8.0),
+                                  coarse_violation=-1.0),
+        "road_primitive.coarse_violation must lie in [0, inf), got -1"),
 }
 
 
