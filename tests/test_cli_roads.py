@@ -54,7 +54,8 @@ def test_road_file_drive_is_the_library_drive(tmp_path, capsys):
 def test_a_first_solve_that_stops_short_is_said_and_recorded(tmp_path, capsys, monkeypatch):
     """A road long enough for a coarse first solve (here forced onto the corner, 20 stages)
     whose first solve stops at --max-iter: the command says that the drive started from the
-    speed profile instead, and the record's ``coarse`` says so too; or, where the first
+    speed profile instead, and why (the best iterate's infeasibility above the bound), and
+    the record's ``coarse`` says so too; or, where the first
     solve's best iterate is taken, that it started from that, with its infeasibility."""
     from vehsim.cli import optimise_road
 
@@ -65,9 +66,10 @@ def test_a_first_solve_that_stops_short_is_said_and_recorded(tmp_path, capsys, m
     code, err = _run(["optimise", "--road-file", path, "--segments", 40, "--start-speed", 8,
                       "--max-iter", 2, "--out", out, "--quiet"], capsys)
     assert code == 1, err
-    assert ("the first solve, on 20 stages, stopped with ip_max_iterations after 2 "
-            "iterations; the 40 stages started from the speed profile instead") in err
     rec = json.loads((out / "corner_min-time.json").read_text())["coarse"]
+    assert ("the first solve, on 20 stages, stopped with ip_max_iterations after 2 "
+            "iterations; the 40 stages started from the speed profile instead (its best "
+            f"iterate's primal infeasibility {rec['inf_pr']:.1e}, above 1e-02)") in err, err
     assert (rec["segments"], rec["status"], rec["started_from"]) == (
         20, "ip_max_iterations", False)
     # a first solve whose best iterate is taken (here every one): the command says so

@@ -98,7 +98,11 @@ def optimise_road(args) -> int:
 
     from .._io import write_json_and_figure
     from .._result_files import with_units
-    from ..optimal.curvilinear import road_point_mass_bound, road_primitive
+    from ..optimal.curvilinear import (
+        COARSE_START_VIOLATION,
+        road_point_mass_bound,
+        road_primitive,
+    )
     from ..optimal.ip import IPOptions
     from ..optimal.primitives import rally_gravel_car
     from ..plot import path_on_road_figure
@@ -147,8 +151,11 @@ def optimise_road(args) -> int:
     if prim.coarse is not None and not bool(prim.coarse.converged):
         from .._results import result_name
 
-        start = (f"its best iterate (primal infeasibility {float(prim.coarse.inf_pr):.1e})"
-                 if prim.started_from_coarse else "the speed profile instead")
+        inf_pr = float(prim.coarse.inf_pr)
+        start = (f"its best iterate (primal infeasibility {inf_pr:.1e})"
+                 if prim.started_from_coarse else
+                 f"the speed profile instead (its best iterate's primal infeasibility "
+                 f"{inf_pr:.1e}, above {COARSE_START_VIOLATION:.0e})")
         print(f"vehsim optimise {road.name}: the first solve, on {coarse} stages, stopped with "
               f"{result_name(prim.coarse.result)} after {int(prim.coarse.iterations)} "
               f"iterations; the {stages} stages started from {start}", file=sys.stderr)
