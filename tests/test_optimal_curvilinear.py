@@ -8,6 +8,7 @@ library's road classes."""
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,6 +20,8 @@ from vehsim.optimal.curvilinear import (
     COARSE_START_VIOLATION,
     CurvilinearManeuverOCP,
     CurvilinearPointMassOCP,
+    coarse_refusal,
+    coarse_start,
     resample_drive,
     road_point_mass_bound,
     road_primitive,
@@ -300,7 +303,7 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
                            options=IPOptions(max_iter=2))
     assert not bool(short.coarse.converged)
     assert float(short.solution.log.objective[0]) == pytest.approx(first, rel=1e-12)
-    rec = short.record()["coarse"]
+    rec = rec_short = short.record()["coarse"]
     assert (rec["status"], rec["iterations"], rec["started_from"]) == (
         "ip_max_iterations", 2, False)
     assert rec["inf_pr"] > COARSE_START_VIOLATION and short.started_from_coarse is False
@@ -319,6 +322,15 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
     start = float(near.solution.log.objective[0])
     assert abs(start - first) > 1e-3
     assert start == pytest.approx(float(warm.solution.log.objective[0]), rel=1e-3)
+    # why a start is refused, in words: the infeasibility against the bound, or an iterate
+    # that is not finite, however small its infeasibility
+    assert coarse_refusal(warm.coarse) is None and coarse_refusal(near.coarse) is None
+    assert coarse_refusal(short.coarse) == (
+        f"its best iterate's primal infeasibility {rec_short['inf_pr']:.1e}, above 1e-02")
+    assert coarse_refusal(near.coarse, 0.0).endswith(", above 0e+00")
+    lost = eqx.tree_at(lambda s: s.us, near.coarse, near.coarse.us.at[3, 0].set(jnp.nan))
+    assert float(lost.inf_pr) <= COARSE_START_VIOLATION and not coarse_start(lost)
+    assert coarse_refusal(lost) == "its best iterate is not finite"
     none = road_primitive(road, num_stages=M_OPEN, coarse_stages=20, throw=False,
                           options=IPOptions(max_iter=n), coarse_violation=0.0)
     assert none.started_from_coarse is False and not none.record()["coarse"]["started_from"]

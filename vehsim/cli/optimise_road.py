@@ -99,7 +99,7 @@ def optimise_road(args) -> int:
     from .._io import write_json_and_figure
     from .._result_files import with_units
     from ..optimal.curvilinear import (
-        COARSE_START_VIOLATION,
+        coarse_refusal,
         road_point_mass_bound,
         road_primitive,
     )
@@ -154,8 +154,7 @@ def optimise_road(args) -> int:
         inf_pr = float(prim.coarse.inf_pr)
         start = (f"its best iterate (primal infeasibility {inf_pr:.1e})"
                  if prim.started_from_coarse else
-                 f"the speed profile instead (its best iterate's primal infeasibility "
-                 f"{inf_pr:.1e}, above {COARSE_START_VIOLATION:.0e})")
+                 f"the speed profile instead ({coarse_refusal(prim.coarse)})")
         print(f"vehsim optimise {road.name}: the first solve, on {coarse} stages, stopped with "
               f"{result_name(prim.coarse.result)} after {int(prim.coarse.iterations)} "
               f"iterations; the {stages} stages started from {start}", file=sys.stderr)

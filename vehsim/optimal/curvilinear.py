@@ -1098,8 +1098,22 @@ def road_primitive(road, objective: str = "min-time", *, car: ReducedHalfCar | N
 def coarse_start(sol: IPSolution, violation: float = COARSE_START_VIOLATION) -> bool:
     """Whether `road_primitive` starts its fine solve from the coarse solution ``sol``: it
     converged, or (stopped short) its iterate is finite and violates no constraint by more
-    than ``violation`` (``inf_pr``)."""
+    than ``violation`` (``inf_pr``). `coarse_refusal` says why not."""
+    return coarse_refusal(sol, violation) is None
+
+
+def coarse_refusal(sol: IPSolution, violation: float = COARSE_START_VIOLATION) -> str | None:
+    """Why `road_primitive` does not start its fine solve from the coarse solution ``sol``, in
+    words ("its best iterate is not finite", or its primal infeasibility above
+    ``violation``); None where it does (`coarse_start`)."""
     if bool(sol.converged):
-        return True
-    finite = bool(jnp.all(jnp.isfinite(sol.xs))) and bool(jnp.all(jnp.isfinite(sol.us)))
-    return finite and float(sol.inf_pr) <= violation
+        return None
+    inf_pr = float(sol.inf_pr)
+    finite = (bool(jnp.all(jnp.isfinite(sol.xs))) and bool(jnp.all(jnp.isfinite(sol.us)))
+              and math.isfinite(inf_pr))
+    if not finite:
+        return "its best iterate is not finite"
+    if inf_pr > violation:
+        return (f"its best iterate's primal infeasibility {inf_pr:.1e}, "
+                f"above {violation:.0e}")
+    return None
