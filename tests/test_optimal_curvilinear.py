@@ -328,6 +328,9 @@ def test_a_coarse_first_solve_starts_the_drive_where_it_converged(corner):
     assert coarse_refusal(short.coarse) == (
         f"its best iterate's primal infeasibility {rec_short['inf_pr']:.1e}, above 1e-02")
     assert coarse_refusal(near.coarse, 0.0).endswith(", above 0e+00")
+    assert coarse_refusal(near.coarse, rec["inf_pr"]) is None  # the bound is inclusive
+    assert coarse_start(near.coarse, rec["inf_pr"]) and not coarse_start(near.coarse,
+                                                                         0.5 * rec["inf_pr"])
     lost = eqx.tree_at(lambda s: s.us, near.coarse, near.coarse.us.at[3, 0].set(jnp.nan))
     assert float(lost.inf_pr) <= COARSE_START_VIOLATION and not coarse_start(lost)
     assert coarse_refusal(lost) == "its best iterate is not finite"
