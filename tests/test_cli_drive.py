@@ -505,8 +505,9 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
     passes and a friction margin on the fast stage and a road from a file, a corridor
     margin wider than the driver's default on all of them, narrowing with the grip on the
-    corners; on a road from a file a lower terminal speed bound, a lost plan planned
-    again, a tighter slip bound and a soft corridor), built without compiling anything."""
+    corners; a lost plan planned again on the stage and a road from a file; on a road from
+    a file a lower terminal speed bound, a tighter slip bound and a soft corridor), built
+    without compiling anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
@@ -529,7 +530,8 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     for name in ("terminal_backoff", "replan_kkt", "replan_iterations", "slip_limit"):
         # the defaults but on a file
         assert float(getattr(driver, name)) == float(expect.get(name, getattr(default, name)))
-    assert (float(driver.replan_kkt) < math.inf) == (road == "file")
+    # a lost plan planned again on the stage and a road from a file, not on the corners
+    assert (float(driver.replan_kkt) < math.inf) == (road != "sturn")
     assert (float(driver.slip_limit) < float(default.slip_limit)) == (road == "file")
     # a soft corridor on a road from a file only
     assert (driver.corridor_penalty is None) == (road != "file")

@@ -251,6 +251,22 @@ def test_a_converged_drivers_settings_take_a_fresh_hessian(road):
         vs.driver_settings(road, mode="fast")
 
 
+def test_the_stages_driver_plans_a_lost_plan_again_within_a_short_cap():
+    """The stage's driver takes fewer passes per sample than a road file's (10 keeping the
+    first Hessian, against 16) and plans a lost plan (KKT residual past 100) again from the
+    cold start, its re-plan capped at 20 passes (the circuit's at 40), so that a re-plan
+    fits the 50 ms period; the cap reaches the interior point's options of a re-plan, and
+    an ordinary sample's stay at the 10 passes (docs/drive.md, "Passes on the stage")."""
+    stage, file = vs.driver_settings("stage"), vs.driver_settings(None)
+    assert stage["iterations"] == 10 < file["iterations"] == 16
+    assert stage["replan_kkt"] == file["replan_kkt"] == 100.0
+    assert stage["replan_iterations"] == 20 < file["replan_iterations"] == 40
+    driver, _ = vs.scenario_driver(vs.drive_scenario("stage", "nominal"), "estimate", **stage)
+    assert float(driver.replan_kkt) == 100.0 and driver.hessian_update == "first"
+    assert int(driver.options(False, True).max_iter) == 20
+    assert int(driver.options(False, False).max_iter) == 10
+
+
 def test_drive_time_interpolates_the_gate_crossing():
     road = vs.CentrelineRoad.from_segments([("straight", 20.0)], 2.0)
     h = 0.1

@@ -152,7 +152,7 @@ def register(subparsers) -> None:
                    metavar="N",
                    help="with an rh controller in rti mode: interior-point passes per "
                         f"sample, {MIN_PASSES} to {MAX_PASSES} (default: the road's driver, "
-                        "4 on the benchmark corners, 16 on the stage and on a road file; "
+                        "4 on the benchmark corners, 10 on the stage, 16 on a road file; "
                         "more passes cost compute per sample, docs/driver.md)")
     p.add_argument("--keep-hessian", action=argparse.BooleanOptionalAction, default=None,
                    help="with an rh controller: keep each sample's first Hessian for its "

@@ -193,19 +193,22 @@ CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0,
                  "traction_limit": DRIVER_TRACTION_LIMIT}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
 
-FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 16, "hessian_update": "first",
-                    "peak_fraction": 0.9, "traction_limit": DRIVER_TRACTION_LIMIT}
+FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 10, "hessian_update": "first",
+                    "peak_fraction": 0.9, "traction_limit": DRIVER_TRACTION_LIMIT,
+                    "replan_kkt": 100.0, "replan_iterations": 20}
 """`RecedingHorizonDriver` settings of `driver_settings` on the stage: a corridor margin,
-more passes (each sample's first Hessian kept for its later ones) and a friction margin."""
+more passes (10, each sample's first Hessian kept for its later ones), a lost plan (KKT
+residual past 100) planned again from the cold start in at most 20 passes, and a friction
+margin."""
 
 FILE_ROAD_DRIVER = FAST_ROAD_DRIVER | {
-    "margin": 0.5, "terminal_backoff": 0.85, "replan_kkt": 100.0, "replan_iterations": 40,
+    "iterations": 16, "replan_iterations": 40, "margin": 0.5, "terminal_backoff": 0.85,
     "slip_limit": 0.1, "corridor_penalty": 1.0}
-"""`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: the stage's
-passes (16, each sample's first Hessian kept) and friction margin, a wider corridor margin,
-a lower terminal speed bound, a lost plan planned again from the cold start in at most 40
-passes, a tighter slip bound for the plant's tire at speed and a soft corridor (measured on
-the shipped circuit)."""
+"""`RecedingHorizonDriver` settings of `driver_settings` on a road from a file: more passes
+than the stage's (16, each sample's first Hessian kept), the stage's friction margin, a
+lost plan planned again in at most 40 passes, a wider corridor margin, a lower terminal
+speed bound, a tighter slip bound for the plant's tire at speed and a soft corridor
+(measured on the shipped circuit)."""
 
 _CORNERS = ("corner90", "uturn", "sturn")
 
@@ -226,19 +229,21 @@ def driver_settings(name: str | None, friction: str | None = None,
     drive 332 of 386 solves, against 2 with a fresh one; docs/performance.md).
 
     - The stage (12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`. At those speeds 4 passes per
-      sample leave the plans far from converged, so a sample takes 16 passes that keep its
-      first Hessian (they fit the 50 ms period); the planner uses 90 % of the believed peak,
-      since the planning tire is not the plant's; the corridor margin is 0.3 m.
+      sample leave the plans far from converged, so a sample takes 10 passes that keep its
+      first Hessian, and a plan lost on the way (KKT residual past 100, as braking into a
+      corner can leave it) is planned again from the cold start in at most 20 passes; the
+      planner uses 90 % of the believed peak, since the planning tire is not the plant's;
+      the corridor margin is 0.3 m.
     - The benchmark corners (corner90, uturn, sturn; 2 m wide): `CORNER_DRIVER`. A car at
       the road's limit runs some tens of centimetres past its planned path, so the corridor
       margin is 0.4 m; it narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: about 0.22 m on the icy patch), since an icy apex needs
       the road's width.
     - A road from a file (None, or a name that is not a scenario road's):
-      `FILE_ROAD_DRIVER`, for circuits driven at 35-47 m/s: the stage's passes and friction
-      margin, a 0.5 m corridor margin, the terminal speed bound at 85 %
-      (`terminal_backoff`), a plan whose KKT residual passes 100 planned again from the
-      cold start (`replan_kkt`, at most 40 passes), the axles' combined slip bounded by 0.10
+      `FILE_ROAD_DRIVER`, for circuits driven at 35-47 m/s: 16 kept-Hessian passes, the
+      stage's friction margin, a lost plan planned again (`replan_kkt` 100) in at most 40
+      passes, a 0.5 m corridor margin, the terminal speed bound at 85 %
+      (`terminal_backoff`), the axles' combined slip bounded by 0.10
       (`slip_limit`: the plant's tire peaks at 3-4 % slip at those speeds) and a soft
       corridor (`corridor_penalty`).
 
