@@ -256,7 +256,7 @@ def test_the_stages_driver_plans_a_lost_plan_again_within_a_short_cap():
     first Hessian, against 16) and plans a lost plan (KKT residual past 100) again from the
     cold start, its re-plan capped at 20 passes (the circuit's at 40), so that a re-plan
     fits the 50 ms period; the cap reaches the interior point's options of a re-plan, and
-    an ordinary sample's stay at the 10 passes (docs/drive.md, "Passes on the stage")."""
+    an ordinary sample's stay at the 10 passes (docs/drive.md, "Ten passes and a re-plan")."""
     stage, file = vs.driver_settings("stage"), vs.driver_settings(None)
     assert stage["iterations"] == 10 < file["iterations"] == 16
     assert stage["replan_kkt"] == file["replan_kkt"] == 100.0
