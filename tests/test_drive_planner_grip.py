@@ -454,3 +454,68 @@ def test_command_applies_the_traction_control(table):
     assert np.max(free[:2]) > 200.0
     assert np.all(np.abs(held[:2]) < 0.1 * np.max(free[:2]))
     assert held[2] == pytest.approx(free[2], abs=1e-12)
+
+
+def test_scaled_planning_car_keeps_the_slip_stiffness_it_is_asked_to():
+    r"""`scaled_planning_car`: the peak is $Dg$ on every surface; the slip stiffness (the
+    slope of $D\sin(C\arctan(Bs))$ at $s = 0$, by forward mode) is the car's times
+    $g^{1-q}$ (closed form); without `stiffness_power` the tire's $B$ is the car's, and the
+    car the one `HorizonOCP.stage_vehicle` built before it had the option (bit for bit)."""
+    from vehsim.optimal.primitives import rally_gravel_car
+
+    car = rally_gravel_car(0.52)
+    slope = lambda tire: float(jax.jvp(tire.mu_of_s, (0.0,), (1.0,))[1])  # noqa: E731
+    s = jnp.linspace(0.0, 3.0, 30001)
+    for g in (0.35, 0.7, 1.0, 1.3):
+        plain = vs.scaled_planning_car(car, jnp.asarray(g))
+        assert plain == eqx.tree_at(lambda v: v.tire.D, car, car.tire.D * g)
+        for q in (0.0, 0.6, 1.0):
+            tire = vs.scaled_planning_car(car, jnp.asarray(g), q).tire
+            assert float(jnp.max(tire.mu_of_s(s))) == pytest.approx(0.52 * g, rel=1e-6)
+            assert slope(tire) == pytest.approx(slope(car.tire) * g ** (1.0 - q), rel=1e-12)
+
+
+def test_the_plant_tires_slip_stiffness_changes_less_with_the_grip_than_its_peak():
+    r"""The claim of `scaled_planning_car`: the plant's LuGre tire, fitted on roads whose
+    peaks span the scenarios' (`fit_planner_tire` at scales 0.2 and 0.5, peaks about 0.31 and
+    0.68 at 12 m/s), has a slip stiffness $BCD$ that scales as $D^{0.3..0.55}$ (measured
+    0.41), where the planner's tire with its $B$ kept scales as $D^1$."""
+    lo, hi = (vs.fit_planner_tire(None, scale, speed=12.0) for scale in (0.2, 0.5))
+    stiffness = lambda t: float(t.B * t.C * t.D)  # noqa: E731
+    power = np.log(stiffness(hi) / stiffness(lo)) / np.log(float(hi.D / lo.D))
+    print("plant stiffness power", power, float(lo.D), float(hi.D))
+    assert float(hi.D / lo.D) > 2.0
+    assert 0.3 < power < 0.55
+
+
+def test_the_driver_plans_and_recovers_torques_with_the_scaled_tire(table):
+    """`RecedingHorizonDriver.stiffness_power`: each stage of its horizon problem has the
+    tire of `scaled_planning_car` at the stage's grip, and its torques realise the planned
+    slips with the same tire (so the planned slip and the torque agree); without it the
+    stages keep the car's $B$. A value outside [0, 1] is refused by name."""
+    D = jnp.array([0.3, 0.45, 0.52, 0.6, 0.4, 0.5])
+    state8 = jnp.array([0.0, 0.0, 10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    B0 = float(_driver(table, "nominal").vehicle.tire.B)
+    for q in (None, 1.0):
+        prob = _driver(table, "nominal", stiffness_power=q).problem(0.0, state8, D)
+        for k in range(6):
+            tire = prob.stage_vehicle(k).tire
+            assert float(tire.D) == pytest.approx(float(D[k]), rel=1e-14)
+            want = B0 if q is None else B0 * 0.52 / float(D[k])
+            assert float(tire.B) == pytest.approx(want, rel=1e-14)
+    X = jnp.array([0.0, 0.0, 10.0, 0.3, 0.2, -0.04, 0.03, 0.05])
+    u = jnp.array([0.01, -0.02, 0.0])
+    D0 = jnp.asarray(0.3)
+    scaled = _driver(table, "nominal", stiffness_power=1.0)
+    car = vs.scaled_planning_car(scaled.vehicle, D0 / 0.52, 1.0)
+    state6 = jnp.array([0.0, 0.0, 0.0, 10.0, 0.3, 0.2])
+    sdot = 10.0 * jnp.cos(0.0) - 0.3 * jnp.sin(0.0)
+    want = np.asarray(car.recover_torques(state6, X[5:8], u * sdot)[2:])
+    got = np.asarray(scaled.plan_torques(X, u, D0))
+    plain = np.asarray(_driver(table, "nominal").plan_torques(X, u, D0))
+    print("torques", got, plain)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.max(np.abs(got - plain)) > 10.0  # [N m]: the stiffer tire's force at the slip
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="stiffness_power"):
+            _driver(table, "nominal", stiffness_power=bad)

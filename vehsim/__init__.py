@@ -429,6 +429,7 @@ from .drive.horizon import (
     horizon_problem as horizon_problem,
     planner_car as planner_car,
     profile_guess as profile_guess,
+    scaled_planning_car as scaled_planning_car,
     shift_multipliers as shift_multipliers,
     shift_plan as shift_plan,
 )

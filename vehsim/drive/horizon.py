@@ -347,6 +347,27 @@ def axle_slips(vehicle: ReducedHalfCar, X) -> Float[Array, " 2"]:
     return safe_hypot(k, Vy / Vx) / (1.0 + k)  # a zero gradient, not NaN, rolling straight
 
 
+def scaled_planning_car(vehicle: ReducedHalfCar, grip, stiffness_power=None
+                        ) -> ReducedHalfCar:
+    r"""The planning car ``vehicle`` on a surface of relative grip $g$ = ``grip``: its
+    friction-ellipse tire's peak $D g$ and, with ``stiffness_power`` $q$ (None: $B$ kept),
+    $B g^{-q}$, so that its slip stiffness $BCD$ scales as $g^{1-q}$.
+
+    With $B$ kept ($q$ = 0) a surface of less grip is also a softer tire: the planner
+    believes it needs larger slip angles for the same force. The plant's LuGre tire is not:
+    its slope at zero slip is set by its bristles' stiffness $\sigma_0$, whatever the
+    road, and fitted over the scenarios' peaks (`fit_planner_tire`, 0.23-0.68) its
+    $BCD$ scales as about $D^{0.4}$. The Magic Formula states its stiffness apart from its
+    peak for the same reason ($B = K/(CD)$): $q$ = 1 keeps the slip stiffness of
+    ``vehicle`` on every surface, $q$ = 0.6 follows the plant's."""
+    tire = vehicle.tire
+    D = tire.D * grip
+    if stiffness_power is None:
+        return eqx.tree_at(lambda v: v.tire.D, vehicle, D)
+    B = tire.B * grip ** (-jnp.asarray(stiffness_power, float))
+    return eqx.tree_at(lambda v: (v.tire.B, v.tire.D), vehicle, (B, D))
+
+
 class HorizonOCP(CurvilinearManeuverOCP):
     r"""The horizon problem of the module docstring: `CurvilinearManeuverOCP` on a window of
     length `length` $H$ with the initial state fixed, the steering-rate bound, the
@@ -390,6 +411,7 @@ class HorizonOCP(CurvilinearManeuverOCP):
     slip_limit: Float[Array, " M"] | None = None
     corridor_penalty: Float[Array, ""] | None = None
     soft_stages: Int[Array, ""] | None = None
+    stiffness_power: Float[Array, ""] | None = None
 
     def __check_init__(self):
         if self.control_size != (3 if self.corridor_penalty is None else 4):
@@ -413,10 +435,11 @@ class HorizonOCP(CurvilinearManeuverOCP):
         return (limit * (1.0 + k)) ** 2 * Vx * Vx - k * k * Vx * Vx - Vy * Vy
 
     def stage_vehicle(self, k) -> ReducedHalfCar:
-        """The planning car of stage ``k``: its tire's $D$ times `grip`[k]."""
+        """The planning car of stage ``k``: its tire's $D$ times `grip`[k] (and with
+        `stiffness_power` $q$ its $B$ times `grip`[k]$^{-q}$, `scaled_planning_car`)."""
         if self.grip is None:
             return self.vehicle
-        return eqx.tree_at(lambda v: v.tire.D, self.vehicle, self.vehicle.tire.D * self.grip[k])
+        return scaled_planning_car(self.vehicle, self.grip[k], self.stiffness_power)
 
     def _segment(self, x, u, k):
         veh = self.stage_vehicle(k)
@@ -486,7 +509,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
                     margin_grip_power=0.0, corridor_penalty=None,
-                    soft_stages=None) -> HorizonOCP:
+                    soft_stages=None, stiffness_power=None) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
@@ -509,7 +532,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     start, read from the last plan between its first two knots, crept up to the bound
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
     soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$, on the
-    first ``soft_stages`` stages (None: all)."""
+    first ``soft_stages`` stages (None: all); ``stiffness_power`` $q$ (None: the tire's
+    $B$ on every stage) each stage's $B$ times $g_k^{-q}$ (`scaled_planning_car`)."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -545,7 +569,9 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
         slip_limit=slips, corridor_penalty=None if corridor_penalty is None else
         jnp.asarray(corridor_penalty, float), control_size=3 if corridor_penalty is None else 4,
-        soft_stages=None if soft_stages is None else jnp.asarray(soft_stages, int))
+        soft_stages=None if soft_stages is None else jnp.asarray(soft_stages, int),
+        stiffness_power=None if stiffness_power is None else
+        jnp.asarray(stiffness_power, float))
 
 
 def profile_guess(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per_stage, *,
@@ -794,7 +820,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
-    `horizon_problem`), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
+    `horizon_problem`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
+    else $B (D_k/D)^{-q}$, its slip stiffness scaling as $(D_k/D)^{1-q}$,
+    `scaled_planning_car`), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
@@ -998,6 +1026,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=None, converter=lambda x: None if x is None else float_array(x))
     soft_stages: Int[Array, ""] | None = eqx.field(
         default=None, converter=lambda x: None if x is None else int_array(x))
+    stiffness_power: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
     probe_distance: Float[Array, ""] | None = eqx.field(
         default=None, converter=lambda x: None if x is None else float_array(x))
     probe_utilisation: Float[Array, ""] = array_field(default=0.95)
@@ -1053,6 +1083,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         for name in ("velocity_std", "margin", "margin_grip_power", "rate_weight",
                      "estimate_backoff", "slip_gain", "lead"):
             check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
+        if self.stiffness_power is not None:
+            check_range("RecedingHorizonDriver", "stiffness_power", self.stiffness_power,
+                        lower=0.0, upper=1.0)
         if not (isinstance(self.tol, int | float) and math.isfinite(self.tol)
                 and self.tol > 0):
             raise ValueError("RecedingHorizonDriver.tol must be a number in (0, inf), got "
@@ -1230,7 +1263,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                                slip_limit=self.slip_limit,
                                margin_grip_power=self.margin_grip_power,
                                corridor_penalty=self.corridor_penalty,
-                               soft_stages=self.soft_stages)
+                               soft_stages=self.soft_stages,
+                               stiffness_power=self.stiffness_power)
 
     def cold_guess(self, s0, state8, D):
         """`profile_guess` with this driver's horizon (and a zero slack with
@@ -1453,6 +1487,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         `longitudinal_capacity` at the axle's planned velocity (the traction control
         of the class docstring)."""
         veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
+        if self.stiffness_power is not None:  # the stages' tire at the peak D0
+            veh = scaled_planning_car(self.vehicle, D0 / self.vehicle.tire.D,
+                                      self.stiffness_power)
         n, xi, vx, vy = X[0], X[1], X[2], X[3]
         sdot = vx * jnp.cos(xi) - vy * jnp.sin(xi)  # on the centre line's scale (n small)
         state6 = jnp.stack([0.0 * n, 0.0 * n, xi, vx, vy, X[4]])
