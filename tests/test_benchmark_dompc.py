@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from _isolated import in_subprocess, require_casadi
 
-from vehsim.drive.horizon import _slip_parts, axle_slips
+from vehsim.drive.horizon import _slip_parts, axle_slips, scaled_planning_car
 from vehsim.optimal.curvilinear import _rk4_steps, spatial_rhs
 from vehsim.optimal.primitives import rally_gravel_car
 
@@ -38,7 +38,8 @@ def test_casadi_horizon_model_is_spatial_rhs():
     """`spatial_rate` (CasADi) equals `spatial_rhs` (eqs. 61-63 in the road's frame) of
     `rally_gravel_car(D)` at random states, rates, curvatures and frictions, and one
     `rk4_step` equals vehsim's RK4 stage map with the curvature at the step's start,
-    middle and end (the do-mpc model's discrete dynamics)."""
+    middle and end (the do-mpc model's discrete dynamics); with the stage's $B$ of
+    `stage_B` it is `spatial_rhs` of `scaled_planning_car` (the slip stiffness kept)."""
     require_casadi()
     in_subprocess(_check_horizon_model)
 
@@ -68,6 +69,16 @@ def _check_horizon_model():
                             jnp.asarray(u), h, jnp.asarray(k)[None])
         np.testing.assert_allclose(np.asarray(step).ravel(), np.asarray(ref),
                                    rtol=1e-10, atol=1e-12)
+        # a stage of relative grip g with the tire's slip stiffness kept (stiffness_power 1)
+        g = float(d) / 0.52
+        scaled = scaled_planning_car(rally_gravel_car(0.52), jnp.asarray(g), 1.0)
+        rate, _, _ = _dompc_driver.spatial_rate(ca.DM(x), ca.DM(u), float(k[0]), float(d),
+                                                _dompc_driver.stage_B(g, 1.0))
+        np.testing.assert_allclose(np.asarray(rate).ravel(),
+                                   np.asarray(spatial_rhs(scaled, jnp.asarray(x),
+                                                          jnp.asarray(u), k[0])),
+                                   rtol=1e-10, atol=1e-12)
+        assert _dompc_driver.stage_B(g, None) == 7.0
 
 
 def _check_slip_bound():

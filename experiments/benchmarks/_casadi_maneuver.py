@@ -71,12 +71,13 @@ def axle_velocities(vx, vy, r, d):
     return VFx, VFy, vx, vy - lR * r
 
 
-def body_model(D, vx, vy, r, kF, kR, d):
+def body_model(D, vx, vy, r, kF, kR, d, B=7.0):
     r"""The reduced half-car's body accelerations $(\dot v_x, \dot v_y, \dot r)$ and axle
     speeds $(V_{Fx}, V_{Rx})$ at the inputs $(\kappa_F, \kappa_R, \delta)$, in CasADi (the
-    formulas of docs/maneuvers.md)."""
+    formulas of docs/maneuvers.md); the tire's peak ``D`` and its ``B`` (the gravel's 7, or
+    a number or symbol scaled with the grip, `vehsim.scaled_planning_car`)."""
     m, Iz, lF, lR, h, g = 1450.0, 2740.0, 1.3, 1.4, 0.4, 9.81
-    B, C = 7.0, 1.6
+    C = 1.6
     VFx, VFy, VRx, VRy = axle_velocities(vx, vy, r, d)
 
     def mu(kappa, Vx, Vy):

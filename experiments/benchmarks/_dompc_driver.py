@@ -49,23 +49,24 @@ FREE = 1e3
 """A bound [m, m/s] that never binds (the terminal rows of the stages before the last)."""
 
 
-def spatial_rate(X, v, k, D):
+def spatial_rate(X, v, k, D, B=7.0):
     r"""$dX/ds$ (CasADi) at the state ``X`` (9), the input rates ``v`` (3), the curvature
-    ``k`` and the tire's peak friction ``D`` (a number or a symbol), and the axle speeds:
+    ``k``, the tire's peak friction ``D`` and its ``B`` (numbers or symbols), and the axle
+    speeds:
     $\dot s = (v_x\cos\xi - v_y\sin\xi)/(1 - n k)$, $\dot n = v_x\sin\xi + v_y\cos\xi$,
     $\dot\xi = r - k\dot s$, every rate divided by $\dot s$, $dt/ds = 1/\dot s$
     (`vehsim.spatial_rhs`)."""
     n, xi, vx, vy, r, kF, kR, d = (X[i] for i in range(8))
-    body, axle_speeds = body_model(D, vx, vy, r, kF, kR, d)
+    body, axle_speeds = body_model(D, vx, vy, r, kF, kR, d, B)
     sdot = (vx * ca.cos(xi) - vy * ca.sin(xi)) / (1 - n * k)
     ndot = vx * ca.sin(xi) + vy * ca.cos(xi)
     return ca.vertcat(ndot, r - k * sdot, body, v * sdot, 1.0) / sdot, axle_speeds, sdot
 
 
-def rk4_step(X, v, kap, D, h):
+def rk4_step(X, v, kap, D, h, B=7.0):
     """One classical RK4 step of `spatial_rate` over ``h`` with the curvature ``kap`` =
     (start, middle, end) of the step."""
-    f = lambda x, k: spatial_rate(x, v, k, D)[0]  # noqa: E731
+    f = lambda x, k: spatial_rate(x, v, k, D, B)[0]  # noqa: E731
     k1 = f(X, kap[0])
     k2 = f(X + 0.5 * h * k1, kap[1])
     k3 = f(X + 0.5 * h * k2, kap[1])
@@ -81,10 +82,18 @@ def slip_excess(X, limit):
             for k, Vx, Vy in ((X[5], VFx, VFy), (X[6], VRx, VRy))]
 
 
-def horizon_model(H: float, M: int, D: float):
+def stage_B(grip, stiffness_power: float | None):
+    """The tire's $B$ on a stage of relative grip ``grip`` (a symbol): the gravel's 7, or
+    $7 g^{-q}$ with ``stiffness_power`` $q$."""
+    return 7.0 if stiffness_power is None else 7.0 * grip ** (-float(stiffness_power))
+
+
+def horizon_model(H: float, M: int, D: float, stiffness_power: float | None = None):
     """The do-mpc discrete model (module docstring) of a horizon of length ``H`` [m] in
-    ``M`` stages at the nominal peak friction ``D``; also returns the next state's
-    expression (for the constraints that read it)."""
+    ``M`` stages at the nominal peak friction ``D``, each stage's tire with the peak $D g$
+    and, with ``stiffness_power`` $q$, $B = 7 g^{-q}$ ($g$ the stage's ``grip``, as
+    `vehsim.scaled_planning_car`); also returns the next state's expression (for the
+    constraints that read it)."""
     import do_mpc
 
     model = do_mpc.model.Model("discrete", "SX")
@@ -92,7 +101,8 @@ def horizon_model(H: float, M: int, D: float):
     v = ca.vertcat(*(model.set_variable("_u", name) for name in INPUTS))
     p = {name: model.set_variable("_tvp", name) for name in TVP}
     h = H / M
-    nxt = rk4_step(X, v, (p["kap0"], p["kap1"], p["kap2"]), D * p["grip"], h)
+    nxt = rk4_step(X, v, (p["kap0"], p["kap1"], p["kap2"]), D * p["grip"], h,
+                   stage_B(p["grip"], stiffness_power))
     for i, name in enumerate(STATES):
         model.set_rhs(name, nxt[i])
     model.setup()
@@ -100,7 +110,8 @@ def horizon_model(H: float, M: int, D: float):
     X = ca.vertcat(*(model.x[name] for name in STATES))
     v = ca.vertcat(*(model.u[name] for name in INPUTS))
     p = {name: model.tvp[name] for name in TVP}
-    nxt = rk4_step(X, v, (p["kap0"], p["kap1"], p["kap2"]), D * p["grip"], h)
+    nxt = rk4_step(X, v, (p["kap0"], p["kap1"], p["kap2"]), D * p["grip"], h,
+                   stage_B(p["grip"], stiffness_power))
     return model, X, v, p, nxt
 
 
@@ -108,9 +119,11 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
                 steer_rate: float = 1.0, terminal_sideslip: float = 0.1,
                 terminal_heading: float = 0.15, tol: float = 1e-6, max_iter: int = 100,
                 mu_init: float | None = None, linear_solver: str = "mumps",
-                warm_start: bool = True, cse: bool = True, jit: str | None = None):
+                warm_start: bool = True, cse: bool = True, jit: str | None = None,
+                stiffness_power: float | None = None):
     """The do-mpc MPC of the horizon problem (module docstring) and a function
-    ``set_horizon(tvp)`` taking the (M + 1, len(TVP)) tvp table of the current sample.
+    ``set_horizon(tvp)`` taking the (M + 1, len(TVP)) tvp table of the current sample;
+    ``stiffness_power`` that of `horizon_model`.
 
     ``limits``: SPEED_FLOOR, KAPPA_MIN, KAPPA_MAX, DELTA_MAX (the steering limit). IPOPT with ``linear_solver``,
     tolerance ``tol``, at most ``max_iter`` iterations, initial barrier ``mu_init`` (None:
@@ -122,7 +135,7 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     compiler, with these flags (e.g. "-O1"; None: CasADi's virtual machine)."""
     import do_mpc
 
-    model, X, v, p, nxt = horizon_model(H, M, D)
+    model, X, v, p, nxt = horizon_model(H, M, D, stiffness_power)
     h = H / M
     mpc = do_mpc.controller.MPC(model)
     opts = {"ipopt.linear_solver": linear_solver, "ipopt.print_level": 0, "ipopt.sb": "yes",

@@ -133,7 +133,8 @@ def dompc_mpc(driver, warm_start: bool = True):
         rate_weight=float(d.rate_weight), steer_rate=float(d.steer_rate),
         terminal_sideslip=float(ocp.terminal_sideslip),
         terminal_heading=float(ocp.terminal_heading), tol=d.tol,
-        max_iter=d.max_iterations, mu_init=float(d.barrier), warm_start=warm_start)
+        max_iter=d.max_iterations, mu_init=float(d.barrier), warm_start=warm_start,
+        stiffness_power=None if d.stiffness_power is None else float(d.stiffness_power))
 
 
 class DompcDriver:
