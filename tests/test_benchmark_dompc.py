@@ -73,7 +73,7 @@ def _check_horizon_model():
         g = float(d) / 0.52
         scaled = scaled_planning_car(rally_gravel_car(0.52), jnp.asarray(g), 1.0)
         rate, _, _ = _dompc_driver.spatial_rate(ca.DM(x), ca.DM(u), float(k[0]), float(d),
-                                                _dompc_driver.stage_B(g, 1.0))
+                                                float(_dompc_driver.stage_B(g, 1.0)))
         np.testing.assert_allclose(np.asarray(rate).ravel(),
                                    np.asarray(spatial_rhs(scaled, jnp.asarray(x),
                                                           jnp.asarray(u), k[0])),

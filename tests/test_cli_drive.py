@@ -505,9 +505,10 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     """`vehsim drive` drives each road with the scenarios' driver (`driver_settings`: more
     passes and a friction margin on the fast stage and a road from a file, a corridor
     margin wider than the driver's default on all of them, narrowing with the grip on the
-    corners; a lost plan planned again on the stage and a road from a file; on a road from
-    a file a lower terminal speed bound, a tighter slip bound and a soft corridor), built
-    without compiling anything."""
+    corners, where the planning tire also keeps its slip stiffness; a lost plan planned
+    again on the stage and a road from a file; on a road from a file a lower terminal
+    speed bound, a tighter slip bound and a soft corridor), built without compiling
+    anything."""
     from vehsim.cli import _drive_setup as setup
     from vehsim.cli.drive import _check
 
@@ -540,6 +541,9 @@ def test_drive_builds_the_scenarios_driver_settings(road, expect, road_file):
     # the corners' margin narrows with the grip (0.4 m on gravel, 0.21-0.23 m on the icy
     # patch), the stage's does not
     assert want["margin_grip_power"] == (1.0 if road == "sturn" else 0.0)
+    # the corners' planning tire keeps its slip stiffness on every surface, the others' B
+    stiffness = None if driver.stiffness_power is None else float(driver.stiffness_power)
+    assert stiffness == (1.0 if road == "sturn" else None)
     # the default controller: the estimate, with the scenarios' gate and sliding samples
     assert float(estimator.min_utilisation) == 0.7 and float(estimator.sliding_slip) == 0.1
     # a test brake on the corners' first metres, for the estimate only

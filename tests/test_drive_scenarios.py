@@ -491,7 +491,8 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
     driver's corridor margin, slip bound and steering rate keeps each of them where the
     horizon problem bounds them,
     where the unconstrained bound breaks at least one, and costs time: it lies between the
-    bound and the bound plus 10 % (measured on corner90: +4.3 %)."""
+    bound and the bound plus 10 % (measured on corner90: +4.3 %). Its stages have the
+    driver's planning tire (`stiffness_power`)."""
     sc = replay[2]["nominal"][0]
     driver = vs.RecedingHorizonDriver(table=sc.table)
     free, _, exact_free = vs.offline_bound(sc)
@@ -540,3 +541,17 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
     lo, hi = np.asarray(sc.table.corridor_at(jnp.asarray(s), 0.3 * np.append(g, g[-1]))).T
     np.testing.assert_allclose(np.asarray(wider.problem.corridor), np.stack([lo, hi], -1),
                                rtol=1e-12, atol=1e-12)
+
+    # a driver whose planning tire keeps its slip stiffness: its bound's stages have that
+    # tire (the problem's first trace is enough to see it, so it stops there)
+    class Traced(Exception):
+        pass
+
+    def first_trace(*a, **k):
+        raise Traced(k["stiffness_power"])
+
+    monkeypatch.setattr(baselines, "horizon_problem", first_trace)
+    with pytest.raises(Traced) as traced:
+        vs.offline_bound(sc, driver=vs.RecedingHorizonDriver(table=sc.table,
+                                                             stiffness_power=1.0))
+    assert traced.value.args[0] is not None

@@ -83,15 +83,17 @@ def slip_excess(X, limit):
 
 
 def stage_B(grip, stiffness_power: float | None):
-    """The tire's $B$ on a stage of relative grip ``grip`` (a symbol): the gravel's 7, or
-    $7 g^{-q}$ with ``stiffness_power`` $q$."""
-    return 7.0 if stiffness_power is None else 7.0 * grip ** (-float(stiffness_power))
+    """The tire's $B$ on a stage of relative grip ``grip`` (a number or symbol): the
+    gravel's 7, or $7 \min(g, 1)^{-q}$ with ``stiffness_power`` $q$."""
+    if stiffness_power is None:
+        return 7.0
+    return 7.0 * ca.fmin(grip, 1.0) ** (-float(stiffness_power))
 
 
 def horizon_model(H: float, M: int, D: float, stiffness_power: float | None = None):
     """The do-mpc discrete model (module docstring) of a horizon of length ``H`` [m] in
     ``M`` stages at the nominal peak friction ``D``, each stage's tire with the peak $D g$
-    and, with ``stiffness_power`` $q$, $B = 7 g^{-q}$ ($g$ the stage's ``grip``, as
+    and, with ``stiffness_power`` $q$, $B = 7 \min(g, 1)^{-q}$ ($g$ the stage's ``grip``, as
     `vehsim.scaled_planning_car`); also returns the next state's expression (for the
     constraints that read it)."""
     import do_mpc

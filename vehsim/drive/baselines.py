@@ -215,7 +215,8 @@ def _bound_solve(table, car, length, rate_weight, xs0, us0, D_stage, limits):
                            horizon=length, rate_weight=rate_weight, margin=limits["margin"],
                            steer_rate=limits["steer_rate"], steer_limit=limits["steer_limit"],
                            slip_limit=limits["slip_limit"],
-                           margin_grip_power=limits["margin_grip_power"])
+                           margin_grip_power=limits["margin_grip_power"],
+                           stiffness_power=limits["stiffness_power"])
     return prob, interior_point(prob, xs0, us0, bound_options(), throw=False)
 
 
@@ -244,7 +245,8 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
 
     ``driver`` (a `RecedingHorizonDriver`; None: the bound above): the bound under that
     driver's own constraints, its corridor `margin` (and `margin_grip_power`), `slip_limit`,
-    `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, from the
+    `steer_rate` and `steer_limit`, and `peak_fraction` of each stage's peak, with its
+    planning tire's stiffness on each stage (`stiffness_power`), from the
     drive's start with the wheels rolling and the steering straight (as the driver's first
     plan): the fixed point continued from the unconstrained bound. It parts the driver's distance to the bound
     into what its safety constraints cost and what driving closed loop on an unknown road
@@ -290,7 +292,7 @@ def offline_bound(scenario: DriveScenario, *, rounds: int = BOUND_ROUNDS, driver
         return best, D_stage, exact and best is not start
 
     free = dict(margin=0.0, margin_grip_power=0.0, steer_rate=1e3, steer_limit=DELTA_MAX,
-                slip_limit=None, peak_fraction=1.0)
+                slip_limit=None, peak_fraction=1.0, stiffness_power=None)
     # (the floor solve itself may not converge: not exact); the bound's stages are uniform,
     # the floor's have a knot on each curvature jump: its drive is moved onto them
     xs0, us0 = (None, None) if prob0.stage_lengths is None else resample_drive(

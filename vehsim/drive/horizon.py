@@ -351,7 +351,8 @@ def scaled_planning_car(vehicle: ReducedHalfCar, grip, stiffness_power=None
                         ) -> ReducedHalfCar:
     r"""The planning car ``vehicle`` on a surface of relative grip $g$ = ``grip``: its
     friction-ellipse tire's peak $D g$ and, with ``stiffness_power`` $q$ (None: $B$ kept),
-    $B g^{-q}$, so that its slip stiffness $BCD$ scales as $g^{1-q}$.
+    $B \min(g, 1)^{-q}$, so that on a surface of less grip than the car's its slip
+    stiffness $BCD$ scales as $g^{1-q}$ (above, as $g$: $B$ kept).
 
     With $B$ kept ($q$ = 0) a surface of less grip is also a softer tire: the planner
     believes it needs larger slip angles for the same force. The plant's LuGre tire is not:
@@ -359,12 +360,15 @@ def scaled_planning_car(vehicle: ReducedHalfCar, grip, stiffness_power=None
     road, and fitted over the scenarios' peaks (`fit_planner_tire`, 0.23-0.68) its
     $BCD$ scales as about $D^{0.4}$. The Magic Formula states its stiffness apart from its
     peak for the same reason ($B = K/(CD)$): $q$ = 1 keeps the slip stiffness of
-    ``vehicle`` on every surface, $q$ = 0.6 follows the plant's."""
+    ``vehicle`` on every surface of less grip, $q$ = 0.6 follows the plant's. Where the
+    grip is above the car's (the LuGre peak rises as the speed falls: $g$ up to 1.25 on
+    the nominal road at 4-8 m/s) $B$ stays: a softer tire there made the horizon problems
+    harder to converge (docs/driver.md)."""
     tire = vehicle.tire
     D = tire.D * grip
     if stiffness_power is None:
         return eqx.tree_at(lambda v: v.tire.D, vehicle, D)
-    B = tire.B * grip ** (-jnp.asarray(stiffness_power, float))
+    B = tire.B * jnp.minimum(grip, 1.0) ** (-jnp.asarray(stiffness_power, float))
     return eqx.tree_at(lambda v: (v.tire.B, v.tire.D), vehicle, (B, D))
 
 
@@ -533,7 +537,7 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
     soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$, on the
     first ``soft_stages`` stages (None: all); ``stiffness_power`` $q$ (None: the tire's
-    $B$ on every stage) each stage's $B$ times $g_k^{-q}$ (`scaled_planning_car`)."""
+    $B$ on every stage) each stage's $B$ times $\min(g_k, 1)^{-q}$ (`scaled_planning_car`)."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
     h = jnp.asarray(horizon, float) / M
@@ -821,8 +825,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
     `horizon_problem`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
-    else $B (D_k/D)^{-q}$, its slip stiffness scaling as $(D_k/D)^{1-q}$,
-    `scaled_planning_car`), `rate_weight` $w$ (1e-4), `terminal_backoff` $\beta$ (1);
+    else $B \min(1, D_k/D)^{-q}$, its slip stiffness scaling as $(D_k/D)^{1-q}$ below
+    the car's grip, `scaled_planning_car`), `rate_weight` $w$ (1e-4),
+    `terminal_backoff` $\beta$ (1);
     `mode` (static): 'rti' (real-time iteration: `iterations` interior-point passes per
     sample from the shifted plan, barrier `mu0`, whether or not they converge; the last
     pass only evaluates, so `iterations` - 1 steps) or 'converged' (to `tol`, at most
