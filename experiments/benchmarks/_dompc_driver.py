@@ -83,7 +83,7 @@ def slip_excess(X, limit):
 
 
 def stage_B(grip, stiffness_power: float | None):
-    """The tire's $B$ on a stage of relative grip ``grip`` (a number or symbol): the
+    r"""The tire's $B$ on a stage of relative grip ``grip`` (a number or symbol): the
     gravel's 7, or $7 \min(g, 1)^{-q}$ with ``stiffness_power`` $q$."""
     if stiffness_power is None:
         return 7.0
@@ -91,7 +91,7 @@ def stage_B(grip, stiffness_power: float | None):
 
 
 def horizon_model(H: float, M: int, D: float, stiffness_power: float | None = None):
-    """The do-mpc discrete model (module docstring) of a horizon of length ``H`` [m] in
+    r"""The do-mpc discrete model (module docstring) of a horizon of length ``H`` [m] in
     ``M`` stages at the nominal peak friction ``D``, each stage's tire with the peak $D g$
     and, with ``stiffness_power`` $q$, $B = 7 \min(g, 1)^{-q}$ ($g$ the stage's ``grip``, as
     `vehsim.scaled_planning_car`); also returns the next state's expression (for the

@@ -439,8 +439,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
         return (limit * (1.0 + k)) ** 2 * Vx * Vx - k * k * Vx * Vx - Vy * Vy
 
     def stage_vehicle(self, k) -> ReducedHalfCar:
-        """The planning car of stage ``k``: its tire's $D$ times `grip`[k] (and with
-        `stiffness_power` $q$ its $B$ times `grip`[k]$^{-q}$, `scaled_planning_car`)."""
+        r"""The planning car of stage ``k``: its tire's $D$ times `grip`[k] (and with
+        `stiffness_power` $q$ its $B$ times $\min$(`grip`[k], 1)$^{-q}$,
+        `scaled_planning_car`)."""
         if self.grip is None:
             return self.vehicle
         return scaled_planning_car(self.vehicle, self.grip[k], self.stiffness_power)

@@ -238,10 +238,10 @@ def driver_settings(name: str | None, friction: str | None = None,
       the road's limit runs some tens of centimetres past its planned path, so the corridor
       margin is 0.4 m; it narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: about 0.22 m on the icy patch), since an icy apex needs
-      the road's width. The planning tire keeps its slip stiffness on every surface
-      (`stiffness_power` 1, `scaled_planning_car`), as the plant's nearly does: with its
-      $B$ kept, a stage believed slippery was also a softer tire, and the plans steered
-      for slip angles the plant does not need.
+      the road's width. The planning tire keeps its slip stiffness on every surface of
+      less grip than the car's (`stiffness_power` 1, `scaled_planning_car`), as the
+      plant's nearly does: with its $B$ kept, a stage believed slippery was also a softer
+      tire, and the plans steered for slip angles the plant does not need.
     - A road from a file (None, or a name that is not a scenario road's):
       `FILE_ROAD_DRIVER`, for circuits driven at 35-47 m/s: 16 kept-Hessian passes, the
       stage's friction margin, a lost plan planned again (`replan_kkt` 100) in at most 40
