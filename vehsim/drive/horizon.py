@@ -1492,8 +1492,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         \omega_i + r f_{ix}$ is clipped to $\rho F_{iz}$ times the plant tire's
         `longitudinal_capacity` at the axle's planned velocity (the traction control
         of the class docstring)."""
-        veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
-        if self.stiffness_power is not None:  # the stages' tire at the peak D0
+        if self.stiffness_power is None:
+            veh = eqx.tree_at(lambda v: v.tire.D, self.vehicle, D0)
+        else:  # the stages' tire at the peak D0
             veh = scaled_planning_car(self.vehicle, D0 / self.vehicle.tire.D,
                                       self.stiffness_power)
         n, xi, vx, vy = X[0], X[1], X[2], X[3]
