@@ -196,39 +196,62 @@ def test_estimate_plans_with_the_estimated_roads_peak_at_each_stages_speed(table
 
 def test_estimate_with_a_surface_map_carries_it_along_the_maps_ratios(table, estimate):
     """`surface_map`: the table's scale is a map of the relative grip (here the rising field
-    above, relative to 0.3: 1 to 2), stage k believes the estimate times r(s_k)/r(s0). With
-    the estimate equal to the grip under the car, that is the oracle's plan, preview and
-    all; the map alone (any level) says nothing of the level."""
+    above, relative to 0.3: 1 to 2); axle a's stage k believes the estimate times
+    r(s_k)/r(s_a), s_a the axle's contact point where the estimate was measured (the
+    estimator reports the surface under each axle). With the estimate equal to the grip
+    under each axle, that is the oracle's plan, preview and all; referred to the centre of
+    gravity instead, the rear axle on this rising road would believe every stage worse by
+    its ratio over l_R. The map alone (any level) says nothing of the level."""
+    s0 = 4.0
     field = vs.GripProfile(stations=jnp.array([0.0, 30.0]), scales=jnp.array([0.3, 0.6]))
     relative = table.with_grip(vs.RelativeGrip(field, 0.3))
     mapped = _driver(relative, "estimate", estimate_backoff=0.0, surface_map=True)
-    D = np.asarray(mapped.planner_friction(2.0, estimate, SPEEDS))
-    x, y = ROAD.position(np.r_[2.0, 2.0 + 4.0 * (np.arange(6) + 0.5)])
-    r = np.asarray(jax.vmap(field.scale_at)(jnp.asarray(x), jnp.asarray(y)))
+    lF, lR = float(mapped.vehicle.params.lF), float(mapped.vehicle.params.lR)
+
+    def r_at(s):
+        x, y = ROAD.position(np.asarray(s, float))
+        return np.asarray(jax.vmap(field.scale_at)(jnp.atleast_1d(x), jnp.atleast_1d(y)))
+
+    def believed(s_meas):
+        r = r_at(s0 + 4.0 * (np.arange(6) + 0.5))
+        rF, rR = r_at([s_meas + lF, s_meas - lR])
+        return np.minimum(peak_by_scan(lam[0] * r / rF, SPEEDS),
+                          peak_by_scan(lam[1] * r / rR, SPEEDS))
+
     lam = np.asarray(estimate.scale)
-    np.testing.assert_allclose(D, np.minimum(peak_by_scan(lam[0] * r[1:] / r[0], SPEEDS),
-                                             peak_by_scan(lam[1] * r[1:] / r[0], SPEEDS)),
-                               rtol=2e-3)
+    D = np.asarray(mapped.planner_friction(s0, estimate, SPEEDS))
+    np.testing.assert_allclose(D, believed(s0), rtol=2e-3)
+    # the estimate measured 1.5 m behind the plan's start (the delay): referred to the
+    # axles there, which lie on worse ground, so every stage believes more grip
+    D_m = np.asarray(mapped.planner_friction(s0, estimate, SPEEDS, s0 - 1.5))
+    np.testing.assert_allclose(D_m, believed(s0 - 1.5), rtol=2e-3)
+    assert np.all(D_m > D * 1.01)
     # the same map at another level (relative to 0.6): the same plan
     other = eqx.tree_at(lambda d: d.table, mapped,
                         table.with_grip(vs.RelativeGrip(field, 0.6)))
-    np.testing.assert_allclose(np.asarray(other.planner_friction(2.0, estimate, SPEEDS)), D,
+    np.testing.assert_allclose(np.asarray(other.planner_friction(s0, estimate, SPEEDS)), D,
                                rtol=1e-9)
     truth = table.with_grip(field)
-    under = eqx.tree_at(lambda e: e.scale, estimate, jnp.full(2, truth.scale_at(2.0)))
+    under = eqx.tree_at(lambda e: e.scale, estimate,
+                        truth.scale_at(jnp.array([s0 + lF, s0 - lR])))
+    assert float(under.scale[0]) > 1.05 * float(under.scale[1])  # the axles' grips differ
     oracle = _driver(truth, "oracle")
     for p in (np.inf, 9.0, 0.0):
         seen = eqx.tree_at(lambda d: d.preview, mapped, jnp.asarray(p))
         knows = eqx.tree_at(lambda d: d.preview, oracle, jnp.asarray(p))
-        np.testing.assert_allclose(np.asarray(seen.planner_friction(2.0, under, SPEEDS)),
-                                   np.asarray(knows.planner_friction(2.0, None, SPEEDS)),
+        np.testing.assert_allclose(np.asarray(seen.planner_friction(s0, under, SPEEDS)),
+                                   np.asarray(knows.planner_friction(s0, None, SPEEDS)),
                                    rtol=1e-9)
-    # no preview: the surface under the car everywhere, the estimate itself
+    # a uniform map: the estimate itself, with any preview
     plain = _driver(table, "estimate", estimate_backoff=0.0)
-    blind = eqx.tree_at(lambda d: d.preview, mapped, jnp.asarray(0.0))
-    np.testing.assert_allclose(np.asarray(blind.planner_friction(2.0, estimate, SPEEDS)),
-                               np.asarray(plain.planner_friction(2.0, estimate, SPEEDS)),
-                               rtol=1e-12)
+    flat = eqx.tree_at(lambda d: d.table, mapped, table.with_grip(
+        vs.RelativeGrip(vs.GripProfile(stations=jnp.array([0.0, 30.0]),
+                                       scales=jnp.array([0.3, 0.3])), 0.3)))
+    for p in (np.inf, 0.0):
+        blind = eqx.tree_at(lambda d: d.preview, flat, jnp.asarray(p))
+        np.testing.assert_allclose(np.asarray(blind.planner_friction(s0, estimate, SPEEDS)),
+                                   np.asarray(plain.planner_friction(s0, estimate, SPEEDS)),
+                                   rtol=1e-12)
     with pytest.raises(ValueError, match="surface_map .* needs friction='estimate'"):
         _driver(table, "oracle", surface_map=True)
 

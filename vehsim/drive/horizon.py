@@ -963,12 +963,17 @@ class RecedingHorizonDriver(AbstractDriveController):
     standard deviation of $\vartheta = \log \lambda_a$, $\beta$ = `estimate_backoff`, the
     smaller axle's, clipped to [0.05, 2] (at $V_k$ = `reference_speed`: `GripEstimate.peak`
     less $\beta$ `peak_std`). With `surface_map`, stage $k$ believes
-    $\lambda_a\,r(\bar s_k)/r(s_0)$ instead: the estimate, which holds for the surface under
-    the car, carried to the stage's surface by the ratio of the map $r$ (the table's
+    $\lambda_a\,r(\bar s_k)/r(s_a)$ instead: the estimate, which holds for the surface under
+    axle $a$, carried to the stage's surface by the ratio of the map $r$ (the table's
     `scale` column at the stage's midpoint $\bar s_k$, or at $s_0$ + `preview` where that is
-    nearer, as the oracle). The map states how the surfaces compare, the estimate how much
+    nearer, as the oracle) to the map under that axle when it was measured, $s_a = s_m +
+    \ell_F$ or $s_m - \ell_R$ with $s_m$ the measured arc length (not the plan's start
+    predicted over the delay). Referred to the centre of gravity instead, a road whose grip
+    changes along the wheelbase is counted twice: on a rising road the rear axle, still on
+    the worse surface, believed every stage worse by its ratio over $\ell_R$, and the planner
+    took the smaller axle's. The map states how the surfaces compare, the estimate how much
     grip there is: give the estimator the same map (`AxleGripEstimator.surface`), so that
-    its $\lambda_a$ is that of the surface under the car as soon as the car reaches it.
+    its $\lambda_a$ is that of the surface under the axle as soon as the axle reaches it.
 
     **Derivatives.** In 'converged' mode every plan is differentiated by the implicit
     function theorem at the solution returned (`interior_point` with ``implicit``): a
@@ -1217,13 +1222,15 @@ class RecedingHorizonDriver(AbstractDriveController):
         peaks = self._peaks(lam, jnp.concatenate([V, jnp.reshape(self.reference_speed, (1,))]))
         return self.nominal_peak * peaks[:-1] / peaks[-1]
 
-    def planner_friction(self, s0, estimate, speeds) -> Float[Array, " M"]:
+    def planner_friction(self, s0, estimate, speeds, s_measured=None) -> Float[Array, " M"]:
         """The stages' peak friction $D_k$ for the horizon starting at ``s0``, the stages
         driven at ``speeds`` [m/s] (M,) (class docstring; `peak_speed` overrides them):
-        `peak_fraction` of the believed peak."""
-        return self.peak_fraction * self._believed_peaks(s0, estimate, speeds)
+        `peak_fraction` of the believed peak. ``s_measured`` (default ``s0``): the arc
+        length of the centre of gravity where ``estimate`` was measured, whose axles'
+        surfaces a `surface_map` refers the estimate to."""
+        return self.peak_fraction * self._believed_peaks(s0, estimate, speeds, s_measured)
 
-    def _believed_peaks(self, s0, estimate, speeds):
+    def _believed_peaks(self, s0, estimate, speeds, s_measured=None):
         M = self.num_stages
         V = self._stage_speed(speeds)
         if self.friction == "nominal":
@@ -1237,25 +1244,29 @@ class RecedingHorizonDriver(AbstractDriveController):
                              "estimator: pass estimator= to simulate_drive")
         theta = jnp.log(estimate.scale)
         sigma = estimate.scale_std / estimate.scale
-        if self.surface_map:  # the estimate carried along the map's ratios
-            ratio = jnp.log(self.table.scale_at(seen)) - jnp.log(self.table.scale_at(s0))
+        if self.surface_map:  # each axle's estimate carried along the map's ratios
+            p = self.vehicle.params
+            sm = s0 if s_measured is None else s_measured
+            under = jnp.log(self.table.scale_at(jnp.stack([sm + p.lF, sm - p.lR])))
+            ratio = jnp.log(self.table.scale_at(seen))[None, :] - under[:, None]
         else:
-            ratio = jnp.zeros(M)
+            ratio = jnp.zeros((2, M))
 
         if self.peak_model != "plant":  # the estimate's peak itself, at every speed
             lower = estimate.peak - self.estimate_backoff * estimate.peak_std
-            measured = jnp.min(lower) * self._peak_ratios(jnp.min(estimate.scale), ratio)
+            measured = jnp.min(lower[:, None] * jax.vmap(self._peak_ratios)(estimate.scale,
+                                                                             ratio), axis=0)
             if self.peak_model == "estimated":
                 return jnp.clip(measured, 0.05, 2.0)
 
-        def axle(th, sd):
+        def axle(th, sd, ratio):
             def stage(v, r):
                 p, dp = jax.jvp(lambda t: peak_friction(self.plant_tire, jnp.exp(t), v),
                                 (th + r,), (jnp.ones_like(th),))
                 return p - self.estimate_backoff * jnp.abs(dp) * sd
             return jax.vmap(stage)(V, ratio)
 
-        D = jnp.min(jax.vmap(axle)(theta, sigma), axis=0)
+        D = jnp.min(jax.vmap(axle)(theta, sigma, ratio), axis=0)
         if self.peak_model == "cautious":
             D = jnp.minimum(D, measured)
         return jnp.clip(D, 0.05, 2.0)
@@ -1429,7 +1440,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         xs0, us0 = shift_plan(state.xs, state.us, s_pred - state.s_plan, self.horizon)
         xs0 = xs0.at[0, :8].set(state8)
         speeds = jnp.where(cold, jnp.hypot(state8[2], state8[3]), self.stage_speeds(xs0))
-        D = self.planner_friction(s_pred, estimate, speeds)
+        D = self.planner_friction(s_pred, estimate, speeds, s)
         guess = self.cold_guess(s_pred, state8, D)
         xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
         prob = self.problem(s_pred, state8, D)
