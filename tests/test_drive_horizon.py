@@ -1043,3 +1043,44 @@ def test_test_brake_brakes_the_front_axle_until_the_grip_is_known():
         vs.RecedingHorizonDriver(table, car, friction="oracle", probe_distance=2.0)
     with pytest.raises(ValueError, match="RecedingHorizonDriver.probe_utilisation"):
         vs.RecedingHorizonDriver(table, car, friction="estimate", probe_utilisation=1.5)
+
+
+def test_test_brake_drives_the_front_axle_where_the_plan_speeds_up():
+    """`probe_direction` 'plan': where the plan speeds the car up (the axles' slips sum
+    positive) the test drives the front axle at the same combined slip as the brake,
+    s = kappa/(1 + kappa) for traction (the planning tire then gives the same force,
+    forward); where the plan slows it, the brake as before; a plan driving harder keeps
+    its slip; an unknown direction is refused by name."""
+    table = vs.RoadTable.from_road(vs.CentrelineRoad.from_segments([("straight", 40.0)], 4.0))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    kw = dict(friction="estimate", probe_distance=2.0, probe_utilisation=0.8)
+    brake = vs.RecedingHorizonDriver(table, car, **kw)
+    plan = vs.RecedingHorizonDriver(table, car, probe_direction="plan", **kw)
+    kp = float(plan.probe_slip())
+    u = jnp.array([0.01, 0.02, 0.003])
+    speeding = jnp.array([0.1, 0.02, 8.0, 0.0, 0.0, -0.01, 0.04, 0.05, 0.1])
+    X1, u1 = plan.probe_point(speeding, u, jnp.asarray(True))
+    kap = float(X1[5])
+    assert kap > kp > 0.0  # traction asks a larger kappa for the same combined slip
+    s_drive = kap / (1.0 + kap)
+    s_brake = kp / (1.0 - kp)  # the brake's combined slip, -kappa/(1 + kappa) at -kp
+    assert s_drive == pytest.approx(s_brake, rel=1e-12)
+    mu_drive = car.tire.mu(jnp.asarray(kap), jnp.asarray(0.0))[0]
+    mu_brake = car.tire.mu(jnp.asarray(-kp), jnp.asarray(0.0))[0]
+    assert float(mu_drive) == pytest.approx(-float(mu_brake), rel=1e-12)
+    assert float(u1[0]) == 0.0 and np.all(np.asarray(u1[1:]) == np.asarray(u[1:]))
+    np.testing.assert_array_equal(np.asarray(X1).take([0, 1, 2, 3, 4, 6, 7, 8]),
+                                  np.asarray(speeding).take([0, 1, 2, 3, 4, 6, 7, 8]))
+    # the brake's driver brakes there
+    assert float(brake.probe_point(speeding, u, jnp.asarray(True))[0][5]) == -kp
+    # a plan that slows the car: the brake
+    slowing = speeding.at[6].set(-0.05)
+    assert float(plan.probe_point(slowing, u, jnp.asarray(True))[0][5]) == -kp
+    # a plan driving harder keeps its slip and its rate
+    harder = speeding.at[5].set(0.3)
+    X2, u2 = plan.probe_point(harder, u, jnp.asarray(True))
+    assert float(X2[5]) == 0.3 and float(u2[0]) == float(u[0])
+    X0, _ = plan.probe_point(speeding, u, jnp.asarray(False))
+    assert np.all(np.asarray(X0) == np.asarray(speeding))
+    with pytest.raises(ValueError, match="RecedingHorizonDriver.probe_direction"):
+        vs.RecedingHorizonDriver(table, car, probe_direction="drive", **kw)

@@ -816,6 +816,11 @@ class HorizonState(eqx.Module):
     probing: Bool[Array, ""]
 
 
+PROBE_DIRECTIONS = ("brake", "plan")
+"""`RecedingHorizonDriver.probe_direction`: the test always brakes the front axle, or it
+brakes or drives it as the plan slows or speeds the car there."""
+
+
 class RecedingHorizonDriver(AbstractDriveController):
     r"""The receding-horizon driver of the module docstring.
 
@@ -890,7 +895,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
-    narrower than `probe_std` (0.25); `traction_limit` $\rho$ (in (0, 1]; 0.9; None: off)
+    narrower than `probe_std` (0.25); `probe_direction` (static; 'brake') 'plan' for a test
+    that drives the front axle instead where the plan speeds the car up; `traction_limit` $\rho$ (in (0, 1]; 0.9; None: off)
     the traction control (below); `peak_model` (static): 'plant' (the stages' peak of
     `plant_tire` at their speeds, below) or 'estimated' (with 'estimate' only: every stage
     plans with the estimate's `GripEstimate.peak` itself, the smaller axle's less
@@ -920,7 +926,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     it takes off; it ends with the first informative sample (the actuators' delay and lag:
     three commands at 20 Hz) or at `probe_distance`. The condition is evaluated at every
     sample, not latched: a belief that widens again within the distance (the estimator's
-    change detector resets it to its prior's width) brakes again.
+    change detector resets it to its prior's width) brakes again. A car that starts below
+    the speed its plan wants pays for a brake twice, the speed it takes off and the
+    acceleration it postpones; with `probe_direction` 'plan' the test follows the plan's
+    sign, driving the front axle at the same combined slip where the plan's slips sum
+    positive (the traction the estimator learns from just as well), and costs only the
+    plan's later braking for the extra speed.
 
     **Traction control.** The torques realise the planned slips through the wheel
     equations with the planner's tire force, $T_i = I_i\dot\omega_i + r f_{ix}$. Where
@@ -1043,6 +1054,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         default=None, converter=lambda x: None if x is None else float_array(x))
     probe_utilisation: Float[Array, ""] = array_field(default=0.95)
     probe_std: Float[Array, ""] = array_field(default=0.25)
+    probe_direction: str = eqx.field(static=True, default="brake")
     traction_limit: Float[Array, ""] | None = eqx.field(
         default=0.9, converter=lambda x: None if x is None else float_array(x))
     peak_model: str = eqx.field(static=True, default="plant")
@@ -1132,6 +1144,10 @@ class RecedingHorizonDriver(AbstractDriveController):
                     upper=1.0, lower_open=True)
         check_range("RecedingHorizonDriver", "probe_utilisation", self.probe_utilisation,
                     lower=0.0, upper=1.0, lower_open=True)
+        if self.probe_direction not in PROBE_DIRECTIONS:
+            raise ValueError("RecedingHorizonDriver.probe_direction must be one of "
+                             f"{', '.join(map(repr, PROBE_DIRECTIONS))}, got "
+                             f"{self.probe_direction!r}")
         if self.traction_limit is not None:
             check_range("RecedingHorizonDriver", "traction_limit", self.traction_limit,
                         lower=0.0, upper=1.0, lower_open=True)
@@ -1552,23 +1568,35 @@ class RecedingHorizonDriver(AbstractDriveController):
         wide = estimate.scale_std[0] / estimate.scale[0] >= self.probe_std
         return (s < self.probe_distance) & wide
 
+    def _probe_combined_slip(self) -> Float[Array, ""]:
+        tire = self.vehicle.tire
+        share = jnp.minimum(self.probe_utilisation / self.peak_fraction, 0.99)
+        return jnp.tan(jnp.arcsin(share) / tire.C) / tire.B
+
     def probe_slip(self) -> Float[Array, ""]:
         r"""$\kappa_p$: the planner's slip at which its tire (`FrictionEllipseTire`,
         $\mu = D\sin(C\arctan(Bs))$) with $D$ = `peak_fraction` times the believed peak
         gives `probe_utilisation` $u_p$ of the believed peak, $s = \tan(\arcsin(\min(u_p
         /f, 0.99))/C)/B$, $\kappa_p = s/(1 + s)$ (braking, $s = -\kappa/(1 + \kappa)$)."""
-        tire = self.vehicle.tire
-        share = jnp.minimum(self.probe_utilisation / self.peak_fraction, 0.99)
-        slip = jnp.tan(jnp.arcsin(share) / tire.C) / tire.B
+        slip = self._probe_combined_slip()
         return slip / (1.0 + slip)
 
     def probe_point(self, X, u, probing):
         r"""The plan's point ``X``, ``u`` with, where ``probing``, the front axle braking at
         least at the slip $-\kappa_p$ (`probe_slip`), held: $\kappa_F \leftarrow
         \min(\kappa_F, -\kappa_p)$, $d\kappa_F/ds \leftarrow 0$ where it changed; the rear
-        axle and the steering are the plan's."""
-        kap = jnp.minimum(X[5], -self.probe_slip())
-        held = probing & (kap < X[5])
+        axle and the steering are the plan's. With `probe_direction` 'plan', where the plan
+        speeds the car up there ($\kappa_F + \kappa_R > 0$) the front axle drives instead, at
+        least at the same combined slip $s$: $\kappa_F \leftarrow \max(\kappa_F, s/(1 -
+        s))$."""
+        brake = jnp.minimum(X[5], -self.probe_slip())
+        if self.probe_direction == "plan":
+            slip = self._probe_combined_slip()
+            drive = jnp.maximum(X[5], slip / (1.0 - slip))
+            kap = jnp.where(X[5] + X[6] > 0.0, drive, brake)
+        else:
+            kap = brake
+        held = probing & (kap != X[5])
         return (X.at[5].set(jnp.where(probing, kap, X[5])),
                 u.at[0].set(jnp.where(held, 0.0, u[0])))
 
