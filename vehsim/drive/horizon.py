@@ -896,10 +896,11 @@ class RecedingHorizonDriver(AbstractDriveController):
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
     narrower than `probe_std` (0.25); `probe_direction` (static; 'brake') 'plan' for a test
-    that drives the front axle instead where the plan speeds the car up; `traction_limit` $\rho$ (in (0, 1]; 0.9; None: off)
-    the traction control (below); `peak_model` (static): 'plant' (the stages' peak of
-    `plant_tire` at their speeds, below) or 'estimated' (with 'estimate' only: every stage
-    plans with the estimate's `GripEstimate.peak` itself, the smaller axle's less
+    that drives the front axle instead where the plan speeds the car up; `traction_limit`
+    $\rho$ (in (0, 1]; 0.9; None: off) the traction control (below); `peak_model`
+    (static): 'plant' (the stages' peak of `plant_tire` at their speeds, below) or
+    'estimated' (with 'estimate' only: every stage plans with the estimate's
+    `GripEstimate.peak` itself, the smaller axle's less
     `estimate_backoff` times its `peak_std`, times the map's ratio with `surface_map` (as a
     ratio of `plant_tire`'s peaks at the estimate's scale);
     no tire shape, no speed dependence: for a shape-free estimator such as
