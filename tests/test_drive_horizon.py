@@ -1082,5 +1082,22 @@ def test_test_brake_drives_the_front_axle_where_the_plan_speeds_up():
     assert float(X2[5]) == 0.3 and float(u2[0]) == float(u[0])
     X0, _ = plan.probe_point(speeding, u, jnp.asarray(False))
     assert np.all(np.asarray(X0) == np.asarray(speeding))
+    # 'balanced': the front brakes and the rear drives at the same combined slip, so
+    # that the planning tire's longitudinal forces per unit load cancel
+    balanced = vs.RecedingHorizonDriver(table, car, probe_direction="balanced", **kw)
+    for X in (speeding, slowing):
+        X3, u3 = balanced.probe_point(X, u, jnp.asarray(True))
+        assert float(X3[5]) == -kp and float(X3[6]) == pytest.approx(kap, rel=1e-12)
+        mu_F = car.tire.mu(X3[5], jnp.asarray(0.0))[0]
+        mu_R = car.tire.mu(X3[6], jnp.asarray(0.0))[0]
+        assert float(mu_F + mu_R) == pytest.approx(0.0, abs=1e-12) and float(mu_F) < -0.3
+        assert float(u3[0]) == 0.0 and float(u3[1]) == 0.0 and float(u3[2]) == float(u[2])
+        np.testing.assert_array_equal(np.asarray(X3).take([0, 1, 2, 3, 4, 7, 8]),
+                                      np.asarray(X).take([0, 1, 2, 3, 4, 7, 8]))
+    X4, u4 = balanced.probe_point(harder.at[6].set(0.4), u, jnp.asarray(True))
+    assert float(X4[6]) == 0.4 and float(u4[1]) == float(u[1])  # a rear driving harder
+    X5, u5 = balanced.probe_point(speeding, u, jnp.asarray(False))
+    assert np.all(np.asarray(X5) == np.asarray(speeding)) and np.all(
+        np.asarray(u5) == np.asarray(u))
     with pytest.raises(ValueError, match="RecedingHorizonDriver.probe_direction"):
         vs.RecedingHorizonDriver(table, car, probe_direction="drive", **kw)

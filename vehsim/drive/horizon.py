@@ -816,9 +816,10 @@ class HorizonState(eqx.Module):
     probing: Bool[Array, ""]
 
 
-PROBE_DIRECTIONS = ("brake", "plan")
-"""`RecedingHorizonDriver.probe_direction`: the test always brakes the front axle, or it
-brakes or drives it as the plan slows or speeds the car there."""
+PROBE_DIRECTIONS = ("brake", "plan", "balanced")
+"""`RecedingHorizonDriver.probe_direction`: the test brakes the front axle; or brakes or
+drives it as the plan slows or speeds the car there; or brakes it while the rear axle
+drives."""
 
 
 class RecedingHorizonDriver(AbstractDriveController):
@@ -895,8 +896,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     the road's first `probe_distance` metres (on a circuit the first lap's: the projected
     arc length runs on) while the grip is not known (below), asking
     `probe_utilisation` (0.95) of the believed peak, until the front axle's belief is
-    narrower than `probe_std` (0.25); `probe_direction` (static; 'brake') 'plan' for a test
-    that drives the front axle instead where the plan speeds the car up; `traction_limit`
+    narrower than `probe_std` (0.25); `probe_direction` (static; 'brake') 'balanced' for a
+    test whose front brake is balanced by the rear axle driving, or 'plan' for one that
+    drives the front axle instead where the plan speeds the car up; `traction_limit`
     $\rho$ (in (0, 1]; 0.9; None: off) the traction control (below); `peak_model`
     (static): 'plant' (the stages' peak of `plant_tire` at their speeds, below) or
     'estimated' (with 'estimate' only: every stage plans with the estimate's
@@ -929,10 +931,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     sample, not latched: a belief that widens again within the distance (the estimator's
     change detector resets it to its prior's width) brakes again. A car that starts below
     the speed its plan wants pays for a brake twice, the speed it takes off and the
-    acceleration it postpones; with `probe_direction` 'plan' the test follows the plan's
-    sign, driving the front axle at the same combined slip where the plan's slips sum
-    positive (the traction the estimator learns from just as well), and costs only the
-    plan's later braking for the extra speed.
+    acceleration it postpones. With `probe_direction` 'balanced' the rear axle drives
+    meanwhile at the same combined slip (at least; traction control caps its torque), so
+    that the two axles' forces nearly cancel: the front axle is tested as before and the
+    car keeps its speed. With 'plan' the test follows the plan's sign instead, driving the
+    front axle where the plan's slips sum positive, and the car gains speed it must brake
+    off later (docs/driver.md has what each measured).
 
     **Traction control.** The torques realise the planned slips through the wheel
     equations with the planner's tire force, $T_i = I_i\dot\omega_i + r f_{ix}$. Where
@@ -1586,20 +1590,26 @@ class RecedingHorizonDriver(AbstractDriveController):
         r"""The plan's point ``X``, ``u`` with, where ``probing``, the front axle braking at
         least at the slip $-\kappa_p$ (`probe_slip`), held: $\kappa_F \leftarrow
         \min(\kappa_F, -\kappa_p)$, $d\kappa_F/ds \leftarrow 0$ where it changed; the rear
-        axle and the steering are the plan's. With `probe_direction` 'plan', where the plan
-        speeds the car up there ($\kappa_F + \kappa_R > 0$) the front axle drives instead, at
-        least at the same combined slip $s$: $\kappa_F \leftarrow \max(\kappa_F, s/(1 -
-        s))$."""
+        axle and the steering are the plan's. With `probe_direction` 'balanced' the rear
+        axle drives at least at the same combined slip $s$, $\kappa_R \leftarrow
+        \max(\kappa_R, s/(1 - s))$, held; with 'plan', where the plan speeds the car up
+        there ($\kappa_F + \kappa_R > 0$) the front axle drives instead, $\kappa_F
+        \leftarrow \max(\kappa_F, s/(1 - s))$."""
         brake = jnp.minimum(X[5], -self.probe_slip())
+        slip = self._probe_combined_slip()
         if self.probe_direction == "plan":
-            slip = self._probe_combined_slip()
             drive = jnp.maximum(X[5], slip / (1.0 - slip))
             kap = jnp.where(X[5] + X[6] > 0.0, drive, brake)
         else:
             kap = brake
         held = probing & (kap != X[5])
-        return (X.at[5].set(jnp.where(probing, kap, X[5])),
-                u.at[0].set(jnp.where(held, 0.0, u[0])))
+        X1 = X.at[5].set(jnp.where(probing, kap, X[5]))
+        u1 = u.at[0].set(jnp.where(held, 0.0, u[0]))
+        if self.probe_direction == "balanced":
+            rear = jnp.maximum(X[6], slip / (1.0 - slip))
+            X1 = X1.at[6].set(jnp.where(probing, rear, X[6]))
+            u1 = u1.at[1].set(jnp.where(probing & (rear != X[6]), 0.0, u[1]))
+        return X1, u1
 
     def recorded_solve(self, info: dict, k: int):
         """The interior-point solve of sample ``k`` of a drive as `command` posed it, rebuilt

@@ -214,7 +214,8 @@ _CORNERS = ("corner90", "uturn", "sturn")
 
 DRIVER_PROBE_DISTANCE = 2.0
 """`RecedingHorizonDriver.probe_distance` [m] of `driver_settings` for the driver with the
-estimate on the benchmark corners: a test brake on the first 2 m."""
+estimate on the benchmark corners: a test brake on the first 2 m, balanced by the rear axle
+driving (`RecedingHorizonDriver.probe_direction` 'balanced')."""
 
 
 def driver_settings(name: str | None, friction: str | None = None,
@@ -255,7 +256,8 @@ def driver_settings(name: str | None, friction: str | None = None,
     corners' exits. With ``friction`` = "estimate" on the benchmark corners the driver also
     brakes the front axle on the first `DRIVER_PROBE_DISTANCE` metres
     (`RecedingHorizonDriver.probe_distance`), so that the estimator knows the grip before
-    the first corner; the stage's first corner teaches it soon enough.
+    the first corner, and drives the rear axle meanwhile so that the car keeps its speed
+    (`probe_direction` 'balanced'); the stage's first corner teaches it soon enough.
 
     What each setting was measured against (drives completed over noise seeds, times
     against the oracle): docs/driver.md, and for the stage docs/drive.md ("Passes on the
@@ -268,6 +270,7 @@ def driver_settings(name: str | None, friction: str | None = None,
         _check_name("friction", friction, ("estimate", "nominal", "oracle"))
     if friction == "estimate" and name in _CORNERS:
         settings["probe_distance"] = DRIVER_PROBE_DISTANCE
+        settings["probe_direction"] = "balanced"
     if mode is not None:
         _check_name("mode", mode, ("rti", "converged"))
         settings["mode"] = mode
