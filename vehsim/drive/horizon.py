@@ -1266,9 +1266,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         theta = jnp.log(estimate.scale)
         sigma = estimate.scale_std / estimate.scale
         if self.surface_map:  # each axle's estimate carried along the map's ratios
-            p = self.vehicle.params
             sm = s0 if s_measured is None else s_measured
-            under = jnp.log(self.table.scale_at(jnp.stack([sm + p.lF, sm - p.lR])))
+            under = jnp.log(self.table.scale_at(self.axle_arc_lengths(sm)))
             ratio = jnp.log(self.table.scale_at(seen))[None, :] - under[:, None]
         else:
             ratio = jnp.zeros((2, M))
@@ -1546,6 +1545,12 @@ class RecedingHorizonDriver(AbstractDriveController):
         clipped = jnp.clip(f, -rho * brake * Fz, rho * drive * Fz)
         return T - self.vehicle.params.r * (f - clipped)
 
+    def axle_arc_lengths(self, s) -> Float[Array, " 2"]:
+        r"""The arc lengths of the front and rear axles, $s + \ell_F$ and $s - \ell_R$, with
+        the centre of gravity at ``s`` (along the road: the car's heading error ignored)."""
+        p = self.vehicle.params
+        return jnp.stack([s + p.lF, s - p.lR])
+
     def believed_scales(self, s, estimate) -> Float[Array, " 2"]:
         r"""The friction scales $\lambda$ the driver believes to be under its front and rear
         axle with the car's centre of gravity at arc length ``s``: the nominal road's, the
@@ -1556,8 +1561,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             lam = scale_of_peak(self.plant_tire, self.nominal_peak, self.reference_speed)
             return jnp.full((2,), lam)
         if self.friction == "oracle":
-            p = self.vehicle.params
-            return self.table.scale_at(jnp.stack([s + p.lF, s - p.lR]))
+            return self.table.scale_at(self.axle_arc_lengths(s))
         if estimate is None:
             raise ValueError("RecedingHorizonDriver(friction='estimate') needs a grip "
                              "estimator: pass estimator= to simulate_drive")
@@ -1595,8 +1599,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         \max(\kappa_R, s/(1 - s))$, held; with 'plan', where the plan speeds the car up
         there ($\kappa_F + \kappa_R > 0$) the front axle drives instead, $\kappa_F
         \leftarrow \max(\kappa_F, s/(1 - s))$."""
-        brake = jnp.minimum(X[5], -self.probe_slip())
         slip = self._probe_combined_slip()
+        brake = jnp.minimum(X[5], -slip / (1.0 + slip))  # -`probe_slip`
         if self.probe_direction == "plan":
             drive = jnp.maximum(X[5], slip / (1.0 - slip))
             kap = jnp.where(X[5] + X[6] > 0.0, drive, brake)
