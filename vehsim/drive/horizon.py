@@ -1601,8 +1601,9 @@ class RecedingHorizonDriver(AbstractDriveController):
         \leftarrow \max(\kappa_F, s/(1 - s))$."""
         slip = self._probe_combined_slip()
         brake = jnp.minimum(X[5], -slip / (1.0 + slip))  # -`probe_slip`
+        traction = slip / (1.0 - slip)  # the driven wheel's kappa at the same slip
         if self.probe_direction == "plan":
-            drive = jnp.maximum(X[5], slip / (1.0 - slip))
+            drive = jnp.maximum(X[5], traction)
             kap = jnp.where(X[5] + X[6] > 0.0, drive, brake)
         else:
             kap = brake
@@ -1610,7 +1611,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         X1 = X.at[5].set(jnp.where(probing, kap, X[5]))
         u1 = u.at[0].set(jnp.where(held, 0.0, u[0]))
         if self.probe_direction == "balanced":
-            rear = jnp.maximum(X[6], slip / (1.0 - slip))
+            rear = jnp.maximum(X[6], traction)
             X1 = X1.at[6].set(jnp.where(probing, rear, X[6]))
             u1 = u1.at[1].set(jnp.where(probing & (rear != X[6]), 0.0, u[1]))
         return X1, u1
