@@ -513,9 +513,9 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
         kap = np.asarray(sc.table.curvature_at(jnp.asarray(s)))
         sdot = (vx * np.cos(xi) - vy * np.sin(xi)) / (1.0 - n * kap)
         rate = np.abs(us[:, 2] * sdot[:-1])
-        # the slip and steering-rate rows are path constraints: at each stage's first knot
-        # (the first too: the driver's bound starts rolling)
-        return (corridor, np.max(slips[:-1]) - float(driver.slip_limit),
+        # the steering-rate rows are path constraints, at each stage's first knot; the slip
+        # bound holds at every knot (the first too: the driver's bound starts rolling)
+        return (corridor, np.max(slips) - float(driver.slip_limit),
                 np.max(rate) - float(driver.steer_rate))
 
     assert max(worst(free)) > 0.01

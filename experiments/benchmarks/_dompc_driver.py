@@ -18,9 +18,10 @@ cubic Hermite interpolant of $n$ (as `CurvilinearManeuverOCP`), the axle speeds 
 floor, the slips and the steering angle in their boxes, the steering rate
 $|u_\delta \dot s| \le$ the actuator's rate, each axle's combined slip
 $\sqrt{\kappa_i^2 + (V_{iy}/V_{ix})^2}/(1 + \kappa_i) \le$ ``slip_max`` as vehsim's polynomial
-$\kappa_i^2V_{ix}^2 + V_{iy}^2 - \ell^2(1 + \kappa_i)^2V_{ix}^2 \le 0$, and at $s_0 + H$ the corridor, the axle speeds,
-the speed $|v| \le$ ``speed_max`` ($\beta\sqrt{D}\,v_1(s_0 + H)$), the sideslip
-$|v_y| \le \sigma v_x$ and the heading $|\xi| \le \xi_{max}$. Objective
+$\kappa_i^2V_{ix}^2 + V_{iy}^2 - \ell^2(1 + \kappa_i)^2V_{ix}^2 \le 0$, and at $s_0 + H$ the
+corridor, the axle speeds, the last stage's slip bound, the speed $|v| \le$ ``speed_max``
+($\beta\sqrt{D}\,v_1(s_0 + H)$), the sideslip $|v_y| \le \sigma v_x$ and the heading
+$|\xi| \le \xi_{max}$. Objective
 $t(H) + w\sum_k h|u_k|^2$.
 
 The bounds on the slips and the steering angle are do-mpc's state bounds (knots 1..M; the
@@ -182,6 +183,7 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     _, axles1, _ = spatial_rate(nxt, v, p["kap2"], 1.0)
     last = p["last"]
     slips = slip_excess(X, p["slip_max"])
+    end_slips = slip_excess(nxt, p["slip_max"])
     cons = {  # name: expression <= 0
         "node_lo": p["n_lo"] - n0, "node_hi": n0 - p["n_hi"],
         "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
@@ -197,6 +199,8 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
         - (1 - last) * FREE,
         "end_slip_hi": last * (nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
         "end_slip_lo": last * (-nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
+        "end_slip_F": last * end_slips[0] - (1 - last) * FREE,
+        "end_slip_R": last * end_slips[1] - (1 - last) * FREE,
     }
     for name, expr in cons.items():
         mpc.set_nl_cons(name, expr, ub=0.0)
@@ -221,8 +225,9 @@ def tvp_table(curvature, grip, corridor, corridor_mid, speed_max, slip_max=None)
     """The (M + 1, len(TVP)) tvp rows of a sample from the horizon's arrays: ``curvature``
     (M, 3) at each stage's RK4 points, ``grip`` (M,), ``corridor`` (M + 1, 2) lower/upper n
     at the nodes, ``corridor_mid`` (M, 2) at the midpoints, ``speed_max`` the terminal
-    speed bound, ``slip_max`` (M,) the slip bound of each stage's first knot (None: `FREE`,
-    no bound) (the row M repeats row M - 1: do-mpc reads it only for the terminal cost)."""
+    speed bound, ``slip_max`` (M,) the slip bound of each stage's first knot, the last
+    stage's also of the end knot (None: `FREE`, no bound) (the row M repeats row M - 1:
+    do-mpc reads it only for the terminal cost)."""
     kap = np.asarray(curvature, float)
     M = kap.shape[0]
     t = np.zeros((M + 1, len(TVP)))

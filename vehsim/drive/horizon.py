@@ -385,11 +385,12 @@ class HorizonOCP(CurvilinearManeuverOCP):
     them the last stages of a minimum-time plan throw the car sideways or point it off the
     road, nothing after the horizon paying for it; `steer_rate` $\dot\delta_{max}$ [rad/s],
     `steer_limit` [rad]; `slip_limit` (M,) or None: the bound on each axle's combined slip
-    (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
-    agrees with the plant's); `corridor_penalty` $\rho$ [s/m] or None (hard corridor): a
-    soft corridor, below; `soft_stages` (None: all) the stages whose corridor is soft, the
-    first ones (the later stages' slacks are unused: zero at a converged plan, though a
-    few passes without multipliers can leave them negative, docs/drive.md).
+    (`axle_slips`) at stage $k$'s first knot, and the last stage's at the end knot (the
+    planner's tire trusted only where it agrees with the plant's); `corridor_penalty`
+    $\rho$ [s/m] or None (hard corridor): a soft corridor, below; `soft_stages` (None:
+    all) the stages whose corridor is soft, the first ones (the later stages' slacks are
+    unused: zero at a converged plan, though a few passes without multipliers can leave
+    them negative, docs/drive.md).
 
     **The soft corridor.** With $\rho$ the controls gain a slack $\sigma_k \ge 0$
     ($u = (d(\kappa_F, \kappa_R, \delta)/ds, \sigma)$, `control_size` 4), the corridor at
@@ -497,9 +498,13 @@ class HorizonOCP(CurvilinearManeuverOCP):
         vx, vy = x[2], x[3]
         b = self.terminal_sideslip * vx
         xi_max = self.terminal_heading
+        # the slip bound holds at the end knot too: without it the last stage of a
+        # minimum-time plan brakes on a locked wheel that no stage after it pays for
+        slips = (jnp.zeros((0,)) if self.slip_limit is None
+                 else self._slip_constraints(x, self.slip_limit[-1]))
         return jnp.concatenate([self._terminal_node(x), jnp.stack([
             self.terminal_speed**2 - vx * vx - vy * vy, b - vy, b + vy, xi_max - x[1],
-            xi_max + x[1]])])
+            xi_max + x[1]]), slips])
 
 
 RELAX_STAGES = 3
