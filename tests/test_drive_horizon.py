@@ -463,8 +463,8 @@ def test_slip_limit_bounds_the_plans_slips_and_holds_a_drifting_start():
     """A horizon into a 15 m corner from a drifting start (side slip 0.3 rad): with
     `slip_limit` 0.15 every knot past the widened first stages, the end knot included,
     keeps both axles' combined slip within 0.15, and the plan still converges from a start
-    above the bound; without it the minimum-time plan uses more slip, most at the end knot,
-    where nothing after the horizon pays for a locked wheel."""
+    above the bound; without it the minimum-time plan uses more slip, the end knot's too
+    (nothing after the horizon pays for it)."""
     road = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 15.0, 90.0),
                                             ("straight", 20.0)], 4.0)
     table = vs.RoadTable.from_road(road, extension=40.0)
@@ -490,7 +490,7 @@ def test_slip_limit_bounds_the_plans_slips_and_holds_a_drifting_start():
     assert start > 0.2  # the start is above the bound: widened, and feasible
     assert np.max(slips[0.15][3:]) <= 0.15 + 1e-6
     assert np.max(slips[None][3:-1]) > 0.17
-    assert np.max(slips[None][-1]) > np.max(slips[None][3:-1])
+    assert np.max(slips[None][-1]) > 0.2  # the end knot too, unbounded
 
 
 @pytest.mark.slow  # two horizon programs (hard, soft): one compilation each
