@@ -439,6 +439,13 @@ class HorizonOCP(CurvilinearManeuverOCP):
         k, Vx, Vy = _slip_parts(self.vehicle, X)
         return (limit * (1.0 + k)) ** 2 * Vx * Vx - k * k * Vx * Vx - Vy * Vy
 
+    def _slip_rows(self, X, stage):
+        """The slip bound's rows at knot ``X`` with stage ``stage``'s limit (none without
+        `slip_limit`)."""
+        if self.slip_limit is None:
+            return jnp.zeros((0,))
+        return self._slip_constraints(X, self.slip_limit[stage])
+
     def stage_vehicle(self, k) -> ReducedHalfCar:
         r"""The planning car of stage ``k``: its tire's $D$ times `grip`[k] (and with
         `stiffness_power` $q$ its $B$ times $\min$(`grip`[k], 1)$^{-q}$,
@@ -480,10 +487,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
         kap = self.curvature[k][0, 0]
         sdot = (vx * jnp.cos(xi) - vy * jnp.sin(xi)) / (1.0 - n * kap)
         rate = u[2] * sdot
-        slips = (jnp.zeros((0,)) if self.slip_limit is None
-                 else self._slip_constraints(x, self.slip_limit[k]))
         return jnp.concatenate([base, jnp.stack([self.steer_rate - rate,
-                                                 self.steer_rate + rate]), slips])
+                                                 self.steer_rate + rate]),
+                                self._slip_rows(x, k)])
 
     def initial_equality(self, x):
         return jnp.concatenate([x[8:9], x[:8] - self.initial_state])
@@ -500,11 +506,9 @@ class HorizonOCP(CurvilinearManeuverOCP):
         xi_max = self.terminal_heading
         # the slip bound holds at the end knot too: without it the last stage of a
         # minimum-time plan brakes on a locked wheel that no stage after it pays for
-        slips = (jnp.zeros((0,)) if self.slip_limit is None
-                 else self._slip_constraints(x, self.slip_limit[-1]))
         return jnp.concatenate([self._terminal_node(x), jnp.stack([
             self.terminal_speed**2 - vx * vx - vy * vy, b - vy, b + vy, xi_max - x[1],
-            xi_max + x[1]]), slips])
+            xi_max + x[1]]), self._slip_rows(x, -1)])
 
 
 RELAX_STAGES = 3
