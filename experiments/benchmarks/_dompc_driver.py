@@ -118,6 +118,48 @@ def horizon_model(H: float, M: int, D: float, stiffness_power: float | None = No
     return model, X, v, p, nxt
 
 
+def stage_rows(X, v, p: dict, nxt, h: float, limits: dict, *, steer_rate: float = 1.0,
+               terminal_sideslip: float = 0.1) -> dict:
+    r"""The nonlinear constraints of one stage, ``{name: expression}`` with each expression
+    $\le 0$ (CasADi, symbolic or numeric): at the stage's first knot ``X`` with input rates
+    ``v`` and tvp row ``p`` (a dict by `TVP` name), the corridor at the node and on the
+    Hermite midpoint, the axle speed floors, the steering rate and the slip bound; and the
+    end node's rows on the stage's RK4 end state ``nxt`` (the corridor, the axle speeds,
+    the speed, the sideslip, the slip bound), active where ``p["last"]`` is 1 and `FREE`
+    below their bound elsewhere. ``limits`` as `horizon_mpc`'s; the terminal heading and the
+    boxes of the slips and the steering angle are do-mpc's bounds, not rows."""
+    lim = limits
+
+    def slope(x, k):  # dn/ds
+        return spatial_rate(x, ca.DM.zeros(3), k, 1.0)[0][0]
+
+    _, axles, sdot = spatial_rate(X, v, p["kap0"], 1.0)
+    n0, n1 = X[0], nxt[0]
+    n_mid = 0.5 * (n0 + n1) + h / 8 * (slope(X, p["kap0"]) - slope(nxt, p["kap2"]))
+    _, axles1, _ = spatial_rate(nxt, v, p["kap2"], 1.0)
+    last = p["last"]
+    slips = slip_excess(X, p["slip_max"])
+    end_slips = slip_excess(nxt, p["slip_max"])
+    return {  # name: expression <= 0
+        "node_lo": p["n_lo"] - n0, "node_hi": n0 - p["n_hi"],
+        "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
+        "floor_F": lim["SPEED_FLOOR"] - axles[0], "floor_R": lim["SPEED_FLOOR"] - axles[1],
+        "steer_hi": v[2] * sdot - steer_rate, "steer_lo": -v[2] * sdot - steer_rate,
+        "slip_F": slips[0], "slip_R": slips[1],
+        # the end node, on the last stage only (elsewhere -FREE: never binds)
+        "end_lo": last * (p["end_lo"] - n1) - (1 - last) * FREE,
+        "end_hi": last * (n1 - p["end_hi"]) - (1 - last) * FREE,
+        "end_floor_F": last * (lim["SPEED_FLOOR"] - axles1[0]) - (1 - last) * FREE,
+        "end_floor_R": last * (lim["SPEED_FLOOR"] - axles1[1]) - (1 - last) * FREE,
+        "end_speed": last * (nxt[2] ** 2 + nxt[3] ** 2 - p["speed_max"] ** 2)
+        - (1 - last) * FREE,
+        "end_slip_hi": last * (nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
+        "end_slip_lo": last * (-nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
+        "end_slip_F": last * end_slips[0] - (1 - last) * FREE,
+        "end_slip_R": last * end_slips[1] - (1 - last) * FREE,
+    }
+
+
 def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight: float = 1e-4,
                 steer_rate: float = 1.0, terminal_sideslip: float = 0.1,
                 terminal_heading: float = 0.15, tol: float = 1e-6, max_iter: int = 100,
@@ -174,34 +216,8 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     mpc.terminal_bounds["upper", "xi"] = terminal_heading
     mpc.settings.use_terminal_bounds = True
 
-    def slope(x, k):  # dn/ds
-        return spatial_rate(x, ca.DM.zeros(3), k, 1.0)[0][0]
-
-    _, axles, sdot = spatial_rate(X, v, p["kap0"], 1.0)
-    n0, n1 = X[0], nxt[0]
-    n_mid = 0.5 * (n0 + n1) + h / 8 * (slope(X, p["kap0"]) - slope(nxt, p["kap2"]))
-    _, axles1, _ = spatial_rate(nxt, v, p["kap2"], 1.0)
-    last = p["last"]
-    slips = slip_excess(X, p["slip_max"])
-    end_slips = slip_excess(nxt, p["slip_max"])
-    cons = {  # name: expression <= 0
-        "node_lo": p["n_lo"] - n0, "node_hi": n0 - p["n_hi"],
-        "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
-        "floor_F": lim["SPEED_FLOOR"] - axles[0], "floor_R": lim["SPEED_FLOOR"] - axles[1],
-        "steer_hi": v[2] * sdot - steer_rate, "steer_lo": -v[2] * sdot - steer_rate,
-        "slip_F": slips[0], "slip_R": slips[1],
-        # the end node, on the last stage only (elsewhere -FREE: never binds)
-        "end_lo": last * (p["end_lo"] - n1) - (1 - last) * FREE,
-        "end_hi": last * (n1 - p["end_hi"]) - (1 - last) * FREE,
-        "end_floor_F": last * (lim["SPEED_FLOOR"] - axles1[0]) - (1 - last) * FREE,
-        "end_floor_R": last * (lim["SPEED_FLOOR"] - axles1[1]) - (1 - last) * FREE,
-        "end_speed": last * (nxt[2] ** 2 + nxt[3] ** 2 - p["speed_max"] ** 2)
-        - (1 - last) * FREE,
-        "end_slip_hi": last * (nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
-        "end_slip_lo": last * (-nxt[3] - terminal_sideslip * nxt[2]) - (1 - last) * FREE,
-        "end_slip_F": last * end_slips[0] - (1 - last) * FREE,
-        "end_slip_R": last * end_slips[1] - (1 - last) * FREE,
-    }
+    cons = stage_rows(X, v, p, nxt, h, limits, steer_rate=steer_rate,
+                      terminal_sideslip=terminal_sideslip)
     for name, expr in cons.items():
         mpc.set_nl_cons(name, expr, ub=0.0)
 
