@@ -100,8 +100,10 @@ def test_casadi_end_rows_are_the_horizons_terminal_rows():
     """do-mpc's end-node rows (`stage_rows` on the last stage, read from the tvp table of a
     vehsim `horizon_problem` with a slip bound) are minus vehsim's `terminal_inequality`
     rows at random end states: the corridor, the axle speed floors, the speed, the sideslip
-    and each axle's combined slip (the heading and the boxes are do-mpc's bounds); on the
-    other stages every end row sits `FREE` below its bound."""
+    and each axle's combined slip at `end_slip_limit` (the heading and the boxes are
+    do-mpc's bounds), with the gravel tire's $B$ (the end bound its peak slip, 0.214) and
+    with the stiffness kept on a slippery last stage (the path's 0.15, above that tire's
+    peak slip); on the other stages every end row sits `FREE` below its bound."""
     require_casadi()
     in_subprocess(_check_end_rows)
 
@@ -115,40 +117,45 @@ def _check_end_rows():
     M, H = 4, 20.0
     D = np.array([0.52, 0.45, 0.4, 0.3])
     rng = np.random.default_rng(3)
-    prob = horizon_problem(vs.RoadTable.from_road(road), rally_gravel_car(0.52), 4.0,
-                           jnp.array([0.2, 0.05, 10.0, 0.3, 0.4, -0.02, 0.01, 0.05]),
-                           jnp.asarray(D), horizon=H, margin=0.3, slip_limit=0.15,
-                           terminal_backoff=0.9)
-    tvp = drive_mpc.tvp_rows(drive_mpc.arrays(prob))
-    limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
-                  DELTA_MAX=float(prob.steer_limit))
     vehsim_row = {"end_lo": 0, "end_hi": 1, "end_floor_F": 2, "end_floor_R": 3,
                   "end_speed": 10, "end_slip_hi": 11, "end_slip_lo": 12, "end_slip_F": 15,
                   "end_slip_R": 16}
     X, v, _, _ = _random_points(rng, 24)
     nxt = X + rng.normal(0.0, [0.5, 0.1, 2.0, 0.5, 0.3, 0.1, 0.1, 0.1, 0.2], X.shape)
     nxt[:, 3] *= rng.uniform(0.0, 0.5, len(X))  # sideslips on both sides of the bound
-    signs = set()
-    for x, u, y in zip(X, v, nxt):
-        ref = np.asarray(prob.terminal_inequality(jnp.asarray(y)))
-        assert ref.shape == (17,)
-        for k, flag in ((M - 1, 1.0), (0, 0.0)):
-            p = dict(zip(_dompc_driver.TVP, (float(c) for c in tvp[k])))
-            assert p["last"] == flag
-            rows = _dompc_driver.stage_rows(ca.DM(x), ca.DM(u), p, ca.DM(y), H / M, limits,
-                                            steer_rate=float(prob.steer_rate),
-                                            terminal_sideslip=float(prob.terminal_sideslip))
-            for name, i in vehsim_row.items():
-                got = float(rows[name])
-                if flag:
-                    np.testing.assert_allclose(got, -ref[i], rtol=1e-10, atol=1e-10,
-                                               err_msg=name)
-                    signs.add((name, got > 0))
-                else:
-                    assert got == -_dompc_driver.FREE, name
-    # the random end states put both slip rows, the sideslip and the speed on both sides
-    for name in ("end_slip_F", "end_slip_R", "end_slip_hi", "end_speed"):
-        assert {(name, True), (name, False)} <= signs, name
+    for q, end_limit in ((None, np.tan(np.pi / 3.2) / 7.0), (1.0, 0.15)):
+        prob = horizon_problem(vs.RoadTable.from_road(road), rally_gravel_car(0.52), 4.0,
+                               jnp.array([0.2, 0.05, 10.0, 0.3, 0.4, -0.02, 0.01, 0.05]),
+                               jnp.asarray(D), horizon=H, margin=0.3, slip_limit=0.15,
+                               terminal_backoff=0.9, stiffness_power=q)
+        np.testing.assert_allclose(float(prob.end_slip_limit()), end_limit, rtol=1e-12)
+        tvp = drive_mpc.tvp_rows(drive_mpc.arrays(prob))
+        limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                      DELTA_MAX=float(prob.steer_limit))
+        signs = set()
+        for x, u, y in zip(X, v, nxt):
+            ref = np.asarray(prob.terminal_inequality(jnp.asarray(y)))
+            assert ref.shape == (17,)
+            for k, flag in ((M - 1, 1.0), (0, 0.0)):
+                p = dict(zip(_dompc_driver.TVP, (float(c) for c in tvp[k])))
+                assert p["last"] == flag
+                rows = _dompc_driver.stage_rows(
+                    ca.DM(x), ca.DM(u), p, ca.DM(y), H / M, limits,
+                    steer_rate=float(prob.steer_rate),
+                    terminal_sideslip=float(prob.terminal_sideslip),
+                    end_slip=_dompc_driver.end_slip_limit(p, q))
+                for name, i in vehsim_row.items():
+                    got = float(rows[name])
+                    if flag:
+                        np.testing.assert_allclose(got, -ref[i], rtol=1e-10, atol=1e-10,
+                                                   err_msg=name)
+                        signs.add((name, got > 0))
+                    else:
+                        assert got == -_dompc_driver.FREE, name
+        # the random end states put both slip rows, the sideslip and the speed on both
+        # sides of their bounds
+        for name in ("end_slip_F", "end_slip_R", "end_slip_hi", "end_speed"):
+            assert {(name, True), (name, False)} <= signs, (q, name)
 
 
 def test_tvp_table_without_a_slip_bound_is_free_and_refuses_nan():

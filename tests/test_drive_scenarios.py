@@ -501,6 +501,9 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
     assert exact and exact_free and bool(bound.solution.converged)
     assert float(free.t_f) * 1.01 < float(bound.t_f) < float(free.t_f) * 1.10
 
+    end_limit = float(bound.problem.end_slip_limit())  # the gravel tire's peak slip, 0.214
+    assert end_limit == pytest.approx(float(vs.rally_gravel_tire().peak_slip), rel=1e-12)
+
     def worst(prim):
         """The largest excess over the margin, the slip bound and the steering rate."""
         xs, us = np.asarray(prim.solution.xs), np.asarray(prim.solution.us)
@@ -515,8 +518,10 @@ def test_bound_under_the_drivers_constraints_keeps_them(replay, monkeypatch):
         sdot = (vx * np.cos(xi) - vy * np.sin(xi)) / (1.0 - n * kap)
         rate = np.abs(us[:, 2] * sdot[:-1])
         # the steering-rate rows are path constraints, at each stage's first knot; the slip
-        # bound holds at every knot (the first too: the driver's bound starts rolling)
-        return (corridor, np.max(slips) - float(driver.slip_limit),
+        # bound holds at every stage's first knot (the first too: the driver's bound starts
+        # rolling), and the end knot's at the last stage tire's peak slip
+        return (corridor, np.max(slips[:-1]) - float(driver.slip_limit),
+                np.max(slips[-1]) - end_limit,
                 np.max(rate) - float(driver.steer_rate))
 
     assert max(worst(free)) > 0.01

@@ -120,3 +120,34 @@ def test_slip_law_is_finite_and_continuous_through_a_locked_wheel_in_both_modes(
         s = np.array([-k, 0.1]) / (1.0 + k)
         g = 0.52 * np.sin(1.6 * np.arctan(7.0 * np.hypot(*s))) / np.hypot(*s)
         np.testing.assert_allclose(mu(k), -s * g, rtol=1e-12)
+
+
+def test_peak_slip_is_where_the_force_peaks_with_finite_derivatives():
+    """`peak_slip` is the arg max of $\\mu(s)$ on a fine grid (B = 7, C = 1.6: 0.2138; and a
+    stiff tire of the plant's shape), infinite for $C \\le 1$ (the force rises for ever),
+    and its derivatives in $B, C$ are finite in both modes there too and match central
+    differences where it is finite."""
+    s = np.linspace(0.0, 1.0, 200001)
+    for B, C in ((7.0, 1.6), (32.6, 1.53), (3.0, 1.9)):
+        tire = FrictionEllipseTire(B=B, C=C, D=0.52)
+        grid = s[np.argmax(np.asarray(tire.mu_of_s(jnp.asarray(s))))]
+        assert float(tire.peak_slip) == pytest.approx(grid, abs=1e-5)
+    assert float(FrictionEllipseTire(B=7.0, C=1.6, D=1.0).peak_slip) == pytest.approx(
+        0.213800823, rel=1e-8)
+    assert np.isinf(float(FrictionEllipseTire(B=7.0, C=1.0, D=1.0).peak_slip))
+
+    def peak(B, C):
+        return FrictionEllipseTire(B=B, C=C, D=1.0).peak_slip
+
+    g = jax.grad(peak, argnums=(0, 1))(7.0, 1.6)
+    h = 1e-6
+    fd = ((peak(7.0 + h, 1.6) - peak(7.0 - h, 1.6)) / (2 * h),
+          (peak(7.0, 1.6 + h) - peak(7.0, 1.6 - h)) / (2 * h))
+    np.testing.assert_allclose(np.asarray(g), np.asarray(fd), rtol=1e-6)
+    _, tangent = jax.jvp(peak, (7.0, 1.6), (1.0, 0.0))
+    assert float(tangent) == pytest.approx(float(g[0]), rel=1e-10)
+    # at C <= 1 the value is infinite; its derivatives are zero in both modes, not NaN
+    for C in (1.0, 0.9):
+        gB, gC = jax.grad(peak, argnums=(0, 1))(7.0, C)
+        _, tangent = jax.jvp(peak, (7.0, C), (1.0, 1.0))
+        assert float(gB) == 0.0 and float(gC) == 0.0 and float(tangent) == 0.0

@@ -19,7 +19,8 @@ floor, the slips and the steering angle in their boxes, the steering rate
 $|u_\delta \dot s| \le$ the actuator's rate, each axle's combined slip
 $\sqrt{\kappa_i^2 + (V_{iy}/V_{ix})^2}/(1 + \kappa_i) \le$ ``slip_max`` as vehsim's polynomial
 $\kappa_i^2V_{ix}^2 + V_{iy}^2 - \ell^2(1 + \kappa_i)^2V_{ix}^2 \le 0$, and at $s_0 + H$ the
-corridor, the axle speeds, the last stage's slip bound, the speed $|v| \le$ ``speed_max``
+corridor, the axle speeds, the last stage's slip bound or its tire's peak slip where larger
+(`end_slip_limit`), the speed $|v| \le$ ``speed_max``
 ($\beta\sqrt{D}\,v_1(s_0 + H)$), the sideslip $|v_y| \le \sigma v_x$ and the heading
 $|\xi| \le \xi_{max}$. Objective
 $t(H) + w\sum_k h|u_k|^2$.
@@ -118,16 +119,29 @@ def horizon_model(H: float, M: int, D: float, stiffness_power: float | None = No
     return model, X, v, p, nxt
 
 
+def peak_slip(B, C: float = 1.6):
+    r"""The combined slip of the tire's peak, $\tan(\pi/(2C))/B$ (``B`` a number or symbol;
+    as `vehsim.FrictionEllipseTire.peak_slip`)."""
+    return float(np.tan(np.pi / (2.0 * C))) / B
+
+
+def end_slip_limit(p: dict, stiffness_power: float | None = None):
+    r"""The slip bound at the end knot (as `vehsim.HorizonOCP.end_slip_limit`): the stage's
+    ``slip_max`` or, where larger, the peak slip of the stage's tire (`stage_B`)."""
+    return ca.fmax(p["slip_max"], peak_slip(stage_B(p["grip"], stiffness_power)))
+
+
 def stage_rows(X, v, p: dict, nxt, h: float, limits: dict, *, steer_rate: float = 1.0,
-               terminal_sideslip: float = 0.1) -> dict:
+               terminal_sideslip: float = 0.1, end_slip=None) -> dict:
     r"""The nonlinear constraints of one stage, ``{name: expression}`` with each expression
     $\le 0$ (CasADi, symbolic or numeric): at the stage's first knot ``X`` with input rates
     ``v`` and tvp row ``p`` (a dict by `TVP` name), the corridor at the node and on the
     Hermite midpoint, the axle speed floors, the steering rate and the slip bound; and the
     end node's rows on the stage's RK4 end state ``nxt`` (the corridor, the axle speeds,
-    the speed, the sideslip, the slip bound), active where ``p["last"]`` is 1 and `FREE`
-    below their bound elsewhere. ``limits`` as `horizon_mpc`'s; the terminal heading and the
-    boxes of the slips and the steering angle are do-mpc's bounds, not rows."""
+    the speed, the sideslip, the slip bound ``end_slip``, by default `end_slip_limit`),
+    active where ``p["last"]`` is 1 and `FREE` below their bound elsewhere. ``limits`` as
+    `horizon_mpc`'s; the terminal heading and the boxes of the slips and the steering angle
+    are do-mpc's bounds, not rows."""
     lim = limits
 
     def slope(x, k):  # dn/ds
@@ -139,7 +153,7 @@ def stage_rows(X, v, p: dict, nxt, h: float, limits: dict, *, steer_rate: float 
     _, axles1, _ = spatial_rate(nxt, v, p["kap2"], 1.0)
     last = p["last"]
     slips = slip_excess(X, p["slip_max"])
-    end_slips = slip_excess(nxt, p["slip_max"])
+    end_slips = slip_excess(nxt, end_slip_limit(p) if end_slip is None else end_slip)
     return {  # name: expression <= 0
         "node_lo": p["n_lo"] - n0, "node_hi": n0 - p["n_hi"],
         "mid_lo": p["mid_lo"] - n_mid, "mid_hi": n_mid - p["mid_hi"],
@@ -217,7 +231,8 @@ def horizon_mpc(H: float, M: int, limits: dict, *, D: float = 0.52, rate_weight:
     mpc.settings.use_terminal_bounds = True
 
     cons = stage_rows(X, v, p, nxt, h, limits, steer_rate=steer_rate,
-                      terminal_sideslip=terminal_sideslip)
+                      terminal_sideslip=terminal_sideslip,
+                      end_slip=end_slip_limit(p, stiffness_power))
     for name, expr in cons.items():
         mpc.set_nl_cons(name, expr, ub=0.0)
 

@@ -385,8 +385,8 @@ class HorizonOCP(CurvilinearManeuverOCP):
     them the last stages of a minimum-time plan throw the car sideways or point it off the
     road, nothing after the horizon paying for it; `steer_rate` $\dot\delta_{max}$ [rad/s],
     `steer_limit` [rad]; `slip_limit` (M,) or None: the bound on each axle's combined slip
-    (`axle_slips`) at stage $k$'s first knot, and the last stage's at the end knot (the
-    planner's tire trusted only where it agrees with the plant's); `corridor_penalty`
+    (`axle_slips`) at stage $k$'s first knot (the planner's tire trusted only where it
+    agrees with the plant's), and at the end knot `end_slip_limit`; `corridor_penalty`
     $\rho$ [s/m] or None (hard corridor): a soft corridor, below; `soft_stages` (None:
     all) the stages whose corridor is soft, the first ones (the later stages' slacks are
     unused: zero at a converged plan, though a few passes without multipliers can leave
@@ -439,12 +439,12 @@ class HorizonOCP(CurvilinearManeuverOCP):
         k, Vx, Vy = _slip_parts(self.vehicle, X)
         return (limit * (1.0 + k)) ** 2 * Vx * Vx - k * k * Vx * Vx - Vy * Vy
 
-    def _slip_rows(self, X, stage):
-        """The slip bound's rows at knot ``X`` with stage ``stage``'s limit (none without
-        `slip_limit`)."""
+    def _slip_rows(self, X, stage, limit=None):
+        """The slip bound's rows at knot ``X`` with stage ``stage``'s limit, or ``limit``
+        where given (none without `slip_limit`)."""
         if self.slip_limit is None:
             return jnp.zeros((0,))
-        return self._slip_constraints(X, self.slip_limit[stage])
+        return self._slip_constraints(X, self.slip_limit[stage] if limit is None else limit)
 
     def stage_vehicle(self, k) -> ReducedHalfCar:
         r"""The planning car of stage ``k``: its tire's $D$ times `grip`[k] (and with
@@ -504,11 +504,23 @@ class HorizonOCP(CurvilinearManeuverOCP):
         vx, vy = x[2], x[3]
         b = self.terminal_sideslip * vx
         xi_max = self.terminal_heading
-        # the slip bound holds at the end knot too: without it the last stage of a
-        # minimum-time plan brakes on a locked wheel that no stage after it pays for
         return jnp.concatenate([self._terminal_node(x), jnp.stack([
             self.terminal_speed**2 - vx * vx - vy * vy, b - vy, b + vy, xi_max - x[1],
-            xi_max + x[1]]), self._slip_rows(x, -1)])
+            xi_max + x[1]]), self._slip_rows(x, -1, self.end_slip_limit())])
+
+    def end_slip_limit(self):
+        r"""The bound on the axles' combined slip at the end knot: the last stage's
+        `slip_limit` or, where larger, the peak slip $s^*$ of the last stage's tire
+        (`FrictionEllipseTire.peak_slip`); None without `slip_limit`. Without a bound there
+        the last stage of a minimum-time plan can brake on a locked wheel that no stage
+        after it pays for; with the path's own bound there, the end knot cannot take up the
+        terminal speed bound's fall as the horizon's end moves into a braking zone, and the
+        few real-time passes of a sample must spread that braking over the whole plan
+        (docs/driver.md, "The slip bound at the horizon's end")."""
+        if self.slip_limit is None:
+            return None
+        peak = getattr(self.stage_vehicle(self.num_stages - 1).tire, "peak_slip", 0.0)
+        return jnp.maximum(self.slip_limit[-1], peak)
 
 
 RELAX_STAGES = 3

@@ -75,6 +75,15 @@ class FrictionEllipseTire(AbstractTire):
         r"""$\mu(s) = D\sin(C\arctan(Bs))$."""
         return self.D * jnp.sin(self.C * jnp.arctan(self.B * s))
 
+    @property
+    def peak_slip(self):
+        r"""The combined slip of the peak, $s^* = \tan(\pi/(2C))/B$ (where
+        $C\arctan(Bs) = \pi/2$); $\infty$ for $C \le 1$, whose $\mu(s)$ rises to $D$ only
+        as $s \to \infty$."""
+        C = jnp.asarray(self.C, float)
+        safe = jnp.where(C > 1.0, C, 2.0)  # double-where: no infinite derivative at C <= 1
+        return jnp.where(C > 1.0, jnp.tan(jnp.pi / (2.0 * safe)) / self.B, jnp.inf)
+
     def mu_theoretical(self, sx, sy):
         r"""$(\mu_x, \mu_y) = -(s_x, s_y)\,\mu(s)/s$ from the theoretical slips."""
         g = _mu_over_s(self.B, self.C, self.D, sx * sx + sy * sy)
