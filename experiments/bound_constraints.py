@@ -92,5 +92,6 @@ def slips(prim) -> dict:
     return dict(slip_max=s.max(0).round(4).tolist(),
                 slip_p90=np.percentile(s, 90, axis=0).round(4).tolist())
 
+
 if __name__ == "__main__":
     main()
