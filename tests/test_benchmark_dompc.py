@@ -188,3 +188,49 @@ def _check_tvp_slip():
         assert "slip_max" in str(e)
     else:
         raise AssertionError("a NaN slip bound was accepted")
+
+
+def test_horizon_mpc_builds_the_stage_rows_of_its_tire():
+    """The constraints `horizon_mpc` gives do-mpc, evaluated through do-mpc's own model
+    symbols, are `stage_rows` of the RK4 step with the stage's $B$ of `stage_B` and the end
+    knot's bound of `end_slip_limit`, both at the MPC's ``stiffness_power`` (1: on a stage of
+    grip 0.5-0.9 the end bound is the kept-stiffness tire's peak slip, 0.12-0.21, not the
+    gravel tire's 0.214), at random states, rates and last-stage data."""
+    require_casadi()
+    in_subprocess(_check_mpc_rows)
+
+
+def _check_mpc_rows():
+    ca, _dompc_driver = _peer()
+    H, M, q = 20.0, 4, 1.0
+    limits = dict(SPEED_FLOOR=SPEED_FLOOR, KAPPA_MIN=KAPPA_MIN, KAPPA_MAX=KAPPA_MAX,
+                  DELTA_MAX=0.5)
+    mpc, _ = _dompc_driver.horizon_mpc(H, M, limits, stiffness_power=q, steer_rate=1.2,
+                                       terminal_sideslip=0.08)
+    model = mpc.model
+    names = [c["expr_name"] for c in mpc.nl_cons_list if c["expr_name"] != "default"]
+    tvp_symbols = [model.tvp[name] for name in _dompc_driver.TVP]
+    rows = ca.Function("rows", [model.x.cat, model.u.cat] + tvp_symbols,
+                       [ca.vertcat(*(c["expr"] for c in mpc.nl_cons_list
+                                     if c["expr_name"] != "default"))])
+    rng = np.random.default_rng(5)
+    X, v, kap, _ = _random_points(rng, 12)
+    gaps = []
+    for x, u, k in zip(X, v, kap):
+        p = {"kap0": k[0], "kap1": k[1], "kap2": k[2], "grip": rng.uniform(0.5, 0.9),
+             "n_lo": -1.5, "n_hi": 1.5, "mid_lo": -1.4, "mid_hi": 1.4, "last": 1.0,
+             "end_lo": -1.2, "end_hi": 1.2, "speed_max": 15.0, "slip_max": 0.1}
+        got = np.asarray(rows(x, u, *(p[name] for name in _dompc_driver.TVP))).ravel()
+        nxt = _dompc_driver.rk4_step(ca.DM(x), ca.DM(u), tuple(k), 0.52 * p["grip"], H / M,
+                                     _dompc_driver.stage_B(p["grip"], q))
+        want = _dompc_driver.stage_rows(ca.DM(x), ca.DM(u), p, nxt, H / M, limits,
+                                        steer_rate=1.2, terminal_sideslip=0.08,
+                                        end_slip=_dompc_driver.end_slip_limit(p, q))
+        assert list(want) == names
+        np.testing.assert_allclose(got, [float(want[n]) for n in names], rtol=1e-9,
+                                   atol=1e-9)
+        gravel = _dompc_driver.stage_rows(ca.DM(x), ca.DM(u), p, nxt, H / M, limits,
+                                          end_slip=_dompc_driver.end_slip_limit(p))
+        gaps.append(float(want["end_slip_F"]) - float(gravel["end_slip_F"]))
+    # the stiffness decides the end bound here: the gravel tire's would be looser
+    assert min(gaps) > 0.0, gaps
