@@ -190,7 +190,7 @@ DRIVER_TRACTION_LIMIT = 0.9
 at most 90 % of the longitudinal force the plant's tire can give at the planned velocity."""
 
 CORNER_DRIVER = {"margin": 0.4, "margin_grip_power": 1.0,
-                 "traction_limit": DRIVER_TRACTION_LIMIT, "stiffness_power": 1.0}
+                 "traction_limit": DRIVER_TRACTION_LIMIT}
 """`RecedingHorizonDriver` settings of `driver_settings` on the benchmark corners."""
 
 FAST_ROAD_DRIVER = {"margin": 0.3, "iterations": 10, "hessian_update": "first",
@@ -239,10 +239,10 @@ def driver_settings(name: str | None, friction: str | None = None,
       the road's limit runs some tens of centimetres past its planned path, so the corridor
       margin is 0.4 m; it narrows in proportion to the planned grip below the planning
       car's (`margin_grip_power` 1: about 0.22 m on the icy patch), since an icy apex needs
-      the road's width. The planning tire keeps its slip stiffness on every surface of
-      less grip than the car's (`stiffness_power` 1, `scaled_planning_car`), as the
-      plant's nearly does: with its $B$ kept, a stage believed slippery was also a softer
-      tire, and the plans steered for slip angles the plant does not need.
+      the road's width. The planning tire keeps its $B$ on every surface (no
+      `stiffness_power`): a planning tire that kept its slip stiffness on less grip
+      (`stiffness_power` 1) completed as many corner drives on the LuGre plant and lost
+      half the 20 %-slippier ones on a Magic Formula plant (docs/driver.md).
     - A road from a file (None, or a name that is not a scenario road's):
       `FILE_ROAD_DRIVER`, for circuits driven at 35-47 m/s: 16 kept-Hessian passes, the
       stage's friction margin, a lost plan planned again (`replan_kkt` 100) in at most 40
