@@ -5,7 +5,7 @@ reduced half-car in arc length over H m in M stages, one RK4 step per stage, the
 with its margin at the knots and the stages' midpoints, the node constraints, the steering
 rate, the terminal speed, sideslip and heading bounds, the bound on the axles' combined
 slip, each stage's peak friction at the speed the previous plan drives it at (and, with
-the corners' `stiffness_power`, each stage's tire $B$ below the car's grip), objective
+a driver's `stiffness_power`, each stage's tire $B$ below the car's grip), objective
 t(H) + w sum |u|^2 h; ``--no-slip-limit``: the driver's bound off in both) and
 drive the same plant on the same road at 20 Hz: `vehsim.drive_scenario(road, "nominal")`
 (the `DrivePlant` with the lumped 2D LuGre tires on the gravel whose peak friction is the
