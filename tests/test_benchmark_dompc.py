@@ -194,7 +194,7 @@ def test_horizon_mpc_builds_the_stage_rows_of_its_tire():
     """The constraints `horizon_mpc` gives do-mpc, evaluated through do-mpc's own model
     symbols, are `stage_rows` of the RK4 step with the stage's $B$ of `stage_B` and the end
     knot's bound of `end_slip_limit`, both at the MPC's ``stiffness_power`` (1: on a stage of
-    grip 0.5-0.9 the end bound is the kept-stiffness tire's peak slip, 0.12-0.21, not the
+    grip 0.5-0.9 the end bound is the kept-stiffness tire's peak slip, 0.11-0.19, not the
     gravel tire's 0.214), at random states, rates and last-stage data."""
     require_casadi()
     in_subprocess(_check_mpc_rows)
