@@ -1,11 +1,13 @@
 """The do-mpc peer of the receding-horizon benchmark (experiments/benchmarks/drive_mpc.py)
 writes its own CasADi model of the horizon: its stage map must be vehsim's."""
 
+import importlib.util
 import sys
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from _isolated import in_subprocess, require_casadi
 
 import vehsim as vs
@@ -197,6 +199,8 @@ def test_horizon_mpc_builds_the_stage_rows_of_its_tire():
     grip 0.5-0.9 the end bound is the kept-stiffness tire's peak slip, 0.11-0.19, not the
     gravel tire's 0.214), at random states, rates and last-stage data."""
     require_casadi()
+    if importlib.util.find_spec("do_mpc") is None:  # under CI the skip fails (conftest)
+        pytest.skip("do-mpc is not installed (pip install -e '.[test]')")
     in_subprocess(_check_mpc_rows)
 
 
