@@ -212,11 +212,11 @@ def _check_mpc_rows():
     mpc, _ = _dompc_driver.horizon_mpc(H, M, limits, stiffness_power=q, steer_rate=1.2,
                                        terminal_sideslip=0.08)
     model = mpc.model
-    names = [c["expr_name"] for c in mpc.nl_cons_list if c["expr_name"] != "default"]
+    constraints = [c for c in mpc.nl_cons_list if c["expr_name"] != "default"]
+    names = [c["expr_name"] for c in constraints]
     tvp_symbols = [model.tvp[name] for name in _dompc_driver.TVP]
     rows = ca.Function("rows", [model.x.cat, model.u.cat] + tvp_symbols,
-                       [ca.vertcat(*(c["expr"] for c in mpc.nl_cons_list
-                                     if c["expr_name"] != "default"))])
+                       [ca.vertcat(*(c["expr"] for c in constraints))])
     rng = np.random.default_rng(5)
     X, v, kap, _ = _random_points(rng, 12)
     gaps = []
