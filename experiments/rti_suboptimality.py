@@ -21,11 +21,12 @@ $\\delta$), in the planned time to the horizon's end $t(H)$, and in their KKT re
 largest of the primal, dual and complementarity residuals). The first plan (a cold start
 solved to convergence whatever the mode) is left out.
 
-Prints one JSON line of percentiles (appended to ``--out``) and draws ``--figure``.
+Prints one JSON line of percentiles (appended to ``--out``), draws ``--figure`` and writes
+each sample's comparison to ``--samples-out``.
 
 Usage: PYTHONPATH=. python experiments/rti_suboptimality.py [--road corner90]
        [--grip minus20] [--friction estimate] [--seed 0] [--passes N] [--out PATH]
-       [--figure PATH]
+       [--figure PATH] [--samples-out PATH]
 """
 
 from __future__ import annotations
@@ -65,6 +66,8 @@ def _args(argv=None):
                    help="interior-point passes per sample, [1, 100] (default: the road's)")
     p.add_argument("--out", default=str(HERE / "rti_suboptimality_results.jsonl"))
     p.add_argument("--figure", default=None, help="a figure of the samples (PNG)")
+    p.add_argument("--samples-out", default=None,
+                   help="write each sample's comparison here, one JSON line per sample")
     args = p.parse_args(argv)
     if args.passes is not None and not 1 <= args.passes <= 100:
         p.error(f"--passes must lie in [1, 100], got {args.passes}")
@@ -126,7 +129,7 @@ def main(argv=None):
             kkt_conv=_kkt(full), converged=bool(full.result == vs.RESULTS.successful),
             iterations=int(full.iterations), d_kappa_F=float(d[0]), d_kappa_R=float(d[1]),
             d_delta_deg=float(np.degrees(d[2])),
-            dt_H=float(info["xs"][k][-1, 8] - full.xs[-1, 8])))
+            t_H=float(full.xs[-1, 8]), dt_H=float(info["xs"][k][-1, 8] - full.xs[-1, 8])))
     wall = time.perf_counter() - t0
     conv_rows = [r for r in rows if r["converged"]]
     rec = dict(
@@ -135,6 +138,8 @@ def main(argv=None):
         end_time=outcome.time, max_off_road=outcome.max_off_road,
         completed=bool(outcome.completed), resolves_wall_s=round(wall, 1),
         rebuilt_exactly=sum(r["rebuilt"] < 1e-9 for r in rows),
+        rebuilt=_percentiles([r["rebuilt"] for r in rows]),
+        rebuilt_off=sum(r["rebuilt"] > 1e-3 for r in rows),
         rti_converged=int(np.sum(np.asarray(info["converged"])[list(samples)])),
         converged=len(conv_rows),
         kkt_rti=_percentiles([r["kkt_rti"] for r in rows]),
@@ -143,11 +148,16 @@ def main(argv=None):
         d_kappa=_percentiles([max(r["d_kappa_F"], r["d_kappa_R"]) for r in conv_rows]),
         dt_H_ms=_percentiles([1e3 * abs(r["dt_H"]) for r in conv_rows]),
         dt_H_mean_ms=float(np.mean([1e3 * r["dt_H"] for r in conv_rows])),
+        t_H_s=_percentiles([r["t_H"] for r in conv_rows]),
         date=datetime.date.today().isoformat())
     line = json.dumps(rec)
     print(line)
     with open(args.out, "a") as f:
         f.write(line + "\n")
+    if args.samples_out:
+        tmp = Path(args.samples_out).with_suffix(".tmp")
+        tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
+        tmp.replace(args.samples_out)
     if args.figure:
         _figure(rows, rec, args.figure)
         print(f"figure: {args.figure}")
