@@ -236,15 +236,21 @@ def test_a_converged_drivers_settings_take_a_fresh_hessian(road):
     """`driver_settings` with ``mode``: the real-time settings keep what the road's driver
     keeps (the stage and a road file keep each sample's first Hessian), a converged driver
     takes a fresh Hessian every pass whatever the road (a kept one makes its solves creep to
-    their cap), and `scenario_driver` builds the driver of that mode from them alone."""
+    their cap) and plans a lost plan again from the cold start (the corners' real-time
+    settings never do; the stage's and a road file's keep their threshold), and
+    `scenario_driver` builds the driver of that mode from them alone."""
     base = vs.driver_settings(road)
     assert "mode" not in base
     assert vs.driver_settings(road, mode="rti") == base | {"mode": "rti"}
     conv = vs.driver_settings(road, "oracle", mode="converged")
-    assert conv == base | {"mode": "converged", "hessian_update": "every"}
+    replan = base.get("replan_kkt", vs.CONVERGED_REPLAN_KKT)
+    assert ("replan_kkt" in base) == (road != "corner90")
+    assert conv == base | {"mode": "converged", "hessian_update": "every",
+                           "replan_kkt": replan} and replan == 100.0
     sc = vs.drive_scenario(road or "sturn", "nominal")
     driver, _ = vs.scenario_driver(sc, "oracle", **conv)
     assert driver.mode == "converged" and driver.hessian_update == "every"
+    assert float(driver.replan_kkt) == 100.0
     assert vs.scenario_driver(sc, "oracle", **vs.driver_settings(road, mode="rti"))[
         0].hessian_update == base.get("hessian_update", "every")
     with pytest.raises(ValueError, match="unknown mode 'fast'; allowed: rti, converged"):

@@ -454,6 +454,7 @@ from .drive.plant_tires import (
     peak_surface_factor as peak_surface_factor,
 )
 from .drive.scenarios import (
+    CONVERGED_REPLAN_KKT as CONVERGED_REPLAN_KKT,
     CORNER_DRIVER as CORNER_DRIVER,
     DRIVER_PROBE_DISTANCE as DRIVER_PROBE_DISTANCE,
     DRIVER_TRACTION_LIMIT as DRIVER_TRACTION_LIMIT,

@@ -212,6 +212,11 @@ speed bound, a tighter slip bound for the plant's tire at speed and a soft corri
 
 _CORNERS = ("corner90", "uturn", "sturn")
 
+CONVERGED_REPLAN_KKT = 100.0
+"""`RecedingHorizonDriver.replan_kkt` of `driver_settings` in converged mode on every road:
+a solve that ends past it, unconverged at its cap, is no plan to shift, and the next sample
+plans again from the cold start."""
+
 DRIVER_PROBE_DISTANCE = 2.0
 """`RecedingHorizonDriver.probe_distance` [m] of `driver_settings` for the driver with the
 estimate on the benchmark corners: a test brake of the front axle on the first 2 m
@@ -227,7 +232,11 @@ def driver_settings(name: str | None, friction: str | None = None,
     driver takes a fresh Hessian every pass (``hessian_update`` "every"): keeping a sample's
     first Hessian is the economy of a fixed number of real-time passes, and a solve run to
     its tolerance with it converges linearly and mostly reaches its cap (on a road file's
-    drive 332 of 386 solves, against 2 with a fresh one; docs/performance.md).
+    drive 332 of 386 solves, against 2 with a fresh one; docs/performance.md). It also plans
+    a lost plan again from the cold start (`replan_kkt` `CONVERGED_REPLAN_KKT`, where the
+    road's settings have none): a solve that fails at its cap leaves an iterate far from
+    any plan, and shifted on, it made the next samples' solves fail in turn (on corner90 the
+    residuals grew to $10^{27}$ and the car left the road; docs/driver.md, "Modes").
 
     - The stage (12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`. At those speeds 4 passes per
       sample leave the plans far from converged, so a sample takes 10 passes that keep its
@@ -278,6 +287,7 @@ def driver_settings(name: str | None, friction: str | None = None,
         settings["mode"] = mode
         if mode == "converged":
             settings["hessian_update"] = "every"
+            settings.setdefault("replan_kkt", CONVERGED_REPLAN_KKT)
     return settings
 
 
