@@ -213,9 +213,10 @@ speed bound, a tighter slip bound for the plant's tire at speed and a soft corri
 _CORNERS = ("corner90", "uturn", "sturn")
 
 CONVERGED_REPLAN_KKT = 100.0
-"""`RecedingHorizonDriver.replan_kkt` of `driver_settings` in converged mode on every road:
-a solve that ends past it, unconverged at its cap, is no plan to shift, and the next sample
-plans again from the cold start."""
+"""`RecedingHorizonDriver.replan_kkt` of `driver_settings` in converged mode where the
+road's settings have none (the benchmark corners; the stage's and a road file's are also
+100): a solve that ends past it, unconverged at its cap, is no plan to shift, and the next
+sample plans again from the cold start."""
 
 DRIVER_PROBE_DISTANCE = 2.0
 """`RecedingHorizonDriver.probe_distance` [m] of `driver_settings` for the driver with the
@@ -236,7 +237,8 @@ def driver_settings(name: str | None, friction: str | None = None,
     a lost plan again from the cold start (`replan_kkt` `CONVERGED_REPLAN_KKT`, where the
     road's settings have none): a solve that fails at its cap leaves an iterate far from
     any plan, and shifted on, it made the next samples' solves fail in turn (on corner90 the
-    residuals grew to $10^{27}$ and the car left the road; docs/driver.md, "Modes").
+    residuals grew to $10^{27}$ and the car left the road; docs/driver.md, "A converged
+    driver re-plans a lost plan").
 
     - The stage (12-17 m/s on a 4 m road): `FAST_ROAD_DRIVER`. At those speeds 4 passes per
       sample leave the plans far from converged, so a sample takes 10 passes that keep its
