@@ -1,0 +1,109 @@
+"""How close can a closed loop come to the free bound? The oracle with each imperfection
+removed in turn.
+
+The free bound (`vehsim.offline_bound`) is the planning model's minimum-time drive with the
+true grip, the road's full width, no slip bound and no actuators. The receding-horizon
+driver that knows the true grip (the oracle) drives the plant instead, whose tires, wheel
+spin and suspension are not the planning model's, through actuators with delay, rate
+limits and lag, measured by noisy sensors, and keeps a corridor margin and a slip bound.
+This script drives the oracle on the nominal corners (seed 0) under three conditions:
+
+- ``shipped``: the scenarios' sensors and actuators;
+- ``exact sensing``: the sensors' noise off (`DriveSensors.noise_on`);
+- ``exact sensing, ideal actuators``: also no delay, rate limit or lag
+  (`ideal_actuators`; the driver then predicts over no delay),
+
+each with the road's settings (`driver_settings`; on the corners 0.4 m narrowing with the
+grip, and the slip bound) and with the margin ``--margins`` (held on every stage), and in the last
+condition also without the slip bound at the smallest two margins. What is left between
+the best completed drive of the last condition and the free bound is what the plant's
+being another model than the planner's costs, with nothing else in the way.
+
+One JSON line per drive (time at the end gate, largest distance off the road, completed,
+and the time above the free bound) and one per road for the free bound go to stdout; the
+measured lines are in experiments/closed_loop_gap_results.jsonl (docs/driver.md, "With
+nothing else in the way").
+
+Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 uturn sturn]
+       [--margins 0.3 0.2 0.1 0.0] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import equinox as eqx
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import vehsim as vs  # noqa: E402
+from vehsim.drive.scenarios import ROAD_NAMES  # noqa: E402
+
+
+CONDITIONS = ("shipped", "exact sensing", "exact sensing, ideal actuators")
+
+
+@eqx.filter_jit
+def _drive(plant, controller, state0, key, num_samples):
+    return vs.simulate_drive(plant, controller, state0, key, num_samples, None,
+                             substep_poses=True)
+
+
+def scenario(road: str, condition: str) -> vs.DriveScenario:
+    """The nominal scenario of ``road`` under ``condition`` (module docstring)."""
+    sensors = None if condition == "shipped" else vs.DriveSensors(noise_on=False)
+    actuators = vs.ideal_actuators() if condition.endswith("ideal actuators") else None
+    return vs.drive_scenario(road, "nominal", sensors=sensors, actuators=actuators)
+
+
+def variants(road: str, condition: str, margins) -> list[tuple[str, dict]]:
+    """``(label, settings)`` of the drives of ``road`` under ``condition``."""
+    shipped = vs.driver_settings(road, "oracle")
+    out = [("the road's settings", shipped)]
+    out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
+            for m in margins]
+    if condition.endswith("ideal actuators"):
+        out += [(f"margin {m:g}, no slip bound", shipped | {
+            "margin": m, "margin_grip_power": 0.0, "slip_limit": None})
+            for m in sorted(margins)[:2]]
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--roads", nargs="+", default=["corner90", "uturn", "sturn"],
+                    choices=ROAD_NAMES)
+    ap.add_argument("--margins", nargs="+", type=float, default=[0.3, 0.2, 0.1, 0.0],
+                    help="corridor margins [m], each held on every stage")
+    ap.add_argument("--seed", type=int, default=0, help="the sensors' noise seed")
+    args = ap.parse_args(argv)
+    if any(m < 0 for m in args.margins):
+        ap.error(f"--margins must be >= 0 m, got {args.margins}")
+    for road in args.roads:
+        base = scenario(road, "shipped")
+        prim, _, exact = vs.offline_bound(base)
+        free = float(prim.t_f)
+        print(json.dumps(dict(road=road, variant="free bound", time=free, exact=exact)),
+              flush=True)
+        for condition in CONDITIONS:
+            sc = scenario(road, condition)
+            for label, settings in variants(road, condition, args.margins):
+                driver, _ = vs.scenario_driver(sc, "oracle", **settings)
+                t0 = time.perf_counter()
+                run = _drive(sc.plant, driver, sc.state0, jax.random.key(args.seed),
+                             sc.num_samples)
+                jax.block_until_ready(run)
+                wall = time.perf_counter() - t0
+                out = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0)).record()
+                above = None if out["time"] is None else out["time"] / free - 1.0
+                print(json.dumps(dict(road=road, condition=condition, variant=label,
+                                      seed=args.seed, **out, above_free=above,
+                                      wall_s=wall)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
