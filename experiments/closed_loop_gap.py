@@ -24,8 +24,13 @@ and the time above the free bound) and one per road for the free bound go to std
 measured lines are in experiments/closed_loop_gap_results.jsonl (docs/driver.md, "With
 nothing else in the way").
 
+``--planning-car plant-shape`` drives the same with the planning car of the plant tire's
+shape (`planner_car`: the LuGre steady state's $B$, $C$, peaking at 5-6 % slip) in place
+of the benchmark's gravel tire, the free bound staying the gravel car's (the two free
+bounds agree within 0.6 %, docs/drive.md, "Baselines").
+
 Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 uturn sturn]
-       [--margins 0.3 0.2 0.1 0.0] [--seed 0]
+       [--margins 0.3 0.2 0.1 0.0] [--seed 0] [--planning-car gravel]
 """
 
 from __future__ import annotations
@@ -60,9 +65,13 @@ def scenario(road: str, condition: str) -> vs.DriveScenario:
     return vs.drive_scenario(road, "nominal", sensors=sensors, actuators=actuators)
 
 
-def variants(road: str, condition: str, margins) -> list[tuple[str, dict]]:
-    """``(label, settings)`` of the drives of ``road`` under ``condition``."""
+def variants(road: str, condition: str, margins, car: str = "gravel"
+             ) -> list[tuple[str, dict]]:
+    """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
+    planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`)."""
     shipped = vs.driver_settings(road, "oracle")
+    if car == "plant-shape":
+        shipped = shipped | {"vehicle": vs.planner_car(0.52)}
     out = [("the road's settings", shipped)]
     out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
             for m in margins]
@@ -80,6 +89,9 @@ def main(argv=None):
     ap.add_argument("--margins", nargs="+", type=float, default=[0.3, 0.2, 0.1, 0.0],
                     help="corridor margins [m], each held on every stage")
     ap.add_argument("--seed", type=int, default=0, help="the sensors' noise seed")
+    ap.add_argument("--planning-car", choices=("gravel", "plant-shape"), default="gravel",
+                    help="the driver's planning tire: the benchmark's gravel tire, or one "
+                         "of the plant tire's shape (planner_car)")
     args = ap.parse_args(argv)
     if any(m < 0 for m in args.margins):
         ap.error(f"--margins must be >= 0 m, got {args.margins}")
@@ -91,7 +103,8 @@ def main(argv=None):
               flush=True)
         for condition in CONDITIONS:
             sc = scenario(road, condition)
-            for label, settings in variants(road, condition, args.margins):
+            for label, settings in variants(road, condition, args.margins,
+                                            args.planning_car):
                 driver, _ = vs.scenario_driver(sc, "oracle", **settings)
                 t0 = time.perf_counter()
                 run = _drive(sc.plant, driver, sc.state0, jax.random.key(args.seed),
@@ -101,7 +114,7 @@ def main(argv=None):
                 out = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0)).record()
                 above = None if out["time"] is None else out["time"] / free - 1.0
                 print(json.dumps(dict(road=road, condition=condition, variant=label,
-                                      seed=args.seed, **out, above_free=above,
+                                      planning_car=args.planning_car, seed=args.seed, **out, above_free=above,
                                       wall_s=wall)), flush=True)
 
 
