@@ -6,18 +6,22 @@ true grip, the road's full width, no slip bound and no actuators. The receding-h
 driver that knows the true grip (the oracle) drives the plant instead, whose tires, wheel
 spin and suspension are not the planning model's, through actuators with delay, rate
 limits and lag, measured by noisy sensors, and keeps a corridor margin and a slip bound.
-This script drives the oracle on the nominal corners (seed 0) under three conditions:
+This script drives the oracle on the nominal corners (seed 0) under these conditions:
 
 - ``shipped``: the scenarios' sensors and actuators;
 - ``exact sensing``: the sensors' noise off (`DriveSensors.noise_on`);
 - ``exact sensing, ideal actuators``: also no delay, rate limit or lag
-  (`ideal_actuators`; the driver then predicts over no delay),
+  (`ideal_actuators`; the driver then predicts over no delay);
+- (``--conditions``) ``exact sensing, ideal actuators, quasi-static loads``: also the
+  plant's suspension off (`DrivePlant.suspension`: the loads of the planning model's
+  quasi-static load transfer), leaving its tires and wheel spin as what differs,
 
 each with the road's settings (`driver_settings`; on the corners 0.4 m narrowing with the
-grip, and the slip bound) and with the margin ``--margins`` (held on every stage), and in the last
-condition also without the slip bound at the smallest two margins. What is left between
-the best completed drive of the last condition and the free bound is what the plant's
-being another model than the planner's costs, with nothing else in the way.
+grip, and the slip bound) and with the margin ``--margins`` (held on every stage), and with
+ideal actuators also without the slip bound at the smallest two margins. What is left
+between the best completed drive with exact sensing and ideal actuators and the free bound
+is what the plant's being another model than the planner's costs, with nothing else in the
+way. The first three conditions are the default.
 
 One JSON line per drive (time at the end gate, largest distance off the road, completed,
 and the time above the free bound) and one per road for the free bound go to stdout; the
@@ -36,6 +40,7 @@ Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 utur
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -49,7 +54,8 @@ import vehsim as vs  # noqa: E402
 from vehsim.drive.scenarios import ROAD_NAMES  # noqa: E402
 
 
-CONDITIONS = ("shipped", "exact sensing", "exact sensing, ideal actuators")
+CONDITIONS = ("shipped", "exact sensing", "exact sensing, ideal actuators",
+              "exact sensing, ideal actuators, quasi-static loads")
 
 
 @eqx.filter_jit
@@ -61,8 +67,11 @@ def _drive(plant, controller, state0, key, num_samples):
 def scenario(road: str, condition: str) -> vs.DriveScenario:
     """The nominal scenario of ``road`` under ``condition`` (module docstring)."""
     sensors = None if condition == "shipped" else vs.DriveSensors(noise_on=False)
-    actuators = vs.ideal_actuators() if condition.endswith("ideal actuators") else None
-    return vs.drive_scenario(road, "nominal", sensors=sensors, actuators=actuators)
+    actuators = vs.ideal_actuators() if "ideal actuators" in condition else None
+    sc = vs.drive_scenario(road, "nominal", sensors=sensors, actuators=actuators)
+    if condition.endswith("quasi-static loads"):
+        sc = dataclasses.replace(sc, plant=dataclasses.replace(sc.plant, suspension=False))
+    return sc
 
 
 def variants(road: str, condition: str, margins, car: str = "gravel"
@@ -75,7 +84,7 @@ def variants(road: str, condition: str, margins, car: str = "gravel"
     out = [("the road's settings", shipped)]
     out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
             for m in margins]
-    if condition.endswith("ideal actuators"):
+    if "ideal actuators" in condition:
         out += [(f"margin {m:g}, no slip bound", shipped | {
             "margin": m, "margin_grip_power": 0.0, "slip_limit": None})
             for m in sorted(margins)[:2]]
@@ -89,6 +98,8 @@ def main(argv=None):
     ap.add_argument("--margins", nargs="+", type=float, default=[0.3, 0.2, 0.1, 0.0],
                     help="corridor margins [m], each held on every stage")
     ap.add_argument("--seed", type=int, default=0, help="the sensors' noise seed")
+    ap.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=CONDITIONS[:3],
+                    help="the conditions to drive (module docstring)")
     ap.add_argument("--planning-car", choices=("gravel", "plant-shape"), default="gravel",
                     help="the driver's planning tire: the benchmark's gravel tire, or one "
                          "of the plant tire's shape (planner_car)")
@@ -101,7 +112,7 @@ def main(argv=None):
         free = float(prim.t_f)
         print(json.dumps(dict(road=road, variant="free bound", time=free, exact=exact)),
               flush=True)
-        for condition in CONDITIONS:
+        for condition in args.conditions:
             sc = scenario(road, condition)
             for label, settings in variants(road, condition, args.margins,
                                             args.planning_car):
