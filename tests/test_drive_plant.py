@@ -255,3 +255,21 @@ def test_a_magic_formulas_road_friction_factors_scale_its_peaks_not_its_stiffnes
     vs.DrivePlant(tire=vs.RelaxedMFTire(P))
     with pytest.raises(TypeError, match="Magic Formula"):
         vs.scale_friction(vs.LinearTire(5e4, 4e4), 0.5)
+
+
+def test_the_planners_tire_on_the_plant_keeps_its_peak_on_the_nominal_road():
+    """A plant on the planning car's own tire (`FrictionEllipseTire`, B = 7, C = 1.6,
+    D = 0.52): `scale_friction` scales its peak D and keeps B and C; `plant_surface_factor`
+    puts it on the scenarios' surfaces by their peaks, so on the nominal road (scale
+    `nominal_scale`) the plant's tire is the planner's, with the benchmark's 0.52, and on
+    20 % less grip its peak is the LuGre plant's ratio of peaks (0.8)."""
+    tire = vs.FrictionEllipseTire(B=7.0, C=1.6, D=0.52)
+    scaled = vs.scale_friction(tire, 0.6)
+    assert (float(scaled.B), float(scaled.C)) == (7.0, 1.6)
+    assert float(scaled.D) == pytest.approx(0.312, rel=1e-12)
+    sc = vs.drive_scenario("corner90", "nominal", tire=tire)
+    m = sc.plant.surface_factor
+    assert m is not None and float(m(vs.nominal_scale())) == pytest.approx(1.0, rel=1e-9)
+    lam = vs.scale_for_peak(0.8 * 0.52)
+    assert float(m(lam)) == pytest.approx(0.8, rel=2e-3)
+    assert vs.plant_surface_factor(None) is None  # the LuGre plant: the scales themselves

@@ -31,6 +31,7 @@ from .._checks import check_finite, check_positive, is_concrete, plain
 from .._fields import array_field
 from .._math import safe_hypot
 from ..tire.base import AbstractTire
+from ..tire.friction_ellipse import FrictionEllipseTire
 from ..tire.lugre import LuGreParams
 from ..tire.lugre2d import LuGre2DParams
 from ..tire.mf6 import MFParams
@@ -222,7 +223,9 @@ def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     Magic Formula's `MFParams`, `MFTire` and `RelaxedMFTire`: its road-friction factors
     $\lambda_{\mu x}, \lambda_{\mu y}$, LMUX and LMUY, which scale the peaks $D_x, D_y$
     and the vertical shifts, not the slip stiffnesses: peak $\lambda$ times, the same
-    initial slope, as for LuGre), the rest unchanged (module docstring); `scale` > 0."""
+    initial slope, as for LuGre; a `FrictionEllipseTire`, the planning car's: its peak $D$,
+    with $B$ and $C$, so its stiffness $BCD$ scales too), the rest unchanged (module
+    docstring); `scale` > 0."""
     check_positive("scale_friction", "scale", scale)
     params = getattr(tire, "params", None)
     if isinstance(params, LuGre2DParams):
@@ -234,5 +237,8 @@ def scale_friction(tire: AbstractTire, scale) -> AbstractTire:
     if isinstance(params, MFParams):
         return eqx.tree_at(lambda t: (t.params.LMUX, t.params.LMUY), tire,
                            (scale * params.LMUX, scale * params.LMUY))
-    raise TypeError("scale_friction needs a LuGre tire (params LuGre2DParams or LuGreParams) "
-                    f"or a Magic Formula (params MFParams), got {type(tire).__name__}")
+    if isinstance(tire, FrictionEllipseTire):
+        return eqx.tree_at(lambda t: t.D, tire, scale * tire.D)
+    raise TypeError("scale_friction needs a LuGre tire (params LuGre2DParams or LuGreParams), "
+                    "a Magic Formula (params MFParams) or a FrictionEllipseTire, got "
+                    f"{type(tire).__name__}")

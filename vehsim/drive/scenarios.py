@@ -78,6 +78,7 @@ from .._fields import array_field
 from .._math import safe_hypot
 from ..optimal.centreline import CentrelineRoad, Gate
 from ..tire.base import AbstractTire
+from ..tire.friction_ellipse import FrictionEllipseTire
 from ..tire.mf6 import MFParams
 from .actuators import DriveActuators
 from .axle_peak import AxlePeakEstimator, CautiousGripEstimator
@@ -379,8 +380,11 @@ def scenario_driver(scenario: DriveScenario, friction: str = "estimate", *,
 def plant_surface_factor(tire: AbstractTire | None) -> SurfaceFactor | None:
     """The `DrivePlant.surface_factor` that puts `tire` on the scenarios' surfaces: None
     (their scales themselves) for a LuGre tire or None (the default LuGre), the peaks'
-    `peak_surface_factor` for a Magic Formula (params `MFParams`)."""
-    if isinstance(getattr(tire, "params", None), MFParams):
+    `peak_surface_factor` for a tire whose peak is proportional to its friction factors, a
+    Magic Formula (params `MFParams`) or a `FrictionEllipseTire` (the planning car's, a
+    plant that is the planner's model in its tire)."""
+    if isinstance(getattr(tire, "params", None), MFParams) or isinstance(
+            tire, FrictionEllipseTire):
         return peak_surface_factor(nominal_scale())
     return None
 
