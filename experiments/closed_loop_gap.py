@@ -14,7 +14,13 @@ This script drives the oracle on the nominal corners (seed 0) under these condit
   (`ideal_actuators`; the driver then predicts over no delay);
 - (``--conditions``) ``exact sensing, ideal actuators, quasi-static loads``: also the
   plant's suspension off (`DrivePlant.suspension`: the loads of the planning model's
-  quasi-static load transfer), leaving its tires and wheel spin as what differs,
+  quasi-static load transfer), leaving its tires and wheel spin as what differs;
+- (``--conditions``) ``the planner's model``: that plant on the planning car's own tire
+  (`rally_gravel_tire`, put on the road by its peak, `plant_surface_factor`), so that only
+  the wheel spin through which the torques realise the planned slips differs; the driver
+  plans every stage with the peak at the reference speed (the tire's D, 0.52, at every
+  speed) and without the traction control, and the drives are compared with this car's
+  own free bound (`nominal_primitive` at 0.52),
 
 each with the road's settings (`driver_settings`; on the corners 0.4 m narrowing with the
 grip, and the slip bound) and with the margin ``--margins`` (held on every stage), and with
@@ -51,11 +57,13 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import vehsim as vs  # noqa: E402
-from vehsim.drive.scenarios import ROAD_NAMES  # noqa: E402
+from vehsim.drive.estimator import REFERENCE_SPEED  # noqa: E402
+from vehsim.drive.scenarios import BENCHMARK_PEAK, ROAD_NAMES  # noqa: E402
 
 
+TWIN = "the planner's model"
 CONDITIONS = ("shipped", "exact sensing", "exact sensing, ideal actuators",
-              "exact sensing, ideal actuators, quasi-static loads")
+              "exact sensing, ideal actuators, quasi-static loads", TWIN)
 
 
 @eqx.filter_jit
@@ -67,9 +75,11 @@ def _drive(plant, controller, state0, key, num_samples):
 def scenario(road: str, condition: str) -> vs.DriveScenario:
     """The nominal scenario of ``road`` under ``condition`` (module docstring)."""
     sensors = None if condition == "shipped" else vs.DriveSensors(noise_on=False)
-    actuators = vs.ideal_actuators() if "ideal actuators" in condition else None
-    sc = vs.drive_scenario(road, "nominal", sensors=sensors, actuators=actuators)
-    if condition.endswith("quasi-static loads"):
+    ideal = "ideal actuators" in condition or condition == TWIN
+    tire = vs.rally_gravel_tire() if condition == TWIN else None
+    sc = vs.drive_scenario(road, "nominal", sensors=sensors, tire=tire,
+                           actuators=vs.ideal_actuators() if ideal else None)
+    if condition.endswith("quasi-static loads") or condition == TWIN:
         sc = dataclasses.replace(sc, plant=dataclasses.replace(sc.plant, suspension=False))
     return sc
 
@@ -79,12 +89,15 @@ def variants(road: str, condition: str, margins, car: str = "gravel"
     """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
     planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`)."""
     shipped = vs.driver_settings(road, "oracle")
+    if condition == TWIN:  # the plant's peak is the tire's D at every speed, its force the
+        # planner's: each stage plans with the peak at the reference speed, unclipped
+        shipped = shipped | {"peak_speed": REFERENCE_SPEED, "traction_limit": None}
     if car == "plant-shape":
         shipped = shipped | {"vehicle": vs.planner_car(0.52)}
     out = [("the road's settings", shipped)]
     out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
             for m in margins]
-    if "ideal actuators" in condition:
+    if "ideal actuators" in condition or condition == TWIN:
         out += [(f"margin {m:g}, no slip bound", shipped | {
             "margin": m, "margin_grip_power": 0.0, "slip_limit": None})
             for m in sorted(margins)[:2]]
@@ -113,7 +126,11 @@ def main(argv=None):
         print(json.dumps(dict(road=road, variant="free bound", time=free, exact=exact)),
               flush=True)
         for condition in args.conditions:
-            sc = scenario(road, condition)
+            sc, bound = scenario(road, condition), free
+            if condition == TWIN:  # its own bound: the planning car at its one peak
+                bound = float(vs.nominal_primitive(sc, BENCHMARK_PEAK).t_f)
+                print(json.dumps(dict(road=road, variant="free bound, " + TWIN, time=bound)),
+                      flush=True)
             for label, settings in variants(road, condition, args.margins,
                                             args.planning_car):
                 driver, _ = vs.scenario_driver(sc, "oracle", **settings)
@@ -123,10 +140,10 @@ def main(argv=None):
                 jax.block_until_ready(run)
                 wall = time.perf_counter() - t0
                 out = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0)).record()
-                above = None if out["time"] is None else out["time"] / free - 1.0
+                above = None if out["time"] is None else out["time"] / bound - 1.0
                 print(json.dumps(dict(road=road, condition=condition, variant=label,
-                                      planning_car=args.planning_car, seed=args.seed, **out, above_free=above,
-                                      wall_s=wall)), flush=True)
+                                      planning_car=args.planning_car, seed=args.seed,
+                                      **out, above_free=above, wall_s=wall)), flush=True)
 
 
 if __name__ == "__main__":
