@@ -40,7 +40,8 @@ of the benchmark's gravel tire, the free bound staying the gravel car's (the two
 bounds agree within 0.6 %, docs/drive.md, "Baselines").
 
 Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 uturn sturn]
-       [--margins 0.3 0.2 0.1 0.0] [--seed 0] [--planning-car gravel]
+       [--margins 0.3 0.2 0.1 0.0] [--seed 0] [--planning-car gravel] [--mode rti]
+       [--iterations N] [--conditions ...]
 """
 
 from __future__ import annotations
@@ -84,11 +85,15 @@ def scenario(road: str, condition: str) -> vs.DriveScenario:
     return sc
 
 
-def variants(road: str, condition: str, margins, car: str = "gravel"
-             ) -> list[tuple[str, dict]]:
+def variants(road: str, condition: str, margins, car: str = "gravel", mode: str = "rti",
+             iterations: int | None = None) -> list[tuple[str, dict]]:
     """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
-    planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`)."""
-    shipped = vs.driver_settings(road, "oracle")
+    planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`),
+    in ``mode`` (`driver_settings`' "rti" or "converged") with ``iterations`` passes per
+    sample (None: the road's)."""
+    shipped = vs.driver_settings(road, "oracle", mode=mode)
+    if iterations is not None:
+        shipped = shipped | {"iterations": iterations}
     if condition == TWIN:  # the plant's peak is the tire's D at every speed, its force the
         # planner's: each stage plans with the peak at the reference speed, unclipped
         shipped = shipped | {"peak_speed": REFERENCE_SPEED, "traction_limit": None}
@@ -116,9 +121,15 @@ def main(argv=None):
     ap.add_argument("--planning-car", choices=("gravel", "plant-shape"), default="gravel",
                     help="the driver's planning tire: the benchmark's gravel tire, or one "
                          "of the plant tire's shape (planner_car)")
+    ap.add_argument("--mode", choices=("rti", "converged"), default="rti",
+                    help="the driver's mode (driver_settings)")
+    ap.add_argument("--iterations", type=int, default=None,
+                    help="real-time passes per sample (default: the road's)")
     args = ap.parse_args(argv)
     if any(m < 0 for m in args.margins):
         ap.error(f"--margins must be >= 0 m, got {args.margins}")
+    if args.iterations is not None and args.iterations < 1:
+        ap.error(f"--iterations must be >= 1, got {args.iterations}")
     for road in args.roads:
         base = scenario(road, "shipped")
         prim, _, exact = vs.offline_bound(base)
@@ -132,7 +143,7 @@ def main(argv=None):
                 print(json.dumps(dict(road=road, variant="free bound, " + TWIN, time=bound)),
                       flush=True)
             for label, settings in variants(road, condition, args.margins,
-                                            args.planning_car):
+                                            args.planning_car, args.mode, args.iterations):
                 driver, _ = vs.scenario_driver(sc, "oracle", **settings)
                 t0 = time.perf_counter()
                 run = _drive(sc.plant, driver, sc.state0, jax.random.key(args.seed),
@@ -142,7 +153,8 @@ def main(argv=None):
                 out = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0)).record()
                 above = None if out["time"] is None else out["time"] / bound - 1.0
                 print(json.dumps(dict(road=road, condition=condition, variant=label,
-                                      planning_car=args.planning_car, seed=args.seed,
+                                      planning_car=args.planning_car, mode=args.mode,
+                                      iterations=args.iterations, seed=args.seed,
                                       **out, above_free=above, wall_s=wall)), flush=True)
 
 
