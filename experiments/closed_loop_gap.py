@@ -62,9 +62,14 @@ from vehsim.drive.estimator import REFERENCE_SPEED  # noqa: E402
 from vehsim.drive.scenarios import BENCHMARK_PEAK, ROAD_NAMES  # noqa: E402
 
 
-TWIN = "the planner's model"
-CONDITIONS = ("shipped", "exact sensing", "exact sensing, ideal actuators",
-              "exact sensing, ideal actuators, quasi-static loads", TWIN)
+CONDITIONS = {  # what each condition removes (module docstring)
+    "shipped": frozenset(),
+    "exact sensing": frozenset({"noise"}),
+    "exact sensing, ideal actuators": frozenset({"noise", "actuators"}),
+    "exact sensing, ideal actuators, quasi-static loads":
+        frozenset({"noise", "actuators", "suspension"}),
+    "the planner's model": frozenset({"noise", "actuators", "suspension", "tire"}),
+}
 
 
 @eqx.filter_jit
@@ -75,12 +80,12 @@ def _drive(plant, controller, state0, key, num_samples):
 
 def scenario(road: str, condition: str) -> vs.DriveScenario:
     """The nominal scenario of ``road`` under ``condition`` (module docstring)."""
-    sensors = None if condition == "shipped" else vs.DriveSensors(noise_on=False)
-    ideal = "ideal actuators" in condition or condition == TWIN
-    tire = vs.rally_gravel_tire() if condition == TWIN else None
-    sc = vs.drive_scenario(road, "nominal", sensors=sensors, tire=tire,
-                           actuators=vs.ideal_actuators() if ideal else None)
-    if condition.endswith("quasi-static loads") or condition == TWIN:
+    off = CONDITIONS[condition]
+    sc = vs.drive_scenario(
+        road, "nominal", sensors=vs.DriveSensors(noise_on=False) if "noise" in off else None,
+        actuators=vs.ideal_actuators() if "actuators" in off else None,
+        tire=vs.rally_gravel_tire() if "tire" in off else None)
+    if "suspension" in off:
         sc = dataclasses.replace(sc, plant=dataclasses.replace(sc.plant, suspension=False))
     return sc
 
@@ -94,15 +99,16 @@ def variants(road: str, condition: str, margins, car: str = "gravel", mode: str 
     shipped = vs.driver_settings(road, "oracle", mode=mode)
     if iterations is not None:
         shipped = shipped | {"iterations": iterations}
-    if condition == TWIN:  # the plant's peak is the tire's D at every speed, its force the
-        # planner's: each stage plans with the peak at the reference speed, unclipped
+    if "tire" in CONDITIONS[condition]:  # the plant's peak is the tire's D at every speed,
+        # its force the planner's: each stage plans with the peak at the reference speed,
+        # unclipped
         shipped = shipped | {"peak_speed": REFERENCE_SPEED, "traction_limit": None}
     if car == "plant-shape":
-        shipped = shipped | {"vehicle": vs.planner_car(0.52)}
+        shipped = shipped | {"vehicle": vs.planner_car(BENCHMARK_PEAK)}
     out = [("the road's settings", shipped)]
     out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
             for m in margins]
-    if "ideal actuators" in condition or condition == TWIN:
+    if "actuators" in CONDITIONS[condition]:
         out += [(f"margin {m:g}, no slip bound", shipped | {
             "margin": m, "margin_grip_power": 0.0, "slip_limit": None})
             for m in sorted(margins)[:2]]
@@ -116,7 +122,8 @@ def main(argv=None):
     ap.add_argument("--margins", nargs="+", type=float, default=[0.3, 0.2, 0.1, 0.0],
                     help="corridor margins [m], each held on every stage")
     ap.add_argument("--seed", type=int, default=0, help="the sensors' noise seed")
-    ap.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=CONDITIONS[:3],
+    ap.add_argument("--conditions", nargs="+", choices=list(CONDITIONS),
+                    default=list(CONDITIONS)[:3],
                     help="the conditions to drive (module docstring)")
     ap.add_argument("--planning-car", choices=("gravel", "plant-shape"), default="gravel",
                     help="the driver's planning tire: the benchmark's gravel tire, or one "
@@ -138,9 +145,9 @@ def main(argv=None):
               flush=True)
         for condition in args.conditions:
             sc, bound = scenario(road, condition), free
-            if condition == TWIN:  # its own bound: the planning car at its one peak
+            if "tire" in CONDITIONS[condition]:  # its own bound: the planner at its one peak
                 bound = float(vs.nominal_primitive(sc, BENCHMARK_PEAK).t_f)
-                print(json.dumps(dict(road=road, variant="free bound, " + TWIN, time=bound)),
+                print(json.dumps(dict(road=road, variant="free bound, " + condition, time=bound)),
                       flush=True)
             for label, settings in variants(road, condition, args.margins,
                                             args.planning_car, args.mode, args.iterations):
