@@ -18,8 +18,8 @@ differentiable.
 
 **The horizon problem** (`HorizonOCP`, built by `horizon_problem` from arrays only): the
 arc-length problem of `CurvilinearManeuverOCP` (knots $X = (n, \xi, v_x, v_y, r, \kappa_F,
-\kappa_R, \delta, t)$, controls $u = d(\kappa_F, \kappa_R, \delta)/ds$, one RK4 step per
-stage) on $[s_0, s_0 + H]$ with $M$ stages,
+\kappa_R, \delta, t)$, controls $u = d(\kappa_F, \kappa_R, \delta)/ds$, $S$ RK4 steps per
+stage, one by default) on $[s_0, s_0 + H]$ with $M$ stages,
 
 $$\min\ t(H) + w\sum_k |u_k|^2 h\quad\text{s.t.}\quad X_0[0{:}8] = \hat X,\ t_0 = 0,\quad
   -w_r + m \le n \le w_l - m,\quad |u_\delta\,\dot s| \le \dot\delta_{max},\quad
@@ -535,7 +535,8 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
                     horizon=60.0, margin=0.2, rate_weight=1e-4, steer_rate=1.0,
                     steer_limit=0.6, terminal_backoff=1.0, slip_limit=None,
                     margin_grip_power=0.0, corridor_penalty=None,
-                    soft_stages=None, stiffness_power=None) -> HorizonOCP:
+                    soft_stages=None, stiffness_power=None,
+                    steps_per_stage: int = 1) -> HorizonOCP:
     r"""The `HorizonOCP` at arc length ``s0`` [m] from the state ``state8`` $\hat X$ with
     the stages' peak friction ``D_per_stage`` (M,): arrays only, so it runs under `jit`
     and `vmap`, and every sample shares one program (the stage count is the length of
@@ -559,26 +560,36 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
     plus twice the slack); ``corridor_penalty`` $\rho$ [s/m] (None: a hard corridor) the
     soft corridor of `HorizonOCP`, whose controls then end in the slack $\sigma_k$, on the
     first ``soft_stages`` stages (None: all); ``stiffness_power`` $q$ (None: the tire's
-    $B$ on every stage) each stage's $B$ times $\min(g_k, 1)^{-q}$ (`scaled_planning_car`)."""
+    $B$ on every stage) each stage's $B$ times $\min(g_k, 1)^{-q}$ (`scaled_planning_car`);
+    ``steps_per_stage`` $S$ (static) the RK4 steps of each stage, the curvature at each
+    step's points and the corridor at each step's start and midpoint. The car's lateral
+    modes decay in arc length at a rate of about $BCD\,g/v_x^2$ [1/m] (the axles' cornering
+    stiffness over $m v_x$, per metre travelled), and one step stays stable only while that
+    rate times the step is within RK4's interval (2.8): the benchmark's gravel tire ($BCD$
+    = 5.8) at 8 m/s is 0.9 per m, a step of 2 m; the tire of the plant's shape
+    (`planner_car`, $BCD$ about 26) 4 per m, which needs steps of 0.5 m."""
     D_per_stage = jnp.asarray(D_per_stage, float)
     M = D_per_stage.shape[0]
+    S = steps_per_stage
     h = jnp.asarray(horizon, float) / M
     s_nodes = s0 + h * jnp.arange(M + 1)
-    s_mid = s_nodes[:-1] + 0.5 * h
-    kap = jnp.stack([table.curvature_at(s_nodes[:-1]), table.curvature_at(s_mid),
-                     table.curvature_at(s_nodes[1:])], -1)[:, None, :]
+    s_steps = s_nodes[:-1, None] + (h / S) * jnp.arange(S)[None, :]  # (M, S): steps' starts
+    kap = jnp.stack([table.curvature_at(s_steps), table.curvature_at(s_steps + 0.5 * h / S),
+                     table.curvature_at(s_steps + h / S)], -1)
     state8 = jnp.asarray(state8, float)
     grip = D_per_stage / vehicle.tire.D
     power = jnp.asarray(margin_grip_power, float)
     scaled = jnp.asarray(margin, float) * jnp.minimum(grip, 1.0) ** power
     nodes = table.corridor_at(s_nodes, jnp.concatenate([scaled, scaled[-1:]]))
-    mids = table.corridor_at(s_mid, scaled)
+    mids = table.corridor_at(s_steps + 0.5 * h / S, scaled[:, None])  # (M, S, 2)
+    inner = table.corridor_at(s_steps[:, 1:], scaled[:, None])  # (M, S-1, 2)
     n0 = state8[0]
     excess = jnp.maximum(jnp.maximum(nodes[0, 0] - n0, n0 - nodes[0, 1]), 0.0)
     excess = jnp.where(excess > 0, excess + 0.05, 0.0)
     fade = lambda s: jnp.clip(1.0 - (s - s0) / (RELAX_STAGES * h), 0.0, 1.0)
-    widen = lambda b, s: b + (excess * fade(s))[:, None] * jnp.array([[-1.0, 1.0]])
-    nodes, mids = widen(nodes, s_nodes), widen(mids, s_mid)
+    widen = lambda b, s: b + jnp.stack([-excess * fade(s), excess * fade(s)], -1)
+    nodes = widen(nodes, s_nodes)
+    mids, inner = widen(mids, s_steps + 0.5 * h / S), widen(inner, s_steps[:, 1:])
     v_end = terminal_backoff * jnp.sqrt(D_per_stage[-1]) * table.speed_limit_at(s0 + horizon)
     slips = None
     if slip_limit is not None:
@@ -587,10 +598,10 @@ def horizon_problem(table: RoadTable, vehicle: ReducedHalfCar, s0, state8, D_per
         slips = (limit + over * fade(s_nodes[:-1])).at[0].add(jnp.where(over > 0, 0.02, 0.0))
     return HorizonOCP(
         vehicle=vehicle, length=jnp.asarray(horizon, float), curvature=kap, corridor=nodes,
-        corridor_mid=mids[:, None, :], corridor_steps=jnp.zeros((M, 0, 2)),
+        corridor_mid=mids, corridor_steps=inner,
         start_lateral=jnp.zeros(2), end_lateral=jnp.zeros(2), start_speed=jnp.zeros(()),
         end_speed=jnp.zeros(()), start_speed_fixed=False, end_speed_fixed=False,
-        num_stages=M, steps_per_stage=1, closed=False, objective="min-time",
+        num_stages=M, steps_per_stage=S, closed=False, objective="min-time",
         rate_weight=rate_weight, initial_state=state8, grip=grip,
         terminal_speed=v_end, steer_rate=steer_rate, steer_limit=steer_limit,
         slip_limit=slips, corridor_penalty=None if corridor_penalty is None else
@@ -787,10 +798,11 @@ def planner_car(D=0.52, *, nominal_peak: float = 0.52,
     The benchmark's gravel tire ($B = 7$, $C = 1.6$, `rally_gravel_car`) peaks near 20 %
     slip; the plant's LuGre tire at 5-6 % and falls off after it. Planned with the former,
     the driver's plans drift at slip angles where the plant has lost much of its lateral
-    force. With this car the driver keeps corner90 on the road, but its stiff tire ($B$
-    about 33) makes the horizon problems harder: in real-time iteration the drives of the
-    uturn and sturn leave the road by metres, and in converged mode few of the uturn's
-    solves converge (docs/driver.md). It is therefore not the default."""
+    force. This car's stiff tire ($B$ about 33) needs several RK4 steps per stage of 2 m
+    (`RecedingHorizonDriver.steps_per_stage`, `horizon_problem`): with one, the drives of
+    the uturn and sturn left the road by metres. With four it completes about half of the
+    benchmark corners' drives, none of them faster than the gravel tire's (docs/driver.md).
+    It is therefore not the default."""
     from ..tire.friction_ellipse import FrictionEllipseTire
     from ..vehicle.params import rally_gravel
 
@@ -849,7 +861,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     **Fields:** `table` (`RoadTable`), `vehicle` (the planning `ReducedHalfCar` with a
     `FrictionEllipseTire`; default `rally_gravel_car()`; `planner_car()` has a tire of the
     plant's shape),
-    `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `margin`
+    `horizon` $H$ [m] (60), `num_stages` $M$ (30, static), `steps_per_stage` (1, static;
+    the RK4 steps of each stage, several for a stiff planning tire, `horizon_problem`),
+    `margin`
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
     `horizon_problem`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
@@ -1034,6 +1048,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     vehicle: ReducedHalfCar = eqx.field(default_factory=_default_car)
     horizon: Float[Array, ""] = array_field(default=60.0)
     num_stages: int = eqx.field(static=True, default=30)
+    steps_per_stage: int = eqx.field(static=True, default=1)
     margin: Float[Array, ""] = array_field(default=0.2)
     margin_grip_power: Float[Array, ""] = array_field(default=0.0)
     rate_weight: Float[Array, ""] = array_field(default=1e-4)
@@ -1139,6 +1154,7 @@ class RecedingHorizonDriver(AbstractDriveController):
                 and self.tol > 0):
             raise ValueError("RecedingHorizonDriver.tol must be a number in (0, inf), got "
                              f"{self.tol!r}")
+        check_count("RecedingHorizonDriver", "steps_per_stage", self.steps_per_stage)
         check_count("RecedingHorizonDriver", "max_iterations", self.max_iterations)
         check_count("RecedingHorizonDriver", "init_iterations", self.init_iterations)
         check_count("RecedingHorizonDriver", "delay_samples", self.delay_samples, lower=0)
@@ -1322,7 +1338,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                                margin_grip_power=self.margin_grip_power,
                                corridor_penalty=self.corridor_penalty,
                                soft_stages=self.soft_stages,
-                               stiffness_power=self.stiffness_power)
+                               stiffness_power=self.stiffness_power,
+                               steps_per_stage=self.steps_per_stage)
 
     def cold_guess(self, s0, state8, D):
         """`profile_guess` with this driver's horizon (and a zero slack with
