@@ -39,20 +39,30 @@ shape (`planner_car`: the LuGre steady state's $B$, $C$, peaking at 5-6 % slip) 
 of the benchmark's gravel tire, the free bound staying the gravel car's (the two free
 bounds agree within 0.6 %, docs/drive.md, "Baselines").
 
+``--steps-per-stage S`` plans with S RK4 steps per stage of the horizon problems (the tire
+of the plant's shape needs several: `horizon_problem`), ``--set NAME=VALUE`` changes any
+other driver setting, and ``--trace`` also writes, for each drive, every sample's
+prediction of the time at the end gate (the sample's time plus its plan's time to the
+gate): where it rises, the drive lost time its plans did not foresee.
+
 Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 uturn sturn]
        [--margins 0.3 0.2 0.1 0.0] [--seed 0] [--planning-car gravel] [--mode rti]
-       [--iterations N] [--conditions ...]
+       [--iterations N] [--conditions ...] [--steps-per-stage 1] [--set NAME=VALUE ...]
+       [--trace]
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import json
 import time
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
+import numpy as np
 
 
 jax.config.update("jax_enable_x64", True)
@@ -78,6 +88,35 @@ def _drive(plant, controller, state0, key, num_samples):
                              substep_poses=True)
 
 
+class Traced(eqx.Module):
+    """A `RecedingHorizonDriver` whose drive records, after each command, the sample's
+    time, its arc length and its plan (the knots' arc lengths and times)."""
+
+    driver: vs.RecedingHorizonDriver
+
+    def init(self, m):
+        return self.driver.init(m)
+
+    def command(self, state, m, estimate):
+        return self.driver.command(state, m, estimate)
+
+    def info(self, state):
+        knots = state.s_plan + jnp.linspace(0.0, self.driver.horizon, self.driver.num_stages + 1)
+        return dict(t=state.t, s=state.s, knots=knots, times=state.xs[:, 8])
+
+
+def predicted_finish(info, length: float) -> list[float]:
+    """Each sample's prediction of the time at the end gate (arc length ``length``): its
+    time plus its plan's time from the car's arc length to the gate, until the car passes
+    the gate (`Traced`)."""
+    out = []
+    for t, s, knots, times in zip(*(np.asarray(info[k]) for k in ("t", "s", "knots", "times"))):
+        if s > length:
+            break
+        out.append(float(t + np.interp(length, knots, times) - np.interp(s, knots, times)))
+    return out
+
+
 def scenario(road: str, condition: str) -> vs.DriveScenario:
     """The nominal scenario of ``road`` under ``condition`` (module docstring)."""
     off = CONDITIONS[condition]
@@ -91,12 +130,12 @@ def scenario(road: str, condition: str) -> vs.DriveScenario:
 
 
 def variants(road: str, condition: str, margins, car: str = "gravel", mode: str = "rti",
-             iterations: int | None = None) -> list[tuple[str, dict]]:
+             iterations: int | None = None, steps: int = 1) -> list[tuple[str, dict]]:
     """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
     planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`),
     in ``mode`` (`driver_settings`' "rti" or "converged") with ``iterations`` passes per
-    sample (None: the road's)."""
-    shipped = vs.driver_settings(road, "oracle", mode=mode)
+    sample (None: the road's) and ``steps`` RK4 steps per stage of its horizon problems."""
+    shipped = vs.driver_settings(road, "oracle", mode=mode) | {"steps_per_stage": steps}
     if iterations is not None:
         shipped = shipped | {"iterations": iterations}
     if "tire" in CONDITIONS[condition]:  # the plant's peak is the tire's D at every speed,
@@ -132,7 +171,22 @@ def main(argv=None):
                     help="the driver's mode (driver_settings)")
     ap.add_argument("--iterations", type=int, default=None,
                     help="real-time passes per sample (default: the road's)")
+    ap.add_argument("--steps-per-stage", type=int, default=1,
+                    help="RK4 steps per stage of the horizon problems")
+    ap.add_argument("--trace", action="store_true",
+                    help="also write each sample's predicted time at the end gate "
+                         "(predicted_finish) and its arc length (s)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="driver settings over the road's (a Python literal each: "
+                         "traction_limit=None, peak_fraction=0.97)")
     args = ap.parse_args(argv)
+    overrides = {}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        try:
+            overrides[name] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            ap.error(f"--set {item}: VALUE must be a Python literal")
     if any(m < 0 for m in args.margins):
         ap.error(f"--margins must be >= 0 m, got {args.margins}")
     if args.iterations is not None and args.iterations < 1:
@@ -150,18 +204,26 @@ def main(argv=None):
                 print(json.dumps(dict(road=road, variant="free bound, " + condition, time=bound)),
                       flush=True)
             for label, settings in variants(road, condition, args.margins,
-                                            args.planning_car, args.mode, args.iterations):
-                driver, _ = vs.scenario_driver(sc, "oracle", **settings)
+                                            args.planning_car, args.mode, args.iterations,
+                                            args.steps_per_stage):
+                driver, _ = vs.scenario_driver(sc, "oracle", **(settings | overrides))
                 t0 = time.perf_counter()
-                run = _drive(sc.plant, driver, sc.state0, jax.random.key(args.seed),
-                             sc.num_samples)
+                run = _drive(sc.plant, Traced(driver) if args.trace else driver, sc.state0,
+                             jax.random.key(args.seed), sc.num_samples)
                 jax.block_until_ready(run)
                 wall = time.perf_counter() - t0
                 out = vs.drive_outcome(sc.road, *vs.drive_path(run, sc.state0)).record()
+                if args.trace:
+                    finish = predicted_finish(run.controller_info, float(sc.road.length))
+                    out |= dict(predicted_finish=[round(f, 4) for f in finish],
+                                s=[round(float(a), 3) for a in
+                                   run.controller_info["s"][:len(finish)]])
                 above = None if out["time"] is None else out["time"] / bound - 1.0
                 print(json.dumps(dict(road=road, condition=condition, variant=label,
                                       planning_car=args.planning_car, mode=args.mode,
-                                      iterations=args.iterations, seed=args.seed,
+                                      iterations=args.iterations,
+                                      steps_per_stage=args.steps_per_stage,
+                                      overrides=args.set, seed=args.seed,
                                       **out, above_free=above, wall_s=wall)), flush=True)
 
 
