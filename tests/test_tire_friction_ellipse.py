@@ -151,3 +151,26 @@ def test_peak_slip_is_where_the_force_peaks_with_finite_derivatives():
         gB, gC = jax.grad(peak, argnums=(0, 1))(7.0, C)
         _, tangent = jax.jvp(peak, (7.0, C), (1.0, 1.0))
         assert float(gB) == 0.0 and float(gC) == 0.0 and float(tangent) == 0.0
+
+
+def test_lateral_ratio_is_the_ellipses_lateral_semi_axis():
+    """With `lateral_ratio` $\\rho_y$ the side force is the circle's times $\\rho_y$ and the
+    braking and driving force the circle's, at every slip (the spec's formulas with $\\mu_y$
+    scaled); the peak in pure side slip is $\\rho_y D$; 1 is the circle itself, and a ratio
+    that is not positive is refused by name."""
+    rng = np.random.default_rng(1)
+    kappa = rng.uniform(-0.9, 1.0, 100)
+    tan_alpha = rng.uniform(-1.0, 1.0, 100)
+    tire = FrictionEllipseTire(B=7.0, C=1.6, D=0.52, lateral_ratio=0.9)
+    mx, my = jax.vmap(tire.mu)(kappa, tan_alpha)
+    ex, ey = _spec_numpy(7.0, 1.6, 0.52, kappa, tan_alpha)
+    np.testing.assert_allclose(mx, ex, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(my, 0.9 * ey, rtol=1e-12, atol=1e-14)
+    side = jax.vmap(lambda t: tire.mu(0.0, t)[1])(jnp.linspace(0.0, 3.0, 30001))
+    assert float(jnp.max(jnp.abs(side))) == pytest.approx(0.9 * 0.52, rel=1e-6)
+    circle = FrictionEllipseTire(B=7.0, C=1.6, D=0.52)
+    assert float(circle.lateral_ratio) == 1.0
+    np.testing.assert_array_equal(jax.vmap(circle.mu)(kappa, tan_alpha)[1],
+                                  jax.vmap(rally_gravel_tire().mu)(kappa, tan_alpha)[1])
+    with pytest.raises(ValueError, match="lateral_ratio"):
+        FrictionEllipseTire(B=7.0, C=1.6, D=0.52, lateral_ratio=0.0)

@@ -47,7 +47,11 @@ $|\omega r|$ at 10 m/s, `ROLLING_FLOOR`'s)."""
 class FrictionEllipseTire(AbstractTire):
     r"""Isotropic Magic Formula $\mu(s) = D\sin(C\arctan(Bs))$ with friction ellipse.
 
-    **Fields:** `B`, `C`, `D` (dimensionless; `D` is the peak friction coefficient).
+    **Fields:** `B`, `C`, `D` (dimensionless; `D` is the peak friction coefficient),
+    `lateral_ratio` $\rho_y$ (1: the friction circle): the ellipse's lateral semi-axis over
+    its longitudinal one, $\mu_y$ times $\rho_y$, so that the peak in pure side slip is
+    $\rho_y D$ (a tire whose side force peaks below its braking force, as the drive
+    plant's LuGre tire, `docs/driver.md`).
 
     Used two ways:
 
@@ -65,11 +69,13 @@ class FrictionEllipseTire(AbstractTire):
     B: Float[Array, "..."] = array_field()
     C: Float[Array, "..."] = array_field()
     D: Float[Array, "..."] = array_field()
+    lateral_ratio: Float[Array, "..."] = array_field(default=1.0)
 
     def __check_init__(self):
         check_positive("FrictionEllipseTire", "B", self.B)
         check_positive("FrictionEllipseTire", "C", self.C)
         check_positive("FrictionEllipseTire", "D", self.D)
+        check_positive("FrictionEllipseTire", "lateral_ratio", self.lateral_ratio)
 
     def mu_of_s(self, s):
         r"""$\mu(s) = D\sin(C\arctan(Bs))$."""
@@ -85,9 +91,9 @@ class FrictionEllipseTire(AbstractTire):
         return jnp.where(C > 1.0, jnp.tan(jnp.pi / (2.0 * safe)) / self.B, jnp.inf)
 
     def mu_theoretical(self, sx, sy):
-        r"""$(\mu_x, \mu_y) = -(s_x, s_y)\,\mu(s)/s$ from the theoretical slips."""
+        r"""$(\mu_x, \mu_y) = -(s_x, \rho_y s_y)\,\mu(s)/s$ from the theoretical slips."""
         g = _mu_over_s(self.B, self.C, self.D, sx * sx + sy * sy)
-        return -sx * g, -sy * g
+        return -sx * g, -sy * (self.lateral_ratio * g)
 
     def mu(self, kappa, tan_alpha):
         r"""$(\mu_x, \mu_y)$ from practical slip $\kappa$ and $V_y/V_x$ (module docstring):
