@@ -48,7 +48,7 @@ gate): where it rises, the drive lost time its plans did not foresee.
 Usage: PYTHONPATH=. python experiments/closed_loop_gap.py [--roads corner90 uturn sturn]
        [--margins 0.3 0.2 0.1 0.0] [--seed 0] [--planning-car gravel] [--mode rti]
        [--iterations N] [--conditions ...] [--steps-per-stage 1] [--set NAME=VALUE ...]
-       [--trace]
+       [--lateral-ratio 1] [--trace]
 """
 
 from __future__ import annotations
@@ -70,6 +70,7 @@ jax.config.update("jax_enable_x64", True)
 import vehsim as vs  # noqa: E402
 from vehsim.drive.estimator import REFERENCE_SPEED  # noqa: E402
 from vehsim.drive.scenarios import BENCHMARK_PEAK, ROAD_NAMES  # noqa: E402
+from vehsim.optimal.primitives import rally_gravel_car  # noqa: E402
 
 
 CONDITIONS = {  # what each condition removes (module docstring)
@@ -130,11 +131,13 @@ def scenario(road: str, condition: str) -> vs.DriveScenario:
 
 
 def variants(road: str, condition: str, margins, car: str = "gravel", mode: str = "rti",
-             iterations: int | None = None, steps: int = 1) -> list[tuple[str, dict]]:
+             iterations: int | None = None, steps: int = 1,
+             lateral_ratio: float = 1.0) -> list[tuple[str, dict]]:
     """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
     planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`),
     in ``mode`` (`driver_settings`' "rti" or "converged") with ``iterations`` passes per
-    sample (None: the road's) and ``steps`` RK4 steps per stage of its horizon problems."""
+    sample (None: the road's) and ``steps`` RK4 steps per stage of its horizon problems,
+    its tire's side force times ``lateral_ratio`` (`FrictionEllipseTire.lateral_ratio`)."""
     shipped = vs.driver_settings(road, "oracle", mode=mode) | {"steps_per_stage": steps}
     if iterations is not None:
         shipped = shipped | {"iterations": iterations}
@@ -144,6 +147,10 @@ def variants(road: str, condition: str, margins, car: str = "gravel", mode: str 
         shipped = shipped | {"peak_speed": REFERENCE_SPEED, "traction_limit": None}
     if car == "plant-shape":
         shipped = shipped | {"vehicle": vs.planner_car(BENCHMARK_PEAK)}
+    if lateral_ratio != 1.0:
+        vehicle = shipped.get("vehicle", rally_gravel_car())
+        shipped = shipped | {"vehicle": eqx.tree_at(lambda c: c.tire.lateral_ratio, vehicle,
+                                                     jnp.asarray(lateral_ratio, float))}
     out = [("the road's settings", shipped)]
     out += [(f"margin {m:g}", shipped | {"margin": m, "margin_grip_power": 0.0})
             for m in margins]
@@ -173,6 +180,10 @@ def main(argv=None):
                     help="real-time passes per sample (default: the road's)")
     ap.add_argument("--steps-per-stage", type=int, default=1,
                     help="RK4 steps per stage of the horizon problems")
+    ap.add_argument("--lateral-ratio", type=float, default=1.0,
+                    help="the planning tire's side force over the circle's "
+                         "(FrictionEllipseTire.lateral_ratio; the plant's is 0.92 at 7 m/s, "
+                         "experiments/lateral_peak.py)")
     ap.add_argument("--trace", action="store_true",
                     help="also write each sample's predicted time at the end gate "
                          "(predicted_finish) and its arc length (s)")
@@ -189,6 +200,8 @@ def main(argv=None):
             ap.error(f"--set {item}: VALUE must be a Python literal")
     if any(m < 0 for m in args.margins):
         ap.error(f"--margins must be >= 0 m, got {args.margins}")
+    if not 0.0 < args.lateral_ratio <= 2.0:
+        ap.error(f"--lateral-ratio must be in (0, 2], got {args.lateral_ratio}")
     if args.iterations is not None and args.iterations < 1:
         ap.error(f"--iterations must be >= 1, got {args.iterations}")
     for road in args.roads:
@@ -205,7 +218,7 @@ def main(argv=None):
                       flush=True)
             for label, settings in variants(road, condition, args.margins,
                                             args.planning_car, args.mode, args.iterations,
-                                            args.steps_per_stage):
+                                            args.steps_per_stage, args.lateral_ratio):
                 driver, _ = vs.scenario_driver(sc, "oracle", **(settings | overrides))
                 t0 = time.perf_counter()
                 run = _drive(sc.plant, Traced(driver) if args.trace else driver, sc.state0,
@@ -223,6 +236,7 @@ def main(argv=None):
                                       planning_car=args.planning_car, mode=args.mode,
                                       iterations=args.iterations,
                                       steps_per_stage=args.steps_per_stage,
+                                      lateral_ratio=args.lateral_ratio,
                                       overrides=args.set, seed=args.seed,
                                       **out, above_free=above, wall_s=wall)), flush=True)
 
