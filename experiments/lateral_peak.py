@@ -24,7 +24,6 @@ import json
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 
 
 jax.config.update("jax_enable_x64", True)
@@ -37,23 +36,11 @@ from vehsim.optimal.primitives import rally_gravel_car  # noqa: E402
 TIRE = vs.DrivePlant().tire
 
 
-@jax.jit
-def side_peak(scale, speed):
-    """The largest steady-state friction in pure side slip, $\\tan\\alpha$ 1e-4 .. 0.6
-    (60001 points), the wheel rolling freely."""
-    tan_alpha = jnp.linspace(1e-4, 0.6, 60001)
-
-    def mu(t):
-        return jnp.linalg.norm(vs.scaled_steady_state_mu(TIRE, scale, jnp.stack(
-            [0.0 * t, -speed * t]), speed))
-
-    return jnp.max(jax.vmap(mu)(tan_alpha))
-
-
 def ratio(speed: float) -> tuple[float, float, float]:
     """(braking peak, side peak, side over braking) on the nominal road at ``speed``."""
     lam = vs.nominal_scale()
-    braking, side = float(vs.peak_friction(TIRE, lam, speed)), float(side_peak(lam, speed))
+    braking = float(vs.peak_friction(TIRE, lam, speed))
+    side = float(vs.side_peak_friction(TIRE, lam, speed))
     return braking, side, side / braking
 
 

@@ -564,11 +564,15 @@ def test_the_plant_tires_side_force_peaks_below_its_braking_force():
     """The plant's 2D LuGre tire (fitted to Bakker's Magic Formula, whose side force peaks
     below its braking force) is anisotropic: on the nominal road its peak in pure side slip
     is 0.93 of its peak in pure braking at 5 m/s and 0.90 at 15 m/s (measured 0.930 and
-    0.904), where `peak_friction` (the planner's $D$) is the braking peak. A friction-ellipse
-    planning tire states it with `lateral_ratio` (docs/driver.md)."""
+    0.904), where `peak_friction` (the planner's $D$) is the braking peak, and
+    `side_peak_friction` reads the side peak to 0.1 %. A friction-ellipse planning tire
+    states it with `lateral_ratio` (docs/driver.md)."""
     lam = float(vs.nominal_scale())
     ratios = [float(_side_scan(lam, V)) / float(_scan(lam, V)) for V in (5.0, 15.0)]
     print("side over braking peak at 5 and 15 m/s", ratios)
     assert 0.92 < ratios[0] < 0.94 and 0.895 < ratios[1] < 0.915
-    assert float(vs.peak_friction(TIRE, lam, 5.0)) == pytest.approx(
-        float(_scan(lam, 5.0)), rel=2e-3)
+    for V in (5.0, 15.0):  # `side_peak_friction` reads the side peak as the scan does
+        assert float(vs.side_peak_friction(TIRE, lam, V)) == pytest.approx(
+            float(_side_scan(lam, V)), rel=1e-3)
+        assert float(vs.peak_friction(TIRE, lam, V)) == pytest.approx(
+            float(_scan(lam, V)), rel=1e-3)

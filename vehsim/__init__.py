@@ -407,6 +407,7 @@ from .drive.estimator import (
     peak_friction as peak_friction,
     scale_of_peak as scale_of_peak,
     scaled_steady_state_mu as scaled_steady_state_mu,
+    side_peak_friction as side_peak_friction,
     slip_velocity_std as slip_velocity_std,
 )
 from .drive.grip import (

@@ -226,12 +226,34 @@ def braking_peak_on(tire: LumpedLuGre2D, scale, speed, kappa):
         v_r = jnp.stack([-kap * speed, jnp.zeros_like(kap)])
         return safe_norm(scaled_steady_state_mu(tire, scale, v_r, (1.0 - kap) * speed))
 
-    mus = jax.vmap(mu_at)(kappa)
-    i = jnp.clip(jnp.argmax(mus), 1, kappa.shape[0] - 2)
+    return _refined_max(jax.vmap(mu_at)(kappa))
+
+
+def _refined_max(mus):
+    """The largest of ``mus`` refined by the parabola through it and its neighbours."""
+    i = jnp.clip(jnp.argmax(mus), 1, mus.shape[0] - 2)
     a, b, cc = mus[i - 1], mus[i], mus[i + 1]
     den = a - 2 * b + cc
     shift = jnp.clip(safe_div(0.5 * (a - cc), den), -1.0, 1.0)
     return b - 0.25 * (a - cc) * shift
+
+
+def side_peak_friction(tire: LumpedLuGre2D, scale, speed):
+    r"""The largest steady-state friction $\|\mu_{ss}\|$ of `tire` on a road of friction
+    scale `scale` in pure side slip at the ground speed $V$ = `speed` [m/s], the wheel
+    rolling freely ($v_r = (0, -V\tan\alpha)$, $c = V$; $\tan\alpha$ on `peak_slips`,
+    refined as `peak_friction`). The drive plant's tire (fitted to Bakker's Magic Formula,
+    whose side force peaks below its braking force) is anisotropic: on the nominal road its
+    side peak is 0.93 of its braking peak `peak_friction` at 5 m/s and 0.90 at 15 m/s, the
+    `FrictionEllipseTire.lateral_ratio` of a planning tire with the plant's peaks
+    (docs/driver.md)."""
+    V = jnp.maximum(speed, PEAK_SPEED_FLOOR)
+
+    def mu_at(t):
+        v_r = jnp.stack([jnp.zeros_like(t), -V * t])
+        return safe_norm(scaled_steady_state_mu(tire, scale, v_r, V))
+
+    return _refined_max(jax.vmap(mu_at)(peak_slips()))
 
 
 def longitudinal_capacity(tire: LumpedLuGre2D, scale, vx, vy):
