@@ -7,8 +7,7 @@ tire and `offline_bound` take one peak $D$ in every direction, the braking peak
 (`peak_friction`). This script writes, as JSON lines:
 
 - for speeds 5-20 m/s on the nominal road: the braking peak (`peak_friction`), the peak in
-  pure side slip (a scan of the steady state over $\\tan\\alpha$ up to 0.6, the wheel rolling
-  freely) and their ratio;
+  pure side slip (`side_peak_friction`, the wheel rolling freely) and their ratio;
 - for each benchmark corner on the nominal road: the free bound (`offline_bound`), and the
   same bound with the planning tire's side force times the ratio at ``--speed`` m/s
   (`FrictionEllipseTire.lateral_ratio`): a bound nearer what the plant can do in a corner.
@@ -24,6 +23,7 @@ import json
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 
 
 jax.config.update("jax_enable_x64", True)
@@ -58,9 +58,7 @@ def main(argv=None):
         print(json.dumps(dict(speed=V, braking_peak=braking, side_peak=side, ratio=r)),
               flush=True)
     r = ratio(args.speed)[2]
-    car = rally_gravel_car()
-    car = eqx.tree_at(lambda c: c.tire, car, vs.FrictionEllipseTire(
-        B=car.tire.B, C=car.tire.C, D=car.tire.D, lateral_ratio=r))
+    car = eqx.tree_at(lambda c: c.tire.lateral_ratio, rally_gravel_car(), jnp.asarray(r, float))
     for road in args.roads:
         sc = vs.drive_scenario(road, "nominal")
         free, _, exact = vs.offline_bound(sc)
