@@ -216,9 +216,10 @@ def main(argv=None):
                 bound = float(vs.nominal_primitive(sc, BENCHMARK_PEAK).t_f)
                 print(json.dumps(dict(road=road, variant="free bound, " + condition, time=bound)),
                       flush=True)
-            for label, settings in variants(road, condition, args.margins,
-                                            args.planning_car, args.mode, args.iterations,
-                                            args.steps_per_stage, args.lateral_ratio):
+            for label, settings in variants(
+                    road, condition, args.margins, car=args.planning_car, mode=args.mode,
+                    iterations=args.iterations, steps=args.steps_per_stage,
+                    lateral_ratio=args.lateral_ratio):
                 driver, _ = vs.scenario_driver(sc, "oracle", **(settings | overrides))
                 t0 = time.perf_counter()
                 run = _drive(sc.plant, Traced(driver) if args.trace else driver, sc.state0,

@@ -3,6 +3,8 @@ drives that stage (nominal, oracle, estimate), and the road table's peak is the 
 peak, not the peak at scale 1 times the scale. The peaks are checked against a dense slip
 scan of the plant tire's steady state written here (no grid, no parabola)."""
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -19,14 +21,18 @@ ROAD = vs.CentrelineRoad.from_segments([("straight", 10.0), ("arc", 8.0, 90.0),
                                         ("straight", 10.0)], 4.0)
 
 
-@jax.jit
-def _scan(scale, speed):
-    """The largest braking steady-state friction over slips 1e-4 .. 0.6 (60001 points)."""
+@functools.partial(jax.jit, static_argnames="side")
+def _scan(scale, speed, side=False):
+    """The largest braking steady-state friction over slips 1e-4 .. 0.6 (60001 points); with
+    ``side``, in pure side slip over $\tan\alpha$ 1e-4 .. 0.6, the wheel rolling freely."""
     kap = jnp.linspace(1e-4, 0.6, 60001)
 
     def mu(k):
-        v_r = jnp.stack([-k * speed, 0.0 * k])
-        return jnp.linalg.norm(vs.scaled_steady_state_mu(TIRE, scale, v_r, (1.0 - k) * speed))
+        if side:
+            v_r, c = jnp.stack([0.0 * k, -speed * k]), speed
+        else:
+            v_r, c = jnp.stack([-k * speed, 0.0 * k]), (1.0 - k) * speed
+        return jnp.linalg.norm(vs.scaled_steady_state_mu(TIRE, scale, v_r, c))
 
     return jnp.max(jax.vmap(mu)(kap))
 
@@ -547,19 +553,6 @@ def test_the_driver_plans_and_recovers_torques_with_the_scaled_tire(table):
             _driver(table, "nominal", stiffness_power=bad)
 
 
-@jax.jit
-def _side_scan(scale, speed):
-    """The largest steady-state friction in pure side slip, $\\tan\\alpha$ 1e-4 .. 0.6
-    (60001 points), the wheel rolling freely."""
-    tan_alpha = jnp.linspace(1e-4, 0.6, 60001)
-
-    def mu(t):
-        return jnp.linalg.norm(vs.scaled_steady_state_mu(TIRE, scale, jnp.stack(
-            [0.0 * t, -speed * t]), speed))
-
-    return jnp.max(jax.vmap(mu)(tan_alpha))
-
-
 def test_the_plant_tires_side_force_peaks_below_its_braking_force():
     """The plant's 2D LuGre tire (fitted to Bakker's Magic Formula, whose side force peaks
     below its braking force) is anisotropic: on the nominal road its peak in pure side slip
@@ -568,11 +561,11 @@ def test_the_plant_tires_side_force_peaks_below_its_braking_force():
     `side_peak_friction` reads the side peak to 0.1 %. A friction-ellipse planning tire
     states it with `lateral_ratio` (docs/driver.md)."""
     lam = float(vs.nominal_scale())
-    ratios = [float(_side_scan(lam, V)) / float(_scan(lam, V)) for V in (5.0, 15.0)]
+    ratios = [float(_scan(lam, V, side=True)) / float(_scan(lam, V)) for V in (5.0, 15.0)]
     print("side over braking peak at 5 and 15 m/s", ratios)
     assert 0.92 < ratios[0] < 0.94 and 0.895 < ratios[1] < 0.915
     for V in (5.0, 15.0):  # `side_peak_friction` reads the side peak as the scan does
         assert float(vs.side_peak_friction(TIRE, lam, V)) == pytest.approx(
-            float(_side_scan(lam, V)), rel=1e-3)
+            float(_scan(lam, V, side=True)), rel=1e-3)
         assert float(vs.peak_friction(TIRE, lam, V)) == pytest.approx(
             float(_scan(lam, V)), rel=1e-3)
