@@ -350,6 +350,32 @@ def test_jax_departure_agrees_with_the_exact_one(roads):
     assert float(early) == 0.0
 
 
+def test_pose_departures_are_each_poses_distance_and_differentiable(roads):
+    """Each pose's own distance off the road (not only the path's largest), and its gradient
+    in the pose: a unit vector along the outward normal off the road (central differences),
+    zero on the road. The departure penalty of `experiments/plant_bound.py` descends it."""
+    sc = vs.drive_scenario("corner90")
+    road = sc.road
+    s = np.linspace(1.0, road.length - 1.0, 40)
+    n = 2.4 * np.sin(s / 1.7)
+    x, y = road.to_cartesian(s, n)
+    got = np.asarray(vs.pose_departures(sc.table, jnp.asarray(x), jnp.asarray(y)))
+    exact = road.distance_off_road(x, y)
+    assert np.sum(exact > 0.2) > 10 and np.sum(exact == 0.0) >= 8
+    np.testing.assert_allclose(got, exact, atol=2e-4)
+    grad = jax.vmap(jax.grad(lambda a, b: vs.pose_departures(sc.table, a[None], b[None])[0],
+                             argnums=(0, 1)))(jnp.asarray(x), jnp.asarray(y))
+    gx, gy = (np.asarray(g) for g in grad)
+    h = 1e-5
+    fdx = (road.distance_off_road(x + h, y) - road.distance_off_road(x - h, y)) / (2 * h)
+    fdy = (road.distance_off_road(x, y + h) - road.distance_off_road(x, y - h)) / (2 * h)
+    off = exact > 1e-3
+    np.testing.assert_allclose(gx[off], fdx[off], atol=1e-3)
+    np.testing.assert_allclose(gy[off], fdy[off], atol=1e-3)
+    np.testing.assert_allclose(np.hypot(gx[off], gy[off]), 1.0, atol=1e-3)
+    assert np.all(gx[exact == 0.0] == 0.0) and np.all(gy[exact == 0.0] == 0.0)
+
+
 @pytest.mark.parametrize("name", ["corner90", "uturn"])
 def test_jax_departure_is_exact_metres_off_the_road(name):
     """Poses scattered over the road's bounding box widened by 12 m (past its ends, inside

@@ -442,6 +442,7 @@ from .drive.metrics import (
     drive_time as drive_time,
     max_distance_off_road as max_distance_off_road,
     path_departure as path_departure,
+    pose_departures as pose_departures,
 )
 from .drive.plant import (
     DrivePlant as DrivePlant,

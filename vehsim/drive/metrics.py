@@ -183,37 +183,56 @@ def drive_outcome(road: CentrelineRoad, t, x, y, tolerance: float = GATE_TOLERAN
                         completed=bool(crossed and off <= limit))
 
 
-def path_departure(table, x, y, upto):
-    r"""The largest distance off the road (module docstring, JAX) of the poses `x`, `y`
-    (shape (N, S): N samples of S poses each, in order) whose flat index is at most `upto`
-    (the pose before the end-gate crossing; `EndGate.crossing`'s index minus one, as the
-    path there starts with the start pose), projected onto `table` (a `RoadTable`) each
-    from the nearest of every `search_points`-th sample of the road and its ends (not of
-    the table's extensions), a sample's poses at a time."""
-    N, S = x.shape
+def _coarse_samples(table):
+    """The arc lengths the projections start from (every `search_points`-th sample, and an
+    open road's ends), their points, and whether each is on the road."""
     coarse_s = table.s[::table.search_points]
     if not table.closed:  # the road's ends, where the table's extensions (not road) begin
         coarse_s = jnp.concatenate([coarse_s, jnp.stack([0.0 * table.length, table.length])])
     coarse_x, coarse_y = table.position(coarse_s)
     on_road = (jnp.ones(coarse_s.shape, bool) if table.closed
                else (coarse_s >= 0.0) & (coarse_s <= table.length))
+    return coarse_s, coarse_x, coarse_y, on_road
+
+
+def _departures(table, coarse, xs, ys):
+    coarse_s, coarse_x, coarse_y, on_road = coarse
+    d2 = (xs[:, None] - coarse_x[None]) ** 2 + (ys[:, None] - coarse_y[None]) ** 2
+    guess = coarse_s[jnp.argmin(jnp.where(on_road[None], d2, jnp.inf), axis=1)]
+    ss, _, _ = jax.vmap(table.to_frenet)(xs, ys, 0.0 * xs, guess)
+    beyond = jnp.zeros(ss.shape, bool)
+    if not table.closed:  # past an end: the distance from its line (a segment)
+        beyond = (ss < 0.0) | (ss > table.length)
+        ss = jnp.clip(ss, 0.0, table.length)
+    (px, py), heading = table.position(ss), table.heading_at(ss)
+    rx, ry = xs - px, ys - py
+    along = rx * jnp.cos(heading) + ry * jnp.sin(heading)
+    n = ry * jnp.cos(heading) - rx * jnp.sin(heading)
+    lo_hi = table.corridor_at(ss)
+    lateral = jnp.maximum(jnp.maximum(n - lo_hi[:, 1], lo_hi[:, 0] - n), 0.0)
+    return jnp.where(beyond, safe_hypot(along, lateral), lateral)
+
+
+def pose_departures(table, x, y):
+    r"""The distance off the road (module docstring, JAX) of each pose `x`, `y` (shape
+    (P,)), projected onto `table` (a `RoadTable`) from the nearest of every
+    `search_points`-th sample of the road and its ends: shape (P,), 0 on the road.
+    Differentiable in the poses (the search only picks where each projection starts)."""
+    return _departures(table, _coarse_samples(table), x, y)
+
+
+def path_departure(table, x, y, upto):
+    r"""The largest distance off the road (module docstring, JAX) of the poses `x`, `y`
+    (shape (N, S): N samples of S poses each, in order) whose flat index is at most `upto`
+    (the pose before the end-gate crossing; `EndGate.crossing`'s index minus one, as the
+    path there starts with the start pose), projected onto `table` (a `RoadTable`) as in
+    `pose_departures`, a sample's poses at a time."""
+    N, S = x.shape
+    coarse = _coarse_samples(table)
 
     def sample(_, xy):
         xs, ys, idx = xy
-        d2 = (xs[:, None] - coarse_x[None]) ** 2 + (ys[:, None] - coarse_y[None]) ** 2
-        guess = coarse_s[jnp.argmin(jnp.where(on_road[None], d2, jnp.inf), axis=1)]
-        ss, _, _ = jax.vmap(table.to_frenet)(xs, ys, 0.0 * xs, guess)
-        beyond = jnp.zeros(ss.shape, bool)
-        if not table.closed:  # past an end: the distance from its line (a segment)
-            beyond = (ss < 0.0) | (ss > table.length)
-            ss = jnp.clip(ss, 0.0, table.length)
-        (px, py), heading = table.position(ss), table.heading_at(ss)
-        rx, ry = xs - px, ys - py
-        along = rx * jnp.cos(heading) + ry * jnp.sin(heading)
-        n = ry * jnp.cos(heading) - rx * jnp.sin(heading)
-        lo_hi = table.corridor_at(ss)
-        lateral = jnp.maximum(jnp.maximum(n - lo_hi[:, 1], lo_hi[:, 0] - n), 0.0)
-        off = jnp.where(beyond, safe_hypot(along, lateral), lateral)
+        off = _departures(table, coarse, xs, ys)
         return None, jnp.max(jnp.where(idx <= upto, off, 0.0))
 
     idx = jnp.arange(N * S).reshape(N, S)
