@@ -94,7 +94,7 @@ def objective(sc: vs.DriveScenario, gate: vs.EndGate, num_samples: int, margin: 
         before = (x - gate.point[0]) * gate.tangent[0] + (y - gate.point[1]) * gate.tangent[1]
         d = vs.pose_departures(table, x, y)
         penalty = rho * h * jnp.sum(jnp.where(before < 0.0, d * d, 0.0))
-        # not across the gate: the distance still to go, at the last pose's speed scale
+        # not across the gate: the metres still to go, a slope towards it
         short = jnp.where(crossed, 0.0, -jnp.min(jnp.stack([before[-1], 0.0])))
         return t_gate + penalty + short, (t_gate, crossed, penalty)
 
@@ -178,9 +178,10 @@ def main(argv=None):
             U = jnp.asarray(z.reshape(n, 3) * limit)
             shot = _drive(sc.plant, vs.CommandSchedule(U), sc.state0, n)
             out = vs.drive_outcome(sc.road, *vs.drive_path(shot, sc.state0))
-            (_, (t_gate, crossed, penalty)), _ = fg(jnp.asarray(z), rho)
+            (_, (_, _, penalty)), _ = fg(jnp.asarray(z), rho)
             print(json.dumps(dict(
-                road=road, variant="shot", start=args.start, margin=args.margin, rho=rho, **out.record(),
+                road=road, variant="shot", start=args.start, margin=args.margin, rho=rho,
+                **out.record(),
                 objective=float(res.fun), penalty=float(penalty),
                 above_free=None if out.time is None else out.time / free - 1.0,
                 below_oracle=None if out.time is None else 1.0 - out.time / oracle.time,
