@@ -431,11 +431,15 @@ def test_derivative_through_a_plan_that_did_not_converge_raises(gentle):
 # ---- the slip bound ----------------------------------------------------------------------
 
 
-def test_axle_slips_are_the_friction_ellipse_tires_combined_slip():
+@pytest.mark.parametrize("lateral_stiffness", [1.0, 0.6])
+def test_axle_slips_are_the_friction_ellipse_tires_combined_slip(lateral_stiffness):
     """`axle_slips` against the tire's forces: the friction ellipse's force is
-    $D\\sin(C\\arctan(Bs))F_z$ (`ReducedHalfCar.signals`), inverted for $s$ below the peak; and
-    the slip constraint has the sign of limit - slip."""
-    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=vs.rally_gravel_tire())
+    $D\\sin(C\\arctan(Bs))F_z$ (`ReducedHalfCar.signals`), inverted for $s$ below the peak,
+    also where the side slip counts $k_y$ times (`FrictionEllipseTire.lateral_stiffness`);
+    and the slip constraint has the sign of limit - slip."""
+    tire = eqx.tree_at(lambda t: t.lateral_stiffness, vs.rally_gravel_tire(),
+                       jnp.asarray(lateral_stiffness))
+    car = vs.ReducedHalfCar(params=vs.rally_gravel(), tire=tire)
     B, C, D = (float(getattr(car.tire, k)) for k in "BCD")
     prob = vs.horizon_problem(vs.RoadTable.from_road(vs.CentrelineRoad.from_segments(
         [("straight", 30.0)], 4.0)), car, 0.0, jnp.zeros(8).at[2].set(10.0), jnp.full(4, D),

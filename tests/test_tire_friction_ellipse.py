@@ -174,3 +174,34 @@ def test_lateral_ratio_is_the_ellipses_lateral_semi_axis():
                                   jax.vmap(rally_gravel_tire().mu)(kappa, tan_alpha)[1])
     with pytest.raises(ValueError, match="lateral_ratio"):
         FrictionEllipseTire(B=7.0, C=1.6, D=0.52, lateral_ratio=0.0)
+
+
+def test_lateral_stiffness_scales_the_side_slip_in_the_combined_slip():
+    """With `lateral_stiffness` $k_y$ the forces are the isotropic tire's at the side slip
+    $k_y s_y$, the side component times $k_y$ as well (the force opposes the scaled slip,
+    not the slip), NumPy from the formulas; pure side slip has $k_y$ times the braking
+    slope at zero slip and its peak at $s^*/k_y$; braking alone does not change; the
+    gradient at zero slip is finite; a scale that is not positive is refused by name."""
+    rng = np.random.default_rng(2)
+    kappa = rng.uniform(-0.9, 1.0, 100)
+    tan_alpha = rng.uniform(-1.0, 1.0, 100)
+    ky = 0.6
+    tire = FrictionEllipseTire(B=30.0, C=1.5, D=0.55, lateral_ratio=0.9, lateral_stiffness=ky)
+    mx, my = jax.vmap(tire.mu)(kappa, tan_alpha)
+    sx, sy = -kappa / (1 + kappa), ky * tan_alpha / (1 + kappa)
+    s = np.sqrt(sx**2 + sy**2)
+    mu = 0.55 * np.sin(1.5 * np.arctan(30.0 * s))
+    np.testing.assert_allclose(mx, -(sx / s) * mu, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(my, -0.9 * (sy / s) * mu, rtol=1e-12, atol=1e-14)
+    iso = FrictionEllipseTire(B=30.0, C=1.5, D=0.55, lateral_ratio=0.9)
+    np.testing.assert_array_equal(tire.mu(kappa, 0.0 * kappa)[0], iso.mu(kappa, 0.0 * kappa)[0])
+    side_slope = jax.grad(lambda t: tire.mu(0.0, t)[1])(0.0)
+    braking_slope = jax.grad(lambda k: tire.mu(k, 0.0)[0])(0.0)
+    assert float(side_slope) == pytest.approx(-0.9 * ky * float(braking_slope), rel=1e-12)
+    t = jnp.linspace(0.0, 0.5, 200001)
+    side = jnp.abs(tire.mu(0.0 * t, t)[1])
+    assert float(t[jnp.argmax(side)]) == pytest.approx(float(tire.peak_slip) / ky, abs=1e-5)
+    g = jax.grad(lambda k, a: tire.mu(k, a)[1], argnums=(0, 1))(0.0, 0.0)
+    assert all(np.isfinite(float(v)) for v in g)
+    with pytest.raises(ValueError, match="lateral_stiffness"):
+        FrictionEllipseTire(B=7.0, C=1.6, D=0.52, lateral_stiffness=-1.0)

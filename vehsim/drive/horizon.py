@@ -333,16 +333,19 @@ class RoadTable(eqx.Module):
 
 
 def _slip_parts(vehicle: ReducedHalfCar, X):
+    r"""$(\kappa_i, V_{ix}, k_y V_{iy})$ of both axles: the side velocity in the tire's
+    combined slip (`FrictionEllipseTire.lateral_stiffness` $k_y$, 1 for another tire)."""
     VFx, VFy, VRx, VRy = vehicle.axle_velocities(
         jnp.concatenate([X[:1] * 0, X[:1] * 0, X[1:5]]), X[7])
-    return X[5:7], jnp.stack([VFx, VRx]), jnp.stack([VFy, VRy])
+    ky = getattr(vehicle.tire, "lateral_stiffness", 1.0)
+    return X[5:7], jnp.stack([VFx, VRx]), ky * jnp.stack([VFy, VRy])
 
 
 def axle_slips(vehicle: ReducedHalfCar, X) -> Float[Array, " 2"]:
-    r"""The combined slip $s_i = \sqrt{\kappa_i^2 + \tan^2\alpha_i}/(1 + \kappa_i)$ of
-    each axle of the knot ``X`` $(n, \xi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, ...)$
-    (the friction-ellipse tire's, `FrictionEllipseTire`; $\tan\alpha_i = V_{iy}/V_{ix}$ in
-    the wheel frame)."""
+    r"""The combined slip $s_i = \sqrt{\kappa_i^2 + k_y^2\tan^2\alpha_i}/(1 + \kappa_i)$
+    of each axle of the knot ``X`` $(n, \xi, v_x, v_y, r, \kappa_F, \kappa_R, \delta, ...)$
+    (the friction-ellipse tire's, `FrictionEllipseTire`, $k_y$ its `lateral_stiffness`;
+    $\tan\alpha_i = V_{iy}/V_{ix}$ in the wheel frame)."""
     k, Vx, Vy = _slip_parts(vehicle, X)
     return safe_hypot(k, Vy / Vx) / (1.0 + k)  # a zero gradient, not NaN, rolling straight
 

@@ -51,7 +51,12 @@ class FrictionEllipseTire(AbstractTire):
     `lateral_ratio` $\rho_y$ (1: the friction circle): the ellipse's lateral semi-axis over
     its longitudinal one, $\mu_y$ times $\rho_y$, so that the peak in pure side slip is
     $\rho_y D$ (a tire whose side force peaks below its braking force, as the drive
-    plant's LuGre tire, `docs/driver.md`).
+    plant's LuGre tire, `docs/driver.md`), and `lateral_stiffness` $k_y$ (1: isotropic)
+    the side slip's scale in the combined slip, $s = \sqrt{s_x^2 + (k_y s_y)^2}$ and
+    $(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$, so that pure side slip follows
+    $\rho_y\mu(k_y s_y)$: its slope at zero slip is $k_y$ times the braking one and its
+    peak lies at $s^*/k_y$ (the plant's LuGre tire, whose bristles are about half as stiff
+    sideways, `fit_planner_tire`).
 
     Used two ways:
 
@@ -70,12 +75,14 @@ class FrictionEllipseTire(AbstractTire):
     C: Float[Array, "..."] = array_field()
     D: Float[Array, "..."] = array_field()
     lateral_ratio: Float[Array, "..."] = array_field(default=1.0)
+    lateral_stiffness: Float[Array, "..."] = array_field(default=1.0)
 
     def __check_init__(self):
         check_positive("FrictionEllipseTire", "B", self.B)
         check_positive("FrictionEllipseTire", "C", self.C)
         check_positive("FrictionEllipseTire", "D", self.D)
         check_positive("FrictionEllipseTire", "lateral_ratio", self.lateral_ratio)
+        check_positive("FrictionEllipseTire", "lateral_stiffness", self.lateral_stiffness)
 
     def mu_of_s(self, s):
         r"""$\mu(s) = D\sin(C\arctan(Bs))$."""
@@ -91,7 +98,9 @@ class FrictionEllipseTire(AbstractTire):
         return jnp.where(C > 1.0, jnp.tan(jnp.pi / (2.0 * safe)) / self.B, jnp.inf)
 
     def mu_theoretical(self, sx, sy):
-        r"""$(\mu_x, \mu_y) = -(s_x, \rho_y s_y)\,\mu(s)/s$ from the theoretical slips."""
+        r"""$(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$ from the theoretical
+        slips, $s = \sqrt{s_x^2 + (k_y s_y)^2}$."""
+        sy = self.lateral_stiffness * sy
         g = _mu_over_s(self.B, self.C, self.D, sx * sx + sy * sy)
         return -sx * g, -sy * (self.lateral_ratio * g)
 
