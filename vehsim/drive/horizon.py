@@ -683,7 +683,8 @@ def shift_multipliers(lam, nu, z, distance, horizon):
     return move(lam), nu, move(z)
 
 
-def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
+def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5,
+                     anisotropic=False):
     r"""A `FrictionEllipseTire` of the plant tire's steady state: $B, C$ of
     $\sin(C\arctan(Bs))$ least-squares fitted to $\mu_{ss}(s)/\max\mu_{ss}$ of ``tire``
     (default the drive plant's `LumpedLuGre2D` with `lugre2d_bakker1987`) on a road of
@@ -691,6 +692,13 @@ def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
     ($s = \kappa/(1 - \kappa)$ for the braking slip $\kappa$ up to ``max_slip``) and pure
     side slip ($s = \tan\alpha$, $\alpha$ up to ``max_slip`` rad) together; the peak
     ``D`` as given, or (None) the largest $\mu_{ss}$ of these curves.
+
+    With ``anisotropic`` the two curves are fitted as $\sin(C\arctan(Bs))$ and
+    $\rho_y\sin(C\arctan(Bk_ys))$ over the braking peak, with the tire's `lateral_ratio`
+    $\rho_y$ and `lateral_stiffness` $k_y$ among the unknowns: the plant's bristles are
+    about half as stiff sideways ($\sigma_{0y}/\sigma_{0x}$ = 0.47), its side curve's
+    slope at zero slip 0.51 of the braking one and its peak 0.92 of it at 7 m/s. One
+    $B$ for both curves (the isotropic fit) takes the side stiffness for the braking one.
 
     The LuGre curve peaks at a few per cent of slip and falls off after it; the benchmark's
     gravel tire (B = 7, C = 1.6) peaks near 20 %, so a planner with it asks for slips,
@@ -715,6 +723,19 @@ def fit_planner_tire(D=None, scale=1.0, *, tire=None, speed=12.0, max_slip=0.5):
     peak = float(np.max(mu))
     mu = np.asarray(mu) / peak
     sl = np.concatenate([k / (1 - k), np.tan(k)])
+    if anisotropic:
+        n = len(k)
+
+        def residual(p):
+            B, C, ky, ratio = p
+            return np.concatenate([np.sin(C * np.arctan(B * sl[:n])) - mu[:n],
+                                   ratio * np.sin(C * np.arctan(B * ky * sl[n:])) - mu[n:]])
+
+        fit = least_squares(residual, [20.0, 1.5, 0.5, 0.9],
+                            bounds=([0.5, 1.0, 0.05, 0.3], [200.0, 1.99, 2.0, 1.5]))
+        B, C, ky, ratio = (float(v) for v in fit.x)
+        return FrictionEllipseTire(B=B, C=C, D=peak if D is None else D, lateral_ratio=ratio,
+                                   lateral_stiffness=ky)
     fit = least_squares(lambda p: np.sin(p[1] * np.arctan(p[0] * sl)) - mu, [10.0, 1.5],
                         bounds=([0.5, 1.0], [200.0, 1.99]))
     B, C = (float(v) for v in fit.x)
@@ -783,20 +804,21 @@ speeds of the scenarios' corners and their approaches)."""
 
 
 @functools.cache
-def _planner_shape(peak: float, speed: float) -> tuple[float, float]:
+def _planner_shape(peak: float, speed: float, anisotropic: bool) -> dict[str, float]:
     lam = float(scale_of_peak(_plant_tire(), peak, REFERENCE_SPEED))
-    tire = fit_planner_tire(peak, lam, speed=speed)
-    return float(tire.B), float(tire.C)
+    tire = fit_planner_tire(peak, lam, speed=speed, anisotropic=anisotropic)
+    return {k: float(getattr(tire, k)) for k in ("B", "C", "lateral_ratio", "lateral_stiffness")}
 
 
-def planner_car(D=0.52, *, nominal_peak: float = 0.52,
-                speed: float = PLANNER_FIT_SPEED) -> ReducedHalfCar:
+def planner_car(D=0.52, *, nominal_peak: float = 0.52, speed: float = PLANNER_FIT_SPEED,
+                anisotropic: bool = False) -> ReducedHalfCar:
     r"""The receding-horizon driver's planning car: the benchmark's rally-gravel reduced
     half car (`rally_gravel`) with a `FrictionEllipseTire` of the drive plant's shape,
     $B, C$ of `fit_planner_tire` on the road whose peak at `REFERENCE_SPEED` is
     ``nominal_peak`` (its scale by `scale_of_peak`), at ``speed`` [m/s], and peak ``D``
-    (the driver sets each stage's $D_k$ itself). The fit is done once per
-    (``nominal_peak``, ``speed``).
+    (the driver sets each stage's $D_k$ itself); with ``anisotropic``, also the side
+    curve's own peak and stiffness (`fit_planner_tire`). The fit is done once per
+    (``nominal_peak``, ``speed``, ``anisotropic``).
 
     The benchmark's gravel tire ($B = 7$, $C = 1.6$, `rally_gravel_car`) peaks near 20 %
     slip; the plant's LuGre tire at 5-6 % and falls off after it. Planned with the former,
@@ -809,8 +831,8 @@ def planner_car(D=0.52, *, nominal_peak: float = 0.52,
     from ..tire.friction_ellipse import FrictionEllipseTire
     from ..vehicle.params import rally_gravel
 
-    B, C = _planner_shape(float(nominal_peak), float(speed))
-    return ReducedHalfCar(params=rally_gravel(), tire=FrictionEllipseTire(B=B, C=C, D=D))
+    shape = _planner_shape(float(nominal_peak), float(speed), bool(anisotropic))
+    return ReducedHalfCar(params=rally_gravel(), tire=FrictionEllipseTire(D=D, **shape))
 
 
 def _default_car() -> ReducedHalfCar:
