@@ -36,7 +36,8 @@ nothing else in the way").
 
 ``--planning-car plant-shape`` drives the same with the planning car of the plant tire's
 shape (`planner_car`: the LuGre steady state's $B$, $C$, peaking at 5-6 % slip) in place
-of the benchmark's gravel tire, the free bound staying the gravel car's (the two free
+of the benchmark's gravel tire (``plant-shape-anisotropic``: with the side curve's own peak
+and stiffness, `fit_planner_tire`), the free bound staying the gravel car's (the two free
 bounds agree within 0.6 %, docs/drive.md, "Baselines").
 
 ``--steps-per-stage S`` plans with S RK4 steps per stage of the horizon problems (the tire
@@ -134,7 +135,8 @@ def variants(road: str, condition: str, margins, car: str = "gravel", mode: str 
              iterations: int | None = None, steps: int = 1,
              lateral_ratio: float = 1.0) -> list[tuple[str, dict]]:
     """``(label, settings)`` of the drives of ``road`` under ``condition`` with the
-    planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`),
+    planning car ``car`` ("gravel": the driver's default; "plant-shape": `planner_car`;
+    "plant-shape-anisotropic": `planner_car` with the side curve's own peak and stiffness),
     in ``mode`` (`driver_settings`' "rti" or "converged") with ``iterations`` passes per
     sample (None: the road's) and ``steps`` RK4 steps per stage of its horizon problems,
     its tire's side force times ``lateral_ratio`` (`FrictionEllipseTire.lateral_ratio`)."""
@@ -145,8 +147,9 @@ def variants(road: str, condition: str, margins, car: str = "gravel", mode: str 
         # its force the planner's: each stage plans with the peak at the reference speed,
         # unclipped
         shipped = shipped | {"peak_speed": REFERENCE_SPEED, "traction_limit": None}
-    if car == "plant-shape":
-        shipped = shipped | {"vehicle": vs.planner_car(BENCHMARK_PEAK)}
+    if car.startswith("plant-shape"):
+        shipped = shipped | {"vehicle": vs.planner_car(
+            BENCHMARK_PEAK, anisotropic=car == "plant-shape-anisotropic")}
     if lateral_ratio != 1.0:
         vehicle = shipped.get("vehicle", rally_gravel_car())
         shipped = shipped | {"vehicle": eqx.tree_at(lambda c: c.tire.lateral_ratio, vehicle,
@@ -171,9 +174,11 @@ def main(argv=None):
     ap.add_argument("--conditions", nargs="+", choices=list(CONDITIONS),
                     default=list(CONDITIONS)[:3],
                     help="the conditions to drive (module docstring)")
-    ap.add_argument("--planning-car", choices=("gravel", "plant-shape"), default="gravel",
+    ap.add_argument("--planning-car", choices=("gravel", "plant-shape",
+                                               "plant-shape-anisotropic"), default="gravel",
                     help="the driver's planning tire: the benchmark's gravel tire, or one "
-                         "of the plant tire's shape (planner_car)")
+                         "of the plant tire's shape (planner_car), with its side curve's own "
+                         "peak and stiffness (anisotropic)")
     ap.add_argument("--mode", choices=("rti", "converged"), default="rti",
                     help="the driver's mode (driver_settings)")
     ap.add_argument("--iterations", type=int, default=None,
