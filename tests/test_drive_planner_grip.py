@@ -599,3 +599,44 @@ def test_the_anisotropic_planner_tire_has_the_plants_side_curve():
     assert 0.5 < float(aniso.lateral_stiffness * aniso.lateral_ratio) < 0.8
     plant_ratio = float(vs.side_peak_friction(TIRE, lam, V)) / peak
     assert float(aniso.lateral_ratio) == pytest.approx(plant_ratio, abs=0.02)
+
+
+def test_the_margin_widens_with_the_position_filters_uncertainty():
+    """`position_margin` $z$: each command plans with the margin $m + z\\sqrt{P_k}$ of its
+    position filter's variance $P_k$ (`planning_margin`, recorded in `info`): the first
+    command's ($P = $ `position_std`$^2$ = 0.09) plan is the plan of the fixed margin
+    $m + 0.3z$, the next command's (its filter's $P$ by the Kalman update, about half) the
+    plan of the fixed margin $m + z\\sqrt{P_1}$; the margin changes the plan here (the car
+    starts 0.7 m from the edge; a plan at $m$ alone differs), and $z = 0$ is the fixed
+    margin exactly."""
+    tbl = vs.RoadTable.from_road(ROAD, extension=30.0)
+    plant = vs.DrivePlant(sensors=vs.DriveSensors(noise_on=False))
+    m0 = vs.measure_drive(plant, vs.init_drive(plant, vx=9.0), jax.random.key(0))
+    m0 = eqx.tree_at(lambda m: m.y, m0, m0.y + 1.3)  # 0.7 m from the edge: the margin counts
+    m1 = eqx.tree_at(lambda m: (m.x, m.t), m0, (m0.x + 0.45, m0.t + 0.05))
+
+    def driver(margin, z=0.0):
+        return vs.RecedingHorizonDriver(table=tbl, num_stages=6, horizon=24.0,
+                                        mode="converged", margin=margin, position_margin=z)
+
+    command = eqx.filter_jit(lambda d, st, m: d.command(st, m, None)[0])
+    widening = driver(0.2, 1.0)
+    state = widening.init(m0)
+    assert float(widening.planning_margin(state.position_var)) == pytest.approx(0.5, abs=1e-15)
+    first = command(widening, state, m0)
+    fixed = command(driver(0.5), state, m0)
+    narrow = command(driver(0.2), state, m0)
+    np.testing.assert_allclose(first.xs, fixed.xs, rtol=0, atol=1e-9)
+    assert np.max(np.abs(np.asarray(first.xs) - np.asarray(narrow.xs))) > 1e-3
+    assert float(widening.info(first)["margin"]) == pytest.approx(0.5, abs=1e-15)
+    second = command(widening, first, m1)
+    P0, q, r = 0.09, (0.05 * widening.velocity_std) ** 2, widening.position_std ** 2
+    P1 = (1.0 - (P0 + q) / (P0 + q + r)) * (P0 + q)
+    assert float(second.position_var) == pytest.approx(float(P1), rel=1e-12)
+    assert 0.04 < P1 < 0.05
+    again = command(driver(0.2 + np.sqrt(P1)), first, m1)
+    np.testing.assert_allclose(second.xs, again.xs, rtol=0, atol=1e-9)
+    assert float(widening.info(second)["margin"]) == pytest.approx(0.2 + np.sqrt(P1), rel=1e-12)
+    assert driver(0.2).planning_margin(jnp.asarray(0.09)) == driver(0.2).margin
+    with pytest.raises(ValueError, match="position_margin"):
+        driver(0.2, -1.0)

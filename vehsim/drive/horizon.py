@@ -891,7 +891,9 @@ class RecedingHorizonDriver(AbstractDriveController):
     `margin`
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
-    `horizon_problem`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
+    `horizon_problem`), `position_margin` $z$ (0: off) the number of the position
+    filter's standard deviations added to `margin` at each sample, $m + z\sqrt{P_k}$
+    (`planning_margin`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
     else $B \min(1, D_k/D)^{-q}$, its slip stiffness scaling as $(D_k/D)^{1-q}$ below
     the car's grip, `scaled_planning_car`), `rate_weight` $w$ (1e-4),
     `terminal_backoff` $\beta$ (1);
@@ -1076,6 +1078,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     steps_per_stage: int = eqx.field(static=True, default=1)
     margin: Float[Array, ""] = array_field(default=0.2)
     margin_grip_power: Float[Array, ""] = array_field(default=0.0)
+    position_margin: Float[Array, ""] = array_field(default=0.0)
     rate_weight: Float[Array, ""] = array_field(default=1e-4)
     terminal_backoff: Float[Array, ""] = array_field(default=1.0)
     mode: str = eqx.field(static=True, default="rti")
@@ -1169,7 +1172,8 @@ class RecedingHorizonDriver(AbstractDriveController):
         if self.soft_stages is not None and self.corridor_penalty is None:
             raise ValueError("RecedingHorizonDriver.soft_stages needs corridor_penalty (the "
                              "soft corridor's cost, > 0), got None")
-        for name in ("velocity_std", "margin", "margin_grip_power", "rate_weight",
+        for name in ("velocity_std", "margin", "margin_grip_power", "position_margin",
+                     "rate_weight",
                      "estimate_backoff", "slip_gain", "lead"):
             check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
         if self.stiffness_power is not None:
@@ -1353,10 +1357,21 @@ class RecedingHorizonDriver(AbstractDriveController):
             D = jnp.minimum(D, measured)
         return jnp.clip(D, 0.05, 2.0)
 
-    def problem(self, s0, state8, D) -> HorizonOCP:
-        """`horizon_problem` with this driver's settings."""
+    def planning_margin(self, position_var) -> Float[Array, ""]:
+        r"""The corridor margin of a sample whose position filter has the variance
+        ``position_var`` $P_k$ [m^2] (`filter_position`): $m + z\sqrt{P_k}$, $m$ =
+        `margin`, $z$ = `position_margin`. The filter's standard deviation falls from
+        `position_std` at the first fix to a few centimetres; with noisy fixes the car is
+        that far from where the driver believes it is, which a fixed margin has to cover
+        at its largest (docs/driver.md, "A margin from the position's uncertainty")."""
+        return self.margin + self.position_margin * jnp.sqrt(position_var)
+
+    def problem(self, s0, state8, D, margin=None) -> HorizonOCP:
+        """`horizon_problem` with this driver's settings (and ``margin`` in place of
+        `margin` where given)."""
+        margin = self.margin if margin is None else margin
         return horizon_problem(self.table, self.vehicle, s0, state8, D, horizon=self.horizon,
-                               margin=self.margin, rate_weight=self.rate_weight,
+                               margin=margin, rate_weight=self.rate_weight,
                                steer_rate=self.steer_rate, steer_limit=self.steer_limit,
                                terminal_backoff=self.terminal_backoff,
                                slip_limit=self.slip_limit,
@@ -1526,7 +1541,7 @@ class RecedingHorizonDriver(AbstractDriveController):
         D = self.planner_friction(s_pred, estimate, speeds, s)
         guess = self.cold_guess(s_pred, state8, D)
         xs0, us0 = (jnp.where(cold, g, w) for g, w in zip(guess, (xs0, us0)))
-        prob = self.problem(s_pred, state8, D)
+        prob = self.problem(s_pred, state8, D, self.planning_margin(position_var))
         duals = None
         if self.warm_duals:
             lam, nu, z = shift_multipliers(state.lam, state.nu, state.z,
@@ -1680,25 +1695,25 @@ class RecedingHorizonDriver(AbstractDriveController):
         return X1, u1
 
     def recorded_solve(self, info: dict, k: int):
-        """The interior-point solve of sample ``k`` of a drive as `command` posed it, rebuilt
-        from that drive's diagnostics ``info`` (`controller_info` of one drive, the samples
-        first): ``(problem, xs0, us0, options, multipliers)``, so that
+        """The interior-point solve of sample ``k`` of a drive as `command` posed it,
+        rebuilt from that drive's diagnostics ``info`` (`controller_info` of one drive, the
+        samples first): ``(problem, xs0, us0, options, multipliers)``, so that
         ``interior_point(problem, xs0, us0, options, multipliers=multipliers)`` solves it
         again on its own, e.g. with ``verbose`` options to read how a plan that did not
-        converge failed. The problem is the one at the recorded start and $D$; the guess and
-        multipliers are the previous plan's shifted by the distance between the two plans'
-        starts (the multipliers only where that plan converged), or the cold start for the
-        first plan and for a re-plan (`replan_kkt`); a first plan that the drive solved again
-        (`_solve_in_steps`) is rebuilt as its first solve. The same problem solved in another
-        program may take more or fewer iterations than it did in the drive: these solves are
-        sensitive to rounding (docs/performance.md)."""
+        converge failed. The problem is the one at the recorded start, $D$ and margin; the
+        guess and multipliers are the previous plan's shifted by the distance between the
+        two plans' starts (the multipliers only where that plan converged), or the cold
+        start for the first plan and for a re-plan (`replan_kkt`); a first plan that the
+        drive solved again (`_solve_in_steps`) is rebuilt as its first solve. The same
+        problem solved in another program may take more or fewer iterations than it did in
+        the drive: these solves are sensitive to rounding (docs/performance.md)."""
         n = len(info["iterations"])
         if not 0 <= k < n:
             raise ValueError(f"recorded_solve: sample k must be in [0, {n - 1}], got {k}")
         first = k == 0
         cold = first or bool(info["kkt"][k - 1] > self.replan_kkt)
         s0, state8, D = info["plan_s"][k, 0], info["start"][k], info["D"][k]
-        prob = self.problem(s0, state8, D)
+        prob = self.problem(s0, state8, D, info["margin"][k])
         if cold:
             xs0, us0 = self.cold_guess(s0, state8, D)
         else:
@@ -1719,11 +1734,13 @@ class RecedingHorizonDriver(AbstractDriveController):
         """Per-sample diagnostics: `iterations`, `converged`, `kkt`, the plan (`xs`, `us`)
         and its multipliers (`lam`, `nu`, `z`), the planned horizon
         as `plan_s`, `plan_n` (M+1,) and `plan_t`, its `start` (the predicted state the
-        plan starts from, (8,)), the planner's `D` (M,), the projection `s`, `n`, `xi`."""
+        plan starts from, (8,)), the planner's `D` (M,), its corridor `margin`
+        (`planning_margin`), the projection `s`, `n`, `xi`."""
         M = self.num_stages
         return dict(iterations=state.iterations, converged=state.converged, kkt=state.kkt,
                     xs=state.xs, us=state.us, lam=state.lam, nu=state.nu, z=state.z,
                     plan_s=state.s_plan + self.horizon / M * jnp.arange(M + 1),
                     plan_n=state.xs[:, 0], plan_t=state.xs[:, 8], start=state.xs[0, :8],
-                    D=state.D, probing=state.probing,
+                    D=state.D, margin=self.planning_margin(state.position_var),
+                    probing=state.probing,
                     s=state.projection[0], n=state.projection[1], xi=state.projection[2])
