@@ -606,7 +606,8 @@ def test_the_margin_widens_with_the_position_filters_uncertainty():
     position filter's variance $P_k$ (`planning_margin`, recorded in `info`): the first
     command's ($P = $ `position_std`$^2$ = 0.09) plan is the plan of the fixed margin
     $m + 0.3z$, the next command's (its filter's $P$ by the Kalman update, about half) the
-    plan of the fixed margin $m + z\\sqrt{P_1}$; the margin changes the plan here (the car
+    plan of the fixed margin $m + z\\sqrt{P_1}$, and `recorded_solve` poses the sample's
+    problem at its margin; the margin changes the plan here (the car
     starts 0.7 m from the edge; a plan at $m$ alone differs), and $z = 0$ is the fixed
     margin exactly."""
     tbl = vs.RoadTable.from_road(ROAD, extension=30.0)
@@ -629,6 +630,10 @@ def test_the_margin_widens_with_the_position_filters_uncertainty():
     np.testing.assert_allclose(first.xs, fixed.xs, rtol=0, atol=1e-9)
     assert np.max(np.abs(np.asarray(first.xs) - np.asarray(narrow.xs))) > 1e-3
     assert float(widening.info(first)["margin"]) == pytest.approx(0.5, abs=1e-15)
+    info = jax.tree.map(lambda a: np.asarray(a)[None], widening.info(first))
+    rebuilt = widening.recorded_solve(info, 0)[0]  # the sample's problem, at its margin
+    np.testing.assert_allclose(rebuilt.corridor, driver(0.5).problem(
+        info["plan_s"][0, 0], info["start"][0], info["D"][0]).corridor, rtol=0, atol=1e-15)
     second = command(widening, first, m1)
     P0, q, r = 0.09, (0.05 * widening.velocity_std) ** 2, widening.position_std ** 2
     P1 = (1.0 - (P0 + q) / (P0 + q + r)) * (P0 + q)
