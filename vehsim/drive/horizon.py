@@ -1173,8 +1173,7 @@ class RecedingHorizonDriver(AbstractDriveController):
             raise ValueError("RecedingHorizonDriver.soft_stages needs corridor_penalty (the "
                              "soft corridor's cost, > 0), got None")
         for name in ("velocity_std", "margin", "margin_grip_power", "position_margin",
-                     "rate_weight",
-                     "estimate_backoff", "slip_gain", "lead"):
+                     "rate_weight", "estimate_backoff", "slip_gain", "lead"):
             check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
         if self.stiffness_power is not None:
             check_range("RecedingHorizonDriver", "stiffness_power", self.stiffness_power,

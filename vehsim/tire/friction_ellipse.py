@@ -54,8 +54,8 @@ class FrictionEllipseTire(AbstractTire):
     plant's LuGre tire, `docs/driver.md`), and `lateral_stiffness` $k_y$ (1: isotropic)
     the side slip's scale in the combined slip, $s = \sqrt{s_x^2 + (k_y s_y)^2}$ and
     $(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$, so that pure side slip follows
-    $\rho_y\mu(k_y s_y)$: its slope at zero slip is $k_y$ times the braking one and its
-    peak lies at $s^*/k_y$ (the plant's LuGre tire, whose bristles are about half as stiff
+    $\rho_y\mu(k_y s_y)$: its slope at zero slip is $\rho_y k_y$ times the braking one
+    and its peak lies at $s^*/k_y$ (the plant's LuGre tire, whose bristles are about half as stiff
     sideways, `fit_planner_tire`).
 
     Used two ways:
