@@ -65,7 +65,8 @@ def main(argv=None):
                 runs = [("road", driver)] + [
                     (f"{m0:g}+{z:g}sigma", eqx.tree_at(
                         lambda d: (d.margin, d.position_margin), driver,
-                        (jnp.asarray(m0, float), jnp.asarray(z, float))))
+                        (jnp.asarray(m0, float), jnp.asarray(z, float)),
+                        is_leaf=lambda x: x is None))
                     for m0, z in variants]
                 for label, ctl in runs:
                     for seed in range(args.first_seed, args.first_seed + args.seeds):

@@ -334,11 +334,13 @@ class RoadTable(eqx.Module):
 
 def _slip_parts(vehicle: ReducedHalfCar, X):
     r"""$(\kappa_i, V_{ix}, k_y V_{iy})$ of both axles: the side velocity in the tire's
-    combined slip (`FrictionEllipseTire.lateral_stiffness` $k_y$, 1 for another tire)."""
+    combined slip (`FrictionEllipseTire.lateral_stiffness` $k_y$; 1 where it is None or
+    the tire has none)."""
     VFx, VFy, VRx, VRy = vehicle.axle_velocities(
         jnp.concatenate([X[:1] * 0, X[:1] * 0, X[1:5]]), X[7])
-    ky = getattr(vehicle.tire, "lateral_stiffness", 1.0)
-    return X[5:7], jnp.stack([VFx, VRx]), ky * jnp.stack([VFy, VRy])
+    Vy = jnp.stack([VFy, VRy])
+    ky = getattr(vehicle.tire, "lateral_stiffness", None)
+    return X[5:7], jnp.stack([VFx, VRx]), Vy if ky is None else ky * Vy
 
 
 def axle_slips(vehicle: ReducedHalfCar, X) -> Float[Array, " 2"]:
@@ -807,7 +809,8 @@ speeds of the scenarios' corners and their approaches)."""
 def _planner_shape(peak: float, speed: float, anisotropic: bool) -> dict[str, float]:
     lam = float(scale_of_peak(_plant_tire(), peak, REFERENCE_SPEED))
     tire = fit_planner_tire(peak, lam, speed=speed, anisotropic=anisotropic)
-    return {k: float(getattr(tire, k)) for k in ("B", "C", "lateral_ratio", "lateral_stiffness")}
+    return {k: float(getattr(tire, k)) for k in ("B", "C", "lateral_ratio", "lateral_stiffness")
+            if getattr(tire, k) is not None}
 
 
 def planner_car(D=0.52, *, nominal_peak: float = 0.52, speed: float = PLANNER_FIT_SPEED,
@@ -891,7 +894,7 @@ class RecedingHorizonDriver(AbstractDriveController):
     `margin`
     [m] (0.2) and `margin_grip_power` $p$ (0: the margin the same on every surface; else
     the margin times $\min(1, D_k/D)^p$, narrower where the planned grip is low,
-    `horizon_problem`), `position_margin` $z$ (0: off) the number of the position
+    `horizon_problem`), `position_margin` $z$ (None: off) the number of the position
     filter's standard deviations added to `margin` at each sample, $m + z\sqrt{P_k}$
     (`planning_margin`), `stiffness_power` $q$ (None: the tire's $B$ on every surface;
     else $B \min(1, D_k/D)^{-q}$, its slip stiffness scaling as $(D_k/D)^{1-q}$ below
@@ -1078,7 +1081,8 @@ class RecedingHorizonDriver(AbstractDriveController):
     steps_per_stage: int = eqx.field(static=True, default=1)
     margin: Float[Array, ""] = array_field(default=0.2)
     margin_grip_power: Float[Array, ""] = array_field(default=0.0)
-    position_margin: Float[Array, ""] = array_field(default=0.0)
+    position_margin: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
     rate_weight: Float[Array, ""] = array_field(default=1e-4)
     terminal_backoff: Float[Array, ""] = array_field(default=1.0)
     mode: str = eqx.field(static=True, default="rti")
@@ -1174,7 +1178,8 @@ class RecedingHorizonDriver(AbstractDriveController):
                              "soft corridor's cost, > 0), got None")
         for name in ("velocity_std", "margin", "margin_grip_power", "position_margin",
                      "rate_weight", "estimate_backoff", "slip_gain", "lead"):
-            check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
+            if getattr(self, name) is not None:
+                check_nonnegative("RecedingHorizonDriver", name, getattr(self, name))
         if self.stiffness_power is not None:
             check_range("RecedingHorizonDriver", "stiffness_power", self.stiffness_power,
                         lower=0.0, upper=1.0)
@@ -1359,10 +1364,12 @@ class RecedingHorizonDriver(AbstractDriveController):
     def planning_margin(self, position_var) -> Float[Array, ""]:
         r"""The corridor margin of a sample whose position filter has the variance
         ``position_var`` $P_k$ [m^2] (`filter_position`): $m + z\sqrt{P_k}$, $m$ =
-        `margin`, $z$ = `position_margin`. The filter's standard deviation falls from
+        `margin`, $z$ = `position_margin` (None: $m$ itself). The filter's standard deviation falls from
         `position_std` at the first fix to a few centimetres; with noisy fixes the car is
         that far from where the driver believes it is, which a fixed margin has to cover
         at its largest (docs/driver.md, "A margin from the position's uncertainty")."""
+        if self.position_margin is None:
+            return self.margin
         return self.margin + self.position_margin * jnp.sqrt(position_var)
 
     def problem(self, s0, state8, D, margin=None) -> HorizonOCP:

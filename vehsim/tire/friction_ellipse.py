@@ -14,11 +14,12 @@ $s = |\text{slip velocity}|/(\omega r)$. The tire is static (state shape ``(0,)`
 
 from typing import ClassVar
 
+import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import check_positive
-from .._fields import array_field
+from .._fields import array_field, float_array
 from .base import AbstractTire
 
 
@@ -51,12 +52,12 @@ class FrictionEllipseTire(AbstractTire):
     `lateral_ratio` $\rho_y$ (1: the friction circle): the ellipse's lateral semi-axis over
     its longitudinal one, $\mu_y$ times $\rho_y$, so that the peak in pure side slip is
     $\rho_y D$ (a tire whose side force peaks below its braking force, as the drive
-    plant's LuGre tire, `docs/driver.md`), and `lateral_stiffness` $k_y$ (1: isotropic)
-    the side slip's scale in the combined slip, $s = \sqrt{s_x^2 + (k_y s_y)^2}$ and
-    $(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$, so that pure side slip follows
-    $\rho_y\mu(k_y s_y)$: its slope at zero slip is $\rho_y k_y$ times the braking one
-    and its peak lies at $s^*/k_y$ (the plant's LuGre tire, whose bristles are about half as stiff
-    sideways, `fit_planner_tire`).
+    plant's LuGre tire, `docs/driver.md`), and `lateral_stiffness` $k_y$ (None:
+    isotropic, $k_y = 1$ without the product) the side slip's scale in the combined slip,
+    $s = \sqrt{s_x^2 + (k_y s_y)^2}$ and $(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$,
+    so that pure side slip follows $\rho_y\mu(k_y s_y)$: its slope at zero slip is
+    $\rho_y k_y$ times the braking one and its peak lies at $s^*/k_y$ (the plant's LuGre
+    tire, whose bristles are about half as stiff sideways, `fit_planner_tire`).
 
     Used two ways:
 
@@ -75,14 +76,16 @@ class FrictionEllipseTire(AbstractTire):
     C: Float[Array, "..."] = array_field()
     D: Float[Array, "..."] = array_field()
     lateral_ratio: Float[Array, "..."] = array_field(default=1.0)
-    lateral_stiffness: Float[Array, "..."] = array_field(default=1.0)
+    lateral_stiffness: Float[Array, "..."] | None = eqx.field(
+        default=None, converter=lambda x: None if x is None else float_array(x))
 
     def __check_init__(self):
         check_positive("FrictionEllipseTire", "B", self.B)
         check_positive("FrictionEllipseTire", "C", self.C)
         check_positive("FrictionEllipseTire", "D", self.D)
         check_positive("FrictionEllipseTire", "lateral_ratio", self.lateral_ratio)
-        check_positive("FrictionEllipseTire", "lateral_stiffness", self.lateral_stiffness)
+        if self.lateral_stiffness is not None:
+            check_positive("FrictionEllipseTire", "lateral_stiffness", self.lateral_stiffness)
 
     def mu_of_s(self, s):
         r"""$\mu(s) = D\sin(C\arctan(Bs))$."""
@@ -100,7 +103,8 @@ class FrictionEllipseTire(AbstractTire):
     def mu_theoretical(self, sx, sy):
         r"""$(\mu_x, \mu_y) = -(s_x, \rho_y k_y s_y)\,\mu(s)/s$ from the theoretical
         slips, $s = \sqrt{s_x^2 + (k_y s_y)^2}$."""
-        sy = self.lateral_stiffness * sy
+        if self.lateral_stiffness is not None:
+            sy = self.lateral_stiffness * sy
         g = _mu_over_s(self.B, self.C, self.D, sx * sx + sy * sy)
         return -sx * g, -sy * (self.lateral_ratio * g)
 
