@@ -6,8 +6,9 @@ what the plant does against what the model predicts. Here the disturbance is add
 body rates $(\\dot v_x, \\dot v_y, \\dot r)$ of the reduced half car (eqs. 61-63): at each
 sample the driver compares the measured accelerations (the IMU's $a_x + rv_y$, $a_y - rv_x$,
 and the yaw rate's difference over the sample) with the planning car's rates at the
-measured velocities and the measured slips and steering angle (``--inputs measured``, the
-default) or the ones it last commanded, low-pass filters the difference with
+measured velocities and the slips and steering it last commanded (the default) or the
+measured ones (``--inputs measured``: the gravel tire at the plant's small slips reads a
+large longitudinal disturbance), low-pass filters the difference with
 gain ``beta`` per sample, and plans the whole horizon with ``gain`` times it added to the
 planning car's rates (`DisturbedCar`). The drives are the oracle's on the nominal corners
 (seed 0), as `closed_loop_gap.py`, at the road's settings and at the margins
@@ -97,7 +98,7 @@ def main(argv=None):
                     metavar=("VX", "VY", "R"),
                     help="each body rate's share of the correction (1 1 1: all; 0 1 1: "
                          "the lateral and yaw rates only)")
-    ap.add_argument("--inputs", choices=("commanded", "measured"), default="measured",
+    ap.add_argument("--inputs", choices=("commanded", "measured"), default="commanded",
                     help="the slips and steering of the model's rates: the last command's, "
                          "or the measured ones (wheel speeds, steering angle)")
     args = ap.parse_args(argv)
@@ -132,6 +133,7 @@ def main(argv=None):
                         disturbance_mean=[float(v) for v in jnp.mean(d, 0)],
                         disturbance_absmax=[float(v) for v in jnp.max(jnp.abs(d), 0)],
                         wall_s=time.perf_counter() - t0)), flush=True)
+
 
 if __name__ == "__main__":
     main()
